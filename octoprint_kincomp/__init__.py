@@ -1,0 +1,22 @@
+"""KinComp: kinematic error compensation (squareness, scale, backlash) for OctoPrint.
+
+The package's core modules import nothing from OctoPrint, so ``python -m octoprint_kincomp``
+works without it. OctoPrint loads the plugin through :func:`__plugin_load__`, which is the
+only place that imports the OctoPrint glue.
+"""
+
+__version__ = "0.1.0"
+
+__plugin_name__ = "KinComp"
+__plugin_pythoncompat__ = ">=3.8,<4"
+__plugin_description__ = (
+    "Kinematic error compensation: squareness, per-axis scale and backlash, calibrated "
+    "with a ballbar (ISO 230-4) circular test."
+)
+
+
+def __plugin_load__():
+    from .plugin import KinCompPlugin
+
+    global __plugin_implementation__
+    __plugin_implementation__ = KinCompPlugin()

@@ -1,0 +1,156 @@
+"""G2/G3 arc geometry: centre from IJK or R, sweep, and linearisation into chords.
+
+Planes follow RS274/NIST and Marlin: G17 = XY (offsets I, J), G18 = ZX (first axis Z, second X;
+offsets K, I), G19 = YZ (offsets J, K). Angles run from the plane's first axis towards its
+second; G3 (counter-clockwise) increases the angle, G2 decreases it. All lengths in mm.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import List, Optional, Sequence, Tuple
+
+Vec = Tuple[float, float, float]
+
+# plane code -> (first axis, second axis, linear axis, offset letter first, offset letter second)
+PLANES = {
+    17: (0, 1, 2, "I", "J"),
+    18: (2, 0, 1, "K", "I"),
+    19: (1, 2, 0, "J", "K"),
+}
+
+TWO_PI = 2.0 * math.pi
+FULL_CIRCLE_EPS_MM = 1e-6
+MAX_SEGMENTS = 200000
+
+
+class ArcError(ValueError):
+    """The arc words do not describe an arc (radius too small, zero radius, ...)."""
+
+
+def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
+                           clockwise: bool) -> Tuple[float, float]:
+    """Centre (a, b) of the arc from (a0, b0) to (a1, b1) with signed radius ``r``.
+
+    A negative ``r`` selects the arc longer than 180 degrees (RS274 convention).
+    """
+    da, db = a1 - a0, b1 - b0
+    chord = math.hypot(da, db)
+    if chord < FULL_CIRCLE_EPS_MM:
+        raise ArcError("R-form arc with identical start and end (full circles need I/J/K)")
+    if r == 0.0:
+        raise ArcError("R-form arc with zero radius")
+    half = chord / 2.0
+    rr = abs(r)
+    if rr < half:
+        if half - rr > max(1e-4 * half, 1e-3):
+            raise ArcError(f"radius {rr:g} mm is smaller than half the chord {half:g} mm")
+        rr = half
+    h = math.sqrt(max(rr * rr - half * half, 0.0))
+    # Unit normal to the chord, to the left of the travel direction.
+    na, nb = -db / chord, da / chord
+    # CCW with the short arc has its centre on the left; flip for CW and for the long arc.
+    sign = 1.0 if not clockwise else -1.0
+    if r < 0:
+        sign = -sign
+    ma, mb = (a0 + a1) / 2.0, (b0 + b1) / 2.0
+    return ma + sign * h * na, mb + sign * h * nb
+
+
+def arc_sweep(a0: float, b0: float, a1: float, b1: float, ca: float, cb: float,
+              clockwise: bool, turns: int = 0) -> Tuple[float, float, float, float]:
+    """(start angle, signed sweep, start radius, end radius) of an arc about (ca, cb).
+
+    An arc whose end equals its start is a full circle. ``turns`` adds complete circles
+    (Marlin's ``P`` word).
+    """
+    r0 = math.hypot(a0 - ca, b0 - cb)
+    r1 = math.hypot(a1 - ca, b1 - cb)
+    if r0 < 1e-9 or r1 < 1e-9:
+        raise ArcError("arc centre coincides with its start or end point")
+    t0 = math.atan2(b0 - cb, a0 - ca)
+    t1 = math.atan2(b1 - cb, a1 - ca)
+    if math.hypot(a1 - a0, b1 - b0) < FULL_CIRCLE_EPS_MM:
+        sweep = TWO_PI
+    elif clockwise:
+        sweep = (t0 - t1) % TWO_PI
+    else:
+        sweep = (t1 - t0) % TWO_PI
+    if sweep <= 0.0:
+        sweep = TWO_PI
+    sweep += TWO_PI * max(0, turns)
+    return t0, (-sweep if clockwise else sweep), r0, r1
+
+
+def segment_angle(radius: float, chord_tol: float) -> float:
+    """Largest angular step whose chord deviates from the arc by at most ``chord_tol``."""
+    if radius <= chord_tol:
+        return math.pi / 2
+    return min(math.pi / 2, 2.0 * math.acos(1.0 - chord_tol / radius))
+
+
+def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: float, cb: float,
+              clockwise: bool, chord_tol: float, turns: int = 0,
+              breaks: Sequence[float] = (0.0, math.pi / 2)) -> List[Vec]:
+    """Chord end points (excluding ``start``, ending exactly at ``end``) of an arc.
+
+    The chords keep within ``chord_tol`` of the arc, the radius is blended linearly from the
+    start radius to the end radius (so slightly inconsistent slicer arcs still land on their
+    end point), the linear axis moves proportionally (helix), and points are placed exactly at
+    every angle ``breaks[i] + n*pi`` inside the sweep. The default breaks are the quadrants, so
+    each chord moves every axis monotonically and a backlash reversal falls on a chord end;
+    the compensator passes the angles where its skewed commands reverse instead.
+    """
+    ia, ib, il, _, _ = PLANES[plane]
+    a0, b0, l0 = start[ia], start[ib], start[il]
+    a1, b1, l1 = end[ia], end[ib], end[il]
+    t0, sweep, r0, r1 = arc_sweep(a0, b0, a1, b1, ca, cb, clockwise, turns)
+    step = segment_angle(max(r0, r1), chord_tol)
+    n = min(MAX_SEGMENTS, max(1, int(math.ceil(abs(sweep) / step - 1e-9))))
+    lo, hi = (t0, t0 + sweep) if sweep > 0 else (t0 + sweep, t0)
+    forced = []
+    for phi in breaks:
+        k = math.ceil((lo - phi) / math.pi)
+        while phi + k * math.pi < hi:
+            forced.append((phi + k * math.pi - t0) / sweep)
+            k += 1
+    # Uniform chords, minus those that would end right next to a forced point (no slivers).
+    fracs = {i / n for i in range(1, n) if all(abs(i / n - f) > 0.25 / n for f in forced)}
+    fracs.update(forced)
+    pts: List[Vec] = []
+    for f in sorted(x for x in fracs if 1e-12 < x < 1 - 1e-12):
+        t = t0 + sweep * f
+        r = r0 + (r1 - r0) * f
+        p = [0.0, 0.0, 0.0]
+        p[ia] = ca + r * math.cos(t)
+        p[ib] = cb + r * math.sin(t)
+        p[il] = l0 + (l1 - l0) * f
+        pts.append((p[0], p[1], p[2]))
+    pts.append((float(end[0]), float(end[1]), float(end[2])))
+    return pts
+
+
+def arc_length(start: Sequence[float], end: Sequence[float], plane: int, ca: float, cb: float,
+               clockwise: bool, turns: int = 0) -> float:
+    """Helical length of the arc in mm."""
+    ia, ib, il, _, _ = PLANES[plane]
+    _, sweep, r0, r1 = arc_sweep(start[ia], start[ib], end[ia], end[ib], ca, cb, clockwise, turns)
+    planar = abs(sweep) * (r0 + r1) / 2.0
+    return math.hypot(planar, end[il] - start[il])
+
+
+def centre_from_words(start: Sequence[float], end: Sequence[float], plane: int,
+                      offsets: Tuple[Optional[float], Optional[float]], radius: Optional[float],
+                      clockwise: bool, absolute_ij: bool = False) -> Tuple[float, float]:
+    """Arc centre (first, second plane axis) from the offset words or the R word (mm)."""
+    ia, ib, _, _, _ = PLANES[plane]
+    oa, ob = offsets
+    if oa is not None or ob is not None:
+        oa = oa or 0.0
+        ob = ob or 0.0
+        if absolute_ij:
+            return oa, ob
+        return start[ia] + oa, start[ib] + ob
+    if radius is None:
+        raise ArcError("arc without centre offsets or R")
+    return arc_centre_from_radius(start[ia], start[ib], end[ia], end[ib], radius, clockwise)

@@ -1,0 +1,174 @@
+"""Backlash state machine: per-axis travel direction and the take-up offset to command.
+
+Physical model (shared with the simulator): an axis with lost motion ``b`` (um) behaves like a
+play of width ``b``; while the drive moves in +direction the carriage lags ``b/2`` behind it,
+while it moves in -direction the carriage is ``b/2`` ahead. ``b`` may depend on the axis
+position (the ballbar's per-side values), so the lag is ``b(q)/2`` at the current position.
+
+Compensation therefore commands ``offset = dir * fraction * b(q) / 2`` (mm) on top of the
+geometric correction, where ``dir`` is the direction the axis is travelling (+1/-1; 0 when
+unknown, e.g. at start or after homing). On a reversal ``dir`` flips and the offset changes by
+``fraction * b(q)``: the take-up. It is applied either at once (the caller emits a take-up move
+before the reversing move) or ramped linearly over the next ``smoothing_mm`` of path length.
+A reversal is recognised once the axis has come back more than ``deadband_mm`` (default 1 nm)
+from the furthest point it reached in its current direction. The deadband only absorbs float
+noise of computed points; every reversal that G-code can express (1 um at 3 decimals) is real
+and taken up, since a drive that retreats by less than the play leaves the carriage behind.
+"""
+
+from __future__ import annotations
+
+from typing import List, Optional, Sequence
+
+from .params import AXES, Params
+
+DEFAULT_DEADBAND_MM = 1e-6
+
+
+class BacklashTracker:
+    """Direction state and take-up offsets (mm) for the three axes."""
+
+    def __init__(self, params: Params, deadband_mm: float = DEFAULT_DEADBAND_MM):
+        self.tables = [params.backlash[a] for a in AXES]
+        self.half = params.backlash_fraction * 1e-3 / 2.0  # um -> mm, half on each side
+        self.active = [
+            params.backlash_fraction > 0 and not params.backlash[a].is_zero for a in AXES
+        ]
+        self.any_active = any(self.active)
+        self.smoothing = params.backlash_smoothing_mm
+        self.deadband = deadband_mm
+        self.reset()
+
+    # -- state -------------------------------------------------------------------------
+    def reset(self, axes: Sequence[int] = (0, 1, 2)) -> None:
+        """Forget the direction of ``axes`` (start, homing, position lost)."""
+        if not hasattr(self, "dir"):
+            self.dir = [0, 0, 0]
+            self.peak: List[Optional[float]] = [None, None, None]
+            self.ramp_from = [0.0, 0.0, 0.0]
+            self.ramp_done = [0.0, 0.0, 0.0]  # path length travelled since the reversal
+            self.ramping = [False, False, False]
+        for k in axes:
+            self.dir[k] = 0
+            self.peak[k] = None
+            self.ramping[k] = False
+            self.ramp_from[k] = 0.0
+            self.ramp_done[k] = 0.0
+
+    def target(self, k: int, q: float) -> float:
+        """Settled offset (mm) of axis k at carriage position q for the current direction."""
+        if not self.active[k] or self.dir[k] == 0:
+            return 0.0
+        return self.dir[k] * self.half * self.tables[k].um_at(q)
+
+    def offset(self, k: int, q: float, extra_travel: float = 0.0) -> float:
+        """Offset (mm) to command for axis k at carriage position q, ``extra_travel`` mm of
+        path into the current move (used while a smoothed take-up is ramping)."""
+        tgt = self.target(k, q)
+        if not self.ramping[k]:
+            return tgt
+        f = (self.ramp_done[k] + extra_travel) / self.smoothing
+        if f >= 1.0:
+            return tgt
+        return self.ramp_from[k] + (tgt - self.ramp_from[k]) * f
+
+    def ramp_remaining(self, k: int) -> Optional[float]:
+        """Path length (mm) left until axis k's smoothed take-up is complete, or None."""
+        if not self.ramping[k]:
+            return None
+        return max(0.0, self.smoothing - self.ramp_done[k])
+
+    # -- updates -----------------------------------------------------------------------
+    def detect_reversals(self, p0: Sequence[float], p1: Sequence[float],
+                         q0: Sequence[float], ramp: bool = True) -> List[int]:
+        """Axes whose travel direction changes on the move p0 -> p1 (desired positions).
+
+        Updates direction and furthest-point state; with smoothing (and ``ramp``) a take-up
+        starts ramping from the offset in force at the move start (carriage position ``q0``).
+        """
+        reversed_axes = []
+        for k in range(3):
+            if not self.active[k]:
+                continue
+            a, b = p0[k], p1[k]
+            if a is None or b is None:
+                continue
+            d = self.dir[k]
+            peak = self.peak[k]
+            if peak is None:
+                peak = a
+            new = d
+            if d == 0:
+                if b - peak > self.deadband:
+                    new = 1
+                elif peak - b > self.deadband:
+                    new = -1
+            elif d > 0:
+                if b < peak - self.deadband:
+                    new = -1
+                elif b > peak:
+                    peak = b
+            else:
+                if b > peak + self.deadband:
+                    new = 1
+                elif b < peak:
+                    peak = b
+            if new != d:
+                start_offset = self.offset(k, q0[k])
+                self.dir[k] = new
+                peak = b
+                reversed_axes.append(k)
+                self.ramping[k] = False
+                if ramp and self.smoothing > 0:
+                    self.ramping[k] = True
+                    self.ramp_from[k] = start_offset
+                    self.ramp_done[k] = 0.0
+            self.peak[k] = peak
+        return reversed_axes
+
+    def advance(self, travel: float) -> None:
+        """Account ``travel`` mm of path length for ramping take-ups."""
+        for k in range(3):
+            if self.ramping[k]:
+                self.ramp_done[k] += travel
+                if self.ramp_done[k] >= self.smoothing - 1e-12:
+                    self.ramping[k] = False
+
+    def observe(self, p0: Sequence[float], p1: Sequence[float]) -> None:
+        """Track direction on a move that is passed through uncompensated (no ramping)."""
+        self.detect_reversals(p0, p1, p0, ramp=False)
+
+
+class Play:
+    """The physical backlash of a printer (simulator side): a play of width ``b(q)`` per axis.
+
+    ``carriage(k, u)`` returns where the carriage of axis k is when its drive has been moved
+    to ``u`` (mm): the carriage stays put until the drive has crossed the play, then follows it
+    ``b(y)/2`` behind, ``b`` taken at the carriage position ``y`` (as the compensator does). After :meth:`reset` the carriage sits in the middle of the play, which is
+    the state the compensator assumes after homing (direction unknown, offset 0).
+    """
+
+    def __init__(self, params: Params):
+        self.tables = [params.backlash[a] for a in AXES]
+        self.pos: List[Optional[float]] = [None, None, None]
+
+    def reset(self, axes: Sequence[int] = (0, 1, 2)) -> None:
+        for k in axes:
+            self.pos[k] = None
+
+    def carriage(self, k: int, u: float) -> float:
+        y = self.pos[k]
+        if y is None:
+            y = u
+        else:
+            table = self.tables[k]
+            lo = u - table.um_at(y) * 5e-4
+            hi = u + table.um_at(y) * 5e-4
+            if y < lo or y > hi:
+                # The carriage is dragged along; the play width is that at the carriage
+                # position, y = u -/+ b(y)/2 (solved by a few fixed-point steps).
+                sign = 1.0 if y < lo else -1.0
+                for _ in range(4):
+                    y = u - sign * table.um_at(y) * 5e-4
+        self.pos[k] = y
+        return y

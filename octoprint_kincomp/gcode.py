@@ -1,0 +1,137 @@
+"""G-code line parsing and number formatting shared by the compensator and the simulator.
+
+A line is ``[N<n>] <code> <words...> [*<checksum>] [; comment]``. Codes and words may be
+lowercase, packed (``G1X10Y5``) or oddly spaced. Parsing never raises: a line that is not
+well-formed G-code comes back as ``None`` from :func:`parse_words` and is passed through.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import List, NamedTuple, Optional, Tuple
+
+_LINENO = re.compile(r"\s*[Nn]\s*\d+\s*")
+_CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?")
+_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_BARE_LETTER = re.compile(r"\s*([A-Za-z])(?=\s|$)")
+_CHECKSUM = re.compile(r"\*\s*\d*\s*$")
+
+
+class Word(NamedTuple):
+    letter: str  # upper case
+    value: Optional[float]  # None for a bare letter ("G28 X")
+    text: str  # the token as written, without surrounding spaces
+
+
+class Command(NamedTuple):
+    """A parsed command line.
+
+    ``kind`` is the upper-case letter (G, M, T), ``number``/``sub`` the code (``G29.2`` ->
+    29, 2; ``sub`` is None without a dot), ``code_text`` the code as written (``G01``, ``g1``),
+    ``body`` the text after the code (words) without checksum, ``comment`` the trailing
+    comment including ``;`` (or ``""``), ``numbered`` whether a line number or checksum was
+    stripped.
+    """
+
+    kind: str
+    number: int
+    sub: Optional[int]
+    code_text: str
+    body: str
+    comment: str
+    numbered: bool
+
+
+def split_comment(line: str) -> Tuple[str, str]:
+    """(code part, comment part starting at ';' or '')."""
+    idx = line.find(";")
+    if idx < 0:
+        return line, ""
+    return line[:idx], line[idx:]
+
+
+def parse_command(line: str) -> Optional[Command]:
+    """Split a line into code, words text and comment; None for comments/blank/unknown."""
+    code, comment = split_comment(line)
+    numbered = False
+    m = _LINENO.match(code)
+    if m:
+        code = code[m.end():]
+        numbered = True
+    star = code.rfind("*")
+    if star >= 0 and _CHECKSUM.match(code, star):
+        code = code[:star]
+        numbered = True
+    m = _CODE.match(code)
+    if not m:
+        return None
+    kind = m.group(1).upper()
+    return Command(
+        kind=kind,
+        number=int(m.group(2)),
+        sub=int(m.group(3)) if m.group(3) is not None else None,
+        code_text=code[: m.end()].strip(),
+        body=code[m.end():],
+        comment=comment,
+        numbered=numbered,
+    )
+
+
+def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
+    """Words of a command body; None when the body is not clean G-code.
+
+    A repeated letter, stray characters, or (unless ``allow_bare``) a letter without a number
+    make the body malformed.
+    """
+    words: List[Word] = []
+    seen = set()
+    pos = 0
+    n = len(body)
+    while pos < n:
+        m = _WORD.match(body, pos)
+        if m:
+            letter = m.group(1).upper()
+            value = float(m.group(2))
+            text = body[m.start(1): m.end()]
+        else:
+            m = _BARE_LETTER.match(body, pos) if allow_bare else None
+            if not m:
+                if body[pos:].strip() == "":
+                    break
+                return None
+            letter = m.group(1).upper()
+            value = None
+            text = m.group(1)
+        if letter in seen:
+            return None
+        seen.add(letter)
+        words.append(Word(letter, value, text))
+        pos = m.end()
+    return words
+
+
+def fmt(value: float, decimals: int) -> str:
+    """Fixed-point text with ``decimals`` places; never ``-0.000`` and never exponents."""
+    text = f"{value:.{decimals}f}"
+    if text[0] == "-" and not text.strip("-0."):
+        return text[1:]
+    return text
+
+
+def decimals_of(text: str) -> int:
+    """Number of decimals written in a numeric token ("E1.2345" -> 4, "E5" -> 0)."""
+    dot = text.find(".")
+    if dot < 0:
+        return 0
+    end = dot + 1
+    while end < len(text) and text[end].isdigit():
+        end += 1
+    return end - dot - 1
+
+
+def checksum(command: str) -> int:
+    """RepRap line checksum: XOR of all bytes of ``N<n> <command>``."""
+    cs = 0
+    for ch in command.encode("ascii", "replace"):
+        cs ^= ch
+    return cs

@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Run KinComp's whole test suite (sets up .venv on first use). Extra arguments go to pytest,
+# e.g. ./test.sh -m "not slow" for the quick suite.
+set -euo pipefail
+cd "$(dirname "$0")"
+./scripts/bootstrap.sh
+exec .venv/bin/python -m pytest -q "$@"
