@@ -126,10 +126,20 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("firmware", help="print firmware equivalents (M852, M425, SET_SKEW, ...)")
     f.add_argument("--params", required=True)
     f.set_defaults(func=cmd_firmware)
+    sub.add_parser("bench", help="speed/memory benchmark (bench --help for its options)")
+
+    from .cli_ballbar import add_ballbar_commands
+
+    add_ballbar_commands(sub)
     return ap
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["bench"]:
+        from .benchmark import main as bench_main
+
+        return bench_main(argv[1:])
     ap = build_parser()
     args = ap.parse_args(argv)
     try:

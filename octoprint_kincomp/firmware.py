@@ -38,6 +38,12 @@ def klipper_skew_factor(ac: float, bd: float, ad: float) -> float:
     return math.tan(math.pi / 2 - math.acos((ac * ac - side * side - ad * ad) / (2 * side * ad)))
 
 
+def _n(value: float, decimals: int) -> str:
+    """Fixed-point text without a negative zero."""
+    text = f"{value:.{decimals}f}"
+    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
+
+
 def _mean_backlash_mm(params: Params, axis: str) -> float:
     pts = params.backlash[axis].points
     return sum(um for _, um in pts) / len(pts) * 1e-3
@@ -54,9 +60,10 @@ def equivalents(params: Params) -> Dict[str, List[str]]:
     frac = params.backlash_fraction
     smooth = params.backlash_smoothing_mm
 
-    marlin = [f"M852 I{f['xy']:.6f} J{f['xz']:.6f} K{f['yz']:.6f} ; skew factors (SKEW_CORRECTION_GCODE)"]
+    marlin = [f"M852 I{_n(f['xy'], 6)} J{_n(f['xz'], 6)} K{_n(f['yz'], 6)}"
+              " ; skew factors (SKEW_CORRECTION_GCODE)"]
     marlin.append(
-        f"M425 X{bl['x']:.4f} Y{bl['y']:.4f} Z{bl['z']:.4f} F{frac:.2f} S{smooth:.2f}"
+        f"M425 X{_n(bl['x'], 4)} Y{_n(bl['y'], 4)} Z{_n(bl['z'], 4)} F{frac:.2f} S{smooth:.2f}"
         " ; backlash (BACKLASH_GCODE)"
     )
     marlin.append(
@@ -77,11 +84,11 @@ def equivalents(params: Params) -> Dict[str, List[str]]:
 
     s = M556_LENGTH_MM
     rrf = [
-        f"M556 S{s:g} X{-f['xy'] * s:.5f} Y{-f['yz'] * s:.5f} Z{-f['xz'] * s:.5f}"
+        f"M556 S{s:g} X{_n(-f['xy'] * s, 5)} Y{_n(-f['yz'] * s, 5)} Z{_n(-f['xz'] * s, 5)}"
         " ; orthogonal axis compensation (opposite sign)",
         "M579 " + " ".join(f"{a.upper()}{1.0 / (1.0 + scale[a]):.6f}" for a in AXES)
         + " ; axis scale factors",
-        f"M425 X{bl['x']:.4f} Y{bl['y']:.4f} Z{bl['z']:.4f} ; backlash",
+        f"M425 X{_n(bl['x'], 4)} Y{_n(bl['y'], 4)} Z{_n(bl['z'], 4)} ; backlash",
     ]
     notes = []
     if per_side:
