@@ -106,7 +106,8 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
     a1, b1, l1 = end[ia], end[ib], end[il]
     t0, sweep, r0, r1 = arc_sweep(a0, b0, a1, b1, ca, cb, clockwise, turns)
     step = segment_angle(max(r0, r1), chord_tol)
-    n = min(MAX_SEGMENTS, max(1, int(math.ceil(abs(sweep) / step - 1e-9))))
+    # 0.8: dropping a chord end next to a forced point lengthens a chord by up to 25 %
+    n = min(MAX_SEGMENTS, max(1, int(math.ceil(abs(sweep) / (0.8 * step) - 1e-9))))
     lo, hi = (t0, t0 + sweep) if sweep > 0 else (t0 + sweep, t0)
     forced = []
     for phi in breaks:

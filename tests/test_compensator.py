@@ -298,3 +298,15 @@ def test_malformed_arc_passes_untouched():
 def test_bambu_spiral_lift_full_circle_with_p():
     lines = ["G28", "G1 X100 Y100 Z1 F3000", "G17", "G2 Z1.4 I0.86 J0.86 P1 F20000"]
     assert_lands(SKEW, lines)
+
+
+def test_arc_chords_respect_the_chord_tolerance():
+    from octoprint_kincomp import arcs
+
+    for tol in (0.01, 0.002):
+        pts = [(50.0, 50.0, 0.0)] + arcs.linearise((50, 50, 0), (50, 50, 0), 17, 70, 50, False,
+                                                   tol, breaks=(0.3, 1.2))
+        for p, q in zip(pts, pts[1:]):
+            chord = math.dist(p, q)
+            sagitta = 20 - math.sqrt(20 ** 2 - (chord / 2) ** 2)
+            assert sagitta <= tol * (1 + 1e-9)

@@ -1,0 +1,58 @@
+"""One calibration round on the simulator with the paper's Table 1 errors (issue 7).
+
+SIMULATED: program -> simulate -> analyse -> compensate the program -> simulate -> analyse."""
+
+import pytest
+
+from octoprint_kincomp.ballbar.closedloop import format_table, run_round, table
+from octoprint_kincomp.ballbar.simulator import paper_truth
+
+
+@pytest.fixture(scope="module")
+def rounds():
+    truth = paper_truth(noise_um=0.5)
+    return {precomp: run_round(truth, servo_precomp=precomp) for precomp in (False, True)}
+
+
+def rows_by_key(res):
+    return {r["key"]: r for r in table(res["before"]["diagnostics"], res["after"]["diagnostics"])}
+
+
+def test_before_matches_the_paper_errors(rounds):
+    d = rounds[False]["before"]["diagnostics"]
+    assert d["squareness_um_per_m"] == pytest.approx(-3638.6, rel=0.002)
+    assert d["backlash_um"]["a_minus"] == pytest.approx(37.4, abs=1.0)
+
+
+@pytest.mark.parametrize("precomp", [False, True])
+def test_squareness_scale_backlash_removed_in_one_round(rounds, precomp):
+    rows = rows_by_key(rounds[precomp])
+    assert rows["squareness_um_per_m"]["reduction_pct"] >= 99.0
+    assert rows["scale_mismatch_ppm"]["reduction_pct"] >= 99.0
+    for side in ("a_plus", "a_minus", "b_plus", "b_minus"):
+        assert abs(rows[f"backlash_um.{side}"]["after"]) < 0.5
+
+
+def test_with_servo_precompensation_circularity_down_95_percent(rounds):
+    rows = rows_by_key(rounds[True])
+    for k in ("circularity_um.ccw", "circularity_um.cw", "circularity_um.bidirectional"):
+        assert rows[k]["reduction_pct"] >= 95.0, rows[k]
+    assert abs(rows["servo_mismatch_ms"]["after"]) < 0.05
+
+
+def test_kinematic_only_leaves_just_the_servo_ellipse(rounds):
+    res = rounds[False]
+    rows = rows_by_key(res)
+    # the kinematic model cannot remove the dynamic servo mismatch ...
+    assert rows["servo_mismatch_ms"]["after"] == pytest.approx(0.62, abs=0.05)
+    # ... whose ellipse (peak to peak v * dT = 30.8 mm/s * 0.62 ms = 19.1 um) is what remains
+    servo_pp = 1850 / 60 * 0.62
+    for k in ("circularity_um.ccw", "circularity_um.cw"):
+        assert rows[k]["after"] < servo_pp + 4.0
+        assert rows[k]["reduction_pct"] > 90.0
+
+
+def test_table_format(rounds):
+    text = format_table(table(rounds[True]["before"]["diagnostics"],
+                              rounds[True]["after"]["diagnostics"]), "T")
+    assert "| Squareness | um/m |" in text and "%" in text
