@@ -10,8 +10,8 @@ geometric correction, where ``dir`` is the direction the axis is travelling (+1/
 unknown, e.g. at start or after homing). On a reversal ``dir`` flips and the offset changes by
 ``fraction * b(q)``: the take-up. It is applied either at once (the caller emits a take-up move
 before the reversing move) or ramped linearly over the next ``smoothing_mm`` of path length.
-A reversal is recognised once the axis has come back more than ``deadband_mm`` (default 1 nm)
-from the furthest point it reached in its current direction. The deadband only absorbs float
+A move that steps the carriage command by more than ``deadband_mm`` (default 1 nm) against the
+current direction is a reversal; smaller steps are ignored. The deadband only absorbs float
 noise of computed points; every reversal that G-code can express (1 um at 3 decimals) is real
 and taken up, since a drive that retreats by less than the play leaves the carriage behind.
 """
@@ -44,13 +44,11 @@ class BacklashTracker:
         """Forget the direction of ``axes`` (start, homing, position lost)."""
         if not hasattr(self, "dir"):
             self.dir = [0, 0, 0]
-            self.peak: List[Optional[float]] = [None, None, None]
             self.ramp_from = [0.0, 0.0, 0.0]
             self.ramp_done = [0.0, 0.0, 0.0]  # path length travelled since the reversal
             self.ramping = [False, False, False]
         for k in axes:
             self.dir[k] = 0
-            self.peak[k] = None
             self.ramping[k] = False
             self.ramp_from[k] = 0.0
             self.ramp_done[k] = 0.0
@@ -81,49 +79,36 @@ class BacklashTracker:
     # -- updates -----------------------------------------------------------------------
     def detect_reversals(self, p0: Sequence[float], p1: Sequence[float],
                          q0: Sequence[float], ramp: bool = True) -> List[int]:
-        """Axes whose travel direction changes on the move p0 -> p1 (desired positions).
+        """Axes whose carriage command reverses on the move p0 -> p1 (mm).
 
-        Updates direction and furthest-point state; with smoothing (and ``ramp``) a take-up
-        starts ramping from the offset in force at the move start (carriage position ``q0``).
+        A step of more than ``deadband_mm`` against the current direction is a reversal;
+        smaller steps change nothing. With smoothing (and ``ramp``) a take-up starts ramping
+        from the offset in force at the move start (carriage position ``q0``).
         """
         reversed_axes = []
+        db = self.deadband
         for k in range(3):
             if not self.active[k]:
                 continue
             a, b = p0[k], p1[k]
             if a is None or b is None:
                 continue
-            d = self.dir[k]
-            peak = self.peak[k]
-            if peak is None:
-                peak = a
-            new = d
-            if d == 0:
-                if b - peak > self.deadband:
-                    new = 1
-                elif peak - b > self.deadband:
-                    new = -1
-            elif d > 0:
-                if b < peak - self.deadband:
-                    new = -1
-                elif b > peak:
-                    peak = b
+            step = b - a
+            if step > db:
+                new = 1
+            elif step < -db:
+                new = -1
             else:
-                if b > peak + self.deadband:
-                    new = 1
-                elif b < peak:
-                    peak = b
-            if new != d:
+                continue
+            if new != self.dir[k]:
                 start_offset = self.offset(k, q0[k])
                 self.dir[k] = new
-                peak = b
                 reversed_axes.append(k)
                 self.ramping[k] = False
                 if ramp and self.smoothing > 0:
                     self.ramping[k] = True
                     self.ramp_from[k] = start_offset
                     self.ramp_done[k] = 0.0
-            self.peak[k] = peak
         return reversed_axes
 
     def advance(self, travel: float) -> None:

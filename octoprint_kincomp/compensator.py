@@ -23,6 +23,7 @@ positions unknown again; tool changes too (hotend offsets).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
@@ -42,6 +43,14 @@ INVALIDATING_G = frozenset({12, 27, 29, 30, 31, 32, 33, 34, 35, 38, 61, 80, 380,
 INVALIDATING_M = frozenset({48})
 
 MARKER_PREFIX = "; kincomp: compensated"
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)"  # the grammar parse_words accepts
+# code, F before X/Y/Z, X, Y, Z, E, F after; group 8: everything after the X/Y/Z words
+_FAST_RE = re.compile(
+    rf"(G[01])(?: F({_NUM}))?(?: X({_NUM}))?(?: Y({_NUM}))?(?: Z({_NUM}))?"
+    rf"((?: E({_NUM}))?(?: F({_NUM}))?)$"
+)
+_FAST_PREFIXES = frozenset({"G1 ", "G0 "})
 
 
 class CompensationError(RuntimeError):
@@ -154,8 +163,8 @@ class _EDist:
         if w is None:
             return None
         if last:
-            if not self.relative:
-                return w.text
+            if not self.relative or self.units_done == 0:
+                return w.text  # the whole E word in one piece: exactly as written
             return "E" + fmt((self.units - self.units_done) / self.scale, self.decimals)
         f = s_end / self.total_len if self.total_len > 0 else 1.0
         if self.relative:
@@ -201,6 +210,19 @@ class Compensator:
         )
         self.report = Report()
         self.lineno = 0
+        # The per-line fast path covers plain absolute G0/G1 lines of affine models without
+        # smoothing or servo lead; everything else takes the general path. Tests prove that
+        # both give the same output (set fast_lines = False to force the general path).
+        self.fast_lines = (not self.passthrough and self.model.is_affine
+                           and self.backlash.smoothing == 0 and self.servo_s is None)
+        self._fmt = "%." + str(self.options.decimals) + "f"
+        self._fmt_in = "%." + str(self.options.decimals + 2) + "f"
+        self._half = self.backlash.half
+        self._Ai = self.model._Ainv_rows
+        self._b = self.model._b_t
+        self._bl_axes = tuple(k for k in range(3) if self.backlash.active[k])
+        self._um_at = tuple(self.backlash.tables[k].um_at if self.backlash.active[k] else None
+                            for k in range(3))
         self.reset()
 
     def _inverse_coupling(self):
@@ -227,6 +249,8 @@ class Compensator:
         self.feed: Optional[float] = None  # mm/min
         self.tool: Optional[int] = None
         self.backlash.reset()
+        self._qm = None
+        self._lim_hit = [True, True, True]
 
     def invalidate(self, axes: Sequence[int] = (0, 1, 2)) -> None:
         """Forget the position of ``axes`` (their next move must re-establish it)."""
@@ -248,6 +272,13 @@ class Compensator:
 
     # -- entry point ---------------------------------------------------------------------
     def process(self, line: str) -> Union[str, List[str]]:
+        if self.fast_lines and line[:3] in _FAST_PREFIXES and self.absolute and \
+                None not in self.m:
+            out = self._fast_line(line)
+            if out is not None:
+                return out
+        self._qm = None
+        self._lim_hit = [True, True, True]
         self.lineno += 1
         rep = self.report
         rep.lines += 1
@@ -268,6 +299,132 @@ class Compensator:
         if indent:
             out = [indent + o for o in out]
         return out
+
+    # -- per-line fast path (same semantics as _linear_move for the lines it accepts) -------
+    def _fast_line(self, line: str):
+        """Compensate a plain ``G0``/``G1`` line; None when the line needs the general path.
+
+        Accepted: ``G0``/``G1``, one space before each word, X/Y/Z words (in that order; an F
+        may come first) and then E/F words, no comment, no duplicates; absolute mode with
+        every axis known. The arithmetic is written out in the same order as the general
+        path (inverse, backlash offset, limits, formatting) so the text is identical. An axis
+        whose command did not move since the previous fast-path point is not reformatted
+        (its text cannot have changed); the general path clears that cache on every line.
+        """
+        mt = _FAST_RE.match(line)
+        if mt is None:
+            return None
+        code, f1, xs, ys, zs, tail, es, f2 = mt.groups()
+        if f1 is not None:
+            if f2 is not None:
+                return None  # two F words: malformed, the general path reports it
+            tail = " F" + f1 + tail
+            self.feed = float(f1) * (MM_PER_INCH if self.inches else 1.0)
+        elif f2 is not None:
+            self.feed = float(f2) * (MM_PER_INCH if self.inches else 1.0)
+        if es is not None:
+            self.e_pos = None if self.e_relative else float(es)
+        self.lineno += 1
+        rep = self.report
+        rep.lines += 1
+        rep.moves += 1
+        if xs is None and ys is None and zs is None:
+            rep.lines_out += 1
+            return line
+        u = MM_PER_INCH if self.inches else 1.0
+        w = self.w
+        m = self.m
+        px = float(xs) * u - w[0] if xs is not None else m[0]
+        py = float(ys) * u - w[1] if ys is not None else m[1]
+        pz = float(zs) * u - w[2] if zs is not None else m[2]
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = self._Ai
+        b0, b1, b2 = self._b
+        x, y, z = px - b0, py - b1, pz - b2
+        q1 = (a00 * x + a01 * y + a02 * z, a10 * x + a11 * y + a12 * z,
+              a20 * x + a21 * y + a22 * z)
+        q0 = self._qm
+        if q0 is None:
+            x, y, z = m[0] - b0, m[1] - b1, m[2] - b2
+            q0 = (a00 * x + a01 * y + a02 * z, a10 * x + a11 * y + a12 * z,
+                  a20 * x + a21 * y + a22 * z)
+        given = (xs is not None, ys is not None, zs is not None)
+        redo = self._lim_hit[:]  # axes that must be re-evaluated even if unmoved
+        out = None
+        if self._bl_axes:
+            dirs = self.backlash.dir
+            db = self.backlash.deadband
+            rev = False
+            for k in self._bl_axes:
+                step = q1[k] - q0[k]
+                if step > db:
+                    if dirs[k] != 1:
+                        dirs[k] = 1
+                        rev = redo[k] = True
+                elif step < -db:
+                    if dirs[k] != -1:
+                        dirs[k] = -1
+                        rev = redo[k] = True
+            if rev:
+                take = self._fast_point("G1", m, q0, (False, False, False))
+                if take is not None:
+                    out = [take]
+                    rep.takeup_moves += 1
+        p1 = (px, py, pz)
+        text = self._fast_point(code, p1, q1, given, q0, redo)
+        self.m = [px, py, pz]
+        self._qm = q1
+        if tail:
+            text += tail
+        rep.moves_compensated += 1
+        if out is None:
+            rep.lines_out += 1
+            return [text]
+        out.append(text)
+        rep.lines_out += 2
+        return out
+
+    def _fast_point(self, code: str, p, q, given, q_prev=None, redo=None) -> Optional[str]:
+        """The text of one output point exactly as _emit writes it (None: nothing to write).
+
+        With ``q_prev``, an axis that is not given, whose command equals ``q_prev`` and that
+        is not in ``redo`` keeps its text and is skipped.
+        """
+        rep = self.report
+        lim = self.options.limits
+        u = MM_PER_INCH if self.inches else 1.0
+        fmt_ = self._fmt_in if self.inches else self._fmt
+        fw_text = self.fw_text
+        fwv = self.fw
+        dirs = self.backlash.dir
+        um_at = self._um_at
+        parts = [code]
+        for k in (0, 1, 2):
+            c = q[k]
+            if q_prev is not None and not given[k] and c == q_prev[k] and not redo[k]:
+                continue
+            um = um_at[k]
+            if um is not None and dirs[k]:
+                c += dirs[k] * self._half * um(c)
+            if lim is not None:
+                before = rep.limit_hits
+                c = self._limit(k, p[k], c)
+                self._lim_hit[k] = rep.limit_hits != before
+            corr = abs(c - p[k]) * 1000.0
+            if corr > rep.max_correction_um[AXES[k]]:
+                rep.max_correction_um[AXES[k]] = corr
+            text = fmt_ % ((c + self.g[k]) / u)
+            if text[0] == "-" and not text.strip("-0."):
+                text = text[1:]
+            old = fw_text[k]
+            if old is None:
+                old = fmt(fwv[k] / u, self.options.decimals + (2 if self.inches else 0))
+            if given[k] or text != old:
+                parts.append(AXIS_LETTERS[k] + text)
+            fwv[k] = float(text) * u
+            fw_text[k] = text
+        if len(parts) == 1:
+            return None
+        return " ".join(parts)
 
     def _malformed(self, line: str) -> str:
         rep = self.report
@@ -435,13 +592,12 @@ class Compensator:
         return out
 
     def _track_e(self, e_word: Optional[Word]) -> None:
+        """Absolute E position for splitting absolute-E arcs. Relative extrusion is not
+        summed (float sums of millions of moves mean little): the position becomes unknown
+        until ``G92 E`` or an absolute E move defines it again."""
         if e_word is None:
             return
-        if self.e_relative:
-            if self.e_pos is not None:
-                self.e_pos += e_word.value
-        else:
-            self.e_pos = e_word.value
+        self.e_pos = None if self.e_relative else e_word.value
 
     def _untouched(self, given, target, words, known_before, line: str, e_word=None):
         """Pass a move through as written and keep tracking where the head went."""
@@ -632,6 +788,25 @@ class Compensator:
             None if any(p[j] is None for j in self.needs[k]) else q[k] for k in range(3)
         )
 
+    def _limit(self, k: int, p: float, c: float) -> float:
+        """Apply the limits policy to axis k's command ``c`` (mm) for desired ``p`` (mm)."""
+        lo, hi = self.options.limits[2 * k], self.options.limits[2 * k + 1]
+        rep = self.report
+        if lo <= p <= hi:
+            if c < lo or c > hi:
+                rep.limit_hits += 1
+                if len(rep.limit_examples) < 20:
+                    rep.limit_examples.append((self.lineno, AXIS_LETTERS[k], round(c, 6)))
+                if self.options.policy == "error":
+                    raise LimitError(
+                        f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
+                        f"limits {lo:g}..{hi:g} mm", self.lineno)
+                if self.options.policy == "clamp":
+                    c = min(max(c, lo), hi)
+        elif p != self.m[k]:
+            rep.source_outside += 1
+        return c
+
     def _emit(self, code_text: str, p, q, write_axes, words: List[str], comment: str,
               travel: float, velocity, keep_empty: bool = False) -> Optional[str]:
         """Format one output move to desired position ``p`` and update the tracked state.
@@ -654,20 +829,7 @@ class Compensator:
             if velocity is not None:
                 c += self.servo_s[k] * velocity[k]
             if lim is not None:
-                lo, hi = lim[2 * k], lim[2 * k + 1]
-                if lo <= p[k] <= hi:
-                    if c < lo or c > hi:
-                        rep.limit_hits += 1
-                        if len(rep.limit_examples) < 20:
-                            rep.limit_examples.append((self.lineno, AXIS_LETTERS[k], round(c, 6)))
-                        if self.options.policy == "error":
-                            raise LimitError(
-                                f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
-                                f"limits {lo:g}..{hi:g} mm", self.lineno)
-                        if self.options.policy == "clamp":
-                            c = min(max(c, lo), hi)
-                elif p[k] != self.m[k]:
-                    rep.source_outside += 1
+                c = self._limit(k, p[k], c)
             corr = abs(c - p[k]) * 1000.0
             if corr > rep.max_correction_um[AXES[k]]:
                 rep.max_correction_um[AXES[k]] = corr

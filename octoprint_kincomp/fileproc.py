@@ -17,6 +17,7 @@ from typing import IO, Iterable, Iterator, Optional
 
 from . import __version__
 from .compensator import MARKER_PREFIX, Compensator, Options, Report
+from .lines import join_output, split_ending
 from .params import Params
 
 MARKER_SCAN_LINES = 100
@@ -32,6 +33,11 @@ class AlreadyCompensated(ValueError):
             f"this file is already compensated by KinComp (params {params_hash}); "
             "compensating it again would apply the corrections twice"
         )
+
+
+class _NullSink:
+    def write(self, data) -> int:
+        return len(data)
 
 
 def marker_line(params: Params) -> str:
@@ -54,20 +60,12 @@ def file_marker(path: str) -> Optional[str]:
         return find_marker(f)
 
 
-def _split_ending(line: str):
-    if line.endswith("\r\n"):
-        return line[:-2], "\r\n"
-    if line.endswith("\n") or line.endswith("\r"):
-        return line[:-1], line[-1]
-    return line, ""
-
-
 def compensate_lines(lines: Iterable[str], comp: Compensator,
                      header: Optional[str] = None) -> Iterator[str]:
     """Yield output lines (with endings) for input lines (with endings)."""
     process = comp.process
     for raw in lines:
-        body, ending = _split_ending(raw)
+        body, ending = split_ending(raw)
         if header is not None:
             yield header + (ending or "\n")
             header = None
@@ -79,9 +77,7 @@ def compensate_lines(lines: Iterable[str], comp: Compensator,
         if out is body:
             yield raw
         else:
-            nl = ending or "\n"
-            for i, o in enumerate(out):
-                yield o + (nl if (i < len(out) - 1 or ending) else "")
+            yield join_output(out, ending)
 
 
 def compensate_stream(src: IO[str], dst: IO[str], params: Params,
@@ -93,6 +89,22 @@ def compensate_stream(src: IO[str], dst: IO[str], params: Params,
     return comp.report
 
 
+def _check_head(text: str) -> None:
+    found = find_marker(text.splitlines())
+    if found is not None:
+        raise AlreadyCompensated(found)
+
+
+def compensate_binary(src: IO[bytes], dst: IO[bytes], params: Params,
+                      options: Optional[Options] = None) -> Report:
+    """Compensate a binary stream with the vectorised engine (same output as the line path)."""
+    from .fastfile import FileEngine
+
+    comp = Compensator(params, options)
+    FileEngine(comp).run(src.read, dst.write, marker_line(params), _check_head)
+    return comp.report
+
+
 def compensate_file(in_path: str, out_path: Optional[str], params: Params,
                     options: Optional[Options] = None, dry_run: bool = False) -> Report:
     """Compensate ``in_path`` into ``out_path`` (or in place when None). Atomic on success."""
@@ -101,17 +113,13 @@ def compensate_file(in_path: str, out_path: Optional[str], params: Params,
         raise AlreadyCompensated(existing)
     target = out_path or in_path
     if dry_run:
-        comp = Compensator(params, options)
-        with open(in_path, encoding=ENCODING, errors=ERRORS, newline="") as src:
-            for _ in compensate_lines(src, comp, None):
-                pass
-        return comp.report
+        with open(in_path, "rb") as src:
+            return compensate_binary(src, _NullSink(), params, options)
     directory = os.path.dirname(os.path.abspath(target)) or "."
     fd, tmp = tempfile.mkstemp(prefix=".kincomp-", suffix=".gcode", dir=directory)
     try:
-        with open(in_path, encoding=ENCODING, errors=ERRORS, newline="") as src, \
-                os.fdopen(fd, "w", encoding=ENCODING, errors=ERRORS, newline="") as dst:
-            report = compensate_stream(src, dst, params, options)
+        with open(in_path, "rb") as src, os.fdopen(fd, "wb") as dst:
+            report = compensate_binary(src, dst, params, options)
         if os.path.exists(target):
             try:
                 os.chmod(tmp, os.stat(target).st_mode & 0o777)

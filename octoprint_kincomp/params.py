@@ -85,8 +85,11 @@ class BacklashAxis:
         if pos_mm >= pts[-1][0]:
             return pts[-1][1]
         for (p0, v0), (p1, v1) in zip(pts, pts[1:]):
-            if pos_mm <= p1:
-                return v0 + (v1 - v0) * (pos_mm - p0) / (p1 - p0)
+            if pos_mm < p1:
+                # same operation order as the vectorised path (fastpath.interp)
+                return (v1 - v0) / (p1 - p0) * (pos_mm - p0) + v0
+            if pos_mm == p1:
+                return v1
         return pts[-1][1]  # pragma: no cover - loop always returns
 
     def to_json(self):

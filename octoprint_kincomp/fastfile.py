@@ -1,0 +1,695 @@
+"""Vectorised file compensation: the output of ``Compensator.process``, line for line, for the
+lines that make up slicer output, computed a chunk at a time with numpy.
+
+Why: a Python loop costs microseconds per line, a G-code file has millions of lines. Here a
+chunk of the file is tokenised with byte-level numpy operations; the lines that matter
+(``G0``/``G1`` with single-spaced X/Y/Z/E/F words, optionally a comment) are compensated
+together, and everything else - comments and most M-codes unchanged, any line that changes the
+modal state (G90/G91/G92/G2/G3/G28/T/M82/M83 ...) through the one streaming engine,
+``Compensator.process`` - in order. The state is handed over exactly, so the result is the
+same text and the same report as feeding every line to ``Compensator.process``; the tests and
+the benchmark check that on whole files.
+
+The vectorised part applies where the per-line fast path of the compensator applies (affine
+model, no backlash smoothing, no servo lead, absolute mode, every axis known); elsewhere this
+module simply feeds lines to the compensator.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, List, Optional
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from .compensator import MM_PER_INCH, Compensator
+from .lines import UNIVERSAL as _UNIVERSAL, join_output, split_ending
+
+CHUNK_BYTES = 1 << 19
+MIN_VECTOR_LINES = 24  # shorter runs go line by line (numpy call overhead)
+NUM_WIDTH = 10  # longest number token parsed here (longer ones take the line-by-line path)
+_ENC = "utf-8"
+_ERR = "surrogateescape"
+
+# byte classes: numbers weigh digit 1, '.' 32, anything else 128 (a sign is checked apart);
+# separators are >= 250
+_CLS = bytearray([128] * 256)
+for _c in b"0123456789":
+    _CLS[_c] = 1
+_CLS[ord(".")] = 32
+_SP, _SEMI, _CR, _NL, _TAB = 250, 251, 252, 253, 254
+_CLS[ord(" ")] = _SP
+_CLS[ord(";")] = _SEMI
+_CLS[ord("\r")] = _CR
+_CLS[ord("\n")] = _NL
+_CLS[ord("\t")] = _TAB
+_CLS = bytes(_CLS)
+
+_LETTER = np.zeros(256, np.int8)  # X=1 Y=2 Z=3 E=4 F=5
+for _i, _c in enumerate(b"XYZEF"):
+    _LETTER[_c] = _i + 1
+_DIGIT = np.zeros(256, np.float64)
+_DIGIT[48:58] = np.arange(10)
+_P10F = 10.0 ** np.arange(24)
+_LUT4 = np.frombuffer(b"".join(b"%03d\0" % i for i in range(1000)), np.uint32)
+_COLS = np.arange(32)
+_DIGIT32 = _DIGIT.astype(np.float32)
+_P10F32 = (10.0 ** np.arange(8)).astype(np.float32)
+_PLACE32 = np.arange(32, dtype=np.float32)
+_P10I = 10 ** np.arange(19, dtype=np.int64)
+_BREAK_FIRST = np.zeros(256, bool)  # first byte of a line that may change the state
+for _c in b"GgTtNnm\t \x0b\x0c":
+    _BREAK_FIRST[_c] = True
+_AXIS_BYTES = (b" X", b" Y", b" Z")
+
+
+def _ffill(values: np.ndarray, given: np.ndarray, start: float) -> np.ndarray:
+    """Forward-fill ``values`` where ``given`` is False, ``start`` before the first given."""
+    idx = np.where(given, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    out = np.where(idx >= 0, values[np.maximum(idx, 0)], start)
+    return out
+
+
+def _ffill_int(values: np.ndarray, start: int) -> np.ndarray:
+    """Forward-fill the non-zero entries of ``values``; ``start`` before the first."""
+    idx = np.where(values != 0, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], start)
+
+
+def _interp(table, q: np.ndarray) -> np.ndarray:
+    """BacklashAxis.um_at for an array, with the same arithmetic (see params.py)."""
+    pts = table.points
+    if len(pts) == 1:
+        return np.full(len(q), pts[0][1])
+    out = np.full(len(q), pts[0][1])
+    for (p0, v0), (p1, v1) in zip(pts, pts[1:]):
+        val = (v1 - v0) / (p1 - p0) * (q - p0) + v0
+        out = np.where((q > p0) & (q < p1), val, out)
+        out = np.where(q == p1, v1, out)
+    return np.where(q >= pts[-1][0], pts[-1][1], out)
+
+
+class _Formatter:
+    """Fixed-point text of floats, identical to ``"%.{dec}f" % v`` without negative zero."""
+
+    def __init__(self, dec: int):
+        self.dec = dec
+        self.scale = 10.0 ** dec
+
+    def ints(self, v: np.ndarray):
+        """(magnitude in units of 10**-dec as int64, negative flag)."""
+        r = np.abs(v) * self.scale
+        n = np.floor(r + 0.5)
+        frac = r - np.floor(r)
+        risky = (np.abs(frac - 0.5) < 1e-6) | (r > 1e12) | ~np.isfinite(r)
+        if risky.any():  # exact decimal rounding of the binary value: let Python decide
+            fmt = "%." + str(self.dec) + "f"
+            for i in np.flatnonzero(risky).tolist():
+                text = fmt % float(v[i])
+                n[i] = float(int(text.lstrip("-").replace(".", "")))
+        n = n.astype(np.int64)
+        return n, (v < 0) & (n > 0)
+
+    def text(self, n: int, neg: bool) -> str:
+        s = str(n).rjust(self.dec + 1, "0")
+        s = s[: -self.dec] + "." + s[-self.dec:] if self.dec else s
+        return "-" + s if neg else s
+
+    def fill(self, fullT: np.ndarray, maskT: np.ndarray, col: int, width: int, letter: int,
+             n: np.ndarray, neg: np.ndarray, written: np.ndarray) -> np.ndarray:
+        """Write " <letter><number>" into rows col..col+width of the transposed row matrix
+        ``fullT`` (one matrix row per output column, so every write is one long 1-D run).
+
+        Layout of the block: space, letter, sign slot, integer digits (right-aligned), dot,
+        decimals; ``maskT`` selects what is really written. Returns each row's length (0 if
+        not written). Digits come three at a time from a table of "000".."999".
+        """
+        dec = self.dec
+        n_int = width - 4 - dec
+        ip = n // _P10I[dec]
+        nint = np.ones(len(n), np.int64)
+        for e in range(1, n_int):
+            nint += ip >= _P10I[e]
+        start = 3 + n_int - nint - neg  # first written column after " X"
+        fullT[col] = 32
+        fullT[col + 1] = letter
+        maskT[col] = written
+        maskT[col + 1] = written
+        right = col + width - 1
+        rest = n
+        place = 0
+        while place < dec + n_int:
+            cell = _LUT4[rest % 1000]
+            rest = rest // 1000
+            for j in (2, 1, 0):  # "ddd": byte 2 is the least significant digit
+                if place >= dec + n_int:
+                    break
+                pos = right - place if place < dec else right - place - 1
+                fullT[pos] = (cell >> (8 * j)) & 0xFF
+                if place < dec:
+                    maskT[pos] = written
+                else:
+                    maskT[pos] = written & (pos - col >= start)
+                place += 1
+        fullT[right - dec] = 46
+        maskT[right - dec] = written
+        sign_col = col + 2 + n_int - nint  # just before the first integer digit
+        ng = np.flatnonzero(neg & written)
+        if len(ng):
+            fullT[sign_col[ng], ng] = 45
+            maskT[sign_col[ng], ng] = True
+        return np.where(written, 2 + neg + nint + 1 + dec, 0)
+
+
+class FileEngine:
+    """Feeds a whole file through one Compensator, vectorising the plain move lines."""
+
+    def __init__(self, comp: Compensator):
+        self.comp = comp
+        self.vector_ok = comp.fast_lines
+
+    # -- driver --------------------------------------------------------------------------
+    def run(self, read: Callable[[int], bytes], write: Callable[[bytes], object],
+            header: Optional[str] = None,
+            check_first: Optional[Callable[[str], None]] = None) -> None:
+        """Compensate everything ``read`` yields into ``write``.
+
+        ``header`` is written before the first line (with that line's ending), as the line
+        path does; ``check_first`` sees the first lines of text (the marker check).
+        """
+        rest = b""
+        first = True
+        while True:
+            data = read(CHUNK_BYTES)
+            if not data:
+                break
+            cut = data.rfind(b"\n")
+            if cut < 0:
+                rest += data
+                continue
+            block = rest + data[: cut + 1] if rest else data[: cut + 1]
+            rest = data[cut + 1:]
+            if first:
+                self._start(block, header, check_first, write)
+                first = False
+            write(self.chunk(block))
+        if rest:
+            if first:
+                self._start(rest, header, check_first, write)
+            out = self.chunk(rest + b"\n")
+            write(out[:-1] if out.endswith(b"\n") else out)
+
+    def _start(self, block: bytes, header, check_first, write) -> None:
+        head = block[:16384].decode(_ENC, _ERR)
+        if check_first is not None:
+            check_first(head)
+        if header is not None:
+            first_line = _UNIVERSAL.match(head)
+            ending = split_ending(first_line.group(0))[1] if first_line else ""
+            write((header + (ending or "\n")).encode(_ENC, _ERR))
+
+    # -- one block of complete lines ------------------------------------------------------
+    def chunk(self, buf: bytes) -> bytes:
+        comp = self.comp
+        if not self.vector_ok:
+            return self._lines(buf, 0, None)
+        tk = _Tokens(buf)
+        if tk.lone_cr:
+            return self._lines(buf, 0, None)
+        pieces: List[bytes] = []
+        brk = tk.breaking
+        n = tk.n_lines
+        i = 0
+        for b in np.flatnonzero(brk).tolist() + [n]:
+            if b > i:
+                self._segment(tk, i, b, pieces)
+            if b < n:
+                pieces.append(self._lines(buf, int(tk.ls[b]), int(tk.le[b]) + 1))
+            i = b + 1
+        return b"".join(pieces)
+
+    def _lines(self, buf: bytes, start: int, end: Optional[int]) -> bytes:
+        """Feed buf[start:end] (complete lines) to the compensator line by line."""
+        comp = self.comp
+        text = buf[start:end].decode(_ENC, _ERR)
+        out = []
+        for raw in _UNIVERSAL.findall(text):
+            body, ending = split_ending(raw)
+            res = comp.process(body)
+            if res is body:
+                out.append(raw)
+            else:
+                out.append(join_output(res, ending))
+        return "".join(out).encode(_ENC, _ERR)
+
+    def _segment(self, tk: "_Tokens", i0: int, i1: int, pieces: List[bytes]) -> None:
+        """Lines [i0, i1) of the block: no line among them changes the modal state."""
+        comp = self.comp
+        buf = tk.buf
+        start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
+        if len(cand) == 0:  # comments and inert commands only
+            comp.lineno += i1 - i0
+            comp.report.lines += i1 - i0
+            comp.report.lines_out += i1 - i0
+            pieces.append(buf[start:end])
+            return
+        j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
+        if (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
+                or tk.move_bad_number[j0:j1].any()):
+            pieces.append(self._lines(buf, start, end))
+            return
+        result = self._vector(tk, i0, i1, cand, j0, j1)
+        if result is None:  # a limit error: let the line-by-line path raise at its line
+            pieces.append(self._lines(buf, start, end))
+            return
+        pieces.append(result)
+
+    # -- the vectorised computation ------------------------------------------------------
+    def _vector(self, tk: "_Tokens", i0: int, i1: int, cand: np.ndarray, j0: int,
+                j1: int) -> Optional[bytes]:
+        comp = self.comp
+        rep = comp.report
+        opts = comp.options
+        u = MM_PER_INCH if comp.inches else 1.0
+        dec = opts.decimals + (2 if comp.inches else 0)
+        fmtr = _Formatter(dec)
+        moves = tk.move_lines[j0:j1]
+        nm = len(moves)
+        if nm == 0:
+            return self._finish_inert(tk, i0, i1, cand)
+        v3 = tk.move_vals[j0:j1]  # (nm, 3), NaN where the axis is not given
+        g3 = ~np.isnan(v3)
+        m0 = comp.m
+        P = np.empty((nm, 3))
+        for k in range(3):
+            col = v3[:, k] * u - comp.w[k]
+            P[:, k] = _ffill(col, g3[:, k], m0[k])
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = comp._Ai
+        b0, b1, b2 = comp._b
+        x, y, z = P[:, 0] - b0, P[:, 1] - b1, P[:, 2] - b2
+        Q = np.empty((nm, 3))
+        Q[:, 0] = a00 * x + a01 * y + a02 * z
+        Q[:, 1] = a10 * x + a11 * y + a12 * z
+        Q[:, 2] = a20 * x + a21 * y + a22 * z
+        q0 = comp._qm
+        if q0 is None:
+            q0 = comp.model.inverse(m0)
+        Qp = np.empty_like(Q)
+        Qp[0] = q0
+        Qp[1:] = Q[:-1]
+        Pp = np.empty_like(P)
+        Pp[0] = m0
+        Pp[1:] = P[:-1]
+        bl = comp.backlash
+        dirs_after = np.zeros((nm, 3), np.int64)
+        rev_any = np.zeros(nm, bool)
+        for k in range(3):
+            if bl.active[k]:
+                step = Q[:, k] - Qp[:, k]
+                s = np.where(step > bl.deadband, 1, np.where(step < -bl.deadband, -1, 0))
+                after = _ffill_int(s, bl.dir[k])
+                before = np.empty_like(after)
+                before[0] = bl.dir[k]
+                before[1:] = after[:-1]
+                rev_any |= (s != 0) & (s != before)
+                dirs_after[:, k] = after
+            else:
+                dirs_after[:, k] = bl.dir[k]
+        half = comp._half
+        C = Q.copy()
+        tups = np.flatnonzero(rev_any)
+        Ct = Qp[tups].copy()
+        Pt = Pp[tups]
+        for k in range(3):
+            if bl.active[k]:
+                # rows with no direction get + 0.0: the same number (and the same text)
+                d = dirs_after[:, k]
+                C[:, k] += d * half * _interp(bl.tables[k], Q[:, k])
+                dt = d[tups]
+                Ct[:, k] += dt * half * _interp(bl.tables[k], Ct[:, k])
+        # limits: take-up points come before their move; axes in order
+        if opts.limits is not None:
+            ok = self._limits(C, P, Pp, Ct, Pt, tups, moves, tk, i0)
+            if not ok:
+                return None
+        # max correction per axis (um)
+        for k, a in enumerate("xyz"):
+            cm = float(np.max(np.abs(C[:, k] - P[:, k]))) * 1000.0
+            if len(tups):
+                cm = max(cm, float(np.max(np.abs(Ct[:, k] - Pt[:, k]))) * 1000.0)
+            if cm > rep.max_correction_um[a]:
+                rep.max_correction_um[a] = cm
+        # text (as scaled integers) of every evaluated point, in emission order
+        ntot = nm + len(tups)
+        order_pos = np.arange(nm) + np.searchsorted(tups, np.arange(nm), side="right")
+        tpos = tups + np.arange(len(tups))  # take-up i sits right before its move
+        N = np.empty((ntot, 3), np.int64)
+        NEG = np.empty((ntot, 3), bool)
+        G = np.empty((ntot, 3), np.float64)
+        for k in range(3):
+            G[order_pos, k] = C[:, k]
+            if len(tups):
+                G[tpos, k] = Ct[:, k]
+            fw = (G[:, k] + comp.g[k]) / u
+            N[:, k], NEG[:, k] = fmtr.ints(fw)
+        # written: given axes of moves, or text changed since the previous point
+        prevN = np.empty_like(N)
+        prevNEG = np.empty_like(NEG)
+        for k in range(3):
+            old = comp.fw_text[k]
+            if old is None:
+                old = "%.*f" % (dec, comp.fw[k] / u)
+            on = int(old.lstrip("-").replace(".", ""))
+            prevN[0, k] = on
+            prevNEG[0, k] = old.startswith("-") and on > 0
+        prevN[1:] = N[:-1]
+        prevNEG[1:] = NEG[:-1]
+        changed = (N != prevN) | (NEG != prevNEG)
+        is_move = np.zeros(ntot, bool)
+        is_move[order_pos] = True
+        W = np.zeros((ntot, 3), bool)
+        W[order_pos] = g3
+        W |= changed
+        take_emit = W[tpos].any(axis=1) if len(tups) else np.zeros(0, bool)
+        # render the generated parts: move rows " X.. Y.." and take-up rows "G1 X..\n"
+        big = int(N.max()) if ntot else 0
+        block = 2 + 1 + max(1, len(str(big // 10 ** dec))) + 1 + dec
+        total_w = 2 + 3 * block + 2
+        fullT = np.empty((total_w, ntot), np.uint8)  # transposed: see _Formatter.fill
+        maskT = np.zeros((total_w, ntot), bool)
+        row_len = np.zeros(ntot, np.int64)
+        col = 2
+        for k in range(3):
+            row_len += fmtr.fill(fullT, maskT, col, block, ord("XYZ"[k]), N[:, k], NEG[:, k],
+                                 W[:, k])
+            col += block
+        if len(tups):
+            # take-up rows: "G1" first and the line ending of their move's line last
+            crlf = tk.crlf[moves[tups]]
+            fullT[0, tpos], fullT[1, tpos] = 71, 49
+            fullT[total_w - 2, tpos] = np.where(crlf, 13, 10)
+            fullT[total_w - 1, tpos] = 10
+            te_rows = tpos[take_emit]
+            maskT[0, te_rows] = True
+            maskT[1, te_rows] = True
+            maskT[total_w - 2, te_rows] = True
+            maskT[total_w - 1, te_rows] = crlf[take_emit]
+            row_len[te_rows] += 3 + crlf[take_emit]
+            dropped = tpos[~take_emit]
+            maskT[:, dropped] = False
+            row_len[dropped] = 0
+        gen = fullT.T[maskT.T]
+        row_off = np.cumsum(row_len) - row_len
+        # assemble from a pool: this segment's input, then the generated rows. Per move:
+        # input up to its line, its take-up row, its "G0"/"G1", its row, a leading F word;
+        # the input then continues where its X/Y/Z words end.
+        seg_start = int(tk.ls[i0])
+        seg_end = int(tk.le[i1 - 1]) + 1
+        gbase = seg_end - seg_start
+        ls = tk.ls[moves] - seg_start
+        xyz_end = tk.xyz_end[j0:j1] - seg_start
+        S = np.empty(5 * nm + 1, np.int64)
+        L = np.empty(5 * nm + 1, np.int64)
+        S[0:-1:5] = 0
+        S[5:-1:5] = xyz_end[:-1]
+        L[0:-1:5] = ls - S[0:-1:5]
+        take_row = np.zeros(nm, np.int64)
+        has_t = np.zeros(nm, bool)
+        if len(tups):
+            take_row[tups] = tpos
+            has_t[tups] = True
+        S[1::5] = gbase + row_off[take_row]
+        L[1::5] = np.where(has_t, row_len[take_row], 0)
+        S[2::5] = ls
+        L[2::5] = 2
+        S[3::5] = gbase + row_off[order_pos]
+        L[3::5] = row_len[order_pos]
+        S[4::5] = tk.fpre_start[j0:j1] - seg_start
+        L[4::5] = tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1]
+        S[-1] = xyz_end[-1]
+        L[-1] = gbase - xyz_end[-1]
+        total = int(L.sum())
+        dst = np.cumsum(L) - L
+        idx = np.repeat((S - dst).astype(np.int32), L)
+        idx += np.arange(total, dtype=np.int32)
+        pool = np.concatenate([tk.a[seg_start:seg_end], gen])
+        out = pool[idx].tobytes()
+        # state handover
+        last = ntot - 1
+        for k in range(3):
+            text = fmtr.text(int(N[last, k]), bool(NEG[last, k]))
+            comp.fw_text[k] = text
+            comp.fw[k] = float(text) * u
+        comp.m = [float(P[-1, 0]), float(P[-1, 1]), float(P[-1, 2])]
+        comp._qm = (float(Q[-1, 0]), float(Q[-1, 1]), float(Q[-1, 2]))
+        comp._lim_hit = [True, True, True]
+        for k in range(3):
+            bl.dir[k] = int(dirs_after[-1, k])
+        n_take = int(take_emit.sum())
+        self._finish_counts(tk, i0, i1, cand, nm, n_take)
+        return out
+
+    def _finish_counts(self, tk, i0, i1, cand, n_moves, n_take) -> None:
+        comp = self.comp
+        rep = comp.report
+        nl = i1 - i0
+        comp.lineno += nl
+        rep.lines += nl
+        rep.lines_out += nl + n_take
+        rep.moves += len(cand)
+        rep.moves_compensated += n_moves
+        rep.takeup_moves += n_take
+        u = MM_PER_INCH if comp.inches else 1.0
+        fl = tk.f_last(cand)
+        if fl is not None:
+            comp.feed = fl * u
+        el = tk.e_last(cand)
+        if el is not None:
+            comp.e_pos = None if comp.e_relative else el
+
+    def _finish_inert(self, tk, i0, i1, cand) -> bytes:
+        self._finish_counts(tk, i0, i1, cand, 0, 0)
+        return tk.buf[int(tk.ls[i0]): int(tk.le[i1 - 1]) + 1]
+
+    def _limits(self, C, P, Pp, Ct, Pt, tups, moves, tk, i0) -> bool:
+        """Limits policy on all points, in emission order; False means 'policy error hit'."""
+        comp = self.comp
+        rep = comp.report
+        lim = comp.options.limits
+        events = []  # (line index in block, 0 take-up / 1 move, axis, value)
+        for k in range(3):
+            lo, hi = lim[2 * k], lim[2 * k + 1]
+            for arr_c, arr_p, rows, kind in ((Ct, Pt, tups, 0), (C, P, None, 1)):
+                if len(arr_c) == 0:
+                    continue
+                inside = (arr_p[:, k] >= lo) & (arr_p[:, k] <= hi)
+                hit = inside & ((arr_c[:, k] < lo) | (arr_c[:, k] > hi))
+                if hit.any():
+                    if comp.options.policy == "error":
+                        return False
+                    idx = np.flatnonzero(hit)
+                    line_rows = moves[rows[idx]] if rows is not None else moves[idx]
+                    for li, v in zip(line_rows.tolist(), arr_c[idx, k].tolist()):
+                        events.append((li, kind, k, v))
+                    if comp.options.policy == "clamp":
+                        arr_c[idx, k] = np.clip(arr_c[idx, k], lo, hi)
+                if kind == 1:
+                    out = ~inside & (arr_p[:, k] != Pp[:, k])
+                    rep.source_outside += int(out.sum())
+        if events:
+            events.sort()
+            base_line = comp.lineno - i0
+            for li, _kind, k, v in events:
+                rep.limit_hits += 1
+                if len(rep.limit_examples) < 20:
+                    rep.limit_examples.append((base_line + li + 1, "XYZ"[k], round(v, 6)))
+        return True
+
+
+class _Tokens:
+    """Byte-level tokenisation of a block of complete lines (each ending with b'\\n')."""
+
+    def __init__(self, buf: bytes):
+        self.buf = buf
+        a = np.frombuffer(buf, np.uint8)
+        self.a = a
+        cls = np.frombuffer(buf.translate(_CLS), np.uint8)
+        sep = np.flatnonzero(cls >= _SP)
+        sk = cls[sep]
+        isnl = sk == _NL
+        nl = sep[isnl]
+        n = len(nl)
+        self.n_lines = n
+        ls = np.empty(n, np.int64)
+        ls[0] = 0
+        ls[1:] = nl[:-1] + 1
+        self.ls, self.le = ls, nl
+        self.crlf = (nl > 0) & (a[np.maximum(nl - 1, 0)] == 13)
+        last = len(a) - 1
+        # a CR that does not end a line is a line end of its own for the reference reader
+        crs = sep[sk == _CR]
+        self.lone_cr = bool(len(crs)) and bool(np.any(a[np.minimum(crs + 1, last)] != 10))
+        c0 = a[ls]
+        c1 = a[np.minimum(ls + 1, last)]
+        c2 = a[np.minimum(ls + 2, last)]
+        length = nl - ls
+        cand = (length >= 3) & (c0 == 71) & ((c1 == 48) | (c1 == 49)) & (c2 == 32)
+        # lines that may change the modal state go through the compensator one by one
+        brk = _BREAK_FIRST[c0] & ~cand
+        mline = (c0 == 77) & ~((c1 >= 48) & (c1 <= 57))
+        m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51))) | ((c1 == 52) & (c2 == 56)))
+        brk |= mline | m_state
+        # tokens: after each space separator of a candidate line, up to the next separator
+        lid = np.cumsum(isnl) - isnl
+        in_cand = cand[lid]
+        is_sp = (sk == _SP) & in_cand
+        is_semi = (sk == _SEMI) & in_cand
+        # first ';' of each candidate line ends its command part
+        semi_pos = np.full(n, -1, np.int64)
+        si = np.flatnonzero(is_semi)
+        if len(si):
+            first_lines, first_idx = np.unique(lid[si], return_index=True)
+            semi_pos[first_lines] = sep[si[first_idx]]
+        has_semi = semi_pos >= 0
+        cmd_end = np.where(has_semi, semi_pos - 1, np.where(self.crlf, nl - 1, nl))
+        bad = np.zeros(n, bool)
+        # " ;" : one space before the comment, and a word (not a space) before that space
+        hs = np.flatnonzero(has_semi & cand)
+        if len(hs):
+            p = semi_pos[hs]
+            bad[hs] |= (a[p - 1] != 32) | (a[np.maximum(p - 2, 0)] == 32) | (p - 2 < ls[hs] + 1)
+        # tabs or stray CR inside the command part
+        odd = np.flatnonzero(((sk == _TAB) | (sk == _CR)) & in_cand)
+        if len(odd):
+            oline = lid[odd]
+            inside = sep[odd] < cmd_end[oline]
+            bad[oline[inside]] = True
+        ti = np.flatnonzero(is_sp)
+        tpos = sep[ti]
+        tline = lid[ti]
+        keep = tpos < cmd_end[tline]
+        ti, tpos, tline = ti[keep], tpos[keep], tline[keep]
+        ts = tpos + 1
+        te = sep[ti + 1]
+        tl = te - ts
+        bad[tline[tl < 2]] = True
+        # words: a letter of XYZEF and a number [-+]?(\d+\.?\d*|\.\d+)
+        letter = _LETTER[a[np.minimum(ts, last)]]
+        bounds = np.empty(2 * len(ts) + 1, np.int64)
+        bounds[0:-1:2] = ts + 1
+        bounds[1:-1:2] = np.maximum(te, ts + 1)
+        bounds[-1] = len(a)
+        if len(ts):
+            sums = np.add.reduceat(cls, bounds[:-1], dtype=np.uint32)[0::2][: len(ts)]
+        else:
+            sums = np.zeros(0, np.uint32)
+        digits = sums & 31
+        dots = (sums >> 5) & 3
+        others = sums >> 7
+        first_num = a[np.minimum(ts + 1, last)]
+        signed = (first_num == 45) | (first_num == 43)
+        ok = (letter > 0) & (digits >= 1) & (digits <= 24) & (dots <= 1) & (
+            (others == 0) | ((others == 1) & signed))
+        bad[tline[~ok]] = True
+        # one word per letter per line; X/Y/Z words together, before E/F words except an F
+        # that may come first
+        nt = len(ts)
+        first_in_line = np.ones(nt, bool)
+        first_in_line[1:] = tline[1:] != tline[:-1]
+        heads = np.flatnonzero(first_in_line)
+        if nt:
+            bit = np.left_shift(1, letter.astype(np.int64))
+            line_or = np.bitwise_or.reduceat(bit, heads)
+            line_sum = np.add.reduceat(bit, heads)
+            bad[tline[heads[line_or != line_sum]]] = True
+        is_xyz = (letter >= 1) & (letter <= 3)
+        prev_xyz = np.zeros(nt, bool)
+        prev_xyz[1:] = is_xyz[:-1]
+        lead_f = (letter == 5) & first_in_line
+        after_lead_f = np.zeros(nt, bool)
+        after_lead_f[1:] = lead_f[:-1]
+        ok_xyz = first_in_line | prev_xyz | after_lead_f
+        bad[tline[is_xyz & ~ok_xyz]] = True
+        self.cand = cand & ~bad
+        self.breaking = brk | (cand & bad)
+        # the move lines (candidates with X/Y/Z words) of this block, in order
+        xi = np.flatnonzero(is_xyz & ok & self.cand[tline])
+        xl = tline[xi]
+        newline = np.ones(len(xi), bool)
+        newline[1:] = xl[1:] != xl[:-1]
+        self.move_lines = xl[newline]
+        move_of = np.cumsum(newline) - 1
+        nm = len(self.move_lines)
+        self.move_vals = np.full((nm, 3), np.nan)
+        self.move_bad_number = np.zeros(nm, bool)
+        self.xyz_end = np.zeros(nm, np.int64)
+        if len(xi):
+            s0 = ts[xi] + 1
+            e0 = te[xi]
+            too_long = (e0 - s0) > NUM_WIDTH
+            self.move_bad_number[move_of[too_long]] = True
+            self.move_vals[move_of, letter[xi] - 1] = _parse_numbers(a, s0, e0, dots[xi])
+            self.xyz_end[move_of] = e0  # X/Y/Z words are contiguous: the last one ends them
+        # a leading F word of a move line (the output moves it after X/Y/Z)
+        self.fpre_start = np.zeros(nm, np.int64)
+        self.fpre_end = np.zeros(nm, np.int64)
+        lf = np.flatnonzero(lead_f)
+        if len(lf):
+            k = np.searchsorted(self.move_lines, tline[lf])
+            k = np.minimum(k, max(nm - 1, 0))
+            hit = (nm > 0) & (self.move_lines[k] == tline[lf]) if nm else np.zeros(0, bool)
+            self.fpre_start[k[hit]] = tpos[lf[hit]]
+            self.fpre_end[k[hit]] = te[lf[hit]]
+        # E and F words: the last one of a run sets the engine's e_pos / feed
+        self._tline, self._letter, self._ts, self._te = tline, letter, ts, te
+
+    def _last_value(self, which: int, cand: np.ndarray) -> Optional[float]:
+        lo, hi = int(cand[0]), int(cand[-1])
+        j0 = int(np.searchsorted(self._tline, lo, side="left"))
+        j1 = int(np.searchsorted(self._tline, hi, side="right"))
+        hits = np.flatnonzero(self._letter[j0:j1] == which)
+        if len(hits) == 0:
+            return None
+        j = j0 + int(hits[-1])
+        return float(self.buf[int(self._ts[j]) + 1: int(self._te[j])])
+
+    def e_last(self, cand) -> Optional[float]:
+        return self._last_value(4, cand)
+
+    def f_last(self, cand) -> Optional[float]:
+        return self._last_value(5, cand)
+
+
+def _parse_numbers(a: np.ndarray, s0: np.ndarray, e0: np.ndarray,
+                   dots: np.ndarray) -> np.ndarray:
+    """Exact float values of validated number tokens a[s0:e0] (``dots`` = 0 or 1 each).
+
+    Tokens are grouped by length so each group is a plain (n x len) byte matrix: the digits
+    make an integer by one matrix-vector product (float32 while exact, below 10**7), the
+    dot's place by another; int / 10**decimals is then exactly Python's float(text).
+    """
+    L = e0 - s0
+    out = np.empty(len(L))
+    order = np.argsort(L.astype(np.int8), kind="stable")
+    counts = np.bincount(L)
+    pos = 0
+    for n in np.flatnonzero(counts).tolist():
+        c = int(counts[n])
+        rows = order[pos:pos + c]
+        pos += c
+        M = sliding_window_view(a, n)[s0[rows]]
+        if n <= 7:
+            full = (_DIGIT32[M] @ _P10F32[n - 1::-1]).astype(np.float64)
+        else:
+            full = _DIGIT[M] @ _P10F[n - 1::-1]
+        dot_place = ((M == 46) @ _PLACE32[n - 1::-1]).astype(np.int64)
+        fi = full.astype(np.int64)
+        has_dot = dots[rows] > 0
+        intall = np.where(has_dot, (fi // _P10I[dot_place + 1]) * _P10I[dot_place]
+                          + fi % _P10I[dot_place], fi)
+        v = intall / _P10F[np.where(has_dot, dot_place, 0)]
+        out[rows] = np.where(M[:, 0] == 45, -v, v)
+    return out

@@ -1,0 +1,122 @@
+"""The fast paths give exactly what the general path gives (issue 5).
+
+Two fast paths exist: the per-line fast branch of Compensator.process (the queuing hook) and
+the vectorised file engine (fastfile.py). Both must produce the same text and report as the
+general, line-by-line path on real slicer files and on awkward generated programs."""
+
+import io
+import os
+
+import pytest
+
+from octoprint_kincomp import fastfile
+from octoprint_kincomp.benchmark import BENCH_PARAMS, generate
+from octoprint_kincomp.compensator import Compensator, LimitError, Options
+from octoprint_kincomp.fileproc import (
+    ENCODING, ERRORS, compensate_binary, compensate_lines, marker_line)
+from octoprint_kincomp.params import Params
+
+from .gcodegen import random_program
+
+SAMPLES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "gcode-samples")
+PARAMS = [
+    Params.from_dict(BENCH_PARAMS),
+    Params.from_dict({"squareness_um_per_m": {"xy": 300, "xz": -120},
+                      "scale_ppm": {"x": 100, "z": -50}, "backlash": {"y": 12.0}}),
+    Params.from_dict({"backlash": {"x": 30.0, "z": 5.0, "fraction": 0.7}}),
+]
+OPTIONS = [
+    Options(),
+    Options(limits=(0, 200, 0, 200, 0, 250), policy="clamp"),
+    Options(limits=(0, 200, 0, 200, 0, 250), policy="warn", decimals=4),
+]
+
+
+def general(text: str, params, options):
+    comp = Compensator(params, options)
+    comp.fast_lines = False
+    out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
+    return out, comp.report.to_dict()
+
+
+def per_line(text: str, params, options):
+    comp = Compensator(params, options)
+    out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
+    return out, comp.report.to_dict()
+
+
+def engine(text: str, params, options, chunk=None):
+    if chunk:
+        old = fastfile.CHUNK_BYTES
+        fastfile.CHUNK_BYTES = chunk
+    try:
+        dst = io.BytesIO()
+        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params, options)
+    finally:
+        if chunk:
+            fastfile.CHUNK_BYTES = old
+    return dst.getvalue().decode(ENCODING, ERRORS), rep.to_dict()
+
+
+def check_all(text, params, options, chunk=None):
+    ref = general(text, params, options)
+    assert per_line(text, params, options) == ref
+    assert engine(text, params, options, chunk) == ref
+
+
+def sample(name):
+    with open(os.path.join(SAMPLES, name), encoding=ENCODING, errors=ERRORS, newline="") as f:
+        return f.read()
+
+
+@pytest.mark.parametrize("params", PARAMS, ids=["bench", "skew", "backlash"])
+@pytest.mark.parametrize("options", OPTIONS, ids=["plain", "clamp", "warn4"])
+def test_real_slicer_files(params, options):
+    for name in ("bambustudio-a1-hook.gcode", "bambustudio-square-ring.gcode"):
+        check_all(sample(name), params, options)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_generated_awkward_programs(seed):
+    lines = random_program(seed, n=400, nasty=0.25 if seed % 2 else 0.02)
+    params = PARAMS[seed % len(PARAMS)]
+    options = OPTIONS[seed % len(OPTIONS)]
+    for ending in ("\n", "\r\n"):
+        text = ending.join(lines) + (ending if seed % 3 else "")
+        # small chunks force chunk boundaries, segments and the short-run path
+        check_all(text, params, options, chunk=997 if seed % 4 == 0 else None)
+
+
+def test_benchmark_style_file(tmp_path):
+    path = tmp_path / "b.gcode"
+    generate(str(path), 30000)
+    text = path.read_text()
+    for params in PARAMS:
+        assert engine(text, params, Options()) == general(text, params, Options())
+
+
+def test_lone_cr_and_missing_newline():
+    text = "G28\rG1 X10 Y10 Z1\rG1 X20 Y5\r; c\rG1 X30 Y30"
+    check_all(text, PARAMS[0], Options())
+    check_all("G28\nG1 X10 Y10 Z1\nG1 X20 Y5", PARAMS[0], Options())
+
+
+def test_limit_error_raised_at_the_same_line():
+    lines = ["G28", "G1 X10 Y100 Z1"] + [f"G1 X{50 + i % 7} Y{100 + i % 5}" for i in range(60)]
+    lines += ["G1 X0 Y200", "G1 X10 Y10"]
+    text = "\n".join(lines) + "\n"
+    params = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
+    opts = Options(limits=(0, 200, 0, 200, 0, 250), policy="error")
+    with pytest.raises(LimitError) as a:
+        general(text, params, opts)
+    with pytest.raises(LimitError) as b:
+        engine(text, params, opts)
+    assert str(a.value) == str(b.value)
+
+
+def test_fast_line_falls_back_on_malformed_numbers():
+    comp = Compensator(PARAMS[1])
+    comp.process("G28")
+    comp.process("G1 X1 Y1 Z1")
+    assert comp.process("G1 X1.2.3 Y2") == "G1 X1.2.3 Y2"
+    assert comp.report.malformed == 1
