@@ -114,98 +114,168 @@ def _time(fn, repeat: int = 3) -> float:
     return best
 
 
+def _paired(fn_a, fn_b, repeat: int):
+    """Best-of-``repeat`` times of two functions run alternately (the machine's noise then
+    hits both alike)."""
+    best_a = best_b = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn_a()
+        t1 = time.perf_counter()
+        fn_b()
+        t2 = time.perf_counter()
+        best_a = min(best_a, t1 - t0)
+        best_b = min(best_b, t2 - t1)
+    return best_a, best_b
+
+
 def plain_copy(src: str, dst: str) -> None:
     with open(src) as f, open(dst, "w") as out:
         for line in f:
             out.write(line)
 
 
+def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional[int] = None):
+    """The straightforward path: every line through the general (non-fast) path."""
+    from .compensator import Compensator
+    from .fileproc import ENCODING, ERRORS, compensate_lines, marker_line
+
+    comp = Compensator(params)
+    comp.fast_lines = False
+    with open(src, encoding=ENCODING, errors=ERRORS, newline="") as f, \
+            open(dst, "w", encoding=ENCODING, errors=ERRORS, newline="") as out:
+        lines = f if max_lines is None else (l for i, l in enumerate(f) if i < max_lines)
+        for chunk in compensate_lines(lines, comp, marker_line(params)):
+            out.write(chunk)
+    return comp.report
+
+
+def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = None) -> dict:
+    """Compare the fast file engine with the reference path line for line."""
+    from .fileproc import compensate_file
+
+    part = src
+    if max_lines is not None:
+        part = os.path.join(workdir, "verify_part.gcode")
+        with open(src) as f, open(part, "w") as out:
+            for i, line in enumerate(f):
+                if i >= max_lines:
+                    break
+                out.write(line)
+    ref_out = os.path.join(workdir, "ref.gcode")
+    fast_out = os.path.join(workdir, "fast.gcode")
+    ref_rep = reference_compensate(part, ref_out, params)
+    fast_rep = compensate_file(part, fast_out, params)
+    lines = 0
+    with open(ref_out, "rb") as a, open(fast_out, "rb") as b:
+        for la, lb in zip(a, b):
+            lines += 1
+            if la != lb:
+                raise AssertionError(f"fast path differs from the reference at output line "
+                                     f"{lines}: {la!r} != {lb!r}")
+        if a.read(1) or b.read(1):
+            raise AssertionError("fast path and reference differ in length")
+    if ref_rep.to_dict() != fast_rep.to_dict():
+        raise AssertionError("fast path and reference reports differ")
+    return {"verified_lines": lines, "identical": True}
+
+
 def _child_rss(src: str, dst: str, params_json: str) -> dict:
-    """Compensate in a fresh interpreter and report its RSS before/after (kB)."""
+    """Compensate in a fresh interpreter; its RSS (kB) after imports and at the peak."""
     code = (
         "import json,resource,sys\n"
         "from octoprint_kincomp.params import Params\n"
         "from octoprint_kincomp.fileproc import compensate_file\n"
+        "import octoprint_kincomp.fastfile, numpy\n"
         "p=Params.from_json(sys.argv[3])\n"
-        "import octoprint_kincomp.compensator\n"
-        "before=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "def rss():\n"
+        "    for l in open('/proc/self/status'):\n"
+        "        if l.startswith('VmRSS:'): return int(l.split()[1])\n"
+        "before=rss()\n"
         "compensate_file(sys.argv[1], sys.argv[2], p)\n"
-        "after=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
-        "print(json.dumps({'before_kb': before, 'after_kb': after}))\n"
+        "peak=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "print(json.dumps({'before_kb': before, 'peak_kb': peak}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, src, dst, params_json],
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout)
 
 
-def hook_latency(params: Params, n: int = 50000) -> dict:
-    """Per-line cost (us) of Compensator.process for G1 lines, as the queuing hook calls it."""
+def hook_latency(params: Params, lines) -> dict:
+    """Per-line cost (us) of Compensator.process on the G1 X/Y lines of a slicer-like
+    stream, as OctoPrint's queuing hook calls it (one line at a time, in order)."""
     from .compensator import Compensator
 
     comp = Compensator(params)
-    comp.process("G28")
-    comp.process("G1 X100 Y100 Z0.2 F3000")
-    rng = random.Random(3)
-    lines = [f"G1 X{rng.uniform(20, 200):.3f} Y{rng.uniform(20, 200):.3f} E{i * 0.05:.5f}"
-             for i in range(n)]
-    comp.process("M83")
-    samples = []
     clock = time.perf_counter_ns
     process = comp.process
+    samples = []
     for line in lines:
         t0 = clock()
         process(line)
-        samples.append(clock() - t0)
+        dt = clock() - t0
+        if line.startswith("G1 X"):
+            samples.append(dt)
     samples.sort()
     return {
+        "lines": len(samples),
         "p50_us": samples[len(samples) // 2] / 1000.0,
         "p99_us": samples[int(len(samples) * 0.99)] / 1000.0,
         "mean_us": statistics.fmean(samples) / 1000.0,
+        "takeup_share": comp.report.takeup_moves / max(1, comp.report.moves_compensated),
     }
 
 
-def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = False) -> dict:
+def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = False,
+        verify_lines: Optional[int] = None) -> dict:
     from .fileproc import compensate_file
 
     params = Params.from_dict(BENCH_PARAMS)
     tmp = workdir or tempfile.mkdtemp(prefix="kincomp-bench-")
-    res: dict = {"lines": n_lines}
+    res: dict = {}
     src = os.path.join(tmp, "bench.gcode")
     arc_src = os.path.join(tmp, "bench_arcs.gcode")
     dst = os.path.join(tmp, "out.gcode")
     res["lines"] = generate(src, n_lines)
     res["arc_lines"] = generate(arc_src, n_lines, arc_fraction=0.2)
     res["file_mb"] = os.path.getsize(src) / 1e6
-    repeat = 1 if quick else 3
-
-    t_copy = _time(lambda: plain_copy(src, dst), repeat)
-    t_comp = _time(lambda: compensate_file(src, dst, params), repeat)
-    t_copy_arc = _time(lambda: plain_copy(arc_src, dst), repeat)
-    t_comp_arc = _time(lambda: compensate_file(arc_src, dst, params), repeat)
+    res["verify"] = verify(src, params, tmp, verify_lines)
+    repeat = 1 if quick else 5
+    t_copy, t_comp = _paired(lambda: plain_copy(src, dst),
+                             lambda: compensate_file(src, dst, params), repeat)
+    t_copy_arc, t_comp_arc = _paired(lambda: plain_copy(arc_src, dst),
+                                     lambda: compensate_file(arc_src, dst, params), repeat)
     res.update(
         copy_s=t_copy, compensate_s=t_comp, ratio=t_comp / t_copy,
         lines_per_s=res["lines"] / t_comp,
         arc_copy_s=t_copy_arc, arc_compensate_s=t_comp_arc, arc_ratio=t_comp_arc / t_copy_arc,
         arc_lines_per_s=res["arc_lines"] / t_comp_arc,
     )
-    res["rss"] = _child_rss(src, dst, params.to_json())
-    res["rss"]["growth_mb"] = (res["rss"]["after_kb"] - res["rss"]["before_kb"]) / 1024.0
-    res["hook"] = hook_latency(params)
+    rss = _child_rss(src, dst, params.to_json())
+    rss["growth_mb"] = (rss["peak_kb"] - rss["before_kb"]) / 1024.0
+    res["rss"] = rss
+    with open(src) as f:
+        sample = [next(f).rstrip("\n") for _ in range(min(200000, res["lines"]))]
+    res["hook"] = hook_latency(params, sample)
     return res
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m octoprint_kincomp bench")
     ap.add_argument("--lines", type=int, default=1_500_000)
-    ap.add_argument("--quick", action="store_true", help="one repetition instead of best of 3")
+    ap.add_argument("--quick", action="store_true", help="one repetition instead of best of 5")
+    ap.add_argument("--verify-lines", type=int,
+                    help="verify only this many lines against the reference (default: all)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    res = run(args.lines, quick=args.quick)
+    res = run(args.lines, quick=args.quick, verify_lines=args.verify_lines)
     if args.json:
         print(json.dumps(res, indent=2))
         return 0
     print(f"file: {res['lines']} lines, {res['file_mb']:.1f} MB "
           "(squareness + scale + backlash active)")
+    print(f"verified: fast engine == reference path on {res['verify']['verified_lines']} "
+          "output lines")
     print(f"plain copy            {res['copy_s']:7.2f} s")
     print(f"compensate            {res['compensate_s']:7.2f} s  "
           f"{res['lines_per_s'] / 1e3:8.0f} klines/s  ratio {res['ratio']:.1f}x")
@@ -214,5 +284,6 @@ def main(argv=None) -> int:
           f"{res['arc_lines_per_s'] / 1e3:8.0f} klines/s  ratio {res['arc_ratio']:.1f}x")
     print(f"peak RSS growth       {res['rss']['growth_mb']:7.1f} MB")
     h = res["hook"]
-    print(f"hook path, G1 line    p50 {h['p50_us']:.2f} us  p99 {h['p99_us']:.2f} us")
+    print(f"hook path, G1 line    p50 {h['p50_us']:.2f} us  p99 {h['p99_us']:.2f} us "
+          f"({h['takeup_share'] * 100:.0f} % of moves need a backlash take-up)")
     return 0

@@ -365,7 +365,8 @@ class Compensator:
                         dirs[k] = -1
                         rev = redo[k] = True
             if rev:
-                take = self._fast_point("G1", m, q0, (False, False, False))
+                # only reversed axes (and axes at a limit) can change their text here
+                take = self._fast_point("G1", m, q0, (False, False, False), q0, redo)
                 if take is not None:
                     out = [take]
                     rep.takeup_moves += 1
@@ -381,6 +382,66 @@ class Compensator:
             return [text]
         out.append(text)
         rep.lines_out += 2
+        return out
+
+    def _arc_points_fast(self, start, points, given, e_word, tail, comment) -> List[str]:
+        """The chords of a linearised arc, exactly as _path writes them, on the fast path's
+        arithmetic (absolute mode, affine model, no smoothing or servo lead)."""
+        out: List[str] = []
+        rep = self.report
+        bl = self.backlash
+        dirs = bl.dir
+        db = bl.deadband
+        inv = self.model.inverse
+        prev = start
+        lengths = []
+        for p in points:
+            lengths.append(math.sqrt(sum((p[k] - prev[k]) ** 2 for k in range(3))))
+            prev = p
+        edist = _EDist(e_word, self.e_relative, self.e_pos, sum(lengths))
+        p0 = tuple(start)
+        q0 = inv(p0)
+        s_done = 0.0
+        last = len(points) - 1
+        no_axes = (False, False, False)
+        given = tuple(k in given for k in range(3))
+        for idx, p1 in enumerate(points):
+            q1 = inv(p1)
+            redo = self._lim_hit[:]
+            if self._bl_axes:
+                rev = False
+                for k in self._bl_axes:
+                    step = q1[k] - q0[k]
+                    if step > db:
+                        if dirs[k] != 1:
+                            dirs[k] = 1
+                            rev = redo[k] = True
+                    elif step < -db:
+                        if dirs[k] != -1:
+                            dirs[k] = -1
+                            rev = redo[k] = True
+                if rev:
+                    take = self._fast_point("G1", p0, q0, no_axes, q0, redo)
+                    if take is not None:
+                        out.append(take)
+                        rep.takeup_moves += 1
+            s_done += lengths[idx]
+            if e_word is not None:
+                e_text = edist.take(s_done, idx == last)
+            if idx == 0:
+                words = [e_text if w is e_word else w.text for w in tail]
+            else:
+                words = [e_text] if e_word is not None else []
+            text = self._fast_point("G1", p1, q1, given if idx == last else no_axes, q0, redo)
+            line = text if text is not None else "G1"
+            if words:
+                line += " " + " ".join(words)
+            if idx == 0 and comment:
+                line += " " + comment
+            out.append(line)
+            self.m = [p1[0], p1[1], p1[2]]
+            p0, q0 = p1, q1
+        self._qm = None
         return out
 
     def _fast_point(self, code: str, p, q, given, q_prev=None, redo=None) -> Optional[str]:
@@ -671,7 +732,10 @@ class Compensator:
             # Absolute extrusion from an unknown E: the split cannot be computed.
             return self._untouched(given, target, words, known_before, line)
         tail = [w for w in words if w.letter not in "XYZIJKRP"]
-        out = self._path("G1", list(start), pts, given, e_word, tail, cmd.comment)
+        if self.fast_lines and self.absolute:
+            out = self._arc_points_fast(list(start), pts, given, e_word, tail, cmd.comment)
+        else:
+            out = self._path("G1", list(start), pts, given, e_word, tail, cmd.comment)
         self._track_e(e_word)
         self.report.arcs_linearised += 1
         self.report.arc_segments += len(pts)

@@ -17,6 +17,7 @@ module simply feeds lines to the compensator.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, List, Optional
 
 import numpy as np
@@ -163,6 +164,10 @@ class _Formatter:
         return np.where(written, 2 + neg + nint + 1 + dec, 0)
 
 
+class _Unterminated(bytes):
+    """The last block of a file that did not end with a newline (one was added)."""
+
+
 class FileEngine:
     """Feeds a whole file through one Compensator, vectorising the plain move lines."""
 
@@ -178,9 +183,29 @@ class FileEngine:
 
         ``header`` is written before the first line (with that line's ending), as the line
         path does; ``check_first`` sees the first lines of text (the marker check).
+        Tokenising a block does not depend on the compensator's state, so the next block is
+        tokenised on a second thread while the current one is compensated (numpy releases
+        the GIL); the output is the same as doing it in turn.
         """
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kincomp-tok") as pool:
+            pending = None  # (block, future of its tokens)
+            first = True
+            for block in self._blocks(read):
+                if first:
+                    self._start(block, header, check_first, write)
+                    first = False
+                job = (block, pool.submit(_Tokens, block) if self.vector_ok else None)
+                if pending is not None:
+                    write(self._finish_block(*pending))
+                pending = job
+            if pending is not None:
+                write(self._finish_block(*pending))
+
+    @staticmethod
+    def _blocks(read: Callable[[int], bytes]):
+        """Blocks of complete lines; the last one is completed with a virtual newline and
+        marked by a trailing ``None`` sentinel handled in _finish_block."""
         rest = b""
-        first = True
         while True:
             data = read(CHUNK_BYTES)
             if not data:
@@ -191,15 +216,15 @@ class FileEngine:
                 continue
             block = rest + data[: cut + 1] if rest else data[: cut + 1]
             rest = data[cut + 1:]
-            if first:
-                self._start(block, header, check_first, write)
-                first = False
-            write(self.chunk(block))
+            yield block
         if rest:
-            if first:
-                self._start(rest, header, check_first, write)
-            out = self.chunk(rest + b"\n")
-            write(out[:-1] if out.endswith(b"\n") else out)
+            yield _Unterminated(rest + b"\n")
+
+    def _finish_block(self, block: bytes, tokens):
+        out = self.chunk(block, tokens.result() if tokens is not None else None)
+        if isinstance(block, _Unterminated) and len(out) and out[-1] in (10, b"\n"[0]):
+            out = out[:-1]
+        return out
 
     def _start(self, block: bytes, header, check_first, write) -> None:
         head = block[:16384].decode(_ENC, _ERR)
@@ -211,14 +236,15 @@ class FileEngine:
             write((header + (ending or "\n")).encode(_ENC, _ERR))
 
     # -- one block of complete lines ------------------------------------------------------
-    def chunk(self, buf: bytes) -> bytes:
-        comp = self.comp
+    def chunk(self, buf: bytes, tk: Optional["_Tokens"] = None) -> bytes:
+        """Compensate one block of complete lines (``tk``: its tokens, if already made)."""
         if not self.vector_ok:
             return self._lines(buf, 0, None)
-        tk = _Tokens(buf)
+        if tk is None:
+            tk = _Tokens(buf)
         if tk.lone_cr:
             return self._lines(buf, 0, None)
-        pieces: List[bytes] = []
+        pieces: list = []  # bytes and uint8 arrays (both are buffers)
         brk = tk.breaking
         n = tk.n_lines
         i = 0
@@ -228,6 +254,8 @@ class FileEngine:
             if b < n:
                 pieces.append(self._lines(buf, int(tk.ls[b]), int(tk.le[b]) + 1))
             i = b + 1
+        if len(pieces) == 1 and not isinstance(pieces[0], bytes):
+            return pieces[0]
         return b"".join(pieces)
 
     def _lines(self, buf: bytes, start: int, end: Optional[int]) -> bytes:
@@ -344,7 +372,7 @@ class FileEngine:
                 rep.max_correction_um[a] = cm
         # text (as scaled integers) of every evaluated point, in emission order
         ntot = nm + len(tups)
-        order_pos = np.arange(nm) + np.searchsorted(tups, np.arange(nm), side="right")
+        order_pos = np.arange(nm) + np.cumsum(rev_any)  # take-ups before each move
         tpos = tups + np.arange(len(tups))  # take-up i sits right before its move
         N = np.empty((ntot, 3), np.int64)
         NEG = np.empty((ntot, 3), bool)
@@ -436,7 +464,7 @@ class FileEngine:
         idx = np.repeat((S - dst).astype(np.int32), L)
         idx += np.arange(total, dtype=np.int32)
         pool = np.concatenate([tk.a[seg_start:seg_end], gen])
-        out = pool[idx].tobytes()
+        out = np.take(pool, idx)  # a buffer; joined/written without another copy
         # state handover
         last = ntot - 1
         for k in range(3):
