@@ -16,7 +16,8 @@ __plugin_description__ = (
 
 
 def __plugin_load__():
-    from .plugin import KinCompPlugin
+    from .plugin import KinCompPlugin, plugin_hooks
 
-    global __plugin_implementation__
+    global __plugin_implementation__, __plugin_hooks__
     __plugin_implementation__ = KinCompPlugin()
+    __plugin_hooks__ = plugin_hooks(__plugin_implementation__)

@@ -127,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--params", required=True)
     f.set_defaults(func=cmd_firmware)
     sub.add_parser("bench", help="speed/memory benchmark (bench --help for its options)")
+    sub.add_parser("demo-server", help="OctoPrint + KinComp on the virtual printer (demo)")
 
     from .cli_ballbar import add_ballbar_commands
 
@@ -140,6 +141,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from .benchmark import main as bench_main
 
         return bench_main(argv[1:])
+    if argv[:1] == ["demo-server"]:
+        from .devserver import main as demo_main
+
+        return demo_main(argv[1:])
     ap = build_parser()
     args = ap.parse_args(argv)
     try:

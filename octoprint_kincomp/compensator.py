@@ -252,6 +252,31 @@ class Compensator:
         self._qm = None
         self._lim_hit = [True, True, True]
 
+    def adopt_state(self, other: "Compensator") -> None:
+        """Continue from ``other``'s modal state and positions (a parameter change in the
+        middle of a stream). Desired positions do not depend on the model and the firmware
+        coordinates are what the firmware holds, so the new model simply applies from the
+        next move on; backlash directions carry over for axes active in both."""
+        self.m = list(other.m)
+        self.fw = list(other.fw)
+        self.fw_text = list(other.fw_text)
+        self.w = list(other.w)
+        self.g = list(other.g)
+        self.absolute = other.absolute
+        self.e_absolute_mode = other.e_absolute_mode
+        self.inches = other.inches
+        self.plane = other.plane
+        self.ij_absolute = other.ij_absolute
+        self.e_pos = other.e_pos
+        self.feed = other.feed
+        self.tool = other.tool
+        self.lineno = other.lineno
+        for k in range(3):
+            if self.backlash.active[k] and other.backlash.active[k]:
+                self.backlash.dir[k] = other.backlash.dir[k]
+        self._qm = None
+        self._lim_hit = [True, True, True]
+
     def invalidate(self, axes: Sequence[int] = (0, 1, 2)) -> None:
         """Forget the position of ``axes`` (their next move must re-establish it)."""
         for k in axes:

@@ -178,7 +178,8 @@ class FileEngine:
     # -- driver --------------------------------------------------------------------------
     def run(self, read: Callable[[int], bytes], write: Callable[[bytes], object],
             header: Optional[str] = None,
-            check_first: Optional[Callable[[str], None]] = None) -> None:
+            check_first: Optional[Callable[[str], None]] = None,
+            progress: Optional[Callable[[int], None]] = None) -> None:
         """Compensate everything ``read`` yields into ``write``.
 
         ``header`` is written before the first line (with that line's ending), as the line
@@ -190,7 +191,11 @@ class FileEngine:
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="kincomp-tok") as pool:
             pending = None  # (block, future of its tokens)
             first = True
+            done = 0
             for block in self._blocks(read):
+                done += len(block)
+                if progress is not None:
+                    progress(done)
                 if first:
                     self._start(block, header, check_first, write)
                     first = False

@@ -96,17 +96,20 @@ def _check_head(text: str) -> None:
 
 
 def compensate_binary(src: IO[bytes], dst: IO[bytes], params: Params,
-                      options: Optional[Options] = None) -> Report:
-    """Compensate a binary stream with the vectorised engine (same output as the line path)."""
+                      options: Optional[Options] = None, progress=None) -> Report:
+    """Compensate a binary stream with the vectorised engine (same output as the line path).
+
+    ``progress(bytes_read)`` is called as the input is consumed."""
     from .fastfile import FileEngine
 
     comp = Compensator(params, options)
-    FileEngine(comp).run(src.read, dst.write, marker_line(params), _check_head)
+    FileEngine(comp).run(src.read, dst.write, marker_line(params), _check_head, progress)
     return comp.report
 
 
 def compensate_file(in_path: str, out_path: Optional[str], params: Params,
-                    options: Optional[Options] = None, dry_run: bool = False) -> Report:
+                    options: Optional[Options] = None, dry_run: bool = False,
+                    progress=None) -> Report:
     """Compensate ``in_path`` into ``out_path`` (or in place when None). Atomic on success."""
     existing = file_marker(in_path)
     if existing is not None:
@@ -114,12 +117,12 @@ def compensate_file(in_path: str, out_path: Optional[str], params: Params,
     target = out_path or in_path
     if dry_run:
         with open(in_path, "rb") as src:
-            return compensate_binary(src, _NullSink(), params, options)
+            return compensate_binary(src, _NullSink(), params, options, progress)
     directory = os.path.dirname(os.path.abspath(target)) or "."
     fd, tmp = tempfile.mkstemp(prefix=".kincomp-", suffix=".gcode", dir=directory)
     try:
         with open(in_path, "rb") as src, os.fdopen(fd, "wb") as dst:
-            report = compensate_binary(src, dst, params, options)
+            report = compensate_binary(src, dst, params, options, progress)
         if os.path.exists(target):
             try:
                 os.chmod(tmp, os.stat(target).st_mode & 0o777)

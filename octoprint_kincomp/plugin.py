@@ -1,8 +1,733 @@
-"""OctoPrint glue for KinComp (minimal for now: the plugin loads; integration comes next)."""
+"""KinComp's OctoPrint plugin: mixins and hooks wired to the core modules.
 
+Everything that computes lives in plain modules (compensator, queue, settings, runs,
+ballbar/...); this class translates OctoPrint's callbacks, requests and events into calls
+to them, and their results into responses, notifications and events.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import os
+import re
+import threading
+from typing import Any, Dict, Optional
+
+import flask
 import octoprint.plugin
+from flask_babel import gettext
+from octoprint.access import ADMIN_GROUP
+from octoprint.access.permissions import Permissions
+from octoprint.events import Events
+from octoprint.filemanager import FileDestinations, valid_file_type
+from octoprint.filemanager.util import DiskFileWrapper, StreamWrapper
+
+from . import __version__
+from .ballbar.analysis import analyse
+from .ballbar.artifacts import ArtifactError, diagnostics_from_artifact
+from .ballbar.formats import TraceError, load_any, parse_summary
+from .ballbar.program import ProgramError, TestSpec, cap_feed, generate, spec_dict
+from .compensator import Options
+from .demo import DemoBallbar
+from .fileproc import AlreadyCompensated, compensate_file, file_marker
+from .firmware import equivalents
+from .firmware_watch import FirmwareWatcher
+from .params import Params
+from .queue import QueueCompensator
+from .runs import RunNotFound, RunStore
+from .settings import (SETTINGS_VERSION, SettingsError, defaults, engine_config,
+                       limits_from_profile, max_feeds_from_profile, migrate,
+                       validate_settings)
+from .upload import BackgroundCompensator, CompensatingStream, Job
+
+MAX_TRACE_UPLOAD = 16 * 1024 * 1024
+PROGRAM_FOLDER = "kincomp"
+_SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
+FIRMWARE_HINTS = ("M852", "M425", "M556", "SET_SKEW")
 
 
-class KinCompPlugin(octoprint.plugin.StartupPlugin):
+def N_(message: str) -> str:
+    """Marks a message for translation; the browser translates it (see _notify)."""
+    return message
+
+
+def _error(message: str, status: int = 400):
+    return flask.make_response(flask.jsonify(error=message), status)
+
+
+def _require(permission) -> None:
+    if not permission.can():
+        flask.abort(403)
+
+
+class KinCompPlugin(
+    octoprint.plugin.StartupPlugin,
+    octoprint.plugin.SettingsPlugin,
+    octoprint.plugin.TemplatePlugin,
+    octoprint.plugin.AssetPlugin,
+    octoprint.plugin.BlueprintPlugin,
+    octoprint.plugin.EventHandlerPlugin,
+    octoprint.plugin.WizardPlugin,
+):
+    def __init__(self):
+        super().__init__()
+        self.queue: Optional[QueueCompensator] = None
+        self.watch = FirmwareWatcher()
+        self.runs: Optional[RunStore] = None
+        self.demo: Optional[DemoBallbar] = None
+        self.files: Optional[BackgroundCompensator] = None
+        self._program_path: Optional[str] = None
+        self._program_spec: Optional[TestSpec] = None
+        self._program_hash = ""
+        self._lock = threading.RLock()
+        self._warned_conflicts: Dict[str, str] = {}
+
+    # ~~ lifecycle ---------------------------------------------------------------------------
+    def initialize(self):
+        self.runs = RunStore(self.get_plugin_data_folder())
+        self.queue = QueueCompensator(Params(), Options(), on_error=self._on_compensation_error)
+        self.files = BackgroundCompensator(self._run_file_job, self._job_changed)
+
     def on_after_startup(self):
-        self._logger.info("KinComp loaded")
+        self._apply_settings(self._current_settings(), immediately=True)
+        self._logger.info("KinComp %s ready (compensation %s)", __version__,
+                          "on" if self.queue.enabled else "off")
+
+    # ~~ settings ----------------------------------------------------------------------------
+    def get_settings_defaults(self):
+        return defaults()
+
+    def get_settings_version(self):
+        return SETTINGS_VERSION
+
+    def on_settings_migrate(self, target, current):
+        if current is None or current < target:
+            raw = self._settings.get_all_data(merged=False) or {}
+            if not raw:
+                return  # nothing stored yet: the defaults are current
+            migrated = migrate(raw, current)
+            try:
+                clean = validate_settings(
+                    {k: v for k, v in migrated.items() if k in defaults()}, defaults())
+            except SettingsError as exc:
+                self._logger.warning("Stored KinComp settings invalid (%s): defaults used", exc)
+                clean = defaults()
+            for key, value in clean.items():
+                self._settings.set([key], value)
+            for key in set(migrated) - set(defaults()):
+                self._settings.remove([key])
+
+    def _current_settings(self) -> Dict[str, Any]:
+        current = {k: self._settings.get([k], merged=True) for k in defaults()}
+        try:
+            return validate_settings(current, defaults())
+        except SettingsError as exc:
+            self._logger.error("Stored KinComp settings are invalid (%s); using defaults", exc)
+            return defaults()
+
+    def on_settings_save(self, data):
+        """The standard settings dialog path. Invalid values never get here through the UI
+        (the before_request hook answers 400 first); anything else invalid is refused
+        whole, logged and reported, and the stored settings stay as they were."""
+        try:
+            new = validate_settings(data, self._current_settings())
+        except SettingsError as exc:
+            self._logger.warning("KinComp settings refused: %s", exc)
+            self._notify("error", N_("KinComp settings not saved: %(reason)s"),
+                         reason=str(exc))
+            return {}
+        return self._save_settings(new)
+
+    def _save_settings(self, new: Dict[str, Any], immediately: Optional[bool] = None):
+        old = self._current_settings()
+        diff = octoprint.plugin.SettingsPlugin.on_settings_save(self, new)
+        self._apply_settings(new, immediately=immediately)
+        if new["params"] != old["params"]:
+            params = Params.from_dict(new["params"])
+            self._event("params_applied", {"params_hash": params.hash(),
+                                           "previous_hash": Params.from_dict(
+                                               old["params"]).hash()})
+        return diff
+
+    def _limits(self):
+        try:
+            profile = self._printer_profile_manager.get_current_or_default()
+        except Exception:  # noqa: BLE001 - no profile: no limits
+            profile = None
+        return limits_from_profile(profile)
+
+    def _apply_settings(self, s: Dict[str, Any], immediately: Optional[bool] = None) -> None:
+        params, options = engine_config(s, self._limits())
+        now = s["apply_changes"] == "immediately" if immediately is None else immediately
+        q = self.queue
+        q.pass_through_on_error = s["pass_through_on_error"]
+        applied = q.set_params(params, options, now)
+        q.set_enabled(s["enabled"])
+        if not applied:
+            self._notify("info", N_("New KinComp parameters will be used from the next "
+                                    "print on."))
+        if s["demo"]["enabled"] and self.demo is None:
+            self.demo = DemoBallbar()
+        elif not s["demo"]["enabled"]:
+            self.demo = None
+        self._check_conflicts()
+
+    # ~~ wizard ------------------------------------------------------------------------------
+    def is_wizard_required(self):
+        return True  # shown once (per wizard version): it introduces the calibration tab
+
+    def get_wizard_version(self):
+        return 1
+
+    # ~~ templates and assets ----------------------------------------------------------------
+    def is_template_autoescaped(self):
+        return True
+
+    def get_template_configs(self):
+        return [
+            {"type": "settings", "name": "KinComp", "custom_bindings": True},
+            {"type": "tab", "name": gettext("Calibration"), "custom_bindings": True},
+            {"type": "wizard", "name": "KinComp", "custom_bindings": True},
+        ]
+
+    def get_assets(self):
+        return {"js": ["js/kincomp.js"], "css": ["css/kincomp.css"]}
+
+    # ~~ hooks -------------------------------------------------------------------------------
+    def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
+                     tags=None, *args, **kwargs):
+        if cmd.startswith(FIRMWARE_HINTS):
+            self.watch.sent(cmd)
+            self._check_conflicts()
+        return self.queue.handle(cmd, tags)
+
+    def sent_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None,
+                  *args, **kwargs):
+        demo = self.demo
+        if demo is not None and demo.recording:
+            demo.record(cmd)
+
+    def received_hook(self, comm_instance, line, *args, **kwargs):
+        if any(h in line for h in FIRMWARE_HINTS):
+            self.watch.received(line)
+            self._check_conflicts()
+        return line
+
+    def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
+                          allow_overwrite=False, *args, **kwargs):
+        s = self._current_settings()
+        if not s["enabled"] or s["mode"] != "on_upload":
+            return None
+        if not valid_file_type(path, type="gcode"):
+            return None
+        params, options = engine_config(s, limits_from_profile(printer_profile) or
+                                        self._limits())
+        if params.is_zero:
+            return None
+        return StreamWrapper(file_object.filename,
+                             CompensatingStream(file_object.stream(), params, options))
+
+    def permissions_hook(self, *args, **kwargs):
+        return [{
+            "key": "ADMIN",
+            "name": "KinComp admin",
+            "description": N_("Change KinComp's parameters, run and apply calibrations and "
+                              "compensate files"),
+            "roles": ["admin"],
+            "dangerous": True,
+            "default_groups": [ADMIN_GROUP],
+        }]
+
+    def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
+        return [("POST", r"/trace", MAX_TRACE_UPLOAD)]
+
+    def custom_events_hook(self, *args, **kwargs):
+        return ["params_applied", "calibration_analysed"]
+
+    def before_api_request_hook(self, plugin=None, *args, **kwargs):
+        return [self._check_settings_request]
+
+    def _check_settings_request(self):
+        """Answer 400 (instead of OctoPrint's silent 200) when the settings dialog sends
+        invalid KinComp values; nothing is stored then."""
+        req = flask.request
+        if req.method != "POST" or not req.path.rstrip("/").endswith("/api/settings"):
+            return None
+        if not Permissions.SETTINGS.can():
+            return None
+        data = req.get_json(silent=True)
+        if not isinstance(data, dict):
+            return None
+        mine = (data.get("plugins") or {}).get(self._identifier)
+        if mine is None:
+            return None
+        try:
+            validate_settings(mine, self._current_settings())
+        except SettingsError as exc:
+            return _error(gettext("KinComp: %(reason)s", reason=str(exc)), 400)
+        return None
+
+    # ~~ events ------------------------------------------------------------------------------
+    def on_event(self, event, payload):
+        payload = payload or {}
+        if event in (Events.CONNECTED, Events.DISCONNECTED):
+            self.queue.reset()
+            self.watch.reset()
+            if event == Events.DISCONNECTED and self.queue.printing:
+                self.queue.print_ended()
+        elif event == Events.PRINT_STARTED:
+            marked = self._is_precompensated(payload)
+            self.queue.print_started(marked)
+            self.files.set_paused(True)
+            self._start_demo_recording(payload)
+        elif event in (Events.PRINT_DONE, Events.PRINT_FAILED, Events.PRINT_CANCELLED):
+            self.queue.print_ended()
+            self.files.set_paused(False)
+            self._finish_demo(event == Events.PRINT_DONE)
+        elif event == Events.FILE_ADDED:
+            self._maybe_background(payload)
+
+    def _is_precompensated(self, payload) -> bool:
+        if payload.get("origin") != FileDestinations.LOCAL or not payload.get("path"):
+            return False
+        try:
+            disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, payload["path"])
+            h = file_marker(disk)
+        except Exception:  # noqa: BLE001 - unreadable: treat as not compensated
+            return False
+        if h is not None and h != self.queue.params.hash():
+            self._notify("warning", N_(
+                "This file was compensated with other KinComp parameters (%(old)s, now "
+                "%(new)s); it prints as compensated then."), old=h,
+                new=self.queue.params.hash())
+        return h is not None
+
+    # ~~ compensation errors and firmware conflicts -------------------------------------------
+    def _on_compensation_error(self, cmd: str, exc: Exception) -> None:
+        passed = self.queue.pass_through_on_error
+        self._logger.error("KinComp could not compensate %r: %s (%s)", cmd, exc,
+                           "sent as written" if passed else "not sent")
+        if passed:
+            self._notify("warning", N_("KinComp could not compensate '%(cmd)s' (%(err)s); it "
+                                       "was sent as written."), cmd=cmd, err=str(exc))
+            return
+        if self._printer.is_printing():
+            self._printer.pause_print(tags={"plugin:kincomp"})
+            self._notify("error", N_("KinComp could not compensate '%(cmd)s': %(err)s. The "
+                                     "command was not sent and the print is paused."),
+                         cmd=cmd, err=str(exc))
+        else:
+            self._notify("error", N_("KinComp could not compensate '%(cmd)s': %(err)s. The "
+                                     "command was not sent."), cmd=cmd, err=str(exc))
+
+    def _check_conflicts(self) -> None:
+        if self.queue is None or not self.queue.enabled:
+            return
+        conflicts = self.watch.conflicts(self.queue.params)
+        for kind, where in conflicts.items():
+            if self._warned_conflicts.get(kind) != where:
+                self._warned_conflicts[kind] = where
+                self._logger.warning("Double compensation: firmware %s active (%s)", kind, where)
+                self._notify("warning", N_(
+                    "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
+                    "corrected twice. Turn one of them off."), kind=kind, where=where)
+
+    # ~~ notifications -----------------------------------------------------------------------
+    def _notify(self, severity: str, msgid: str, **params) -> None:
+        """Tell the UI. Sent as the English message id plus its parameters: this can run
+        on any thread (no request, so no server-side locale); the browser translates it."""
+        self._plugin_manager.send_plugin_message(self._identifier, {
+            "type": "notify", "severity": severity, "msgid": msgid, "params": params,
+            "text": msgid % params if params else msgid})
+
+    def _event(self, name: str, payload: Dict[str, Any]) -> None:
+        self._event_bus.fire(f"plugin_{self._identifier}_{name}", payload)
+
+    def _job_changed(self, job: Job) -> None:
+        self._plugin_manager.send_plugin_message(self._identifier,
+                                                 {"type": "job", "job": job.to_dict()})
+
+    # ~~ background file compensation ---------------------------------------------------------
+    def _maybe_background(self, payload) -> None:
+        s = self._current_settings()
+        path = payload.get("path")
+        if (not s["enabled"] or s["mode"] != "background" or not path
+                or payload.get("storage") != FileDestinations.LOCAL
+                or not valid_file_type(path, type="gcode")):
+            return
+        disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
+        if file_marker(disk) is not None:
+            return
+        self.files.submit(path)
+
+    def _run_file_job(self, job: Job, progress) -> None:
+        s = self._current_settings()
+        params, options = engine_config(s, self._limits())
+        src = self._file_manager.path_on_disk(FileDestinations.LOCAL, job.path)
+        total = max(1, os.path.getsize(src))
+        root, ext = os.path.splitext(job.path)
+        dest = f"{root}.kincomp{ext or '.gcode'}"
+        tmp = os.path.join(self.get_plugin_data_folder(), "job.tmp")
+        report = compensate_file(src, tmp, params, options,
+                                 progress=lambda done: progress(min(1.0, done / total)))
+        self._file_manager.add_file(
+            FileDestinations.LOCAL, dest,
+            DiskFileWrapper(os.path.basename(dest), tmp, move=True), allow_overwrite=True)
+        self._file_manager.set_additional_metadata(
+            FileDestinations.LOCAL, dest, "kincomp",
+            {"params_hash": params.hash(), "source": job.path}, overwrite=True)
+        job.result = dest
+        job.report = report.to_dict()
+
+    # ~~ API ---------------------------------------------------------------------------------
+    def is_blueprint_protected(self):
+        return True
+
+    def is_blueprint_csrf_protected(self):
+        return True
+
+    @octoprint.plugin.BlueprintPlugin.route("/status", methods=["GET"])
+    def api_status(self):
+        _require(Permissions.STATUS)
+        s = self._current_settings()
+        params = Params.from_dict(s["params"])
+        return flask.jsonify(
+            version=__version__,
+            settings=s,
+            params_hash=params.hash(),
+            compensation=self.queue.status(),
+            firmware={"skew": self.watch.skew, "backlash": self.watch.backlash,
+                      "conflicts": self.watch.conflicts(params)},
+            equivalents=equivalents(params),
+            demo=self.demo is not None,
+            limits=self._limits(),
+            max_feeds=self._max_feeds(),
+            jobs=[j.to_dict() for j in self.files.jobs.values()],
+        )
+
+    @octoprint.plugin.BlueprintPlugin.route("/settings", methods=["POST"])
+    def api_settings(self):
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = flask.request.get_json(silent=True)
+        if not isinstance(data, dict):
+            return _error(gettext("Expected a JSON object of settings"), 400)
+        immediately = bool(data.pop("apply_now", False))
+        try:
+            new = validate_settings(data, self._current_settings())
+        except SettingsError as exc:
+            return _error(str(exc), 400)
+        self._save_settings(new, immediately=immediately or None)
+        self._settings.save()
+        return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
+                             compensation=self.queue.status())
+
+    def _max_feeds(self):
+        try:
+            return max_feeds_from_profile(self._printer_profile_manager.get_current_or_default())
+        except Exception:  # noqa: BLE001
+            return None
+
+    @octoprint.plugin.BlueprintPlugin.route("/program", methods=["POST"])
+    def api_program(self):
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = flask.request.get_json(silent=True) or {}
+        try:
+            plane = str(data.get("plane", "XY")).upper()
+            feed = float(data.get("feed", 1850.0))
+            spec = TestSpec(
+                plane=plane,
+                centre=tuple(float(v) for v in data.get("centre", (110, 110, 10))),
+                radius_mm=float(data.get("radius", 100.0)),
+                feed_mm_min=cap_feed(feed, plane, self._max_feeds()),
+                requested_feed_mm_min=feed,
+                mount_pause=bool(data.get("mount_pause", False)),
+            )
+            params = self.queue.params
+            text = generate(spec, volume=self._limits(), params_hash=params.hash())
+        except (ProgramError, TypeError, ValueError) as exc:
+            return _error(str(exc), 400)
+        name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
+               f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        path = f"{PROGRAM_FOLDER}/{name}"
+        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
+                                      ignore_existing=True)
+        self._file_manager.add_file(
+            FileDestinations.LOCAL, path,
+            StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
+        from .ballbar.program import spec_from_program
+
+        _, prog_hash = spec_from_program(text)
+        with self._lock:
+            self._program_path = path
+            self._program_spec = spec
+            self._program_hash = prog_hash
+        printing = False
+        if data.get("print"):
+            _require(Permissions.PRINT)
+            if not self._printer.is_operational() or self._printer.is_printing():
+                return _error(gettext("The printer is not ready to print"), 409)
+            self._printer.select_file(path, False, printAfterSelect=True,
+                                      tags={"plugin:kincomp", "kincomp:calibration"})
+            printing = True
+        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
+                             printing=printing, program_hash=prog_hash)
+
+    def _start_demo_recording(self, payload) -> None:
+        demo = self.demo
+        if demo is None:
+            return
+        with self._lock:
+            if payload.get("path") != self._program_path or self._program_spec is None:
+                return
+            demo.start(self._program_spec, self._program_hash)
+
+    def _finish_demo(self, done: bool) -> None:
+        demo = self.demo
+        if demo is None or not demo.recording:
+            return
+        if not done:
+            demo.cancel()
+            return
+        trace = demo.finish()
+        if trace is not None:
+            self._notify("success", N_(
+                "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
+            self._plugin_manager.send_plugin_message(self._identifier, {"type": "demo_trace"})
+
+    @octoprint.plugin.BlueprintPlugin.route("/demo/trace", methods=["GET"])
+    def api_demo_trace(self):
+        _require(Permissions.STATUS)
+        if self.demo is None or self.demo.last_trace is None:
+            return _error(gettext("No simulated trace yet: print a ballbar program in demo "
+                                  "mode first"), 404)
+        text = self.demo.last_trace.to_text()
+        resp = flask.make_response(text)
+        resp.headers["Content-Type"] = "text/csv; charset=utf-8"
+        resp.headers["Content-Disposition"] = 'attachment; filename="simulated_trace.csv"'
+        return resp
+
+    @octoprint.plugin.BlueprintPlugin.route("/trace", methods=["POST"])
+    def api_trace(self):
+        """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it and
+        store the run; nothing is applied."""
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        suffix = self._settings.global_get(["server", "uploads", "pathSuffix"]) or "path"
+        name_suffix = self._settings.global_get(["server", "uploads", "nameSuffix"]) or "name"
+        tmp_path = flask.request.values.get("file." + suffix)
+        filename = flask.request.values.get("file." + name_suffix, "trace")
+        if tmp_path:
+            size = os.path.getsize(tmp_path)
+            if size > MAX_TRACE_UPLOAD:
+                return _error(gettext("The file is too large"), 413)
+            with open(tmp_path, "rb") as f:
+                data = f.read()
+        else:
+            data = flask.request.get_data(cache=False)
+            if not data:
+                return _error(gettext("No file uploaded (multipart field 'file')"), 400)
+            if len(data) > MAX_TRACE_UPLOAD:
+                return _error(gettext("The file is too large"), 413)
+        return self._analyse_and_store(data, filename, "upload")
+
+    @octoprint.plugin.BlueprintPlugin.route("/analyze", methods=["POST"])
+    def api_analyze(self):
+        """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = flask.request.get_json(silent=True)
+        if not isinstance(data, dict):
+            return _error(gettext("Expected a JSON object"), 400)
+        if "summary" in data:
+            return self._analyse_and_store(json.dumps(data["summary"]).encode(),
+                                           "typed summary", "summary")
+        if "artifact" in data:
+            a = data["artifact"]
+            try:
+                diag = diagnostics_from_artifact(
+                    str(a.get("plane", "XY")), float(a["ac"]), float(a["bd"]), float(a["ad"]),
+                    {k: [(float(n), float(m)) for n, m in v]
+                     for k, v in (a.get("lengths") or {}).items()})
+            except (ArtifactError, KeyError, TypeError, ValueError) as exc:
+                return _error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
+            from .ballbar.analysis import Geometry, propose_params
+
+            notes = []
+            current = self.queue.params
+            params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None), current,
+                                    notes)
+            return self._store_run({"diagnostics": diag, "parameters": params.to_dict(),
+                                    "firmware": equivalents(params), "notes": notes},
+                                   "printed artifact", "artifact", None)
+        return _error(gettext("Give 'summary' or 'artifact'"), 400)
+
+    def _analyse_and_store(self, data: bytes, filename: str, source: str):
+        safe = _SAFE_NAME.sub("_", os.path.basename(str(filename)))[:100] or "trace"
+        try:
+            trace = load_any(data, safe)
+            result = analyse(trace, current=self.queue.params)
+        except TraceError as exc:
+            return _error(gettext("%(name)s: %(reason)s", name=safe, reason=str(exc)), 400)
+        kind = getattr(trace, "kind", source)
+        return self._store_run(result, safe, kind, data if kind != "summary" else None,
+                               result.get("plot"))
+
+    def _store_run(self, result, filename, source, raw: Optional[bytes], plot=None):
+        run_id = self.runs.new_id()
+        current = self.queue.params
+        run = {
+            "id": run_id,
+            "date": _dt.datetime.now().isoformat(timespec="seconds"),
+            "filename": filename,
+            "source": source,
+            "simulated": bool(result["diagnostics"].get("simulated")),
+            "params_before": current.to_dict(),
+            "params_before_hash": current.hash(),
+            "diagnostics": result["diagnostics"],
+            "proposed": result["parameters"],
+            "firmware": result["firmware"],
+            "notes": result["notes"],
+            "plot": plot,
+            "applied": None,
+        }
+        if raw is not None:
+            self.runs.save_trace(run_id, raw)
+        self.runs.save(run)
+        self._event("calibration_analysed", {"run": run_id, "source": source,
+                                             "simulated": run["simulated"]})
+        return flask.jsonify(run)
+
+    @octoprint.plugin.BlueprintPlugin.route("/apply", methods=["POST"])
+    def api_apply(self):
+        """Apply a run's proposed parameters ({"run": id}) or given ones ({"params": {...}})."""
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = flask.request.get_json(silent=True) or {}
+        run = None
+        if "run" in data:
+            try:
+                run = self.runs.get(str(data["run"]))
+            except RunNotFound:
+                return _error(gettext("No such calibration run"), 404)
+            params_doc = run["proposed"]
+        elif "params" in data:
+            params_doc = data["params"]
+        else:
+            return _error(gettext("Give 'run' or 'params'"), 400)
+        new = dict(self._current_settings())
+        new["params"] = params_doc
+        if "enabled" in data:
+            new["enabled"] = data["enabled"]
+        try:
+            new = validate_settings(new, self._current_settings())
+        except SettingsError as exc:
+            return _error(str(exc), 400)
+        self._save_settings(new, immediately=bool(data.get("apply_now")) or None)
+        self._settings.save()
+        if run is not None:
+            run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
+            self.runs.save(run)
+        return flask.jsonify(params=new["params"],
+                             params_hash=Params.from_dict(new["params"]).hash(),
+                             compensation=self.queue.status())
+
+    @octoprint.plugin.BlueprintPlugin.route("/runs", methods=["GET"])
+    def api_runs(self):
+        _require(Permissions.STATUS)
+        return flask.jsonify(runs=self.runs.list())
+
+    @octoprint.plugin.BlueprintPlugin.route("/runs/<run_id>", methods=["GET"])
+    def api_run(self, run_id):
+        _require(Permissions.STATUS)
+        try:
+            return flask.jsonify(self.runs.get(run_id))
+        except RunNotFound:
+            return _error(gettext("No such calibration run"), 404)
+
+    @octoprint.plugin.BlueprintPlugin.route("/compare", methods=["GET"])
+    def api_compare(self):
+        _require(Permissions.STATUS)
+        from .ballbar.closedloop import table
+
+        try:
+            a = self.runs.get(flask.request.args.get("before", ""))
+            b = self.runs.get(flask.request.args.get("after", ""))
+        except RunNotFound:
+            return _error(gettext("No such calibration run"), 404)
+        return flask.jsonify(table=table(a["diagnostics"], b["diagnostics"]),
+                             before=a["id"], after=b["id"])
+
+    def _local_file(self, path: str) -> Optional[str]:
+        if not isinstance(path, str) or not path or not valid_file_type(path, type="gcode"):
+            return None
+        if not self._file_manager.file_exists(FileDestinations.LOCAL, path):
+            return None
+        return self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
+
+    @octoprint.plugin.BlueprintPlugin.route("/dryrun", methods=["GET"])
+    def api_dryrun(self):
+        _require(Permissions.STATUS)
+        _require(Permissions.FILES_LIST)
+        disk = self._local_file(flask.request.args.get("path", ""))
+        if disk is None:
+            return _error(gettext("No such G-code file"), 404)
+        s = self._current_settings()
+        params, options = engine_config(s, self._limits())
+        try:
+            report = compensate_file(disk, None, params, options, dry_run=True)
+        except AlreadyCompensated as exc:
+            return flask.jsonify(precompensated=exc.params_hash, report=None)
+        return flask.jsonify(precompensated=None, params_hash=params.hash(),
+                             report=report.to_dict())
+
+    @octoprint.plugin.BlueprintPlugin.route("/compensate", methods=["POST"])
+    def api_compensate(self):
+        _require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        _require(Permissions.FILES_UPLOAD)
+        data = flask.request.get_json(silent=True) or {}
+        path = data.get("path", "")
+        disk = self._local_file(path)
+        if disk is None:
+            return _error(gettext("No such G-code file"), 404)
+        if file_marker(disk) is not None:
+            return _error(gettext("This file is already compensated"), 409)
+        job = self.files.submit(path)
+        return flask.jsonify(job=job.to_dict())
+
+    @octoprint.plugin.BlueprintPlugin.route("/files", methods=["GET"])
+    def api_files(self):
+        """Local G-code files with the parameter hash they were compensated with (if any)."""
+        _require(Permissions.FILES_LIST)
+        out = []
+        current = self.queue.params.hash()
+
+        def walk(node, prefix=""):
+            for name, entry in (node or {}).items():
+                if entry.get("type") == "folder":
+                    walk(entry.get("children"), entry.get("path", name) + "/")
+                elif entry.get("type") == "machinecode":
+                    path = entry.get("path") or prefix + name
+                    try:
+                        h = file_marker(self._file_manager.path_on_disk(
+                            FileDestinations.LOCAL, path))
+                    except Exception:  # noqa: BLE001
+                        h = None
+                    out.append({"path": path, "params_hash": h,
+                                "outdated": h is not None and h != current})
+
+        walk(self._file_manager.list_files(FileDestinations.LOCAL, recursive=True)
+             .get(FileDestinations.LOCAL))
+        return flask.jsonify(files=out, params_hash=current)
+
+
+def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
+    return {
+        # run last in queuing so other plugins' rewrites get compensated too
+        "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
+        "octoprint.comm.protocol.gcode.sent": plugin.sent_hook,
+        "octoprint.comm.protocol.gcode.received": plugin.received_hook,
+        "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
+        "octoprint.access.permissions": plugin.permissions_hook,
+        "octoprint.server.http.bodysize": plugin.bodysize_hook,
+        "octoprint.events.register_custom_events": plugin.custom_events_hook,
+        "octoprint.server.api.before_request": plugin.before_api_request_hook,
+    }

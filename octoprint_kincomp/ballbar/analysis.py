@@ -373,8 +373,10 @@ def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[s
 
 def analyse_runs(geom: Geometry, runs: Sequence[Run], meta: Dict[str, str],
                  mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
-                 cyclic_pitch: Optional[float] = None) -> Dict[str, object]:
-    f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
+                 cyclic_pitch: Optional[float] = None, f: Optional[FitResult] = None
+                 ) -> Dict[str, object]:
+    if f is None:
+        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
     v = f.values
     la, lb = geom.letters
     diag: Dict[str, object] = {
@@ -423,6 +425,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
 
     current = current or Params()
     notes: List[str] = []
+    plot = None
     if isinstance(trace, Summary):
         diag = dict(trace.diagnostics)
         geom = Geometry(meta_plane(trace.meta),
@@ -434,7 +437,9 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         notes += trace.notes
     else:
         geom, runs = load_runs(trace)
-        diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cyclic_pitch)
+        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
+        diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cyclic_pitch, f)
+        plot = plot_data(geom, runs, f, diag)
         if not calibrated:
             notes.append("The bar is not calibrated: the mean radius mixes the bar's own length "
                          "error with the mean axis scale, so only the scale mismatch is used.")
@@ -447,7 +452,49 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         "parameters": params.to_dict(),
         "firmware": equivalents(params),
         "notes": notes,
+        "plot": plot,
     }
+
+
+def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str, object],
+              bins: int = 720) -> Dict[str, object]:
+    """What a ballbar plot shows: per direction the deviation (um) against the angle (deg)
+    with the common least-squares centre and the mean radius removed, and the fitted model
+    on the same footing (the fitted ellipse), averaged into ``bins`` angle bins."""
+    theta = np.concatenate([r.theta for r in runs])
+    dev = np.concatenate([r.dev for r in runs])
+    _, coef = _lsc(theta, dev)
+    model = Model(geom, runs, "dT" in f.values, "sm" in f.values, None)
+    names = [n for n in model.names if n in f.values]
+    model.names = names
+    pred = model.predict(np.array([f.values[n] for n in names]))
+    out: Dict[str, object] = {
+        "plane": geom.plane, "axes": diag.get("axes"), "radius_mm": geom.radius,
+        "simulated": bool(diag.get("simulated")), "directions": {},
+        "centre_removed_um": {"a": float(coef[1]) * 1e3, "b": float(coef[2]) * 1e3},
+    }
+    i = 0
+    for run in runs:
+        n = len(run.theta)
+        th = run.theta
+        base = coef[0] + coef[1] * np.cos(th) + coef[2] * np.sin(th)
+        d = (run.dev - base) * 1e3
+        m = (pred[i:i + n] - base) * 1e3
+        i += n
+        deg = np.degrees(th)
+        lo, hi = float(deg.min()), float(deg.max())
+        edges = np.linspace(lo, hi, min(bins, max(2, n)) + 1)
+        which = np.clip(np.searchsorted(edges, deg, side="right") - 1, 0, len(edges) - 2)
+        cnt = np.bincount(which, minlength=len(edges) - 1)
+        ok = cnt > 0
+        mean = lambda v: (np.bincount(which, weights=v, minlength=len(edges) - 1)[ok]
+                          / cnt[ok])
+        out["directions"][run.direction] = {
+            "angle_deg": np.round(mean(deg), 3).tolist(),
+            "dev_um": np.round(mean(d), 3).tolist(),
+            "fit_um": np.round(mean(m), 3).tolist(),
+        }
+    return out
 
 
 def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,

@@ -22,6 +22,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 PLANES = {"XY": (0, 1), "XZ": (0, 2), "YZ": (1, 2)}
+# Run markers that survive comment stripping (OctoPrint sends no comments); M117 just shows
+# them on the printer's display.
+RUN_MARKER = "Ballbar run"
+END_MARKER = "Ballbar test done"
 AXIS = "XYZ"
 DEFAULT_FEED = 1850.0
 DEFAULT_RADIUS = 100.0
@@ -210,6 +214,7 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
         a0, sweep = run_angles(spec, d)
         w(f"; --- run {d}: feed-in at {a0:g} deg, sweep {sweep:g} deg, capture "
           f"{spec.capture_deg:g} deg from {spec.start_deg:g} deg")
+        w(f"M117 {RUN_MARKER} {d}")
         p = spec.point(a0, r_out)
         w(f"G1 {la}{_fmt(p[a])} {lb}{_fmt(p[b])} F{feed:g}")
         w("M400")
@@ -224,6 +229,7 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
         w("M400")
         w(f"G4 P{int(round(spec.dwell_s * 1000))} ; end marker")
     w("; --- end of test: unmount the ballbar before moving the printer")
+    w(f"M117 {END_MARKER}")
     if spec.mount_pause:
         w("M0 Unmount the ballbar now ; pause")
         w("G91")

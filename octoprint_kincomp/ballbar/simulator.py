@@ -27,7 +27,7 @@ from ..kinematics import KinematicModel
 from ..machine import Dwell, FirmwareInterpreter, Home, Move
 from ..params import AXES, Params, ParamsError
 from .formats import NativeTrace
-from .program import spec_from_program
+from .program import END_MARKER, RUN_MARKER, ProgramError, spec_from_program
 
 SIMULATED_LABEL = "SIMULATED data (KinComp printer + ballbar simulator), not a measurement"
 
@@ -219,14 +219,26 @@ class Simulator:
                         out[n, k] = -direction * amp * math.exp(-travel / tr.spike_decay_mm)
         return out
 
-    def run_program(self, text: str) -> NativeTrace:
-        """Simulate a KinComp ballbar program; returns the native time-series trace."""
-        spec, prog_hash = spec_from_program(text)
-        lines = text.splitlines()
-        run_starts = [(i + 1, ln.split()[3].rstrip(":"))
-                      for i, ln in enumerate(lines) if ln.startswith("; --- run ")]
-        end_line = next((i + 1 for i, ln in enumerate(lines)
-                         if ln.startswith("; --- end of test")), len(lines))
+    def run_program(self, text: str, spec=None, prog_hash: str = "") -> NativeTrace:
+        """Simulate a KinComp ballbar program; returns the native time-series trace.
+
+        ``text`` may be the program as sent to a printer (comments stripped, line numbers,
+        compensated): runs are found by their ``M117`` markers; then ``spec`` (the test that
+        was generated) must be given.
+        """
+        if spec is None:
+            spec, prog_hash = spec_from_program(text)
+        lines = [_strip_number(ln) for ln in text.splitlines()]
+        run_starts = []
+        end_line = len(lines)
+        for i, ln in enumerate(lines):
+            body = ln.split(";", 1)[0].strip()
+            if body.startswith("M117 " + RUN_MARKER):
+                run_starts.append((i + 1, body.split()[-1].lower()))
+            elif body.startswith("M117 " + END_MARKER):
+                end_line = i + 1
+        if not run_starts:
+            raise ProgramError("no ballbar runs found (no 'M117 Ballbar run' markers)")
         fw = FirmwareInterpreter(start=spec.centre)
         events = list(fw.run(lines))
         timeline = _Timeline(events, spec.centre)
@@ -256,5 +268,19 @@ class Simulator:
         return NativeTrace(meta=meta, rows=rows)
 
 
-def simulate_program(text: str, truth: Truth) -> NativeTrace:
-    return Simulator(truth).run_program(text)
+def simulate_program(text: str, truth: Truth, spec=None, prog_hash: str = "") -> NativeTrace:
+    return Simulator(truth).run_program(text, spec, prog_hash)
+
+
+def _strip_number(line: str) -> str:
+    """Drop an ``N<n> ... *<cs>`` wrapper (lines as they were sent to a printer)."""
+    s = line.strip()
+    if s[:1] in ("N", "n"):
+        i = 1
+        while i < len(s) and s[i].isdigit():
+            i += 1
+        s = s[i:].lstrip()
+        star = s.rfind("*")
+        if star >= 0 and s[star + 1:].strip().isdigit():
+            s = s[:star].rstrip()
+    return s

@@ -1,0 +1,137 @@
+"""The compensator as OctoPrint's queuing hook sees it (no OctoPrint import here).
+
+OctoPrint calls the hook once per outgoing command, comments already stripped, from the
+thread that queues it (an API request or the file reader), so calls are serialised here.
+Resends never come back through the hook, so nothing is ever compensated twice on resend.
+
+* ``handle(cmd, tags)`` returns None (send unchanged), or the list of replacement commands.
+* Lines of a print whose file was already compensated (it starts with KinComp's marker) are
+  passed through untouched.
+* If compensation fails on a line, the line is not sent: ``on_error`` is called (the plugin
+  pauses the print and tells the user) and an empty list suppresses it - unless the user
+  chose "pass through on error", then it is sent as written and reported.
+* New parameters apply at the next print start (``apply_changes = next_print``) or at once;
+  either way the new model takes over the tracked state (positions do not depend on it).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable, Dict, List, Optional, Tuple
+
+from .compensator import Compensator, Options
+from .params import Params
+
+FILE_TAG = "source:file"
+
+
+class QueueCompensator:
+    def __init__(self, params: Params, options: Options, enabled: bool = False,
+                 pass_through_on_error: bool = False,
+                 on_error: Optional[Callable[[str, Exception], None]] = None):
+        self._lock = threading.RLock()
+        self.enabled = enabled
+        self.pass_through_on_error = pass_through_on_error
+        self.on_error = on_error
+        self.comp = Compensator(params, options)
+        self.pending: Optional[Tuple[Params, Options]] = None
+        self.skip_file = False
+        self.printing = False
+        self.errors = 0
+        self.last_error: Optional[Dict[str, object]] = None
+        self.passed_on_error = 0
+
+    @property
+    def params(self) -> Params:
+        return self.comp.params
+
+    # -- the hook ------------------------------------------------------------------------
+    def handle(self, cmd: str, tags=None) -> Optional[List[Tuple[str]]]:
+        if not self.enabled or not cmd:
+            return None
+        if self.skip_file and tags and FILE_TAG in tags:
+            return None
+        with self._lock:
+            try:
+                out = self.comp.process(cmd)
+            except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
+                return self._failed(cmd, exc)
+        if out is cmd:
+            return None
+        return [(line,) for line in out]
+
+    def _failed(self, cmd: str, exc: Exception):
+        self.errors += 1
+        self.last_error = {"command": cmd, "error": str(exc), "time": time.time()}
+        # the state may be half-updated: forget positions so nothing builds on it
+        self.comp.invalidate()
+        if self.pass_through_on_error:
+            self.passed_on_error += 1
+            if self.on_error is not None:
+                self.on_error(cmd, exc)
+            return None
+        if self.on_error is not None:
+            self.on_error(cmd, exc)
+        return []
+
+    # -- life cycle ----------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to 'nothing known' (connect, disconnect, print start/cancel)."""
+        with self._lock:
+            self.comp.reset()
+
+    def set_enabled(self, enabled: bool) -> None:
+        with self._lock:
+            if enabled and not self.enabled:
+                self.comp.reset()  # whatever happened meanwhile was not tracked
+            self.enabled = enabled
+
+    def set_params(self, params: Params, options: Options, immediately: bool) -> bool:
+        """Use new parameters. Returns True if they apply now, False if they wait for the
+        next print (a print is running and the user did not ask for 'immediately')."""
+        with self._lock:
+            if self.printing and not immediately:
+                self.pending = (params, options)
+                return False
+            self._swap(params, options)
+            return True
+
+    def _swap(self, params: Params, options: Options) -> None:
+        new = Compensator(params, options)
+        new.adopt_state(self.comp)
+        self.comp = new
+        self.pending = None
+
+    def print_started(self, precompensated: bool) -> None:
+        with self._lock:
+            self.printing = True
+            if self.pending is not None:
+                self._swap(*self.pending)
+            self.comp.reset()
+            self.skip_file = precompensated
+
+    def print_ended(self) -> None:
+        with self._lock:
+            self.printing = False
+            self.skip_file = False
+            if self.pending is not None:
+                self._swap(*self.pending)
+            self.comp.reset()
+
+    # -- reporting -----------------------------------------------------------------------
+    def status(self) -> Dict[str, object]:
+        with self._lock:
+            rep = self.comp.report.to_dict()
+            return {
+                "enabled": self.enabled,
+                "params_hash": self.comp.params.hash(),
+                "pending_params_hash": self.pending[0].hash() if self.pending else None,
+                "positions_known": list(self.comp.known),
+                "printing": self.printing,
+                "skipping_precompensated_file": self.skip_file,
+                "errors": self.errors,
+                "last_error": self.last_error,
+                "passed_on_error": self.passed_on_error,
+                "report": rep,
+            }

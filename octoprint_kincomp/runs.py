@@ -1,0 +1,110 @@
+"""Calibration history: one JSON file per run in the plugin's data folder (no OctoPrint import).
+
+A run records when it was made, where its data came from (trace, .b5r, typed summary,
+printed artifact; simulated or not), the parameters active during the test, the analysis
+(diagnostics), the proposed parameters, and whether and when they were applied. A trace
+file, if any, is kept next to it. Run ids are generated here and checked on every lookup,
+so a request can never name a path outside the runs folder.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+import secrets
+import tempfile
+from typing import Any, Dict, List, Optional
+
+_ID = re.compile(r"^[0-9]{8}-[0-9]{6}-[0-9a-f]{6}$")
+MAX_RUNS_LISTED = 500
+
+
+class RunNotFound(KeyError):
+    pass
+
+
+def _atomic_write(path: str, data: bytes) -> None:
+    folder = os.path.dirname(path)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+class RunStore:
+    def __init__(self, data_folder: str):
+        self.folder = os.path.join(data_folder, "runs")
+        os.makedirs(self.folder, exist_ok=True)
+
+    def _path(self, run_id: str, suffix: str = ".json") -> str:
+        if not isinstance(run_id, str) or not _ID.match(run_id):
+            raise RunNotFound(run_id)
+        return os.path.join(self.folder, run_id + suffix)
+
+    def new_id(self) -> str:
+        now = _dt.datetime.now()
+        return now.strftime("%Y%m%d-%H%M%S-") + secrets.token_hex(3)
+
+    def save(self, run: Dict[str, Any]) -> None:
+        path = self._path(run["id"])
+        _atomic_write(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
+
+    def save_trace(self, run_id: str, data: bytes) -> str:
+        path = self._path(run_id, ".trace")
+        _atomic_write(path, data)
+        return path
+
+    def trace_path(self, run_id: str) -> Optional[str]:
+        path = self._path(run_id, ".trace")
+        return path if os.path.exists(path) else None
+
+    def get(self, run_id: str) -> Dict[str, Any]:
+        path = self._path(run_id)
+        try:
+            with open(path, encoding="utf-8") as f:
+                return json.load(f)
+        except (OSError, ValueError):
+            raise RunNotFound(run_id) from None
+
+    def list(self) -> List[Dict[str, Any]]:
+        """Summaries, newest first."""
+        out = []
+        names = sorted((n for n in os.listdir(self.folder) if n.endswith(".json")),
+                       reverse=True)[:MAX_RUNS_LISTED]
+        for name in names:
+            run_id = name[:-5]
+            if not _ID.match(run_id):
+                continue
+            try:
+                run = self.get(run_id)
+            except RunNotFound:
+                continue
+            d = run.get("diagnostics") or {}
+            out.append({
+                "id": run_id,
+                "date": run.get("date"),
+                "source": run.get("source"),
+                "simulated": bool(d.get("simulated") or run.get("simulated")),
+                "plane": d.get("plane"),
+                "filename": run.get("filename"),
+                "squareness_um_per_m": d.get("squareness_um_per_m"),
+                "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
+                "applied": run.get("applied"),
+                "params_before_hash": run.get("params_before_hash"),
+            })
+        return out
+
+    def delete(self, run_id: str) -> None:
+        for suffix in (".json", ".trace"):
+            path = self._path(run_id, suffix)
+            if os.path.exists(path):
+                os.unlink(path)

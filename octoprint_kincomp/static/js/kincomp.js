@@ -1,0 +1,6 @@
+$(function () {
+    function KinCompViewModel(parameters) {
+        var self = this;
+    }
+    OCTOPRINT_VIEWMODELS.push({construct: KinCompViewModel, dependencies: [], elements: []});
+});

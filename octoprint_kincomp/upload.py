@@ -1,0 +1,136 @@
+"""Upload-time and background file compensation (OctoPrint glue around the core engine)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from typing import Callable, Dict, Optional
+
+from octoprint.filemanager.util import LineProcessorStream
+
+from .compensator import Compensator, Options
+from .fileproc import ENCODING, ERRORS, MARKER_SCAN_LINES, _MARKER_RE, marker_line
+from .lines import UNIVERSAL, join_output, split_ending
+from .params import Params
+
+
+class CompensatingStream(LineProcessorStream):
+    """Compensates an upload while OctoPrint saves it (one line at a time, O(1) memory).
+
+    The first output line is KinComp's marker; a file that already carries a marker is
+    passed through unchanged (never compensated twice).
+    """
+
+    def __init__(self, input_stream, params: Params, options: Options):
+        super().__init__(input_stream)
+        self.params = params
+        self.comp = Compensator(params, options)
+        self.started = False
+        self.passthrough = False
+        self.lines = 0
+
+    def process_line(self, line: bytes) -> bytes:
+        text = line.decode(ENCODING, ERRORS)
+        out = []
+        for raw in UNIVERSAL.findall(text) or [text]:
+            self.lines += 1
+            body, ending = split_ending(raw)
+            if self.lines <= MARKER_SCAN_LINES and _MARKER_RE.match(body):
+                self.passthrough = True
+            if not self.started:
+                self.started = True
+                if not self.passthrough:
+                    out.append(marker_line(self.params) + (ending or "\n"))
+            if self.passthrough:
+                out.append(raw)
+                continue
+            res = self.comp.process(body)
+            out.append(raw if res is body else join_output(res, ending))
+        return "".join(out).encode(ENCODING, ERRORS)
+
+
+class Job:
+    """One background compensation (progress 0..1, result or error)."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self.progress = 0.0
+        self.state = "queued"  # queued, running, done, failed
+        self.result: Optional[str] = None
+        self.error: Optional[str] = None
+        self.report: Optional[Dict] = None
+        self.started = time.time()
+
+    def to_dict(self) -> Dict:
+        return {"path": self.path, "progress": round(self.progress, 3), "state": self.state,
+                "result": self.result, "error": self.error, "report": self.report}
+
+
+class BackgroundCompensator:
+    """A worker thread that compensates queued files one after the other.
+
+    ``run_job(job, progress)`` does the work (the plugin supplies it: read from the file
+    manager, compensate with the fast engine, add the result as a new file); ``notify(job)``
+    is called on every state change and progress step.
+    """
+
+    def __init__(self, run_job: Callable[[Job, Callable[[float], None]], None],
+                 notify: Callable[[Job], None]):
+        self._run_job = run_job
+        self._notify = notify
+        self._queue = []
+        self._cond = threading.Condition()
+        self.jobs: Dict[str, Job] = {}
+        self.paused = False  # held while printing: file work must not starve the print
+        self._thread = threading.Thread(target=self._loop, name="kincomp-files", daemon=True)
+        self._thread.start()
+
+    def submit(self, path: str) -> Job:
+        with self._cond:
+            job = self.jobs.get(path)
+            if job is not None and job.state in ("queued", "running"):
+                return job
+            job = Job(path)
+            self.jobs[path] = job
+            self._queue.append(job)
+            self._cond.notify()
+        self._notify(job)
+        return job
+
+    def set_paused(self, paused: bool) -> None:
+        with self._cond:
+            self.paused = paused
+            self._cond.notify()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue or self.paused:
+                    self._cond.wait()
+                job = self._queue.pop(0)
+            job.state = "running"
+            self._notify(job)
+            last = [0.0]
+
+            def progress(frac: float) -> None:
+                job.progress = frac
+                if frac - last[0] >= 0.05:
+                    last[0] = frac
+                    self._notify(job)
+
+            try:
+                self._run_job(job, progress)
+                job.state = "done"
+                job.progress = 1.0
+            except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
+                job.state = "failed"
+                job.error = str(exc)
+            self._notify(job)
+
+
+def file_size(path: str) -> int:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return 0

@@ -1,0 +1,303 @@
+"""The OctoPrint glue with mocked OctoPrint objects (issue 3)."""
+
+import io
+import json
+from unittest import mock
+
+import pytest
+
+from octoprint_kincomp.compensator import LimitError, Options
+from octoprint_kincomp.firmware_watch import FirmwareWatcher
+from octoprint_kincomp.params import Params
+from octoprint_kincomp.queue import QueueCompensator
+from octoprint_kincomp.settings import (SettingsError, defaults, engine_config,
+                                        limits_from_profile, max_feeds_from_profile, migrate,
+                                        validate_settings)
+
+SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
+
+
+def normalize(result, cmd="X", cmd_type=None, tags=None):
+    """What OctoPrint's comm layer makes of a queuing-hook result."""
+    from octoprint.util.comm import _normalize_command_handler_result
+
+    return _normalize_command_handler_result(cmd, cmd_type, None, None, tags or set(), result)
+
+
+# -- queue adapter ---------------------------------------------------------------------------
+
+def test_hook_results_normalise_like_octoprint():
+    q = QueueCompensator(SKEW, Options(), enabled=True)
+    assert q.handle("G28") is None
+    res = q.handle("G1 X10 Y50 Z1 F3000")
+    norm = normalize(res, "G1 X10 Y50 Z1 F3000")
+    assert [c for c, *_ in norm] == [r[0] for r in res]
+    # x - 1000 um/m * 50 mm = 9.950, plus half the 20 um take-up: after homing the direction of
+    # the last motion is unknown, so the first move takes up half the play either way
+    assert norm[-1][0].startswith("G1 X9.960 Y50.000")
+    # a reversal: the take-up comes out as its own command, in order
+    res = q.handle("G1 X5")
+    assert len(res) == 2 and len(normalize(res, "G1 X5")) == 2
+
+
+def test_disabled_and_non_moves_pass_unchanged():
+    q = QueueCompensator(SKEW, Options(), enabled=False)
+    assert q.handle("G1 X10 Y10") is None
+    q.set_enabled(True)
+    for cmd in ("M105", "G28", "M104 S200"):
+        assert q.handle(cmd) is None
+
+
+def test_precompensated_file_lines_are_not_touched():
+    q = QueueCompensator(SKEW, Options(), enabled=True)
+    q.print_started(precompensated=True)
+    q.handle("G28", {"source:file"})
+    assert q.handle("G1 X10 Y50 Z1", {"source:file", "fileline:3"}) is None
+    # but commands from elsewhere (a jog during the print) are compensated
+    q.handle("G28", {"source:api"})
+    assert q.handle("G1 X10 Y50 Z1", {"source:api"}) is not None
+    q.print_ended()
+    assert q.skip_file is False
+
+
+def test_failure_suppresses_and_reports():
+    errors = []
+    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+                         enabled=True, on_error=lambda c, e: errors.append((c, e)))
+    q.handle("G28")
+    res = q.handle("G1 X0 Y100 Z1")  # compensated X would be -0.2: outside
+    assert res == [] and normalize(res, "G1 X0 Y100 Z1") == []
+    assert errors and isinstance(errors[0][1], LimitError)
+    assert q.status()["errors"] == 1 and q.status()["last_error"]["command"] == "G1 X0 Y100 Z1"
+    # the position is forgotten: the next move cannot build on a half-applied state
+    assert q.comp.known == (False, False, False)
+
+
+def test_failure_pass_through_when_chosen():
+    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+                         enabled=True, pass_through_on_error=True,
+                         on_error=lambda c, e: None)
+    q.handle("G28")
+    assert q.handle("G1 X0 Y100 Z1") is None
+    assert q.status()["passed_on_error"] == 1
+
+
+def test_internal_exception_never_sends_the_move_raw():
+    q = QueueCompensator(SKEW, Options(), enabled=True, on_error=lambda c, e: None)
+    q.handle("G28")
+    with mock.patch.object(q.comp, "process", side_effect=RuntimeError("boom")):
+        assert q.handle("G1 X10 Y10") == []
+
+
+def test_new_params_wait_for_the_next_print_unless_forced():
+    q = QueueCompensator(SKEW, Options(), enabled=True)
+    q.print_started(False)
+    new = Params.from_dict({"scale_ppm": {"x": 500.0}})
+    assert q.set_params(new, Options(), immediately=False) is False
+    assert q.params.hash() == SKEW.hash() and q.status()["pending_params_hash"] == new.hash()
+    q.print_ended()
+    assert q.params.hash() == new.hash()
+    # forced: applies now and keeps the tracked position
+    q.handle("G28")
+    q.handle("G1 X100 Y100 Z1")
+    q.print_started(False)
+    q.handle("G28")
+    q.handle("G1 X100 Y100 Z1")
+    assert q.set_params(SKEW, Options(), immediately=True) is True
+    assert q.comp.known == (True, True, True)
+    out = q.handle("G1 X100 Y101")
+    # new model at once: x = 100 - 1000 um/m * 101 mm = 99.899, X reverses: -10 um backlash
+    assert out is not None and out[-1][0].startswith("G1 X99.889 Y101.000")
+
+
+def test_reset_forgets_positions():
+    q = QueueCompensator(SKEW, Options(), enabled=True)
+    q.handle("G28")
+    q.reset()
+    assert q.handle("G1 X10") is None  # unknown position: passes untouched (counted)
+    assert q.status()["report"]["untouched_unknown_position"] == 1
+
+
+# -- firmware watch --------------------------------------------------------------------------
+
+def test_firmware_watch():
+    w = FirmwareWatcher()
+    w.received("echo:  M852 I0.0010 J0.0000 K0.0000")
+    w.received("echo:  M425 F1.00 X0.05 Y0.00 Z0.00")
+    assert w.skew and w.backlash
+    assert set(w.conflicts(SKEW)) == {"skew", "backlash"}
+    w.sent("M852 I0 J0 K0")
+    w.sent("M425 X0 Y0 Z0")
+    assert w.skew is None and w.backlash is None
+    w.sent("SET_SKEW XY=141.6,141.2,100")
+    assert w.skew
+    w.sent("SET_SKEW CLEAR=1")
+    assert w.skew is None
+    assert w.conflicts(Params()) == {}
+
+
+# -- settings --------------------------------------------------------------------------------
+
+def test_settings_validation():
+    s = validate_settings({"enabled": True, "params": {"squareness_um_per_m": {"xy": 12}}})
+    assert s["enabled"] is True and s["params"]["squareness_um_per_m"]["xy"] == 12
+    for bad, field in (({"enabled": "yes"}, "enabled"), ({"mode": "sometimes"}, "mode"),
+                       ({"chord_tol_mm": 5}, "chord_tol_mm"), ({"decimals": 2}, "decimals"),
+                       ({"bogus": 1}, "bogus"),
+                       ({"params": {"squareness_um_per_m": {"xy": 1e9}}},
+                        "params.squareness_um_per_m.xy"),
+                       ({"params": {"backlash": {"x": -3}}}, "params.backlash.x"),
+                       ({"home_mm": [0, 0]}, "home_mm")):
+        with pytest.raises(SettingsError) as exc:
+            validate_settings(bad)
+        assert exc.value.field == field
+
+
+def test_settings_migration_from_flat_keys():
+    old = {"enabled": True, "skew_xy": 250.0, "scale_x": -100.0}
+    new = validate_settings(migrate(old, None))
+    assert new["params"]["squareness_um_per_m"]["xy"] == 250.0
+    assert new["params"]["scale_ppm"]["x"] == -100.0
+
+
+def test_profile_limits_and_feeds():
+    prof = {"volume": {"width": 220, "depth": 210, "height": 250, "origin": "lowerleft"},
+            "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}}}
+    assert limits_from_profile(prof) == (0, 220, 0, 210, 0, 250)
+    prof["volume"]["origin"] = "center"
+    assert limits_from_profile(prof) == (-110, 110, -105, 105, 0, 250)
+    prof["volume"]["custom_box"] = {"x_min": -5, "x_max": 225, "y_min": -3, "y_max": 215,
+                                    "z_min": 0, "z_max": 250}
+    assert limits_from_profile(prof) == (-5, 225, -3, 215, 0, 250)
+    assert max_feeds_from_profile(prof) == {"x": 6000.0, "y": 6000.0, "z": 200.0}
+    params, options = engine_config(defaults(), (0, 1, 0, 1, 0, 1))
+    assert params.is_zero and options.limits == (0, 1, 0, 1, 0, 1)
+
+
+# -- the plugin class with mocked OctoPrint ------------------------------------------------
+
+@pytest.fixture
+def plugin(tmp_path):
+    from octoprint.plugin import PluginSettings
+    from octoprint.settings import Settings
+
+    from octoprint_kincomp.plugin import KinCompPlugin
+
+    s = Settings(basedir=str(tmp_path / "base"))
+    p = KinCompPlugin()
+    p._identifier = "kincomp"
+    p._plugin_name = "KinComp"
+    p._plugin_version = "test"
+    p._basefolder = str(tmp_path)
+    p._logger = mock.MagicMock()
+    p._settings = PluginSettings(s, "kincomp", defaults=defaults())
+    p._plugin_manager = mock.MagicMock()
+    p._event_bus = mock.MagicMock()
+    p._printer = mock.MagicMock()
+    p._printer.is_printing.return_value = True
+    p._file_manager = mock.MagicMock()
+    p._printer_profile_manager = mock.MagicMock()
+    p._printer_profile_manager.get_current_or_default.return_value = {
+        "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"}}
+    p._data_folder = str(tmp_path / "data")
+    (tmp_path / "data").mkdir()
+    p.get_plugin_data_folder = lambda: str(tmp_path / "data")
+    p.initialize()
+    p.on_after_startup()
+    return p
+
+
+def test_settings_save_applies_and_rejects(plugin):
+    plugin.on_settings_save({"enabled": True,
+                             "params": {"squareness_um_per_m": {"xy": 500.0}}})
+    assert plugin.queue.enabled and plugin.queue.params.squareness_um_per_m["xy"] == 500.0
+    plugin._event_bus.fire.assert_called()
+    assert plugin._event_bus.fire.call_args[0][0] == "plugin_kincomp_params_applied"
+    before = plugin._settings.get(["params"])
+    plugin.on_settings_save({"params": {"squareness_um_per_m": {"xy": "lots"}}})
+    assert plugin._settings.get(["params"]) == before  # kept, not silently dropped
+    msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
+    assert msg["severity"] == "error" and "squareness_um_per_m.xy" in msg["text"]
+
+
+def test_before_request_hook_answers_400_for_bad_settings(plugin):
+    import flask
+    import flask_babel
+
+    app = flask.Flask("t")
+    flask_babel.Babel(app)
+    body = {"plugins": {"kincomp": {"limits_policy": "explode"}}}
+    with app.test_request_context("/api/settings", method="POST", json=body):
+        with mock.patch("octoprint_kincomp.plugin.Permissions") as perms:
+            perms.SETTINGS.can.return_value = True
+            resp = plugin._check_settings_request()
+    assert resp.status_code == 400 and b"limits_policy" in resp.get_data()
+    ok = {"plugins": {"kincomp": {"limits_policy": "clamp"}}}
+    with app.test_request_context("/api/settings", method="POST", json=ok):
+        with mock.patch("octoprint_kincomp.plugin.Permissions") as perms:
+            perms.SETTINGS.can.return_value = True
+            assert plugin._check_settings_request() is None
+
+
+def test_compensation_error_pauses_the_print(plugin):
+    plugin._on_compensation_error("G1 X0", LimitError("outside", 3))
+    plugin._printer.pause_print.assert_called_once()
+    msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
+    assert msg["severity"] == "error" and "paused" in msg["text"]
+
+
+def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
+    plugin.on_settings_save({"enabled": True, "mode": "on_upload",
+                             "params": {"squareness_um_per_m": {"xy": 1000.0}}})
+    src = b"G28\nG1 X10 Y50 Z1 F3000 ; first\nM104 S200\n"
+    fo = mock.MagicMock()
+    fo.filename = "part.gcode"
+    fo.stream.return_value = io.BytesIO(src)
+    with mock.patch("octoprint_kincomp.plugin.valid_file_type", return_value=True):
+        wrapped = plugin.preprocessor_hook("part.gcode", fo)
+    out = wrapped.stream().read().decode()
+    lines = out.splitlines()
+    assert lines[0].startswith("; kincomp: compensated params=")
+    assert lines[1] == "G28" and lines[2].startswith("G1 X9.950 Y50.000") and \
+        lines[2].endswith("; first")
+    assert lines[3] == "M104 S200"
+    # an already compensated upload goes through untouched
+    fo.stream.return_value = io.BytesIO(out.encode())
+    with mock.patch("octoprint_kincomp.plugin.valid_file_type", return_value=True):
+        again = plugin.preprocessor_hook("part.gcode", fo).stream().read().decode()
+    assert again == out
+
+
+def test_hook_registration_runs_last():
+    from octoprint_kincomp.plugin import KinCompPlugin, plugin_hooks
+
+    hooks = plugin_hooks(KinCompPlugin())
+    cb, order = hooks["octoprint.comm.protocol.gcode.queuing"]
+    assert order >= 10000
+    perms = hooks["octoprint.access.permissions"]()
+    assert perms[0]["key"] == "ADMIN" and perms[0]["default_groups"] == ["admins"]
+    assert ("POST", r"/trace", 16 * 1024 * 1024) in hooks["octoprint.server.http.bodysize"]([])
+
+
+def test_print_events_drive_the_state(plugin, tmp_path):
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    marked = tmp_path / "m.gcode"
+    marked.write_text("; kincomp: compensated params=abcdef012345 kincomp=0\nG28\n")
+    plugin._file_manager.path_on_disk.return_value = str(marked)
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "m.gcode"})
+    assert plugin.queue.skip_file and plugin.queue.printing
+    assert "other KinComp parameters" in \
+        plugin._plugin_manager.send_plugin_message.call_args[0][1]["text"]
+    plugin.on_event("PrintDone", {})
+    assert not plugin.queue.printing and not plugin.queue.skip_file
+
+
+def test_firmware_conflict_is_reported_once(plugin):
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    plugin.received_hook(None, "echo:  M852 I0.0010 J0.0000 K0.0000")
+    plugin.received_hook(None, "echo:  M852 I0.0010 J0.0000 K0.0000")
+    texts = [c[0][1]["text"] for c in plugin._plugin_manager.send_plugin_message.call_args_list]
+    assert sum("compensates skew too" in t for t in texts) == 1
