@@ -1,12 +1,9 @@
 #!/usr/bin/env bash
-# KinComp's main job. Sets up .venv on first use.
-# For now: compensate the bundled example part with the errors of the paper's Ultimaker
-# (Keaveney et al. 2018, Table 1) and print the dry-run report.
+# KinComp's main job: OctoPrint with KinComp on the built-in virtual printer, on
+# http://127.0.0.1:5000, demo mode on (hidden SIMULATED printer errors + a virtual ballbar).
+# Sets up .venv on first use; the admin login is printed below. Stop with Ctrl-C.
+# Extra arguments go to the demo server, e.g. ./run.sh --port 5080 --reset
 set -euo pipefail
 cd "$(dirname "$0")"
 ./scripts/bootstrap.sh
-EX=octoprint_kincomp/examples
-mkdir -p out
-.venv/bin/python -m octoprint_kincomp compensate "$EX/example_part.gcode" \
-    -o out/example_part.compensated.gcode --params "$EX/paper_table1_params.json" --report
-echo "wrote out/example_part.compensated.gcode"
+exec .venv/bin/python -m octoprint_kincomp demo-server "$@"

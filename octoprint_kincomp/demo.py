@@ -1,8 +1,9 @@
 """Demo mode: a virtual ballbar on OctoPrint's virtual printer (everything SIMULATED).
 
 The virtual printer itself moves without errors, so the demo gives it hidden "true" errors
-here: while a KinComp ballbar program prints, the commands actually sent to the printer
-(compensated or not) are recorded, and when the print is done the KinComp simulator runs
+here: while a KinComp ballbar program prints, the commands going out to the printer
+(compensated or not, as they leave KinComp's queuing hook, which runs last; resends are
+not repeated there) are recorded, and when the print is done the KinComp simulator runs
 them on a printer with the hidden errors and samples the virtual ballbar. The resulting
 trace is labelled SIMULATED wherever it is shown. Re-testing with compensation active
 records the compensated commands, so the calibrate -> analyse -> apply -> re-test loop

@@ -35,7 +35,7 @@ from .fileproc import AlreadyCompensated, compensate_file, file_marker
 from .firmware import equivalents
 from .firmware_watch import FirmwareWatcher
 from .params import Params
-from .queue import QueueCompensator
+from .queue import FILE_TAG, QueueCompensator
 from .runs import RunNotFound, RunStore
 from .settings import (SETTINGS_VERSION, SettingsError, defaults, engine_config,
                        limits_from_profile, max_feeds_from_profile, migrate,
@@ -83,6 +83,8 @@ class KinCompPlugin(
         self._program_hash = ""
         self._lock = threading.RLock()
         self._warned_conflicts: Dict[str, str] = {}
+        self._warned_unknown = False
+        self._comm = None  # the MachineCom of the current connection
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -198,18 +200,67 @@ class KinCompPlugin(
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
                      tags=None, *args, **kwargs):
+        if comm_instance is not self._comm:
+            self._connection_changed(comm_instance)
+        if tags and FILE_TAG in tags and not self.queue.printing:
+            # the first line of a print: PRINT_STARTED is delivered later, on the event
+            # thread, so the print's state is set up here, before its first line is handled
+            self._print_begins(self._current_job())
         if cmd.startswith(FIRMWARE_HINTS):
             self.watch.sent(cmd)
             self._check_conflicts()
-        return self.queue.handle(cmd, tags)
-
-    def sent_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None,
-                  *args, **kwargs):
+        q = self.queue
+        unknown = q.comp.report.untouched_unknown
+        result = q.handle(cmd, tags)
+        if q.comp.report.untouched_unknown != unknown:
+            self._warn_unknown_position(cmd)
         demo = self.demo
         if demo is not None and demo.recording:
-            demo.record(cmd)
+            # what goes out, recorded once here: in the sent phase resends would repeat lines
+            if result is None:
+                demo.record(cmd)
+            else:
+                for (line,) in result:
+                    demo.record(line)
+        return result
+
+    def _connection_changed(self, comm_instance) -> None:
+        """A new connection (OctoPrint makes a new comm object per connect): nothing about
+        the printer's position or firmware is known any more. Done here, synchronously, as
+        CONNECTED reaches ``on_event`` only after the first commands may have gone out."""
+        self._comm = comm_instance
+        self.queue.reset()
+        self.watch.reset()
+
+    def _current_job(self) -> Dict[str, Any]:
+        try:
+            f = (self._printer.get_current_job() or {}).get("file") or {}
+        except Exception:  # noqa: BLE001 - no job information: not precompensated
+            f = {}
+        return {"origin": f.get("origin"), "path": f.get("path")}
+
+    def _print_begins(self, payload) -> None:
+        marked = self._is_precompensated(payload)
+        self.queue.print_started(marked)
+        self._warned_unknown = False
+        self.files.set_paused(True)
+        self._start_demo_recording(payload)
+
+    def _warn_unknown_position(self, cmd: str) -> None:
+        """A move went out as written because the position it starts from is not known (no
+        G28 or absolute move since connect/print start): never silent."""
+        if self._warned_unknown:
+            return
+        self._warned_unknown = True
+        self._logger.warning("KinComp: %r sent uncompensated: position unknown (home the "
+                             "printer first)", cmd)
+        self._notify("warning", N_("KinComp sent '%(cmd)s' uncompensated because the "
+                                   "printer's position is unknown. Home the printer (G28) "
+                                   "so that moves can be compensated."), cmd=cmd)
 
     def received_hook(self, comm_instance, line, *args, **kwargs):
+        if comm_instance is not self._comm:
+            self._connection_changed(comm_instance)
         if any(h in line for h in FIRMWARE_HINTS):
             self.watch.received(line)
             self._check_conflicts()
@@ -272,16 +323,15 @@ class KinCompPlugin(
     # ~~ events ------------------------------------------------------------------------------
     def on_event(self, event, payload):
         payload = payload or {}
-        if event in (Events.CONNECTED, Events.DISCONNECTED):
+        if event == Events.DISCONNECTED:
+            self._comm = None
             self.queue.reset()
             self.watch.reset()
-            if event == Events.DISCONNECTED and self.queue.printing:
+            if self.queue.printing:
                 self.queue.print_ended()
         elif event == Events.PRINT_STARTED:
-            marked = self._is_precompensated(payload)
-            self.queue.print_started(marked)
-            self.files.set_paused(True)
-            self._start_demo_recording(payload)
+            if not self.queue.printing:  # not yet seen by the queuing hook
+                self._print_begins(payload)
         elif event in (Events.PRINT_DONE, Events.PRINT_FAILED, Events.PRINT_CANCELLED):
             self.queue.print_ended()
             self.files.set_paused(False)
@@ -723,7 +773,6 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
     return {
         # run last in queuing so other plugins' rewrites get compensated too
         "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
-        "octoprint.comm.protocol.gcode.sent": plugin.sent_hook,
         "octoprint.comm.protocol.gcode.received": plugin.received_hook,
         "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
         "octoprint.access.permissions": plugin.permissions_hook,

@@ -18,7 +18,7 @@ from octoprint_kincomp.params import Params
 
 from .gcodegen import random_program
 
-SAMPLES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "gcode-samples")
+SAMPLES = os.path.join(os.path.dirname(__file__), "data")
 PARAMS = [
     Params.from_dict(BENCH_PARAMS),
     Params.from_dict({"squareness_um_per_m": {"xy": 300, "xz": -120},

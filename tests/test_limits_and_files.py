@@ -13,7 +13,7 @@ from octoprint_kincomp.fileproc import (
     AlreadyCompensated, compensate_file, file_marker, marker_line)
 from octoprint_kincomp.params import Params
 
-SAMPLES = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "gcode-samples")
+SAMPLES = os.path.join(os.path.dirname(__file__), "data")
 SKEW = {"squareness_um_per_m": {"xy": 2000.0}, "scale_ppm": {"x": 300.0}}
 LIMITS = (0, 200, 0, 200, 0, 180)
 

@@ -301,3 +301,41 @@ def test_firmware_conflict_is_reported_once(plugin):
     plugin.received_hook(None, "echo:  M852 I0.0010 J0.0000 K0.0000")
     texts = [c[0][1]["text"] for c in plugin._plugin_manager.send_plugin_message.call_args_list]
     assert sum("compensates skew too" in t for t in texts) == 1
+
+
+def test_print_state_is_set_up_by_the_first_file_line(plugin, tmp_path):
+    """PRINT_STARTED arrives on the event thread, possibly after the first lines were
+    queued: the queuing hook itself must notice the print, or a pre-compensated file's
+    first moves would be compensated twice."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    comm = object()
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags={"source:api"})
+    marked = tmp_path / "m.gcode"
+    marked.write_text(f"; kincomp: compensated params={plugin.queue.params.hash()} "
+                      "kincomp=0\nG1 X10 Y50\n")
+    plugin._file_manager.path_on_disk.return_value = str(marked)
+    plugin._printer.get_current_job.return_value = {
+        "file": {"origin": "local", "path": "m.gcode"}}
+    tags = {"source:file", "fileline:1", "filepos:60"}
+    assert plugin.queuing_hook(comm, "queuing", "G1 X10 Y50", None, "G1", tags=tags) is None
+    assert plugin.queue.printing and plugin.queue.skip_file
+    # the late event changes nothing
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "m.gcode"})
+    assert plugin.queue.skip_file
+    plugin.on_event("PrintDone", {})
+    assert not plugin.queue.printing
+
+
+def test_new_connection_forgets_positions_synchronously(plugin):
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    first, second = object(), object()
+    plugin.queuing_hook(first, "queuing", "G28", None, "G28", tags={"source:api"})
+    assert plugin.queuing_hook(first, "queuing", "G1 X10 Y50", None, "G1") is not None
+    assert plugin.queue.comp.known == (True, True, True)
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    # reconnected (a new comm object): the position is unknown until homed again; an X-only
+    # move (its correction needs Y) goes out as written, and that is reported, not silent
+    assert plugin.queuing_hook(second, "queuing", "G1 X10", None, "G1") is None
+    assert plugin.queue.comp.known == (True, False, False)
+    texts = [c[0][1]["text"] for c in plugin._plugin_manager.send_plugin_message.call_args_list]
+    assert any("uncompensated because the printer's position is unknown" in t for t in texts)

@@ -1,0 +1,217 @@
+"""End-to-end: a real OctoPrint (virtual printer) with KinComp, checked on serial.log."""
+
+import io
+import json
+import os
+import re
+import time
+
+import pytest
+
+from octoprint.util.comm import strip_comment
+
+from .conftest import AUTOMATIC, DATA, marker, offline, sent, settings, status
+
+pytestmark = pytest.mark.slow
+
+PARAMS = {
+    "squareness_um_per_m": {"xy": 800.0, "xz": -300.0, "yz": 200.0},
+    "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
+    "backlash": {"x": 30.0, "y": 25.0},
+}
+MOTION = ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03")
+
+
+def _visible(cmds):
+    return [c for c in cmds if c.split(" ", 1)[0] not in AUTOMATIC]
+
+
+def _is_move(cmd):
+    return cmd.split(" ", 1)[0].upper() in MOTION
+
+
+def _file_commands(path):
+    with open(path, encoding="utf-8") as f:
+        lines = [strip_comment(l).strip() for l in f]
+    return [l for l in lines if l]
+
+
+def _print_file(server, name, data):
+    """Upload and print; returns the marker sent just before (the print's Send: lines
+    follow it)."""
+    # the virtual printer sleeps 10% of each move's time; M220 (feed rate override, a
+    # printer-side knob: it is not in the file and passes KinComp unchanged) speeds it up
+    code, _ = server.request("POST", "/api/printer/command", {"commands": ["M220 S5000"]})
+    assert code == 204
+    start = marker(server)
+    code, body = server.upload("/api/files/local", name, data,
+                               {"select": "true", "print": "true"})
+    assert code == 201, body
+    server.wait_print_done(timeout=1800)
+    return start
+
+
+def test_api_commands_and_jog_go_out_compensated_once(server):
+    settings(server, enabled=True, mode="on_the_fly", params=PARAMS)
+    start = marker(server)
+    commands = ["G90", "G21", "M82", "G28", "G1 Z5 F600", "G1 X50 Y60 F3000",
+                "G0 X120 Y30", "g1 x80 y90", "G01 X60.5 Y70.25 E1.5",
+                "G2 X80.5 Y70.25 I10 J0 F1200", "G91", "G1 X-5 Y5", "G1 Z-1", "G90",
+                "M104 S0", "G92 X0", "G1 X10 F3000", "G92 X70.5", "M18"]
+    code, _ = server.request("POST", "/api/printer/command", {"commands": commands})
+    assert code == 204
+    code, _ = server.request("POST", "/api/printer/printhead",
+                             {"command": "jog", "x": 10, "y": -5})
+    assert code == 204
+    end = marker(server)
+    _, profile = server.request("GET", "/api/printerprofiles/_default")
+    speed = min(profile["axes"]["x"]["speed"], profile["axes"]["y"]["speed"])
+    jog = ["G91", f"G0 X10 Y-5 F{speed}", "G90"]
+
+    got = sent(server, after=start, until=end)
+    want = offline(server, commands + jog)
+    assert got == want
+    # compensated exactly once: every XY move differs from its source line, and the
+    # compensated values are those of one pass (offline == sent); non-motion lines unchanged
+    moves = [c for c in commands + jog if _is_move(c)]
+    assert len([c for c in got if _is_move(c)]) > len(moves)  # the arc is linearised
+    for c in commands + jog:
+        if not _is_move(c):
+            assert c in got
+    assert "G1 X50 Y60 F3000" not in got
+    # a Z-only move moves X and Y too under XZ/YZ skew
+    assert any(c.startswith("G1 X") and c.endswith("Z5.000 F600") for c in got)
+    rep = status(server)["compensation"]["report"]
+    assert rep["moves_compensated"] >= len(moves) - 1 and rep["malformed"] == 0
+
+
+def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
+    settings(server, enabled=True, mode="on_the_fly", params=PARAMS)
+    src = os.path.join(DATA, "bambustudio-a1-hook.gcode")
+    with open(src, "rb") as f:
+        data = f.read()
+    start = _print_file(server, "hook.gcode", data)
+    got = sent(server, after=start)
+    cmds = _file_commands(src)
+    want = _visible(offline(server, cmds))
+    assert len(want) > 20000
+    # OctoPrint itself refuses tools the printer profile does not have (the slicer's
+    # T1000), with a warning in serial.log: not KinComp's doing, accounted for here
+    log = server.serial_log()
+    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start):])
+    missing_tools = [c for c in want if re.fullmatch(r"T\d+", c) and int(c[1:]) > 0]
+    assert refused == missing_tools and refused
+    want = [c for c in want if c not in refused]
+    if got != want:  # a readable failure: the first difference
+        i = next(i for i, (a, b) in enumerate(zip(got, want)) if a != b)
+        pytest.fail(f"line {i}: sent {got[i]!r}, expected {want[i]!r} "
+                    f"(sent {len(got)}, expected {len(want)})")
+    non_motion = [c for c in _visible(cmds) if not _is_move(c) and c not in refused]
+    assert all(c in set(got) for c in non_motion)
+
+
+def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
+    from octoprint_kincomp.compensator import Compensator
+    from octoprint_kincomp.fileproc import compensate_lines, file_marker, marker_line
+
+    settings(server, enabled=True, mode="on_upload", params=PARAMS)
+    try:
+        src = os.path.join(DATA, "bambustudio-square-ring.gcode")
+        with open(src, "rb") as f:
+            data = f.read()
+        start = _print_file(server, "ring.gcode", data)
+        stored = os.path.join(server.basedir, "uploads", "ring.gcode")
+        assert file_marker(stored) == status(server)["params_hash"]
+        # the stored file is the offline compensation of the upload ...
+        st = status(server)
+        from octoprint_kincomp.settings import engine_config
+
+        params, options = engine_config(st["settings"], tuple(st["limits"]))
+        with open(src, encoding="utf-8", newline="") as f:
+            reference = "".join(compensate_lines(f.read().splitlines(keepends=True),
+                                                 Compensator(params, options),
+                                                 marker_line(params)))
+        with open(stored, encoding="utf-8", newline="") as f:
+            assert f.read() == reference
+        # ... and printing it sends exactly its lines: not compensated a second time
+        got = sent(server, after=start)
+        assert got == _visible(_file_commands(stored))
+        _, files = server.request("GET", "/plugin/kincomp/files")
+        ring = next(f for f in files["files"] if f["path"] == "ring.gcode")
+        assert ring["params_hash"] == st["params_hash"] and not ring["outdated"]
+        # new parameters: the file is flagged as compensated with older ones
+        settings(server, params=dict(PARAMS, scale_ppm={"x": 100.0}))
+        _, files = server.request("GET", "/plugin/kincomp/files")
+        assert next(f for f in files["files"] if f["path"] == "ring.gcode")["outdated"]
+    finally:
+        settings(server, mode="on_the_fly", params=PARAMS)
+
+
+def test_bad_settings_are_refused_and_the_old_values_kept(server):
+    before = settings(server, enabled=True, params=PARAMS, chord_tol_mm=0.01)
+    bad = [
+        {"params": {"squareness_um_per_m": {"xy": 1e9}}},
+        {"params": {"backlash": {"x": -5}}},
+        {"params": {"scale_ppm": {"q": 1}}},
+        {"chord_tol_mm": -1},
+        {"mode": "sometimes"},
+        {"enabled": "yes please"},
+    ]
+    for body in bad:
+        code, resp = server.request("POST", "/plugin/kincomp/settings", body)
+        assert code == 400, (body, resp)
+        assert resp["error"]
+        assert status(server)["settings"] == before
+    code, resp = server.request("POST", "/plugin/kincomp/settings",
+                                {"params": {"squareness_um_per_m": {"xy": "abc"}}})
+    assert "params.squareness_um_per_m.xy" in resp["error"]
+    # OctoPrint's own settings endpoint (the settings dialog) answers 400 too
+    code, resp = server.request("POST", "/api/settings",
+                                {"plugins": {"kincomp": {"limits_policy": "explode"}}})
+    assert code == 400 and "limits_policy" in json.dumps(resp)
+    assert status(server)["settings"] == before
+    code, _ = server.request("POST", "/api/settings",
+                             {"plugins": {"kincomp": {"limits_policy": "clamp"}}})
+    assert code == 200 and status(server)["settings"]["limits_policy"] == "clamp"
+    settings(server, limits_policy="warn")
+
+
+WRITE_ENDPOINTS = [
+    ("/plugin/kincomp/settings", {"enabled": False}),
+    ("/plugin/kincomp/program", {"plane": "XY", "centre": [100, 100, 10], "radius": 40}),
+    ("/plugin/kincomp/analyze", {"summary": {"plane": "XY", "squareness_um_per_m": 10}}),
+    ("/plugin/kincomp/apply", {"params": {}}),
+    ("/plugin/kincomp/compensate", {"path": "ring.gcode"}),
+    ("/plugin/kincomp/trace", None),
+]
+
+
+def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
+    from .conftest import BrowserSession
+
+    before = status(server)["settings"]
+    anon = BrowserSession(server)
+    assert anon.csrf()
+    for path, body in WRITE_ENDPOINTS:
+        raw = None if body is not None else b"direction,angle_deg,deviation_um\n"
+        # anonymous, with a valid CSRF pair: refused by permission
+        code, _ = anon.open("POST", path, body, raw=raw, content_type="text/csv")
+        assert code in (401, 403), (path, code)
+        # a non-admin API key
+        code, _ = server.request("POST", path, body, key="viewer", raw=raw,
+                                 content_type="text/csv")
+        assert code == 403, (path, code)
+        # no credentials at all and no CSRF token
+        code, _ = server.request("POST", path, body, key=None, raw=raw,
+                                 content_type="text/csv")
+        assert code in (400, 401, 403), (path, code)
+    code, _ = anon.open("GET", "/plugin/kincomp/status")
+    assert code in (401, 403)
+    # a logged-in admin browser session still needs the CSRF header
+    admin = BrowserSession(server).login("admin", server.logins["admin"]["password"])
+    code, text = admin.open("POST", "/plugin/kincomp/settings", {"enabled": False},
+                            csrf=False)
+    assert code == 400 and "CSRF" in text
+    assert status(server)["settings"] == before
+    code, _ = admin.open("POST", "/plugin/kincomp/settings", {"enabled": before["enabled"]})
+    assert code == 200
