@@ -63,9 +63,10 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
         {"enabled": True, "throttle": throttle})
     plugins["tracking"] = {"enabled": False}
     plugins["errortracking"] = {"enabled": False}
-    # offline machine: no update checks, feeds or health checks that need the internet
+    # offline machine: no update checks, feeds or health checks that need the internet;
+    # no achievement pop-ups covering the page in screenshots
     plugins["_disabled"] = ["announcements", "softwareupdate", "health_check", "tracking",
-                            "errortracking", "pluginmanager"]
+                            "errortracking", "pluginmanager", "achievements"]
     if kincomp is not None:
         plugins["kincomp"] = kincomp
     config.setdefault("serial", {}).update({"log": True, "autoconnect": False})
@@ -267,18 +268,25 @@ def main(argv=None) -> int:
     kincomp = None
     if not os.path.exists(os.path.join(args.basedir, "config.yaml")):
         kincomp = {"demo": {"enabled": not args.no_demo}}
-    srv = DevServer(args.basedir, args.port, kincomp=kincomp, throttle=0.002)
+    srv = DevServer(args.basedir, args.port, kincomp=kincomp, throttle=0.002,
+                    extra_config={"serial": {"port": "VIRTUAL", "baudrate": 115200,
+                                             "autoconnect": True}})
+
+    def _terminate(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)  # stop OctoPrint with us, not orphan it
     admin = srv.logins[ADMIN]
     print("=" * 72)
-    print(f"OctoPrint + KinComp on {srv.url}  (virtual printer: connect to 'VIRTUAL')")
+    print(f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)")
     print(f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}")
     if not args.no_demo:
         print("demo mode: the virtual printer has hidden SIMULATED errors and a virtual "
               "ballbar")
     print("stop with Ctrl-C")
     print("=" * 72, flush=True)
-    srv.start(stdout=sys.stdout.buffer if hasattr(sys.stdout, "buffer") else None)
     try:
+        srv.start(stdout=sys.stdout.buffer if hasattr(sys.stdout, "buffer") else None)
         while srv.proc is not None and srv.proc.poll() is None:
             time.sleep(0.5)
     except KeyboardInterrupt:

@@ -249,6 +249,10 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
         raise TraceError(f".b5r is not well-formed XML: {exc}") from None
+    except (LookupError, ValueError) as exc:
+        # expat raises these (not ParseError) for an XML declaration naming an unknown
+        # codec (LookupError) or a multi-byte one such as utf-7 (ValueError)
+        raise TraceError(f".b5r: unsupported XML encoding ({exc})") from None
     meta: Dict[str, str] = {"source": ".b5r (Renishaw)"}
     plane_el = root.find(".//PLANE")
     raw_plane = (plane_el.get("TEST_PLANE") if plane_el is not None else None) or ""
@@ -261,7 +265,9 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     if spec is not None and spec.get("NAME"):
         meta["test_name"] = spec.get("NAME")[:200]
         m = re.search(r"(\d+(?:\.\d+)?)\s*mm", spec.get("NAME"))
-        if m and radius_mm is None:
+        if m and radius_mm is None and 0.0 < float(m.group(1)) < math.inf:
+            # free text: "0mm" (or 400 digits) is no radius; the um -> ppm conversion
+            # below divides by it
             radius_mm = float(m.group(1))
     if radius_mm is not None:
         meta["radius_mm"] = f"{radius_mm:g}"
@@ -285,7 +291,7 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
             if kind == "ppm":
                 ppm = value
             elif kind == "length":
-                if radius_mm is None:
+                if radius_mm is None or not 0.0 < radius_mm < math.inf:
                     raise TraceError(".b5r: scale mismatch given in um but the test radius is "
                                      "unknown; give the radius")
                 ppm = value * factor / radius_mm * 1000.0
@@ -293,10 +299,14 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
                              "test radius")
             else:
                 raise TraceError(f".b5r: FEATURE {name} has an unexpected unit {dt!r}")
+            if not math.isfinite(ppm):  # a finite value can overflow in the conversion
+                raise TraceError(f".b5r: FEATURE {name} is out of range")
             diag["scale_mismatch_ppm"] = ppm
             continue
         if kind == "length":
             value *= factor
+            if not math.isfinite(value):  # e.g. 1e308 mm in um
+                raise TraceError(f".b5r: FEATURE {name} is out of range")
         elif kind is None:
             raise TraceError(f".b5r: FEATURE {name} has an unknown unit {dt!r}")
         if sub is None:
@@ -352,6 +362,8 @@ def parse_summary(data) -> Summary:
             raise TraceError("summary is too long")
         try:
             obj = json.loads(text)
+        except RecursionError:  # "[[[[..." nested deeper than the interpreter's stack
+            raise TraceError("summary JSON is nested too deeply") from None
         except json.JSONDecodeError:
             obj = {}
             for lineno, raw in enumerate(text.splitlines(), 1):
@@ -362,6 +374,10 @@ def parse_summary(data) -> Summary:
                     raise TraceError(f"summary line {lineno}: expected 'key: value'")
                 k, v = re.split(r"[:=]", line, 1)
                 obj[k.strip()] = v.strip()
+        except ValueError as exc:
+            # valid JSON syntax that json still refuses (an integer of more than 4300
+            # digits); JSONDecodeError, a ValueError too, is handled above
+            raise TraceError(f"summary JSON cannot be read: {str(exc)[:80]}") from None
     else:
         obj = data
     if not isinstance(obj, dict):
@@ -416,7 +432,7 @@ def _num(raw, key) -> float:
         raise TraceError(f"summary field '{key}' must be a number")
     try:
         v = float(raw)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a JSON int >= 1e309
         raise TraceError(f"summary field '{key}': {str(raw)[:30]!r} is not a number") from None
     if not math.isfinite(v):
         raise TraceError(f"summary field '{key}' must be finite")
@@ -425,6 +441,9 @@ def _num(raw, key) -> float:
 
 def load_any(data: bytes, filename: str = ""):
     """Pick the reader from the content: XML -> .b5r, CSV header -> trace, else summary."""
+    if len(data) > MAX_TRACE_BYTES:
+        # before any copy: decoding, stripping and lower-casing would each copy it
+        raise TraceError(f"file is larger than {MAX_TRACE_BYTES // (1024 * 1024)} MB")
     stripped = data.lstrip()
     if stripped.startswith(b"<") or filename.lower().endswith(".b5r"):
         return parse_b5r(data)

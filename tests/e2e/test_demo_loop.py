@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from .conftest import settings, status
+from tests.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 

@@ -10,7 +10,7 @@ import pytest
 
 from octoprint.util.comm import strip_comment
 
-from .conftest import AUTOMATIC, DATA, marker, offline, sent, settings, status
+from tests.serverutil import AUTOMATIC, DATA, marker, offline, sent, settings, status
 
 pytestmark = pytest.mark.slow
 
@@ -187,7 +187,7 @@ WRITE_ENDPOINTS = [
 
 
 def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
-    from .conftest import BrowserSession
+    from tests.serverutil import BrowserSession
 
     before = status(server)["settings"]
     anon = BrowserSession(server)

@@ -1,39 +1,20 @@
-"""A real OctoPrint server with the virtual printer and KinComp, shared by the end-to-end
-tests of one session (started on a free loopback port, stopped at the end)."""
+"""Helpers for tests against a real OctoPrint server (the ``server`` fixture in
+tests/conftest.py): settings and status through KinComp's API, serial.log ``Send:`` lines,
+the offline reference compensation, and a cookie/CSRF browser-like session."""
 
 import os
 import re
 import time
 import uuid
 
-import pytest
-
 from octoprint_kincomp.compensator import Compensator
-from octoprint_kincomp.devserver import DevServer
 from octoprint_kincomp.settings import engine_config
 
-DATA = os.path.join(os.path.dirname(__file__), "..", "data")
+DATA = os.path.join(os.path.dirname(__file__), "data")
 # commands OctoPrint sends by itself (polls, handshake): not part of what a test sent
 AUTOMATIC = {"M105", "M27", "M155", "M110", "M115", "M20", "M21", "M400", "M114"}
 _SEND = re.compile(r" - Send: (?:N\d+ )?(.*?)(?:\*\d+)?$")
 _SEND_N = re.compile(r" - Send: N(\d+) ")
-
-
-@pytest.fixture(scope="session")
-def server(tmp_path_factory):
-    base = str(tmp_path_factory.mktemp("octoprint"))
-    srv = DevServer(base, kincomp={"enabled": False}, throttle=0.0)
-    srv.start()
-    try:
-        srv.connect()
-        yield srv
-    finally:
-        srv.stop()
-        keep = os.environ.get("KINCOMP_E2E_KEEP")
-        if keep:
-            import shutil
-
-            shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
 
 
 def settings(srv, **values):

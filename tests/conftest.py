@@ -1,0 +1,25 @@
+"""Shared fixtures. ``server``: one real OctoPrint (virtual printer, KinComp installed) for
+the end-to-end and browser tests of a session, on a free loopback port, stopped at the end.
+Set KINCOMP_E2E_KEEP=<dir> to keep its logs."""
+
+import os
+import shutil
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory):
+    from octoprint_kincomp.devserver import DevServer
+
+    base = str(tmp_path_factory.mktemp("octoprint"))
+    srv = DevServer(base, kincomp={"enabled": False}, throttle=0.0)
+    srv.start()
+    try:
+        srv.connect()
+        yield srv
+    finally:
+        srv.stop()
+        keep = os.environ.get("KINCOMP_E2E_KEEP")
+        if keep:
+            shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
