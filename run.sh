@@ -5,5 +5,5 @@
 # Extra arguments go to the demo server, e.g. ./run.sh --port 5080 --reset
 set -euo pipefail
 cd "$(dirname "$0")"
-./scripts/bootstrap.sh
+KINCOMP_NO_BROWSER=1 ./scripts/bootstrap.sh
 exec .venv/bin/python -m octoprint_kincomp demo-server "$@"

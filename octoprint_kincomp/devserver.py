@@ -106,6 +106,17 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
     return logins
 
 
+def request_body(headers: Dict[str, str], body: Any = None, raw: Optional[bytes] = None,
+                 content_type: Optional[str] = None) -> Optional[bytes]:
+    """The bytes to send: ``body`` as JSON, else ``raw``; sets Content-Type in ``headers``."""
+    if body is not None:
+        headers["Content-Type"] = "application/json"
+        return json.dumps(body).encode()
+    if content_type:
+        headers["Content-Type"] = content_type
+    return raw
+
+
 class DevServer:
     """``octoprint serve`` on a prepared basedir (127.0.0.1), stopped by ``stop()``."""
 
@@ -181,12 +192,7 @@ class DevServer:
             hdrs["X-Api-Key"] = self.viewer_key
         elif key:
             hdrs["X-Api-Key"] = key
-        data = raw
-        if body is not None:
-            data = json.dumps(body).encode()
-            hdrs["Content-Type"] = "application/json"
-        elif content_type:
-            hdrs["Content-Type"] = content_type
+        data = request_body(hdrs, body, raw, content_type)
         req = urllib.request.Request(self.url + path, data=data, method=method, headers=hdrs)
         try:
             with urllib.request.urlopen(req, timeout=60) as resp:

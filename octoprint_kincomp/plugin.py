@@ -57,6 +57,12 @@ def _error(message: str, status: int = 400):
     return flask.make_response(flask.jsonify(error=message), status)
 
 
+def _json_object() -> Optional[Dict[str, Any]]:
+    """The request's JSON body if it is an object, else None."""
+    data = flask.request.get_json(silent=True)
+    return data if isinstance(data, dict) else None
+
+
 def _require(permission) -> None:
     if not permission.can():
         flask.abort(403)
@@ -332,6 +338,11 @@ class KinCompPlugin(
         elif event == Events.PRINT_STARTED:
             if not self.queue.printing:  # not yet seen by the queuing hook
                 self._print_begins(payload)
+        elif event == Events.PRINT_RESUMED:
+            if self.queue.halted:
+                self._logger.warning("KinComp: print resumed after a compensation error; "
+                                     "%d moves were held back", self.queue.held_moves)
+                self.queue.resume()
         elif event in (Events.PRINT_DONE, Events.PRINT_FAILED, Events.PRINT_CANCELLED):
             self.queue.print_ended()
             self.files.set_paused(False)
@@ -366,7 +377,9 @@ class KinCompPlugin(
         if self._printer.is_printing():
             self._printer.pause_print(tags={"plugin:kincomp"})
             self._notify("error", N_("KinComp could not compensate '%(cmd)s': %(err)s. The "
-                                     "command was not sent and the print is paused."),
+                                     "command was not sent and the print is paused; moves "
+                                     "queued until the pause are held back too. Cancel the "
+                                     "print, or resume to continue without them."),
                          cmd=cmd, err=str(exc))
         else:
             self._notify("error", N_("KinComp could not compensate '%(cmd)s': %(err)s. The "
@@ -460,9 +473,9 @@ class KinCompPlugin(
     @octoprint.plugin.BlueprintPlugin.route("/settings", methods=["POST"])
     def api_settings(self):
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
-        data = flask.request.get_json(silent=True)
-        if not isinstance(data, dict):
-            return _error(gettext("Expected a JSON object of settings"), 400)
+        data = _json_object()
+        if data is None:
+            return _error(gettext("Expected a JSON object"), 400)
         immediately = bool(data.pop("apply_now", False))
         try:
             new = validate_settings(data, self._current_settings())
@@ -482,7 +495,7 @@ class KinCompPlugin(
     @octoprint.plugin.BlueprintPlugin.route("/program", methods=["POST"])
     def api_program(self):
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
-        data = flask.request.get_json(silent=True) or {}
+        data = _json_object() or {}
         try:
             plane = str(data.get("plane", "XY")).upper()
             feed = float(data.get("feed", 1850.0))
@@ -585,8 +598,8 @@ class KinCompPlugin(
     def api_analyze(self):
         """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
-        data = flask.request.get_json(silent=True)
-        if not isinstance(data, dict):
+        data = _json_object()
+        if data is None:
             return _error(gettext("Expected a JSON object"), 400)
         if "summary" in data:
             return self._analyse_and_store(json.dumps(data["summary"]).encode(),
@@ -651,7 +664,7 @@ class KinCompPlugin(
     def api_apply(self):
         """Apply a run's proposed parameters ({"run": id}) or given ones ({"params": {...}})."""
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
-        data = flask.request.get_json(silent=True) or {}
+        data = _json_object() or {}
         run = None
         if "run" in data:
             try:
@@ -733,7 +746,7 @@ class KinCompPlugin(
     def api_compensate(self):
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
         _require(Permissions.FILES_UPLOAD)
-        data = flask.request.get_json(silent=True) or {}
+        data = _json_object() or {}
         path = data.get("path", "")
         disk = self._local_file(path)
         if disk is None:

@@ -9,13 +9,17 @@ Resends never come back through the hook, so nothing is ever compensated twice o
   passed through untouched.
 * If compensation fails on a line, the line is not sent: ``on_error`` is called (the plugin
   pauses the print and tells the user) and an empty list suppresses it - unless the user
-  chose "pass through on error", then it is sent as written and reported.
+  chose "pass through on error", then it is sent as written and reported. After such a
+  failure the adapter is *halted*: the moves OctoPrint still queues before the pause takes
+  effect are held back too (counted in ``held_moves``), so no move goes out uncompensated.
+  ``resume()`` (the print resumed) or the end of the print lifts it.
 * New parameters apply at the next print start (``apply_changes = next_print``) or at once;
   either way the new model takes over the tracked state (positions do not depend on it).
 """
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
@@ -24,6 +28,7 @@ from .compensator import Compensator, Options
 from .params import Params
 
 FILE_TAG = "source:file"
+_MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
 
 
 class QueueCompensator:
@@ -41,6 +46,8 @@ class QueueCompensator:
         self.errors = 0
         self.last_error: Optional[Dict[str, object]] = None
         self.passed_on_error = 0
+        self.halted = False
+        self.held_moves = 0
 
     @property
     def params(self) -> Params:
@@ -52,6 +59,9 @@ class QueueCompensator:
             return None
         if self.skip_file and tags and FILE_TAG in tags:
             return None
+        if self.halted and _MOTION.match(cmd):
+            self.held_moves += 1
+            return []
         with self._lock:
             try:
                 out = self.comp.process(cmd)
@@ -71,9 +81,15 @@ class QueueCompensator:
             if self.on_error is not None:
                 self.on_error(cmd, exc)
             return None
+        self.halted = True
         if self.on_error is not None:
             self.on_error(cmd, exc)
         return []
+
+    def resume(self) -> None:
+        """The user resumed after a failure: moves are compensated (or reported) again."""
+        with self._lock:
+            self.halted = False
 
     # -- life cycle ----------------------------------------------------------------------
     def reset(self) -> None:
@@ -106,6 +122,7 @@ class QueueCompensator:
     def print_started(self, precompensated: bool) -> None:
         with self._lock:
             self.printing = True
+            self.halted = False
             if self.pending is not None:
                 self._swap(*self.pending)
             self.comp.reset()
@@ -114,6 +131,7 @@ class QueueCompensator:
     def print_ended(self) -> None:
         with self._lock:
             self.printing = False
+            self.halted = False
             self.skip_file = False
             if self.pending is not None:
                 self._swap(*self.pending)
@@ -133,5 +151,7 @@ class QueueCompensator:
                 "errors": self.errors,
                 "last_error": self.last_error,
                 "passed_on_error": self.passed_on_error,
+                "halted": self.halted,
+                "held_moves": self.held_moves,
                 "report": rep,
             }

@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Create .venv with KinComp (editable) and its test dependencies; idempotent.
+# Create .venv with KinComp (editable) and its test dependencies, and make sure Debian's
+# chromium is there for the browser tests (Playwright drives it; no browser download).
+# Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -11,4 +13,16 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     .venv/bin/python -m pip install --quiet -e ".[test]"
     touch "$stamp"
+fi
+if [ -z "${KINCOMP_NO_BROWSER:-}" ] && ! command -v chromium >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1; then
+        SUDO=""
+        [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+        echo "installing Debian's chromium for the browser tests" >&2
+        $SUDO apt-get update -qq >/dev/null 2>&1 || true
+        $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+            chromium >/dev/null
+    else
+        echo "chromium not found and no apt-get: the browser tests will fail" >&2
+    fi
 fi

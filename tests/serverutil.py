@@ -110,17 +110,13 @@ class BrowserSession:
         return None
 
     def open(self, method, path, body=None, csrf=True, raw=None, content_type=None):
-        import json as _json
         import urllib.error
         import urllib.request
 
+        from octoprint_kincomp.devserver import request_body
+
         headers = {}
-        data = raw
-        if body is not None:
-            data = _json.dumps(body).encode()
-            headers["Content-Type"] = "application/json"
-        elif content_type:
-            headers["Content-Type"] = content_type
+        data = request_body(headers, body, raw, content_type)
         token = self.csrf()
         if csrf and token:
             headers["X-CSRF-Token"] = token

@@ -72,6 +72,13 @@ def test_failure_suppresses_and_reports():
     assert q.status()["errors"] == 1 and q.status()["last_error"]["command"] == "G1 X0 Y100 Z1"
     # the position is forgotten: the next move cannot build on a half-applied state
     assert q.comp.known == (False, False, False)
+    # until the print resumes or ends, later moves are held back (not sent as written);
+    # other commands still go through
+    assert q.handle("G1 X10 Y10 Z1") == [] and q.handle("g01 x5") == []
+    assert q.handle("M104 S0") is None and q.handle("G28") is None
+    assert q.status()["held_moves"] == 2 and q.status()["halted"]
+    q.resume()
+    assert q.handle("G1 X10 Y10 Z1") is not None
 
 
 def test_failure_pass_through_when_chosen():

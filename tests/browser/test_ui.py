@@ -93,7 +93,11 @@ def test_settings_change_save_and_refuse_invalid(page, server):
     # the firmware equivalents follow the saved parameters
     page.wait_for_function(
         "document.querySelector('#kincomp_fw_marlin').textContent.indexOf('M852 I-0.001234') >= 0")
-    page.screenshot(path=os.path.join(SHOTS, "settings.png"), full_page=True)
+    page.locator("#settings_plugin_kincomp h3").first.scroll_into_view_if_needed()
+    page.evaluate("document.querySelector('#settings_plugin_kincomp').scrollIntoView()")
+    page.screenshot(path=os.path.join(SHOTS, "settings.png"))
+    page.locator("#kincomp_fw_marlin").scroll_into_view_if_needed()
+    page.screenshot(path=os.path.join(SHOTS, "settings-firmware.png"))
 
     # not a number: marked inline, nothing sent
     page.fill("#kincomp_sq_xz", "abc")

@@ -1,0 +1,165 @@
+"""Faults and hostile input on a real server: a compensation error mid-print, disconnect
+and reconnect mid-print, parameters changed mid-print, oversized uploads, path traversal."""
+
+import os
+import socket
+import time
+
+import pytest
+
+from tests.serverutil import marker, offline, sent, settings, status
+
+pytestmark = pytest.mark.slow
+
+SKEW = {"squareness_um_per_m": {"xy": 2000.0, "xz": 0.0, "yz": 0.0},
+        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
+
+
+def _long_program(n=3000):
+    lines = ["G28", "G90", "G1 Z1 F3000"]
+    for i in range(n):
+        lines.append(f"G1 X{20 + (i % 100)} Y{20 + (i % 37)} F6000")
+    return lines
+
+
+def _upload(server, name, lines, print_=True):
+    code, body = server.upload("/api/files/local", name, ("\n".join(lines) + "\n").encode(),
+                               {"select": "true", "print": "true" if print_ else "false"})
+    assert code == 201, body
+
+
+def _wait(predicate, timeout=120.0, what="condition"):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if predicate():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _state(server):
+    return server.request("GET", "/api/job")[1]["state"]
+
+
+def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
+    settings(server, enabled=True, params=SKEW, limits_policy="error",
+             pass_through_on_error=False)
+    try:
+        lines = ["G28", "G90", "G1 Z1 F3000", "G1 X50 Y50 F3000", "G1 X60 Y60",
+                 "G1 X0 Y100"]  # X=0 at Y=100 needs X=-0.2 mm: outside the bed -> error
+        lines += [f"G1 X{30 + i % 50} Y{30 + i % 20}" for i in range(2000)]
+        start = marker(server)
+        _upload(server, "fault.gcode", lines)
+        _wait(lambda: _state(server).startswith("Paused"), what="pause")
+        st = status(server)["compensation"]
+        assert st["errors"] >= 1 and "outside" in st["last_error"]["error"]
+        assert st["halted"]
+        got = sent(server, after=start)
+        # everything before the failing move went out compensated exactly as offline
+        want = offline(server, lines[:5])
+        assert got[:len(want)] == want
+        # the failing move and the moves after it were not sent at all, compensated or not
+        after = got[len(want):]
+        assert "G1 X0 Y100" not in after
+        assert not any(c.startswith("G1 X") for c in after), after[:5]
+        server.request("POST", "/api/job", {"command": "cancel"})
+        _wait(lambda: _state(server) in ("Operational", "Cancelling") or
+              _state(server).startswith("Operational"), what="cancel")
+        server.wait_print_done()
+        assert not status(server)["compensation"]["halted"]
+    finally:
+        settings(server, limits_policy="warn", enabled=False)
+
+
+def test_disconnect_mid_print_and_reconnect_resets_the_state(server):
+    settings(server, enabled=True, params=SKEW)
+    try:
+        _upload(server, "long.gcode", _long_program())
+        _wait(lambda: status(server)["compensation"]["report"]["moves_compensated"] > 50,
+              what="moves")
+        assert status(server)["compensation"]["printing"]
+        code, _ = server.request("POST", "/api/connection", {"command": "disconnect"})
+        assert code == 204
+        _wait(lambda: server.state() in ("Offline", "Closed"), 60, "disconnect")
+        _wait(lambda: not status(server)["compensation"]["printing"], what="print end")
+        server.connect()
+        st = status(server)["compensation"]
+        assert st["positions_known"] == [False, False, False]
+        # after reconnecting nothing is assumed: homing makes the position known again
+        start = marker(server)
+        cmds = ["G28", "G1 X10 Y50 F3000"]
+        server.request("POST", "/api/printer/command", {"commands": cmds})
+        end = marker(server)
+        assert sent(server, after=start, until=end) == offline(server, cmds)
+    finally:
+        settings(server, enabled=False)
+
+
+def test_parameters_changed_mid_print_wait_for_the_next_print_unless_forced(server):
+    settings(server, enabled=True, params=SKEW, apply_changes="next_print")
+    try:
+        old_hash = status(server)["params_hash"]
+        _upload(server, "long2.gcode", _long_program(4000))
+        _wait(lambda: status(server)["compensation"]["printing"], what="print start")
+        new = dict(SKEW, squareness_um_per_m={"xy": -500.0, "xz": 0.0, "yz": 0.0})
+        code, body = server.request("POST", "/plugin/kincomp/settings", {"params": new})
+        assert code == 200
+        st = status(server)["compensation"]
+        assert st["params_hash"] == old_hash and st["pending_params_hash"] == body["params_hash"]
+        # forced: applied at once, mid-print
+        newer = dict(SKEW, squareness_um_per_m={"xy": 100.0, "xz": 0.0, "yz": 0.0})
+        code, body = server.request("POST", "/plugin/kincomp/settings",
+                                    {"params": newer, "apply_now": True})
+        assert code == 200
+        st = status(server)["compensation"]
+        assert st["params_hash"] == body["params_hash"] and st["pending_params_hash"] is None
+        server.request("POST", "/api/job", {"command": "cancel"})
+        server.wait_print_done()
+    finally:
+        settings(server, enabled=False, params=SKEW)
+
+
+def test_oversized_trace_upload_is_refused_before_it_is_read(server):
+    """A 1 GB upload claim to the trace endpoint: refused at once, nothing buffered."""
+    with socket.create_connection(("127.0.0.1", server.port), timeout=30) as s:
+        head = (f"POST /plugin/kincomp/trace HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                f"X-Api-Key: {server.admin_key}\r\n"
+                "Content-Type: multipart/form-data; boundary=x\r\n"
+                f"Content-Length: {1 << 30}\r\n\r\n").encode()
+        s.sendall(head + b"--x\r\n" + b"0" * 65536)
+        t0 = time.time()
+        reply = b""
+        while b"\r\n" not in reply:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            reply += chunk
+        # Tornado checks Content-Length against the route's limit (16 MB, bodysize hook)
+        # before reading the body and answers 400 "Content-Length too long"
+        assert reply.split(b" ")[1] in (b"400", b"413"), reply[:200]
+        assert time.time() - t0 < 30
+    assert server.request("GET", "/api/version")[0] == 200
+
+
+def test_path_traversal_is_impossible(server):
+    base = server.basedir
+    code, run = server.upload("/plugin/kincomp/trace", "../../../config.yaml",
+                              b"# plane: XY\n# radius_mm: 100\ndirection,angle_deg,deviation_um\n"
+                              + b"".join(f"ccw,{a},{(a % 7) * 0.1}\n".encode()
+                                         for a in range(0, 360, 2))
+                              + b"".join(f"cw,{a},{(a % 5) * 0.1}\n".encode()
+                                         for a in range(0, 360, 2)))
+    if code == 200:
+        assert "/" not in run["filename"] and ".." not in run["filename"].split("_")
+    with open(os.path.join(base, "config.yaml"), encoding="utf-8") as f:
+        assert "server:" in f.read()  # untouched
+    for path in ("../config.yaml", "../../users.yaml", "/etc/passwd", "..%2F..%2Fusers.yaml",
+                 "../uploads/x.gcode"):
+        code, _ = server.request("POST", "/plugin/kincomp/compensate", {"path": path})
+        assert code == 404, path
+        code, _ = server.request("GET", f"/plugin/kincomp/dryrun?path={path}")
+        assert code == 404, path
+    for run_id in ("..", "../../config", "%2e%2e%2fconfig", "x" * 300):
+        code, _ = server.request("GET", f"/plugin/kincomp/runs/{run_id}")
+        assert code == 404, run_id
