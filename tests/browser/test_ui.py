@@ -185,3 +185,21 @@ def test_calibration_wizard_demo_loop(page, server):
         assert page.locator("#kincomp_history tbody tr").count() >= 2
     finally:
         settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
+
+
+def test_files_compensated_with_older_parameters_are_flagged(page, server):
+    skew = dict(ZERO, squareness_um_per_m={"xy": 700.0, "xz": 0.0, "yz": 0.0})
+    settings(server, enabled=True, mode="on_upload", params=skew)
+    try:
+        code, _ = server.upload("/api/files/local", "flagged.gcode",
+                                b"G28\nG1 X10 Y50 F3000\nG1 X20 Y60\n")
+        assert code == 201
+        settings(server, params=dict(ZERO, squareness_um_per_m={"xy": 650.0, "xz": 0.0,
+                                                                 "yz": 0.0}))
+        page.reload()
+        page.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+        _open_tab(page)
+        page.wait_for_selector("#kincomp_outdated >> text=flagged.gcode", state="visible")
+    finally:
+        settings(server, enabled=False, mode="on_the_fly", params=ZERO)
+        server.request("DELETE", "/api/files/local/flagged.gcode")

@@ -341,6 +341,7 @@ $(function () {
         self.demo = ko.observable(false);
         self.paramsHash = ko.observable("");
         self.limits = ko.observable([0, 200, 0, 200, 0, 200]);
+        self.outdatedFiles = ko.observableArray([]);
 
         self.canWrite = ko.pureComputed(function () {
             self.loginState.currentUser(); // re-evaluate on login/logout
@@ -500,6 +501,12 @@ $(function () {
                 self.paramsHash(status.params_hash);
                 if (status.limits) self.limits(status.limits);
             });
+            var files = self.access.permissions.FILES_LIST;
+            if (files && self.loginState.hasPermission(files)) {
+                OctoPrint.get(API("files")).done(function (resp) {
+                    self.outdatedFiles(_.pluck(_.where(resp.files, {outdated: true}), "path"));
+                });
+            }
         };
 
         self.programRequest = function (print) {
@@ -803,6 +810,13 @@ $(function () {
         self.onEventPrintFailed = self.onEventPrintDone;
         self.onEventPrintCancelled = self.onEventPrintDone;
         self.onEventSettingsUpdated = function () {
+            self.refresh();
+        };
+        self.onEventFileAdded = function () {
+            self.refresh();
+        };
+        // the custom event plugin_kincomp_params_applied, camel-cased by OctoPrint
+        self.onEventPluginKincompParamsApplied = function () {
             self.refresh();
         };
 
