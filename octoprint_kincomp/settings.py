@@ -36,7 +36,6 @@ def defaults() -> Dict[str, Any]:
         "home_mm": [0.0, 0.0, 0.0],
         "pass_through_on_error": False,
         "apply_changes": "next_print",
-        "background_min_mb": 2.0,
         "demo": {"enabled": False},
     }
 
@@ -109,7 +108,6 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     out["home_mm"] = [_number(v, f"home_mm[{i}]", -10000, 10000) for i, v in enumerate(home)]
     out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
     out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
-    out["background_min_mb"] = _number(out["background_min_mb"], "background_min_mb", 0, 10000)
     demo = out["demo"]
     if not isinstance(demo, dict) or set(demo) - {"enabled"}:
         raise SettingsError("demo", "must be an object with 'enabled'")

@@ -215,3 +215,41 @@ def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
     assert status(server)["settings"] == before
     code, _ = admin.open("POST", "/plugin/kincomp/settings", {"enabled": before["enabled"]})
     assert code == 200
+
+
+def test_background_mode_writes_a_compensated_copy_with_progress(server):
+    from octoprint_kincomp.compensator import Compensator
+    from octoprint_kincomp.fileproc import compensate_lines, file_marker, marker_line
+    from octoprint_kincomp.settings import engine_config
+
+    settings(server, enabled=True, mode="background", params=PARAMS)
+    try:
+        src = os.path.join(DATA, "bambustudio-a1-hook.gcode")
+        with open(src, "rb") as f:
+            data = f.read()
+        code, _ = server.upload("/api/files/local", "bg.gcode", data)
+        assert code == 201
+        deadline = time.time() + 300
+        while True:
+            jobs = status(server)["jobs"]
+            job = next((j for j in jobs if j["path"] == "bg.gcode"), None)
+            if job and job["state"] in ("done", "failed"):
+                break
+            assert time.time() < deadline, jobs
+            time.sleep(0.5)
+        assert job["state"] == "done", job
+        assert job["result"] == "bg.kincomp.gcode" and job["progress"] == 1.0
+        # the upload itself is untouched, the copy is the offline compensation
+        assert open(os.path.join(server.basedir, "uploads", "bg.gcode"), "rb").read() == data
+        copy = os.path.join(server.basedir, "uploads", "bg.kincomp.gcode")
+        st = status(server)
+        assert file_marker(copy) == st["params_hash"]
+        params, options = engine_config(st["settings"], tuple(st["limits"]))
+        with open(src, encoding="utf-8", newline="") as f:
+            reference = "".join(compensate_lines(f.read().splitlines(keepends=True),
+                                                 Compensator(params, options),
+                                                 marker_line(params)))
+        with open(copy, encoding="utf-8", newline="") as f:
+            assert f.read() == reference
+    finally:
+        settings(server, mode="on_the_fly", enabled=False)

@@ -499,7 +499,10 @@ $(function () {
                 self.enabled(status.settings.enabled);
                 self.demo(status.demo);
                 self.paramsHash(status.params_hash);
-                if (status.limits) self.limits(status.limits);
+                if (status.limits) {
+                    self.limits(status.limits);
+                    if (!self.programTouched) self.defaultsFromProfile(status.limits);
+                }
             });
             var files = self.access.permissions.FILES_LIST;
             if (files && self.loginState.hasPermission(files)) {
@@ -508,6 +511,26 @@ $(function () {
                 });
             }
         };
+
+        // the test circle starts at the bed centre with the largest standard radius that
+        // fits (100 mm, else 50, 25), until the user edits the form
+        self.programTouched = false;
+        self.defaultsFromProfile = function (l) {
+            var half = Math.min(l[1] - l[0], l[3] - l[2]) / 2 - 5;
+            var radius = _.find([100, 50, 25], function (r) {
+                return r <= half;
+            }) || Math.max(5, Math.floor(half));
+            self.cx(String((l[0] + l[1]) / 2));
+            self.cy(String((l[2] + l[3]) / 2));
+            self.cz(String(Math.min(10, l[5])));
+            self.radius(String(radius));
+            self.programTouched = false;
+        };
+        _.each(["cx", "cy", "cz", "radius", "feed", "plane"], function (name) {
+            self[name].subscribe(function () {
+                self.programTouched = true;
+            });
+        });
 
         self.programRequest = function (print) {
             return {
