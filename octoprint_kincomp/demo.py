@@ -43,6 +43,7 @@ class DemoBallbar:
             self._hash = program_hash
             self._lines = []
             self.recording = True
+            self.last_trace = None  # the previous run's trace must not pass for this one
 
     def record(self, cmd: str) -> None:
         if not self.recording:

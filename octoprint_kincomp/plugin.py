@@ -13,6 +13,7 @@ import json
 import os
 import re
 import threading
+import time
 from typing import Any, Dict, Optional
 
 import flask
@@ -89,13 +90,18 @@ class KinCompPlugin(
         self._program_hash = ""
         self._lock = threading.RLock()
         self._warned_conflicts: Dict[str, str] = {}
-        self._warned_unknown = False
+        self._warned_unknown_at = 0.0  # time.monotonic() of the last such notification
+        self._pause_seen = False
+        self._prints_begun = 0  # prints whose first line (or start event) was handled
+        self._start_events = 0  # PRINT_STARTED events received
+        self._file_lines_seen = False  # a line of the current print went through the hook
         self._comm = None  # the MachineCom of the current connection
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
         self.runs = RunStore(self.get_plugin_data_folder())
-        self.queue = QueueCompensator(Params(), Options(), on_error=self._on_compensation_error)
+        self.queue = QueueCompensator(Params(), Options(), on_error=self._on_compensation_error,
+                                      on_untouched=self._on_untouched)
         self.files = BackgroundCompensator(self._run_file_job, self._job_changed)
 
     def on_after_startup(self):
@@ -150,6 +156,9 @@ class KinCompPlugin(
 
     def _save_settings(self, new: Dict[str, Any], immediately: Optional[bool] = None):
         old = self._current_settings()
+        # the base class merges into what is stored: optional params terms that the new
+        # document leaves out (servo_lag_ms, axis_errors, ...) would survive. Replace them.
+        self._settings.remove(["params"])
         diff = octoprint.plugin.SettingsPlugin.on_settings_save(self, new)
         self._apply_settings(new, immediately=immediately)
         if new["params"] != old["params"]:
@@ -208,18 +217,20 @@ class KinCompPlugin(
                      tags=None, *args, **kwargs):
         if comm_instance is not self._comm:
             self._connection_changed(comm_instance)
-        if tags and FILE_TAG in tags and not self.queue.printing:
-            # the first line of a print: PRINT_STARTED is delivered later, on the event
-            # thread, so the print's state is set up here, before its first line is handled
-            self._print_begins(self._current_job())
+        if tags and FILE_TAG in tags:
+            if not self.queue.printing or ("fileline:1" in tags and self._file_lines_seen):
+                # the first line of a print: PRINT_STARTED may be delivered later, on the
+                # event thread, so the print's state is set up here, before its first line
+                # is handled (also when the previous print's end event is still pending)
+                self._print_begins(self._current_job())
+            self._file_lines_seen = True
+        q = self.queue
+        if q.halted:
+            self._follow_pause(comm_instance)
         if cmd.startswith(FIRMWARE_HINTS):
             self.watch.sent(cmd)
             self._check_conflicts()
-        q = self.queue
-        unknown = q.comp.report.untouched_unknown
         result = q.handle(cmd, tags)
-        if q.comp.report.untouched_unknown != unknown:
-            self._warn_unknown_position(cmd)
         demo = self.demo
         if demo is not None and demo.recording:
             # what goes out, recorded once here: in the sent phase resends would repeat lines
@@ -246,23 +257,64 @@ class KinCompPlugin(
         return {"origin": f.get("origin"), "path": f.get("path")}
 
     def _print_begins(self, payload) -> None:
+        """A print starts: fresh state, its marker checked. Counted, so that a PrintDone of
+        the previous print that arrives after this print's first line is recognised."""
+        self._prints_begun += 1
+        self._file_lines_seen = False
         marked = self._is_precompensated(payload)
         self.queue.print_started(marked)
-        self._warned_unknown = False
+        self._warned_unknown_at = 0.0
+        self._pause_seen = False
         self.files.set_paused(True)
         self._start_demo_recording(payload)
 
-    def _warn_unknown_position(self, cmd: str) -> None:
-        """A move went out as written because the position it starts from is not known (no
-        G28 or absolute move since connect/print start): never silent."""
-        if self._warned_unknown:
+    def _follow_pause(self, comm_instance) -> None:
+        """After a compensation error the queue holds the print's moves back until the user
+        resumes. PRINT_RESUMED reaches on_event only after OctoPrint has started sending
+        again, so the hook watches the printer state: paused (or pausing) once, then
+        printing again means resumed."""
+        q = self.queue
+        try:
+            if comm_instance.isPausing() or comm_instance.isPaused():
+                self._pause_seen = True
+            elif self._pause_seen and (comm_instance.isPrinting() or
+                                       comm_instance.isResuming()):
+                self._resumed_after_error()
+        except AttributeError:  # not a MachineCom (tests): the event does it
+            pass
+
+    def _resumed_after_error(self) -> None:
+        q = self.queue
+        if not q.halted:
             return
-        self._warned_unknown = True
-        self._logger.warning("KinComp: %r sent uncompensated: position unknown (home the "
-                             "printer first)", cmd)
-        self._notify("warning", N_("KinComp sent '%(cmd)s' uncompensated because the "
-                                   "printer's position is unknown. Home the printer (G28) "
-                                   "so that moves can be compensated."), cmd=cmd)
+        self._logger.warning("KinComp: print resumed after a compensation error; %d moves "
+                             "were held back", q.held_moves)
+        q.resume()
+        self._pause_seen = False
+        self._warned_unknown_at = 0.0  # the position is unknown now: say so again
+
+    def _on_untouched(self, cmd: str, why: str) -> None:
+        """A move went out as written: its start position is not known (no G28 since
+        connecting, probing, a compensation error), or it is malformed. Never silent: always
+        logged, notified at most once a minute."""
+        if why == "malformed":
+            self._logger.warning("KinComp: malformed move %r sent as written; position "
+                                 "forgotten until the next G28 or absolute move", cmd)
+        else:
+            self._logger.warning("KinComp: %r sent uncompensated: position unknown", cmd)
+        now = time.monotonic()
+        if now - self._warned_unknown_at < 60.0:
+            return
+        self._warned_unknown_at = now
+        if why == "malformed":
+            self._notify("warning", N_("KinComp could not read the move '%(cmd)s' and sent it "
+                                       "as written; moves are compensated again once the "
+                                       "position is known (G28 or an absolute move)."),
+                         cmd=cmd)
+        else:
+            self._notify("warning", N_("KinComp sent '%(cmd)s' uncompensated because the "
+                                       "printer's position is unknown. Home the printer "
+                                       "(G28) so that moves can be compensated."), cmd=cmd)
 
     def received_hook(self, comm_instance, line, *args, **kwargs):
         if comm_instance is not self._comm:
@@ -336,14 +388,24 @@ class KinCompPlugin(
             if self.queue.printing:
                 self.queue.print_ended()
         elif event == Events.PRINT_STARTED:
-            if not self.queue.printing:  # not yet seen by the queuing hook
+            self._start_events += 1
+            if payload.get("origin") == FileDestinations.SDCARD and self.queue.enabled:
+                self._notify("warning", N_("This print runs from the printer's SD card: "
+                                           "KinComp cannot compensate it."))
+            if self._prints_begun < self._start_events:  # not seen by the queuing hook
                 self._print_begins(payload)
-        elif event == Events.PRINT_RESUMED:
+        elif event == Events.TRANSFER_STARTED:
+            if self.queue.enabled:
+                self._notify("warning", N_("Files streamed to the printer's SD card are not "
+                                           "compensated; compensate them on upload first."))
+        elif event == Events.PRINT_PAUSED:
             if self.queue.halted:
-                self._logger.warning("KinComp: print resumed after a compensation error; "
-                                     "%d moves were held back", self.queue.held_moves)
-                self.queue.resume()
+                self._pause_seen = True
+        elif event == Events.PRINT_RESUMED:
+            self._resumed_after_error()
         elif event in (Events.PRINT_DONE, Events.PRINT_FAILED, Events.PRINT_CANCELLED):
+            if self._prints_begun > self._start_events:
+                return  # late: the next print's first line was already handled
             self.queue.print_ended()
             self.files.set_paused(False)
             self._finish_demo(event == Events.PRINT_DONE)
@@ -496,6 +558,8 @@ class KinCompPlugin(
     def api_program(self):
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
         data = _json_object() or {}
+        if data.get("print"):
+            _require(Permissions.PRINT)
         try:
             plane = str(data.get("plane", "XY")).upper()
             feed = float(data.get("feed", 1850.0))
@@ -528,7 +592,6 @@ class KinCompPlugin(
             self._program_hash = prog_hash
         printing = False
         if data.get("print"):
-            _require(Permissions.PRINT)
             if not self._printer.is_operational() or self._printer.is_printing():
                 return _error(gettext("The printer is not ready to print"), 409)
             self._printer.select_file(path, False, printAfterSelect=True,
@@ -553,7 +616,16 @@ class KinCompPlugin(
         if not done:
             demo.cancel()
             return
-        trace = demo.finish()
+        threading.Thread(target=self._simulate_demo, args=(demo,), name="kincomp-demo",
+                         daemon=True).start()
+
+    def _simulate_demo(self, demo: DemoBallbar) -> None:
+        """Runs the simulator (seconds) on its own thread, not on OctoPrint's event thread."""
+        try:
+            trace = demo.finish()
+        except Exception:  # noqa: BLE001 - a demo failure must not disturb anything else
+            self._logger.exception("KinComp demo: simulation failed")
+            return
         if trace is not None:
             self._notify("success", N_(
                 "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
@@ -606,6 +678,8 @@ class KinCompPlugin(
                                            "typed summary", "summary")
         if "artifact" in data:
             a = data["artifact"]
+            if not isinstance(a, dict):
+                return _error(gettext("Expected a JSON object"), 400)
             try:
                 diag = diagnostics_from_artifact(
                     str(a.get("plane", "XY")), float(a["ac"]), float(a["bd"]), float(a["ad"]),
@@ -722,9 +796,12 @@ class KinCompPlugin(
     def _local_file(self, path: str) -> Optional[str]:
         if not isinstance(path, str) or not path or not valid_file_type(path, type="gcode"):
             return None
-        if not self._file_manager.file_exists(FileDestinations.LOCAL, path):
+        try:
+            if not self._file_manager.file_exists(FileDestinations.LOCAL, path):
+                return None
+            return self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
+        except ValueError:  # the storage refuses paths outside its folder
             return None
-        return self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
 
     @octoprint.plugin.BlueprintPlugin.route("/dryrun", methods=["GET"])
     def api_dryrun(self):

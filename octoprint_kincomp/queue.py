@@ -10,9 +10,15 @@ Resends never come back through the hook, so nothing is ever compensated twice o
 * If compensation fails on a line, the line is not sent: ``on_error`` is called (the plugin
   pauses the print and tells the user) and an empty list suppresses it - unless the user
   chose "pass through on error", then it is sent as written and reported. After such a
-  failure the adapter is *halted*: the moves OctoPrint still queues before the pause takes
-  effect are held back too (counted in ``held_moves``), so no move goes out uncompensated.
-  ``resume()`` (the print resumed) or the end of the print lifts it.
+  failure during a print the adapter is *halted*: the print's own moves (``source:file``/
+  ``source:job``) that OctoPrint still queues before the pause takes effect are held back
+  too (counted in ``held_moves``), so none goes out uncompensated; scripts (pause parking)
+  and manual commands are still compensated. ``resume()`` (the print resumed), the end of
+  the print or a reset lifts it.
+* A move sent as written is never silent: ``on_untouched(cmd, why)`` is called for a move
+  whose start position is unknown (``"unknown"``) and for a malformed move (``"malformed"``:
+  it passes through as the firmware may still execute it, and the tracked position is
+  forgotten, so later moves are not computed from a wrong start).
 * New parameters apply at the next print start (``apply_changes = next_print``) or at once;
   either way the new model takes over the tracked state (positions do not depend on it).
 """
@@ -28,17 +34,20 @@ from .compensator import Compensator, Options
 from .params import Params
 
 FILE_TAG = "source:file"
+JOB_TAG = "source:job"
 _MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
 
 
 class QueueCompensator:
     def __init__(self, params: Params, options: Options, enabled: bool = False,
                  pass_through_on_error: bool = False,
-                 on_error: Optional[Callable[[str, Exception], None]] = None):
+                 on_error: Optional[Callable[[str, Exception], None]] = None,
+                 on_untouched: Optional[Callable[[str, str], None]] = None):
         self._lock = threading.RLock()
         self.enabled = enabled
         self.pass_through_on_error = pass_through_on_error
         self.on_error = on_error
+        self.on_untouched = on_untouched
         self.comp = Compensator(params, options)
         self.pending: Optional[Tuple[Params, Options]] = None
         self.skip_file = False
@@ -59,14 +68,25 @@ class QueueCompensator:
             return None
         if self.skip_file and tags and FILE_TAG in tags:
             return None
-        if self.halted and _MOTION.match(cmd):
+        if self.halted and tags and (FILE_TAG in tags or JOB_TAG in tags) and \
+                _MOTION.match(cmd):
             self.held_moves += 1
             return []
         with self._lock:
+            rep = self.comp.report
+            unknown, malformed = rep.untouched_unknown, rep.malformed
             try:
                 out = self.comp.process(cmd)
             except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
                 return self._failed(cmd, exc)
+            why = None
+            if rep.malformed != malformed and _MOTION.match(cmd):
+                self.comp.invalidate()
+                why = "malformed"
+            elif rep.untouched_unknown != unknown:
+                why = "unknown"
+        if why is not None and self.on_untouched is not None:
+            self.on_untouched(cmd, why)
         if out is cmd:
             return None
         return [(line,) for line in out]
@@ -81,7 +101,7 @@ class QueueCompensator:
             if self.on_error is not None:
                 self.on_error(cmd, exc)
             return None
-        self.halted = True
+        self.halted = self.printing
         if self.on_error is not None:
             self.on_error(cmd, exc)
         return []
@@ -96,6 +116,7 @@ class QueueCompensator:
         """Back to 'nothing known' (connect, disconnect, print start/cancel)."""
         with self._lock:
             self.comp.reset()
+            self.halted = False
 
     def set_enabled(self, enabled: bool) -> None:
         with self._lock:

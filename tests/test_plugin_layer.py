@@ -65,20 +65,47 @@ def test_failure_suppresses_and_reports():
     q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
                          Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
                          enabled=True, on_error=lambda c, e: errors.append((c, e)))
-    q.handle("G28")
-    res = q.handle("G1 X0 Y100 Z1")  # compensated X would be -0.2: outside
+    q.print_started(precompensated=False)
+    f = {"source:file"}
+    q.handle("G28", f)
+    res = q.handle("G1 X0 Y100 Z1", f)  # compensated X would be -0.2: outside
     assert res == [] and normalize(res, "G1 X0 Y100 Z1") == []
     assert errors and isinstance(errors[0][1], LimitError)
     assert q.status()["errors"] == 1 and q.status()["last_error"]["command"] == "G1 X0 Y100 Z1"
     # the position is forgotten: the next move cannot build on a half-applied state
     assert q.comp.known == (False, False, False)
-    # until the print resumes or ends, later moves are held back (not sent as written);
-    # other commands still go through
-    assert q.handle("G1 X10 Y10 Z1") == [] and q.handle("g01 x5") == []
-    assert q.handle("M104 S0") is None and q.handle("G28") is None
+    # until the print resumes or ends, the print's later moves are held back (not sent as
+    # written); other commands, and moves from scripts or the user, still go through
+    assert q.handle("G1 X10 Y10 Z1", f) == [] and q.handle("g01 x5", f) == []
+    assert q.handle("M104 S0", f) is None
+    assert q.handle("G28", {"source:script"}) is None
+    assert q.handle("G1 X10 Y50 Z5", {"source:script"}) is not None
     assert q.status()["held_moves"] == 2 and q.status()["halted"]
     q.resume()
-    assert q.handle("G1 X10 Y10 Z1") is not None
+    assert q.handle("G1 X10 Y10 Z1", f) is not None
+
+
+def test_failure_outside_a_print_suppresses_only_that_command():
+    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+                         enabled=True, on_error=lambda c, e: None)
+    q.handle("G28")
+    assert q.handle("G1 X0 Y100 Z1") == []
+    assert not q.status()["halted"]
+    q.handle("G28")
+    assert q.handle("G1 X10 Y100 Z1") is not None
+
+
+def test_malformed_move_passes_but_is_reported_and_forgets_the_position():
+    seen = []
+    q = QueueCompensator(SKEW, Options(), enabled=True,
+                         on_untouched=lambda c, why: seen.append((c, why)))
+    q.handle("G28")
+    q.handle("G1 X50 Y50")
+    assert q.handle("G1 X80 Y80 Q") is None  # sent as written: the firmware may run it
+    assert seen == [("G1 X80 Y80 Q", "malformed")]
+    # the next move is not computed from the stale start: X-only needs Y, now unknown
+    assert q.handle("G1 X90") is None and seen[-1] == ("G1 X90", "unknown")
 
 
 def test_failure_pass_through_when_chosen():
@@ -346,3 +373,31 @@ def test_new_connection_forgets_positions_synchronously(plugin):
     assert plugin.queue.comp.known == (True, False, False)
     texts = [c[0][1]["text"] for c in plugin._plugin_manager.send_plugin_message.call_args_list]
     assert any("uncompensated because the printer's position is unknown" in t for t in texts)
+
+
+def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
+    """PRINT_STARTED before or after the first file line: one print begins; a PrintDone of
+    the previous print that arrives after the next print's first line is ignored."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    plain = tmp_path / "p.gcode"
+    plain.write_text("G28\n")
+    plugin._file_manager.path_on_disk.return_value = str(plain)
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
+                                                             "path": "p.gcode"}}
+    comm = object()
+    line = {"source:file", "fileline:1"}
+    # print A: the event first, then its first line
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
+    plugin.queuing_hook(comm, "queuing", "G1 X10 Y10", None, "G1",
+                        tags={"source:file", "fileline:2"})
+    assert plugin._prints_begun == 1 and plugin.queue.comp.known == (True, True, True)
+    # print B starts before A's PrintDone is processed
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
+    assert plugin._prints_begun == 2
+    plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # A's, late
+    assert plugin.queue.printing and plugin.queue.comp.known == (True, True, True)
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})  # B's
+    assert plugin._prints_begun == 2
+    plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # B's
+    assert not plugin.queue.printing

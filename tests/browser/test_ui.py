@@ -43,7 +43,9 @@ def page(browser, server):
     pg = context.new_page()
     pg.set_default_timeout(60_000)
     errors = []
-    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.on("pageerror", lambda e: errors.append(f"{e} {getattr(e, 'stack', '')}"))
+    # OctoPrint catches view model callback exceptions and logs them to the console
+    pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
     pg.goto(server.url + "/")
     pg.fill("#login-user", "admin")
     pg.fill("#login-password", server.logins["admin"]["password"])
@@ -203,3 +205,25 @@ def test_files_compensated_with_older_parameters_are_flagged(page, server):
     finally:
         settings(server, enabled=False, mode="on_the_fly", params=ZERO)
         server.request("DELETE", "/api/files/local/flagged.gcode")
+
+
+def test_german_browser_gets_the_german_ui(browser, server):
+    """Jinja (server side) and gettext in the view models (browser side) both translate."""
+    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="de-DE",
+                                  extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"})
+    try:
+        pg = context.new_page()
+        pg.set_default_timeout(60_000)
+        pg.goto(server.url + "/")
+        pg.fill("#login-user", "admin")
+        pg.fill("#login-password", server.logins["admin"]["password"])
+        pg.click("#login-button")
+        pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+        _open_tab(pg)
+        assert "Kalibrierung" in pg.inner_text("#tab_plugin_kincomp_link")
+        assert pg.is_visible("text=Testprogramm drucken")  # template, rendered by Jinja
+        pg.fill("#kincomp_radius", "60")
+        pg.wait_for_selector("#tab_plugin_kincomp >> text=der Kreis passt")  # JS gettext
+        pg.screenshot(path=os.path.join(SHOTS, "wizard-de.png"))
+    finally:
+        context.close()

@@ -43,6 +43,11 @@ $(function () {
         });
     };
 
+    var notify = function (options) {
+        // text may carry server or user strings (commands, file names): never as HTML
+        return new PNotify(_.extend({title_escape: true, text_escape: true}, options));
+    };
+
     var translateNotice = function (data) {
         var text = gettext(data.msgid);
         try {
@@ -146,6 +151,7 @@ $(function () {
             });
             _.each(self.backlash, function (b) {
                 var v = p.backlash[b.axis];
+                b.table = _.isArray(v) ? v : null; // as stored (may have more than 2 points)
                 if (_.isArray(v)) {
                     b.varies(true);
                     b.at0(String(v[0].at_mm));
@@ -204,7 +210,13 @@ $(function () {
                 params.scale_ppm[f.id.slice(3)] = number(f.path, f.value());
             });
             _.each(self.backlash, function (b) {
-                if (b.varies()) {
+                var t = b.table;
+                var untouched = t && t.length > 2 &&
+                    num(b.at0()) === t[0].at_mm && num(b.um0()) === t[0].um &&
+                    num(b.at1()) === t[t.length - 1].at_mm && num(b.um1()) === t[t.length - 1].um;
+                if (b.varies() && untouched) {
+                    params.backlash[b.axis] = t; // the form shows the ends; keep the inner points
+                } else if (b.varies()) {
                     params.backlash[b.axis] = [
                         {at_mm: number(b.path, b.at0()), um: number(b.path, b.um0())},
                         {at_mm: number(b.path, b.at1()), um: number(b.path, b.um1())}
@@ -290,7 +302,7 @@ $(function () {
             });
             if (now !== before) {
                 self.save().fail(function () {
-                    new PNotify({
+                    notify({
                         title: gettext("KinComp settings not saved"),
                         text: self.formError(),
                         type: "error",
@@ -489,7 +501,7 @@ $(function () {
         self.fail = function (jqXHR) {
             var msg = errorText(jqXHR);
             self.error(msg);
-            new PNotify({title: gettext("KinComp"), text: msg, type: "error"});
+            notify({title: gettext("KinComp"), text: msg, type: "error"});
         };
 
         self.refresh = function () {
@@ -551,7 +563,7 @@ $(function () {
                     self.programPath(resp.path);
                     self.printing(resp.printing);
                     if (resp.spec && resp.spec.feed_mm_min !== num(self.feed())) {
-                        new PNotify({
+                        notify({
                             title: gettext("KinComp"),
                             text: _.sprintf(gettext("Feed capped at %(feed)s mm/min (the slowest axis of the plane)."), {feed: resp.spec.feed_mm_min}),
                             type: "info"
@@ -652,7 +664,7 @@ $(function () {
                     OctoPrint.get(API("runs/" + run.id)).done(function (fresh) {
                         self.run(fresh);
                     });
-                    new PNotify({
+                    notify({
                         title: gettext("KinComp"),
                         text: gettext("Parameters applied; compensation is on. Re-test to see the improvement."),
                         type: "success"
@@ -846,7 +858,7 @@ $(function () {
         self.onDataUpdaterPluginMessage = function (plugin, data) {
             if (plugin !== "kincomp" || !data) return;
             if (data.type === "notify") {
-                new PNotify({
+                notify({
                     title: gettext("KinComp"),
                     text: translateNotice(data),
                     type: data.severity === "warning" ? "notice" : data.severity,
@@ -858,7 +870,7 @@ $(function () {
             } else if (data.type === "job" && data.job) {
                 var job = data.job;
                 if (job.state === "running") {
-                    self.jobNotice = self.jobNotice || new PNotify({
+                    self.jobNotice = self.jobNotice || notify({
                         title: gettext("KinComp"), text: "", type: "info", hide: false
                     });
                     self.jobNotice.update({
