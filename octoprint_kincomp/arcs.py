@@ -7,6 +7,7 @@ second; G3 (counter-clockwise) increases the angle, G2 decreases it. All lengths
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import List, Optional, Sequence, Tuple
 
@@ -86,7 +87,12 @@ def segment_angle(radius: float, chord_tol: float) -> float:
     """Largest angular step whose chord deviates from the arc by at most ``chord_tol``."""
     if radius <= chord_tol:
         return math.pi / 2
-    return min(math.pi / 2, 2.0 * math.acos(1.0 - chord_tol / radius))
+    step = min(math.pi / 2, 2.0 * math.acos(1.0 - chord_tol / radius))
+    if not step > 0.0:
+        # 1 - tol/r rounds to 1 beyond ~1e14 * tol (an I/J/R of hundreds of digits): no
+        # machine arc, and a zero step would divide by zero in linearise
+        raise ArcError(f"arc radius {radius:g} mm is too large")
+    return step
 
 
 def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: float, cb: float,
@@ -109,6 +115,9 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
     # 0.8: dropping a chord end next to a forced point lengthens a chord by up to 25 %
     n = min(MAX_SEGMENTS, max(1, int(math.ceil(abs(sweep) / (0.8 * step) - 1e-9))))
     lo, hi = (t0, t0 + sweep) if sweep > 0 else (t0 + sweep, t0)
+    if len(breaks) * abs(sweep) / math.pi > MAX_SEGMENTS:
+        # a huge P (turn count): the forced points alone would be millions of chords
+        raise ArcError(f"arc of {abs(sweep) / TWO_PI:.0f} turns needs too many chords")
     forced = []
     for phi in breaks:
         k = math.ceil((lo - phi) / math.pi)
@@ -116,7 +125,16 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
             forced.append((phi + k * math.pi - t0) / sweep)
             k += 1
     # Uniform chords, minus those that would end right next to a forced point (no slivers).
-    fracs = {i / n for i in range(1, n) if all(abs(i / n - f) > 0.25 / n for f in forced)}
+    # The nearest forced points are found by bisection: checking every forced point for
+    # every chord was quadratic (minutes for an arc with P1000).
+    forced_sorted = sorted(forced)
+
+    def clear(x: float) -> bool:
+        j = bisect.bisect_left(forced_sorted, x)
+        return all(abs(x - forced_sorted[i]) > 0.25 / n
+                   for i in (j - 1, j) if 0 <= i < len(forced_sorted))
+
+    fracs = {i / n for i in range(1, n) if clear(i / n)}
     fracs.update(forced)
     pts: List[Vec] = []
     for f in sorted(x for x in fracs if 1e-12 < x < 1 - 1e-12):

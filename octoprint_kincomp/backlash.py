@@ -10,10 +10,14 @@ geometric correction, where ``dir`` is the direction the axis is travelling (+1/
 unknown, e.g. at start or after homing). On a reversal ``dir`` flips and the offset changes by
 ``fraction * b(q)``: the take-up. It is applied either at once (the caller emits a take-up move
 before the reversing move) or ramped linearly over the next ``smoothing_mm`` of path length.
-A move that steps the carriage command by more than ``deadband_mm`` (default 1 nm) against the
-current direction is a reversal; smaller steps are ignored. The deadband only absorbs float
-noise of computed points; every reversal that G-code can express (1 um at 3 decimals) is real
-and taken up, since a drive that retreats by less than the play leaves the carriage behind.
+A carriage command that retreats by more than ``deadband_mm`` (default 1 nm) from the farthest
+command reached in the current direction (the *anchor*) is a reversal. The deadband is a
+hysteresis around that anchor, not a per-move threshold, so steps below it can never add up to
+an untaken reversal (per-move, a slow creep of sub-nm steps, e.g. an X command drifting with Z
+under XZ skew, could). It only absorbs float noise of computed points; every reversal that
+G-code can express (1 um at 3 decimals) is real and taken up, since a drive that retreats by
+less than the play leaves the carriage behind. With no direction yet (start, after homing) the
+anchor is where the drive was last put (the home position after G28).
 """
 
 from __future__ import annotations
@@ -47,8 +51,12 @@ class BacklashTracker:
             self.ramp_from = [0.0, 0.0, 0.0]
             self.ramp_done = [0.0, 0.0, 0.0]  # path length travelled since the reversal
             self.ramping = [False, False, False]
+            # geometric carriage command (mm, without the take-up offset) farthest along the
+            # current direction; None: not known yet (the next move's start is taken)
+            self.anchor: List[Optional[float]] = [None, None, None]
         for k in axes:
             self.dir[k] = 0
+            self.anchor[k] = None
             self.ramping[k] = False
             self.ramp_from[k] = 0.0
             self.ramp_done[k] = 0.0
@@ -77,32 +85,49 @@ class BacklashTracker:
         return max(0.0, self.smoothing - self.ramp_done[k])
 
     # -- updates -----------------------------------------------------------------------
+    def turn(self, k: int, q_from: float, q: float) -> int:
+        """New direction (+1/-1) if axis k's carriage command reverses on its way to ``q``
+        (mm), else 0. Without a reversal the anchor follows the command; on a reversal the
+        caller sets ``dir[k]`` and ``anchor[k] = q``. ``q_from`` (the move's start) is the
+        anchor when none is known."""
+        a = self.anchor[k]
+        d = self.dir[k]
+        if d > 0:
+            if q >= a:
+                self.anchor[k] = q
+                return 0
+            return -1 if q < a - self.deadband else 0
+        if d < 0:
+            if q <= a:
+                self.anchor[k] = q
+                return 0
+            return 1 if q > a + self.deadband else 0
+        if a is None:
+            a = self.anchor[k] = q_from
+        if q > a + self.deadband:
+            return 1
+        if q < a - self.deadband:
+            return -1
+        return 0
+
     def detect_reversals(self, p0: Sequence[float], p1: Sequence[float],
                          q0: Sequence[float], ramp: bool = True) -> List[int]:
-        """Axes whose carriage command reverses on the move p0 -> p1 (mm).
-
-        A step of more than ``deadband_mm`` against the current direction is a reversal;
-        smaller steps change nothing. With smoothing (and ``ramp``) a take-up starts ramping
+        """Axes whose carriage command reverses on the move p0 -> p1 (mm, geometric
+        commands), see :meth:`turn`. With smoothing (and ``ramp``) a take-up starts ramping
         from the offset in force at the move start (carriage position ``q0``).
         """
         reversed_axes = []
-        db = self.deadband
         for k in range(3):
             if not self.active[k]:
                 continue
             a, b = p0[k], p1[k]
             if a is None or b is None:
                 continue
-            step = b - a
-            if step > db:
-                new = 1
-            elif step < -db:
-                new = -1
-            else:
-                continue
-            if new != self.dir[k]:
+            new = self.turn(k, a, b)
+            if new:
                 start_offset = self.offset(k, q0[k])
                 self.dir[k] = new
+                self.anchor[k] = b
                 reversed_axes.append(k)
                 self.ramping[k] = False
                 if ramp and self.smoothing > 0:
@@ -110,6 +135,12 @@ class BacklashTracker:
                     self.ramp_from[k] = start_offset
                     self.ramp_done[k] = 0.0
         return reversed_axes
+
+    def place(self, k: int, c: float) -> None:
+        """The drive of axis k was put at ``c`` (mm) by something other than a compensated
+        move (homing, G92 defining an unknown axis): direction unknown, anchored there."""
+        self.reset((k,))
+        self.anchor[k] = c
 
     def advance(self, travel: float) -> None:
         """Account ``travel`` mm of path length for ramping take-ups."""
@@ -119,9 +150,18 @@ class BacklashTracker:
                 if self.ramp_done[k] >= self.smoothing - 1e-12:
                     self.ramping[k] = False
 
-    def observe(self, p0: Sequence[float], p1: Sequence[float]) -> None:
-        """Track direction on a move that is passed through uncompensated (no ramping)."""
-        self.detect_reversals(p0, p1, p0, ramp=False)
+    def observe(self, c0: Sequence[Optional[float]], c1: Sequence[Optional[float]]) -> None:
+        """Track direction on a move passed through uncompensated (drive commands c0 -> c1,
+        mm, no take-up offset on them; no ramping). The anchor is kept in the geometric frame
+        of compensated moves: the drive position minus the offset of the direction."""
+        for k in range(3):
+            if not self.active[k] or c0[k] is None or c1[k] is None:
+                continue
+            new = self.turn(k, c0[k] - self.target(k, c0[k]), c1[k] - self.target(k, c1[k]))
+            if new:
+                self.dir[k] = new
+                self.ramping[k] = False
+            self.anchor[k] = c1[k] - self.target(k, c1[k])
 
 
 class Play:

@@ -44,7 +44,9 @@ INVALIDATING_M = frozenset({48})
 
 MARKER_PREFIX = "; kincomp: compensated"
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)"  # the grammar parse_words accepts
+# the grammar parse_words accepts, with at most 99 integer digits (below gcode.MAX_WORD_VALUE,
+# which parse_words enforces; longer numbers take the general path and are malformed there)
+_NUM = r"[-+]?(?:\d{1,99}(?:\.\d*)?|\.\d+)"
 # code, F before X/Y/Z, X, Y, Z, E, F after; group 8: everything after the X/Y/Z words
 _FAST_RE = re.compile(
     rf"(G[01])(?: F({_NUM}))?(?: X({_NUM}))?(?: Y({_NUM}))?(?: Z({_NUM}))?"
@@ -273,7 +275,9 @@ class Compensator:
         self.lineno = other.lineno
         for k in range(3):
             if self.backlash.active[k] and other.backlash.active[k]:
+                # the anchor is a geometric command: the same frame under either model
                 self.backlash.dir[k] = other.backlash.dir[k]
+                self.backlash.anchor[k] = other.backlash.anchor[k]
         self._qm = None
         self._lim_hit = [True, True, True]
 
@@ -376,19 +380,14 @@ class Compensator:
         redo = self._lim_hit[:]  # axes that must be re-evaluated even if unmoved
         out = None
         if self._bl_axes:
-            dirs = self.backlash.dir
-            db = self.backlash.deadband
+            bl = self.backlash
             rev = False
             for k in self._bl_axes:
-                step = q1[k] - q0[k]
-                if step > db:
-                    if dirs[k] != 1:
-                        dirs[k] = 1
-                        rev = redo[k] = True
-                elif step < -db:
-                    if dirs[k] != -1:
-                        dirs[k] = -1
-                        rev = redo[k] = True
+                new = bl.turn(k, q0[k], q1[k])
+                if new:
+                    bl.dir[k] = new
+                    bl.anchor[k] = q1[k]
+                    rev = redo[k] = True
             if rev:
                 # only reversed axes (and axes at a limit) can change their text here
                 take = self._fast_point("G1", m, q0, (False, False, False), q0, redo)
@@ -415,8 +414,6 @@ class Compensator:
         out: List[str] = []
         rep = self.report
         bl = self.backlash
-        dirs = bl.dir
-        db = bl.deadband
         inv = self.model.inverse
         prev = start
         lengths = []
@@ -436,15 +433,11 @@ class Compensator:
             if self._bl_axes:
                 rev = False
                 for k in self._bl_axes:
-                    step = q1[k] - q0[k]
-                    if step > db:
-                        if dirs[k] != 1:
-                            dirs[k] = 1
-                            rev = redo[k] = True
-                    elif step < -db:
-                        if dirs[k] != -1:
-                            dirs[k] = -1
-                            rev = redo[k] = True
+                    new = bl.turn(k, q0[k], q1[k])
+                    if new:
+                        bl.dir[k] = new
+                        bl.anchor[k] = q1[k]
+                        rev = redo[k] = True
                 if rev:
                     take = self._fast_point("G1", p0, q0, no_axes, q0, redo)
                     if take is not None:
@@ -596,7 +589,7 @@ class Compensator:
                 self.m[k] = v
                 self.w[k] = 0.0
                 self.g[k] = 0.0
-                self.backlash.reset((k,))
+                self.backlash.place(k, v)
             else:
                 c = self.fw[k] - self.g[k]
                 self.w[k] = v - self.m[k]
@@ -608,9 +601,11 @@ class Compensator:
         return line
 
     def _reset_offsets(self) -> None:
+        # G92.1 drops the offsets; the head does not move, so the desired machine position m
+        # stays where it is (adding w to it made the next move drive the axes the program
+        # did not mention to m + w). Only the firmware coordinate loses the firmware offset.
         for k in range(3):
             if self.m[k] is not None:
-                self.m[k] += self.w[k]
                 self.fw[k] -= self.g[k]
                 self.fw_text[k] = None
             self.w[k] = 0.0
@@ -627,7 +622,9 @@ class Compensator:
             self.fw_text[k] = None
             self.w[k] = 0.0
             self.g[k] = 0.0
-        self.backlash.reset(axes)
+            # the drive is at the home command, which under skew is not inverse(home): the
+            # first move's reversal is judged from there
+            self.backlash.place(k, float(home[k]))
         return line
 
     # -- moves ---------------------------------------------------------------------------
@@ -705,7 +702,9 @@ class Compensator:
         if self.backlash.any_active:
             self.backlash.observe(c_before, [None if v is None else v - self.g[k]
                                              for k, v in enumerate(self.fw)])
-            self.backlash.reset([k for k in given if not known_before[k]])
+            for k in given:
+                if not known_before[k] and self.fw[k] is not None:
+                    self.backlash.place(k, self.fw[k] - self.g[k])
         self.m = new_m
         e = next((w for w in words if w.letter == "E"), None)
         self._track_e(e)
@@ -726,7 +725,9 @@ class Compensator:
         plane_axes = {ia, ib} | set(given)
         need = self._needed(sorted(plane_axes))
         known_before = self.known
-        if self.passthrough or any(self.m[k] is None for k in need | plane_axes):
+        # The linear axis is interpolated along the chords (helix), so it must be known too:
+        # an XY arc from an unknown Z crashed in linearise (None - None).
+        if self.passthrough or any(self.m[k] is None for k in need | plane_axes | {il}):
             return self._untouched(given, target, words, known_before, line)
         u = self.unit
         offs = (

@@ -61,6 +61,11 @@ _P10I = 10 ** np.arange(19, dtype=np.int64)
 _BREAK_FIRST = np.zeros(256, bool)  # first byte of a line that may change the state
 for _c in b"GgTtNnm\t \x0b\x0c":
     _BREAK_FIRST[_c] = True
+# Compensator.process strips any Unicode whitespace before the code (str.lstrip), so a line
+# starting with \x1c..\x1f or a non-ASCII byte (U+0085, U+00A0, U+2003 ...) may be a move:
+# it takes the line-by-line path (treated as inert, such a move was left uncompensated).
+_BREAK_FIRST[0x1C:0x20] = True
+_BREAK_FIRST[0x80:] = True
 _AXIS_BYTES = (b" X", b" Y", b" Z")
 
 
@@ -226,12 +231,19 @@ class FileEngine:
             yield _Unterminated(rest + b"\n")
 
     def _finish_block(self, block: bytes, tokens):
+        if isinstance(block, _Unterminated) and block.endswith(b"\r\n"):
+            # The file ended with a lone CR (its last line is terminated after all): the
+            # virtual newline would make that ending CRLF, and the lines a last move expands
+            # into would be joined with CRLF. The line path on the real bytes keeps the CR.
+            return self._lines(block, 0, len(block) - 1)
         out = self.chunk(block, tokens.result() if tokens is not None else None)
         if isinstance(block, _Unterminated) and len(out) and out[-1] in (10, b"\n"[0]):
             out = out[:-1]
         return out
 
     def _start(self, block: bytes, header, check_first, write) -> None:
+        if isinstance(block, _Unterminated):  # the header takes the real first ending
+            block = block[:-1]
         head = block[:16384].decode(_ENC, _ERR)
         if check_first is not None:
             check_first(head)
@@ -281,24 +293,46 @@ class FileEngine:
         """Lines [i0, i1) of the block: no line among them changes the modal state."""
         comp = self.comp
         buf = tk.buf
-        start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
-        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
-        if len(cand) == 0:  # comments and inert commands only
-            comp.lineno += i1 - i0
-            comp.report.lines += i1 - i0
-            comp.report.lines_out += i1 - i0
-            pieces.append(buf[start:end])
+        while True:
+            start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+            cand = np.flatnonzero(tk.cand[i0:i1]) + i0
+            if len(cand) == 0:  # comments and inert commands only
+                comp.lineno += i1 - i0
+                comp.report.lines += i1 - i0
+                comp.report.lines_out += i1 - i0
+                pieces.append(buf[start:end])
+                return
+            j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
+            if (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
+                    or tk.move_bad_number[j0:j1].any()):
+                pieces.append(self._lines(buf, start, end))
+                return
+            if j0 < j1 and not self._anchored():
+                # a backlash anchor away from the start command (after homing under skew, or
+                # a sub-deadband retreat): the first move goes line by line, then try again
+                first = int(tk.move_lines[j0]) + 1
+                pieces.append(self._lines(buf, start, int(tk.le[first - 1]) + 1))
+                if first >= i1:
+                    return
+                i0 = first
+                continue
+            result = self._vector(tk, i0, i1, cand, j0, j1)
+            if result is None:
+                # a limit error (the line path raises at its line) or sub-deadband steps
+                # (the line path applies the hysteresis)
+                pieces.append(self._lines(buf, start, end))
+                return
+            pieces.append(result)
             return
-        j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
-        if (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
-                or tk.move_bad_number[j0:j1].any()):
-            pieces.append(self._lines(buf, start, end))
-            return
-        result = self._vector(tk, i0, i1, cand, j0, j1)
-        if result is None:  # a limit error: let the line-by-line path raise at its line
-            pieces.append(self._lines(buf, start, end))
-            return
-        pieces.append(result)
+
+    def _anchored(self) -> bool:
+        """Every backlash axis with a direction is anchored at the current command: then
+        the per-step signs of the vector path make the tracker's decisions."""
+        comp = self.comp
+        bl = comp.backlash
+        q0 = comp._qm if comp._qm is not None else comp.model.inverse(comp.m)
+        return all(bl.anchor[k] is None or bl.anchor[k] == q0[k]
+                   for k in range(3) if bl.active[k])
 
     # -- the vectorised computation ------------------------------------------------------
     def _vector(self, tk: "_Tokens", i0: int, i1: int, cand: np.ndarray, j0: int,
@@ -342,6 +376,11 @@ class FileEngine:
         for k in range(3):
             if bl.active[k]:
                 step = Q[:, k] - Qp[:, k]
+                if np.any((step != 0.0) & (np.abs(step) <= bl.deadband)):
+                    # sub-deadband steps: only the line path's hysteresis decides them
+                    return None
+                # anchored at the start and no sub-deadband step: the anchor is always the
+                # current command, so a reversal is a step beyond the deadband against dir
                 s = np.where(step > bl.deadband, 1, np.where(step < -bl.deadband, -1, 0))
                 after = _ffill_int(s, bl.dir[k])
                 before = np.empty_like(after)
@@ -481,6 +520,8 @@ class FileEngine:
         comp._lim_hit = [True, True, True]
         for k in range(3):
             bl.dir[k] = int(dirs_after[-1, k])
+            if bl.active[k]:
+                bl.anchor[k] = float(Q[-1, k])
         n_take = int(take_emit.sum())
         self._finish_counts(tk, i0, i1, cand, nm, n_take)
         return out

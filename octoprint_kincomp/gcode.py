@@ -15,6 +15,10 @@ _CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?")
 _WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _BARE_LETTER = re.compile(r"\s*([A-Za-z])(?=\s|$)")
 _CHECKSUM = re.compile(r"\*\s*\d*\s*$")
+# Larger numbers are no coordinate: a 309-digit one is inf, and from ~1e154 on the squares of
+# path lengths overflow (float ** raises OverflowError). The compensator's fast path accepts at
+# most 99 integer digits, which stays below this.
+MAX_WORD_VALUE = 1e100
 
 
 class Word(NamedTuple):
@@ -80,8 +84,8 @@ def parse_command(line: str) -> Optional[Command]:
 def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
     """Words of a command body; None when the body is not clean G-code.
 
-    A repeated letter, stray characters, or (unless ``allow_bare``) a letter without a number
-    make the body malformed.
+    A repeated letter, stray characters, a number beyond +-``MAX_WORD_VALUE`` or (unless
+    ``allow_bare``) a letter without a number make the body malformed.
     """
     words: List[Word] = []
     seen = set()
@@ -92,6 +96,8 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
         if m:
             letter = m.group(1).upper()
             value = float(m.group(2))
+            if not abs(value) < MAX_WORD_VALUE:
+                return None
             text = body[m.start(1): m.end()]
         else:
             m = _BARE_LETTER.match(body, pos) if allow_bare else None

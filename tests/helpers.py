@@ -47,6 +47,12 @@ class Printer:
             if isinstance(ev, Home):
                 self.play.reset(ev.axes)
             if isinstance(ev, Move):
+                for k in range(3):
+                    if self.play.pos[k] is None:
+                        # A play not moved since homing sits in its middle where the drive
+                        # starts (sampling only segment ends would put it at the first end,
+                        # hiding the lag of a first move that needs no take-up line).
+                        self.play.carriage(k, ev.start[k])
                 y = [self.play.carriage(k, ev.end[k]) for k in range(3)]
                 out.append(self.model.forward(y))
         return out

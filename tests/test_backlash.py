@@ -74,6 +74,40 @@ def test_deadband_ignores_float_noise_but_not_real_reversals():
     assert len(out) == 2  # 1 um back is a real reversal: the carriage would stay in the play
 
 
+def test_sub_deadband_steps_cannot_add_up_to_an_untaken_reversal():
+    """The deadband is a hysteresis around the farthest command reached, not a per-step
+    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all."""
+    t = BacklashTracker(BL)
+    assert t.detect_reversals((0, 0, 0), (10, 0, 0), (0, 0, 0)) == [0]
+    x, revs = 10.0, []
+    for _ in range(10):
+        revs.append(t.detect_reversals((x, 0, 0), (x - 4e-7, 0, 0), (x, 0, 0)))
+        x -= 4e-7
+    # steps 1 and 2 reach -0.8 nm (inside the deadband), step 3 reaches -1.2 nm: reversal
+    assert revs[:2] == [[], []] and revs[2] == [0] and t.dir[0] == -1
+    assert all(r == [] for r in revs[3:])  # then simply moving on in -X
+    # moving forward within the deadband of the extreme is no reversal either
+    assert t.detect_reversals((x, 0, 0), (x + 9e-7, 0, 0), (x, 0, 0)) == []
+    assert t.detect_reversals((x, 0, 0), (x + 1.1e-6, 0, 0), (x, 0, 0)) == [0]
+
+
+def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
+    """G28 X at Z=50 with XZ skew: the drive sits at the home command 0 while the X command
+    for X=0 is -0.25 mm. The next move drives X from 0 to -0.25 - b/2, a -X move from a
+    reset direction, and so it needs the take-up (judging it from inverse(home) saw no
+    step and left the carriage b/2 = 50 um off)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xz": 5000.0}, "backlash": {"x": 100.0}})
+    lines = ["G28", "G1 X0 Y0 Z50", "G28 X", "G1 Y10"]
+    comp, groups = compensate_groups(p, lines, Options(decimals=6))
+    take, move = groups[-1][1]  # a take-up move, then the move
+    assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
+    printer = Printer(p)
+    for _, outs in groups:
+        for o in outs:
+            printer.run_line(o)
+    assert dist(printer.actual(), (0, 10, 50)) < 2e-6
+
+
 def test_smoothing_spreads_takeup_over_following_path():
     p = Params.from_dict({"backlash": {"x": 40.0, "smoothing_mm": 2.0}})
     comp, groups = compensate_groups(p, ["G28", "M83", "G1 X50 Y0 Z1 F3000", "G1 X40 E1",

@@ -10,6 +10,7 @@ tracemalloc, never with wall-clock time), and oversized input is refused before 
 
 import json
 import math
+import os
 import re
 import tracemalloc
 
@@ -26,10 +27,13 @@ from octoprint_kincomp.ballbar.simulator import paper_truth, simulate_program
 from .test_ballbar_formats import B5R
 
 # Reproducible in CI: no example database, derandomised generation, no deadline (slow
-# runners); the example counts keep this module at a few seconds.
-FUZZ = settings(max_examples=150, deadline=None, derandomize=True, database=None,
+# runners); the example counts keep this module at a few seconds. KINCOMP_FUZZ_SCALE=N runs
+# N times the examples with fresh random seeds (deeper, not reproducible).
+SCALE = int(os.environ.get("KINCOMP_FUZZ_SCALE", "0") or 0)
+FUZZ = settings(max_examples=150 * max(1, SCALE), deadline=None, derandomize=not SCALE,
+                database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-FEW = settings(FUZZ, max_examples=40)
+FEW = settings(FUZZ, max_examples=40 * max(1, SCALE))
 
 MB = 1024 * 1024
 
