@@ -92,6 +92,11 @@ class KinCompPlugin(
         self._warned_conflicts: Dict[str, str] = {}
         self._warned_unknown_at = 0.0  # time.monotonic() of the last such notification
         self._pause_seen = False
+        # The print's start is seen by the queuing hook (file reader thread) and by
+        # PRINT_STARTED (event thread), in either order: decisions and their effects on the
+        # print state are made under this lock, or both threads could begin one print and
+        # every later end event would look like a late one.
+        self._print_lock = threading.RLock()
         self._prints_begun = 0  # prints whose first line (or start event) was handled
         self._start_events = 0  # PRINT_STARTED events received
         self._file_lines_seen = False  # a line of the current print went through the hook
@@ -218,12 +223,15 @@ class KinCompPlugin(
         if comm_instance is not self._comm:
             self._connection_changed(comm_instance)
         if tags and FILE_TAG in tags:
-            if not self.queue.printing or ("fileline:1" in tags and self._file_lines_seen):
-                # the first line of a print: PRINT_STARTED may be delivered later, on the
-                # event thread, so the print's state is set up here, before its first line
-                # is handled (also when the previous print's end event is still pending)
-                self._print_begins(self._current_job())
-            self._file_lines_seen = True
+            with self._print_lock:
+                if not self.queue.printing or ("fileline:1" in tags and
+                                               self._file_lines_seen):
+                    # the first line of a print: PRINT_STARTED may be delivered later, on
+                    # the event thread, so the print's state is set up here, before its
+                    # first line is handled (also when the previous print's end event is
+                    # still pending)
+                    self._print_begins(self._current_job())
+                self._file_lines_seen = True
         q = self.queue
         if q.halted:
             self._follow_pause(comm_instance)
@@ -380,7 +388,10 @@ class KinCompPlugin(
 
     # ~~ events ------------------------------------------------------------------------------
     def on_event(self, event, payload):
-        payload = payload or {}
+        with self._print_lock:
+            self._on_event(event, payload or {})
+
+    def _on_event(self, event, payload):
         if event == Events.DISCONNECTED:
             self._comm = None
             self.queue.reset()

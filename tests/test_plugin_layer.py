@@ -401,3 +401,36 @@ def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
     assert plugin._prints_begun == 2
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # B's
     assert not plugin.queue.printing
+
+
+def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path):
+    """The first file line (file reader thread) and PRINT_STARTED (event thread) at the same
+    moment: one print begins, not two. Two would leave every later end event looking like a
+    late one, so the print would never end for KinComp: background jobs stay paused and the
+    demo never simulates its trace (what CI saw)."""
+    import threading
+    import time
+
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
+                             "mode": "background"})
+    plain = tmp_path / "p.gcode"
+    plain.write_text("G28\n")
+    plugin._file_manager.path_on_disk.return_value = str(plain)
+    in_lookup = threading.Event()
+
+    def slow_job():  # the hook is between its check and its action for 0.3 s
+        in_lookup.set()
+        time.sleep(0.3)
+        return {"file": {"origin": "local", "path": "p.gcode"}}
+
+    plugin._printer.get_current_job.side_effect = slow_job
+    hook = threading.Thread(target=plugin.queuing_hook,
+                            args=(object(), "queuing", "G28", None, "G28"),
+                            kwargs={"tags": {"source:file", "fileline:1"}})
+    hook.start()
+    assert in_lookup.wait(5)
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
+    hook.join(5)
+    assert plugin._prints_begun == 1 and plugin.files.paused
+    plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})
+    assert not plugin.queue.printing and not plugin.files.paused
