@@ -23,9 +23,8 @@ positions unknown again; tool changes too (hotend offsets).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from . import arcs
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
@@ -44,15 +43,38 @@ INVALIDATING_M = frozenset({48})
 
 MARKER_PREFIX = "; kincomp: compensated"
 
-# the grammar parse_words accepts, with at most 99 integer digits (below gcode.MAX_WORD_VALUE,
-# which parse_words enforces; longer numbers take the general path and are malformed there)
-_NUM = r"[-+]?(?:\d{1,99}(?:\.\d*)?|\.\d+)"
-# code, F before X/Y/Z, X, Y, Z, E, F after; group 8: everything after the X/Y/Z words
-_FAST_RE = re.compile(
-    rf"(G[01])(?: F({_NUM}))?(?: X({_NUM}))?(?: Y({_NUM}))?(?: Z({_NUM}))?"
-    rf"((?: E({_NUM}))?(?: F({_NUM}))?)$"
-)
 _FAST_PREFIXES = frozenset({"G1 ", "G0 "})
+# The per-line fast path reads a line by its shape: the line with the number characters
+# deleted, e.g. "G1 X12.5 Y-3 E0.41" -> "G X Y E". Accepted shapes: an optional F, then X, Y,
+# Z, E, F in this order, single spaces. A number then consists of [0-9.+-] only, and on that
+# alphabet float() accepts exactly the grammar of gcode.parse_words (anything else raises and
+# the general path reports the line); lines of more than 96 characters take the general
+# path, so no number reaches gcode.MAX_WORD_VALUE.
+_NUMBER_BYTES = b"0123456789.+-"
+_FAST_MAX_LEN = 96
+
+
+def _fast_shapes() -> Dict[bytes, tuple]:
+    """shape -> (token index of X, Y, Z, E, F (0: absent), given axes, index of the first
+    token after X/Y/Z, F comes first)."""
+    shapes = {}
+    for mask in range(64):
+        on = [bool(mask >> i & 1) for i in range(6)]  # F first, X, Y, Z, E, F after
+        if on[0] and on[5]:
+            continue  # two F words: malformed, the general path reports it
+        idx, n = [], 1
+        for present in on:
+            idx.append(n if present else 0)
+            n += present
+        letters = [c for c, present in zip("FXYZEF", on) if present]
+        key = " ".join(["G"] + letters).encode()
+        after_xyz = 1 + on[0] + on[1] + on[2] + on[3]
+        shapes[key] = (idx[1], idx[2], idx[3], idx[4], idx[0] or idx[5],
+                       (on[1], on[2], on[3]), after_xyz, on[0])
+    return shapes
+
+
+_SHAPES = _fast_shapes()
 
 
 class CompensationError(RuntimeError):
@@ -177,6 +199,26 @@ class _EDist:
         return "E" + fmt(self.e0 + (w.value - self.e0) * f, self.decimals)
 
 
+def _um_function(table) -> Callable[[float], float]:
+    """``table.um_at`` (um at a carriage position, mm), specialised for the common tables:
+    the same arithmetic, without the generic table walk (the fast paths call it per point)."""
+    pts = table.points
+    if table.is_constant:
+        v = pts[0][1]
+        return lambda q: v
+    if len(pts) == 2:
+        (p0, v0), (p1, v1) = pts
+
+        def two_points(q: float) -> float:
+            if q <= p0:
+                return v0
+            if q >= p1:
+                return v1
+            return (v1 - v0) / (p1 - p0) * (q - p0) + v0
+        return two_points
+    return table.um_at
+
+
 def _lerp(a, b, f):
     return tuple(None if a[k] is None or b[k] is None else a[k] + (b[k] - a[k]) * f
                  for k in range(3))
@@ -223,8 +265,8 @@ class Compensator:
         self._Ai = self.model._Ainv_rows
         self._b = self.model._b_t
         self._bl_axes = tuple(k for k in range(3) if self.backlash.active[k])
-        self._um_at = tuple(self.backlash.tables[k].um_at if self.backlash.active[k] else None
-                            for k in range(3))
+        self._um_at = tuple(_um_function(self.backlash.tables[k]) if self.backlash.active[k]
+                            else None for k in range(3))
         self.reset()
 
     def _inverse_coupling(self):
@@ -340,32 +382,46 @@ class Compensator:
         whose command did not move since the previous fast-path point is not reformatted
         (its text cannot have changed); the general path clears that cache on every line.
         """
-        mt = _FAST_RE.match(line)
-        if mt is None:
+        if len(line) > _FAST_MAX_LEN:
             return None
-        code, f1, xs, ys, zs, tail, es, f2 = mt.groups()
-        if f1 is not None:
-            if f2 is not None:
-                return None  # two F words: malformed, the general path reports it
-            tail = " F" + f1 + tail
-            self.feed = float(f1) * (MM_PER_INCH if self.inches else 1.0)
-        elif f2 is not None:
-            self.feed = float(f2) * (MM_PER_INCH if self.inches else 1.0)
-        if es is not None:
-            self.e_pos = None if self.e_relative else float(es)
+        shape = _SHAPES.get(line.encode("utf-8", "surrogatepass").translate(None, _NUMBER_BYTES))
+        if shape is None:
+            return None
+        ix, iy, iz, ie, i_f, given, after_xyz, f_first = shape
+        parts = line.split(" ")
+        m = self.m
+        try:  # every number first: a malformed one leaves the line to the general path
+            vx = float(parts[ix][1:]) if ix else None
+            vy = float(parts[iy][1:]) if iy else None
+            vz = float(parts[iz][1:]) if iz else None
+            ve = float(parts[ie][1:]) if ie else None
+            vf = float(parts[i_f][1:]) if i_f else None
+        except ValueError:
+            return None
+        u = MM_PER_INCH if self.inches else 1.0
+        if vf is not None:
+            self.feed = vf * u
+        if ve is not None:
+            # absolute mode here: E is relative only under M83
+            self.e_pos = None if self.e_absolute_mode is False else ve
         self.lineno += 1
         rep = self.report
         rep.lines += 1
         rep.moves += 1
-        if xs is None and ys is None and zs is None:
+        if after_xyz == 1 + f_first:  # no X/Y/Z word
             rep.lines_out += 1
             return line
-        u = MM_PER_INCH if self.inches else 1.0
+        code = parts[0]
+        if after_xyz < len(parts):
+            tail = " " + " ".join(parts[after_xyz:])
+        else:
+            tail = ""
+        if f_first:
+            tail = " " + parts[1] + tail
         w = self.w
-        m = self.m
-        px = float(xs) * u - w[0] if xs is not None else m[0]
-        py = float(ys) * u - w[1] if ys is not None else m[1]
-        pz = float(zs) * u - w[2] if zs is not None else m[2]
+        px = vx * u - w[0] if ix else m[0]
+        py = vy * u - w[1] if iy else m[1]
+        pz = vz * u - w[2] if iz else m[2]
         (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = self._Ai
         b0, b1, b2 = self._b
         x, y, z = px - b0, py - b1, pz - b2
@@ -376,18 +432,45 @@ class Compensator:
             x, y, z = m[0] - b0, m[1] - b1, m[2] - b2
             q0 = (a00 * x + a01 * y + a02 * z, a10 * x + a11 * y + a12 * z,
                   a20 * x + a21 * y + a22 * z)
-        given = (xs is not None, ys is not None, zs is not None)
         redo = self._lim_hit[:]  # axes that must be re-evaluated even if unmoved
         out = None
         if self._bl_axes:
             bl = self.backlash
+            dirs = bl.dir
+            anchor = bl.anchor
+            db = bl.deadband
             rev = False
             for k in self._bl_axes:
-                new = bl.turn(k, q0[k], q1[k])
-                if new:
-                    bl.dir[k] = new
-                    bl.anchor[k] = q1[k]
-                    rev = redo[k] = True
+                # BacklashTracker.turn, inlined (the hook's hot path)
+                q = q1[k]
+                d = dirs[k]
+                a = anchor[k]
+                if d > 0:
+                    if q >= a:
+                        anchor[k] = q
+                        continue
+                    if q >= a - db:
+                        continue
+                    d = -1
+                elif d < 0:
+                    if q <= a:
+                        anchor[k] = q
+                        continue
+                    if q <= a + db:
+                        continue
+                    d = 1
+                else:
+                    if a is None:
+                        a = anchor[k] = q0[k]
+                    if q > a + db:
+                        d = 1
+                    elif q < a - db:
+                        d = -1
+                    else:
+                        continue
+                dirs[k] = d
+                anchor[k] = q
+                rev = redo[k] = True
             if rev:
                 # only reversed axes (and axes at a limit) can change their text here
                 take = self._fast_point("G1", m, q0, (False, False, False), q0, redo)
@@ -474,30 +557,42 @@ class Compensator:
         fmt_ = self._fmt_in if self.inches else self._fmt
         fw_text = self.fw_text
         fwv = self.fw
+        g = self.g
+        lim_hit = self._lim_hit
         dirs = self.backlash.dir
         um_at = self._um_at
+        half = self._half
+        max_corr = rep.max_correction_um
         parts = [code]
         for k in (0, 1, 2):
             c = q[k]
             if q_prev is not None and not given[k] and c == q_prev[k] and not redo[k]:
                 continue
-            um = um_at[k]
-            if um is not None and dirs[k]:
-                c += dirs[k] * self._half * um(c)
+            d = dirs[k]
+            if d:
+                um = um_at[k]
+                if um is not None:
+                    c += d * half * um(c)
             if lim is not None:
                 before = rep.limit_hits
                 c = self._limit(k, p[k], c)
-                self._lim_hit[k] = rep.limit_hits != before
+                lim_hit[k] = rep.limit_hits != before
+            else:
+                lim_hit[k] = False
             corr = abs(c - p[k]) * 1000.0
-            if corr > rep.max_correction_um[AXES[k]]:
-                rep.max_correction_um[AXES[k]] = corr
-            text = fmt_ % ((c + self.g[k]) / u)
+            if corr > max_corr[AXES[k]]:
+                max_corr[AXES[k]] = corr
+            text = fmt_ % ((c + g[k]) / u)
             if text[0] == "-" and not text.strip("-0."):
                 text = text[1:]
             old = fw_text[k]
-            if old is None:
-                old = fmt(fwv[k] / u, self.options.decimals + (2 if self.inches else 0))
-            if given[k] or text != old:
+            if text == old:
+                # fw_text set means fw == float(fw_text) * u already: nothing to store
+                if given[k]:
+                    parts.append(AXIS_LETTERS[k] + text)
+                continue
+            if given[k] or old is not None or text != fmt(
+                    fwv[k] / u, self.options.decimals + (2 if self.inches else 0)):
                 parts.append(AXIS_LETTERS[k] + text)
             fwv[k] = float(text) * u
             fw_text[k] = text

@@ -120,3 +120,24 @@ def test_fast_line_falls_back_on_malformed_numbers():
     comp.process("G1 X1 Y1 Z1")
     assert comp.process("G1 X1.2.3 Y2") == "G1 X1.2.3 Y2"
     assert comp.report.malformed == 1
+
+
+TRICKY_FAST_LINES = [
+    "G1 X Y2", "G1 X+ Y2", "G1 X- Y2", "G1 X. Y2", "G1 X1-2 Y2", "G1 X1+ Y2", "G1 X--1 Y2",
+    "G1 X1.2.3", "G1 X1 Y2 E", "G1 X1 Y2 F", "G1 F1 X1 F2", "G1 X1  Y2", "G1 X1 Y2 ",
+    "G1 Y2 X1", "G1 X1 X2", "G1 X1e3 Y2", "G1 X1_0 Y2", "G1 Xinf", "G1 Xnan Y1",
+    "G1 X1 Y2\u2003", "G1 X1\u00a0Y2", "G1 X\u0661 Y2", "G1 X1 Y2 E0.5 F1200",
+    "G0 F9000 X12.5 Y-3", "G1 X" + "9" * 95, "G1 X" + "9" * 99 + " Y1", "G1 E-0.8 F2400",
+    "G1 F600", "G1 Z.4", "G1 X+.5 Y-.5 Z+0", "G1 X5. Y6.", "G1 X1 Y2 Z3 E4 F5",
+    "G1 X1 Y2 *12", "G1 X1 Y2;c", "G1 X1 Y2 \udcff", "G1 x1 y2", "G1 X1 Y2 A3",
+]
+
+
+@pytest.mark.parametrize("params", PARAMS[:2], ids=["bench", "skew"])
+def test_fast_line_shapes_agree_with_the_general_path(params):
+    """The per-line fast path reads lines by their shape and float(); on every odd
+    spelling it either gives the general path's text and report, or leaves the line to it."""
+    for line in TRICKY_FAST_LINES:
+        text = "G28\nG1 X10 Y10 Z1 E0\n" + line + "\nG1 X20 Y20\n"
+        ref = general(text, params, Options())
+        assert per_line(text, params, Options()) == ref, line
