@@ -259,6 +259,8 @@ class Compensator:
         # both give the same output (set fast_lines = False to force the general path).
         self.fast_lines = (not self.passthrough and self.model.is_affine
                            and self.backlash.smoothing == 0 and self.servo_s is None)
+        # policy "error": lines are processed so that a refused one changes nothing
+        self._guarded = self.options.policy == "error" and self.options.limits is not None
         self._fmt = "%." + str(self.options.decimals) + "f"
         self._fmt_in = "%." + str(self.options.decimals + 2) + "f"
         self._half = self.backlash.half
@@ -343,6 +345,8 @@ class Compensator:
 
     # -- entry point ---------------------------------------------------------------------
     def process(self, line: str) -> Union[str, List[str]]:
+        if self._guarded:
+            return self._process_guarded(line)
         if self.fast_lines and line[:3] in _FAST_PREFIXES and self.absolute and \
                 None not in self.m:
             out = self._fast_line(line)
@@ -370,6 +374,29 @@ class Compensator:
         if indent:
             out = [indent + o for o in out]
         return out
+
+    _STATE = ("m", "fw", "fw_text", "w", "g", "e_pos", "feed", "_qm", "_lim_hit")
+    _BACKLASH_STATE = ("dir", "anchor", "ramp_from", "ramp_done", "ramping")
+
+    def _process_guarded(self, line: str) -> Union[str, List[str]]:
+        """``process`` for the limits policy ``error``: a line refused with LimitError leaves
+        the state as it was before the line (it is not sent), so the stream can go on from
+        there (the print resumed after the pause) with every position still known."""
+        bl = self.backlash
+        saved = [list(v) if isinstance(v, list) else v
+                 for v in (getattr(self, a) for a in self._STATE)]
+        saved_bl = [list(getattr(bl, a)) for a in self._BACKLASH_STATE]
+        self._guarded = False
+        try:
+            return self.process(line)
+        except LimitError:
+            for a, v in zip(self._STATE, saved):
+                setattr(self, a, v)
+            for a, v in zip(self._BACKLASH_STATE, saved_bl):
+                setattr(bl, a, v)
+            raise
+        finally:
+            self._guarded = True
 
     # -- per-line fast path (same semantics as _linear_move for the lines it accepts) -------
     def _fast_line(self, line: str):

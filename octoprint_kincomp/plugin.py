@@ -168,9 +168,10 @@ class KinCompPlugin(
         self._apply_settings(new, immediately=immediately)
         if new["params"] != old["params"]:
             params = Params.from_dict(new["params"])
-            self._event("params_applied", {"params_hash": params.hash(),
-                                           "previous_hash": Params.from_dict(
-                                               old["params"]).hash()})
+            self._event("params_applied", {
+                "params_hash": params.hash(),
+                "previous_hash": Params.from_dict(old["params"]).hash(),
+                "pending_until_next_print": self.queue.pending is not None})
         return diff
 
     def _limits(self):
@@ -185,9 +186,7 @@ class KinCompPlugin(
         now = s["apply_changes"] == "immediately" if immediately is None else immediately
         q = self.queue
         q.pass_through_on_error = s["pass_through_on_error"]
-        applied = q.set_params(params, options, now)
-        q.set_enabled(s["enabled"])
-        if not applied:
+        if not q.configure(params, options, s["enabled"], now):
             self._notify("info", N_("New KinComp parameters will be used from the next "
                                     "print on."))
         if s["demo"]["enabled"] and self.demo is None:
@@ -766,7 +765,7 @@ class KinCompPlugin(
         if "enabled" in data:
             new["enabled"] = data["enabled"]
         try:
-            new = validate_settings(new, self._current_settings())
+            new = validate_settings(new, self._current_settings(), replace_params=True)
         except SettingsError as exc:
             return _error(str(exc), 400)
         self._save_settings(new, immediately=bool(data.get("apply_now")) or None)

@@ -19,8 +19,10 @@ Resends never come back through the hook, so nothing is ever compensated twice o
   whose start position is unknown (``"unknown"``) and for a malformed move (``"malformed"``:
   it passes through as the firmware may still execute it, and the tracked position is
   forgotten, so later moves are not computed from a wrong start).
-* New parameters apply at the next print start (``apply_changes = next_print``) or at once;
-  either way the new model takes over the tracked state (positions do not depend on it).
+* New parameters, and switching compensation on or off, apply at the next print start
+  (``apply_changes = next_print``) or at once: turning it on or off in the middle of a print
+  would shift every later move by the correction (a seam). Either way the new model takes
+  over the tracked state (positions do not depend on it).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
 
-from .compensator import Compensator, Options
+from .compensator import Compensator, LimitError, Options
 from .params import Params
 
 FILE_TAG = "source:file"
@@ -49,7 +51,7 @@ class QueueCompensator:
         self.on_error = on_error
         self.on_untouched = on_untouched
         self.comp = Compensator(params, options)
-        self.pending: Optional[Tuple[Params, Options]] = None
+        self.pending: Optional[Tuple[Params, Options, bool]] = None  # waits for a print end
         self.skip_file = False
         self.printing = False
         self.errors = 0
@@ -94,8 +96,10 @@ class QueueCompensator:
     def _failed(self, cmd: str, exc: Exception):
         self.errors += 1
         self.last_error = {"command": cmd, "error": str(exc), "time": time.time()}
-        # the state may be half-updated: forget positions so nothing builds on it
-        self.comp.invalidate()
+        if not isinstance(exc, LimitError):
+            # an unexpected failure may leave the state half-updated: forget positions so
+            # nothing builds on it (a refused LimitError line leaves the state as it was)
+            self.comp.invalidate()
         if self.pass_through_on_error:
             self.passed_on_error += 1
             if self.on_error is not None:
@@ -124,15 +128,27 @@ class QueueCompensator:
                 self.comp.reset()  # whatever happened meanwhile was not tracked
             self.enabled = enabled
 
-    def set_params(self, params: Params, options: Options, immediately: bool) -> bool:
-        """Use new parameters. Returns True if they apply now, False if they wait for the
-        next print (a print is running and the user did not ask for 'immediately')."""
+    def configure(self, params: Params, options: Options, enabled: bool,
+                  immediately: bool) -> bool:
+        """New parameters and on/off switch. Returns True if they apply now, False if they
+        wait for the next print (a print is running and the user did not ask for
+        'immediately'); a later call replaces what waits."""
         with self._lock:
+            same = (params.hash() == self.comp.params.hash()
+                    and options == self.comp.options and enabled == self.enabled)
+            if same:
+                self.pending = None
+                return True
             if self.printing and not immediately:
-                self.pending = (params, options)
+                self.pending = (params, options, enabled)
                 return False
             self._swap(params, options)
+            self.set_enabled(enabled)
             return True
+
+    def set_params(self, params: Params, options: Options, immediately: bool) -> bool:
+        """New parameters, compensation switched as it is now (see :meth:`configure`)."""
+        return self.configure(params, options, self.enabled, immediately)
 
     def _swap(self, params: Params, options: Options) -> None:
         new = Compensator(params, options)
@@ -140,12 +156,17 @@ class QueueCompensator:
         self.comp = new
         self.pending = None
 
+    def _apply_pending(self) -> None:
+        if self.pending is not None:
+            params, options, enabled = self.pending
+            self._swap(params, options)
+            self.set_enabled(enabled)
+
     def print_started(self, precompensated: bool) -> None:
         with self._lock:
             self.printing = True
             self.halted = False
-            if self.pending is not None:
-                self._swap(*self.pending)
+            self._apply_pending()
             self.comp.reset()
             self.skip_file = precompensated
 
@@ -154,8 +175,7 @@ class QueueCompensator:
             self.printing = False
             self.halted = False
             self.skip_file = False
-            if self.pending is not None:
-                self._swap(*self.pending)
+            self._apply_pending()
             self.comp.reset()
 
     # -- reporting -----------------------------------------------------------------------
@@ -166,6 +186,7 @@ class QueueCompensator:
                 "enabled": self.enabled,
                 "params_hash": self.comp.params.hash(),
                 "pending_params_hash": self.pending[0].hash() if self.pending else None,
+                "pending_enabled": self.pending[2] if self.pending else None,
                 "positions_known": list(self.comp.known),
                 "printing": self.printing,
                 "skipping_precompensated_file": self.skip_file,

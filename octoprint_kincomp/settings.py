@@ -83,18 +83,40 @@ def _number(value: Any, field: str, lo: float, hi: float) -> float:
     return float(value)
 
 
-def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = None
-                      ) -> Dict[str, Any]:
+def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]:
+    """``base`` params document with ``update`` merged in: objects merge key by key, any
+    other value (a number, a backlash table) replaces, ``None`` removes the key (its default
+    applies). So ``{"scale_ppm": {"x": 100}}`` changes X scale and keeps everything else."""
+    out = copy.deepcopy(base)
+    for key, value in update.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge_params(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = None,
+                      replace_params: bool = False) -> Dict[str, Any]:
     """``base`` (the current settings, default: defaults) updated with ``data``, checked.
 
-    Unknown keys are refused (a typo must not be silently dropped)."""
+    A ``params`` object is merged into the current parameters (:func:`merge_params`), so a
+    partial update never resets the terms it does not mention; ``replace_params`` takes it
+    as the complete document instead (applying a calibration's proposal). Unknown keys are
+    refused (a typo must not be silently dropped)."""
     if not isinstance(data, dict):
         raise SettingsError("", "settings must be an object")
     out = copy.deepcopy(base) if base is not None else defaults()
     for key in data:
         if key not in SETTING_KEYS:
             raise SettingsError(key, "unknown setting")
-    out.update(copy.deepcopy(data))
+    data = copy.deepcopy(data)
+    if not replace_params and isinstance(data.get("params"), dict) and \
+            isinstance(out.get("params"), dict):
+        data["params"] = merge_params(out["params"], data["params"])
+    out.update(data)
     out["enabled"] = _bool(out["enabled"], "enabled")
     out["mode"] = _choice(out["mode"], "mode", MODES)
     out["limits_policy"] = _choice(out["limits_policy"], "limits_policy", POLICIES)

@@ -72,8 +72,8 @@ def test_failure_suppresses_and_reports():
     assert res == [] and normalize(res, "G1 X0 Y100 Z1") == []
     assert errors and isinstance(errors[0][1], LimitError)
     assert q.status()["errors"] == 1 and q.status()["last_error"]["command"] == "G1 X0 Y100 Z1"
-    # the position is forgotten: the next move cannot build on a half-applied state
-    assert q.comp.known == (False, False, False)
+    # the refused line changed nothing: the position before it is still known
+    assert q.comp.known == (True, True, True) and q.comp.m == [0.0, 0.0, 0.0]
     # until the print resumes or ends, the print's later moves are held back (not sent as
     # written); other commands, and moves from scripts or the user, still go through
     assert q.handle("G1 X10 Y10 Z1", f) == [] and q.handle("g01 x5", f) == []
@@ -83,6 +83,32 @@ def test_failure_suppresses_and_reports():
     assert q.status()["held_moves"] == 2 and q.status()["halted"]
     q.resume()
     assert q.handle("G1 X10 Y10 Z1", f) is not None
+
+
+def test_after_a_refused_line_the_resumed_print_is_compensated_from_where_it_was():
+    """XZ skew needs Z for every X command: forgetting positions after the error sent every
+    later move as written until the next Z move. The refused line leaves the state as it was
+    (take-up direction included), so the resumed print goes on compensated, exactly as a
+    stream that never contained the refused line."""
+    p = Params.from_dict({"squareness_um_per_m": {"xz": 3000.0, "xy": 1000.0},
+                          "backlash": {"x": 20.0, "y": 10.0}})
+    opts = Options(limits=(0, 200, 0, 200, 0, 200), policy="error")
+    q = QueueCompensator(p, opts, enabled=True, on_error=lambda c, e: None)
+    ref = QueueCompensator(p, opts, enabled=True)
+    q.print_started(precompensated=False)
+    f = {"source:file"}
+    before = ["G28", "G1 X50 Y50 Z10 F3000", "G1 X60 Y40", "G1 X55 Y45"]
+    for line in before:
+        q.handle(line, f)
+        ref.handle(line, f)
+    assert q.handle("G1 X0.001 Y199", f) == []  # X command < 0 at Y=199: refused
+    assert q.comp.known == (True, True, True)
+    assert q.handle("G1 X70 Y70", f) == [] and q.halted  # held until resumed
+    q.resume()
+    for line in ("G1 X80 Y60", "G1 X30 Y90", "G1 X40 Y80 Z12"):
+        got = q.handle(line, f)
+        assert got is not None and got == ref.handle(line, f), line
+    assert q.comp.report.untouched_unknown == 0
 
 
 def test_failure_outside_a_print_suppresses_only_that_command():
@@ -187,6 +213,33 @@ def test_settings_validation():
         with pytest.raises(SettingsError) as exc:
             validate_settings(bad)
         assert exc.value.field == field
+
+
+def test_partial_params_update_keeps_the_other_terms():
+    """{"params": {"scale_ppm": {"x": 100}}} changes X scale only (it used to reset the
+    squareness and backlash it did not mention to zero); null resets a term; applying a
+    complete proposal (replace_params) replaces the document."""
+    base = validate_settings({"params": {"squareness_um_per_m": {"xy": -3000.0},
+                                         "backlash": {"x": 30.0, "y": [{"at_mm": 0, "um": 5},
+                                                                       {"at_mm": 200,
+                                                                        "um": 9}]},
+                                         "servo_lag_ms": {"x": 0.5}}})
+    s = validate_settings({"params": {"scale_ppm": {"x": 100}}}, base)
+    p = s["params"]
+    assert p["scale_ppm"]["x"] == 100.0 and p["squareness_um_per_m"]["xy"] == -3000.0
+    assert p["backlash"]["x"] == 30.0 and p["backlash"]["y"][1] == {"at_mm": 200.0, "um": 9.0}
+    assert p["servo_lag_ms"]["x"] == 0.5
+    # a table replaced by a number, a whole term removed with null
+    s = validate_settings({"params": {"backlash": {"y": 4}, "servo_lag_ms": None}}, base)
+    assert s["params"]["backlash"]["y"] == 4.0 and "servo_lag_ms" not in s["params"]
+    assert s["params"]["backlash"]["x"] == 30.0
+    full = validate_settings({"params": {"scale_ppm": {"x": 100}}}, base, replace_params=True)
+    assert full["params"]["squareness_um_per_m"]["xy"] == 0.0
+    assert "servo_lag_ms" not in full["params"]
+    # a merged document is still validated as a whole
+    with pytest.raises(SettingsError) as exc:
+        validate_settings({"params": {"scale_ppm": {"q": 1}}}, base)
+    assert exc.value.field.startswith("params.scale_ppm")
 
 
 def test_settings_migration_from_flat_keys():
@@ -434,3 +487,35 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
     assert plugin._prints_begun == 1 and plugin.files.paused
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})
     assert not plugin.queue.printing and not plugin.files.paused
+
+
+def test_switching_on_mid_print_waits_for_the_next_print_unless_forced():
+    """Turning compensation on (or off) in the middle of a print would shift every later
+    move by the correction; like new parameters it waits for the next print."""
+    q = QueueCompensator(SKEW, Options(), enabled=False)
+    q.print_started(False)
+    new = Params.from_dict({"squareness_um_per_m": {"xy": -500.0}})
+    assert q.configure(new, Options(), True, immediately=False) is False
+    assert q.status()["pending_enabled"] is True
+    f = {"source:file"}
+    q.handle("G28", f)
+    assert q.handle("G1 X10 Y50 Z1", f) is None  # still off, and not with the old params
+    q.print_ended()
+    assert q.enabled and q.params.hash() == new.hash() and q.pending is None
+    # switching off waits too; forcing applies at once
+    q.print_started(False)
+    assert q.configure(new, Options(), False, immediately=False) is False and q.enabled
+    assert q.configure(new, Options(), True, immediately=False) is True  # back to as-is
+    assert q.pending is None
+    assert q.configure(new, Options(), False, immediately=True) is True and not q.enabled
+
+
+def test_plugin_enables_only_at_the_next_print(plugin):
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
+                                                             "path": "p.gcode"}}
+    plugin._file_manager.path_on_disk.return_value = "/nonexistent"
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    assert not plugin.queue.enabled and plugin.queue.status()["pending_enabled"] is True
+    plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})
+    assert plugin.queue.enabled and plugin.queue.params.hash() == SKEW.hash()

@@ -43,7 +43,10 @@ def _state(server):
 
 
 def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
-    settings(server, enabled=True, params=SKEW, limits_policy="error",
+    # XZ skew too: every X command needs Z, which the print sets only once, so the moves
+    # after the resume are compensated only if the refused line left the position known
+    params = dict(SKEW, squareness_um_per_m={"xy": 2000.0, "xz": 1000.0, "yz": 0.0})
+    settings(server, enabled=True, params=params, limits_policy="error",
              pass_through_on_error=False)
     try:
         lines = ["G28", "G90", "G1 Z1 F3000", "G1 X50 Y50 F3000", "G1 X60 Y60",
@@ -64,8 +67,7 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
         assert "G1 X0 Y100" not in after
         assert not any(c.startswith("G1 X") for c in after), after[:5]
         held = st["held_moves"]
-        # resumed: the rest of the print goes out compensated again (each move names X and
-        # Y absolutely, which is all XY skew needs to know the position again)
+        # resumed: the rest of the print goes out compensated from where it stopped
         resume_mark = len(got)
         code, _ = server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
         assert code == 204
@@ -76,6 +78,7 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
         assert len(later) > 1000
         raw = {l for l in lines[6:]}
         assert not any(c in raw for c in later), [c for c in later if c in raw][:3]
+        assert st["report"]["untouched_unknown_position"] == 0
     finally:
         settings(server, limits_policy="warn", enabled=False)
 

@@ -664,9 +664,12 @@ $(function () {
                     OctoPrint.get(API("runs/" + run.id)).done(function (fresh) {
                         self.run(fresh);
                     });
+                    var waiting = resp.compensation && resp.compensation.pending_params_hash;
                     notify({
                         title: gettext("KinComp"),
-                        text: gettext("Parameters applied; compensation is on. Re-test to see the improvement."),
+                        text: waiting
+                            ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                            : gettext("Parameters applied; compensation is on. Re-test to see the improvement."),
                         type: "success"
                     });
                     self.loadRuns();
