@@ -22,12 +22,17 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Sequence
 
 import yaml
 
 ADMIN = "admin"
 VIEWER = "viewer"
+# a test user who may change OctoPrint's settings but lacks KinComp's admin permission
+SETTINGS_ONLY = "settingsonly"
+# `octoprint user add` flags of the users a basedir can get
+USER_FLAGS = {ADMIN: ["--admin"], VIEWER: [],
+              SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"]}
 
 
 def free_port() -> int:
@@ -45,8 +50,13 @@ def _octoprint_cmd() -> list:
 
 def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
             throttle: float = 0.0, password: Optional[str] = None,
-            extra_config: Optional[Dict[str, Any]] = None) -> Dict[str, str]:
-    """Create (or refresh) a basedir; returns the logins {user: (password, apikey)}."""
+            extra_config: Optional[Dict[str, Any]] = None,
+            users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None
+            ) -> Dict[str, str]:
+    """Create (or refresh) a basedir; returns the logins {user: (password, apikey)}.
+
+    ``kincomp`` replaces KinComp's stored settings (a fresh test server); ``demo`` only
+    switches demo mode and keeps everything else the user saved."""
     os.makedirs(basedir, exist_ok=True)
     cfg_path = os.path.join(basedir, "config.yaml")
     config: Dict[str, Any] = {}
@@ -69,6 +79,8 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
                             "errortracking", "pluginmanager", "achievements"]
     if kincomp is not None:
         plugins["kincomp"] = kincomp
+    if demo is not None:
+        plugins.setdefault("kincomp", {})["demo"] = {"enabled": demo}
     config.setdefault("serial", {}).update({"log": True, "autoconnect": False})
     config.setdefault("temperature", {})["profiles"] = []
     if extra_config:
@@ -84,12 +96,13 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
     else:
         logins = {}
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-    for user, admin in ((ADMIN, True), (VIEWER, False)):
+    for user in users:
+        flags = USER_FLAGS[user]
         if user in logins:
             continue
-        pw = password if (password and admin) else secrets.token_urlsafe(12)
+        pw = password if (password and user == ADMIN) else secrets.token_urlsafe(12)
         cmd = _octoprint_cmd() + ["--basedir", basedir, "user", "add", user,
-                                  "--password", pw] + (["--admin"] if admin else [])
+                                  "--password", pw] + flags
         subprocess.run(cmd, check=True, capture_output=True, env=env)
         logins[user] = {"password": pw, "apikey": secrets.token_hex(16).upper()}
     users_path = os.path.join(basedir, "users.yaml")
@@ -122,11 +135,12 @@ class DevServer:
 
     def __init__(self, basedir: str, port: Optional[int] = None,
                  kincomp: Optional[Dict[str, Any]] = None, throttle: float = 0.0,
-                 extra_config: Optional[Dict[str, Any]] = None):
+                 extra_config: Optional[Dict[str, Any]] = None,
+                 users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None):
         self.basedir = basedir
         self.port = port or free_port()
         self.logins = prepare(basedir, self.port, kincomp, throttle,
-                              extra_config=extra_config)
+                              extra_config=extra_config, users=users, demo=demo)
         self.proc: Optional[subprocess.Popen] = None
         self.url = f"http://127.0.0.1:{self.port}"
 
@@ -184,12 +198,11 @@ class DevServer:
     def request(self, method: str, path: str, body: Any = None, key: Optional[str] = "admin",
                 headers: Optional[Dict[str, str]] = None, raw: Optional[bytes] = None,
                 content_type: Optional[str] = None):
-        """(status, parsed JSON or text). ``key``: "admin", "viewer", None or an API key."""
+        """(status, parsed JSON or text). ``key``: a user of :data:`USERS`, None or an API
+        key."""
         hdrs = dict(headers or {})
-        if key == "admin":
-            hdrs["X-Api-Key"] = self.admin_key
-        elif key == "viewer":
-            hdrs["X-Api-Key"] = self.viewer_key
+        if key in self.logins:
+            hdrs["X-Api-Key"] = self.logins[key]["apikey"]
         elif key:
             hdrs["X-Api-Key"] = key
         data = request_body(hdrs, body, raw, content_type)
@@ -271,12 +284,16 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.reset and os.path.isdir(args.basedir):
         shutil.rmtree(args.basedir)
-    kincomp = None
-    if not os.path.exists(os.path.join(args.basedir, "config.yaml")):
-        kincomp = {"demo": {"enabled": not args.no_demo}}
-    srv = DevServer(args.basedir, args.port, kincomp=kincomp, throttle=0.002,
+    fresh = not os.path.exists(os.path.join(args.basedir, "config.yaml"))
+    # demo mode: on for a fresh basedir, off with --no-demo, else as the user left it
+    demo = False if args.no_demo else (True if fresh else None)
+    srv = DevServer(args.basedir, args.port, throttle=0.002, demo=demo,
                     extra_config={"serial": {"port": "VIRTUAL", "baudrate": 115200,
                                              "autoconnect": True}})
+    with open(os.path.join(args.basedir, "config.yaml")) as f:
+        stored = yaml.safe_load(f) or {}
+    demo_on = bool(((stored.get("plugins") or {}).get("kincomp") or {}).get(
+        "demo", {}).get("enabled"))
 
     def _terminate(signum, frame):
         raise KeyboardInterrupt
@@ -286,7 +303,7 @@ def main(argv=None) -> int:
     print("=" * 72)
     print(f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)")
     print(f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}")
-    if not args.no_demo:
+    if demo_on:
         print("demo mode: the virtual printer has hidden SIMULATED errors and a virtual "
               "ballbar")
     print("stop with Ctrl-C")

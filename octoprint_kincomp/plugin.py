@@ -149,7 +149,12 @@ class KinCompPlugin(
     def on_settings_save(self, data):
         """The standard settings dialog path. Invalid values never get here through the UI
         (the before_request hook answers 400 first); anything else invalid is refused
-        whole, logged and reported, and the stored settings stay as they were."""
+        whole, logged and reported, and the stored settings stay as they were. Without the
+        KinComp admin permission nothing is changed (the request hook answers 403 first)."""
+        if flask.has_request_context() and not Permissions.PLUGIN_KINCOMP_ADMIN.can():
+            self._logger.warning("KinComp settings refused: the user lacks the KinComp "
+                                 "admin permission")
+            return {}
         try:
             new = validate_settings(data, self._current_settings())
         except SettingsError as exc:
@@ -366,8 +371,10 @@ class KinCompPlugin(
         return [self._check_settings_request]
 
     def _check_settings_request(self):
-        """Answer 400 (instead of OctoPrint's silent 200) when the settings dialog sends
-        invalid KinComp values; nothing is stored then."""
+        """OctoPrint's settings endpoint, for KinComp's part: 403 unless the user has
+        KinComp's admin permission (OctoPrint's SETTINGS permission alone must not change
+        the machine model), and 400 (instead of OctoPrint's silent 200) for invalid values;
+        nothing is stored then."""
         req = flask.request
         if req.method != "POST" or not req.path.rstrip("/").endswith("/api/settings"):
             return None
@@ -379,6 +386,9 @@ class KinCompPlugin(
         mine = (data.get("plugins") or {}).get(self._identifier)
         if mine is None:
             return None
+        if not Permissions.PLUGIN_KINCOMP_ADMIN.can():
+            return _error(gettext("Changing KinComp's settings needs the KinComp admin "
+                                  "permission"), 403)
         try:
             validate_settings(mine, self._current_settings())
         except SettingsError as exc:
@@ -404,6 +414,10 @@ class KinCompPlugin(
                                            "KinComp cannot compensate it."))
             if self._prints_begun < self._start_events:  # not seen by the queuing hook
                 self._print_begins(payload)
+        elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
+            # the bed volume (limits) and axis feeds come from the printer profile, which
+            # a connection may switch and the user may edit
+            self._apply_settings(self._current_settings())
         elif event == Events.TRANSFER_STARTED:
             if self.queue.enabled:
                 self._notify("warning", N_("Files streamed to the printer's SD card are not "

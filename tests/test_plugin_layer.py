@@ -519,3 +519,16 @@ def test_plugin_enables_only_at_the_next_print(plugin):
     assert not plugin.queue.enabled and plugin.queue.status()["pending_enabled"] is True
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})
     assert plugin.queue.enabled and plugin.queue.params.hash() == SKEW.hash()
+
+
+def test_limits_follow_the_printer_profile(plugin):
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    assert plugin.queue.comp.options.limits == (0.0, 200.0, 0.0, 200.0, 0.0, 200.0)
+    plugin._printer_profile_manager.get_current_or_default.return_value = {
+        "volume": {"width": 300, "depth": 250, "height": 400, "origin": "center"}}
+    plugin.on_event("PrinterProfileModified", {"identifier": "_default"})
+    assert plugin.queue.comp.options.limits == (-150.0, 150.0, -125.0, 125.0, 0.0, 400.0)
+    plugin._printer_profile_manager.get_current_or_default.return_value = {
+        "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"}}
+    plugin.on_event("Connected", {"port": "VIRTUAL"})
+    assert plugin.queue.comp.options.limits == (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)

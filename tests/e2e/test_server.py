@@ -174,6 +174,15 @@ def test_bad_settings_are_refused_and_the_old_values_kept(server):
                              {"plugins": {"kincomp": {"limits_policy": "clamp"}}})
     assert code == 200 and status(server)["settings"]["limits_policy"] == "clamp"
     settings(server, limits_policy="warn")
+    # OctoPrint's SETTINGS permission alone may not change the machine model
+    code, resp = server.request("POST", "/api/settings",
+                                {"plugins": {"kincomp": {"params": {"scale_ppm": {"x": 5}}}}},
+                                key="settingsonly")
+    assert code == 403, resp
+    assert status(server)["settings"]["params"] == before["params"]
+    code, _ = server.request("POST", "/api/settings", {"appearance": {"name": "kc"}},
+                             key="settingsonly")
+    assert code == 200  # their other settings are theirs to change
 
 
 WRITE_ENDPOINTS = [
@@ -197,10 +206,11 @@ def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
         # anonymous, with a valid CSRF pair: refused by permission
         code, _ = anon.open("POST", path, body, raw=raw, content_type="text/csv")
         assert code in (401, 403), (path, code)
-        # a non-admin API key
-        code, _ = server.request("POST", path, body, key="viewer", raw=raw,
-                                 content_type="text/csv")
-        assert code == 403, (path, code)
+        # non-admin API keys: a plain user, and one with OctoPrint's SETTINGS permission
+        for user in ("viewer", "settingsonly"):
+            code, _ = server.request("POST", path, body, key=user, raw=raw,
+                                     content_type="text/csv")
+            assert code == 403, (path, user, code)
         # no credentials at all and no CSRF token
         code, _ = server.request("POST", path, body, key=None, raw=raw,
                                  content_type="text/csv")
