@@ -150,7 +150,7 @@ def cmd_artifact(args) -> int:
 def cmd_closed_loop(args) -> int:
     from .ballbar.closedloop import main
 
-    return main([])
+    return main(["--noise-um", str(args.noise_um)])
 
 
 def add_ballbar_commands(sub) -> None:
@@ -193,6 +193,8 @@ def add_ballbar_commands(sub) -> None:
     a.set_defaults(func=cmd_analyze)
 
     c = sub.add_parser("closed-loop", help="print the simulated one-round before/after table")
+    c.add_argument("--noise-um", type=float, default=0.5,
+                   help="ballbar measurement noise, um (1 sigma; default 0.5)")
     c.set_defaults(func=cmd_closed_loop)
 
     t = sub.add_parser("artifact", help="parameters from a printed square (and lengths)")

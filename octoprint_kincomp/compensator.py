@@ -18,6 +18,12 @@ A move is compensated when every axis it needs has a known position; otherwise i
 untouched and is counted in the report (``untouched_unknown``). Homing (G28) makes the homed
 axes known at ``home_mm``; probing and other commands that move the head on their own make
 positions unknown again; tool changes too (hotend offsets).
+
+Absent other information the firmware frame is taken as the homed frame (``g == 0``): an
+absolute move from an unknown position has a known target. A G92 on an axis whose position is
+unknown shifts the firmware frame by an unknown amount, so that axis' frame is *lost*: its
+absolute coordinates no longer give machine positions until G28 (or G92.1, which drops the
+offsets) restores it; a position is never invented.
 """
 
 from __future__ import annotations
@@ -286,6 +292,7 @@ class Compensator:
         self.fw_text: List[Optional[str]] = [None, None, None]
         self.w = [0.0, 0.0, 0.0]
         self.g = [0.0, 0.0, 0.0]
+        self.frame_lost = [False, False, False]  # G92 on an unknown axis (module doc)
         self.absolute = True
         self.e_absolute_mode: Optional[bool] = None  # M82/M83 override, None = follow G90/91
         self.inches = False
@@ -308,6 +315,7 @@ class Compensator:
         self.fw_text = list(other.fw_text)
         self.w = list(other.w)
         self.g = list(other.g)
+        self.frame_lost = list(other.frame_lost)
         self.absolute = other.absolute
         self.e_absolute_mode = other.e_absolute_mode
         self.inches = other.inches
@@ -707,15 +715,16 @@ class Compensator:
                 continue
             v = given[letter] * u
             if self.m[k] is None:
-                # Defining the position of an unknown axis defines the machine frame there.
-                self.m[k] = v
-                self.w[k] = 0.0
-                self.g[k] = 0.0
-                self.backlash.place(k, v)
-            else:
-                c = self.fw[k] - self.g[k]
-                self.w[k] = v - self.m[k]
-                self.g[k] = v - c
+                # where the axis is in the machine frame is not known, so neither is the
+                # new offset between the firmware frame and the machine frame
+                self.frame_lost[k] = True
+                self.fw[k] = None
+                self.fw_text[k] = None
+                self.backlash.reset((k,))
+                continue
+            c = self.fw[k] - self.g[k]
+            self.w[k] = v - self.m[k]
+            self.g[k] = v - c
             self.fw[k] = v
             self.fw_text[k] = None
         if "E" in given:
@@ -732,6 +741,7 @@ class Compensator:
                 self.fw_text[k] = None
             self.w[k] = 0.0
             self.g[k] = 0.0
+            self.frame_lost[k] = False  # the firmware frame is the native one again
 
     def _home(self, cmd, line: str) -> str:
         words = parse_words(cmd.body, allow_bare=True)
@@ -744,6 +754,7 @@ class Compensator:
             self.fw_text[k] = None
             self.w[k] = 0.0
             self.g[k] = 0.0
+            self.frame_lost[k] = False
             # the drive is at the home command, which under skew is not inverse(home): the
             # first move's reversal is judged from there
             self.backlash.place(k, float(home[k]))
@@ -760,6 +771,8 @@ class Compensator:
             if k < 0:
                 continue
             given.append(k)
+            if self.frame_lost[k]:
+                continue  # target stays unknown (None) until G28
             if self.absolute:
                 target[k] = w.value * u - self.w[k]
             elif self.m[k] is not None:
@@ -813,6 +826,8 @@ class Compensator:
         for w in words:
             k = "XYZ".find(w.letter)
             if k < 0:
+                continue
+            if self.frame_lost[k]:
                 continue
             if self.absolute:
                 new_m[k] = w.value * u - self.w[k]

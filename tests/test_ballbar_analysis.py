@@ -197,6 +197,21 @@ def test_cli_analyze_errors(tmp_path, capsys):
     assert "line 4: not a number" in capsys.readouterr().err
 
 
+def test_cli_analyze_refuses_implausible_proposals(tmp_path, capsys):
+    """A summary (or a residual on top of the current model) that would propose parameters
+    beyond the params limits: a clear one-line error, no traceback."""
+    summary = tmp_path / "s.json"
+    summary.write_text(json.dumps({"plane": "XY", "squareness_um_per_m": 60000}))
+    assert main(["analyze", str(summary)]) == 1
+    err = capsys.readouterr().err
+    assert "out of range" in err and "squareness_um_per_m.xy" in err and "Traceback" not in err
+    current = tmp_path / "c.json"
+    current.write_text(json.dumps({"squareness_um_per_m": {"xy": -30000}}))
+    summary.write_text(json.dumps({"plane": "XY", "squareness_um_per_m": -30000}))
+    assert main(["analyze", str(summary), "--current", str(current), "--json"]) == 1
+    assert "out of range" in capsys.readouterr().err
+
+
 def test_cli_simulate(tmp_path):
     prog = tmp_path / "p.gcode"
     assert main(["program", "--centre", "110,110,10", "-o", str(prog)]) == 0

@@ -310,3 +310,29 @@ def test_arc_chords_respect_the_chord_tolerance():
             chord = math.dist(p, q)
             sagitta = 20 - math.sqrt(20 ** 2 - (chord / 2) ** 2)
             assert sagitta <= tol * (1 + 1e-9)
+
+
+def test_g92_on_an_unknown_axis_does_not_invent_a_machine_frame():
+    """G92 X0 Y0 before homing says where the program's zero is, not where the machine is:
+    the axes' frames are lost, absolute moves on them pass untouched (reported) until G28
+    or G92.1 restores them; a known axis (Z here) keeps working through G92 as usual."""
+    comp = Compensator(SKEW)
+    comp.process("G1 Z5 F600")  # Z known from an absolute move (firmware frame = homed)
+    assert comp.process("G92 X0 Y0") == "G92 X0 Y0"
+    assert comp.frame_lost == [True, True, False]
+    before = comp.report.untouched_unknown
+    for line in ("G1 X10 Y100", "G1 X20 Y90 Z6"):
+        assert comp.process(line) is line
+    assert comp.known == (False, False, True)
+    assert comp.report.untouched_unknown == before + 2
+    comp.process("G92 Z0")  # a known axis: an ordinary offset
+    assert comp.frame_lost[2] is False and comp.known[2]
+    comp.process("G28 X Y")
+    assert comp.frame_lost == [False, False, False]
+    assert comp.process("G1 X10 Y100") != ["G1 X10 Y100"]  # compensated again
+    # G92.1 drops the offsets: the firmware frame is the native one, positions still unknown
+    comp2 = Compensator(SKEW)
+    comp2.process("G92 X5")
+    comp2.process("G92.1")
+    assert comp2.frame_lost == [False, False, False] and comp2.known == (False, False, False)
+    assert comp2.process("G1 X10 Y100 Z1") != "G1 X10 Y100 Z1"

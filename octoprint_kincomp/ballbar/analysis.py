@@ -32,7 +32,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..params import AXES, Params
+from ..params import AXES, Params, ParamsError
 from .formats import (AngleTrace, NativeTrace, Summary, TraceError, meta_centre, meta_float,
                       meta_plane)
 from .program import PLANES as PROGRAM_PLANES
@@ -556,6 +556,10 @@ def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
                              "value over-compensates.")
         if current.backlash_fraction == 0:
             d["backlash"]["fraction"] = 1.0
+        elif current.backlash_fraction < 1.0:
+            notes.append(f"Backlash values are the measured lost motion; the fraction stays "
+                         f"at {current.backlash_fraction:g}, so {current.backlash_fraction:g} "
+                         "of it is taken up (set the fraction to 1 for all of it).")
     # Servo lag: mismatch assigned to the first axis of the plane.
     dT = diag.get("servo_mismatch_ms")
     if dT is not None:
@@ -571,4 +575,8 @@ def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
         "date": _dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
         "based_on": current.hash(),
     }
-    return Params.from_dict(d)
+    try:
+        return Params.from_dict(d)
+    except ParamsError as exc:
+        raise TraceError(f"the proposed parameters are out of range ({exc}); errors this "
+                         "large are implausible: check the set-up and the measurement") from None

@@ -94,13 +94,17 @@ def main(argv=None) -> int:
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m octoprint_kincomp closed-loop")
-    ap.add_argument("--noise-um", type=float, default=0.5)
-    ap.parse_args(argv)
+    ap.add_argument("--noise-um", type=float, default=0.5,
+                    help="ballbar measurement noise, um (1 sigma)")
+    args = ap.parse_args(argv)
+    if not 0.0 <= args.noise_um <= 50.0:
+        ap.error("--noise-um must be within 0..50 um")
     truth = paper_truth()
-    truth.noise_um = 0.5
+    truth.noise_um = args.noise_um
     for precomp in (False, True):
         res = run_round(truth, servo_precomp=precomp)
-        title = ("SIMULATED one-round calibration, paper's Table 1 errors, XY R100 F1850 "
+        title = (f"SIMULATED one-round calibration, paper's Table 1 errors, "
+                 f"{args.noise_um:g} um noise, XY R100 F1850 "
                  + ("with servo pre-compensation" if precomp else "(kinematic model only)"))
         print(format_table(table(res["before"]["diagnostics"], res["after"]["diagnostics"]),
                            title))
