@@ -64,6 +64,19 @@ def _json_object() -> Optional[Dict[str, Any]]:
     return data if isinstance(data, dict) else None
 
 
+class _BadRequest(ValueError):
+    """A request field of the wrong type (answered 400 with this message)."""
+
+
+def _flag(data: Dict[str, Any], key: str) -> bool:
+    """A JSON boolean field, False when absent. A string such as "false" is refused, not
+    taken as true: these flags print, or apply parameters mid-print."""
+    value = data.get(key, False)
+    if not isinstance(value, bool):
+        raise _BadRequest(gettext("'%(key)s' must be true or false", key=key))
+    return value
+
+
 def _require(permission) -> None:
     if not permission.can():
         flask.abort(403)
@@ -396,24 +409,14 @@ class KinCompPlugin(
         return None
 
     # ~~ events ------------------------------------------------------------------------------
-    def on_event(self, event, payload):
-        with self._print_lock:
-            self._on_event(event, payload or {})
+    _PRINT_EVENTS = frozenset({Events.DISCONNECTED, Events.PRINT_STARTED, Events.PRINT_DONE,
+                               Events.PRINT_FAILED, Events.PRINT_CANCELLED})
 
-    def _on_event(self, event, payload):
-        if event == Events.DISCONNECTED:
-            self._comm = None
-            self.queue.reset()
-            self.watch.reset()
-            if self.queue.printing:
-                self.queue.print_ended()
-        elif event == Events.PRINT_STARTED:
-            self._start_events += 1
-            if payload.get("origin") == FileDestinations.SDCARD and self.queue.enabled:
-                self._notify("warning", N_("This print runs from the printer's SD card: "
-                                           "KinComp cannot compensate it."))
-            if self._prints_begun < self._start_events:  # not seen by the queuing hook
-                self._print_begins(payload)
+    def on_event(self, event, payload):
+        payload = payload or {}
+        if event in self._PRINT_EVENTS:
+            with self._print_lock:  # against the queuing hook's view of the print
+                self._on_print_event(event, payload)
         elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
             # the bed volume (limits) and axis feeds come from the printer profile, which
             # a connection may switch and the user may edit
@@ -427,14 +430,37 @@ class KinCompPlugin(
                 self._pause_seen = True
         elif event == Events.PRINT_RESUMED:
             self._resumed_after_error()
-        elif event in (Events.PRINT_DONE, Events.PRINT_FAILED, Events.PRINT_CANCELLED):
-            if self._prints_begun > self._start_events:
+        elif event == Events.FILE_ADDED:
+            self._maybe_background(payload)
+
+    def _on_print_event(self, event, payload):
+        if event == Events.DISCONNECTED:
+            self._comm = None
+            self.queue.reset()
+            self.watch.reset()
+            if self.queue.printing:
+                self.queue.print_ended()
+        elif event == Events.PRINT_STARTED:
+            self._start_events += 1
+            if payload.get("origin") == FileDestinations.SDCARD and self.queue.enabled:
+                self._notify("warning", N_("This print runs from the printer's SD card: "
+                                           "KinComp cannot compensate it."))
+            if self._prints_begun < self._start_events:  # not seen by the queuing hook
+                self._print_begins(payload)
+        else:  # the print is done, failed or cancelled
+            if self._prints_begun > self._start_events and self._printing_now():
                 return  # late: the next print's first line was already handled
+            # (if the counts ever drifted apart, an end with nothing printing resyncs them)
+            self._start_events = self._prints_begun
             self.queue.print_ended()
             self.files.set_paused(False)
             self._finish_demo(event == Events.PRINT_DONE)
-        elif event == Events.FILE_ADDED:
-            self._maybe_background(payload)
+
+    def _printing_now(self) -> bool:
+        try:
+            return bool(self._printer.is_printing())
+        except Exception:  # noqa: BLE001 - no printer state: trust the counts
+            return True
 
     def _is_precompensated(self, payload) -> bool:
         if payload.get("origin") != FileDestinations.LOCAL or not payload.get("path"):
@@ -562,7 +588,11 @@ class KinCompPlugin(
         data = _json_object()
         if data is None:
             return _error(gettext("Expected a JSON object"), 400)
-        immediately = bool(data.pop("apply_now", False))
+        try:
+            immediately = _flag(data, "apply_now")
+        except _BadRequest as exc:
+            return _error(str(exc), 400)
+        data.pop("apply_now", None)
         try:
             new = validate_settings(data, self._current_settings())
         except SettingsError as exc:
@@ -582,7 +612,11 @@ class KinCompPlugin(
     def api_program(self):
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
         data = _json_object() or {}
-        if data.get("print"):
+        try:
+            do_print, mount_pause = _flag(data, "print"), _flag(data, "mount_pause")
+        except _BadRequest as exc:
+            return _error(str(exc), 400)
+        if do_print:
             _require(Permissions.PRINT)
         try:
             plane = str(data.get("plane", "XY")).upper()
@@ -593,7 +627,7 @@ class KinCompPlugin(
                 radius_mm=float(data.get("radius", 100.0)),
                 feed_mm_min=cap_feed(feed, plane, self._max_feeds()),
                 requested_feed_mm_min=feed,
-                mount_pause=bool(data.get("mount_pause", False)),
+                mount_pause=mount_pause,
             )
             params = self.queue.params
             text = generate(spec, volume=self._limits(), params_hash=params.hash())
@@ -615,7 +649,7 @@ class KinCompPlugin(
             self._program_spec = spec
             self._program_hash = prog_hash
         printing = False
-        if data.get("print"):
+        if do_print:
             if not self._printer.is_operational() or self._printer.is_printing():
                 return _error(gettext("The printer is not ready to print"), 409)
             self._printer.select_file(path, False, printAfterSelect=True,
@@ -763,6 +797,10 @@ class KinCompPlugin(
         """Apply a run's proposed parameters ({"run": id}) or given ones ({"params": {...}})."""
         _require(Permissions.PLUGIN_KINCOMP_ADMIN)
         data = _json_object() or {}
+        try:
+            apply_now = _flag(data, "apply_now")
+        except _BadRequest as exc:
+            return _error(str(exc), 400)
         run = None
         if "run" in data:
             try:
@@ -782,7 +820,7 @@ class KinCompPlugin(
             new = validate_settings(new, self._current_settings(), replace_params=True)
         except SettingsError as exc:
             return _error(str(exc), 400)
-        self._save_settings(new, immediately=bool(data.get("apply_now")) or None)
+        self._save_settings(new, immediately=apply_now or None)
         self._settings.save()
         if run is not None:
             run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")

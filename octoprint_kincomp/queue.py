@@ -27,6 +27,7 @@ Resends never come back through the hook, so nothing is ever compensated twice o
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -38,6 +39,18 @@ from .params import Params
 FILE_TAG = "source:file"
 JOB_TAG = "source:job"
 _MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
+
+
+_log = logging.getLogger(__name__)
+
+
+def _call(callback, *args) -> None:
+    """Run a notification callback; its failure must not escape the hook (OctoPrint would
+    then send the original, uncompensated line)."""
+    try:
+        callback(*args)
+    except Exception:  # noqa: BLE001
+        _log.exception("KinComp: notification callback failed")
 
 
 class QueueCompensator:
@@ -88,7 +101,7 @@ class QueueCompensator:
             elif rep.untouched_unknown != unknown:
                 why = "unknown"
         if why is not None and self.on_untouched is not None:
-            self.on_untouched(cmd, why)
+            _call(self.on_untouched, cmd, why)
         if out is cmd:
             return None
         return [(line,) for line in out]
@@ -103,11 +116,11 @@ class QueueCompensator:
         if self.pass_through_on_error:
             self.passed_on_error += 1
             if self.on_error is not None:
-                self.on_error(cmd, exc)
+                _call(self.on_error, cmd, exc)
             return None
         self.halted = self.printing
         if self.on_error is not None:
-            self.on_error(cmd, exc)
+            _call(self.on_error, cmd, exc)
         return []
 
     def resume(self) -> None:

@@ -18,8 +18,10 @@ from .params import Params
 class CompensatingStream(LineProcessorStream):
     """Compensates an upload while OctoPrint saves it (one line at a time, O(1) memory).
 
-    The first output line is KinComp's marker; a file that already carries a marker is
-    passed through unchanged (never compensated twice).
+    The first output line is KinComp's marker; a file that already carries a marker among
+    its first ``MARKER_SCAN_LINES`` lines (e.g. after lines another preprocessor put first)
+    is passed through unchanged (never compensated twice). Those first lines are read
+    before anything is written, so the decision covers all of them.
     """
 
     def __init__(self, input_stream, params: Params, options: Options):
@@ -28,26 +30,39 @@ class CompensatingStream(LineProcessorStream):
         self.comp = Compensator(params, options)
         self.started = False
         self.passthrough = False
-        self.lines = 0
 
     def process_line(self, line: bytes) -> bytes:
-        text = line.decode(ENCODING, ERRORS)
+        if not self.started:
+            self.started = True
+            head = [line]
+            while len(head) < MARKER_SCAN_LINES:
+                more = self.input_stream.readline()
+                if not more:
+                    break
+                head.append(more)
+            return self._head(b"".join(head))
+        if self.passthrough:
+            return line
+        return self._lines(line.decode(ENCODING, ERRORS)).encode(ENCODING, ERRORS)
+
+    def _head(self, data: bytes) -> bytes:
+        text = data.decode(ENCODING, ERRORS)
+        raws = UNIVERSAL.findall(text) or [text]
+        bodies = [split_ending(raw)[0] for raw in raws[:MARKER_SCAN_LINES]]
+        if any(_MARKER_RE.match(b) for b in bodies):
+            self.passthrough = True
+            return data
+        first_ending = split_ending(raws[0])[1]
+        return (marker_line(self.params) + (first_ending or "\n")
+                + self._lines(text)).encode(ENCODING, ERRORS)
+
+    def _lines(self, text: str) -> str:
         out = []
         for raw in UNIVERSAL.findall(text) or [text]:
-            self.lines += 1
             body, ending = split_ending(raw)
-            if self.lines <= MARKER_SCAN_LINES and _MARKER_RE.match(body):
-                self.passthrough = True
-            if not self.started:
-                self.started = True
-                if not self.passthrough:
-                    out.append(marker_line(self.params) + (ending or "\n"))
-            if self.passthrough:
-                out.append(raw)
-                continue
             res = self.comp.process(body)
             out.append(raw if res is body else join_output(res, ending))
-        return "".join(out).encode(ENCODING, ERRORS)
+        return "".join(out)
 
 
 class Job:

@@ -532,3 +532,47 @@ def test_limits_follow_the_printer_profile(plugin):
         "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"}}
     plugin.on_event("Connected", {"port": "VIRTUAL"})
     assert plugin.queue.comp.options.limits == (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
+
+
+def test_a_failing_notification_never_lets_the_raw_move_out():
+    def boom(*args):
+        raise RuntimeError("notification failed")
+
+    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+                         enabled=True, on_error=boom, on_untouched=boom)
+    assert q.handle("G1 X5") is None  # unknown position: sent as written, as reported
+    q.handle("G28")
+    assert q.handle("G1 X0 Y100 Z1") == []  # refused, and still refused
+
+
+def test_request_flags_must_be_booleans(plugin):
+    import flask
+
+    app = flask.Flask("t")
+    with mock.patch("octoprint_kincomp.plugin._require"), \
+            mock.patch("octoprint_kincomp.plugin.gettext", lambda m, **kw: m % kw):
+        for path, view, body in (("/settings", plugin.api_settings, {"apply_now": "false"}),
+                                 ("/program", plugin.api_program, {"print": "no"}),
+                                 ("/apply", plugin.api_apply, {"params": {},
+                                                               "apply_now": 1})):
+            with app.test_request_context(path, method="POST", json=body):
+                resp = view()
+            assert resp.status_code == 400 and b"must be true or false" in resp.data, path
+
+
+def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_path):
+    """Should the start/end counts ever drift (a print begun by the hook whose start event
+    never came), the next end event with nothing printing still ends the print."""
+    plain = tmp_path / "p.gcode"
+    plain.write_text("G28\n")
+    plugin._file_manager.path_on_disk.return_value = str(plain)
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
+                                                             "path": "p.gcode"}}
+    plugin.queuing_hook(object(), "queuing", "G28", None, "G28",
+                        tags={"source:file", "fileline:1"})
+    plugin._prints_begun += 1  # drifted
+    plugin._printer.is_printing.return_value = False
+    plugin.on_event("PrintFailed", {"origin": "local", "path": "p.gcode"})
+    assert not plugin.queue.printing and not plugin.files.paused
+    assert plugin._start_events == plugin._prints_begun
