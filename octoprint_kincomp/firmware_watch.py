@@ -1,5 +1,8 @@
 """Notices when the firmware compensates too (double compensation), from what it reports
-(``M503`` lines) and from what is sent to it (``M852``, ``M425``, ``M556``, ``SET_SKEW``)."""
+(``M503`` lines, which KinComp asks a Marlin firmware for after its ``M115`` reply) and from
+what is sent to it: skew (Marlin/Klipper ``M852``, RepRapFirmware ``M556``, Klipper
+``SET_SKEW``), backlash (``M425``) and per-axis scale (RepRapFirmware ``M579``). Case does
+not matter."""
 
 from __future__ import annotations
 
@@ -7,6 +10,8 @@ import re
 from typing import Dict, Optional
 
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?\d*\.?\d+)")
+# commands (upper case) whose lines the watcher reads; callers pre-filter with these
+HINTS = ("M852", "M425", "M556", "M579", "SET_SKEW")
 
 
 def _values(text: str) -> Dict[str, float]:
@@ -19,10 +24,26 @@ class FirmwareWatcher:
     def __init__(self):
         self.skew: Optional[str] = None  # where it was seen, e.g. "M852 I0.001 (sent)"
         self.backlash: Optional[str] = None
+        self.scale: Optional[str] = None
 
     def reset(self) -> None:
         self.skew = None
         self.backlash = None
+        self.scale = None
+
+    @staticmethod
+    def relevant(text: str) -> bool:
+        """Cheap pre-filter: does ``text`` mention a command the watcher reads?"""
+        up = text.upper()
+        return any(h in up for h in HINTS)
+
+    def _scale_cmd(self, rest: str, where: str) -> None:
+        vals = _values(rest)
+        factors = [vals[k] for k in ("X", "Y", "Z") if k in vals]
+        if any(abs(f - 1.0) > 1e-9 for f in factors):
+            self.scale = f"M579{rest.rstrip()} ({where})"
+        elif factors:
+            self.scale = None
 
     def _skew_cmd(self, code: str, rest: str, where: str) -> None:
         vals = _values(rest)
@@ -54,6 +75,9 @@ class FirmwareWatcher:
         i = low.find("M425")
         if i >= 0 and not low[i + 4: i + 5].isdigit():
             self._backlash_cmd(text[i + 4:], where)
+        i = low.find("M579")
+        if i >= 0 and not low[i + 4: i + 5].isdigit():
+            self._scale_cmd(text[i + 4:], where)
         if low.startswith("SET_SKEW"):
             if "CLEAR" in low:
                 self.skew = None
@@ -79,4 +103,6 @@ class FirmwareWatcher:
             out["skew"] = self.skew
         if self.backlash and params.has_backlash:
             out["backlash"] = self.backlash
+        if self.scale and any(v != 0.0 for v in params.scale_ppm.values()):
+            out["scale"] = self.scale
         return out

@@ -46,12 +46,15 @@ from .upload import BackgroundCompensator, CompensatingStream, Job
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024
 PROGRAM_FOLDER = "kincomp"
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
-FIRMWARE_HINTS = ("M852", "M425", "M556", "SET_SKEW")
 
 
 def N_(message: str) -> str:
     """Marks a message for translation; the browser translates it (see _notify)."""
     return message
+
+
+# what the firmware may compensate too, as words in a notification (translated by the UI)
+CONFLICT_NAMES = {"skew": N_("skew"), "backlash": N_("backlash"), "scale": N_("axis scale")}
 
 
 def _error(message: str, status: int = 400):
@@ -252,7 +255,7 @@ class KinCompPlugin(
         q = self.queue
         if q.halted:
             self._follow_pause(comm_instance)
-        if cmd.startswith(FIRMWARE_HINTS):
+        if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
             self.watch.sent(cmd)
             self._check_conflicts()
         result = q.handle(cmd, tags)
@@ -344,7 +347,7 @@ class KinCompPlugin(
     def received_hook(self, comm_instance, line, *args, **kwargs):
         if comm_instance is not self._comm:
             self._connection_changed(comm_instance)
-        if any(h in line for h in FIRMWARE_HINTS):
+        if FirmwareWatcher.relevant(line):
             self.watch.received(line)
             self._check_conflicts()
         return line
@@ -417,6 +420,8 @@ class KinCompPlugin(
         if event in self._PRINT_EVENTS:
             with self._print_lock:  # against the queuing hook's view of the print
                 self._on_print_event(event, payload)
+        elif event == Events.FIRMWARE_DATA:
+            self._query_firmware_compensation(payload)
         elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
             # the bed volume (limits) and axis feeds come from the printer profile, which
             # a connection may switch and the user may edit
@@ -455,6 +460,17 @@ class KinCompPlugin(
             self.queue.print_ended()
             self.files.set_paused(False)
             self._finish_demo(event == Events.PRINT_DONE)
+
+    def _query_firmware_compensation(self, payload) -> None:
+        """After the M115 reply: a Marlin firmware is asked for its settings (M503), whose
+        M852/M425 lines tell whether it compensates skew or backlash itself."""
+        name = str(payload.get("name") or "")
+        if "marlin" not in name.lower():
+            return
+        try:
+            self._printer.commands(["M503"], tags={"plugin:kincomp", "kincomp:firmware-check"})
+        except Exception:  # noqa: BLE001 - a check, not a necessity
+            self._logger.exception("KinComp: could not ask the firmware for its settings")
 
     def _printing_now(self) -> bool:
         try:
@@ -507,15 +523,17 @@ class KinCompPlugin(
                 self._logger.warning("Double compensation: firmware %s active (%s)", kind, where)
                 self._notify("warning", N_(
                     "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
-                    "corrected twice. Turn one of them off."), kind=kind, where=where)
+                    "corrected twice. Turn one of them off."), translate=("kind",),
+                    kind=CONFLICT_NAMES[kind], where=where)
 
     # ~~ notifications -----------------------------------------------------------------------
-    def _notify(self, severity: str, msgid: str, **params) -> None:
+    def _notify(self, severity: str, msgid: str, translate=(), **params) -> None:
         """Tell the UI. Sent as the English message id plus its parameters: this can run
-        on any thread (no request, so no server-side locale); the browser translates it."""
+        on any thread (no request, so no server-side locale); the browser translates it,
+        and the parameters named in ``translate`` (message ids themselves) too."""
         self._plugin_manager.send_plugin_message(self._identifier, {
             "type": "notify", "severity": severity, "msgid": msgid, "params": params,
-            "text": msgid % params if params else msgid})
+            "translate": list(translate), "text": msgid % params if params else msgid})
 
     def _event(self, name: str, payload: Dict[str, Any]) -> None:
         self._event_bus.fire(f"plugin_{self._identifier}_{name}", payload)

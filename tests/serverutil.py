@@ -12,7 +12,7 @@ from octoprint_kincomp.settings import engine_config
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 # commands OctoPrint sends by itself (polls, handshake): not part of what a test sent
-AUTOMATIC = {"M105", "M27", "M155", "M110", "M115", "M20", "M21", "M400", "M114"}
+AUTOMATIC = {"M105", "M27", "M155", "M110", "M115", "M20", "M21", "M400", "M114", "M503"}
 _SEND = re.compile(r" - Send: (?:N\d+ )?(.*?)(?:\*\d+)?$")
 _SEND_N = re.compile(r" - Send: N(\d+) ")
 

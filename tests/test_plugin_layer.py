@@ -196,6 +196,15 @@ def test_firmware_watch():
     w.sent("SET_SKEW CLEAR=1")
     assert w.skew is None
     assert w.conflicts(Params()) == {}
+    # lower case, RepRapFirmware scale factors
+    w.sent("m852 i0.002")
+    assert w.skew
+    w.received("M579 X1.0020 Y1.0000")
+    scaled = Params.from_dict({"scale_ppm": {"x": 100.0}})
+    assert set(w.conflicts(scaled)) == {"scale"}
+    w.sent("M579 X1 Y1")
+    assert w.scale is None
+    assert FirmwareWatcher.relevant("m425 x0.1") and not FirmwareWatcher.relevant("G1 X5")
 
 
 # -- settings --------------------------------------------------------------------------------
@@ -576,3 +585,18 @@ def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_pa
     plugin.on_event("PrintFailed", {"origin": "local", "path": "p.gcode"})
     assert not plugin.queue.printing and not plugin.files.paused
     assert plugin._start_events == plugin._prints_begun
+
+
+def test_marlin_is_asked_for_its_settings_after_m115(plugin):
+    plugin.on_event("FirmwareData", {"name": "Marlin 2.1.2", "data": {}})
+    (args, kwargs), = plugin._printer.commands.call_args_list
+    assert args[0] == ["M503"] and "plugin:kincomp" in kwargs["tags"]
+    plugin._printer.commands.reset_mock()
+    plugin.on_event("FirmwareData", {"name": "Klipper", "data": {}})
+    assert not plugin._printer.commands.called
+    # the conflict notice names what is compensated twice, translatable in the browser
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    plugin.received_hook(None, "echo:  M425 F1.00 X0.05 Y0.00 Z0.00")
+    (_, msg), _ = plugin._plugin_manager.send_plugin_message.call_args
+    assert msg["params"]["kind"] == "backlash" and msg["translate"] == ["kind"]

@@ -50,8 +50,12 @@ $(function () {
 
     var translateNotice = function (data) {
         var text = gettext(data.msgid);
+        var params = _.extend({}, data.params || {});
+        _.each(data.translate || [], function (key) {
+            if (_.has(params, key)) params[key] = gettext(params[key]);
+        });
         try {
-            return _.sprintf(text, data.params || {});
+            return _.sprintf(text, params);
         } catch (e) {
             return data.text;
         }
