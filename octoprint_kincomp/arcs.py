@@ -127,23 +127,34 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
     # Uniform chords, minus those that would end right next to a forced point (no slivers).
     # The nearest forced points are found by bisection: checking every forced point for
     # every chord was quadratic (minutes for an arc with P1000).
-    forced_sorted = sorted(forced)
+    if n > 1 and forced:
+        forced_sorted = sorted(forced)
+        gap = 0.25 / n
 
-    def clear(x: float) -> bool:
-        j = bisect.bisect_left(forced_sorted, x)
-        return all(abs(x - forced_sorted[i]) > 0.25 / n
-                   for i in (j - 1, j) if 0 <= i < len(forced_sorted))
+        def clear(x: float) -> bool:
+            j = bisect.bisect_left(forced_sorted, x)
+            return all(abs(x - forced_sorted[i]) > gap
+                       for i in (j - 1, j) if 0 <= i < len(forced_sorted))
 
-    fracs = {i / n for i in range(1, n) if clear(i / n)}
-    fracs.update(forced)
+        fracs = {i / n for i in range(1, n) if clear(i / n)}
+        fracs.update(forced)
+    elif n > 1:
+        fracs = {i / n for i in range(1, n)}
+    else:
+        fracs = set(forced)
     pts: List[Vec] = []
+    dr, dl = r1 - r0, l1 - l0
+    cos, sin = math.cos, math.sin
     for f in sorted(x for x in fracs if 1e-12 < x < 1 - 1e-12):
         t = t0 + sweep * f
-        r = r0 + (r1 - r0) * f
+        r = r0 + dr * f
+        if plane == 17:
+            pts.append((ca + r * cos(t), cb + r * sin(t), l0 + dl * f))
+            continue
         p = [0.0, 0.0, 0.0]
-        p[ia] = ca + r * math.cos(t)
-        p[ib] = cb + r * math.sin(t)
-        p[il] = l0 + (l1 - l0) * f
+        p[ia] = ca + r * cos(t)
+        p[ib] = cb + r * sin(t)
+        p[il] = l0 + dl * f
         pts.append((p[0], p[1], p[2]))
     pts.append((float(end[0]), float(end[1]), float(end[2])))
     return pts

@@ -13,17 +13,26 @@ the benchmark check that on whole files.
 The vectorised part applies where the per-line fast path of the compensator applies (affine
 model, no backlash smoothing, no servo lead, absolute mode, every axis known); elsewhere this
 module simply feeds lines to the compensator.
+
+Arcs as slicers write them (``G2``/``G3`` with X, Y, I, J, E, F words, XY plane) do not break
+a vectorised run: each is linearised in Python with the very functions the line path uses
+(``arcs.linearise``, the E split of the compensator), and its chords join the run as rows
+of the vectorised compensation and formatting. Any other arc goes through the compensator.
 """
 
 from __future__ import annotations
 
+import bisect
+import math
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, List, Optional
+from typing import Callable, Dict, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from .compensator import MM_PER_INCH, Compensator
+from . import arcs as _arcs
+from .compensator import MM_PER_INCH, Compensator, _EDist
+from .gcode import Word
 from .lines import UNIVERSAL as _UNIVERSAL, join_output, split_ending
 
 CHUNK_BYTES = 1 << 19
@@ -82,6 +91,38 @@ def _ffill_int(values: np.ndarray, start: int) -> np.ndarray:
     idx = np.where(values != 0, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], start)
+
+
+def _hysteresis(q: List[float], d: int, a: Optional[float], q_start: float, db: float):
+    """:meth:`BacklashTracker.turn` along the commands ``q`` of one axis (mm) from direction
+    ``d`` and anchor ``a``: (direction after each point, reversal at each point, last
+    anchor)."""
+    dirs, revs = [], []
+    for x in q:
+        new = 0
+        if d > 0:
+            if x >= a:
+                a = x
+            elif x < a - db:
+                new = -1
+        elif d < 0:
+            if x <= a:
+                a = x
+            elif x > a + db:
+                new = 1
+        else:
+            if a is None:
+                a = q_start
+            if x > a + db:
+                new = 1
+            elif x < a - db:
+                new = -1
+        if new:
+            d = new
+            a = x
+        dirs.append(d)
+        revs.append(new != 0)
+    return dirs, revs, a
 
 
 def _interp(table, q: np.ndarray) -> np.ndarray:
@@ -167,6 +208,87 @@ class _Formatter:
             fullT[sign_col[ng], ng] = 45
             maskT[sign_col[ng], ng] = True
         return np.where(written, 2 + neg + nint + 1 + dec, 0)
+
+
+class _Rows(NamedTuple):
+    """Output rows of a vectorised run (moves and arc chords) and where their bytes come
+    from: spans of the pool (segment input, then synthetic bytes); ``resume`` is where the
+    input continues after the last row."""
+
+    P: np.ndarray  # (n, 3) desired machine points, mm
+    given: np.ndarray  # (n, 3) axes written whatever their text
+    line: np.ndarray  # line index in the block (limit reports, endings)
+    crlf: np.ndarray  # the line ends with CRLF (take-up rows copy it)
+    pre_s: np.ndarray
+    pre_l: np.ndarray
+    code_s: np.ndarray  # 2 bytes: "G0"/"G1"
+    fpre_s: np.ndarray
+    fpre_l: np.ndarray
+    post_s: np.ndarray
+    post_l: np.ndarray
+    resume: int
+
+
+# slicer-style arcs: G2/G3, then X Y I J E F words in this order (I or J at least), single
+# spaces, no comment; the numbers as in _SHAPES of the compensator
+_NUMBER_BYTES = b"0123456789.+-"
+
+
+def _arc_shapes() -> Dict[bytes, Tuple[int, ...]]:
+    """shape -> token index of X, Y, I, J, E, F (0: absent)."""
+    shapes = {}
+    for mask in range(64):
+        on = [bool(mask >> i & 1) for i in range(6)]  # X Y I J E F
+        if on[2] or on[3]:
+            idx, n = [], 1
+            for present in on:
+                idx.append(n if present else 0)
+                n += present
+            letters = [c for c, present in zip("XYIJEF", on) if present]
+            shapes[" ".join(["G"] + letters).encode()] = tuple(idx)
+    return shapes
+
+
+_ARC_SHAPES = _arc_shapes()
+
+
+class _Arc(NamedTuple):
+    clockwise: bool
+    x: Optional[float]
+    y: Optional[float]
+    i: Optional[float]
+    j: Optional[float]
+    e_word: Optional[Word]
+    f_text: Optional[str]  # the F word as written (it follows E)
+    f: Optional[float]
+    given: Tuple[bool, bool, bool]
+    crlf: bool
+
+
+def _parse_arc(raw: bytes) -> Optional[_Arc]:
+    """A simple arc line (with its ending), or None for the compensator to handle."""
+    crlf = raw[-2:] == b"\r\n"
+    body = raw[:-2] if crlf else raw[:-1]
+    if len(body) > 96 or body[:3] not in (b"G2 ", b"G3 "):
+        return None
+    shape = _ARC_SHAPES.get(body.translate(None, _NUMBER_BYTES))
+    if shape is None:
+        return None
+    ix, iy, ii, ij, ie, i_f = shape
+    parts = body.split(b" ")
+    try:  # on [0-9.+-] float() accepts the G-code number grammar exactly
+        x = float(parts[ix][1:]) if ix else None
+        y = float(parts[iy][1:]) if iy else None
+        i = float(parts[ii][1:]) if ii else None
+        j = float(parts[ij][1:]) if ij else None
+        e = float(parts[ie][1:]) if ie else None
+        f = float(parts[i_f][1:]) if i_f else None
+    except ValueError:
+        return None  # malformed: the compensator reports it
+    e_word = Word("E", e, parts[ie].decode("ascii")) if ie else None
+    f_text = parts[i_f].decode("ascii") if i_f else None
+    return _Arc(body[1] == 50, x, y, i, j, e_word, f_text, f, (bool(ix), bool(iy), False),
+                crlf)
 
 
 class _Unterminated(bytes):
@@ -264,10 +386,25 @@ class FileEngine:
         pieces: list = []  # bytes and uint8 arrays (both are buffers)
         brk = tk.breaking
         n = tk.n_lines
+        # slicer-style arcs need not break a run (see the module doc)
+        soft: Dict[int, "_Arc"] = {}
+        for b in np.flatnonzero(brk & tk.arc_start).tolist():
+            arc = _parse_arc(buf[int(tk.ls[b]): int(tk.le[b]) + 1])
+            if arc is not None:
+                soft[b] = arc
         i = 0
-        for b in np.flatnonzero(brk).tolist() + [n]:
+        soft_lines = sorted(soft)
+        si = 0
+        for b in [x for x in np.flatnonzero(brk).tolist() if x not in soft] + [n]:
             if b > i:
-                self._segment(tk, i, b, pieces)
+                inner = []
+                while si < len(soft_lines) and soft_lines[si] < b:
+                    inner.append(soft_lines[si])
+                    si += 1
+                if inner:
+                    self._run(tk, i, b, inner, soft, pieces)
+                else:
+                    self._segment(tk, i, b, pieces)
             if b < n:
                 pieces.append(self._lines(buf, int(tk.ls[b]), int(tk.le[b]) + 1))
             i = b + 1
@@ -293,67 +430,255 @@ class FileEngine:
         """Lines [i0, i1) of the block: no line among them changes the modal state."""
         comp = self.comp
         buf = tk.buf
-        while True:
-            start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
-            cand = np.flatnonzero(tk.cand[i0:i1]) + i0
-            if len(cand) == 0:  # comments and inert commands only
-                comp.lineno += i1 - i0
-                comp.report.lines += i1 - i0
-                comp.report.lines_out += i1 - i0
-                pieces.append(buf[start:end])
-                return
-            j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
-            if (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
-                    or tk.move_bad_number[j0:j1].any()):
-                pieces.append(self._lines(buf, start, end))
-                return
-            if j0 < j1 and not self._anchored():
-                # a backlash anchor away from the start command (after homing under skew, or
-                # a sub-deadband retreat): the first move goes line by line, then try again
-                first = int(tk.move_lines[j0]) + 1
-                pieces.append(self._lines(buf, start, int(tk.le[first - 1]) + 1))
-                if first >= i1:
-                    return
-                i0 = first
-                continue
-            result = self._vector(tk, i0, i1, cand, j0, j1)
-            if result is None:
-                # a limit error (the line path raises at its line) or sub-deadband steps
-                # (the line path applies the hysteresis)
-                pieces.append(self._lines(buf, start, end))
-                return
-            pieces.append(result)
+        start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
+        if len(cand) == 0:  # comments and inert commands only
+            comp.lineno += i1 - i0
+            comp.report.lines += i1 - i0
+            comp.report.lines_out += i1 - i0
+            pieces.append(buf[start:end])
             return
-
-    def _anchored(self) -> bool:
-        """Every backlash axis with a direction is anchored at the current command: then
-        the per-step signs of the vector path make the tracker's decisions."""
-        comp = self.comp
-        bl = comp.backlash
-        q0 = comp._qm if comp._qm is not None else comp.model.inverse(comp.m)
-        return all(bl.anchor[k] is None or bl.anchor[k] == q0[k]
-                   for k in range(3) if bl.active[k])
+        j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
+        result = None
+        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
+                or tk.move_bad_number[j0:j1].any()):
+            result = self._vector(tk, i0, i1, cand, j0, j1)
+        # short runs, or a limit error (the line path raises at its line)
+        pieces.append(result if result is not None else self._lines(buf, start, end))
 
     # -- the vectorised computation ------------------------------------------------------
     def _vector(self, tk: "_Tokens", i0: int, i1: int, cand: np.ndarray, j0: int,
                 j1: int) -> Optional[bytes]:
+        """Lines [i0, i1) with no state-changing line among them, vectorised."""
+        comp = self.comp
+        moves = tk.move_lines[j0:j1]
+        nm = len(moves)
+        if nm == 0:
+            return self._finish_inert(tk, i0, i1, cand)
+        u = MM_PER_INCH if comp.inches else 1.0
+        v3 = tk.move_vals[j0:j1]  # (nm, 3), NaN where the axis is not given
+        g3 = ~np.isnan(v3)
+        P = np.empty((nm, 3))
+        for k in range(3):
+            P[:, k] = _ffill(v3[:, k] * u - comp.w[k], g3[:, k], comp.m[k])
+        seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+        ls = tk.ls[moves] - seg_start
+        xyz_end = tk.xyz_end[j0:j1] - seg_start
+        pre_s = np.empty(nm, np.int64)
+        pre_s[0] = 0
+        pre_s[1:] = xyz_end[:-1]
+        zero = np.zeros(nm, np.int64)
+        rows = _Rows(P, g3, moves, tk.crlf[moves], pre_s, ls - pre_s, ls,
+                     tk.fpre_start[j0:j1] - seg_start, tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1],
+                     zero, zero, int(xyz_end[-1]))
+        res = self._emit_rows(tk, i0, rows, tk.a[seg_start:seg_end], b"")
+        if res is None:
+            return None
+        out, n_take = res
+        self._finish_counts(tk, i0, i1, cand, nm, n_take)
+        return out
+
+    # -- runs with slicer-style arcs ------------------------------------------------------
+    def _run(self, tk: "_Tokens", i0: int, i1: int, arc_lines: List[int],
+             arcs: Dict[int, "_Arc"], pieces: List[bytes]) -> None:
+        """Lines [i0, i1): no state-changing line but the simple arcs at ``arc_lines``."""
+        comp = self.comp
+        out = None
+        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
+                or comp.plane != 17 or comp.ij_absolute or comp.pure_translation):
+            out = self._mixed(tk, i0, i1, arc_lines, arcs)
+        if out is None:
+            # what the vector path does not decide (an arc error, a limit error, absolute
+            # E from an unknown position, a modal state it does not handle): as before
+            self._split(tk, i0, i1, arc_lines, pieces)
+        else:
+            pieces.append(out)
+
+    def _split(self, tk: "_Tokens", i0: int, i1: int, arc_lines: List[int],
+               pieces: List[bytes]) -> None:
+        """Lines [i0, i1) with the arcs at ``arc_lines`` taken as breaking lines."""
+        i = i0
+        for b in arc_lines + [i1]:
+            if b > i:
+                self._segment(tk, i, b, pieces)
+            if b < i1:
+                pieces.append(self._lines(tk.buf, int(tk.ls[b]), int(tk.le[b]) + 1))
+            i = b + 1
+
+    def _mixed(self, tk: "_Tokens", i0: int, i1: int, arc_lines: List[int],
+               arcs: Dict[int, "_Arc"]) -> Optional[bytes]:
+        """Moves and simple arcs of lines [i0, i1) in one vectorised pass; None (nothing
+        changed) when the line path has to decide."""
+        comp = self.comp
+        u = MM_PER_INCH if comp.inches else 1.0
+        j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
+        if tk.move_bad_number[j0:j1].any():
+            return None
+        real = tk.move_lines[j0:j1]
+        nr, na = len(real), len(arc_lines)
+        # targets of moves and arcs in line order, forward-filled as the line path does
+        lines = np.concatenate([real, np.asarray(arc_lines, np.int64)])
+        order = np.argsort(lines, kind="stable")
+        V = np.full((nr + na, 3), np.nan)
+        V[:nr] = tk.move_vals[j0:j1]
+        for n, a in enumerate(arc_lines):
+            arc = arcs[a]
+            V[nr + n, 0] = arc.x if arc.x is not None else np.nan
+            V[nr + n, 1] = arc.y if arc.y is not None else np.nan
+        V = V[order]
+        G = ~np.isnan(V)
+        T = np.empty_like(V)
+        for k in range(3):
+            T[:, k] = _ffill(V[:, k] * u - comp.w[k], G[:, k], comp.m[k])
+        arc_pos = np.flatnonzero(order >= nr)  # where the arcs are among the targets
+        # E positions before each arc (absolute E only), from the E words of the run
+        e_rel = comp.e_relative
+        e_lines, e_starts, e_ends = tk.e_words(i0, i1)
+        seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+        breaks = comp._extreme_angles(17)
+        tol = comp.options.chord_tol_mm
+        synth = ["G1"]  # the synthetic pool: "G1", then the chord tails
+        synth_len = 2
+        chord_P: List[Tuple[float, float, float]] = []
+        chord_given: List[Tuple[bool, bool, bool]] = []
+        chord_line: List[int] = []
+        chord_post: List[Tuple[int, int]] = []
+        chord_first: List[bool] = []
+        n_chords = 0
+        last_arc_e: Optional[Tuple[int, float]] = None
+        last_arc_f: Optional[Tuple[int, float]] = None
+        Tl = T.tolist()
+        m0 = tuple(float(v) for v in comp.m)
+        e_list = e_lines.tolist()
+        no_axes = (False, False, False)
+        sqrt = math.sqrt
+        linearise = _arcs.linearise
+        for n, a in enumerate(arc_lines):
+            arc = arcs[a]
+            pos = int(arc_pos[n])
+            start = tuple(Tl[pos - 1]) if pos > 0 else m0
+            end = tuple(Tl[pos])
+            e_word = arc.e_word
+            e0 = None
+            if e_word is not None and not e_rel:
+                # the E position before the arc: the last E word of a move or an arc
+                j = bisect.bisect_left(e_list, a) - 1
+                tok_line = e_list[j] if j >= 0 else -1
+                if last_arc_e is not None and last_arc_e[0] > tok_line:
+                    e0 = last_arc_e[1]
+                elif j >= 0:
+                    e0 = float(tk.buf[int(e_starts[j]) + 1: int(e_ends[j])])
+                else:
+                    e0 = comp.e_pos
+                if e0 is None:
+                    return None  # absolute E from an unknown E: the line path passes it
+            ca = start[0] + (arc.i * u if arc.i is not None else 0.0)
+            cb = start[1] + (arc.j * u if arc.j is not None else 0.0)
+            try:
+                pts = linearise(start, end, 17, ca, cb, arc.clockwise, tol, 0, breaks)
+            except _arcs.ArcError:
+                return None  # malformed: reported by the line path
+            # chord lengths exactly as the line path sums them (0 + dx^2 + dy^2 + dz^2)
+            lengths = []
+            px, py, pz = start
+            for x, y, z in pts:
+                lengths.append(sqrt((x - px) ** 2 + (y - py) ** 2 + (z - pz) ** 2))
+                px, py, pz = x, y, z
+            last = len(pts) - 1
+            ending = "\r\n" if arc.crlf else "\n"
+            f_text = arc.f_text
+            if e_word is not None:
+                edist = _EDist(e_word, e_rel, e0, sum(lengths))
+                s_done = 0.0
+            for idx in range(last + 1):
+                if e_word is not None:
+                    s_done += lengths[idx]
+                    post = " " + edist.take(s_done, idx == last)
+                else:
+                    post = ""
+                if idx == 0 and f_text is not None:
+                    post += " " + f_text  # the line's other words go on the first chord
+                post += ending
+                chord_post.append((synth_len, len(post)))  # ASCII: characters are bytes
+                synth.append(post)
+                synth_len += len(post)
+            chord_P.extend(pts)
+            chord_given.extend([no_axes] * last)
+            chord_given.append(arc.given)
+            chord_line.extend([a] * (last + 1))
+            chord_first.append(True)
+            chord_first.extend([False] * last)
+            n_chords += last + 1
+            if e_word is not None:
+                last_arc_e = (a, e_word.value)
+            if arc.f is not None:
+                last_arc_f = (a, arc.f)
+        # rows: moves and chords in output order
+        lines_all = np.concatenate([real, np.asarray(chord_line, np.int64)])
+        rorder = np.argsort(lines_all, kind="stable")
+        nrows = nr + n_chords
+        is_chord = rorder >= nr
+        P = np.empty((nrows, 3))
+        P[~is_chord] = T[order < nr]
+        P[is_chord] = np.asarray(chord_P, np.float64).reshape(-1, 3)
+        g3 = np.empty((nrows, 3), bool)
+        g3[~is_chord] = G[order < nr]
+        g3[is_chord] = np.asarray(chord_given, bool).reshape(-1, 3)
+        row_line = lines_all[rorder]
+        crlf = tk.crlf[row_line]
+        # byte spans: input (relative to the segment start), then the synthetic pool
+        base_syn = seg_end - seg_start
+        ls = tk.ls[row_line] - seg_start
+        code_s = np.where(is_chord, base_syn, ls)
+        fpre_s = np.zeros(nrows, np.int64)
+        fpre_l = np.zeros(nrows, np.int64)
+        rm = ~is_chord
+        fpre_s[rm] = tk.fpre_start[j0:j1] - seg_start
+        fpre_l[rm] = tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1]
+        post_s = np.zeros(nrows, np.int64)
+        post_l = np.zeros(nrows, np.int64)
+        cp = np.asarray(chord_post, np.int64).reshape(-1, 2)
+        post_s[is_chord] = base_syn + cp[:, 0]
+        post_l[is_chord] = cp[:, 1]
+        # where the input resumes after each row: after a move's X/Y/Z words, after the
+        # whole line of an arc's last chord; a chord other than the first takes no input
+        resume = np.empty(nrows, np.int64)
+        resume[rm] = tk.xyz_end[j0:j1] - seg_start
+        resume[is_chord] = tk.le[row_line[is_chord]] + 1 - seg_start
+        first = np.ones(nrows, bool)
+        first[is_chord] = np.asarray(chord_first, bool)
+        pre_s = np.empty(nrows, np.int64)
+        pre_s[0] = 0
+        pre_s[1:] = resume[:-1]
+        pre_l = np.where(first, ls - pre_s, 0)
+        pre_s = np.where(first, pre_s, 0)
+        rows = _Rows(P, g3, row_line, crlf, pre_s, pre_l, code_s, fpre_s, fpre_l, post_s,
+                     post_l, int(resume[-1]))
+        res = self._emit_rows(tk, i0, rows, tk.a[seg_start:seg_end],
+                              "".join(synth).encode("ascii"))
+        if res is None:
+            return None
+        out, n_take = res
+        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
+        self._finish_counts(tk, i0, i1, cand, nr + na, n_take, na, n_chords,
+                            last_arc_e, last_arc_f)
+        return out
+
+    # -- the vectorised computation ------------------------------------------------------
+    def _emit_rows(self, tk: "_Tokens", i0: int, rows: "_Rows", seg: np.ndarray,
+                   synth: bytes) -> Optional[Tuple[np.ndarray, int]]:
+        """Compensate and render ``rows`` (desired machine points, in order); the output
+        bytes and the number of take-up moves, or None when the line path has to decide
+        (a limit error, sub-deadband steps). Nothing is changed in the compensator then."""
         comp = self.comp
         rep = comp.report
         opts = comp.options
         u = MM_PER_INCH if comp.inches else 1.0
         dec = opts.decimals + (2 if comp.inches else 0)
         fmtr = _Formatter(dec)
-        moves = tk.move_lines[j0:j1]
-        nm = len(moves)
-        if nm == 0:
-            return self._finish_inert(tk, i0, i1, cand)
-        v3 = tk.move_vals[j0:j1]  # (nm, 3), NaN where the axis is not given
-        g3 = ~np.isnan(v3)
+        P, g3, moves = rows.P, rows.given, rows.line
+        nm = len(P)
         m0 = comp.m
-        P = np.empty((nm, 3))
-        for k in range(3):
-            col = v3[:, k] * u - comp.w[k]
-            P[:, k] = _ffill(col, g3[:, k], m0[k])
         (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = comp._Ai
         b0, b1, b2 = comp._b
         x, y, z = P[:, 0] - b0, P[:, 1] - b1, P[:, 2] - b2
@@ -373,12 +698,20 @@ class FileEngine:
         bl = comp.backlash
         dirs_after = np.zeros((nm, 3), np.int64)
         rev_any = np.zeros(nm, bool)
+        anchors = list(bl.anchor)
         for k in range(3):
             if bl.active[k]:
                 step = Q[:, k] - Qp[:, k]
-                if np.any((step != 0.0) & (np.abs(step) <= bl.deadband)):
-                    # sub-deadband steps: only the line path's hysteresis decides them
-                    return None
+                a = bl.anchor[k]
+                if (a is not None and a != q0[k]) or np.any(
+                        (step != 0.0) & (np.abs(step) <= bl.deadband)):
+                    # the anchor is not the current command somewhere: the tracker's
+                    # hysteresis, point by point (arcs put chord ends next to reversals)
+                    dk, rk, anchors[k] = _hysteresis(Q[:, k].tolist(), bl.dir[k], a, q0[k],
+                                                     bl.deadband)
+                    dirs_after[:, k] = dk
+                    rev_any |= np.asarray(rk, bool)
+                    continue
                 # anchored at the start and no sub-deadband step: the anchor is always the
                 # current command, so a reversal is a step beyond the deadband against dir
                 s = np.where(step > bl.deadband, 1, np.where(step < -bl.deadband, -1, 0))
@@ -388,6 +721,7 @@ class FileEngine:
                 before[1:] = after[:-1]
                 rev_any |= (s != 0) & (s != before)
                 dirs_after[:, k] = after
+                anchors[k] = float(Q[-1, k])
             else:
                 dirs_after[:, k] = bl.dir[k]
         half = comp._half
@@ -460,7 +794,7 @@ class FileEngine:
             col += block
         if len(tups):
             # take-up rows: "G1" first and the line ending of their move's line last
-            crlf = tk.crlf[moves[tups]]
+            crlf = rows.crlf[tups]
             fullT[0, tpos], fullT[1, tpos] = 71, 49
             fullT[total_w - 2, tpos] = np.where(crlf, 13, 10)
             fullT[total_w - 1, tpos] = 10
@@ -478,36 +812,41 @@ class FileEngine:
         # assemble from a pool: this segment's input, then the generated rows. Per move:
         # input up to its line, its take-up row, its "G0"/"G1", its row, a leading F word;
         # the input then continues where its X/Y/Z words end.
-        seg_start = int(tk.ls[i0])
-        seg_end = int(tk.le[i1 - 1]) + 1
-        gbase = seg_end - seg_start
-        ls = tk.ls[moves] - seg_start
-        xyz_end = tk.xyz_end[j0:j1] - seg_start
-        S = np.empty(5 * nm + 1, np.int64)
-        L = np.empty(5 * nm + 1, np.int64)
-        S[0:-1:5] = 0
-        S[5:-1:5] = xyz_end[:-1]
-        L[0:-1:5] = ls - S[0:-1:5]
+        # assemble from a pool: this segment's input, the synthetic bytes (arc chords), then
+        # the generated rows. Per row: input up to its line (the first row of a line), its
+        # take-up row, its "G0"/"G1", its generated X/Y/Z, a leading F word, the chord's
+        # tail; the input then resumes after the row (the last piece runs to the end).
+        gbase = len(seg) + len(synth)
         take_row = np.zeros(nm, np.int64)
         has_t = np.zeros(nm, bool)
         if len(tups):
             take_row[tups] = tpos
             has_t[tups] = True
-        S[1::5] = gbase + row_off[take_row]
-        L[1::5] = np.where(has_t, row_len[take_row], 0)
-        S[2::5] = ls
-        L[2::5] = 2
-        S[3::5] = gbase + row_off[order_pos]
-        L[3::5] = row_len[order_pos]
-        S[4::5] = tk.fpre_start[j0:j1] - seg_start
-        L[4::5] = tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1]
-        S[-1] = xyz_end[-1]
-        L[-1] = gbase - xyz_end[-1]
+        S = np.empty(6 * nm + 1, np.int64)
+        L = np.empty(6 * nm + 1, np.int64)
+        S[0:-1:6] = rows.pre_s
+        L[0:-1:6] = rows.pre_l
+        S[1::6] = gbase + row_off[take_row]
+        L[1::6] = np.where(has_t, row_len[take_row], 0)
+        S[2::6] = rows.code_s
+        L[2::6] = 2
+        S[3::6] = gbase + row_off[order_pos]
+        L[3::6] = row_len[order_pos]
+        S[4::6] = rows.fpre_s
+        L[4::6] = rows.fpre_l
+        S[5::6] = rows.post_s
+        L[5::6] = rows.post_l
+        S[-1] = rows.resume
+        L[-1] = len(seg) - rows.resume
         total = int(L.sum())
         dst = np.cumsum(L) - L
         idx = np.repeat((S - dst).astype(np.int32), L)
         idx += np.arange(total, dtype=np.int32)
-        pool = np.concatenate([tk.a[seg_start:seg_end], gen])
+        parts = [seg]
+        if synth:
+            parts.append(np.frombuffer(synth, np.uint8))
+        parts.append(gen)
+        pool = np.concatenate(parts)
         out = np.take(pool, idx)  # a buffer; joined/written without another copy
         # state handover
         last = ntot - 1
@@ -521,28 +860,35 @@ class FileEngine:
         for k in range(3):
             bl.dir[k] = int(dirs_after[-1, k])
             if bl.active[k]:
-                bl.anchor[k] = float(Q[-1, k])
-        n_take = int(take_emit.sum())
-        self._finish_counts(tk, i0, i1, cand, nm, n_take)
-        return out
+                bl.anchor[k] = anchors[k]
+        return out, int(take_emit.sum())
 
-    def _finish_counts(self, tk, i0, i1, cand, n_moves, n_take) -> None:
+    def _finish_counts(self, tk, i0, i1, cand, n_moves, n_take, n_arcs=0, n_chords=0,
+                       arc_e=None, arc_f=None) -> None:
+        """Report counts, feed and E position after lines [i0, i1); ``arc_e``/``arc_f``:
+        (line, value) of the last E/F word of the run's arcs."""
         comp = self.comp
         rep = comp.report
         nl = i1 - i0
         comp.lineno += nl
         rep.lines += nl
-        rep.lines_out += nl + n_take
-        rep.moves += len(cand)
+        rep.lines_out += nl + n_take + n_chords - n_arcs
+        rep.moves += len(cand) + n_arcs
         rep.moves_compensated += n_moves
         rep.takeup_moves += n_take
+        rep.arcs_linearised += n_arcs
+        rep.arc_segments += n_chords
         u = MM_PER_INCH if comp.inches else 1.0
-        fl = tk.f_last(cand)
+        fl = tk.last_value(5, i0, i1)
+        if arc_f is not None and (fl is None or arc_f[0] > fl[0]):
+            fl = arc_f
         if fl is not None:
-            comp.feed = fl * u
-        el = tk.e_last(cand)
+            comp.feed = fl[1] * u
+        el = tk.last_value(4, i0, i1)
+        if arc_e is not None and (el is None or arc_e[0] > el[0]):
+            el = arc_e
         if el is not None:
-            comp.e_pos = None if comp.e_relative else el
+            comp.e_pos = None if comp.e_relative else el[1]
 
     def _finish_inert(self, tk, i0, i1, cand) -> bytes:
         self._finish_counts(tk, i0, i1, cand, 0, 0)
@@ -689,6 +1035,8 @@ class _Tokens:
         bad[tline[is_xyz & ~ok_xyz]] = True
         self.cand = cand & ~bad
         self.breaking = brk | (cand & bad)
+        # lines that may be slicer-style arcs (fastfile._parse_arc decides)
+        self.arc_start = (length >= 3) & (c0 == 71) & ((c1 == 50) | (c1 == 51)) & (c2 == 32)
         # the move lines (candidates with X/Y/Z words) of this block, in order
         xi = np.flatnonzero(is_xyz & ok & self.cand[tline])
         xl = tline[xi]
@@ -720,21 +1068,24 @@ class _Tokens:
         # E and F words: the last one of a run sets the engine's e_pos / feed
         self._tline, self._letter, self._ts, self._te = tline, letter, ts, te
 
-    def _last_value(self, which: int, cand: np.ndarray) -> Optional[float]:
-        lo, hi = int(cand[0]), int(cand[-1])
-        j0 = int(np.searchsorted(self._tline, lo, side="left"))
-        j1 = int(np.searchsorted(self._tline, hi, side="right"))
+    def last_value(self, which: int, i0: int, i1: int) -> Optional[Tuple[int, float]]:
+        """(line, value) of the last word ``which`` (4: E, 5: F) of the candidate lines in
+        [i0, i1), or None."""
+        j0 = int(np.searchsorted(self._tline, i0, side="left"))
+        j1 = int(np.searchsorted(self._tline, i1, side="left"))
         hits = np.flatnonzero(self._letter[j0:j1] == which)
         if len(hits) == 0:
             return None
         j = j0 + int(hits[-1])
-        return float(self.buf[int(self._ts[j]) + 1: int(self._te[j])])
+        return int(self._tline[j]), float(self.buf[int(self._ts[j]) + 1: int(self._te[j])])
 
-    def e_last(self, cand) -> Optional[float]:
-        return self._last_value(4, cand)
-
-    def f_last(self, cand) -> Optional[float]:
-        return self._last_value(5, cand)
+    def e_words(self, i0: int, i1: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lines and byte spans (word start, end) of the E words of the candidate lines in
+        [i0, i1), in order."""
+        j0 = int(np.searchsorted(self._tline, i0, side="left"))
+        j1 = int(np.searchsorted(self._tline, i1, side="left"))
+        hits = j0 + np.flatnonzero(self._letter[j0:j1] == 4)
+        return self._tline[hits], self._ts[hits], self._te[hits]
 
 
 def _parse_numbers(a: np.ndarray, s0: np.ndarray, e0: np.ndarray,

@@ -28,7 +28,7 @@ from octoprint.filemanager.util import DiskFileWrapper, StreamWrapper
 from . import __version__
 from .ballbar.analysis import analyse
 from .ballbar.artifacts import ArtifactError, diagnostics_from_artifact
-from .ballbar.formats import TraceError, load_any, parse_summary
+from .ballbar.formats import TraceError, load_any
 from .ballbar.program import ProgramError, TestSpec, cap_feed, generate, spec_dict
 from .compensator import Options
 from .demo import DemoBallbar
@@ -301,7 +301,6 @@ class KinCompPlugin(
         resumes. PRINT_RESUMED reaches on_event only after OctoPrint has started sending
         again, so the hook watches the printer state: paused (or pausing) once, then
         printing again means resumed."""
-        q = self.queue
         try:
             if comm_instance.isPausing() or comm_instance.isPaused():
                 self._pause_seen = True

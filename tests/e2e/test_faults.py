@@ -42,10 +42,18 @@ def _state(server):
     return server.request("GET", "/api/job")[1]["state"]
 
 
+def _cancel(server):
+    """Leave no print behind for the next test (a failed assertion may stop one midway)."""
+    if not _state(server).startswith("Operational"):
+        server.request("POST", "/api/job", {"command": "cancel"})
+        _wait(lambda: _state(server).startswith("Operational"), what="cancel")
+
+
 def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
     # XZ skew too: every X command needs Z, which the print sets only once, so the moves
     # after the resume are compensated only if the refused line left the position known
-    params = dict(SKEW, squareness_um_per_m={"xy": 2000.0, "xz": 1000.0, "yz": 0.0})
+    # (negative: at X=0, Z=1 the X command stays inside the bed until the X0 Y100 move)
+    params = dict(SKEW, squareness_um_per_m={"xy": 2000.0, "xz": -1000.0, "yz": 0.0})
     settings(server, enabled=True, params=params, limits_policy="error",
              pass_through_on_error=False)
     try:
@@ -80,6 +88,7 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
         assert not any(c in raw for c in later), [c for c in later if c in raw][:3]
         assert st["report"]["untouched_unknown_position"] == 0
     finally:
+        _cancel(server)
         settings(server, limits_policy="warn", enabled=False)
 
 
