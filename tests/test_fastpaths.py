@@ -141,3 +141,96 @@ def test_fast_line_shapes_agree_with_the_general_path(params):
         text = "G28\nG1 X10 Y10 Z1 E0\n" + line + "\nG1 X20 Y20\n"
         ref = general(text, params, Options())
         assert per_line(text, params, Options()) == ref, line
+
+
+def arc_program(seed: int, n: int = 500, e_mode: str = "absolute", crlf=False) -> str:
+    """Slicer-style perimeters with arcs (G2/G3 X Y I J E [F]) between G1 moves, in the
+    shapes the file engine vectorises, and some it must leave to the compensator."""
+    import math
+    import random
+
+    rng = random.Random(seed)
+    head = ["G28", "G90", "M83" if e_mode == "relative" else "M82", "G1 Z0.3 F1200"]
+    if e_mode == "absolute":
+        head.insert(3, "G92 E0")
+    lines = list(head)
+    e = 0.0
+    cx, cy, r = 100.0, 100.0, 20.0
+    ang = 0.0
+    x, y = cx + r, cy
+    lines.append(f"G1 X{x:.3f} Y{y:.3f}")
+    for _ in range(n):
+        kind = rng.random()
+        step = rng.uniform(0.02, 0.6) * rng.choice([1, 1, 1, -1])
+        na = ang + step
+        nx, ny = round(cx + r * math.cos(na), 3), round(cy + r * math.sin(na), 3)
+        de = abs(step) * r * 0.033
+        e_text = f"E{de:.5f}" if e_mode == "relative" else f"E{e + de:.5f}"
+        e += de
+        if kind < 0.45:
+            code = "G3" if step > 0 else "G2"
+            words = [f"X{nx:.3f}", f"Y{ny:.3f}", f"I{cx - x:.3f}", f"J{cy - y:.3f}"]
+            if rng.random() < 0.9:
+                words.append(e_text)
+            if rng.random() < 0.15:
+                words.append(f"F{rng.choice([1200, 3000])}")
+            if rng.random() < 0.03:
+                words = words[2:4] + words[4:]  # a full circle: I/J only
+                nx, ny = x, y
+            line = code + " " + " ".join(words)
+            if rng.random() < 0.03:
+                line += " ; not simple"  # commented arcs take the line path
+        elif kind < 0.9:
+            line = f"G1 X{nx:.3f} Y{ny:.3f} {e_text}"
+        elif kind < 0.95:
+            line = "G1 E-0.8 F2400" if e_mode == "relative" else f"G1 E{e - 0.8:.5f} F2400"
+            e -= 0.8 if e_mode == "absolute" else 0
+            nx, ny = x, y
+        else:
+            r = rng.uniform(5, 60)
+            nx, ny, na = round(cx + r * math.cos(ang), 3), round(cy + r * math.sin(ang), 3), ang
+            line = f"G0 X{nx:.3f} Y{ny:.3f} F9000"
+        lines.append(line)
+        x, y, ang = nx, ny, na
+    end = "\r\n" if crlf else "\n"
+    return end.join(lines) + end
+
+
+ARC_PARAMS = PARAMS + [
+    Params.from_dict({"squareness_um_per_m": {"xy": 800.0}}),  # no backlash
+    Params.from_dict({"backlash": {"x": 25.0, "y": 25.0}}),  # backlash only
+]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_arcs_are_vectorised_with_the_same_output(seed):
+    from unittest import mock
+
+    params = ARC_PARAMS[seed % len(ARC_PARAMS)]
+    options = OPTIONS[seed % len(OPTIONS)]
+    text = arc_program(seed, e_mode=("absolute", "relative")[seed % 2], crlf=seed % 3 == 0)
+    taken = []
+    orig = fastfile.FileEngine._mixed
+
+    def spy(self, *args):
+        out = orig(self, *args)
+        taken.append(out is not None)
+        return out
+
+    with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
+        got = engine(text, params, options, chunk=4093 if seed % 2 else None)
+    ref = general(text, params, options)
+    assert got == ref
+    assert ref[1]["arcs_linearised"] > 100
+    assert taken and any(taken)  # the vectorised arc path did the work
+
+
+def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
+    # no G92 E0 and no E before the arcs: the line path passes such arcs as written
+    lines = ["G28", "G1 X120 Y100 Z0.3"] + [
+        f"G3 X{100 + 20 * __import__('math').cos(a / 10):.3f} "
+        f"Y{100 + 20 * __import__('math').sin(a / 10):.3f} I-20 J0 E{a:.5f}"
+        for a in range(1, 40)]
+    text = "\n".join(lines) + "\n"
+    for params in ARC_PARAMS:
+        assert engine(text, params, Options()) == general(text, params, Options())
