@@ -272,6 +272,7 @@ class Compensator:
         self._half = self.backlash.half
         self._Ai = self.model._Ainv_rows
         self._b = self.model._b_t
+        self._affine = tuple(v for row in self._Ai for v in row) + tuple(self._b)
         self._bl_axes = tuple(k for k in range(3) if self.backlash.active[k])
         self._um_at = tuple(_um_function(self.backlash.tables[k]) if self.backlash.active[k]
                             else None for k in range(3))
@@ -447,8 +448,12 @@ class Compensator:
             rep.lines_out += 1
             return line
         code = parts[0]
-        if after_xyz < len(parts):
-            tail = " " + " ".join(parts[after_xyz:])
+        # the E/F words after X/Y/Z, as written (the first " E" or " F" starts them: the
+        # X/Y/Z numbers before hold no letters)
+        if ie:
+            tail = line[line.index(" E", 3):]
+        elif i_f and not f_first:
+            tail = line[line.index(" F", 3):]
         else:
             tail = ""
         if f_first:
@@ -457,8 +462,7 @@ class Compensator:
         px = vx * u - w[0] if ix else m[0]
         py = vy * u - w[1] if iy else m[1]
         pz = vz * u - w[2] if iz else m[2]
-        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = self._Ai
-        b0, b1, b2 = self._b
+        a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2 = self._affine
         x, y, z = px - b0, py - b1, pz - b2
         q1 = (a00 * x + a01 * y + a02 * z, a10 * x + a11 * y + a12 * z,
               a20 * x + a21 * y + a22 * z)
