@@ -169,7 +169,8 @@ class Play:
 
     ``carriage(k, u)`` returns where the carriage of axis k is when its drive has been moved
     to ``u`` (mm): the carriage stays put until the drive has crossed the play, then follows it
-    ``b(y)/2`` behind, ``b`` taken at the carriage position ``y`` (as the compensator does). After :meth:`reset` the carriage sits in the middle of the play, which is
+    ``b(y)/2`` behind, ``b`` taken at the carriage position ``y`` (as the compensator does).
+    After :meth:`reset` the carriage sits in the middle of the play, which is
     the state the compensator assumes after homing (direction unknown, offset 0).
     """
 

@@ -960,7 +960,8 @@ class _Tokens:
         # lines that may change the modal state go through the compensator one by one
         brk = _BREAK_FIRST[c0] & ~cand
         mline = (c0 == 77) & ~((c1 >= 48) & (c1 <= 57))
-        m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51))) | ((c1 == 52) & (c2 == 56)))
+        m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51)))
+                                | ((c1 == 52) & (c2 == 56)))
         brk |= mline | m_state
         # tokens: after each space separator of a candidate line, up to the next separator
         lid = np.cumsum(isnl) - isnl

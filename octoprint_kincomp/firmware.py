@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from typing import Dict, List
 
+from .messages import Msg
 from .params import AXES, Params
 
 M556_LENGTH_MM = 100.0
@@ -92,10 +93,9 @@ def equivalents(params: Params) -> Dict[str, List[str]]:
     ]
     notes = []
     if per_side:
-        notes.append(
-            "Backlash differs along " + ", ".join(a.upper() for a in per_side)
-            + ": firmware takes one value per axis, the mean is shown."
-        )
+        notes.append(Msg(
+            "Backlash differs along %(axes)s: firmware takes one value per axis, the mean is "
+            "shown.", axes=", ".join(a.upper() for a in per_side)))
     return {"marlin": marlin, "klipper": klipper, "reprapfirmware": rrf, "notes": notes}
 
 

@@ -36,6 +36,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Tuple
 
+from .messages import Msg
+
 SCHEMA_VERSION = 1
 AXES = ("x", "y", "z")
 PLANE_PAIRS = ("xy", "xz", "yz")
@@ -60,6 +62,7 @@ class ParamsError(ValueError):
 
     def __init__(self, field: str, message: str):
         self.field = field
+        self.message = message  # a messages.Msg: translatable by the plugin
         super().__init__(f"{field}: {message}" if field else message)
 
 
@@ -201,7 +204,8 @@ class Params:
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise ParamsError("", f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+            raise ParamsError("", Msg("not valid JSON (%(error)s at line %(line)s)",
+                                      error=exc.msg, line=exc.lineno)) from None
         return _parse(data)
 
     @staticmethod
@@ -210,7 +214,8 @@ class Params:
             with open(path, encoding="utf-8") as f:
                 text = f.read()
         except OSError as exc:
-            raise ParamsError("", f"cannot read params file {path!r}: {exc.strerror}") from None
+            raise ParamsError("", Msg("cannot read params file %(path)s: %(error)s",
+                                      path=repr(path), error=exc.strerror)) from None
         return Params.from_json(text)
 
 
@@ -225,27 +230,31 @@ def default_params() -> Params:
 def _number(value: Any, field: str, limit: Optional[float] = None, lo: Optional[float] = None,
             hi: Optional[float] = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParamsError(field, f"must be a number, got {json.dumps(value)[:40]}")
+        raise ParamsError(field, Msg("must be a number, got %(value)s",
+                                     value=json.dumps(value)[:40]))
     v = float(value)
     if not math.isfinite(v):
-        raise ParamsError(field, "must be a finite number (NaN/Infinity are not allowed)")
+        raise ParamsError(field, Msg("must be a finite number (NaN/Infinity are not allowed)"))
     if limit is not None and abs(v) > limit:
-        raise ParamsError(field, f"{v:g} is out of range (|value| <= {limit:g})")
+        raise ParamsError(field, Msg("%(value)s is out of range (|value| <= %(limit)s)",
+                                     value=f"{v:g}", limit=f"{limit:g}"))
     if lo is not None and v < lo:
-        raise ParamsError(field, f"{v:g} is out of range (must be >= {lo:g})")
+        raise ParamsError(field, Msg("%(value)s is out of range (must be >= %(lo)s)",
+                                     value=f"{v:g}", lo=f"{lo:g}"))
     if hi is not None and v > hi:
-        raise ParamsError(field, f"{v:g} is out of range (must be <= {hi:g})")
+        raise ParamsError(field, Msg("%(value)s is out of range (must be <= %(hi)s)",
+                                     value=f"{v:g}", hi=f"{hi:g}"))
     return v
 
 
 def _object(value: Any, field: str, allowed) -> Dict[str, Any]:
     if not isinstance(value, dict):
-        raise ParamsError(field, "must be an object")
+        raise ParamsError(field, Msg("must be an object"))
     for key in value:
         if key not in allowed:
             raise ParamsError(
                 f"{field}.{key}" if field else str(key),
-                f"unknown key (allowed: {', '.join(allowed)})",
+                Msg("unknown key (allowed: %(allowed)s)", allowed=", ".join(allowed)),
             )
     return value
 
@@ -260,14 +269,14 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
         return BacklashAxis(((0.0, _number(value, field, lo=0.0, hi=MAX_BACKLASH_UM)),))
     if not isinstance(value, list) or not value:
         raise ParamsError(
-            field, "must be a number (um) or a non-empty list of {at_mm, um} points"
+            field, Msg("must be a number (um) or a non-empty list of {at_mm, um} points")
         )
     pts = []
     for i, item in enumerate(value):
         f = f"{field}[{i}]"
         obj = _object(item, f, ("at_mm", "um"))
         if "at_mm" not in obj or "um" not in obj:
-            raise ParamsError(f, "each point needs both 'at_mm' and 'um'")
+            raise ParamsError(f, Msg("each point needs both 'at_mm' and 'um'"))
         pts.append(
             (
                 _number(obj["at_mm"], f + ".at_mm", MAX_POSITION_MM),
@@ -277,21 +286,24 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
     pts.sort()
     for (p0, _), (p1, _) in zip(pts, pts[1:]):
         if p1 == p0:
-            raise ParamsError(field, f"two points at the same position {p0:g} mm")
+            raise ParamsError(field, Msg("two points at the same position %(at)s mm",
+                                         at=f"{p0:g}"))
     return BacklashAxis(tuple(pts))
 
 
 def _poly(value: Any, field: str, limit: float) -> Tuple[float, ...]:
     if isinstance(value, list):
         if not value or len(value) > MAX_POLY_DEGREE + 1:
-            raise ParamsError(field, f"needs 1..{MAX_POLY_DEGREE + 1} coefficients")
+            raise ParamsError(field, Msg("needs 1..%(n)s coefficients",
+                                         n=MAX_POLY_DEGREE + 1))
         coeffs = tuple(_number(v, f"{field}[{i}]") for i, v in enumerate(value))
     else:
         coeffs = (_number(value, field),)
     # Bound the term over a generous 1 m travel so that nothing absurd gets through.
     worst = sum(abs(c) * 1000.0 ** k for k, c in enumerate(coeffs))
     if worst > limit:
-        raise ParamsError(field, f"reaches {worst:g} over 1 m of travel (limit {limit:g})")
+        raise ParamsError(field, Msg("reaches %(value)s over 1 m of travel (limit %(limit)s)",
+                                     value=f"{worst:g}", limit=f"{limit:g}"))
     return coeffs
 
 
@@ -303,11 +315,13 @@ def _parse(data: Any) -> Params:
     obj = _object(data, "", top_keys)
     version = obj.get("version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
-        raise ParamsError("version", f"unsupported params version {version!r} "
-                                     f"(this KinComp reads version {SCHEMA_VERSION})")
+        raise ParamsError("version", Msg("unsupported params version %(version)s (this "
+                                         "KinComp reads version %(supported)s)",
+                                         version=repr(version), supported=SCHEMA_VERSION))
     kin = obj.get("kinematics", "parallel")
     if kin not in KINEMATICS:
-        raise ParamsError("kinematics", f"must be one of {', '.join(KINEMATICS)}")
+        raise ParamsError("kinematics", Msg("must be one of %(choices)s",
+                                            choices=", ".join(KINEMATICS)))
     sq = _axis_map(obj.get("squareness_um_per_m", {}), "squareness_um_per_m", PLANE_PAIRS,
                    MAX_SQUARENESS_UM_PER_M)
     sc = _axis_map(obj.get("scale_ppm", {}), "scale_ppm", AXES, MAX_SCALE_PPM)
@@ -332,14 +346,14 @@ def _parse(data: Any) -> Params:
     servo = _axis_map(obj.get("servo_lag_ms", {}), "servo_lag_ms", AXES, MAX_SERVO_LAG_MS)
     precomp = obj.get("servo_precomp", False)
     if not isinstance(precomp, bool):
-        raise ParamsError("servo_precomp", "must be true or false")
+        raise ParamsError("servo_precomp", Msg("must be true or false"))
     meta = obj.get("meta", {})
     if not isinstance(meta, dict):
-        raise ParamsError("meta", "must be an object")
+        raise ParamsError("meta", Msg("must be an object"))
     try:
         json.dumps(meta, allow_nan=False)
     except ValueError:
-        raise ParamsError("meta", "must contain finite JSON values only") from None
+        raise ParamsError("meta", Msg("must contain finite JSON values only")) from None
     return Params(
         kinematics=kin,
         squareness_um_per_m=sq,

@@ -35,6 +35,7 @@ from .demo import DemoBallbar
 from .fileproc import AlreadyCompensated, compensate_file, file_marker
 from .firmware import equivalents
 from .firmware_watch import FirmwareWatcher
+from .messages import Msg, as_dict, error_message, translate
 from .params import Params
 from .queue import FILE_TAG, QueueCompensator
 from .runs import RunNotFound, RunStore
@@ -59,6 +60,18 @@ CONFLICT_NAMES = {"skew": N_("skew"), "backlash": N_("backlash"), "scale": N_("a
 
 def _error(message: str, status: int = 400):
     return flask.make_response(flask.jsonify(error=message), status)
+
+
+def _tr(text) -> str:
+    """A core message (messages.Msg) or exception in the requesting user's language."""
+    if isinstance(text, BaseException):
+        text = error_message(text)
+    return translate(text, gettext)
+
+
+def _with_i18n(eq: Dict[str, Any]) -> Dict[str, Any]:
+    """Firmware equivalents with their notes also as translatable templates."""
+    return dict(eq, notes_i18n=[as_dict(n) for n in eq.get("notes", [])])
 
 
 def _json_object() -> Optional[Dict[str, Any]]:
@@ -176,7 +189,7 @@ class KinCompPlugin(
         except SettingsError as exc:
             self._logger.warning("KinComp settings refused: %s", exc)
             self._notify("error", N_("KinComp settings not saved: %(reason)s"),
-                         reason=str(exc))
+                         reason=error_message(exc))
             return {}
         return self._save_settings(new)
 
@@ -407,7 +420,7 @@ class KinCompPlugin(
         try:
             validate_settings(mine, self._current_settings())
         except SettingsError as exc:
-            return _error(gettext("KinComp: %(reason)s", reason=str(exc)), 400)
+            return _error(gettext("KinComp: %(reason)s", reason=_tr(exc)), 400)
         return None
 
     # ~~ events ------------------------------------------------------------------------------
@@ -522,17 +535,19 @@ class KinCompPlugin(
                 self._logger.warning("Double compensation: firmware %s active (%s)", kind, where)
                 self._notify("warning", N_(
                     "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
-                    "corrected twice. Turn one of them off."), translate=("kind",),
+                    "corrected twice. Turn one of them off."), tr_params=("kind",),
                     kind=CONFLICT_NAMES[kind], where=where)
 
     # ~~ notifications -----------------------------------------------------------------------
-    def _notify(self, severity: str, msgid: str, translate=(), **params) -> None:
+    def _notify(self, severity: str, msgid: str, tr_params=(), **params) -> None:
         """Tell the UI. Sent as the English message id plus its parameters: this can run
         on any thread (no request, so no server-side locale); the browser translates it,
-        and the parameters named in ``translate`` (message ids themselves) too."""
+        and the parameters named in ``tr_params`` (message ids themselves) and the core
+        messages among the parameters (as template + parameters) too."""
         self._plugin_manager.send_plugin_message(self._identifier, {
-            "type": "notify", "severity": severity, "msgid": msgid, "params": params,
-            "translate": list(translate), "text": msgid % params if params else msgid})
+            "type": "notify", "severity": severity, "msgid": msgid,
+            "params": {k: as_dict(v) if isinstance(v, Msg) else v for k, v in params.items()},
+            "translate": list(tr_params), "text": msgid % params if params else msgid})
 
     def _event(self, name: str, payload: Dict[str, Any]) -> None:
         self._event_bus.fire(f"plugin_{self._identifier}_{name}", payload)
@@ -592,7 +607,7 @@ class KinCompPlugin(
             compensation=self.queue.status(),
             firmware={"skew": self.watch.skew, "backlash": self.watch.backlash,
                       "conflicts": self.watch.conflicts(params)},
-            equivalents=equivalents(params),
+            equivalents=_with_i18n(equivalents(params)),
             demo=self.demo is not None,
             limits=self._limits(),
             max_feeds=self._max_feeds(),
@@ -613,7 +628,7 @@ class KinCompPlugin(
         try:
             new = validate_settings(data, self._current_settings())
         except SettingsError as exc:
-            return _error(str(exc), 400)
+            return _error(_tr(exc), 400)
         self._save_settings(new, immediately=immediately or None)
         self._settings.save()
         return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
@@ -649,7 +664,7 @@ class KinCompPlugin(
             params = self.queue.params
             text = generate(spec, volume=self._limits(), params_hash=params.hash())
         except (ProgramError, TypeError, ValueError) as exc:
-            return _error(str(exc), 400)
+            return _error(_tr(exc), 400)
         name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
                f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
         path = f"{PROGRAM_FOLDER}/{name}"
@@ -761,7 +776,8 @@ class KinCompPlugin(
                     {k: [(float(n), float(m)) for n, m in v]
                      for k, v in (a.get("lengths") or {}).items()})
             except (ArtifactError, KeyError, TypeError, ValueError) as exc:
-                return _error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
+                return _error(gettext("Invalid artifact measurements: %(e)s", e=_tr(exc)),
+                              400)
             from .ballbar.analysis import Geometry, propose_params
 
             notes = []
@@ -779,7 +795,7 @@ class KinCompPlugin(
             trace = load_any(data, safe)
             result = analyse(trace, current=self.queue.params)
         except TraceError as exc:
-            return _error(gettext("%(name)s: %(reason)s", name=safe, reason=str(exc)), 400)
+            return _error(gettext("%(name)s: %(reason)s", name=safe, reason=_tr(exc)), 400)
         kind = getattr(trace, "kind", source)
         return self._store_run(result, safe, kind, data if kind != "summary" else None,
                                result.get("plot"))
@@ -797,8 +813,9 @@ class KinCompPlugin(
             "params_before_hash": current.hash(),
             "diagnostics": result["diagnostics"],
             "proposed": result["parameters"],
-            "firmware": result["firmware"],
-            "notes": result["notes"],
+            "firmware": _with_i18n(result["firmware"]),
+            "notes": [str(n) for n in result["notes"]],
+            "notes_i18n": [as_dict(n) for n in result["notes"]],
             "plot": plot,
             "applied": None,
         }
@@ -836,7 +853,7 @@ class KinCompPlugin(
         try:
             new = validate_settings(new, self._current_settings(), replace_params=True)
         except SettingsError as exc:
-            return _error(str(exc), 400)
+            return _error(_tr(exc), 400)
         self._save_settings(new, immediately=apply_now or None)
         self._settings.save()
         if run is not None:

@@ -12,6 +12,7 @@ import math
 from typing import Any, Dict, Optional, Sequence, Tuple
 
 from .compensator import POLICIES, Options
+from .messages import Msg
 from .params import Params, ParamsError
 
 SETTINGS_VERSION = 1
@@ -22,6 +23,7 @@ APPLY_CHANGES = ("next_print", "immediately")
 class SettingsError(ValueError):
     def __init__(self, field: str, message: str):
         self.field = field
+        self.message = message  # a messages.Msg: translatable by the plugin
         super().__init__(f"{field}: {message}" if field else message)
 
 
@@ -64,22 +66,23 @@ def migrate(settings: Dict[str, Any], current: Optional[int]) -> Dict[str, Any]:
 
 def _bool(value: Any, field: str) -> bool:
     if not isinstance(value, bool):
-        raise SettingsError(field, "must be true or false")
+        raise SettingsError(field, Msg("must be true or false"))
     return value
 
 
 def _choice(value: Any, field: str, allowed: Sequence[str]) -> str:
     if value not in allowed:
-        raise SettingsError(field, f"must be one of {', '.join(allowed)}")
+        raise SettingsError(field, Msg("must be one of %(choices)s", choices=", ".join(allowed)))
     return value
 
 
 def _number(value: Any, field: str, lo: float, hi: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             not math.isfinite(float(value)):
-        raise SettingsError(field, "must be a finite number")
+        raise SettingsError(field, Msg("must be a finite number"))
     if not lo <= float(value) <= hi:
-        raise SettingsError(field, f"{value:g} is out of range ({lo:g}..{hi:g})")
+        raise SettingsError(field, Msg("%(value)s is out of range (%(lo)s..%(hi)s)",
+                                       value=f"{value:g}", lo=f"{lo:g}", hi=f"{hi:g}"))
     return float(value)
 
 
@@ -107,11 +110,11 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     as the complete document instead (applying a calibration's proposal). Unknown keys are
     refused (a typo must not be silently dropped)."""
     if not isinstance(data, dict):
-        raise SettingsError("", "settings must be an object")
+        raise SettingsError("", Msg("settings must be an object"))
     out = copy.deepcopy(base) if base is not None else defaults()
     for key in data:
         if key not in SETTING_KEYS:
-            raise SettingsError(key, "unknown setting")
+            raise SettingsError(key, Msg("unknown setting"))
     data = copy.deepcopy(data)
     if not replace_params and isinstance(data.get("params"), dict) and \
             isinstance(out.get("params"), dict):
@@ -123,22 +126,22 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     out["chord_tol_mm"] = _number(out["chord_tol_mm"], "chord_tol_mm", 0.0005, 1.0)
     dec = out["decimals"]
     if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
-        raise SettingsError("decimals", "must be an integer within 3..6")
+        raise SettingsError("decimals", Msg("must be an integer within 3..6"))
     home = out["home_mm"]
     if not isinstance(home, list) or len(home) != 3:
-        raise SettingsError("home_mm", "must be a list of three numbers (mm)")
+        raise SettingsError("home_mm", Msg("must be a list of three numbers (mm)"))
     out["home_mm"] = [_number(v, f"home_mm[{i}]", -10000, 10000) for i, v in enumerate(home)]
     out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
     out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
     demo = out["demo"]
     if not isinstance(demo, dict) or set(demo) - {"enabled"}:
-        raise SettingsError("demo", "must be an object with 'enabled'")
+        raise SettingsError("demo", Msg("must be an object with 'enabled'"))
     demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
     try:
         out["params"] = Params.from_dict(out["params"]).to_dict()
     except ParamsError as exc:
         raise SettingsError(f"params.{exc.field}" if exc.field else "params",
-                            str(exc).split(": ", 1)[-1]) from None
+                            exc.message) from None
     return out
 
 

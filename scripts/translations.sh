@@ -10,7 +10,7 @@ cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 BABEL="$PY -m babel.messages.frontend"
 if [ "${1:-}" != "compile" ]; then
-    $BABEL extract -F babel.cfg -k N_ -k gettext -o translations/messages.pot \
+    $BABEL extract -F babel.cfg -k N_ -k gettext -k Msg -o translations/messages.pot \
         --project KinComp --version "$($PY -c 'import octoprint_kincomp; print(octoprint_kincomp.__version__)')" \
         --msgid-bugs-address "" --no-location --omit-header --sort-output . >/dev/null
     $BABEL update -i translations/messages.pot -d translations --no-fuzzy-matching --ignore-obsolete >/dev/null

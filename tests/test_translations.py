@@ -29,8 +29,8 @@ def _ids(path, reader=read_po):
 def test_template_catalog_is_current(tmp_path):
     out = tmp_path / "fresh.pot"
     subprocess.run([sys.executable, "-m", "babel.messages.frontend", "extract", "-F",
-                    "babel.cfg", "-k", "N_", "-k", "gettext", "-o", str(out), "--no-location",
-                    "--omit-header", "."], cwd=ROOT, check=True, capture_output=True)
+                    "babel.cfg", "-k", "N_", "-k", "gettext", "-k", "Msg", "-o", str(out),
+                    "--no-location", "--omit-header", "."], cwd=ROOT, check=True, capture_output=True)
     fresh = _ids(out)
     assert len(fresh) > 100
     assert fresh == _ids(POT), "run scripts/translations.sh"
@@ -82,3 +82,35 @@ def test_templates_have_no_bare_text(template):
     text = text.replace("&gt;", " ")
     bare = [w for w in re.split(r"[\s,.:;()/]+", text) if re.search(r"[A-Za-z]", w)]
     assert set(bare) <= ALLOWED_BARE, sorted(set(bare) - ALLOWED_BARE)
+
+
+def test_core_messages_reach_the_user_in_german():
+    """The core's errors and notes are English messages.Msg objects; with the bundled
+    German catalog they come out German, placeholders and nested messages filled in."""
+    from babel.support import Translations
+
+    from octoprint_kincomp.ballbar.formats import TraceError, parse_summary
+    from octoprint_kincomp.ballbar.program import ProgramError, TestSpec, check_bounds
+    from octoprint_kincomp.messages import Msg, as_dict, error_message, translate
+    from octoprint_kincomp.settings import SettingsError, validate_settings
+
+    de = Translations.load(os.path.join(ROOT, "octoprint_kincomp", "translations"), ["de"])
+    with pytest.raises(SettingsError) as exc:
+        validate_settings({"params": {"scale_ppm": {"y": 900000}}})
+    assert str(exc.value).startswith("params.scale_ppm.y: 900000 is out of range")
+    german = translate(error_message(exc.value), de.gettext)
+    assert german == "params.scale_ppm.y: 900000 liegt außerhalb des zulässigen Bereichs " \
+                     "(|Wert| <= 50000)"
+    with pytest.raises(ProgramError) as exc:
+        check_bounds(TestSpec(centre=(20, 100, 10), radius_mm=60), (0, 200, 0, 200, 0, 200))
+    german = translate(error_message(exc.value), de.gettext)
+    assert german.startswith("Der Kreis mit 60 mm Radius um 20,100,10 in XY passt nicht")
+    assert "X erreicht -41.00 mm, unter der Grenze von 0 mm" in german
+    with pytest.raises(TraceError) as exc:
+        parse_summary(b"plane: XY\nsquareness_um_per_m: abc\n")
+    assert "ist keine Zahl" in translate(error_message(exc.value), de.gettext)
+    # what the browser gets: template and parameters, nested messages as such
+    d = as_dict(Msg("%(first)s; %(rest)s", first=Msg("must be an object"), rest="x"))
+    assert d["template"] == "%(first)s; %(rest)s"
+    assert d["params"]["first"]["template"] == "must be an object"
+    assert translate("plain text", de.gettext) == "plain text"

@@ -32,6 +32,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..messages import Msg, error_message
 from ..params import AXES, Params, ParamsError
 from .formats import (AngleTrace, NativeTrace, Summary, TraceError, meta_centre, meta_float,
                       meta_plane)
@@ -83,7 +84,8 @@ def _geometry(meta: Dict[str, str]) -> Geometry:
     plane = meta_plane(meta)
     radius = meta_float(meta, "radius_mm")
     if not (1.0 <= radius <= 2000.0):
-        raise TraceError(f"metadata 'radius_mm' {radius:g} is out of range (1..2000)")
+        raise TraceError(Msg("metadata 'radius_mm' %(value)s is out of range (1..2000)",
+                             value=f"{radius:g}"))
     feed = meta_float(meta, "feed_mm_min", 0.0) or None
     start = meta_float(meta, "start_deg", 0.0 if plane == "XY" else -20.0)
     cap = meta_float(meta, "capture_deg", 360.0 if plane == "XY" else 220.0)
@@ -101,7 +103,7 @@ def _crossing(t: np.ndarray, r: np.ndarray, level: float, i0: int, i1: int,
         a, b = r[i - 1], r[i]
         if (falling and a >= level > b) or (not falling and a <= level < b):
             return float(t[i - 1] + (t[i] - t[i - 1]) * (a - level) / (a - b))
-    raise TraceError("feed-in/feed-out marker not found (is this the right program?)")
+    raise TraceError(Msg("feed-in/feed-out marker not found (is this the right program?)"))
 
 
 def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
@@ -114,7 +116,7 @@ def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
     over = meta_float(meta, "overshoot_deg")
     dwell = meta_float(meta, "dwell_s", 1.0)
     if not geom.speed:
-        raise TraceError("metadata 'feed_mm_min' is needed to map time to angle")
+        raise TraceError(Msg("metadata 'feed_mm_min' is needed to map time to angle"))
     v = geom.speed
     spec = TestSpec(plane=geom.plane, centre=geom.centre or (0.0, 0.0, 0.0),
                     radius_mm=geom.radius, feed_mm_min=geom.feed, feed_in_mm=d,
@@ -129,13 +131,15 @@ def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
         order = np.argsort(arr[:, 0], kind="stable")
         t, r = arr[order, 0], arr[order, 1]
         if len(t) < 50:
-            raise TraceError(f"the {direction} run has only {len(t)} samples")
+            raise TraceError(Msg("the %(direction)s run has only %(n)s samples",
+                                 direction=direction, n=len(t)))
         dt = float(np.median(np.diff(t)))
         n_dwell = max(3, int(0.5 * dwell / dt)) if dt > 0 else 3
         hi0 = _level(r[:n_dwell])
         below = np.nonzero(r < hi0 - 0.1 * d)[0]
         if len(below) == 0:
-            raise TraceError(f"{direction} run: no radial feed-in found")
+            raise TraceError(Msg("%(direction)s run: no radial feed-in found",
+                                 direction=direction))
         i_start = int(below[0])
         t_ramp_end = t[i_start] + d / v
         win = (t > t_ramp_end + 0.05) & (t < t_ramp_end + 0.15)
@@ -154,7 +158,8 @@ def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
         t_arc0 = t_in + (d / 2) / v
         t_arc1 = t_out - (d / 2) / v
         if t_arc1 <= t_arc0:
-            raise TraceError(f"{direction} run: markers out of order")
+            raise TraceError(Msg("%(direction)s run: markers out of order",
+                                 direction=direction))
         omega = math.radians(abs(sweep)) / (t_arc1 - t_arc0)
         w = 1 if direction == "ccw" else -1
         theta = math.radians(a0) + w * omega * (t - t_arc0)
@@ -163,7 +168,7 @@ def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
         keep = (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
         runs.append(Run(direction, theta[keep], r[keep]))
     if not runs:
-        raise TraceError("no cw or ccw samples")
+        raise TraceError(Msg("no cw or ccw samples"))
     return geom, runs
 
 
@@ -270,7 +275,7 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
     y = np.concatenate([r.dev for r in runs])
     keep = reversal_mask(model.theta, model.w, mask_deg)
     if keep.sum() < len(model.names) * 5:
-        raise TraceError("too few samples left after masking the reversal points")
+        raise TraceError(Msg("too few samples left after masking the reversal points"))
     p = np.zeros(len(model.names))
     cond = float("nan")
     it = 0
@@ -415,7 +420,7 @@ def load_runs(trace) -> Tuple[Geometry, List[Run]]:
         return runs_from_native(trace)
     if isinstance(trace, AngleTrace):
         return runs_from_angle(trace)
-    raise TraceError("not a trace")
+    raise TraceError(Msg("not a trace"))
 
 
 def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_MASK_DEG,
@@ -441,11 +446,12 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cyclic_pitch, f)
         plot = plot_data(geom, runs, f, diag)
         if not calibrated:
-            notes.append("The bar is not calibrated: the mean radius mixes the bar's own length "
-                         "error with the mean axis scale, so only the scale mismatch is used.")
+            notes.append(Msg("The bar is not calibrated: the mean radius mixes the bar's own "
+                             "length error with the mean axis scale, so only the scale "
+                             "mismatch is used."))
     if current is not None and not current.is_zero:
-        notes.append("The test ran with compensation active: the fitted errors are residuals "
-                     "and the proposed parameters are current + residual.")
+        notes.append(Msg("The test ran with compensation active: the fitted errors are "
+                         "residuals and the proposed parameters are current + residual."))
     params = propose_params(diag, geom, current, notes)
     return {
         "diagnostics": diag,
@@ -549,17 +555,18 @@ def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
             else:
                 mean_cur = sum(um for _, um in table.points) / len(table.points)
                 d["backlash"][AXES[ax]] = max(0.0, (plus + minus) / 2 + frac * mean_cur)
-                notes.append(f"Backlash of {AXES[ax].upper()} set to the mean of both ends: the "
-                             "test centre is unknown.")
+                notes.append(Msg("Backlash of %(axis)s set to the mean of both ends: the "
+                                 "test centre is unknown.", axis=AXES[ax].upper()))
             if min(plus, minus) < -0.5:
-                notes.append(f"Negative residual backlash on {AXES[ax].upper()}: the current "
-                             "value over-compensates.")
+                notes.append(Msg("Negative residual backlash on %(axis)s: the current value "
+                                 "over-compensates.", axis=AXES[ax].upper()))
         if current.backlash_fraction == 0:
             d["backlash"]["fraction"] = 1.0
         elif current.backlash_fraction < 1.0:
-            notes.append(f"Backlash values are the measured lost motion; the fraction stays "
-                         f"at {current.backlash_fraction:g}, so {current.backlash_fraction:g} "
-                         "of it is taken up (set the fraction to 1 for all of it).")
+            notes.append(Msg("Backlash values are the measured lost motion; the fraction "
+                             "stays at %(fraction)s, so %(fraction)s of it is taken up (set "
+                             "the fraction to 1 for all of it).",
+                             fraction=f"{current.backlash_fraction:g}"))
     # Servo lag: mismatch assigned to the first axis of the plane.
     dT = diag.get("servo_mismatch_ms")
     if dT is not None:
@@ -578,5 +585,6 @@ def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
     try:
         return Params.from_dict(d)
     except ParamsError as exc:
-        raise TraceError(f"the proposed parameters are out of range ({exc}); errors this "
-                         "large are implausible: check the set-up and the measurement") from None
+        raise TraceError(Msg("the proposed parameters are out of range (%(error)s); errors "
+                             "this large are implausible: check the set-up and the "
+                             "measurement", error=error_message(exc))) from None

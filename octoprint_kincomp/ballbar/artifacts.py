@@ -22,24 +22,27 @@ import math
 from typing import Dict, Iterable, Sequence, Tuple
 
 from ..firmware import klipper_skew_factor
+from ..messages import Msg
 
 
 class ArtifactError(ValueError):
     pass
 
 
+NOT_PARALLELOGRAM = Msg("these lengths cannot form a parallelogram (check AC, BD, AD)")
+
+
 def squareness_from_diagonals(ac: float, bd: float, ad: float) -> float:
     """KinComp squareness (um/m) from printed diagonals AC, BD and side AD (mm)."""
     for name, v in (("AC", ac), ("BD", bd), ("AD", ad)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ArtifactError(f"{name} must be a positive length in mm")
+            raise ArtifactError(Msg("%(name)s must be a positive length in mm", name=name))
     if 2 * ac * ac + 2 * bd * bd - 4 * ad * ad <= 0:
-        raise ArtifactError("these lengths cannot form a parallelogram (check AC, BD, AD)")
+        raise ArtifactError(NOT_PARALLELOGRAM)
     try:
         f = klipper_skew_factor(ac, bd, ad)
     except ValueError:
-        raise ArtifactError("these lengths cannot form a parallelogram (check AC, BD, AD)") \
-            from None
+        raise ArtifactError(NOT_PARALLELOGRAM) from None
     return f * 1e6
 
 
@@ -49,10 +52,10 @@ def scale_from_lengths(pairs: Iterable[Tuple[float, float]]) -> Dict[str, float]
     for nominal, measured in pairs:
         if not (nominal > 0 and measured > 0 and math.isfinite(nominal)
                 and math.isfinite(measured)):
-            raise ArtifactError("lengths must be positive numbers in mm")
+            raise ArtifactError(Msg("lengths must be positive numbers in mm"))
         vals.append((measured / nominal - 1.0) * 1e6)
     if not vals:
-        raise ArtifactError("give at least one nominal/measured pair")
+        raise ArtifactError(Msg("give at least one nominal/measured pair"))
     mean = sum(vals) / len(vals)
     if len(vals) > 1:
         var = sum((v - mean) ** 2 for v in vals) / (len(vals) - 1)

@@ -40,6 +40,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
+from ..messages import Msg
+
 MAX_TRACE_BYTES = 64 * 1024 * 1024
 MAX_ROWS = 2_000_000
 MAX_XML_BYTES = 8 * 1024 * 1024
@@ -107,14 +109,15 @@ def _write(f, meta, header, rows) -> None:
 def meta_float(meta: Dict[str, str], key: str, default: Optional[float] = None) -> float:
     if key not in meta:
         if default is None:
-            raise TraceError(f"metadata '{key}' is missing")
+            raise TraceError(Msg("metadata '%(key)s' is missing", key=key))
         return default
     try:
         v = float(meta[key])
     except ValueError:
-        raise TraceError(f"metadata '{key}': {meta[key]!r} is not a number") from None
+        raise TraceError(Msg("metadata '%(key)s': %(value)s is not a number", key=key,
+                             value=repr(meta[key]))) from None
     if not math.isfinite(v):
-        raise TraceError(f"metadata '{key}' must be finite")
+        raise TraceError(Msg("metadata '%(key)s' must be finite", key=key))
     return v
 
 
@@ -123,8 +126,8 @@ def meta_plane(meta: Dict[str, str]) -> str:
     if plane == "ZX":
         plane = "XZ"
     if plane not in PLANES:
-        raise TraceError(f"metadata 'plane' must be one of {', '.join(PLANES)}, "
-                         f"got {meta.get('plane')!r}")
+        raise TraceError(Msg("metadata 'plane' must be one of %(choices)s, got %(plane)s",
+                             choices=", ".join(PLANES), plane=repr(meta.get("plane"))))
     return plane
 
 
@@ -134,9 +137,10 @@ def meta_centre(meta: Dict[str, str]) -> Optional[Tuple[float, float, float]]:
     try:
         c = tuple(float(v) for v in meta["centre"].split(","))
     except ValueError:
-        raise TraceError(f"metadata 'centre': {meta['centre']!r} is not X,Y,Z") from None
+        raise TraceError(Msg("metadata 'centre': %(value)s is not X,Y,Z",
+                             value=repr(meta["centre"]))) from None
     if len(c) != 3 or not all(math.isfinite(v) for v in c):
-        raise TraceError("metadata 'centre' needs three finite numbers X,Y,Z")
+        raise TraceError(Msg("metadata 'centre' needs three finite numbers X,Y,Z"))
     return c
 
 
@@ -147,7 +151,7 @@ def meta_centre(meta: Dict[str, str]) -> Optional[Tuple[float, float, float]]:
 def parse_csv_trace(text: str):
     """Parse a native or angle-domain CSV trace (format chosen by its header line)."""
     if len(text) > MAX_TRACE_BYTES:
-        raise TraceError(f"trace is larger than {MAX_TRACE_BYTES // (1024 * 1024)} MB")
+        raise TraceError(Msg("trace is larger than %(mb)s MB", mb=MAX_TRACE_BYTES // (1024 * 1024)))
     meta: Dict[str, str] = {}
     header = None
     rows: List[Tuple[str, float, float]] = []
@@ -161,38 +165,42 @@ def parse_csv_trace(text: str):
                 k, v = body.split(":", 1)
                 k = k.strip()
                 if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", k):
-                    raise TraceError(f"line {lineno}: bad metadata key {k!r}")
+                    raise TraceError(Msg("line %(line)s: bad metadata key %(key)s", line=lineno,
+                                         key=repr(k)))
                 meta[k] = v.strip()
             continue
         if header is None:
             norm = line.replace(" ", "").lower()
             if norm not in (NATIVE_HEADER, ANGLE_HEADER):
-                raise TraceError(
-                    f"line {lineno}: expected the header '{NATIVE_HEADER}' or "
-                    f"'{ANGLE_HEADER}', got {line[:60]!r}")
+                raise TraceError(Msg(
+                    "line %(line)s: expected the header '%(native)s' or '%(angle)s', got "
+                    "%(got)s", line=lineno, native=NATIVE_HEADER, angle=ANGLE_HEADER,
+                    got=repr(line[:60])))
             header = norm
             continue
         parts = line.split(",")
         if len(parts) != 3:
-            raise TraceError(f"line {lineno}: expected 3 comma-separated fields, "
-                             f"got {len(parts)}")
+            raise TraceError(Msg("line %(line)s: expected 3 comma-separated fields, got "
+                                 "%(n)s", line=lineno, n=len(parts)))
         d = parts[0].strip().lower()
         if d not in ("cw", "ccw"):
-            raise TraceError(f"line {lineno}: direction must be 'cw' or 'ccw', got {parts[0]!r}")
+            raise TraceError(Msg("line %(line)s: direction must be 'cw' or 'ccw', got %(got)s",
+                                 line=lineno, got=repr(parts[0])))
         try:
             a, b = float(parts[1]), float(parts[2])
         except ValueError:
-            raise TraceError(f"line {lineno}: not a number in {line[:60]!r}") from None
+            raise TraceError(Msg("line %(line)s: not a number in %(text)s", line=lineno,
+                                 text=repr(line[:60]))) from None
         if not (math.isfinite(a) and math.isfinite(b)):
-            raise TraceError(f"line {lineno}: NaN or infinite value")
+            raise TraceError(Msg("line %(line)s: NaN or infinite value", line=lineno))
         rows.append((d, a, b))
         if len(rows) > MAX_ROWS:
-            raise TraceError(f"more than {MAX_ROWS} samples")
+            raise TraceError(Msg("more than %(n)s samples", n=MAX_ROWS))
     if header is None:
-        raise TraceError("no header line (direction,time_s,reading_mm or "
-                         "direction,angle_deg,deviation_um) found")
+        raise TraceError(Msg("no header line (direction,time_s,reading_mm or "
+                             "direction,angle_deg,deviation_um) found"))
     if not rows:
-        raise TraceError("the trace has no samples")
+        raise TraceError(Msg("the trace has no samples"))
     meta_plane(meta)
     meta_float(meta, "radius_mm")
     if header == NATIVE_HEADER:
@@ -239,27 +247,32 @@ _UNIT_TO = {  # DT -> (kind, factor to KinComp's unit)
 def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     """Read the diagnostics of a Renishaw ``.b5r`` XML file (no DTDs, no entities)."""
     if len(data) > MAX_XML_BYTES:
-        raise TraceError(f".b5r file is larger than {MAX_XML_BYTES // (1024 * 1024)} MB")
+        raise TraceError(Msg(".b5r file is larger than %(mb)s MB",
+                             mb=MAX_XML_BYTES // (1024 * 1024)))
     head = data[:4096].lower()
     if b"<!doctype" in data.lower() or b"<!entity" in data.lower():
-        raise TraceError(".b5r file contains a DTD or entity declarations; refused for safety")
+        raise TraceError(Msg(".b5r file contains a DTD or entity declarations; refused for "
+                             "safety"))
     if b"\x00" in head:
-        raise TraceError(".b5r file is not text XML (binary or UTF-16 files are not supported)")
+        raise TraceError(Msg(".b5r file is not text XML (binary or UTF-16 files are not "
+                             "supported)"))
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
-        raise TraceError(f".b5r is not well-formed XML: {exc}") from None
+        raise TraceError(Msg(".b5r is not well-formed XML: %(error)s", error=str(exc))) from None
     except (LookupError, ValueError) as exc:
         # expat raises these (not ParseError) for an XML declaration naming an unknown
         # codec (LookupError) or a multi-byte one such as utf-7 (ValueError)
-        raise TraceError(f".b5r: unsupported XML encoding ({exc})") from None
+        raise TraceError(Msg(".b5r: unsupported XML encoding (%(error)s)",
+                             error=str(exc))) from None
     meta: Dict[str, str] = {"source": ".b5r (Renishaw)"}
     plane_el = root.find(".//PLANE")
     raw_plane = (plane_el.get("TEST_PLANE") if plane_el is not None else None) or ""
     raw_plane = raw_plane.strip().upper()
     swap = raw_plane == "ZX"
     if raw_plane not in ("XY", "YZ", "ZX", "XZ"):
-        raise TraceError(f".b5r: PLANE/@TEST_PLANE must be XY, YZ or ZX, got {raw_plane!r}")
+        raise TraceError(Msg(".b5r: PLANE/@TEST_PLANE must be XY, YZ or ZX, got %(got)s",
+                             got=repr(raw_plane)))
     meta["plane"] = "XZ" if raw_plane in ("ZX", "XZ") else raw_plane
     spec = root.find(".//TEST_SPEC")
     if spec is not None and spec.get("NAME"):
@@ -282,9 +295,10 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
         try:
             value = float(text)
         except ValueError:
-            raise TraceError(f".b5r: FEATURE {name} has a non-numeric value {text[:30]!r}")
+            raise TraceError(Msg(".b5r: FEATURE %(name)s has a non-numeric value %(value)s",
+                                 name=name, value=repr(text[:30])))
         if not math.isfinite(value):
-            raise TraceError(f".b5r: FEATURE {name} is not finite")
+            raise TraceError(Msg(".b5r: FEATURE %(name)s is not finite", name=name))
         key, sub = _B5R_NAMES[name]
         kind, factor = _UNIT_TO.get(dt, (None, 1.0))
         if key == "scale_mismatch":
@@ -292,32 +306,34 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
                 ppm = value
             elif kind == "length":
                 if radius_mm is None or not 0.0 < radius_mm < math.inf:
-                    raise TraceError(".b5r: scale mismatch given in um but the test radius is "
-                                     "unknown; give the radius")
+                    raise TraceError(Msg(".b5r: scale mismatch given in um but the test radius "
+                                         "is unknown; give the radius"))
                 ppm = value * factor / radius_mm * 1000.0
-                notes.append("scale mismatch converted from um to ppm assuming um over the "
-                             "test radius")
+                notes.append(Msg("scale mismatch converted from um to ppm assuming um over the "
+                                 "test radius"))
             else:
-                raise TraceError(f".b5r: FEATURE {name} has an unexpected unit {dt!r}")
+                raise TraceError(Msg(".b5r: FEATURE %(name)s has an unexpected unit %(unit)s",
+                                     name=name, unit=repr(dt)))
             if not math.isfinite(ppm):  # a finite value can overflow in the conversion
-                raise TraceError(f".b5r: FEATURE {name} is out of range")
+                raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
             diag["scale_mismatch_ppm"] = ppm
             continue
         if kind == "length":
             value *= factor
             if not math.isfinite(value):  # e.g. 1e308 mm in um
-                raise TraceError(f".b5r: FEATURE {name} is out of range")
+                raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
         elif kind is None:
-            raise TraceError(f".b5r: FEATURE {name} has an unknown unit {dt!r}")
+            raise TraceError(Msg(".b5r: FEATURE %(name)s has an unknown unit %(unit)s",
+                                 name=name, unit=repr(dt)))
         if sub is None:
             diag[key] = value
         else:
             diag.setdefault(key, {})[sub] = value
     if not diag:
-        raise TraceError(".b5r: no known FEATURE diagnostics found")
+        raise TraceError(Msg(".b5r: no known FEATURE diagnostics found"))
     if swap:
         _swap_ab(diag)
-        notes.append("ZX plane read as A=Z, B=X and mapped to XZ (A/B swapped)")
+        notes.append(Msg("ZX plane read as A=Z, B=X and mapped to XZ (A/B swapped)"))
     return Summary(meta=meta, diagnostics=diag, notes=notes)
 
 
@@ -359,11 +375,11 @@ def parse_summary(data) -> Summary:
     if isinstance(data, (bytes, str)):
         text = data.decode("utf-8", "replace") if isinstance(data, bytes) else data
         if len(text) > 100_000:
-            raise TraceError("summary is too long")
+            raise TraceError(Msg("summary is too long"))
         try:
             obj = json.loads(text)
         except RecursionError:  # "[[[[..." nested deeper than the interpreter's stack
-            raise TraceError("summary JSON is nested too deeply") from None
+            raise TraceError(Msg("summary JSON is nested too deeply")) from None
         except json.JSONDecodeError:
             obj = {}
             for lineno, raw in enumerate(text.splitlines(), 1):
@@ -371,17 +387,19 @@ def parse_summary(data) -> Summary:
                 if not line:
                     continue
                 if ":" not in line and "=" not in line:
-                    raise TraceError(f"summary line {lineno}: expected 'key: value'")
+                    raise TraceError(Msg("summary line %(line)s: expected 'key: value'",
+                                         line=lineno))
                 k, v = re.split(r"[:=]", line, 1)
                 obj[k.strip()] = v.strip()
         except ValueError as exc:
             # valid JSON syntax that json still refuses (an integer of more than 4300
             # digits); JSONDecodeError, a ValueError too, is handled above
-            raise TraceError(f"summary JSON cannot be read: {str(exc)[:80]}") from None
+            raise TraceError(Msg("summary JSON cannot be read: %(error)s",
+                                 error=str(exc)[:80])) from None
     else:
         obj = data
     if not isinstance(obj, dict):
-        raise TraceError("summary must be an object of key: value pairs")
+        raise TraceError(Msg("summary must be an object of key: value pairs"))
     meta: Dict[str, str] = {"source": "typed summary"}
     diag: Dict[str, object] = {}
     flat = dict(obj)
@@ -389,10 +407,11 @@ def parse_summary(data) -> Summary:
         g = flat.pop(group, None)
         if g is not None:
             if not isinstance(g, dict):
-                raise TraceError(f"summary field '{group}' must be an object")
+                raise TraceError(Msg("summary field '%(field)s' must be an object", field=group))
             for k in g:
                 if k not in subs:
-                    raise TraceError(f"summary field '{group}.{k}' is unknown")
+                    raise TraceError(Msg("summary field '%(field)s' is unknown",
+                                         field=f"{group}.{k}"))
             for k, v in g.items():
                 flat[f"{group.rsplit('_', 1)[0]}_{k}"] = v
     for key, raw in flat.items():
@@ -415,27 +434,29 @@ def parse_summary(data) -> Summary:
                 diag.setdefault(group, {})[key[len(prefix):]] = value
                 break
         else:
-            raise TraceError(f"summary field '{key}' is unknown")
+            raise TraceError(Msg("summary field '%(field)s' is unknown", field=key))
     meta["plane"] = meta_plane(meta)
     meta_centre(meta)
     if not diag:
-        raise TraceError("summary has no diagnostic values")
+        raise TraceError(Msg("summary has no diagnostic values"))
     if "backlash_um" in diag:
         for k, v in diag["backlash_um"].items():
             if v < 0:
-                raise TraceError(f"summary field 'backlash_um.{k}' must be >= 0")
+                raise TraceError(Msg("summary field '%(field)s' must be >= 0",
+                                     field=f"backlash_um.{k}"))
     return Summary(meta=meta, diagnostics=diag)
 
 
 def _num(raw, key) -> float:
     if isinstance(raw, bool):
-        raise TraceError(f"summary field '{key}' must be a number")
+        raise TraceError(Msg("summary field '%(field)s' must be a number", field=key))
     try:
         v = float(raw)
     except (TypeError, ValueError, OverflowError):  # OverflowError: a JSON int >= 1e309
-        raise TraceError(f"summary field '{key}': {str(raw)[:30]!r} is not a number") from None
+        raise TraceError(Msg("summary field '%(field)s': %(value)s is not a number",
+                             field=key, value=repr(str(raw)[:30]))) from None
     if not math.isfinite(v):
-        raise TraceError(f"summary field '{key}' must be finite")
+        raise TraceError(Msg("summary field '%(field)s' must be finite", field=key))
     return v
 
 
@@ -443,14 +464,14 @@ def load_any(data: bytes, filename: str = ""):
     """Pick the reader from the content: XML -> .b5r, CSV header -> trace, else summary."""
     if len(data) > MAX_TRACE_BYTES:
         # before any copy: decoding, stripping and lower-casing would each copy it
-        raise TraceError(f"file is larger than {MAX_TRACE_BYTES // (1024 * 1024)} MB")
+        raise TraceError(Msg("file is larger than %(mb)s MB", mb=MAX_TRACE_BYTES // (1024 * 1024)))
     stripped = data.lstrip()
     if stripped.startswith(b"<") or filename.lower().endswith(".b5r"):
         return parse_b5r(data)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:
-        raise TraceError("file is not UTF-8 text (nor .b5r XML)") from None
+        raise TraceError(Msg("file is not UTF-8 text (nor .b5r XML)")) from None
     if NATIVE_HEADER in text.replace(" ", "").lower() or \
             ANGLE_HEADER in text.replace(" ", "").lower():
         return parse_csv_trace(text)

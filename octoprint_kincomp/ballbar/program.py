@@ -18,8 +18,10 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
+
+from ..messages import Msg, joined
 
 PLANES = {"XY": (0, 1), "XZ": (0, 2), "YZ": (1, 2)}
 # Run markers that survive comment stripping (OctoPrint sends no comments); M117 just shows
@@ -60,27 +62,29 @@ class TestSpec:
     def __post_init__(self):
         self.plane = str(self.plane).upper()
         if self.plane not in PLANES:
-            raise ProgramError(f"plane must be one of {', '.join(PLANES)}, got {self.plane!r}")
+            raise ProgramError(Msg("plane must be one of %(choices)s, got %(plane)s",
+                                   choices=", ".join(PLANES), plane=repr(self.plane)))
         self.centre = tuple(float(v) for v in self.centre)
         if len(self.centre) != 3 or not all(math.isfinite(v) for v in self.centre):
-            raise ProgramError("centre needs three finite coordinates X,Y,Z (mm)")
+            raise ProgramError(Msg("centre needs three finite coordinates X,Y,Z (mm)"))
         for name, lo, hi in (("radius_mm", 5.0, 1000.0), ("feed_mm_min", 10.0, 60000.0),
                              ("feed_in_mm", 0.1, 5.0), ("overshoot_deg", 0.0, 180.0),
                              ("dwell_s", 0.0, 60.0), ("chord_error_um", 0.01, 50.0),
                              ("lift_mm", 0.0, 100.0)):
             v = float(getattr(self, name))
             if not (lo <= v <= hi) or not math.isfinite(v):
-                raise ProgramError(f"{name} must be within {lo:g}..{hi:g}, got {v:g}")
+                raise ProgramError(Msg("%(name)s must be within %(lo)s..%(hi)s, got %(value)s",
+                                       name=name, lo=f"{lo:g}", hi=f"{hi:g}", value=f"{v:g}"))
             setattr(self, name, v)
         if self.capture_deg is None:
             self.capture_deg = 360.0 if self.plane == "XY" else 220.0
         if self.start_deg is None:
             self.start_deg = 0.0 if self.plane == "XY" else -20.0
         if not (10.0 <= float(self.capture_deg) <= 360.0):
-            raise ProgramError("capture_deg must be within 10..360")
+            raise ProgramError(Msg("capture_deg must be within 10..360"))
         for d in self.directions:
             if d not in ("ccw", "cw"):
-                raise ProgramError("directions are 'ccw' and/or 'cw'")
+                raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
 
     @property
     def axes(self) -> Tuple[int, int]:
@@ -169,15 +173,17 @@ def check_bounds(spec: TestSpec, volume: Optional[Sequence[float]]) -> None:
         vmin = min(p[k] for p in pts)
         vmax = max(p[k] for p in pts)
         if vmin < lo - 1e-9:
-            problems.append(f"{name} reaches {vmin:.2f} mm, below the limit {lo:g} mm")
+            problems.append(Msg("%(axis)s reaches %(value)s mm, below the limit %(limit)s mm",
+                                axis=name, value=f"{vmin:.2f}", limit=f"{lo:g}"))
         if vmax > hi + 1e-9:
-            problems.append(f"{name} reaches {vmax:.2f} mm, above the limit {hi:g} mm")
+            problems.append(Msg("%(axis)s reaches %(value)s mm, above the limit %(limit)s mm",
+                                axis=name, value=f"{vmax:.2f}", limit=f"{hi:g}"))
     if problems:
-        raise ProgramError(
-            f"the {spec.radius_mm:g} mm circle about {','.join(f'{v:g}' for v in spec.centre)} "
-            f"in {spec.plane} does not fit the machine: " + "; ".join(problems)
-            + ". Move the centre or use a smaller radius."
-        )
+        raise ProgramError(Msg(
+            "the %(radius)s mm circle about %(centre)s in %(plane)s does not fit the machine: "
+            "%(problem)s. Move the centre or use a smaller radius.",
+            radius=f"{spec.radius_mm:g}", centre=",".join(f"{v:g}" for v in spec.centre),
+            plane=spec.plane, problem=joined(problems)))
 
 
 def _fmt(v: float) -> str:
@@ -261,7 +267,7 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
             k, v = line[len("; ballbar "):].split(":", 1)
             meta[k.strip()] = v.strip()
     if "plane" not in meta:
-        raise ProgramError("not a KinComp ballbar program (no '; ballbar plane:' line)")
+        raise ProgramError(Msg("not a KinComp ballbar program (no '; ballbar plane:' line)"))
     spec = TestSpec(
         plane=meta["plane"],
         centre=tuple(float(v) for v in meta["centre"].split(",")),

@@ -4,8 +4,8 @@ The printer executes G-code with :class:`~..machine.FirmwareInterpreter` at cons
 (each move at its feed, no acceleration: a stated simplification), then applies, per axis and
 in this order: a first-order servo lag ``T`` (the drive follows the command, ``v*T`` behind at
 steady speed), the play of the drive (backlash, possibly different along the axis), reversal
-spikes (an extra lag decaying with the path travelled after each reversal), cyclic error, and finally
-the HTM kinematic model of the true errors (squareness, scale, straightness ...).
+spikes (an extra lag decaying with the path travelled after each reversal), cyclic error, and
+finally the HTM kinematic model of the true errors (squareness, scale, straightness ...).
 
 The virtual ballbar has its pivot where the printer really puts the commanded centre (plus a
 set-up offset) and samples ``reading = |nozzle - pivot| - L`` (mm, positive = longer) at
@@ -18,13 +18,14 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Dict, Iterable, List, Optional, Tuple
+from typing import Dict, Iterable, Tuple
 
 import numpy as np
 
 from ..backlash import Play
 from ..kinematics import KinematicModel
-from ..machine import Dwell, FirmwareInterpreter, Home, Move
+from ..machine import Dwell, FirmwareInterpreter, Move
+from ..messages import Msg
 from ..params import AXES, Params, ParamsError
 from .formats import NativeTrace
 from .program import END_MARKER, RUN_MARKER, ProgramError, spec_from_program
@@ -50,14 +51,15 @@ class Truth:
     @staticmethod
     def from_dict(d: dict) -> "Truth":
         if not isinstance(d, dict):
-            raise ParamsError("", "truth must be a JSON object")
+            raise ParamsError("", Msg("truth must be a JSON object"))
         if "errors" not in d:  # a plain params document: errors only
             return Truth(errors=Params.from_dict(d))
         allowed = {"errors", "servo_lag_ms", "cyclic", "reversal_spikes", "noise_um",
                    "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed"}
         for k in d:
             if k not in allowed:
-                raise ParamsError(k, f"unknown key (allowed: {', '.join(sorted(allowed))})")
+                raise ParamsError(k, Msg("unknown key (allowed: %(allowed)s)",
+                                         allowed=", ".join(sorted(allowed))))
         t = Truth(errors=Params.from_dict(d["errors"]))
         t.servo_lag_ms = {a: float(d.get("servo_lag_ms", {}).get(a, 0.0)) for a in AXES}
         for a, c in d.get("cyclic", {}).items():
@@ -73,7 +75,7 @@ class Truth:
         t.sample_rate_hz = float(d.get("sample_rate_hz", 500.0))
         t.seed = int(d.get("seed", 1))
         if not (10 <= t.sample_rate_hz <= 20000):
-            raise ParamsError("sample_rate_hz", "must be within 10..20000")
+            raise ParamsError("sample_rate_hz", Msg("must be within 10..20000"))
         return t
 
     @staticmethod
@@ -82,7 +84,8 @@ class Truth:
             try:
                 return Truth.from_dict(json.load(f))
             except json.JSONDecodeError as exc:
-                raise ParamsError("", f"not valid JSON ({exc.msg} at line {exc.lineno})")
+                raise ParamsError("", Msg("not valid JSON (%(error)s at line %(line)s)",
+                                          error=exc.msg, line=exc.lineno))
 
 
 def paper_truth(**overrides) -> Truth:
@@ -238,7 +241,7 @@ class Simulator:
             elif body.startswith("M117 " + END_MARKER):
                 end_line = i + 1
         if not run_starts:
-            raise ProgramError("no ballbar runs found (no 'M117 Ballbar run' markers)")
+            raise ProgramError(Msg("no ballbar runs found (no 'M117 Ballbar run' markers)"))
         fw = FirmwareInterpreter(start=spec.centre)
         events = list(fw.run(lines))
         timeline = _Timeline(events, spec.centre)

@@ -225,5 +225,13 @@ def test_german_browser_gets_the_german_ui(browser, server):
         pg.fill("#kincomp_radius", "60")
         pg.wait_for_selector("#tab_plugin_kincomp >> text=der Kreis passt")  # JS gettext
         pg.screenshot(path=os.path.join(SHOTS, "wizard-de.png"))
+        # the server's validation message in the user's language, inline in the settings
+        settings(server, enabled=False, params=ZERO)
+        _open_settings(pg)
+        pg.fill("#kincomp_sc_y", "900000")
+        pg.click("#kincomp_save")
+        pg.wait_for_selector("#settings_plugin_kincomp .alert-error >> "
+                             "text=liegt außerhalb des zulässigen Bereichs")
+        assert status(server)["settings"]["params"]["scale_ppm"]["y"] == 0.0
     finally:
         context.close()

@@ -48,9 +48,22 @@ $(function () {
         return new PNotify(_.extend({title_escape: true, text_escape: true}, options));
     };
 
+    // a message of KinComp's core: {text, template, params} (params may be such messages
+    // too), translated here; a plain string as it is
+    var trMsg = function (msg) {
+        if (!msg || typeof msg !== "object") return msg;
+        if (!msg.template) return msg.text;
+        var params = _.mapValues(msg.params || {}, trMsg);
+        try {
+            return _.isEmpty(params) ? gettext(msg.template) : _.sprintf(gettext(msg.template), params);
+        } catch (e) {
+            return msg.text;
+        }
+    };
+
     var translateNotice = function (data) {
         var text = gettext(data.msgid);
-        var params = _.extend({}, data.params || {});
+        var params = _.mapValues(data.params || {}, trMsg);
         _.each(data.translate || [], function (key) {
             if (_.has(params, key)) params[key] = gettext(params[key]);
         });
@@ -185,7 +198,7 @@ $(function () {
             self.firmware.marlin((eq.marlin || []).join("\n"));
             self.firmware.klipper((eq.klipper || []).join("\n"));
             self.firmware.reprapfirmware((eq.reprapfirmware || []).join("\n"));
-            self.firmware.notes((eq.notes || []).join(" "));
+            self.firmware.notes(_.map(eq.notes_i18n || eq.notes || [], trMsg).join(" "));
         };
 
         self.load = function () {
@@ -452,6 +465,7 @@ $(function () {
 
         // step 3 and history
         self.run = ko.observable(null);
+        self.trMsg = trMsg;
         self.beforeRun = ko.observable(null);
         self.compareRows = ko.observableArray([]);
         self.runs = ko.observableArray([]);
