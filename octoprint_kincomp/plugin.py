@@ -876,6 +876,21 @@ class KinCompPlugin(
         except RunNotFound:
             return _error(gettext("No such calibration run"), 404)
 
+    @octoprint.plugin.BlueprintPlugin.route("/runs/<run_id>/trace", methods=["GET"])
+    def api_run_trace(self, run_id):
+        """The measurement file of a run as it was uploaded (trace, .b5r)."""
+        _require(Permissions.STATUS)
+        try:
+            run = self.runs.get(run_id)
+        except RunNotFound:
+            return _error(gettext("No such calibration run"), 404)
+        path = self.runs.trace_path(run_id)
+        if path is None:
+            return _error(gettext("This run has no stored measurement file"), 404)
+        name = _SAFE_NAME.sub("_", str(run.get("filename") or "trace"))[:100] or "trace"
+        return flask.send_file(path, mimetype="text/plain", as_attachment=True,
+                               download_name=name)
+
     @octoprint.plugin.BlueprintPlugin.route("/compare", methods=["GET"])
     def api_compare(self):
         _require(Permissions.STATUS)

@@ -100,6 +100,7 @@ class RunStore:
                 "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
                 "applied": run.get("applied"),
                 "params_before_hash": run.get("params_before_hash"),
+                "has_trace": self.trace_path(run_id) is not None,
             })
         return out
 

@@ -600,3 +600,24 @@ def test_marlin_is_asked_for_its_settings_after_m115(plugin):
     plugin.received_hook(None, "echo:  M425 F1.00 X0.05 Y0.00 Z0.00")
     (_, msg), _ = plugin._plugin_manager.send_plugin_message.call_args
     assert msg["params"]["kind"] == "backlash" and msg["translate"] == ["kind"]
+
+
+def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
+    import flask
+
+    run_id = plugin.runs.new_id()
+    plugin.runs.save({"id": run_id, "filename": "../../etc/passwd trace.csv",
+                      "diagnostics": {}})
+    plugin.runs.save_trace(run_id, b"direction,angle_deg,deviation_um\nccw,0,1.5\n")
+    app = flask.Flask("t")
+    with mock.patch("octoprint_kincomp.plugin._require"), \
+            mock.patch("octoprint_kincomp.plugin.gettext", lambda m, **kw: m % kw):
+        with app.test_request_context(f"/runs/{run_id}/trace"):
+            resp = plugin.api_run_trace(run_id)
+            resp.direct_passthrough = False
+            assert resp.status_code == 200 and b"ccw,0,1.5" in resp.get_data()
+            assert "attachment" in resp.headers["Content-Disposition"]
+            assert "/" not in resp.headers["Content-Disposition"].split("filename=")[1]
+        with app.test_request_context("/runs/x/trace"):
+            assert plugin.api_run_trace("../../etc/passwd").status_code == 404
+    assert [r["has_trace"] for r in plugin.runs.list()] == [True]

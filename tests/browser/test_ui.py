@@ -4,6 +4,7 @@ a real OctoPrint with the virtual printer. Screenshots go to test-artifacts/scre
 import os
 import shutil
 import time
+import urllib.parse
 
 import pytest
 
@@ -181,10 +182,15 @@ def test_calibration_wizard_demo_loop(page, server):
         page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
         page.locator("#kincomp_result").screenshot(
             path=os.path.join(SHOTS, "plot-before-after.png"))
-        # history lists both runs
+        page.wait_for_selector("#kincomp_plot .legend >> text=fitted centre")
+        # history lists both runs, with the parameters used and the measurement file
         page.click("#kincomp_step_history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
         assert page.locator("#kincomp_history tbody tr").count() >= 2
+        assert page.is_visible(f"#kincomp_history >> text={run['params_before_hash']}")
+        href = page.locator("#kincomp_history a.kincomp-trace-link").first.get_attribute("href")
+        code, text = server.request("GET", urllib.parse.urlparse(href).path)
+        assert code == 200 and "direction,time_s,reading_mm" in text
     finally:
         settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
 

@@ -531,7 +531,7 @@ $(function () {
                 self.paramsHash(status.params_hash);
                 if (status.limits) {
                     self.limits(status.limits);
-                    if (!self.programTouched) self.defaultsFromProfile(status.limits);
+                    if (!self.programTouched) self.defaultsFromProfile(status.limits, status.max_feeds);
                 }
             });
             var files = self.access.permissions.FILES_LIST;
@@ -545,8 +545,16 @@ $(function () {
         // the test circle starts at the bed centre with the largest standard radius that
         // fits (100 mm, else 50, 25), until the user edits the form
         self.programTouched = false;
-        self.defaultsFromProfile = function (l) {
+        self.defaultsFromProfile = function (l, maxFeeds) {
             var half = Math.min(l[1] - l[0], l[3] - l[2]) / 2 - 5;
+            // ISO 230-4's 1850 mm/min, or the slowest axis of the XY plane if it is slower
+            var feed = 1850;
+            if (maxFeeds) {
+                _.each(["x", "y"], function (a) {
+                    if (maxFeeds[a] > 0) feed = Math.min(feed, maxFeeds[a]);
+                });
+            }
+            self.feed(String(feed));
             var radius = _.find([100, 50, 25], function (r) {
                 return r <= half;
             }) || Math.max(5, Math.floor(half));
@@ -714,6 +722,10 @@ $(function () {
             });
         };
 
+        self.traceUrl = function (run) {
+            return API("runs/" + encodeURIComponent(run.id) + "/trace");
+        };
+
         self.showHistory = function () {
             self.step("history");
             self.loadRuns();
@@ -821,6 +833,21 @@ $(function () {
                     }
                 });
             });
+            // the fitted centre (the least-squares centre the deviations are taken about),
+            // magnified like the deviations: where the test circle really was
+            var cr = run.plot.centre_removed_um;
+            if (cr) {
+                series.push({
+                    data: [[cr.a / perDiv, cr.b / perDiv]],
+                    color: "#333333",
+                    points: {show: true, radius: 3, symbol: "cross"},
+                    lines: {show: false},
+                    shadowSize: 0,
+                    label: _.sprintf(gettext("fitted centre (%(a)s, %(b)s µm)"), {
+                        a: cr.a.toFixed(1), b: cr.b.toFixed(1)
+                    })
+                });
+            }
             // a scale bar of one division at the bottom right
             series.push({data: [[5.0, -5.9], [6.0, -5.9]], color: "#000000", lines: {lineWidth: 3}, shadowSize: 0});
             var lim = 6.6;
