@@ -130,6 +130,8 @@ class KinCompPlugin(
         self._start_events = 0  # PRINT_STARTED events received
         self._file_lines_seen = False  # a line of the current print went through the hook
         self._comm = None  # the MachineCom of the current connection
+        # stored settings that could not be used (defaults instead), shown in the UI
+        self._settings_problem = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -161,6 +163,7 @@ class KinCompPlugin(
                     {k: v for k, v in migrated.items() if k in defaults()}, defaults())
             except SettingsError as exc:
                 self._logger.warning("Stored KinComp settings invalid (%s): defaults used", exc)
+                self._settings_problem = error_message(exc)
                 clean = defaults()
             for key, value in clean.items():
                 self._settings.set([key], value)
@@ -173,6 +176,7 @@ class KinCompPlugin(
             return validate_settings(current, defaults())
         except SettingsError as exc:
             self._logger.error("Stored KinComp settings are invalid (%s); using defaults", exc)
+            self._settings_problem = error_message(exc)
             return defaults()
 
     def on_settings_save(self, data):
@@ -612,6 +616,8 @@ class KinCompPlugin(
             limits=self._limits(),
             max_feeds=self._max_feeds(),
             jobs=[j.to_dict() for j in self.files.jobs.values()],
+            settings_problem=(_tr(self._settings_problem)
+                              if self._settings_problem is not None else None),
         )
 
     @octoprint.plugin.BlueprintPlugin.route("/settings", methods=["POST"])
@@ -631,6 +637,7 @@ class KinCompPlugin(
             return _error(_tr(exc), 400)
         self._save_settings(new, immediately=immediately or None)
         self._settings.save()
+        self._settings_problem = None  # valid settings are stored now
         return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
                              compensation=self.queue.status())
 

@@ -621,3 +621,16 @@ def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
         with app.test_request_context("/runs/x/trace"):
             assert plugin.api_run_trace("../../etc/passwd").status_code == 404
     assert [r["has_trace"] for r in plugin.runs.list()] == [True]
+
+
+def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
+    import flask
+
+    plugin._settings.set(["limits_policy"], "explode")  # e.g. edited by hand in config.yaml
+    assert plugin._current_settings()["limits_policy"] == "warn"  # the defaults apply
+    app = flask.Flask("t")
+    with mock.patch("octoprint_kincomp.plugin._require"), \
+            mock.patch("octoprint_kincomp.plugin.gettext", lambda m, **kw: m % kw if kw else m):
+        with app.test_request_context("/status"):
+            body = plugin.api_status().get_json()
+    assert body["settings_problem"].startswith("limits_policy: must be one of")

@@ -528,6 +528,15 @@ $(function () {
             OctoPrint.get(API("status")).done(function (status) {
                 self.enabled(status.settings.enabled);
                 self.demo(status.demo);
+                if (status.settings_problem && !self.problemShown) {
+                    self.problemShown = true;
+                    notify({
+                        title: gettext("KinComp settings reset"),
+                        text: _.sprintf(gettext("The stored KinComp settings could not be used (%(reason)s); the defaults apply and compensation is off. Check the settings and save them."), {reason: status.settings_problem}),
+                        type: "error",
+                        hide: false
+                    });
+                }
                 self.paramsHash(status.params_hash);
                 if (status.limits) {
                     self.limits(status.limits);
