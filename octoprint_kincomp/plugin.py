@@ -225,8 +225,9 @@ class KinCompPlugin(
         q = self.queue
         q.pass_through_on_error = s["pass_through_on_error"]
         if not q.configure(params, options, s["enabled"], now):
-            self._notify("info", N_("New KinComp parameters will be used from the next "
-                                    "print on."))
+            self._notify("info", N_("A print is running: the new KinComp settings (parameters, "
+                                    "compensation on or off) take effect from the next print "
+                                    "on."))
         if s["demo"]["enabled"] and self.demo is None:
             self.demo = DemoBallbar()
         elif not s["demo"]["enabled"]:
