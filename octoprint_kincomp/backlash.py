@@ -153,7 +153,9 @@ class BacklashTracker:
     def observe(self, c0: Sequence[Optional[float]], c1: Sequence[Optional[float]]) -> None:
         """Track direction on a move passed through uncompensated (drive commands c0 -> c1,
         mm, no take-up offset on them; no ramping). The anchor is kept in the geometric frame
-        of compensated moves: the drive position minus the offset of the direction."""
+        of compensated moves: the drive position minus the offset of the direction. It is
+        set to where the move ends (not the farthest point): such moves are rare and their
+        start may itself be uncertain, so the hysteresis restarts there."""
         for k in range(3):
             if not self.active[k] or c0[k] is None or c1[k] is None:
                 continue

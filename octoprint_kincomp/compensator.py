@@ -389,8 +389,9 @@ class Compensator:
 
     def _process_guarded(self, line: str) -> Union[str, List[str]]:
         """``process`` for the limits policy ``error``: a line refused with LimitError leaves
-        the state as it was before the line (it is not sent), so the stream can go on from
-        there (the print resumed after the pause) with every position still known."""
+        the state as it was before the line, so a stream that does not send it can go on
+        from there (the print resumed after the pause) with every position still known. A
+        caller that sends it as written anyway must forget the positions (see queue)."""
         bl = self.backlash
         saved = [list(v) if isinstance(v, list) else v
                  for v in (getattr(self, a) for a in self._STATE)]

@@ -669,7 +669,8 @@ class FileEngine:
                    synth: bytes) -> Optional[Tuple[np.ndarray, int]]:
         """Compensate and render ``rows`` (desired machine points, in order); the output
         bytes and the number of take-up moves, or None when the line path has to decide
-        (a limit error, sub-deadband steps). Nothing is changed in the compensator then."""
+        (a limit error under the policy 'error'). Nothing is changed in the compensator
+        then."""
         comp = self.comp
         rep = comp.report
         opts = comp.options
@@ -701,10 +702,13 @@ class FileEngine:
         anchors = list(bl.anchor)
         for k in range(3):
             if bl.active[k]:
-                step = Q[:, k] - Qp[:, k]
+                # the tracker's own comparisons (q against anchor -/+ deadband: rounding at
+                # the deadband's edge must not differ from it)
+                up = Q[:, k] > Qp[:, k] + bl.deadband
+                down = Q[:, k] < Qp[:, k] - bl.deadband
                 a = bl.anchor[k]
                 if (a is not None and a != q0[k]) or np.any(
-                        (step != 0.0) & (np.abs(step) <= bl.deadband)):
+                        ~up & ~down & (Q[:, k] != Qp[:, k])):
                     # the anchor is not the current command somewhere: the tracker's
                     # hysteresis, point by point (arcs put chord ends next to reversals)
                     dk, rk, anchors[k] = _hysteresis(Q[:, k].tolist(), bl.dir[k], a, q0[k],
@@ -714,7 +718,7 @@ class FileEngine:
                     continue
                 # anchored at the start and no sub-deadband step: the anchor is always the
                 # current command, so a reversal is a step beyond the deadband against dir
-                s = np.where(step > bl.deadband, 1, np.where(step < -bl.deadband, -1, 0))
+                s = np.where(up, 1, np.where(down, -1, 0))
                 after = _ffill_int(s, bl.dir[k])
                 before = np.empty_like(after)
                 before[0] = bl.dir[k]
@@ -736,9 +740,11 @@ class FileEngine:
                 C[:, k] += d * half * _interp(bl.tables[k], Q[:, k])
                 dt = d[tups]
                 Ct[:, k] += dt * half * _interp(bl.tables[k], Ct[:, k])
-        # limits: take-up points come before their move; axes in order
+        # where each point is emitted: take-ups right before their rows
+        order_pos = np.arange(nm) + np.cumsum(rev_any)
+        tpos = tups + np.arange(len(tups))
         if opts.limits is not None:
-            ok = self._limits(C, P, Pp, Ct, Pt, tups, moves, tk, i0)
+            ok = self._limits(C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0)
             if not ok:
                 return None
         # max correction per axis (um)
@@ -750,8 +756,6 @@ class FileEngine:
                 rep.max_correction_um[a] = cm
         # text (as scaled integers) of every evaluated point, in emission order
         ntot = nm + len(tups)
-        order_pos = np.arange(nm) + np.cumsum(rev_any)  # take-ups before each move
-        tpos = tups + np.arange(len(tups))  # take-up i sits right before its move
         N = np.empty((ntot, 3), np.int64)
         NEG = np.empty((ntot, 3), bool)
         G = np.empty((ntot, 3), np.float64)
@@ -809,9 +813,6 @@ class FileEngine:
             row_len[dropped] = 0
         gen = fullT.T[maskT.T]
         row_off = np.cumsum(row_len) - row_len
-        # assemble from a pool: this segment's input, then the generated rows. Per move:
-        # input up to its line, its take-up row, its "G0"/"G1", its row, a leading F word;
-        # the input then continues where its X/Y/Z words end.
         # assemble from a pool: this segment's input, the synthetic bytes (arc chords), then
         # the generated rows. Per row: input up to its line (the first row of a line), its
         # take-up row, its "G0"/"G1", its generated X/Y/Z, a leading F word, the chord's
@@ -894,15 +895,18 @@ class FileEngine:
         self._finish_counts(tk, i0, i1, cand, 0, 0)
         return tk.buf[int(tk.ls[i0]): int(tk.le[i1 - 1]) + 1]
 
-    def _limits(self, C, P, Pp, Ct, Pt, tups, moves, tk, i0) -> bool:
-        """Limits policy on all points, in emission order; False means 'policy error hit'."""
+    def _limits(self, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bool:
+        """Limits policy on all points, reported in emission order (take-up before its row,
+        axes in order, as the line path meets them); False means 'policy error hit', and
+        then nothing is counted (the line path raises at its line)."""
         comp = self.comp
         rep = comp.report
         lim = comp.options.limits
-        events = []  # (line index in block, 0 take-up / 1 move, axis, value)
+        events = []  # (emission position, axis, line index in block, value)
+        outside = 0
         for k in range(3):
             lo, hi = lim[2 * k], lim[2 * k + 1]
-            for arr_c, arr_p, rows, kind in ((Ct, Pt, tups, 0), (C, P, None, 1)):
+            for arr_c, arr_p, rows, pos in ((Ct, Pt, tups, tpos), (C, P, None, order_pos)):
                 if len(arr_c) == 0:
                     continue
                 inside = (arr_p[:, k] >= lo) & (arr_p[:, k] <= hi)
@@ -912,17 +916,18 @@ class FileEngine:
                         return False
                     idx = np.flatnonzero(hit)
                     line_rows = moves[rows[idx]] if rows is not None else moves[idx]
-                    for li, v in zip(line_rows.tolist(), arr_c[idx, k].tolist()):
-                        events.append((li, kind, k, v))
+                    for p, li, v in zip(pos[idx].tolist(), line_rows.tolist(),
+                                        arr_c[idx, k].tolist()):
+                        events.append((p, k, li, v))
                     if comp.options.policy == "clamp":
                         arr_c[idx, k] = np.clip(arr_c[idx, k], lo, hi)
-                if kind == 1:
-                    out = ~inside & (arr_p[:, k] != Pp[:, k])
-                    rep.source_outside += int(out.sum())
+                if rows is None:
+                    outside += int((~inside & (arr_p[:, k] != Pp[:, k])).sum())
+        rep.source_outside += outside
         if events:
             events.sort()
             base_line = comp.lineno - i0
-            for li, _kind, k, v in events:
+            for _p, k, li, v in events:
                 rep.limit_hits += 1
                 if len(rep.limit_examples) < 20:
                     rep.limit_examples.append((base_line + li + 1, "XYZ"[k], round(v, 6)))

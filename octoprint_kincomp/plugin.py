@@ -490,8 +490,10 @@ class KinCompPlugin(
             self._logger.exception("KinComp: could not ask the firmware for its settings")
 
     def _printing_now(self) -> bool:
+        """A print is under way (printing, pausing or paused)."""
         try:
-            return bool(self._printer.is_printing())
+            p = self._printer
+            return bool(p.is_printing() or p.is_pausing() or p.is_paused())
         except Exception:  # noqa: BLE001 - no printer state: trust the counts
             return True
 
@@ -896,7 +898,7 @@ class KinCompPlugin(
         if path is None:
             return _error(gettext("This run has no stored measurement file"), 404)
         name = _SAFE_NAME.sub("_", str(run.get("filename") or "trace"))[:100] or "trace"
-        return flask.send_file(path, mimetype="text/plain", as_attachment=True,
+        return flask.send_file(path, mimetype="application/octet-stream", as_attachment=True,
                                download_name=name)
 
     @octoprint.plugin.BlueprintPlugin.route("/compare", methods=["GET"])

@@ -109,9 +109,11 @@ class QueueCompensator:
     def _failed(self, cmd: str, exc: Exception):
         self.errors += 1
         self.last_error = {"command": cmd, "error": str(exc), "time": time.time()}
-        if not isinstance(exc, LimitError):
-            # an unexpected failure may leave the state half-updated: forget positions so
-            # nothing builds on it (a refused LimitError line leaves the state as it was)
+        if not isinstance(exc, LimitError) or self.pass_through_on_error:
+            # an unexpected failure may leave the state half-updated, and a line sent as
+            # written moves the head where the compensator did not put it: forget positions
+            # so nothing builds on them (a refused LimitError line that is not sent leaves the
+            # state as it was)
             self.comp.invalidate()
         if self.pass_through_on_error:
             self.passed_on_error += 1

@@ -17,7 +17,7 @@ import secrets
 import tempfile
 from typing import Any, Dict, List, Optional
 
-_ID = re.compile(r"^[0-9]{8}-[0-9]{6}-[0-9a-f]{6}$")
+_ID = re.compile(r"[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
 MAX_RUNS_LISTED = 500
 
 
@@ -46,7 +46,7 @@ class RunStore:
         os.makedirs(self.folder, exist_ok=True)
 
     def _path(self, run_id: str, suffix: str = ".json") -> str:
-        if not isinstance(run_id, str) or not _ID.match(run_id):
+        if not isinstance(run_id, str) or not _ID.fullmatch(run_id):
             raise RunNotFound(run_id)
         return os.path.join(self.folder, run_id + suffix)
 
@@ -82,7 +82,7 @@ class RunStore:
                        reverse=True)[:MAX_RUNS_LISTED]
         for name in names:
             run_id = name[:-5]
-            if not _ID.match(run_id):
+            if not _ID.fullmatch(run_id):
                 continue
             try:
                 run = self.get(run_id)

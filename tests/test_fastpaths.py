@@ -234,3 +234,31 @@ def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
     text = "\n".join(lines) + "\n"
     for params in ARC_PARAMS:
         assert engine(text, params, Options()) == general(text, params, Options())
+
+
+def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
+    """A retreat of the deadband plus an ulp (review finding): the vectorised shortcut used
+    step < -db where the tracker compares q < anchor - db; they round differently there."""
+    p = Params.from_dict({"backlash": {"x": 30.0}})
+    for lines, opts in (
+            (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
+            (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002))):
+        text = "\n".join(lines + [f"G1 X{3 + i}" for i in range(30)]) + "\n"
+        assert engine(text, p, opts) == general(text, p, opts)
+
+
+def test_limit_examples_of_arc_chords_come_in_emission_order():
+    import math
+
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
+    t = math.pi - 0.04
+    sx, sy = 1000 + 1000 * math.cos(t), 100 + 1000 * math.sin(t)
+    lines = ["G28", f"G1 X{sx:.3f} Y{sy:.3f} Z1",
+             f"G3 X0 Y100 I{1000 - sx:.3f} J{100 - sy:.3f}"] + [f"G1 X{3 + i} Y100"
+                                                              for i in range(30)]
+    text = "\n".join(lines) + "\n"
+    for policy in ("warn", "clamp"):
+        opts = Options(limits=(0, 300, 0, 300, 0, 300), policy=policy)
+        ref = general(text, p, opts)
+        assert len(ref[1]["limit_examples"]) >= 3
+        assert engine(text, p, opts) == ref

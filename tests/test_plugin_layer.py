@@ -293,6 +293,8 @@ def plugin(tmp_path):
     p._event_bus = mock.MagicMock()
     p._printer = mock.MagicMock()
     p._printer.is_printing.return_value = True
+    p._printer.is_pausing.return_value = False
+    p._printer.is_paused.return_value = False
     p._file_manager = mock.MagicMock()
     p._printer_profile_manager = mock.MagicMock()
     p._printer_profile_manager.get_current_or_default.return_value = {
@@ -634,3 +636,34 @@ def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
         with app.test_request_context("/status"):
             body = plugin.api_status().get_json()
     assert body["settings_problem"].startswith("limits_policy: must be one of")
+
+
+def test_a_line_sent_as_written_after_an_error_forgets_the_position():
+    """With "send as written on error" the refused line does go out: the head is where the
+    program put it, not where the compensator left it (review finding: the next Y-only move
+    drove X back by 100 mm)."""
+    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 1000}}),
+                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+                         enabled=True, pass_through_on_error=True)
+    for cmd in ("G28", "G1 X100 Y100 Z1"):
+        q.handle(cmd, {"source:file"})
+    assert q.handle("G1 X0.05 Y150", {"source:file"}) is None  # sent as written
+    assert q.comp.known == (False, False, False)
+    assert q.handle("G1 Y160", {"source:file"}) is None  # no X move the program never made
+
+
+def test_a_late_end_event_does_not_end_a_paused_next_print(plugin, tmp_path):
+    plain = tmp_path / "p.gcode"
+    plain.write_text("G28\n")
+    plugin._file_manager.path_on_disk.return_value = str(plain)
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
+                                                             "path": "p.gcode"}}
+    comm = object()
+    line = {"source:file", "fileline:1"}
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})  # print A
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)  # print B begins
+    plugin._printer.is_printing.return_value = False  # B is paused already
+    plugin._printer.is_paused.return_value = True
+    plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # A's, late
+    assert plugin.queue.printing

@@ -48,6 +48,14 @@ $(function () {
         return new PNotify(_.extend({title_escape: true, text_escape: true}, options));
     };
 
+    // a Flot point symbol (Flot itself draws only circles without its symbol plugin)
+    var drawCross = function (ctx, x, y, radius) {
+        ctx.moveTo(x - radius, y - radius);
+        ctx.lineTo(x + radius, y + radius);
+        ctx.moveTo(x - radius, y + radius);
+        ctx.lineTo(x + radius, y - radius);
+    };
+
     // a message of KinComp's core: {text, template, params} (params may be such messages
     // too), translated here; a plain string as it is
     var trMsg = function (msg) {
@@ -849,7 +857,7 @@ $(function () {
                 series.push({
                     data: [[cr.a / perDiv, cr.b / perDiv]],
                     color: "#333333",
-                    points: {show: true, radius: 3, symbol: "cross"},
+                    points: {show: true, radius: 4, symbol: drawCross},
                     lines: {show: false},
                     shadowSize: 0,
                     label: _.sprintf(gettext("fitted centre (%(a)s, %(b)s µm)"), {
