@@ -59,6 +59,11 @@ def page(browser, server):
     assert not kincomp_errors, kincomp_errors
 
 
+def _no_popups(page):
+    """Close OctoPrint's notification pop-ups so that they do not cover a screenshot."""
+    page.evaluate("document.querySelectorAll('.ui-pnotify').forEach(e => e.remove())")
+
+
 def _open_tab(page):
     """The Calibration tab; on a narrow layout OctoPrint moves tabs into an overflow menu."""
     if not page.is_visible("#tab_plugin_kincomp_link a"):
@@ -152,6 +157,7 @@ def test_calibration_wizard_demo_loop(page, server):
         shown = page.inner_text("#kincomp_result_table")
         assert f"{run['diagnostics']['squareness_um_per_m']:.2f}" in shown
         assert page.is_visible("text=SIMULATED data.")
+        _no_popups(page)
         page.locator("#kincomp_result").screenshot(path=os.path.join(SHOTS, "plot.png"))
         page.click("#kincomp_apply")
         page.wait_for_selector("#kincomp_state_on", state="visible")
@@ -180,6 +186,7 @@ def test_calibration_wizard_demo_loop(page, server):
         reduction = float(row.split()[-2])
         assert reduction > 90, row
         page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
+        _no_popups(page)
         page.locator("#kincomp_result").screenshot(
             path=os.path.join(SHOTS, "plot-before-after.png"))
         page.wait_for_selector("#kincomp_plot .legend >> text=fitted centre")
@@ -189,7 +196,8 @@ def test_calibration_wizard_demo_loop(page, server):
         assert page.locator("#kincomp_history tbody tr").count() >= 2
         assert page.is_visible(f"#kincomp_history >> text={run['params_before_hash']}")
         href = page.locator("#kincomp_history a.kincomp-trace-link").first.get_attribute("href")
-        code, text = server.request("GET", urllib.parse.urlparse(href).path)
+        path = urllib.parse.urlparse(urllib.parse.urljoin(page.url, href)).path
+        code, text = server.request("GET", path)
         assert code == 200 and "direction,time_s,reading_mm" in text
     finally:
         settings(server, demo={"enabled": False}, params=ZERO, enabled=False)

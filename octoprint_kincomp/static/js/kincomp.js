@@ -854,8 +854,15 @@ $(function () {
             // magnified like the deviations: where the test circle really was
             var cr = run.plot.centre_removed_um;
             if (cr) {
+                // off the scale: drawn at the edge in its direction (the legend has the value)
+                var ca = cr.a / perDiv, cb = cr.b / perDiv;
+                var off = Math.sqrt(ca * ca + cb * cb);
+                if (off > 6) {
+                    ca *= 6 / off;
+                    cb *= 6 / off;
+                }
                 series.push({
-                    data: [[cr.a / perDiv, cr.b / perDiv]],
+                    data: [[ca, cb]],
                     color: "#333333",
                     points: {show: true, radius: 4, symbol: drawCross},
                     lines: {show: false},
