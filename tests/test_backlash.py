@@ -7,7 +7,7 @@ from octoprint_kincomp.compensator import Compensator, Options
 from octoprint_kincomp.gcode import parse_command, parse_words
 from octoprint_kincomp.params import Params
 
-from .helpers import Printer, compensate_groups, desired_positions, dist
+from .helpers import Printer, compensate_groups, dist
 from .test_compensator import assert_lands
 
 BL = Params.from_dict({"backlash": {"x": 40.0, "y": 25.0}})
@@ -47,9 +47,10 @@ def test_per_side_values_are_the_local_step():
                                               {"at_mm": 210, "um": 4.4}]}})
     comp = Compensator(p, Options(decimals=6))
     comp.process("G28")
-    comp.process("G1 X210 Y0 Z1")
+    first = comp.process("G1 X210 Y0 Z1")
+    # from home (direction unknown) the +X move ends on +b/2, b taken at X=210: 4.4 um
+    assert xs(first[-1])["X"] == pytest.approx(210 + 0.0044 / 2, abs=1e-6)
     out = comp.process("G1 X10")  # reversal at X=210: step 4.4 um
-    before = 210 + 0.0374 / 2  # first move from unknown took up half of b(0)=37.4
     assert xs(out[0])["X"] == pytest.approx(210 - 0.0044 / 2, abs=1e-6)
     out = comp.process("G1 X210")  # reversal at X=10: step 37.4 um
     assert xs(out[0])["X"] - (10 - 0.0374 / 2) == pytest.approx(0.0374, abs=1e-6)

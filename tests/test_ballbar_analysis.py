@@ -98,9 +98,8 @@ def test_setup_offset_and_bar_error_do_not_leak():
 
 
 def test_angle_domain_trace():
-    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 150},
-                                           "scale_ppm": {"x": 100}}))
-    g = Geometry("XY", 100.0, (110, 110, 10), 1850.0, 0.0, 360.0)
+    """An angle-domain trace built from the first-order deviations of 150 um/m squareness
+    and 100 ppm scale mismatch is fitted back to them."""
     model_rows = []
     rng = np.random.default_rng(4)
     for direction, w in (("ccw", 1), ("cw", -1)):

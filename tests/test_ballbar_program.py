@@ -1,7 +1,6 @@
 """ISO 230-4 test programs (issue 7)."""
 
 import math
-import re
 
 import pytest
 

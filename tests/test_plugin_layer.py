@@ -1,7 +1,6 @@
 """The OctoPrint glue with mocked OctoPrint objects (issue 3)."""
 
 import io
-import json
 from unittest import mock
 
 import pytest

@@ -26,7 +26,6 @@ import os
 import re
 from functools import reduce
 
-import pytest
 from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from octoprint_kincomp import arcs, fastfile

@@ -1,6 +1,5 @@
 """End-to-end: a real OctoPrint (virtual printer) with KinComp, checked on serial.log."""
 
-import io
 import json
 import os
 import re
