@@ -166,6 +166,38 @@ class BacklashTracker:
             self.anchor[k] = c1[k] - self.target(k, c1[k])
 
 
+def hysteresis(q: List[float], d: int, a: Optional[float], q_start: float, db: float):
+    """:meth:`BacklashTracker.turn` along the commands ``q`` of one axis (mm) from direction
+    ``d`` and anchor ``a``, without changing a tracker: (direction after each point, reversal
+    at each point, last anchor). The file engine uses it where it cannot decide by steps."""
+    dirs, revs = [], []
+    for x in q:
+        new = 0
+        if d > 0:
+            if x >= a:
+                a = x
+            elif x < a - db:
+                new = -1
+        elif d < 0:
+            if x <= a:
+                a = x
+            elif x > a + db:
+                new = 1
+        else:
+            if a is None:
+                a = q_start
+            if x > a + db:
+                new = 1
+            elif x < a - db:
+                new = -1
+        if new:
+            d = new
+            a = x
+        dirs.append(d)
+        revs.append(new != 0)
+    return dirs, revs, a
+
+
 class Play:
     """The physical backlash of a printer (simulator side): a play of width ``b(q)`` per axis.
 

@@ -60,20 +60,27 @@ _NUMBER_BYTES = b"0123456789.+-"
 _FAST_MAX_LEN = 96
 
 
-def _fast_shapes() -> Dict[bytes, tuple]:
-    """shape -> (token index of X, Y, Z, E, F (0: absent), given axes, index of the first
-    token after X/Y/Z, F comes first)."""
-    shapes = {}
-    for mask in range(64):
-        on = [bool(mask >> i & 1) for i in range(6)]  # F first, X, Y, Z, E, F after
-        if on[0] and on[5]:
-            continue  # two F words: malformed, the general path reports it
+def word_shapes(letters: str):
+    """Every shape a fast path reads for words ``letters`` in this order, each one present or
+    not: (present flags, token index of each letter in ``line.split(" ")`` (0: absent), the
+    shape: the code and the letters with the numbers deleted, e.g. b"G X Y E")."""
+    for mask in range(1 << len(letters)):
+        on = [bool(mask >> i & 1) for i in range(len(letters))]
         idx, n = [], 1
         for present in on:
             idx.append(n if present else 0)
             n += present
-        letters = [c for c, present in zip("FXYZEF", on) if present]
-        key = " ".join(["G"] + letters).encode()
+        key = " ".join(["G"] + [c for c, present in zip(letters, on) if present]).encode()
+        yield on, idx, key
+
+
+def _fast_shapes() -> Dict[bytes, tuple]:
+    """shape -> (token index of X, Y, Z, E, F (0: absent), given axes, index of the first
+    token after X/Y/Z, F comes first)."""
+    shapes = {}
+    for on, idx, key in word_shapes("FXYZEF"):  # F first, X, Y, Z, E, F after
+        if on[0] and on[5]:
+            continue  # two F words: malformed, the general path reports it
         after_xyz = 1 + on[0] + on[1] + on[2] + on[3]
         shapes[key] = (idx[1], idx[2], idx[3], idx[4], idx[0] or idx[5],
                        (on[1], on[2], on[3]), after_xyz, on[0])

@@ -31,7 +31,9 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from . import arcs as _arcs
-from .compensator import MM_PER_INCH, Compensator, _EDist
+from .backlash import hysteresis
+from .compensator import (_FAST_MAX_LEN, _NUMBER_BYTES, MM_PER_INCH, Compensator, _EDist,
+                          word_shapes)
 from .gcode import Word
 from .lines import UNIVERSAL as _UNIVERSAL, join_output, split_ending
 
@@ -91,38 +93,6 @@ def _ffill_int(values: np.ndarray, start: int) -> np.ndarray:
     idx = np.where(values != 0, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], start)
-
-
-def _hysteresis(q: List[float], d: int, a: Optional[float], q_start: float, db: float):
-    """:meth:`BacklashTracker.turn` along the commands ``q`` of one axis (mm) from direction
-    ``d`` and anchor ``a``: (direction after each point, reversal at each point, last
-    anchor)."""
-    dirs, revs = [], []
-    for x in q:
-        new = 0
-        if d > 0:
-            if x >= a:
-                a = x
-            elif x < a - db:
-                new = -1
-        elif d < 0:
-            if x <= a:
-                a = x
-            elif x > a + db:
-                new = 1
-        else:
-            if a is None:
-                a = q_start
-            if x > a + db:
-                new = 1
-            elif x < a - db:
-                new = -1
-        if new:
-            d = new
-            a = x
-        dirs.append(d)
-        revs.append(new != 0)
-    return dirs, revs, a
 
 
 def _interp(table, q: np.ndarray) -> np.ndarray:
@@ -210,6 +180,20 @@ class _Formatter:
         return np.where(written, 2 + neg + nint + 1 + dec, 0)
 
 
+class _Chords(NamedTuple):
+    """The chord rows of a run's arcs (FileEngine._chords)."""
+
+    P: List[Tuple[float, float, float]]
+    given: List[Tuple[bool, bool, bool]]
+    line: List[int]
+    first: List[bool]  # the first chord of its arc (it takes the input before the arc)
+    post: List[Tuple[int, int]]  # (start, length) of the tail in the synthetic pool
+    synth: List[str]  # the synthetic pool: "G1", then the chord tails
+    n: int
+    last_e: Optional[Tuple[int, float]]  # (line, value) of the last E word of the arcs
+    last_f: Optional[Tuple[int, float]]
+
+
 class _Rows(NamedTuple):
     """Output rows of a vectorised run (moves and arc chords) and where their bytes come
     from: spans of the pool (segment input, then synthetic bytes); ``resume`` is where the
@@ -230,26 +214,8 @@ class _Rows(NamedTuple):
 
 
 # slicer-style arcs: G2/G3, then X Y I J E F words in this order (I or J at least), single
-# spaces, no comment; the numbers as in _SHAPES of the compensator
-_NUMBER_BYTES = b"0123456789.+-"
-
-
-def _arc_shapes() -> Dict[bytes, Tuple[int, ...]]:
-    """shape -> token index of X, Y, I, J, E, F (0: absent)."""
-    shapes = {}
-    for mask in range(64):
-        on = [bool(mask >> i & 1) for i in range(6)]  # X Y I J E F
-        if on[2] or on[3]:
-            idx, n = [], 1
-            for present in on:
-                idx.append(n if present else 0)
-                n += present
-            letters = [c for c, present in zip("XYIJEF", on) if present]
-            shapes[" ".join(["G"] + letters).encode()] = tuple(idx)
-    return shapes
-
-
-_ARC_SHAPES = _arc_shapes()
+# spaces, no comment; the numbers read as on the compensator's per-line fast path
+_ARC_SHAPES = {key: tuple(idx) for on, idx, key in word_shapes("XYIJEF") if on[2] or on[3]}
 
 
 class _Arc(NamedTuple):
@@ -269,7 +235,7 @@ def _parse_arc(raw: bytes) -> Optional[_Arc]:
     """A simple arc line (with its ending), or None for the compensator to handle."""
     crlf = raw[-2:] == b"\r\n"
     body = raw[:-2] if crlf else raw[:-1]
-    if len(body) > 96 or body[:3] not in (b"G2 ", b"G3 "):
+    if len(body) > _FAST_MAX_LEN or body[:3] not in (b"G2 ", b"G3 "):
         return None
     shape = _ARC_SHAPES.get(body.translate(None, _NUMBER_BYTES))
     if shape is None:
@@ -531,10 +497,74 @@ class FileEngine:
         for k in range(3):
             T[:, k] = _ffill(V[:, k] * u - comp.w[k], G[:, k], comp.m[k])
         arc_pos = np.flatnonzero(order >= nr)  # where the arcs are among the targets
+        seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
+        ch = self._chords(tk, i0, i1, arc_lines, arcs, T, arc_pos)
+        if ch is None:
+            return None
+        chord_P, chord_given, chord_line, chord_first, chord_post, synth = ch[:6]
+        n_chords, last_arc_e, last_arc_f = ch[6:]
+        # rows: moves and chords in output order
+        lines_all = np.concatenate([real, np.asarray(chord_line, np.int64)])
+        rorder = np.argsort(lines_all, kind="stable")
+        nrows = nr + n_chords
+        is_chord = rorder >= nr
+        P = np.empty((nrows, 3))
+        P[~is_chord] = T[order < nr]
+        P[is_chord] = np.asarray(chord_P, np.float64).reshape(-1, 3)
+        g3 = np.empty((nrows, 3), bool)
+        g3[~is_chord] = G[order < nr]
+        g3[is_chord] = np.asarray(chord_given, bool).reshape(-1, 3)
+        row_line = lines_all[rorder]
+        crlf = tk.crlf[row_line]
+        # byte spans: input (relative to the segment start), then the synthetic pool
+        base_syn = seg_end - seg_start
+        ls = tk.ls[row_line] - seg_start
+        code_s = np.where(is_chord, base_syn, ls)
+        fpre_s = np.zeros(nrows, np.int64)
+        fpre_l = np.zeros(nrows, np.int64)
+        rm = ~is_chord
+        fpre_s[rm] = tk.fpre_start[j0:j1] - seg_start
+        fpre_l[rm] = tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1]
+        post_s = np.zeros(nrows, np.int64)
+        post_l = np.zeros(nrows, np.int64)
+        cp = np.asarray(chord_post, np.int64).reshape(-1, 2)
+        post_s[is_chord] = base_syn + cp[:, 0]
+        post_l[is_chord] = cp[:, 1]
+        # where the input resumes after each row: after a move's X/Y/Z words, after the
+        # whole line of an arc's last chord; a chord other than the first takes no input
+        resume = np.empty(nrows, np.int64)
+        resume[rm] = tk.xyz_end[j0:j1] - seg_start
+        resume[is_chord] = tk.le[row_line[is_chord]] + 1 - seg_start
+        first = np.ones(nrows, bool)
+        first[is_chord] = np.asarray(chord_first, bool)
+        pre_s = np.empty(nrows, np.int64)
+        pre_s[0] = 0
+        pre_s[1:] = resume[:-1]
+        pre_l = np.where(first, ls - pre_s, 0)
+        pre_s = np.where(first, pre_s, 0)
+        rows = _Rows(P, g3, row_line, crlf, pre_s, pre_l, code_s, fpre_s, fpre_l, post_s,
+                     post_l, int(resume[-1]))
+        res = self._emit_rows(tk, i0, rows, tk.a[seg_start:seg_end],
+                              "".join(synth).encode("ascii"))
+        if res is None:
+            return None
+        out, n_take = res
+        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
+        self._finish_counts(tk, i0, i1, cand, nr + na, n_take, na, n_chords,
+                            last_arc_e, last_arc_f)
+        return out
+
+    def _chords(self, tk: "_Tokens", i0: int, i1: int, arc_lines: List[int],
+                arcs: Dict[int, "_Arc"], T: np.ndarray, arc_pos: np.ndarray
+                ) -> Optional["_Chords"]:
+        """The arcs of a run linearised as the line path does (``T``: the targets of moves
+        and arcs in line order, ``arc_pos``: the arcs among them): their chord rows and the
+        synthetic bytes of those rows; None when the line path has to decide."""
+        comp = self.comp
+        u = MM_PER_INCH if comp.inches else 1.0
         # E positions before each arc (absolute E only), from the E words of the run
         e_rel = comp.e_relative
         e_lines, e_starts, e_ends = tk.e_words(i0, i1)
-        seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
         breaks = comp._extreme_angles(17)
         tol = comp.options.chord_tol_mm
         synth = ["G1"]  # the synthetic pool: "G1", then the chord tails
@@ -613,56 +643,8 @@ class FileEngine:
                 last_arc_e = (a, e_word.value)
             if arc.f is not None:
                 last_arc_f = (a, arc.f)
-        # rows: moves and chords in output order
-        lines_all = np.concatenate([real, np.asarray(chord_line, np.int64)])
-        rorder = np.argsort(lines_all, kind="stable")
-        nrows = nr + n_chords
-        is_chord = rorder >= nr
-        P = np.empty((nrows, 3))
-        P[~is_chord] = T[order < nr]
-        P[is_chord] = np.asarray(chord_P, np.float64).reshape(-1, 3)
-        g3 = np.empty((nrows, 3), bool)
-        g3[~is_chord] = G[order < nr]
-        g3[is_chord] = np.asarray(chord_given, bool).reshape(-1, 3)
-        row_line = lines_all[rorder]
-        crlf = tk.crlf[row_line]
-        # byte spans: input (relative to the segment start), then the synthetic pool
-        base_syn = seg_end - seg_start
-        ls = tk.ls[row_line] - seg_start
-        code_s = np.where(is_chord, base_syn, ls)
-        fpre_s = np.zeros(nrows, np.int64)
-        fpre_l = np.zeros(nrows, np.int64)
-        rm = ~is_chord
-        fpre_s[rm] = tk.fpre_start[j0:j1] - seg_start
-        fpre_l[rm] = tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1]
-        post_s = np.zeros(nrows, np.int64)
-        post_l = np.zeros(nrows, np.int64)
-        cp = np.asarray(chord_post, np.int64).reshape(-1, 2)
-        post_s[is_chord] = base_syn + cp[:, 0]
-        post_l[is_chord] = cp[:, 1]
-        # where the input resumes after each row: after a move's X/Y/Z words, after the
-        # whole line of an arc's last chord; a chord other than the first takes no input
-        resume = np.empty(nrows, np.int64)
-        resume[rm] = tk.xyz_end[j0:j1] - seg_start
-        resume[is_chord] = tk.le[row_line[is_chord]] + 1 - seg_start
-        first = np.ones(nrows, bool)
-        first[is_chord] = np.asarray(chord_first, bool)
-        pre_s = np.empty(nrows, np.int64)
-        pre_s[0] = 0
-        pre_s[1:] = resume[:-1]
-        pre_l = np.where(first, ls - pre_s, 0)
-        pre_s = np.where(first, pre_s, 0)
-        rows = _Rows(P, g3, row_line, crlf, pre_s, pre_l, code_s, fpre_s, fpre_l, post_s,
-                     post_l, int(resume[-1]))
-        res = self._emit_rows(tk, i0, rows, tk.a[seg_start:seg_end],
-                              "".join(synth).encode("ascii"))
-        if res is None:
-            return None
-        out, n_take = res
-        cand = np.flatnonzero(tk.cand[i0:i1]) + i0
-        self._finish_counts(tk, i0, i1, cand, nr + na, n_take, na, n_chords,
-                            last_arc_e, last_arc_f)
-        return out
+        return _Chords(chord_P, chord_given, chord_line, chord_first, chord_post, synth,
+                       n_chords, last_arc_e, last_arc_f)
 
     # -- the vectorised computation ------------------------------------------------------
     def _emit_rows(self, tk: "_Tokens", i0: int, rows: "_Rows", seg: np.ndarray,
@@ -711,8 +693,8 @@ class FileEngine:
                         ~up & ~down & (Q[:, k] != Qp[:, k])):
                     # the anchor is not the current command somewhere: the tracker's
                     # hysteresis, point by point (arcs put chord ends next to reversals)
-                    dk, rk, anchors[k] = _hysteresis(Q[:, k].tolist(), bl.dir[k], a, q0[k],
-                                                     bl.deadband)
+                    dk, rk, anchors[k] = hysteresis(Q[:, k].tolist(), bl.dir[k], a, q0[k],
+                                                    bl.deadband)
                     dirs_after[:, k] = dk
                     rev_any |= np.asarray(rk, bool)
                     continue

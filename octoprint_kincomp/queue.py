@@ -161,10 +161,6 @@ class QueueCompensator:
             self.set_enabled(enabled)
             return True
 
-    def set_params(self, params: Params, options: Options, immediately: bool) -> bool:
-        """New parameters, compensation switched as it is now (see :meth:`configure`)."""
-        return self.configure(params, options, self.enabled, immediately)
-
     def _swap(self, params: Params, options: Options) -> None:
         new = Compensator(params, options)
         new.adopt_state(self.comp)

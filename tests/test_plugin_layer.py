@@ -154,7 +154,7 @@ def test_new_params_wait_for_the_next_print_unless_forced():
     q = QueueCompensator(SKEW, Options(), enabled=True)
     q.print_started(False)
     new = Params.from_dict({"scale_ppm": {"x": 500.0}})
-    assert q.set_params(new, Options(), immediately=False) is False
+    assert q.configure(new, Options(), True, immediately=False) is False
     assert q.params.hash() == SKEW.hash() and q.status()["pending_params_hash"] == new.hash()
     q.print_ended()
     assert q.params.hash() == new.hash()
@@ -164,7 +164,7 @@ def test_new_params_wait_for_the_next_print_unless_forced():
     q.print_started(False)
     q.handle("G28")
     q.handle("G1 X100 Y100 Z1")
-    assert q.set_params(SKEW, Options(), immediately=True) is True
+    assert q.configure(SKEW, Options(), True, immediately=True) is True
     assert q.comp.known == (True, True, True)
     out = q.handle("G1 X100 Y101")
     # new model at once: x = 100 - 1000 um/m * 101 mm = 99.899, X reverses: -10 um backlash
