@@ -438,15 +438,21 @@ def test_new_connection_forgets_positions_synchronously(plugin):
     assert any("uncompensated because the printer's position is unknown" in t for t in texts)
 
 
+def _printing_plain_file(plugin, tmp_path, job=True):
+    """The printer's current job is a local file without KinComp's marker."""
+    plain = tmp_path / "p.gcode"
+    plain.write_text("G28\n")
+    plugin._file_manager.path_on_disk.return_value = str(plain)
+    if job:
+        plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
+                                                                 "path": "p.gcode"}}
+
+
 def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
     """PRINT_STARTED before or after the first file line: one print begins; a PrintDone of
     the previous print that arrives after the next print's first line is ignored."""
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
-    plain = tmp_path / "p.gcode"
-    plain.write_text("G28\n")
-    plugin._file_manager.path_on_disk.return_value = str(plain)
-    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
-                                                             "path": "p.gcode"}}
+    _printing_plain_file(plugin, tmp_path)
     comm = object()
     line = {"source:file", "fileline:1"}
     # print A: the event first, then its first line
@@ -476,9 +482,7 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
 
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
                              "mode": "background"})
-    plain = tmp_path / "p.gcode"
-    plain.write_text("G28\n")
-    plugin._file_manager.path_on_disk.return_value = str(plain)
+    _printing_plain_file(plugin, tmp_path, job=False)
     in_lookup = threading.Event()
 
     def slow_job():  # the hook is between its check and its action for 0.3 s
@@ -574,11 +578,7 @@ def test_request_flags_must_be_booleans(plugin):
 def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_path):
     """Should the start/end counts ever drift (a print begun by the hook whose start event
     never came), the next end event with nothing printing still ends the print."""
-    plain = tmp_path / "p.gcode"
-    plain.write_text("G28\n")
-    plugin._file_manager.path_on_disk.return_value = str(plain)
-    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
-                                                             "path": "p.gcode"}}
+    _printing_plain_file(plugin, tmp_path)
     plugin.queuing_hook(object(), "queuing", "G28", None, "G28",
                         tags={"source:file", "fileline:1"})
     plugin._prints_begun += 1  # drifted
@@ -652,11 +652,7 @@ def test_a_line_sent_as_written_after_an_error_forgets_the_position():
 
 
 def test_a_late_end_event_does_not_end_a_paused_next_print(plugin, tmp_path):
-    plain = tmp_path / "p.gcode"
-    plain.write_text("G28\n")
-    plugin._file_manager.path_on_disk.return_value = str(plain)
-    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
-                                                             "path": "p.gcode"}}
+    _printing_plain_file(plugin, tmp_path)
     comm = object()
     line = {"source:file", "fileline:1"}
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})  # print A
