@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from . import arcs
+from . import kernel as _kernel
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
 from .gcode import Word, decimals_of, fmt, parse_command, parse_words
 from .kinematics import KinematicModel
@@ -283,6 +284,8 @@ class Compensator:
         self._bl_axes = tuple(k for k in range(3) if self.backlash.active[k])
         self._um_at = tuple(_um_function(self.backlash.tables[k]) if self.backlash.active[k]
                             else None for k in range(3))
+        # the fast path compiled, where it was built (kernel.py); None: _fast_line
+        self._kernel = _kernel.for_compensator(self)
         self.reset()
 
     def _inverse_coupling(self):
@@ -363,7 +366,12 @@ class Compensator:
     def process(self, line: str) -> Union[str, List[str]]:
         if self._guarded:
             return self._process_guarded(line)
-        if self.fast_lines and line[:3] in _FAST_PREFIXES and self.absolute and \
+        kernel = self._kernel
+        if kernel is not None and self.fast_lines:
+            out = kernel.line(self, line)  # (it checks what the condition below checks)
+            if out is not None:
+                return out
+        elif self.fast_lines and line[:3] in _FAST_PREFIXES and self.absolute and \
                 None not in self.m:
             out = self._fast_line(line)
             if out is not None:

@@ -266,6 +266,9 @@ class FileEngine:
 
     def __init__(self, comp: Compensator):
         self.comp = comp
+        # the compiled fast path, where it was built: it takes the move lines one by one
+        # at a fraction of the cost of the vectorised path (kernel.py)
+        self.kernel = comp._kernel if comp.fast_lines else None
         self.vector_ok = comp.fast_lines
 
     # -- driver --------------------------------------------------------------------------
@@ -292,7 +295,7 @@ class FileEngine:
                 if first:
                     self._start(block, header, check_first, write)
                     first = False
-                job = (block, pool.submit(_Tokens, block) if self.vector_ok else None)
+                job = (block, pool.submit(_Tokens, block) if self._vectorised(block) else None)
                 if pending is not None:
                     write(self._finish_block(*pending))
                 pending = job
@@ -343,7 +346,9 @@ class FileEngine:
     # -- one block of complete lines ------------------------------------------------------
     def chunk(self, buf: bytes, tk: Optional["_Tokens"] = None) -> bytes:
         """Compensate one block of complete lines (``tk``: its tokens, if already made)."""
-        if not self.vector_ok:
+        if not self._vectorised(buf):
+            if self.kernel is not None:
+                return self._kernel_chunk(buf)
             return self._lines(buf, 0, None)
         if tk is None:
             tk = _Tokens(buf)
@@ -376,6 +381,28 @@ class FileEngine:
             i = b + 1
         if len(pieces) == 1 and not isinstance(pieces[0], bytes):
             return pieces[0]
+        return b"".join(pieces)
+
+    def _vectorised(self, buf: bytes) -> bool:
+        """Whether this block takes the vectorised path: where the model allows it, if
+        there is no kernel, or if the block has slicer-style arcs (the vectorised path
+        linearises them in bulk; the kernel would leave each to the line path)."""
+        return self.vector_ok and (self.kernel is None or buf.startswith((b"G2 ", b"G3 "))
+                                   or b"\nG2 " in buf or b"\nG3 " in buf)
+
+    def _kernel_chunk(self, buf: bytes) -> bytes:
+        """One block through the compiled kernel; each line it does not take (state
+        changes, arcs, M-codes, a lone CR ...) through the compensator."""
+        feed, comp = self.kernel.feed, self.comp
+        pieces = []
+        pos, size = 0, len(buf)
+        while pos < size:
+            out, stop = feed(comp, buf, pos)
+            pieces.append(out)
+            if stop >= size:
+                break
+            pos = buf.index(b"\n", stop) + 1
+            pieces.append(self._lines(buf, stop, pos))
         return b"".join(pieces)
 
     def _lines(self, buf: bytes, start: int, end: Optional[int]) -> bytes:
@@ -1041,7 +1068,10 @@ class _Tokens:
             e0 = te[xi]
             too_long = (e0 - s0) > NUM_WIDTH
             self.move_bad_number[move_of[too_long]] = True
-            self.move_vals[move_of, letter[xi] - 1] = _parse_numbers(a, s0, e0, dots[xi])
+            vals = np.full(len(xi), np.nan)  # (a long one is not parsed: its line breaks)
+            fit = ~too_long
+            vals[fit] = _parse_numbers(a, s0[fit], e0[fit], dots[xi][fit])
+            self.move_vals[move_of, letter[xi] - 1] = vals
             self.xyz_end[move_of] = e0  # X/Y/Z words are contiguous: the last one ends them
         # a leading F word of a move line (the output moves it after X/Y/Z)
         self.fpre_start = np.zeros(nm, np.int64)

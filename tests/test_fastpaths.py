@@ -1,8 +1,10 @@
 """The fast paths give exactly what the general path gives (issue 5).
 
-Two fast paths exist: the per-line fast branch of Compensator.process (the queuing hook) and
-the vectorised file engine (fastfile.py). Both must produce the same text and report as the
-general, line-by-line path on real slicer files and on awkward generated programs."""
+The fast paths: the per-line fast branch of Compensator.process (the queuing hook), in
+Python and compiled (kernel.py), and the file engine (fastfile.py), which runs the compiled
+kernel over a block, or vectorises it with numpy (blocks with slicer arcs, or no kernel).
+Each must produce the same text and report as the general, line-by-line path on real
+slicer files and on awkward generated programs, with the kernel and without it."""
 
 import io
 import os
@@ -17,6 +19,7 @@ from octoprint_kincomp.fileproc import (
 from octoprint_kincomp.params import Params
 
 from .gcodegen import random_program
+from .helpers import kernel
 
 SAMPLES = os.path.join(os.path.dirname(__file__), "data")
 PARAMS = [
@@ -39,19 +42,23 @@ def general(text: str, params, options):
     return out, comp.report.to_dict()
 
 
-def per_line(text: str, params, options):
-    comp = Compensator(params, options)
+def per_line(text: str, params, options, compiled=True):
+    with kernel(compiled):
+        comp = Compensator(params, options)
+    assert (comp._kernel is not None) == (compiled and comp.fast_lines)
     out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
     return out, comp.report.to_dict()
 
 
-def engine(text: str, params, options, chunk=None):
+def engine(text: str, params, options, chunk=None, compiled=True):
     if chunk:
         old = fastfile.CHUNK_BYTES
         fastfile.CHUNK_BYTES = chunk
     try:
         dst = io.BytesIO()
-        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params, options)
+        with kernel(compiled):
+            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
+                                    options)
     finally:
         if chunk:
             fastfile.CHUNK_BYTES = old
@@ -60,8 +67,9 @@ def engine(text: str, params, options, chunk=None):
 
 def check_all(text, params, options, chunk=None):
     ref = general(text, params, options)
-    assert per_line(text, params, options) == ref
-    assert engine(text, params, options, chunk) == ref
+    for compiled in (True, False):
+        assert per_line(text, params, options, compiled) == ref, compiled
+        assert engine(text, params, options, chunk, compiled) == ref, compiled
 
 
 def sample(name):
@@ -92,7 +100,9 @@ def test_benchmark_style_file(tmp_path):
     generate(str(path), 30000)
     text = path.read_text()
     for params in PARAMS:
-        assert engine(text, params, Options()) == general(text, params, Options())
+        ref = general(text, params, Options())
+        assert engine(text, params, Options()) == ref
+        assert engine(text, params, Options(), compiled=False) == ref
 
 
 def test_lone_cr_and_missing_newline():
@@ -109,9 +119,10 @@ def test_limit_error_raised_at_the_same_line():
     opts = Options(limits=(0, 200, 0, 200, 0, 250), policy="error")
     with pytest.raises(LimitError) as a:
         general(text, params, opts)
-    with pytest.raises(LimitError) as b:
-        engine(text, params, opts)
-    assert str(a.value) == str(b.value)
+    for compiled in (True, False):
+        with pytest.raises(LimitError) as b:
+            engine(text, params, opts, compiled=compiled)
+        assert str(a.value) == str(b.value)
 
 
 def test_fast_line_falls_back_on_malformed_numbers():
@@ -141,6 +152,7 @@ def test_fast_line_shapes_agree_with_the_general_path(params):
         text = "G28\nG1 X10 Y10 Z1 E0\n" + line + "\nG1 X20 Y20\n"
         ref = general(text, params, Options())
         assert per_line(text, params, Options()) == ref, line
+        assert per_line(text, params, Options(), compiled=False) == ref, line
 
 
 def arc_program(seed: int, n: int = 500, e_mode: str = "absolute", crlf=False) -> str:
@@ -217,10 +229,11 @@ def test_arcs_are_vectorised_with_the_same_output(seed):
         taken.append(out is not None)
         return out
 
-    with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
-        got = engine(text, params, options, chunk=4093 if seed % 2 else None)
     ref = general(text, params, options)
-    assert got == ref
+    for compiled in (True, False):  # blocks with arcs take the vectorised path either way
+        with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
+            got = engine(text, params, options, 4093 if seed % 2 else None, compiled)
+        assert got == ref
     assert ref[1]["arcs_linearised"] > 100
     assert taken and any(taken)  # the vectorised arc path did the work
 
@@ -233,7 +246,9 @@ def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
         for a in range(1, 40)]
     text = "\n".join(lines) + "\n"
     for params in ARC_PARAMS:
-        assert engine(text, params, Options()) == general(text, params, Options())
+        ref = general(text, params, Options())
+        assert engine(text, params, Options()) == ref
+        assert engine(text, params, Options(), compiled=False) == ref
 
 
 def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
@@ -244,7 +259,7 @@ def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
             (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
             (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002))):
         text = "\n".join(lines + [f"G1 X{3 + i}" for i in range(30)]) + "\n"
-        assert engine(text, p, opts) == general(text, p, opts)
+        check_all(text, p, opts)
 
 
 def test_limit_examples_of_arc_chords_come_in_emission_order():
@@ -262,3 +277,4 @@ def test_limit_examples_of_arc_chords_come_in_emission_order():
         ref = general(text, p, opts)
         assert len(ref[1]["limit_examples"]) >= 3
         assert engine(text, p, opts) == ref
+        assert engine(text, p, opts, compiled=False) == ref

@@ -12,7 +12,8 @@ spacing, lowercase, ``N<n> ... *<checksum>``, unknown commands and garbage. Prop
   program asks for (1e-6 mm at 6 decimals), also with backlash;
 * no input line, however broken, makes the compensator raise; malformed motion lines pass
   unchanged and are counted;
-* the vectorised file engine writes the same bytes and report as the per-line reference.
+* the file engine writes the same bytes and report as the per-line reference, and the
+  compiled kernel (kernel.py) the same as the pure-Python paths.
 
 The oracle for "where the program asks the head to go" is the firmware-like interpreter
 (:mod:`octoprint_kincomp.machine`); the printer replays the output with the true errors
@@ -36,7 +37,7 @@ from octoprint_kincomp.fileproc import (
 from octoprint_kincomp.machine import FirmwareInterpreter
 from octoprint_kincomp.params import Params
 
-from .helpers import Printer, dist
+from .helpers import Printer, dist, kernel
 
 # Reproducible by default (derandomised, no example database, no deadline for slow CI
 # runners). KINCOMP_FUZZ_SCALE=N runs N times the examples with fresh random seeds (a deeper,
@@ -754,8 +755,9 @@ def gcode_file(draw):
     return "".join(a + b for a, b in zip(lines, ends))
 
 
-def _reference(text, p, opts, fast_lines=True):
-    comp = Compensator(p, opts)
+def _reference(text, p, opts, fast_lines=True, compiled=True):
+    with kernel(compiled):
+        comp = Compensator(p, opts)
     comp.fast_lines = comp.fast_lines and fast_lines
     try:
         out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(p)))
@@ -764,12 +766,13 @@ def _reference(text, p, opts, fast_lines=True):
     return out.encode(ENCODING, ERRORS), comp.report.to_dict()
 
 
-def _engine(text, p, opts, chunk):
+def _engine(text, p, opts, chunk, compiled=True):
     old = fastfile.CHUNK_BYTES
     fastfile.CHUNK_BYTES = chunk or old
     try:
         dst = io.BytesIO()
-        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, p, opts)
+        with kernel(compiled):
+            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, p, opts)
     except LimitError as exc:
         return "error", str(exc)
     finally:
@@ -805,6 +808,8 @@ UNICODE_INDENT_FILE = ("G28\nG1 X10 Y10 Z1\n" + "".join(f"G1 X{i} Y{i}\n" for i 
 def test_file_engine_matches_the_per_line_reference(text, p, opts, chunk):
     ref = _reference(text, p, opts)
     assert _reference(text, p, opts, fast_lines=False) == ref  # general == per-line fast
+    assert _reference(text, p, opts, compiled=False) == ref  # compiled == Python
+    assert _engine(text, p, opts, chunk, compiled=False) == ref  # vectorised, no kernel
     got = _engine(text, p, opts, chunk)
     if ref[0] != "error" and got[0] != "error" and got[0] != ref[0]:
         a, b = ref[0], got[0]
