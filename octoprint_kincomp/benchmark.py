@@ -8,8 +8,10 @@ comments, layer changes; optionally 20 % G2/G3 arcs), then measures in the same 
 * peak RSS growth of a file compensation (run in a child process);
 * the per-line cost of the queuing-hook path for a ``G1`` line (p50/p99).
 
-Before timing, the fast path is checked line for line against the reference path.
-Figures are printed; nothing here asserts a time (targets live in the README).
+Each is measured with the compiled kernel (kernel.py), where it was built, and with the
+pure-Python paths (what an installation without a C compiler runs). Before timing, every
+engine is checked line for line against the reference path. Figures are printed; nothing
+here asserts a time (targets live in the README).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import tempfile
 import time
 from typing import Optional
 
+from . import kernel
 from .params import Params
 
 BENCH_PARAMS = {
@@ -150,8 +153,13 @@ def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional
     return comp.report
 
 
+def engines() -> list:
+    """The engines measured: "compiled" (if the kernel was built) and "python"."""
+    return (["compiled"] if kernel.available() else []) + ["python"]
+
+
 def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = None) -> dict:
-    """Compare the fast file engine with the reference path line for line."""
+    """Compare each file engine with the reference path line for line."""
     from .fileproc import compensate_file
 
     part = src
@@ -165,39 +173,42 @@ def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = No
     ref_out = os.path.join(workdir, "ref.gcode")
     fast_out = os.path.join(workdir, "fast.gcode")
     ref_rep = reference_compensate(part, ref_out, params)
-    fast_rep = compensate_file(part, fast_out, params)
-    lines = 0
-    with open(ref_out, "rb") as a, open(fast_out, "rb") as b:
-        for la, lb in zip(a, b):
-            lines += 1
-            if la != lb:
-                raise AssertionError(f"fast path differs from the reference at output line "
-                                     f"{lines}: {la!r} != {lb!r}")
-        if a.read(1) or b.read(1):
-            raise AssertionError("fast path and reference differ in length")
-    if ref_rep.to_dict() != fast_rep.to_dict():
-        raise AssertionError("fast path and reference reports differ")
-    return {"verified_lines": lines, "identical": True}
+    for name in engines():
+        with kernel.switched(name == "compiled"):
+            fast_rep = compensate_file(part, fast_out, params)
+        lines = 0
+        with open(ref_out, "rb") as a, open(fast_out, "rb") as b:
+            for la, lb in zip(a, b):
+                lines += 1
+                if la != lb:
+                    raise AssertionError(f"{name} engine differs from the reference at output "
+                                         f"line {lines}: {la!r} != {lb!r}")
+            if a.read(1) or b.read(1):
+                raise AssertionError(f"{name} engine and reference differ in length")
+        if ref_rep.to_dict() != fast_rep.to_dict():
+            raise AssertionError(f"{name} engine and reference reports differ")
+    return {"verified_lines": lines, "identical": True, "engines": engines()}
 
 
 def _child_rss(src: str, dst: str, params_json: str) -> dict:
     """Compensate in a fresh interpreter; its RSS (kB) after imports and at the peak."""
     code = (
-        "import json,resource,sys\n"
+        "import json,sys\n"
         "from octoprint_kincomp.params import Params\n"
         "from octoprint_kincomp.fileproc import compensate_file\n"
         "import octoprint_kincomp.fastfile, numpy\n"
         "p=Params.from_json(sys.argv[3])\n"
-        "def rss():\n"
+        "def status(key):\n"
         "    for l in open('/proc/self/status'):\n"
-        "        if l.startswith('VmRSS:'): return int(l.split()[1])\n"
-        "before=rss()\n"
+        "        if l.startswith(key): return int(l.split()[1])\n"
+        "before=status('VmRSS:')\n"
         "compensate_file(sys.argv[1], sys.argv[2], p)\n"
-        "peak=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        # this process's own high-water mark (ru_maxrss may carry the parent's RSS at fork)
+        "peak=status('VmHWM:')\n"
         "print(json.dumps({'before_kb': before, 'peak_kb': peak}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, src, dst, params_json],
-                         capture_output=True, text=True, check=True)
+                         capture_output=True, text=True, check=True, env=dict(os.environ))
     return json.loads(out.stdout)
 
 
@@ -241,22 +252,24 @@ def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = F
     res["file_mb"] = os.path.getsize(src) / 1e6
     res["verify"] = verify(src, params, tmp, verify_lines)
     repeat = 1 if quick else 5
-    t_copy, t_comp = _paired(lambda: plain_copy(src, dst),
-                             lambda: compensate_file(src, dst, params), repeat)
-    t_copy_arc, t_comp_arc = _paired(lambda: plain_copy(arc_src, dst),
-                                     lambda: compensate_file(arc_src, dst, params), repeat)
-    res.update(
-        copy_s=t_copy, compensate_s=t_comp, ratio=t_comp / t_copy,
-        lines_per_s=res["lines"] / t_comp,
-        arc_copy_s=t_copy_arc, arc_compensate_s=t_comp_arc, arc_ratio=t_comp_arc / t_copy_arc,
-        arc_lines_per_s=res["arc_lines"] / t_comp_arc,
-    )
-    rss = _child_rss(src, dst, params.to_json())
-    rss["growth_mb"] = (rss["peak_kb"] - rss["before_kb"]) / 1024.0
-    res["rss"] = rss
     with open(src) as f:
         sample = [next(f).rstrip("\n") for _ in range(min(200000, res["lines"]))]
-    res["hook"] = hook_latency(params, sample)
+    res["engines"] = {}
+    for name in engines():
+        with kernel.switched(name == "compiled"):
+            t_copy, t_comp = _paired(lambda: plain_copy(src, dst),
+                                     lambda: compensate_file(src, dst, params), repeat)
+            t_copy_arc, t_comp_arc = _paired(
+                lambda: plain_copy(arc_src, dst), lambda: compensate_file(arc_src, dst, params),
+                repeat)
+            rss = _child_rss(src, dst, params.to_json())
+            rss["growth_mb"] = (rss["peak_kb"] - rss["before_kb"]) / 1024.0
+            res["engines"][name] = dict(
+                copy_s=t_copy, compensate_s=t_comp, ratio=t_comp / t_copy,
+                lines_per_s=res["lines"] / t_comp,
+                arc_copy_s=t_copy_arc, arc_compensate_s=t_comp_arc,
+                arc_ratio=t_comp_arc / t_copy_arc, arc_lines_per_s=res["arc_lines"] / t_comp_arc,
+                rss=rss, hook=hook_latency(params, sample))
     return res
 
 
@@ -274,16 +287,20 @@ def main(argv=None) -> int:
         return 0
     print(f"file: {res['lines']} lines, {res['file_mb']:.1f} MB "
           "(squareness + scale + backlash active)")
-    print(f"verified: fast engine == reference path on {res['verify']['verified_lines']} "
-          "output lines")
-    print(f"plain copy            {res['copy_s']:7.2f} s")
-    print(f"compensate            {res['compensate_s']:7.2f} s  "
-          f"{res['lines_per_s'] / 1e3:8.0f} klines/s  ratio {res['ratio']:.1f}x")
-    print(f"arcs (20%): copy      {res['arc_copy_s']:7.2f} s")
-    print(f"arcs (20%): compensate{res['arc_compensate_s']:7.2f} s  "
-          f"{res['arc_lines_per_s'] / 1e3:8.0f} klines/s  ratio {res['arc_ratio']:.1f}x")
-    print(f"peak RSS growth       {res['rss']['growth_mb']:7.1f} MB")
-    h = res["hook"]
-    print(f"hook path, G1 line    p50 {h['p50_us']:.2f} us  p99 {h['p99_us']:.2f} us "
-          f"({h['takeup_share'] * 100:.0f} % of moves need a backlash take-up)")
+    print(f"verified: {' and '.join(res['verify']['engines'])} engine == reference path on "
+          f"{res['verify']['verified_lines']} output lines")
+    if "compiled" not in res["engines"]:
+        print("(the compiled kernel is not built here: pure-Python figures only)")
+    for name, e in res["engines"].items():
+        print(f"-- {name} engine")
+        print(f"plain copy            {e['copy_s']:7.2f} s")
+        print(f"compensate            {e['compensate_s']:7.2f} s  "
+              f"{e['lines_per_s'] / 1e3:8.0f} klines/s  ratio {e['ratio']:.1f}x")
+        print(f"arcs (20%): copy      {e['arc_copy_s']:7.2f} s")
+        print(f"arcs (20%): compensate{e['arc_compensate_s']:7.2f} s  "
+              f"{e['arc_lines_per_s'] / 1e3:8.0f} klines/s  ratio {e['arc_ratio']:.1f}x")
+        print(f"peak RSS growth       {e['rss']['growth_mb']:7.1f} MB")
+        h = e["hook"]
+        print(f"hook path, G1 line    p50 {h['p50_us']:.2f} us  p99 {h['p99_us']:.2f} us "
+              f"({h['takeup_share'] * 100:.0f} % of moves need a backlash take-up)")
     return 0

@@ -13,8 +13,9 @@ on the pure-Python paths, only slower. ``KINCOMP_KERNEL=0`` in the environment t
 off. The tests run every equivalence check with and without it.
 """
 
+import contextlib
 import os
-from typing import Optional
+from typing import Iterator, Optional
 
 try:  # built by setup.py when a C compiler is there
     from . import _kernel
@@ -37,3 +38,18 @@ def for_compensator(comp) -> Optional[object]:
         return None
     return _kernel.Kernel(comp._affine, tables, comp._half, bl.deadband,
                           comp.options.limits, comp.options.decimals)
+
+
+@contextlib.contextmanager
+def switched(on: bool) -> Iterator[None]:
+    """Compensators made inside use the kernel (if built) or, ``on=False``, the pure-Python
+    paths (what an installation without a C compiler runs): benchmarks and tests."""
+    old = os.environ.get("KINCOMP_KERNEL")
+    os.environ["KINCOMP_KERNEL"] = "1" if on else "0"
+    try:
+        yield
+    finally:
+        if old is None:
+            del os.environ["KINCOMP_KERNEL"]
+        else:
+            os.environ["KINCOMP_KERNEL"] = old

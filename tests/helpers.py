@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 from typing import List, Sequence, Tuple
 
 from octoprint_kincomp.backlash import Play
 from octoprint_kincomp.compensator import Compensator, Options
+from octoprint_kincomp.kernel import switched as kernel  # noqa: F401 (for the tests)
 from octoprint_kincomp.kinematics import KinematicModel
 from octoprint_kincomp.machine import FirmwareInterpreter, Home, Move
 from octoprint_kincomp.params import Params
@@ -81,19 +80,4 @@ def dist_to_polyline(p, pts) -> float:
     t = np.clip(np.einsum("ij,ij->i", ab, ap) / np.where(L2 == 0, 1, L2), 0.0, 1.0)
     closest = a + t[:, None] * ab
     return float(np.min(np.linalg.norm(closest - np.asarray(p), axis=1)))
-
-
-@contextlib.contextmanager
-def kernel(on: bool):
-    """Compensators made inside use the compiled kernel (as built: see test_kernel) or, off,
-    the pure-Python fast paths (what an installation without a C compiler runs)."""
-    old = os.environ.get("KINCOMP_KERNEL")
-    os.environ["KINCOMP_KERNEL"] = "1" if on else "0"
-    try:
-        yield
-    finally:
-        if old is None:
-            del os.environ["KINCOMP_KERNEL"]
-        else:
-            os.environ["KINCOMP_KERNEL"] = old
 
