@@ -273,28 +273,25 @@ python:
     return 1;
 }
 
-static int set_ll(PyObject *d, PyObject *name, long long v, long long old)
+/* d[name] = o, o a new reference (consumed; NULL: the error is passed on). */
+static int set_owned(PyObject *d, PyObject *name, PyObject *o)
 {
-    PyObject *o;
-    int r;
-    if (v == old)
-        return 0;
-    if (!(o = PyLong_FromLongLong(v)))
-        return -1;
-    r = PyDict_SetItem(d, name, o);
-    Py_DECREF(o);
-    return r;
-}
-
-static int set_double(PyObject *d, PyObject *name, double v)
-{
-    PyObject *o = PyFloat_FromDouble(v);
     int r;
     if (o == NULL)
         return -1;
     r = PyDict_SetItem(d, name, o);
     Py_DECREF(o);
     return r;
+}
+
+static int set_ll(PyObject *d, PyObject *name, long long v, long long old)
+{
+    return v == old ? 0 : set_owned(d, name, PyLong_FromLongLong(v));
+}
+
+static int set_double(PyObject *d, PyObject *name, double v)
+{
+    return set_owned(d, name, PyFloat_FromDouble(v));
 }
 
 static int set_item_double(PyObject *list, int k, double v)
@@ -321,16 +318,6 @@ static PyObject *list3(const double *v)
         PyList_SET_ITEM(l, k, o);
     }
     return l;
-}
-
-static int set_owned(PyObject *d, PyObject *name, PyObject *o)
-{
-    int r;
-    if (o == NULL)
-        return -1;
-    r = PyDict_SetItem(d, name, o);
-    Py_DECREF(o);
-    return r;
 }
 
 /* Write back what the lines committed since ``before`` changed (lists that the Python

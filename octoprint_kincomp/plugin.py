@@ -25,7 +25,7 @@ from octoprint.events import Events
 from octoprint.filemanager import FileDestinations, valid_file_type
 from octoprint.filemanager.util import DiskFileWrapper, StreamWrapper
 
-from . import __version__
+from . import __version__, kernel
 from .ballbar.analysis import analyse
 from .ballbar.artifacts import ArtifactError, diagnostics_from_artifact
 from .ballbar.formats import TraceError, load_any
@@ -142,8 +142,9 @@ class KinCompPlugin(
 
     def on_after_startup(self):
         self._apply_settings(self._current_settings(), immediately=True)
-        self._logger.info("KinComp %s ready (compensation %s)", __version__,
-                          "on" if self.queue.enabled else "off")
+        self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
+                          "on" if self.queue.enabled else "off",
+                          "compiled" if kernel.available() else "pure-Python")
 
     # ~~ settings ----------------------------------------------------------------------------
     def get_settings_defaults(self):
@@ -611,6 +612,7 @@ class KinCompPlugin(
             version=__version__,
             settings=s,
             params_hash=params.hash(),
+            engine="compiled" if kernel.available() else "python",
             compensation=self.queue.status(),
             firmware={"skew": self.watch.skew, "backlash": self.watch.backlash,
                       "conflicts": self.watch.conflicts(params)},

@@ -104,6 +104,9 @@ def test_settings_change_save_and_refuse_invalid(page, server):
     page.locator("#settings_plugin_kincomp h3").first.scroll_into_view_if_needed()
     page.evaluate("document.querySelector('#settings_plugin_kincomp').scrollIntoView()")
     page.screenshot(path=os.path.join(SHOTS, "settings.png"))
+    # the server runs the compiled kernel, and the settings say so
+    assert st["engine"] == "compiled"
+    assert page.locator("#kincomp_engine span:visible").inner_text() == "compiled fast path"
     page.locator("#kincomp_fw_marlin").scroll_into_view_if_needed()
     page.screenshot(path=os.path.join(SHOTS, "settings-firmware.png"))
 

@@ -100,6 +100,7 @@ $(function () {
         self.blSmoothing = ko.observable("0");
         self.limits = ko.observable(null);
         self.paramsHash = ko.observable("");
+        self.engine = ko.observable("");  // "compiled" or "python" (kernel.py)
         self.conflicts = ko.observableArray([]);
         self.firmware = {
             marlin: ko.observable(""),
@@ -193,6 +194,7 @@ $(function () {
             self.blSmoothing(String(p.backlash.smoothing_mm));
             self.limits(status.limits);
             self.paramsHash(status.params_hash);
+            self.engine(status.engine || "");
             self.showFirmware(status.equivalents);
             self.conflicts(
                 _.map(status.firmware.conflicts || {}, function (where, kind) {
