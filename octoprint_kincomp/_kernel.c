@@ -350,15 +350,17 @@ static int store(const Dicts *D, const State *s, const State *before)
     } else if (PyDict_SetItem(D->comp, s_qm, Py_None) < 0) {
         return -1;
     }
-    if (!(o = PyList_New(3)))
-        return -1;
-    for (k = 0; k < 3; k++) {
-        PyObject *b = s->lim_hit[k] ? Py_True : Py_False;
-        Py_INCREF(b);
-        PyList_SET_ITEM(o, k, b);
+    if (memcmp(s->lim_hit, before->lim_hit, sizeof s->lim_hit) != 0) {
+        if (!(o = PyList_New(3)))
+            return -1;
+        for (k = 0; k < 3; k++) {
+            PyObject *b = s->lim_hit[k] ? Py_True : Py_False;
+            Py_INCREF(b);
+            PyList_SET_ITEM(o, k, b);
+        }
+        if (set_owned(D->comp, s_lim_hit, o) < 0)
+            return -1;
     }
-    if (set_owned(D->comp, s_lim_hit, o) < 0)
-        return -1;
     if (!s->moved)
         return 0;
     if (set_owned(D->comp, s_m, list3(s->m)) < 0)

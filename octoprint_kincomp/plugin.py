@@ -261,7 +261,10 @@ class KinCompPlugin(
                      tags=None, *args, **kwargs):
         if comm_instance is not self._comm:
             self._connection_changed(comm_instance)
-        if tags and FILE_TAG in tags:
+        if tags and FILE_TAG in tags and not (
+                self.queue.printing and self._file_lines_seen and "fileline:1" not in tags):
+            # (the test above skips the lock for the lines of a print that is under way:
+            # under the lock, such a line changes nothing either)
             with self._print_lock:
                 if not self.queue.printing or ("fileline:1" in tags and
                                                self._file_lines_seen):
@@ -284,7 +287,7 @@ class KinCompPlugin(
             if result is None:
                 demo.record(cmd)
             else:
-                for (line,) in result:
+                for line in result:
                     demo.record(line)
         return result
 

@@ -78,7 +78,7 @@ class QueueCompensator:
         return self.comp.params
 
     # -- the hook ------------------------------------------------------------------------
-    def handle(self, cmd: str, tags=None) -> Optional[List[Tuple[str]]]:
+    def handle(self, cmd: str, tags=None) -> Optional[List[str]]:
         if not self.enabled or not cmd:
             return None
         if self.skip_file and tags and FILE_TAG in tags:
@@ -104,7 +104,9 @@ class QueueCompensator:
             _call(self.on_untouched, cmd, why)
         if out is cmd:
             return None
-        return [(line,) for line in out]
+        # the replacement lines as a list of strings (fresh from the compensator): OctoPrint
+        # normalises each string exactly as a 1-tuple (same command type and tags)
+        return out
 
     def _failed(self, cmd: str, exc: Exception):
         self.errors += 1
