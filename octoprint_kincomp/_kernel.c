@@ -14,8 +14,15 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
 #include <math.h>
 #include <string.h>
+
+/* Doubles must round as Python's do: no excess precision (x87 on 32-bit x86). Where that is
+ * not so the extension is not built and the pure-Python paths run (setup.py: optional). */
+#if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD != 0
+#error "the kernel needs FLT_EVAL_METHOD == 0 (on i386: -msse2 -mfpmath=sse)"
+#endif
 
 #define MAX_LINE 96      /* compensator._FAST_MAX_LEN */
 #define MAX_TEXT 120     /* longest number text kept (longer: Python decides) */
@@ -93,16 +100,14 @@ static int get_double(PyObject *o, double *v)
     return -1;
 }
 
-/* Three numbers from a list/tuple (None allowed where known != NULL). -1: not readable. */
-static int get3(PyObject *seq, double *v, int *known)
+/* Three numbers from a list (or a tuple if ``tuple_ok``; None allowed where known != NULL).
+ * -1: not readable. Lists the kernel writes back in place must be lists. */
+static int get3(PyObject *seq, double *v, int *known, int tuple_ok)
 {
-    PyObject *fast;
+    PyObject *fast = seq;
     Py_ssize_t k;
-    if (PyList_CheckExact(seq) || PyTuple_CheckExact(seq)) {
-        fast = seq;
-    } else {
+    if (!PyList_CheckExact(seq) && !(tuple_ok && PyTuple_CheckExact(seq)))
         return -1;
-    }
     if (PySequence_Fast_GET_SIZE(fast) != 3)
         return -1;
     for (k = 0; k < 3; k++) {
@@ -205,10 +210,10 @@ static int load(PyObject *comp, State *s, Dicts *D)
         get_flag(D->comp, s_inches, &s->inches, 0) < 0 ||
         get_flag(D->comp, s_e_absolute_mode, &s->e_abs_mode, 1) < 0)
         goto python;
-    if (!(o = dget(D->comp, s_m)) || get3(o, s->m, known) < 0)
+    if (!(o = dget(D->comp, s_m)) || get3(o, s->m, known, 1) < 0)
         goto python;
     s->m_known = known[0] && known[1] && known[2];
-    if (!(o = dget(D->comp, s_fw)) || get3(o, s->fw, s->fw_known) < 0)
+    if (!(o = dget(D->comp, s_fw)) || get3(o, s->fw, s->fw_known, 0) < 0)
         goto python;
     if (!(o = dget(D->comp, s_fw_text)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
         goto python;
@@ -228,14 +233,14 @@ static int load(PyObject *comp, State *s, Dicts *D)
         s->fwt[k][len] = 0;
         s->fwt_len[k] = (int)len;
     }
-    if (!(o = dget(D->comp, s_w)) || get3(o, s->w, NULL) < 0)
+    if (!(o = dget(D->comp, s_w)) || get3(o, s->w, NULL, 1) < 0)
         goto python;
-    if (!(o = dget(D->comp, s_g)) || get3(o, s->g, NULL) < 0)
+    if (!(o = dget(D->comp, s_g)) || get3(o, s->g, NULL, 1) < 0)
         goto python;
     if (!(o = dget(D->comp, s_qm)))
         goto python;
     s->qm_known = o != Py_None;
-    if (s->qm_known && get3(o, s->qm, NULL) < 0)
+    if (s->qm_known && get3(o, s->qm, NULL, 1) < 0)
         goto python;
     if (!(o = dget(D->comp, s_lim_hit)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
         goto python;
@@ -245,14 +250,14 @@ static int load(PyObject *comp, State *s, Dicts *D)
             goto python;
         s->lim_hit[k] = b == Py_True;
     }
-    if (!(o = dget(D->bl, s_dir)) || get3(o, tmp, NULL) < 0)
+    if (!(o = dget(D->bl, s_dir)) || get3(o, tmp, NULL, 0) < 0)
         goto python;
     for (k = 0; k < 3; k++) {
         if (tmp[k] != 0.0 && tmp[k] != 1.0 && tmp[k] != -1.0)
             goto python;
         s->dir[k] = (long)tmp[k];
     }
-    if (!(o = dget(D->bl, s_anchor)) || get3(o, s->anchor, s->anchor_known) < 0)
+    if (!(o = dget(D->bl, s_anchor)) || get3(o, s->anchor, s->anchor_known, 0) < 0)
         goto python;
     if (get_ll(D->comp, s_lineno, &s->lineno) < 0 || get_ll(D->rep, s_lines, &s->lines) < 0 ||
         get_ll(D->rep, s_moves, &s->moves) < 0 ||
@@ -321,7 +326,8 @@ static PyObject *list3(const double *v)
 }
 
 /* Write back what the lines committed since ``before`` changed (lists that the Python
- * path changes in place are changed in place). */
+ * path changes in place are changed in place). Only an allocation failure can stop it
+ * half-way: the caller then raises, and the queue forgets the positions (queue.py). */
 static int store(const Dicts *D, const State *s, const State *before)
 {
     PyObject *o;
@@ -381,7 +387,8 @@ static int store(const Dicts *D, const State *s, const State *before)
                 return -1;
         }
         if (s->anchor_known[k] && (!before->anchor_known[k] ||
-                                   s->anchor[k] != before->anchor[k]) &&
+                                   memcmp(&s->anchor[k], &before->anchor[k],
+                                          sizeof(double)) != 0) &&  /* (-0.0 vs 0.0) */
             set_item_double(dget(D->bl, s_anchor), k, s->anchor[k]) < 0)
             return -1;
         if (s->maxc[k] != before->maxc[k] &&

@@ -1018,7 +1018,11 @@ class _Tokens:
         bounds[1:-1:2] = np.maximum(te, ts + 1)
         bounds[-1] = len(a)
         if len(ts):
-            sums = np.add.reduceat(cls, bounds[:-1], dtype=np.uint32)[0::2][: len(ts)]
+            # (a word that would start past the end - a trailing space before the block's
+            # last newline - is empty, its line already bad: its sum does not matter, but
+            # reduceat wants every index inside the array)
+            sums = np.add.reduceat(cls, np.minimum(bounds[:-1], len(a) - 1),
+                                   dtype=np.uint32)[0::2][: len(ts)]
         else:
             sums = np.zeros(0, np.uint32)
         digits = sums & 31

@@ -105,6 +105,13 @@ def test_benchmark_style_file(tmp_path):
         assert engine(text, params, Options(), compiled=False) == ref
 
 
+def test_trailing_space_on_the_last_line_of_a_block():
+    # review finding: the tokeniser's word sums indexed past the block's end
+    for text in ("G28\nG1 X1 Y1 \n", "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
+                 "G28\n" + "G1 X5 Y5\n" * 40 + "G1 X1 Y1 \n", "G28\nG1 X1 Y1 \r\n"):
+        check_all(text, PARAMS[0], Options())
+
+
 def test_lone_cr_and_missing_newline():
     text = "G28\rG1 X10 Y10 Z1\rG1 X20 Y5\r; c\rG1 X30 Y30"
     check_all(text, PARAMS[0], Options())

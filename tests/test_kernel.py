@@ -123,3 +123,36 @@ def test_rounding_at_ties_is_pythons(text, want):
     out, _ = run(lines, z_only)
     assert out[-1] == ("G1 " + want + " Y10.000",)
     assert run(lines, z_only, compiled=False)[0] == out
+
+
+def test_the_self_check_passes_here_and_catches_a_kernel_that_rounds_otherwise():
+    assert kernel_mod.self_check()
+
+    def shifted(comp):  # a kernel whose model is off by 0.1 um in X: some texts differ
+        saved = comp._affine
+        comp._affine = saved[:9] + (saved[9] + 1e-4,) + saved[10:]
+        try:
+            return kernel_mod._make(comp)
+        finally:
+            comp._affine = saved
+
+    assert not kernel_mod.self_check(make=shifted)
+
+
+def test_state_the_kernel_cannot_write_back_is_left_to_python():
+    # review finding: a tuple where the kernel writes in place (it never is one in practice)
+    comp = Compensator(SKEW)
+    for line in ("G28", "G1 X10 Y10 Z1"):
+        comp.process(line)
+    comp.fw = tuple(comp.fw)
+    assert comp._kernel.line(comp, "G1 X20 Y20") is None
+
+
+def test_negative_zero_anchor_is_written_like_python():
+    # review finding: the kernel compared the anchor with ==, so -0.0 stayed where Python
+    # writes 0.0 (no effect on the text, but the state must be the same)
+    y_only = Params.from_dict({"backlash": {"y": 30.0}})
+    lines = ["G28", "G1 X-0 Y10 Z-0", "G1 X-0 Y-0 Z-0", "G1 X0 Y0 Z0"]
+    got, ref = run(lines, y_only), run(lines, y_only, compiled=False)
+    assert got == ref
+    assert [str(a) for a in got[1][6]] == [str(a) for a in ref[1][6]]
