@@ -279,6 +279,27 @@ python:
 }
 
 /* d[name] = o, o a new reference (consumed; NULL: the error is passed on). */
+/* A fresh list (or tuple) of three floats. */
+static PyObject *seq3(const double *v, int tuple)
+{
+    PyObject *t = tuple ? PyTuple_New(3) : PyList_New(3);
+    int k;
+    if (t == NULL)
+        return NULL;
+    for (k = 0; k < 3; k++) {
+        PyObject *o = PyFloat_FromDouble(v[k]);
+        if (o == NULL) {
+            Py_DECREF(t);
+            return NULL;
+        }
+        if (tuple)
+            PyTuple_SET_ITEM(t, k, o);
+        else
+            PyList_SET_ITEM(t, k, o);
+    }
+    return t;
+}
+
 static int set_owned(PyObject *d, PyObject *name, PyObject *o)
 {
     int r;
@@ -307,24 +328,6 @@ static int set_item_double(PyObject *list, int k, double v)
     return PyList_SetItem(list, k, o);  /* steals o */
 }
 
-/* A fresh list of three floats. */
-static PyObject *list3(const double *v)
-{
-    PyObject *l = PyList_New(3);
-    int k;
-    if (l == NULL)
-        return NULL;
-    for (k = 0; k < 3; k++) {
-        PyObject *o = PyFloat_FromDouble(v[k]);
-        if (o == NULL) {
-            Py_DECREF(l);
-            return NULL;
-        }
-        PyList_SET_ITEM(l, k, o);
-    }
-    return l;
-}
-
 /* Write back what the lines committed since ``before`` changed (lists that the Python
  * path changes in place are changed in place). Only an allocation failure can stop it
  * half-way: the caller then raises, and the queue forgets the positions (queue.py). */
@@ -351,7 +354,7 @@ static int store(const Dicts *D, const State *s, const State *before)
         return -1;
     /* the previous command and the axes to re-evaluate (inert lines reset them) */
     if (s->qm_known) {
-        if (set_owned(D->comp, s_qm, Py_BuildValue("(ddd)", s->qm[0], s->qm[1], s->qm[2])) < 0)
+        if (set_owned(D->comp, s_qm, seq3(s->qm, 1)) < 0)
             return -1;
     } else if (PyDict_SetItem(D->comp, s_qm, Py_None) < 0) {
         return -1;
@@ -369,7 +372,7 @@ static int store(const Dicts *D, const State *s, const State *before)
     }
     if (!s->moved)
         return 0;
-    if (set_owned(D->comp, s_m, list3(s->m)) < 0)
+    if (set_owned(D->comp, s_m, seq3(s->m, 0)) < 0)
         return -1;
     for (k = 0; k < 3; k++) {
         if (!s->fwt_dirty[k])

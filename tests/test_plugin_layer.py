@@ -13,6 +13,8 @@ from octoprint_kincomp.settings import (SettingsError, defaults, engine_config,
                                         limits_from_profile, max_feeds_from_profile, migrate,
                                         validate_settings)
 
+from .mocked_plugin import mocked_plugin
+
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
 
 
@@ -275,35 +277,7 @@ def test_profile_limits_and_feeds():
 
 @pytest.fixture
 def plugin(tmp_path):
-    from octoprint.plugin import PluginSettings
-    from octoprint.settings import Settings
-
-    from octoprint_kincomp.plugin import KinCompPlugin
-
-    s = Settings(basedir=str(tmp_path / "base"))
-    p = KinCompPlugin()
-    p._identifier = "kincomp"
-    p._plugin_name = "KinComp"
-    p._plugin_version = "test"
-    p._basefolder = str(tmp_path)
-    p._logger = mock.MagicMock()
-    p._settings = PluginSettings(s, "kincomp", defaults=defaults())
-    p._plugin_manager = mock.MagicMock()
-    p._event_bus = mock.MagicMock()
-    p._printer = mock.MagicMock()
-    p._printer.is_printing.return_value = True
-    p._printer.is_pausing.return_value = False
-    p._printer.is_paused.return_value = False
-    p._file_manager = mock.MagicMock()
-    p._printer_profile_manager = mock.MagicMock()
-    p._printer_profile_manager.get_current_or_default.return_value = {
-        "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"}}
-    p._data_folder = str(tmp_path / "data")
-    (tmp_path / "data").mkdir()
-    p.get_plugin_data_folder = lambda: str(tmp_path / "data")
-    p.initialize()
-    p.on_after_startup()
-    return p
+    return mocked_plugin(str(tmp_path))
 
 
 def test_settings_save_applies_and_rejects(plugin):

@@ -1,0 +1,66 @@
+"""Per-line cost of KinComp's whole OctoPrint queuing hook (``KinCompPlugin.queuing_hook``).
+
+``python -m octoprint_kincomp bench`` measures the hook's core (``Compensator.process`` and
+``QueueCompensator.handle``) without OctoPrint. This script measures the plugin's hook
+function itself, as OctoPrint's comm layer calls it for the lines of a print (tags
+``source:file`` and ``fileline:N``), on a plugin instance with a real OctoPrint settings
+object and mocks for the printer, event bus and file manager (tests/mocked_plugin.py), compensation on with the
+benchmark's parameters (squareness + scale + position-dependent backlash) and the bed as
+limits. Prints p50/p99 in us over the G1 X/Y lines of a 200,000-line slicer-like stream.
+
+    .venv/bin/python benchmarks/plugin_hook.py [--lines N] [--python]
+
+``--python`` runs it on the pure-Python paths (no compiled kernel).
+"""
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--lines", type=int, default=200_000)
+    ap.add_argument("--python", action="store_true", help="without the compiled kernel")
+    args = ap.parse_args()
+    if args.python:
+        os.environ["KINCOMP_KERNEL"] = "0"
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    from octoprint_kincomp import kernel
+    from octoprint_kincomp.benchmark import BENCH_PARAMS, generate
+    from octoprint_kincomp.queue import FILE_TAG
+    from tests.mocked_plugin import mocked_plugin
+
+    tmp = tempfile.mkdtemp(prefix="kincomp-hook-")
+    p = mocked_plugin(tmp, bed_mm=250.0)
+    p.on_settings_save({"enabled": True, "params": BENCH_PARAMS})
+
+    src = os.path.join(tmp, "stream.gcode")
+    generate(src, args.lines)
+    with open(src) as f:
+        lines = [line.rstrip("\n") for line in f]
+    tags = [{FILE_TAG, "fileline:%d" % (i + 1)} for i in range(len(lines))]
+    comm = object()
+    hook = p.queuing_hook
+    clock = time.perf_counter_ns
+    samples = []
+    for line, t in zip(lines, tags):
+        t0 = clock()
+        hook(comm, "queuing", line, None, None, None, t)
+        dt = clock() - t0
+        if line.startswith("G1 X"):
+            samples.append(dt)
+    samples.sort()
+    rep = p.queue.comp.report
+    print(f"engine: {'compiled' if kernel.available() else 'pure Python'}; "
+          f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups")
+    print(f"KinCompPlugin.queuing_hook, G1 line: p50 {samples[len(samples) // 2] / 1000:.2f} us"
+          f"  p99 {samples[int(len(samples) * 0.99)] / 1000:.2f} us ({len(samples)} lines)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
