@@ -99,13 +99,13 @@ def self_check(make: Optional[Callable] = None) -> bool:
         "backlash": {"x": [{"at_mm": 0, "um": 40.0}, {"at_mm": 100, "um": 12.5},
                            {"at_mm": 200, "um": 30.0}], "y": 17.0, "fraction": 0.8}})
     options = Options(limits=(-1.0, 201.0, -1.0, 201.0, 0.0, 200.0), policy="clamp")
-    ref = Compensator(params, options)
-    ref._kernel = None
-    got = Compensator(params, options)
-    got._kernel = (make or _make)(got)
-    if got._kernel is None:
-        return False
     try:
+        ref = Compensator(params, options)
+        ref._kernel = None
+        got = Compensator(params, options)
+        got._kernel = (make or _make)(got)
+        if got._kernel is None:
+            return False
         for line in _check_program():
             if ref.process(line) != got.process(line):
                 return False
