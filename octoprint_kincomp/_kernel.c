@@ -73,7 +73,7 @@ typedef struct {
     double e_pos;
     int f_set;
     double feed;
-    int moved;                        /* m, _qm, lim_hit, backlash written */
+    int moved;                        /* a move committed: m, fw, backlash to write */
 } State;
 
 static PyObject *s_m, *s_fw, *s_fw_text, *s_w, *s_g, *s_qm, *s_lim_hit, *s_backlash,
@@ -883,7 +883,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     c = (const char *)PyUnicode_DATA(line);
     n = PyUnicode_GET_LENGTH(line);
     if (n > MAX_LINE || n < 4 || c[0] != 'G')
-        Py_RETURN_NONE;
+        Py_RETURN_NONE;  /* (do_line would say so too, after the costly load) */
     if (load(comp, &s, &D) > 0)
         Py_RETURN_NONE;
     before = s;
@@ -1094,6 +1094,10 @@ PyMODINIT_FUNC PyInit__kernel(void)
     if (mod == NULL)
         return NULL;
     Py_INCREF(&KernelType);
+    if (PyModule_AddIntConstant(mod, "MAX_POINTS", MAX_PTS) < 0) {
+        Py_DECREF(mod);
+        return NULL;
+    }
     if (PyModule_AddObject(mod, "Kernel", (PyObject *)&KernelType) < 0) {
         Py_DECREF(&KernelType);
         Py_DECREF(mod);

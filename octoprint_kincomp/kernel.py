@@ -56,7 +56,7 @@ def for_compensator(comp) -> Optional[object]:
 def _make(comp) -> Optional[object]:
     bl = comp.backlash
     tables = tuple(tuple(bl.tables[k].points) if bl.active[k] else None for k in range(3))
-    if any(t is not None and len(t) > 64 for t in tables):
+    if any(t is not None and len(t) > _kernel.MAX_POINTS for t in tables):
         return None
     return _kernel.Kernel(comp._affine, tables, comp._half, bl.deadband,
                           comp.options.limits, comp.options.decimals)
