@@ -2,12 +2,12 @@ import os
 
 import setuptools
 
-# The compiled fast path (octoprint_kincomp/kernel.py). Optional: without a C compiler the
+# The compiled fast path (octoprint_kincomp/engines/kernel.py). Optional: without a C compiler the
 # plugin installs all the same and runs on its pure-Python paths. No fused multiply-add:
 # the kernel's arithmetic must round exactly as Python's does.
 kernel = setuptools.Extension(
-    "octoprint_kincomp._kernel",
-    ["octoprint_kincomp/_kernel.c"],
+    "octoprint_kincomp.engines._kernel",
+    ["octoprint_kincomp/engines/_kernel.c"],
     optional=True,
     extra_compile_args=[] if os.name == "nt" else ["-ffp-contract=off"],
 )

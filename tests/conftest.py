@@ -10,7 +10,7 @@ import pytest
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory):
-    from octoprint_kincomp.devserver import USER_FLAGS, DevServer
+    from octoprint_kincomp.tools.devserver import USER_FLAGS, DevServer
 
     base = str(tmp_path_factory.mktemp("octoprint"))
     srv = DevServer(base, kincomp={"enabled": False}, throttle=0.0, users=tuple(USER_FLAGS))

@@ -32,10 +32,18 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..messages import Msg, error_message
-from ..params import AXES, Params, ParamsError
-from .formats import (AngleTrace, NativeTrace, Summary, TraceError, meta_centre, meta_float,
-                      meta_plane)
+from ..core.kinematics import changes_nothing
+from ..core.messages import Msg, error_message
+from ..core.params import AXES, Params, ParamsError
+from .formats import (
+    AngleTrace,
+    NativeTrace,
+    Summary,
+    TraceError,
+    meta_centre,
+    meta_float,
+    meta_plane,
+)
 from .program import PLANES as PROGRAM_PLANES
 
 PLANE_KEYS = {"XY": "xy", "XZ": "xz", "YZ": "yz"}
@@ -108,7 +116,7 @@ def _crossing(t: np.ndarray, r: np.ndarray, level: float, i0: int, i1: int,
 
 def runs_from_native(trace: NativeTrace) -> Tuple[Geometry, List[Run]]:
     """Map time to angle with the feed-in and feed-out ramps as markers."""
-    from .program import run_angles, TestSpec
+    from .program import TestSpec, run_angles
 
     meta = trace.meta
     geom = _geometry(meta)
@@ -426,7 +434,7 @@ def load_runs(trace) -> Tuple[Geometry, List[Run]]:
 def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_MASK_DEG,
             calibrated: bool = False, cyclic_pitch: Optional[float] = None) -> Dict[str, object]:
     """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes"}."""
-    from ..firmware import equivalents
+    from ..core.firmware import equivalents
 
     current = current or Params()
     notes: List[str] = []
@@ -449,7 +457,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
             notes.append(Msg("The bar is not calibrated: the mean radius mixes the bar's own "
                              "length error with the mean axis scale, so only the scale "
                              "mismatch is used."))
-    if current is not None and not current.is_zero:
+    if current is not None and not changes_nothing(current):
         notes.append(Msg("The test ran with compensation active: the fitted errors are "
                          "residuals and the proposed parameters are current + residual."))
     params = propose_params(diag, geom, current, notes)

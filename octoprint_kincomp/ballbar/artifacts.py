@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from typing import Dict, Iterable, Sequence, Tuple
 
-from ..firmware import klipper_skew_factor
-from ..messages import Msg
+from ..core.firmware import klipper_skew_factor
+from ..core.messages import Msg
 
 
 class ArtifactError(ValueError):

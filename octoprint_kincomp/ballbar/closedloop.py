@@ -9,9 +9,10 @@ from __future__ import annotations
 import io
 from typing import Dict, List, Optional, Tuple
 
-from ..compensator import Options
-from ..fileproc import compensate_stream
-from ..params import Params
+from ..core.compensator import Options
+from ..core.kinematics import changes_nothing
+from ..core.params import Params
+from ..engines.files import compensate_stream
 from .analysis import analyse
 from .formats import parse_csv_trace
 from .program import TestSpec, generate
@@ -31,7 +32,7 @@ def run_round(truth: Truth, spec: Optional[TestSpec] = None, servo_precomp: bool
     spec = spec or TestSpec()
     current = current or Params()
     program = generate(spec, date="simulated", params_hash=current.hash())
-    run0 = program if current.is_zero else compensate_text(program, current)
+    run0 = program if changes_nothing(current) else compensate_text(program, current)
     before = analyse(parse_csv_trace(simulate_program(run0, truth).to_text()), current=current)
     proposed = Params.from_dict(before["parameters"])
     if servo_precomp:

@@ -40,7 +40,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
-from ..messages import Msg
+from ..core.messages import Msg
 
 MAX_TRACE_BYTES = 64 * 1024 * 1024
 MAX_ROWS = 2_000_000

@@ -21,7 +21,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from ..messages import Msg, joined
+from ..core.messages import Msg, joined
 
 PLANES = {"XY": (0, 1), "XZ": (0, 2), "YZ": (1, 2)}
 # Run markers that survive comment stripping (OctoPrint sends no comments); M117 just shows

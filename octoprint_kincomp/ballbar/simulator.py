@@ -22,11 +22,11 @@ from typing import Dict, Iterable, Tuple
 
 import numpy as np
 
-from ..backlash import Play
-from ..kinematics import KinematicModel
-from ..machine import Dwell, FirmwareInterpreter, Move
-from ..messages import Msg
-from ..params import AXES, Params, ParamsError
+from ..core.backlash import Play
+from ..core.kinematics import KinematicModel
+from ..core.machine import Dwell, FirmwareInterpreter, Move
+from ..core.messages import Msg
+from ..core.params import AXES, Params, ParamsError
 from .formats import NativeTrace
 from .program import END_MARKER, RUN_MARKER, ProgramError, spec_from_program
 

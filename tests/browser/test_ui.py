@@ -8,7 +8,7 @@ import urllib.parse
 
 import pytest
 
-from tests.serverutil import settings, status
+from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 

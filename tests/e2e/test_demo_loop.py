@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from tests.serverutil import settings, status
+from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 

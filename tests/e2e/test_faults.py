@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from tests.serverutil import marker, offline, sent, settings, status
+from tests.support.serverutil import marker, offline, sent, settings, status
 
 pytestmark = pytest.mark.slow
 

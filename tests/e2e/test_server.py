@@ -6,10 +6,17 @@ import re
 import time
 
 import pytest
-
 from octoprint.util.comm import strip_comment
 
-from tests.serverutil import AUTOMATIC, DATA, marker, offline, sent, settings, status
+from tests.support.serverutil import (
+    AUTOMATIC,
+    DATA,
+    marker,
+    offline,
+    sent,
+    settings,
+    status,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -110,8 +117,12 @@ def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
 
 
 def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
-    from octoprint_kincomp.compensator import Compensator
-    from octoprint_kincomp.fileproc import compensate_lines, file_marker, marker_line
+    from octoprint_kincomp.core.compensator import Compensator
+    from octoprint_kincomp.engines.files import (
+        compensate_lines,
+        file_marker,
+        marker_line,
+    )
 
     settings(server, enabled=True, mode="on_upload", params=PARAMS)
     try:
@@ -123,7 +134,7 @@ def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
         assert file_marker(stored) == status(server)["params_hash"]
         # the stored file is the offline compensation of the upload ...
         st = status(server)
-        from octoprint_kincomp.settings import engine_config
+        from octoprint_kincomp.plugin.settings import engine_config
 
         params, options = engine_config(st["settings"], tuple(st["limits"]))
         with open(src, encoding="utf-8", newline="") as f:
@@ -195,7 +206,7 @@ WRITE_ENDPOINTS = [
 
 
 def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
-    from tests.serverutil import BrowserSession
+    from tests.support.serverutil import BrowserSession
 
     before = status(server)["settings"]
     anon = BrowserSession(server)
@@ -227,9 +238,13 @@ def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
 
 
 def test_background_mode_writes_a_compensated_copy_with_progress(server):
-    from octoprint_kincomp.compensator import Compensator
-    from octoprint_kincomp.fileproc import compensate_lines, file_marker, marker_line
-    from octoprint_kincomp.settings import engine_config
+    from octoprint_kincomp.core.compensator import Compensator
+    from octoprint_kincomp.engines.files import (
+        compensate_lines,
+        file_marker,
+        marker_line,
+    )
+    from octoprint_kincomp.plugin.settings import engine_config
 
     settings(server, enabled=True, mode="background", params=PARAMS)
     try:

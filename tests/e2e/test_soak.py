@@ -11,7 +11,15 @@ import time
 import pytest
 from octoprint.util.comm import strip_comment
 
-from tests.serverutil import AUTOMATIC, DATA, marker, offline, sent, settings, status
+from tests.support.serverutil import (
+    AUTOMATIC,
+    DATA,
+    marker,
+    offline,
+    sent,
+    settings,
+    status,
+)
 
 pytestmark = pytest.mark.slow
 

@@ -1,0 +1,197 @@
+"""Ballbar commands of the CLI: ``program``, ``simulate``, ``analyze``, ``closed-loop``,
+``artifact``."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from ..core.params import Params, ParamsError
+from .common import CliError, floats, load_params
+
+
+def cmd_program(args) -> int:
+    from ..ballbar.program import ProgramError, TestSpec, cap_feed, generate
+
+    centre = floats(args.centre, 3, "--centre")
+    max_feed = None
+    if args.max_feed:
+        vals = floats(args.max_feed, 3, "--max-feed")
+        max_feed = dict(zip("xyz", vals))
+    try:
+        feed = cap_feed(args.feed, args.plane, max_feed)
+        spec = TestSpec(plane=args.plane, centre=tuple(centre), radius_mm=args.radius,
+                        feed_mm_min=feed, requested_feed_mm_min=args.feed,
+                        feed_in_mm=args.feed_in, overshoot_deg=args.overshoot,
+                        capture_deg=args.capture, start_deg=args.start,
+                        mount_pause=args.mount_pause)
+        volume = floats(args.volume, 6, "--volume") if args.volume else None
+        text = generate(spec, volume=volume)
+    except ProgramError as exc:
+        raise CliError(str(exc)) from None
+    if args.output:
+        with open(args.output, "w") as f:
+            f.write(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from ..ballbar.program import ProgramError
+    from ..ballbar.simulator import Truth, simulate_program
+
+    try:
+        truth = Truth.load(args.truth)
+    except (ParamsError, OSError, KeyError, TypeError, ValueError) as exc:
+        raise CliError(f"invalid truth file {args.truth}: {exc}") from None
+    if args.noise_um is not None:
+        truth.noise_um = args.noise_um
+    if args.rate is not None:
+        truth.sample_rate_hz = args.rate
+    try:
+        with open(args.program) as f:
+            text = f.read()
+        trace = simulate_program(text, truth)
+    except ProgramError as exc:
+        raise CliError(f"{args.program}: {exc}") from None
+    except OSError as exc:
+        raise CliError(f"{args.program}: {exc.strerror}") from None
+    if args.output:
+        with open(args.output, "w") as f:
+            trace.write(f)
+    else:
+        trace.write(sys.stdout)
+    return 0
+
+
+def cmd_analyze(args) -> int:
+    from ..ballbar.analysis import analyse
+    from ..ballbar.formats import TraceError, load_any
+
+    current = load_params(args.current) if args.current else Params()
+    try:
+        with open(args.trace, "rb") as f:
+            data = f.read()
+        result = analyse(load_any(data, args.trace), current=current, mask_deg=args.mask_deg,
+                         calibrated=args.calibrated_bar, cyclic_pitch=args.cyclic_pitch)
+    except TraceError as exc:
+        raise CliError(f"{args.trace}: {exc}") from None
+    except OSError as exc:
+        raise CliError(f"{args.trace}: {exc.strerror}") from None
+    if args.params_out:
+        with open(args.params_out, "w") as f:
+            json.dump(result["parameters"], f, indent=2)
+    if args.json:
+        print(json.dumps(result, indent=2, default=float))
+    else:
+        print(format_diagnostics(result))
+    return 0
+
+
+def format_diagnostics(result) -> str:
+    d = result["diagnostics"]
+    lines = []
+    if d.get("simulated"):
+        lines.append("SIMULATED data")
+    lines.append(f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
+                 f"feed {d.get('feed_mm_min')} mm/min")
+    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
+                      ("servo_mismatch_ms", "ms")):
+        if d.get(key) is not None:
+            lines.append(f"{key:22s} {d[key]:10.2f} {unit}")
+    for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
+        if isinstance(d.get(key), dict):
+            lines.append(f"{key:22s} " + "  ".join(f"{k} {v:.2f}" for k, v in d[key].items()))
+    if d.get("hysteresis_um") is not None:
+        lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
+    lines.append("")
+    lines.append("firmware equivalents:")
+    for fam in ("marlin", "klipper", "reprapfirmware"):
+        lines += ["  " + x for x in result["firmware"][fam]]
+    for n in result["notes"]:
+        lines.append("note: " + n)
+    return "\n".join(lines)
+
+
+def cmd_artifact(args) -> int:
+    from ..ballbar.analysis import Geometry, propose_params
+    from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
+
+    current = load_params(args.current) if args.current else Params()
+    ac, bd, ad = floats(args.diagonals, 3, "--diagonals")
+    lengths = {}
+    for spec in args.length or []:
+        try:
+            axis, nominal, measured = spec.split(":")
+            lengths.setdefault(axis.lower(), []).append((float(nominal), float(measured)))
+        except ValueError:
+            raise CliError(f"--length expects AXIS:NOMINAL:MEASURED, got {spec!r}") from None
+    try:
+        diag = diagnostics_from_artifact(args.plane, ac, bd, ad, lengths)
+    except ArtifactError as exc:
+        raise CliError(str(exc)) from None
+    notes = []
+    params = propose_params(diag, Geometry(args.plane.upper(), 0.0, None, None), current, notes)
+    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(), "notes": notes},
+                     indent=2))
+    return 0
+
+
+def cmd_closed_loop(args) -> int:
+    from ..ballbar.closedloop import main
+
+    return main(["--noise-um", str(args.noise_um)])
+
+
+def add_ballbar_commands(sub) -> None:
+    p = sub.add_parser("program", help="generate an ISO 230-4 ballbar test program")
+    p.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
+    p.add_argument("--centre", required=True, metavar="X,Y,Z", help="pivot position, mm")
+    p.add_argument("--radius", type=float, default=100.0, help="mm (default 100)")
+    p.add_argument("--feed", type=float, default=1850.0, help="mm/min (default 1850)")
+    p.add_argument("--max-feed", metavar="FX,FY,FZ",
+                   help="axis max feeds in mm/min: the feed is capped at the slowest")
+    p.add_argument("--feed-in", type=float, default=1.0, help="radial feed-in, mm")
+    p.add_argument("--overshoot", type=float, default=20.0, help="overshoot arcs, deg")
+    p.add_argument("--capture", type=float, help="capture arc, deg (360 XY, 220 vertical)")
+    p.add_argument("--start", type=float, help="capture start angle, deg (0 XY, -20 vertical)")
+    p.add_argument("--volume", metavar="X0,X1,Y0,Y1,Z0,Z1",
+                   help="machine volume in mm: refuse a circle that does not fit")
+    p.add_argument("--mount-pause", action="store_true",
+                   help="pause (M0) to mount the ballbar at the start and unmount at the end")
+    p.add_argument("-o", "--output")
+    p.set_defaults(func=cmd_program)
+
+    s = sub.add_parser("simulate", help="run a ballbar program on the simulated printer")
+    s.add_argument("program")
+    s.add_argument("--truth", required=True, help="JSON with the printer's true errors")
+    s.add_argument("--noise-um", type=float, help="measurement noise (standard deviation), um")
+    s.add_argument("--rate", type=float, help="ballbar sample rate, Hz (default 500)")
+    s.add_argument("-o", "--output")
+    s.set_defaults(func=cmd_simulate)
+
+    a = sub.add_parser("analyze", help="fit a ballbar trace, .b5r or typed summary")
+    a.add_argument("trace")
+    a.add_argument("--current", help="params that were active during the test (residual fit)")
+    a.add_argument("--json", action="store_true", help="print one JSON object")
+    a.add_argument("--mask-deg", type=float, default=15.0,
+                   help="ignore this many degrees after each reversal (default 15)")
+    a.add_argument("--calibrated-bar", action="store_true",
+                   help="the bar length is calibrated: also fit the mean scale")
+    a.add_argument("--cyclic-pitch", type=float, help="also fit a cyclic error of this pitch, mm")
+    a.add_argument("--params-out", help="write the proposed params file here")
+    a.set_defaults(func=cmd_analyze)
+
+    c = sub.add_parser("closed-loop", help="print the simulated one-round before/after table")
+    c.add_argument("--noise-um", type=float, default=0.5,
+                   help="ballbar measurement noise, um (1 sigma; default 0.5)")
+    c.set_defaults(func=cmd_closed_loop)
+
+    t = sub.add_parser("artifact", help="parameters from a printed square (and lengths)")
+    t.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
+    t.add_argument("--diagonals", required=True, metavar="AC,BD,AD", help="mm")
+    t.add_argument("--length", action="append", metavar="AXIS:NOMINAL:MEASURED",
+                   help="a measured length along an axis, mm (repeatable)")
+    t.add_argument("--current", help="params active when the artifact was printed")
+    t.set_defaults(func=cmd_artifact)

@@ -1,0 +1,93 @@
+"""File verbs of the command line: ``compensate`` (also a slicer post-processing script),
+``params`` (create or check a params file) and ``firmware`` (firmware equivalents)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from ..core.compensator import CompensationError, Options
+from ..core.firmware import format_equivalents
+from ..core.params import Params
+from ..engines.files import AlreadyCompensated, compensate_file
+from .common import EXIT_OK, CliError, floats, load_params
+
+
+def _options(args) -> Options:
+    try:
+        return Options(
+            chord_tol_mm=args.chord_tol,
+            limits=tuple(floats(args.limits, 6, "--limits")) if args.limits else None,
+            policy=args.policy,
+            decimals=args.decimals,
+            home_mm=tuple(floats(args.home, 3, "--home")) if args.home else (0.0, 0.0, 0.0),
+        )
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+
+
+def cmd_compensate(args) -> int:
+    params = load_params(args.params)
+    options = _options(args)
+    try:
+        report = compensate_file(args.input, args.output, params, options,
+                                 dry_run=args.dry_run)
+    except AlreadyCompensated as exc:
+        raise CliError(f"{args.input}: {exc}") from None
+    except CompensationError as exc:
+        raise CliError(f"{args.input}: {exc} (nothing was written)") from None
+    except OSError as exc:
+        raise CliError(f"{exc.filename or args.input}: {exc.strerror}") from None
+    if args.report or args.dry_run:
+        rep = report.to_dict()
+        rep["params_hash"] = params.hash()
+        print(json.dumps(rep, indent=2))
+    return EXIT_OK
+
+
+def cmd_params(args) -> int:
+    if args.init:
+        sys.stdout.write(Params().to_json())
+        return EXIT_OK
+    if args.check:
+        p = load_params(args.check)
+        print(f"ok: {args.check} is valid (hash {p.hash()})")
+        return EXIT_OK
+    raise CliError("params: use --init or --check FILE")
+
+
+def cmd_firmware(args) -> int:
+    sys.stdout.write(format_equivalents(load_params(args.params)))
+    return EXIT_OK
+
+
+
+
+def add_file_commands(sub) -> None:
+    c = sub.add_parser(
+        "compensate",
+        help="compensate a G-code file (edits it in place without -o, like slicer scripts)",
+    )
+    c.add_argument("input", help="G-code file")
+    c.add_argument("-o", "--output", help="output file (default: edit INPUT in place)")
+    c.add_argument("--params", help="params JSON file (see: params --init)")
+    c.add_argument("--limits", metavar="X0,X1,Y0,Y1,Z0,Z1",
+                   help="machine limits in mm; compensated points outside are handled by --policy")
+    c.add_argument("--policy", choices=("warn", "clamp", "error"), default="warn",
+                   help="what to do when compensation pushes a point outside --limits")
+    c.add_argument("--chord-tol", type=float, default=0.01, metavar="MM",
+                   help="chord tolerance for linearised arcs (default 0.01 mm)")
+    c.add_argument("--decimals", type=int, default=3, help="X/Y/Z decimals in mm (default 3)")
+    c.add_argument("--home", metavar="X,Y,Z", help="position after G28 (default 0,0,0)")
+    c.add_argument("--report", action="store_true", help="print the report as JSON")
+    c.add_argument("--dry-run", action="store_true", help="only print the report, write nothing")
+    c.set_defaults(func=cmd_compensate)
+
+    p = sub.add_parser("params", help="create or check a params file")
+    p.add_argument("--init", action="store_true", help="print a default (all-zero) params file")
+    p.add_argument("--check", metavar="FILE", help="validate a params file")
+    p.set_defaults(func=cmd_params)
+
+    f = sub.add_parser("firmware", help="print firmware equivalents (M852, M425, SET_SKEW, ...)")
+    f.add_argument("--params", required=True)
+    f.set_defaults(func=cmd_firmware)

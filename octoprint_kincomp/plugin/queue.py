@@ -1,0 +1,212 @@
+"""The compensator as OctoPrint's queuing hook sees it (no OctoPrint import here).
+
+OctoPrint calls the hook once per outgoing command, comments already stripped, from the
+thread that queues it (an API request or the file reader), so calls are serialised here.
+Resends never come back through the hook, so nothing is ever compensated twice on resend.
+
+* ``handle(cmd, tags)`` returns None (send unchanged), or the list of replacement commands.
+* Lines of a print whose file was already compensated (it starts with KinComp's marker) are
+  passed through untouched.
+* If compensation fails on a line, the line is not sent: ``on_error`` is called (the plugin
+  pauses the print and tells the user) and an empty list suppresses it - unless the user
+  chose "pass through on error", then it is sent as written and reported. After such a
+  failure during a print the adapter is *halted*: the print's own moves (``source:file``/
+  ``source:job``) that OctoPrint still queues before the pause takes effect are held back
+  too (counted in ``held_moves``), so none goes out uncompensated; scripts (pause parking)
+  and manual commands are still compensated. ``resume()`` (the print resumed), the end of
+  the print or a reset lifts it.
+* A move sent as written is never silent: ``on_untouched(cmd, why)`` is called for a move
+  whose start position is unknown (``"unknown"``) and for a malformed move (``"malformed"``:
+  it passes through as the firmware may still execute it, and the tracked position is
+  forgotten, so later moves are not computed from a wrong start).
+* New parameters, and switching compensation on or off, apply at the next print start
+  (``apply_changes = next_print``) or at once: turning it on or off in the middle of a print
+  would shift every later move by the correction (a seam). Either way the new model takes
+  over the tracked state (positions do not depend on it).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from typing import Callable, Dict, List, Optional, Tuple
+
+from ..core.compensator import Compensator, LimitError, Options
+from ..core.params import Params
+
+FILE_TAG = "source:file"
+JOB_TAG = "source:job"
+_MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
+
+
+_log = logging.getLogger(__name__)
+
+
+def _call(callback, *args) -> None:
+    """Run a notification callback; its failure must not escape the hook (OctoPrint would
+    then send the original, uncompensated line)."""
+    try:
+        callback(*args)
+    except Exception:  # noqa: BLE001
+        _log.exception("KinComp: notification callback failed")
+
+
+class QueueCompensator:
+    def __init__(self, params: Params, options: Options, enabled: bool = False,
+                 pass_through_on_error: bool = False,
+                 on_error: Optional[Callable[[str, Exception], None]] = None,
+                 on_untouched: Optional[Callable[[str, str], None]] = None):
+        self._lock = threading.RLock()
+        self.enabled = enabled
+        self.pass_through_on_error = pass_through_on_error
+        self.on_error = on_error
+        self.on_untouched = on_untouched
+        self.comp = Compensator(params, options)
+        self.pending: Optional[Tuple[Params, Options, bool]] = None  # waits for a print end
+        self.skip_file = False
+        self.printing = False
+        self.errors = 0
+        self.last_error: Optional[Dict[str, object]] = None
+        self.passed_on_error = 0
+        self.halted = False
+        self.held_moves = 0
+
+    @property
+    def params(self) -> Params:
+        return self.comp.params
+
+    # -- the hook ------------------------------------------------------------------------
+    def handle(self, cmd: str, tags=None) -> Optional[List[str]]:
+        if not self.enabled or not cmd:
+            return None
+        if self.skip_file and tags and FILE_TAG in tags:
+            return None
+        if self.halted and tags and (FILE_TAG in tags or JOB_TAG in tags) and \
+                _MOTION.match(cmd):
+            self.held_moves += 1
+            return []
+        with self._lock:
+            rep = self.comp.report
+            unknown, malformed = rep.untouched_unknown, rep.malformed
+            try:
+                out = self.comp.process(cmd)
+            except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
+                return self._failed(cmd, exc)
+            why = None
+            if rep.malformed != malformed and _MOTION.match(cmd):
+                self.comp.invalidate()
+                why = "malformed"
+            elif rep.untouched_unknown != unknown:
+                why = "unknown"
+        if why is not None and self.on_untouched is not None:
+            _call(self.on_untouched, cmd, why)
+        if out is cmd:
+            return None
+        # the replacement lines as a list of strings (fresh from the compensator): OctoPrint
+        # normalises each string exactly as a 1-tuple (same command type and tags)
+        return out
+
+    def _failed(self, cmd: str, exc: Exception):
+        self.errors += 1
+        self.last_error = {"command": cmd, "error": str(exc), "time": time.time()}
+        if not isinstance(exc, LimitError) or self.pass_through_on_error:
+            # an unexpected failure may leave the state half-updated, and a line sent as
+            # written moves the head where the compensator did not put it: forget positions
+            # so nothing builds on them (a refused LimitError line that is not sent leaves the
+            # state as it was)
+            self.comp.invalidate()
+        if self.pass_through_on_error:
+            self.passed_on_error += 1
+            if self.on_error is not None:
+                _call(self.on_error, cmd, exc)
+            return None
+        self.halted = self.printing
+        if self.on_error is not None:
+            _call(self.on_error, cmd, exc)
+        return []
+
+    def resume(self) -> None:
+        """The user resumed after a failure: moves are compensated (or reported) again."""
+        with self._lock:
+            self.halted = False
+
+    # -- life cycle ----------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to 'nothing known' (connect, disconnect, print start/cancel)."""
+        with self._lock:
+            self.comp.reset()
+            self.halted = False
+
+    def set_enabled(self, enabled: bool) -> None:
+        with self._lock:
+            if enabled and not self.enabled:
+                self.comp.reset()  # whatever happened meanwhile was not tracked
+            self.enabled = enabled
+
+    def configure(self, params: Params, options: Options, enabled: bool,
+                  immediately: bool) -> bool:
+        """New parameters and on/off switch. Returns True if they apply now, False if they
+        wait for the next print (a print is running and the user did not ask for
+        'immediately'); a later call replaces what waits."""
+        with self._lock:
+            same = (params.hash() == self.comp.params.hash()
+                    and options == self.comp.options and enabled == self.enabled)
+            if same:
+                self.pending = None
+                return True
+            if self.printing and not immediately:
+                self.pending = (params, options, enabled)
+                return False
+            self._swap(params, options)
+            self.set_enabled(enabled)
+            return True
+
+    def _swap(self, params: Params, options: Options) -> None:
+        new = Compensator(params, options)
+        new.adopt_state(self.comp)
+        self.comp = new
+        self.pending = None
+
+    def _apply_pending(self) -> None:
+        if self.pending is not None:
+            params, options, enabled = self.pending
+            self._swap(params, options)
+            self.set_enabled(enabled)
+
+    def print_started(self, precompensated: bool) -> None:
+        with self._lock:
+            self.printing = True
+            self.halted = False
+            self._apply_pending()
+            self.comp.reset()
+            self.skip_file = precompensated
+
+    def print_ended(self) -> None:
+        with self._lock:
+            self.printing = False
+            self.halted = False
+            self.skip_file = False
+            self._apply_pending()
+            self.comp.reset()
+
+    # -- reporting -----------------------------------------------------------------------
+    def status(self) -> Dict[str, object]:
+        with self._lock:
+            rep = self.comp.report.to_dict()
+            return {
+                "enabled": self.enabled,
+                "params_hash": self.comp.params.hash(),
+                "pending_params_hash": self.pending[0].hash() if self.pending else None,
+                "pending_enabled": self.pending[2] if self.pending else None,
+                "positions_known": list(self.comp.known),
+                "printing": self.printing,
+                "skipping_precompensated_file": self.skip_file,
+                "errors": self.errors,
+                "last_error": self.last_error,
+                "passed_on_error": self.passed_on_error,
+                "halted": self.halted,
+                "held_moves": self.held_moves,
+                "report": rep,
+            }

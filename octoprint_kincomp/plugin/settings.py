@@ -1,0 +1,197 @@
+"""KinComp's OctoPrint settings: defaults, version migration and validation (no OctoPrint import).
+
+The settings hold the params document (see :mod:`params`) plus how the plugin applies it.
+``validate_settings`` returns a complete, checked copy or raises :class:`SettingsError`
+naming the field, so that the API can answer 400 and keep the old values.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any, Dict, Optional, Sequence, Tuple
+
+from ..core.compensator import POLICIES, Options
+from ..core.messages import Msg
+from ..core.params import Params, ParamsError
+
+SETTINGS_VERSION = 1
+MODES = ("on_the_fly", "on_upload", "background")
+APPLY_CHANGES = ("next_print", "immediately")
+
+
+class SettingsError(ValueError):
+    def __init__(self, field: str, message: str):
+        self.field = field
+        self.message = message  # a messages.Msg: translatable by the plugin
+        super().__init__(f"{field}: {message}" if field else message)
+
+
+def defaults() -> Dict[str, Any]:
+    return {
+        "enabled": False,
+        "mode": "on_the_fly",
+        "params": Params().to_dict(),
+        "limits_policy": "warn",
+        "chord_tol_mm": 0.01,
+        "decimals": 3,
+        "home_mm": [0.0, 0.0, 0.0],
+        "pass_through_on_error": False,
+        "apply_changes": "next_print",
+        "demo": {"enabled": False},
+    }
+
+
+SETTING_KEYS = tuple(defaults())
+
+
+def migrate(settings: Dict[str, Any], current: Optional[int]) -> Dict[str, Any]:
+    """Bring stored settings from version ``current`` (None: before versioning) to
+    SETTINGS_VERSION. Version 0 stored squareness/scale as flat keys (``skew_xy`` in um/m,
+    ``scale_x`` in ppm); they move into the params document."""
+    out = copy.deepcopy(settings)
+    if current is None or current < 1:
+        params = out.get("params") or {}
+        sq = params.setdefault("squareness_um_per_m", {})
+        sc = params.setdefault("scale_ppm", {})
+        for pair in ("xy", "xz", "yz"):
+            if f"skew_{pair}" in out:
+                sq[pair] = out.pop(f"skew_{pair}")
+        for axis in "xyz":
+            if f"scale_{axis}" in out:
+                sc[axis] = out.pop(f"scale_{axis}")
+        out["params"] = params
+    return out
+
+
+def _bool(value: Any, field: str) -> bool:
+    if not isinstance(value, bool):
+        raise SettingsError(field, Msg("must be true or false"))
+    return value
+
+
+def _choice(value: Any, field: str, allowed: Sequence[str]) -> str:
+    if value not in allowed:
+        raise SettingsError(field, Msg("must be one of %(choices)s", choices=", ".join(allowed)))
+    return value
+
+
+def _number(value: Any, field: str, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(float(value)):
+        raise SettingsError(field, Msg("must be a finite number"))
+    if not lo <= float(value) <= hi:
+        raise SettingsError(field, Msg("%(value)s is out of range (%(lo)s..%(hi)s)",
+                                       value=f"{value:g}", lo=f"{lo:g}", hi=f"{hi:g}"))
+    return float(value)
+
+
+def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]:
+    """``base`` params document with ``update`` merged in: objects merge key by key, any
+    other value (a number, a backlash table) replaces, ``None`` removes the key (its default
+    applies). So ``{"scale_ppm": {"x": 100}}`` changes X scale and keeps everything else."""
+    out = copy.deepcopy(base)
+    for key, value in update.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge_params(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = None,
+                      replace_params: bool = False) -> Dict[str, Any]:
+    """``base`` (the current settings, default: defaults) updated with ``data``, checked.
+
+    A ``params`` object is merged into the current parameters (:func:`merge_params`), so a
+    partial update never resets the terms it does not mention; ``replace_params`` takes it
+    as the complete document instead (applying a calibration's proposal). Unknown keys are
+    refused (a typo must not be silently dropped)."""
+    if not isinstance(data, dict):
+        raise SettingsError("", Msg("settings must be an object"))
+    out = copy.deepcopy(base) if base is not None else defaults()
+    for key in data:
+        if key not in SETTING_KEYS:
+            raise SettingsError(key, Msg("unknown setting"))
+    data = copy.deepcopy(data)
+    if not replace_params and isinstance(data.get("params"), dict) and \
+            isinstance(out.get("params"), dict):
+        data["params"] = merge_params(out["params"], data["params"])
+    out.update(data)
+    out["enabled"] = _bool(out["enabled"], "enabled")
+    out["mode"] = _choice(out["mode"], "mode", MODES)
+    out["limits_policy"] = _choice(out["limits_policy"], "limits_policy", POLICIES)
+    out["chord_tol_mm"] = _number(out["chord_tol_mm"], "chord_tol_mm", 0.0005, 1.0)
+    dec = out["decimals"]
+    if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
+        raise SettingsError("decimals", Msg("must be an integer within 3..6"))
+    home = out["home_mm"]
+    if not isinstance(home, list) or len(home) != 3:
+        raise SettingsError("home_mm", Msg("must be a list of three numbers (mm)"))
+    out["home_mm"] = [_number(v, f"home_mm[{i}]", -10000, 10000) for i, v in enumerate(home)]
+    out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
+    out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
+    demo = out["demo"]
+    if not isinstance(demo, dict) or set(demo) - {"enabled"}:
+        raise SettingsError("demo", Msg("must be an object with 'enabled'"))
+    demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
+    try:
+        out["params"] = Params.from_dict(out["params"]).to_dict()
+    except ParamsError as exc:
+        raise SettingsError(f"params.{exc.field}" if exc.field else "params",
+                            exc.message) from None
+    return out
+
+
+def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
+                  ) -> Tuple[Params, Options]:
+    """The Params and compensator Options the settings describe."""
+    params = Params.from_dict(settings["params"])
+    options = Options(
+        chord_tol_mm=float(settings["chord_tol_mm"]),
+        limits=limits,
+        policy=settings["limits_policy"],
+        decimals=int(settings["decimals"]),
+        home_mm=tuple(float(v) for v in settings["home_mm"]),
+    )
+    return params, options
+
+
+def limits_from_profile(profile: Optional[Dict[str, Any]]) -> Optional[Tuple[float, ...]]:
+    """Machine limits (x0, x1, y0, y1, z0, z1 mm) from an OctoPrint printer profile."""
+    if not profile:
+        return None
+    vol = profile.get("volume") or {}
+    box = vol.get("custom_box")
+    if isinstance(box, dict) and all(k in box for k in ("x_min", "x_max", "y_min", "y_max",
+                                                         "z_min", "z_max")):
+        lim = tuple(float(box[k]) for k in ("x_min", "x_max", "y_min", "y_max",
+                                             "z_min", "z_max"))
+    else:
+        try:
+            w, d, h = float(vol["width"]), float(vol["depth"]), float(vol["height"])
+        except (KeyError, TypeError, ValueError):
+            return None
+        if vol.get("origin") == "center":
+            lim = (-w / 2, w / 2, -d / 2, d / 2, 0.0, h)
+        else:
+            lim = (0.0, w, 0.0, d, 0.0, h)
+    if lim[0] >= lim[1] or lim[2] >= lim[3] or lim[4] >= lim[5]:
+        return None
+    return lim
+
+
+def max_feeds_from_profile(profile: Optional[Dict[str, Any]]) -> Optional[Dict[str, float]]:
+    """Axis max feeds (mm/min) from the printer profile's axes section."""
+    if not profile:
+        return None
+    axes = profile.get("axes") or {}
+    out = {}
+    for a in "xyz":
+        try:
+            out[a] = float(axes[a]["speed"])
+        except (KeyError, TypeError, ValueError):
+            pass
+    return out or None

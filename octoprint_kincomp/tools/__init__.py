@@ -1,0 +1,1 @@
+"""Developer tools: the benchmark and the local OctoPrint server (demo and end-to-end tests)."""

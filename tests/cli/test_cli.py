@@ -1,0 +1,71 @@
+"""The command line's file verbs: compensate (in place, report, errors), params, firmware
+(issue 2)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from octoprint_kincomp.cli import main
+from octoprint_kincomp.core.kinematics import changes_nothing
+from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines.files import marker_line
+from tests.core.test_limits import SKEW, edge_program
+from tests.engines.test_files import write
+
+
+def test_cli_compensate_report_and_in_place(tmp_path, capsys):
+    p = write(tmp_path, "in.gcode", "\n".join(edge_program()) + "\n")
+    params = write(tmp_path, "p.json", json.dumps(SKEW))
+    rc = main(["compensate", p, "--params", params, "--limits", "0,200,0,200,0,180",
+               "--report"])
+    assert rc == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["limit_hits"] == 1 and rep["params_hash"] == Params.from_dict(SKEW).hash()
+    assert open(p).read().startswith(marker_line(Params.from_dict(SKEW)))
+    # second run: refused with a clear message and exit status 1
+    rc = main(["compensate", p, "--params", params])
+    err = capsys.readouterr().err
+    assert rc == 1 and "already compensated" in err
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--params", "{P}", "--limits", "1,2,3"], "--limits: expected 6"),
+    (["--params", "{BAD}"], "invalid params file"),
+    (["--params", "{P}", "--policy", "error", "--limits", "0,200,0,200,0,180"],
+     "outside the limits"),
+    ([], "--params is required"),
+])
+def test_cli_errors(tmp_path, capsys, args, msg):
+    p = write(tmp_path, "in.gcode", "\n".join(edge_program()) + "\n")
+    good = write(tmp_path, "p.json", json.dumps(SKEW))
+    bad = write(tmp_path, "bad.json", json.dumps({"squareness_um_per_m": {"xy": "x"}}))
+    args = [a.format(P=good, BAD=bad) for a in args]
+    rc = main(["compensate", p] + args)
+    assert rc == 1
+    assert msg in capsys.readouterr().err
+
+
+def test_cli_missing_file(tmp_path, capsys):
+    good = write(tmp_path, "p.json", json.dumps(SKEW))
+    assert main(["compensate", str(tmp_path / "nope.gcode"), "--params", good]) == 1
+    assert "No such file" in capsys.readouterr().err
+
+
+def test_cli_params_init_and_module_entry(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "octoprint_kincomp", "params", "--init"],
+                         capture_output=True, text=True, check=True).stdout
+    assert changes_nothing(Params.from_json(out))
+    p = write(tmp_path, "p.json", json.dumps(SKEW))
+    chk = subprocess.run([sys.executable, "-m", "octoprint_kincomp", "params", "--check", p],
+                         capture_output=True, text=True)
+    assert chk.returncode == 0 and "valid" in chk.stdout
+
+
+def test_cli_firmware_equivalents(tmp_path, capsys):
+    p = write(tmp_path, "p.json", json.dumps({"squareness_um_per_m": {"xy": -3638.6},
+                                             "backlash": {"x": 20}}))
+    assert main(["firmware", "--params", p]) == 0
+    out = capsys.readouterr().out
+    assert "M852 I-0.003639" in out and "M556 S100 X0.36386" in out and "M425 X0.0200" in out

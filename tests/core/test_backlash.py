@@ -1,0 +1,170 @@
+"""Backlash state machine: take-up moves, smoothing, per-side values (issue 2)."""
+
+import pytest
+
+from octoprint_kincomp.core.backlash import BacklashTracker, Play
+from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.gcode import parse_command, parse_words
+from octoprint_kincomp.core.params import Params
+from tests.core.test_compensator import assert_lands
+from tests.support.helpers import Printer, compensate_groups, dist
+
+BL = Params.from_dict({"backlash": {"x": 40.0, "y": 25.0}})
+PER_SIDE = Params.from_dict({
+    "backlash": {"x": [{"at_mm": 10, "um": 37.4}, {"at_mm": 210, "um": 4.4}],
+                 "y": [{"at_mm": 10, "um": 5.4}, {"at_mm": 210, "um": 11.3}]},
+    "squareness_um_per_m": {"xy": -3638.6}, "scale_ppm": {"x": -451.7, "y": 287},
+})
+ZIGZAG = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X100 Y10", "G1 X100 Y20", "G1 X10 Y20",
+          "G1 X10 Y30", "G1 X100 Y30", "G1 X55 Y5", "G1 X210 Y210", "G1 X10 Y10"]
+
+
+def xs(line):
+    cmd = parse_command(line)
+    return {w.letter: w.value for w in parse_words(cmd.body)}
+
+
+def test_immediate_takeup_inserts_a_move_at_the_reversal():
+    comp, groups = compensate_groups(BL, ZIGZAG)
+    outs = dict(groups)
+    # X reverses on "G1 X10 Y20": a take-up line (no E, only X) comes first
+    take, move = outs["G1 X10 Y20"]
+    assert set(xs(take)) == {"X"}
+    # take-up is the full backlash (from +b/2 to -b/2)
+    before = xs(outs["G1 X100 Y10"][-1])["X"]
+    assert before - xs(take)["X"] == pytest.approx(0.040, abs=1e-3)
+    assert comp.report.takeup_moves >= 3
+
+
+def test_immediate_takeup_lands_on_every_point():
+    assert_lands(BL, ZIGZAG)
+    assert_lands(PER_SIDE, ZIGZAG)
+
+
+def test_per_side_values_are_the_local_step():
+    p = Params.from_dict({"backlash": {"x": [{"at_mm": 10, "um": 37.4},
+                                              {"at_mm": 210, "um": 4.4}]}})
+    comp = Compensator(p, Options(decimals=6))
+    comp.process("G28")
+    first = comp.process("G1 X210 Y0 Z1")
+    # from home (direction unknown) the +X move ends on +b/2, b taken at X=210: 4.4 um
+    assert xs(first[-1])["X"] == pytest.approx(210 + 0.0044 / 2, abs=1e-6)
+    out = comp.process("G1 X10")  # reversal at X=210: step 4.4 um
+    assert xs(out[0])["X"] == pytest.approx(210 - 0.0044 / 2, abs=1e-6)
+    out = comp.process("G1 X210")  # reversal at X=10: step 37.4 um
+    assert xs(out[0])["X"] - (10 - 0.0374 / 2) == pytest.approx(0.0374, abs=1e-6)
+
+
+def test_fraction_scales_the_takeup():
+    half = Params.from_dict({"backlash": {"x": 40.0, "fraction": 0.5}})
+    comp = Compensator(half, Options(decimals=6))
+    comp.process("G28")
+    comp.process("G1 X50 Y0 Z1")
+    a = xs(comp.process("G1 X10")[0])["X"]
+    assert a == pytest.approx(50 - 0.010, abs=1e-9)  # offset went from +10 um to -10 um
+
+
+def test_deadband_ignores_float_noise_but_not_real_reversals():
+    comp = Compensator(BL, Options(decimals=8))
+    comp.process("G28")
+    comp.process("G1 X50 Y0 Z1")
+    out = comp.process("G1 X49.9999999997")
+    assert len(out) == 1  # 0.3 nm: float noise, no take-up
+    out = comp.process("G1 X49.999")
+    assert len(out) == 2  # 1 um back is a real reversal: the carriage would stay in the play
+
+
+def test_sub_deadband_steps_cannot_add_up_to_an_untaken_reversal():
+    """The deadband is a hysteresis around the farthest command reached, not a per-step
+    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all."""
+    t = BacklashTracker(BL)
+    assert t.detect_reversals((0, 0, 0), (10, 0, 0), (0, 0, 0)) == [0]
+    x, revs = 10.0, []
+    for _ in range(10):
+        revs.append(t.detect_reversals((x, 0, 0), (x - 4e-7, 0, 0), (x, 0, 0)))
+        x -= 4e-7
+    # steps 1 and 2 reach -0.8 nm (inside the deadband), step 3 reaches -1.2 nm: reversal
+    assert revs[:2] == [[], []] and revs[2] == [0] and t.dir[0] == -1
+    assert all(r == [] for r in revs[3:])  # then simply moving on in -X
+    # moving forward within the deadband of the extreme is no reversal either
+    assert t.detect_reversals((x, 0, 0), (x + 9e-7, 0, 0), (x, 0, 0)) == []
+    assert t.detect_reversals((x, 0, 0), (x + 1.1e-6, 0, 0), (x, 0, 0)) == [0]
+
+
+def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
+    """G28 X at Z=50 with XZ skew: the drive sits at the home command 0 while the X command
+    for X=0 is -0.25 mm. The next move drives X from 0 to -0.25 - b/2, a -X move from a
+    reset direction, and so it needs the take-up (judging it from inverse(home) saw no
+    step and left the carriage b/2 = 50 um off)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xz": 5000.0}, "backlash": {"x": 100.0}})
+    lines = ["G28", "G1 X0 Y0 Z50", "G28 X", "G1 Y10"]
+    comp, groups = compensate_groups(p, lines, Options(decimals=6))
+    take, move = groups[-1][1]  # a take-up move, then the move
+    assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
+    printer = Printer(p)
+    for _, outs in groups:
+        for o in outs:
+            printer.run_line(o)
+    assert dist(printer.actual(), (0, 10, 50)) < 2e-6
+
+
+def test_smoothing_spreads_takeup_over_following_path():
+    p = Params.from_dict({"backlash": {"x": 40.0, "smoothing_mm": 2.0}})
+    comp, groups = compensate_groups(p, ["G28", "M83", "G1 X50 Y0 Z1 F3000", "G1 X40 E1",
+                                         "G1 X30 E1"],
+                                     Options(decimals=6))
+    outs = dict(groups)
+    first = outs["G1 X40 E1"]
+    # no take-up move; the reversing move is split where the 2 mm ramp ends
+    assert len(first) == 2
+    a, b = xs(first[0]), xs(first[1])
+    assert a["X"] == pytest.approx(48 - 0.020, abs=1e-6)  # ramp finished after 2 mm
+    assert b["X"] == pytest.approx(40 - 0.020, abs=1e-6)
+    # E split in proportion to the path: 2 mm of 10 mm
+    assert a["E"] + b["E"] == pytest.approx(1.0, abs=1e-9) and a["E"] == pytest.approx(0.2)
+    assert comp.report.takeup_moves == 0
+    # after the ramp the printer lands exactly again
+    pr = Printer(p)
+    for _, outs_ in groups:
+        for o in outs_:
+            pr.run_line(o)
+    assert dist(pr.actual(), (30, 0, 1)) < 1e-6
+
+
+def test_smoothing_ramp_spanning_several_moves():
+    p = Params.from_dict({"backlash": {"y": 30.0, "smoothing_mm": 5.0}})
+    lines = ["G28", "G1 X0 Y50 Z1", "G1 Y49", "G1 Y48", "G1 Y47", "G1 Y46", "G1 Y45", "G1 Y40"]
+    comp, groups = compensate_groups(p, lines, Options(decimals=6))
+    ys = [xs(o)["Y"] for _, outs in groups[2:] for o in outs]
+    offsets = [y - d for y, d in zip(ys, [49, 48, 47, 46, 45, 40])]
+    # ramp from +15 um to -15 um over 5 mm of travel: -3 um... then -15 um
+    assert offsets == pytest.approx([0.009, 0.003, -0.003, -0.009, -0.015, -0.015], abs=1e-9)
+
+
+def test_backlash_on_arcs_reverses_at_quadrants():
+    lines = ["G28", "G92 E0", "G1 X100 Y100 Z1 F3000", "G2 X100 Y100 I20 J0 E3"]
+    comp = assert_lands(PER_SIDE, lines)
+    assert comp.report.takeup_moves >= 3
+
+
+def test_backlash_in_relative_mode():
+    lines = ["G28", "G1 X50 Y50 Z1", "G91", "G1 X10", "G1 X-5", "G1 Y3", "G1 Y-8 X2", "G90",
+             "G1 X10 Y10"]
+    assert_lands(PER_SIDE, lines)
+
+
+def test_homing_resets_direction():
+    t = BacklashTracker(BL)
+    t.detect_reversals((0, 0, 0), (10, 0, 0), (0, 0, 0))
+    assert t.dir[0] == 1
+    t.reset([0])
+    assert t.dir[0] == 0 and t.target(0, 5.0) == 0.0
+
+
+def test_play_operator():
+    pl = Play(Params.from_dict({"backlash": {"x": 100.0}}))
+    assert pl.carriage(0, 0.0) == 0.0
+    assert pl.carriage(0, 1.0) == pytest.approx(1.0 - 0.05)
+    assert pl.carriage(0, 0.95) == pytest.approx(0.95)  # inside the play: carriage stays
+    assert pl.carriage(0, 0.92) == pytest.approx(0.95)
+    assert pl.carriage(0, 0.5) == pytest.approx(0.55)

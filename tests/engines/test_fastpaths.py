@@ -1,0 +1,291 @@
+"""The fast paths give exactly what the general path gives (issue 5).
+
+The fast paths: the per-line fast branch of Compensator.process (the queuing hook), in
+Python and compiled (kernel.py), and the file engine (fastfile.py), which runs the compiled
+kernel over a block, or vectorises it with numpy (blocks with slicer arcs, or no kernel).
+Each must produce the same text and report as the general, line-by-line path on real
+slicer files and on awkward generated programs, with the kernel and without it."""
+
+import io
+import os
+
+import pytest
+
+from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
+from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines import vectorised as fastfile
+from octoprint_kincomp.engines.files import (
+    ENCODING,
+    ERRORS,
+    compensate_binary,
+    compensate_lines,
+    marker_line,
+)
+from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
+from tests.support import DATA as SAMPLES
+from tests.support.gcodegen import random_program
+from tests.support.helpers import kernel
+
+PARAMS = [
+    Params.from_dict(BENCH_PARAMS),
+    Params.from_dict({"squareness_um_per_m": {"xy": 300, "xz": -120},
+                      "scale_ppm": {"x": 100, "z": -50}, "backlash": {"y": 12.0}}),
+    Params.from_dict({"backlash": {"x": 30.0, "z": 5.0, "fraction": 0.7}}),
+]
+OPTIONS = [
+    Options(),
+    Options(limits=(0, 200, 0, 200, 0, 250), policy="clamp"),
+    Options(limits=(0, 200, 0, 200, 0, 250), policy="warn", decimals=4),
+]
+
+
+def general(text: str, params, options):
+    comp = Compensator(params, options)
+    comp.fast_lines = False
+    out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
+    return out, comp.report.to_dict()
+
+
+def per_line(text: str, params, options, compiled=True):
+    with kernel(compiled):
+        comp = Compensator(params, options)
+    assert (comp._kernel is not None) == (compiled and comp.fast_lines)
+    out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
+    return out, comp.report.to_dict()
+
+
+def engine(text: str, params, options, chunk=None, compiled=True):
+    if chunk:
+        old = fastfile.CHUNK_BYTES
+        fastfile.CHUNK_BYTES = chunk
+    try:
+        dst = io.BytesIO()
+        with kernel(compiled):
+            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
+                                    options)
+    finally:
+        if chunk:
+            fastfile.CHUNK_BYTES = old
+    return dst.getvalue().decode(ENCODING, ERRORS), rep.to_dict()
+
+
+def check_all(text, params, options, chunk=None):
+    ref = general(text, params, options)
+    for compiled in (True, False):
+        assert per_line(text, params, options, compiled) == ref, compiled
+        assert engine(text, params, options, chunk, compiled) == ref, compiled
+
+
+def sample(name):
+    with open(os.path.join(SAMPLES, name), encoding=ENCODING, errors=ERRORS, newline="") as f:
+        return f.read()
+
+
+@pytest.mark.parametrize("params", PARAMS, ids=["bench", "skew", "backlash"])
+@pytest.mark.parametrize("options", OPTIONS, ids=["plain", "clamp", "warn4"])
+def test_real_slicer_files(params, options):
+    for name in ("bambustudio-a1-hook.gcode", "bambustudio-square-ring.gcode"):
+        check_all(sample(name), params, options)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_generated_awkward_programs(seed):
+    lines = random_program(seed, n=400, nasty=0.25 if seed % 2 else 0.02)
+    params = PARAMS[seed % len(PARAMS)]
+    options = OPTIONS[seed % len(OPTIONS)]
+    for ending in ("\n", "\r\n"):
+        text = ending.join(lines) + (ending if seed % 3 else "")
+        # small chunks force chunk boundaries, segments and the short-run path
+        check_all(text, params, options, chunk=997 if seed % 4 == 0 else None)
+
+
+def test_benchmark_style_file(tmp_path):
+    path = tmp_path / "b.gcode"
+    generate(str(path), 30000)
+    text = path.read_text()
+    for params in PARAMS:
+        ref = general(text, params, Options())
+        assert engine(text, params, Options()) == ref
+        assert engine(text, params, Options(), compiled=False) == ref
+
+
+def test_trailing_space_on_the_last_line_of_a_block():
+    # review finding: the tokeniser's word sums indexed past the block's end
+    for text in ("G28\nG1 X1 Y1 \n", "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
+                 "G28\n" + "G1 X5 Y5\n" * 40 + "G1 X1 Y1 \n", "G28\nG1 X1 Y1 \r\n"):
+        check_all(text, PARAMS[0], Options())
+
+
+def test_lone_cr_and_missing_newline():
+    text = "G28\rG1 X10 Y10 Z1\rG1 X20 Y5\r; c\rG1 X30 Y30"
+    check_all(text, PARAMS[0], Options())
+    check_all("G28\nG1 X10 Y10 Z1\nG1 X20 Y5", PARAMS[0], Options())
+
+
+def test_limit_error_raised_at_the_same_line():
+    lines = ["G28", "G1 X10 Y100 Z1"] + [f"G1 X{50 + i % 7} Y{100 + i % 5}" for i in range(60)]
+    lines += ["G1 X0 Y200", "G1 X10 Y10"]
+    text = "\n".join(lines) + "\n"
+    params = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
+    opts = Options(limits=(0, 200, 0, 200, 0, 250), policy="error")
+    with pytest.raises(LimitError) as a:
+        general(text, params, opts)
+    for compiled in (True, False):
+        with pytest.raises(LimitError) as b:
+            engine(text, params, opts, compiled=compiled)
+        assert str(a.value) == str(b.value)
+
+
+def test_fast_line_falls_back_on_malformed_numbers():
+    comp = Compensator(PARAMS[1])
+    comp.process("G28")
+    comp.process("G1 X1 Y1 Z1")
+    assert comp.process("G1 X1.2.3 Y2") == "G1 X1.2.3 Y2"
+    assert comp.report.malformed == 1
+
+
+TRICKY_FAST_LINES = [
+    "G1 X Y2", "G1 X+ Y2", "G1 X- Y2", "G1 X. Y2", "G1 X1-2 Y2", "G1 X1+ Y2", "G1 X--1 Y2",
+    "G1 X1.2.3", "G1 X1 Y2 E", "G1 X1 Y2 F", "G1 F1 X1 F2", "G1 X1  Y2", "G1 X1 Y2 ",
+    "G1 Y2 X1", "G1 X1 X2", "G1 X1e3 Y2", "G1 X1_0 Y2", "G1 Xinf", "G1 Xnan Y1",
+    "G1 X1 Y2\u2003", "G1 X1\u00a0Y2", "G1 X\u0661 Y2", "G1 X1 Y2 E0.5 F1200",
+    "G0 F9000 X12.5 Y-3", "G1 X" + "9" * 95, "G1 X" + "9" * 99 + " Y1", "G1 E-0.8 F2400",
+    "G1 F600", "G1 Z.4", "G1 X+.5 Y-.5 Z+0", "G1 X5. Y6.", "G1 X1 Y2 Z3 E4 F5",
+    "G1 X1 Y2 *12", "G1 X1 Y2;c", "G1 X1 Y2 \udcff", "G1 x1 y2", "G1 X1 Y2 A3",
+]
+
+
+@pytest.mark.parametrize("params", PARAMS[:2], ids=["bench", "skew"])
+def test_fast_line_shapes_agree_with_the_general_path(params):
+    """The per-line fast path reads lines by their shape and float(); on every odd
+    spelling it either gives the general path's text and report, or leaves the line to it."""
+    for line in TRICKY_FAST_LINES:
+        text = "G28\nG1 X10 Y10 Z1 E0\n" + line + "\nG1 X20 Y20\n"
+        ref = general(text, params, Options())
+        assert per_line(text, params, Options()) == ref, line
+        assert per_line(text, params, Options(), compiled=False) == ref, line
+
+
+def arc_program(seed: int, n: int = 500, e_mode: str = "absolute", crlf=False) -> str:
+    """Slicer-style perimeters with arcs (G2/G3 X Y I J E [F]) between G1 moves, in the
+    shapes the file engine vectorises, and some it must leave to the compensator."""
+    import math
+    import random
+
+    rng = random.Random(seed)
+    head = ["G28", "G90", "M83" if e_mode == "relative" else "M82", "G1 Z0.3 F1200"]
+    if e_mode == "absolute":
+        head.insert(3, "G92 E0")
+    lines = list(head)
+    e = 0.0
+    cx, cy, r = 100.0, 100.0, 20.0
+    ang = 0.0
+    x, y = cx + r, cy
+    lines.append(f"G1 X{x:.3f} Y{y:.3f}")
+    for _ in range(n):
+        kind = rng.random()
+        step = rng.uniform(0.02, 0.6) * rng.choice([1, 1, 1, -1])
+        na = ang + step
+        nx, ny = round(cx + r * math.cos(na), 3), round(cy + r * math.sin(na), 3)
+        de = abs(step) * r * 0.033
+        e_text = f"E{de:.5f}" if e_mode == "relative" else f"E{e + de:.5f}"
+        e += de
+        if kind < 0.45:
+            code = "G3" if step > 0 else "G2"
+            words = [f"X{nx:.3f}", f"Y{ny:.3f}", f"I{cx - x:.3f}", f"J{cy - y:.3f}"]
+            if rng.random() < 0.9:
+                words.append(e_text)
+            if rng.random() < 0.15:
+                words.append(f"F{rng.choice([1200, 3000])}")
+            if rng.random() < 0.03:
+                words = words[2:4] + words[4:]  # a full circle: I/J only
+                nx, ny = x, y
+            line = code + " " + " ".join(words)
+            if rng.random() < 0.03:
+                line += " ; not simple"  # commented arcs take the line path
+        elif kind < 0.9:
+            line = f"G1 X{nx:.3f} Y{ny:.3f} {e_text}"
+        elif kind < 0.95:
+            line = "G1 E-0.8 F2400" if e_mode == "relative" else f"G1 E{e - 0.8:.5f} F2400"
+            e -= 0.8 if e_mode == "absolute" else 0
+            nx, ny = x, y
+        else:
+            r = rng.uniform(5, 60)
+            nx, ny, na = round(cx + r * math.cos(ang), 3), round(cy + r * math.sin(ang), 3), ang
+            line = f"G0 X{nx:.3f} Y{ny:.3f} F9000"
+        lines.append(line)
+        x, y, ang = nx, ny, na
+    end = "\r\n" if crlf else "\n"
+    return end.join(lines) + end
+
+
+ARC_PARAMS = PARAMS + [
+    Params.from_dict({"squareness_um_per_m": {"xy": 800.0}}),  # no backlash
+    Params.from_dict({"backlash": {"x": 25.0, "y": 25.0}}),  # backlash only
+]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_arcs_are_vectorised_with_the_same_output(seed):
+    from unittest import mock
+
+    params = ARC_PARAMS[seed % len(ARC_PARAMS)]
+    options = OPTIONS[seed % len(OPTIONS)]
+    text = arc_program(seed, e_mode=("absolute", "relative")[seed % 2], crlf=seed % 3 == 0)
+    taken = []
+    orig = fastfile.FileEngine._mixed
+
+    def spy(self, *args):
+        out = orig(self, *args)
+        taken.append(out is not None)
+        return out
+
+    ref = general(text, params, options)
+    for compiled in (True, False):  # blocks with arcs take the vectorised path either way
+        with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
+            got = engine(text, params, options, 4093 if seed % 2 else None, compiled)
+        assert got == ref
+    assert ref[1]["arcs_linearised"] > 100
+    assert taken and any(taken)  # the vectorised arc path did the work
+
+
+def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
+    # no G92 E0 and no E before the arcs: the line path passes such arcs as written
+    lines = ["G28", "G1 X120 Y100 Z0.3"] + [
+        f"G3 X{100 + 20 * __import__('math').cos(a / 10):.3f} "
+        f"Y{100 + 20 * __import__('math').sin(a / 10):.3f} I-20 J0 E{a:.5f}"
+        for a in range(1, 40)]
+    text = "\n".join(lines) + "\n"
+    for params in ARC_PARAMS:
+        ref = general(text, params, Options())
+        assert engine(text, params, Options()) == ref
+        assert engine(text, params, Options(), compiled=False) == ref
+
+
+def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
+    """A retreat of the deadband plus an ulp (review finding): the vectorised shortcut used
+    step < -db where the tracker compares q < anchor - db; they round differently there."""
+    p = Params.from_dict({"backlash": {"x": 30.0}})
+    for lines, opts in (
+            (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
+            (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002))):
+        text = "\n".join(lines + [f"G1 X{3 + i}" for i in range(30)]) + "\n"
+        check_all(text, p, opts)
+
+
+def test_limit_examples_of_arc_chords_come_in_emission_order():
+    import math
+
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
+    t = math.pi - 0.04
+    sx, sy = 1000 + 1000 * math.cos(t), 100 + 1000 * math.sin(t)
+    lines = ["G28", f"G1 X{sx:.3f} Y{sy:.3f} Z1",
+             f"G3 X0 Y100 I{1000 - sx:.3f} J{100 - sy:.3f}"] + [f"G1 X{3 + i} Y100"
+                                                              for i in range(30)]
+    text = "\n".join(lines) + "\n"
+    for policy in ("warn", "clamp"):
+        opts = Options(limits=(0, 300, 0, 300, 0, 300), policy=policy)
+        ref = general(text, p, opts)
+        assert len(ref[1]["limit_examples"]) >= 3
+        assert engine(text, p, opts) == ref
+        assert engine(text, p, opts, compiled=False) == ref

@@ -1,0 +1,42 @@
+"""KinCompPlugin on a real OctoPrint settings object, with mocks for the printer, event bus,
+plugin and file managers (the plugin-layer tests and benchmarks/plugin_hook.py)."""
+
+import os
+from unittest import mock
+
+from octoprint_kincomp.plugin.settings import defaults
+
+
+def mocked_plugin(basedir: str, bed_mm: float = 200.0):
+    """A started plugin (initialize + on_after_startup) keeping its files under ``basedir``;
+    the printer prints, the profile's bed is ``bed_mm`` square and high."""
+    from octoprint.plugin import PluginSettings
+    from octoprint.settings import Settings
+
+    from octoprint_kincomp.plugin.kincomp import KinCompPlugin
+
+    p = KinCompPlugin()
+    p._identifier = "kincomp"
+    p._plugin_name = "KinComp"
+    p._plugin_version = "test"
+    p._basefolder = basedir
+    p._logger = mock.MagicMock()
+    p._settings = PluginSettings(Settings(basedir=os.path.join(basedir, "base")), "kincomp",
+                                 defaults=defaults())
+    p._plugin_manager = mock.MagicMock()
+    p._event_bus = mock.MagicMock()
+    p._printer = mock.MagicMock()
+    p._printer.is_printing.return_value = True
+    p._printer.is_pausing.return_value = False
+    p._printer.is_paused.return_value = False
+    p._file_manager = mock.MagicMock()
+    p._printer_profile_manager = mock.MagicMock()
+    p._printer_profile_manager.get_current_or_default.return_value = {
+        "volume": {"width": bed_mm, "depth": bed_mm, "height": bed_mm, "origin": "lowerleft"}}
+    data = os.path.join(basedir, "data")
+    os.makedirs(data, exist_ok=True)
+    p._data_folder = data
+    p.get_plugin_data_folder = lambda: data
+    p.initialize()
+    p.on_after_startup()
+    return p

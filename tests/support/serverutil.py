@@ -1,0 +1,134 @@
+"""Helpers for tests against a real OctoPrint server (the ``server`` fixture in
+tests/conftest.py): settings and status through KinComp's API, serial.log ``Send:`` lines,
+the offline reference compensation, and a cookie/CSRF browser-like session."""
+
+import re
+import time
+import uuid
+
+from octoprint_kincomp.core.compensator import Compensator
+from octoprint_kincomp.plugin.settings import engine_config
+from tests.support import DATA as DATA
+
+# commands OctoPrint sends by itself (polls, handshake): not part of what a test sent
+AUTOMATIC = {"M105", "M27", "M155", "M110", "M115", "M20", "M21", "M400", "M114", "M503"}
+_SEND = re.compile(r" - Send: (?:N\d+ )?(.*?)(?:\*\d+)?$")
+_SEND_N = re.compile(r" - Send: N(\d+) ")
+
+
+def settings(srv, **values):
+    """POST /plugin/kincomp/settings (admin), applied at once; returns the new settings."""
+    status, body = srv.request("POST", "/plugin/kincomp/settings",
+                               dict(values, apply_now=True))
+    assert status == 200, body
+    return body["settings"]
+
+
+def status(srv):
+    code, body = srv.request("GET", "/plugin/kincomp/status")
+    assert code == 200, body
+    return body
+
+
+def offline(srv, lines):
+    """What the plugin should send for ``lines`` (comment-stripped commands) from a fresh
+    compensator with the server's current settings: the reference for the Send: lines."""
+    st = status(srv)
+    limits = tuple(st["limits"]) if st["limits"] else None
+    params, options = engine_config(st["settings"], limits)
+    comp = Compensator(params, options)
+    out = []
+    for line in lines:
+        res = comp.process(line)
+        out.extend([res] if isinstance(res, str) else res)
+    return out
+
+
+def marker(srv) -> str:
+    """Send a unique M117 and wait until it is in serial.log; returns it."""
+    text = f"M117 kincomp-e2e-{uuid.uuid4().hex[:8]}"
+    code, _ = srv.request("POST", "/api/printer/command", {"commands": [text]})
+    assert code == 204
+    wait_for_send(srv, text)
+    return text
+
+
+def wait_for_send(srv, text, timeout=30.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if any(text == s for s in sent(srv)):
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"{text!r} never sent")
+
+
+def sent(srv, after: str = None, until: str = None, automatic=False):
+    """The commands of serial.log's Send: lines (line numbers and checksums removed),
+    resends dropped (a repeated line number), OctoPrint's own polls dropped unless
+    ``automatic``; only those after the line ``after`` and before ``until``."""
+    out, seen_n = [], set()
+    for line in srv.serial_log().splitlines():
+        m = _SEND.search(line)
+        if not m:
+            continue
+        cmd = m.group(1)
+        n = _SEND_N.search(line)
+        if cmd.startswith("M110"):
+            seen_n.clear()  # line numbers start again
+        elif n:
+            if n.group(1) in seen_n:
+                continue  # a resend: the same bytes again, not a new command
+            seen_n.add(n.group(1))
+        out.append(cmd)
+    if after is not None:
+        out = out[len(out) - out[::-1].index(after):]
+    if until is not None:
+        out = out[:out.index(until)]
+    if not automatic:
+        out = [c for c in out if c.split(" ", 1)[0] not in AUTOMATIC]
+    return out
+
+
+class BrowserSession:
+    """Cookie-based client like the web UI: session cookie after login, CSRF double
+    cookie (the X-CSRF-Token header must echo the csrf_token cookie), no API key."""
+
+    def __init__(self, srv):
+        import http.cookiejar
+        import urllib.request
+
+        self.srv = srv
+        self.jar = http.cookiejar.CookieJar()
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(self.jar))
+        self.open("GET", "/")  # sets the CSRF cookie
+
+    def csrf(self):
+        for c in self.jar:
+            if c.name.startswith("csrf_token"):
+                return c.value
+        return None
+
+    def open(self, method, path, body=None, csrf=True, raw=None, content_type=None):
+        import urllib.error
+        import urllib.request
+
+        from octoprint_kincomp.tools.devserver import request_body
+
+        headers = {}
+        data = request_body(headers, body, raw, content_type)
+        token = self.csrf()
+        if csrf and token:
+            headers["X-CSRF-Token"] = token
+        req = urllib.request.Request(self.srv.url + path, data=data, method=method,
+                                     headers=headers)
+        try:
+            with self.opener.open(req, timeout=60) as resp:
+                return resp.status, resp.read().decode("utf-8", "replace")
+        except urllib.error.HTTPError as exc:
+            return exc.code, exc.read().decode("utf-8", "replace")
+
+    def login(self, user, password):
+        code, text = self.open("POST", "/api/login",
+                               {"user": user, "pass": password, "remember": False})
+        assert code == 200, text
+        return self
