@@ -29,10 +29,10 @@ def main() -> int:
         os.environ["KINCOMP_KERNEL"] = "0"
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-    from octoprint_kincomp import kernel
-    from octoprint_kincomp.benchmark import BENCH_PARAMS, generate
-    from octoprint_kincomp.queue import FILE_TAG
-    from tests.mocked_plugin import mocked_plugin
+    from octoprint_kincomp.engines import kernel
+    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
+    from octoprint_kincomp.plugin.queue import FILE_TAG
+    from tests.support.mocked_plugin import mocked_plugin
 
     tmp = tempfile.mkdtemp(prefix="kincomp-hook-")
     p = mocked_plugin(tmp, bed_mm=250.0)

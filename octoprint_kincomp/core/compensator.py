@@ -48,8 +48,6 @@ POLICIES = ("warn", "clamp", "error")
 INVALIDATING_G = frozenset({12, 27, 29, 30, 31, 32, 33, 34, 35, 38, 61, 80, 380, 425})
 INVALIDATING_M = frozenset({48})
 
-MARKER_PREFIX = "; kincomp: compensated"
-
 _FAST_PREFIXES = frozenset({"G1 ", "G0 "})
 # The per-line fast path reads a line by its shape: the line with the number characters
 # deleted, e.g. "G1 X12.5 Y-3 E0.41" -> "G X Y E". Accepted shapes: an optional F, then X, Y,

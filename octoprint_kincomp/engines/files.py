@@ -10,20 +10,15 @@ and any bytes that are not UTF-8 are preserved; memory use does not grow with fi
 
 from __future__ import annotations
 
-import os
-import re
-import tempfile
 from typing import IO, Iterable, Iterator, Optional
 
 from .. import __version__
-from ..core.compensator import MARKER_PREFIX, Compensator, Options, Report
+from ..core.atomic import replacing
+from ..core.compensator import Compensator, Options, Report
 from ..core.lines import join_output, split_ending
+from ..core.marker import MARKER_SCAN_LINES, file_marker, find_marker, marker_hash
+from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
-
-MARKER_SCAN_LINES = 100
-_MARKER_RE = re.compile(r"^; kincomp: compensated params=([0-9a-f]+)")
-ENCODING = "utf-8"
-ERRORS = "surrogateescape"  # round-trips any byte
 
 
 class AlreadyCompensated(ValueError):
@@ -41,23 +36,7 @@ class _NullSink:
 
 
 def marker_line(params: Params) -> str:
-    return f"{MARKER_PREFIX} params={params.hash()} kincomp={__version__}"
-
-
-def find_marker(lines: Iterable[str]) -> Optional[str]:
-    """Parameter hash from a KinComp marker among the first lines, or None."""
-    for i, line in enumerate(lines):
-        if i >= MARKER_SCAN_LINES:
-            break
-        m = _MARKER_RE.match(line)
-        if m:
-            return m.group(1)
-    return None
-
-
-def file_marker(path: str) -> Optional[str]:
-    with open(path, encoding=ENCODING, errors=ERRORS, newline="") as f:
-        return find_marker(f)
+    return make_marker_line(params.hash(), __version__)
 
 
 def compensate_lines(lines: Iterable[str], comp: Compensator,
@@ -69,10 +48,10 @@ def compensate_lines(lines: Iterable[str], comp: Compensator,
         if header is not None:
             yield header + (ending or "\n")
             header = None
-        if comp.lineno < MARKER_SCAN_LINES and body.startswith(MARKER_PREFIX):
-            m = _MARKER_RE.match(body)
-            if m:
-                raise AlreadyCompensated(m.group(1))
+        if comp.lineno < MARKER_SCAN_LINES:
+            found = marker_hash(body)
+            if found is not None:
+                raise AlreadyCompensated(found)
         out = process(body)
         if out is body:
             yield raw
@@ -118,21 +97,6 @@ def compensate_file(in_path: str, out_path: Optional[str], params: Params,
     if dry_run:
         with open(in_path, "rb") as src:
             return compensate_binary(src, _NullSink(), params, options, progress)
-    directory = os.path.dirname(os.path.abspath(target)) or "."
-    fd, tmp = tempfile.mkstemp(prefix=".kincomp-", suffix=".gcode", dir=directory)
-    try:
-        with open(in_path, "rb") as src, os.fdopen(fd, "wb") as dst:
-            report = compensate_binary(src, dst, params, options, progress)
-        if os.path.exists(target):
-            try:
-                os.chmod(tmp, os.stat(target).st_mode & 0o777)
-            except OSError:
-                pass
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with open(in_path, "rb") as src, replacing(target, ".gcode") as dst:
+        report = compensate_binary(src, dst, params, options, progress)
     return report

@@ -34,10 +34,11 @@ from ..ballbar.program import ProgramError, TestSpec, cap_feed, generate, spec_d
 from ..core.compensator import Options
 from ..core.firmware import equivalents
 from ..core.kinematics import changes_nothing
+from ..core.marker import file_marker
 from ..core.messages import Msg, as_dict, error_message, translate
 from ..core.params import Params
 from ..engines import kernel
-from ..engines.files import AlreadyCompensated, compensate_file, file_marker
+from ..engines.files import AlreadyCompensated, compensate_file
 from .firmware_watch import FirmwareWatcher
 from .queue import FILE_TAG, QueueCompensator
 from .runs import RunNotFound, RunStore

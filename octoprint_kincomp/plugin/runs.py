@@ -14,8 +14,9 @@ import json
 import os
 import re
 import secrets
-import tempfile
 from typing import Any, Dict, List, Optional
+
+from ..core.atomic import write_atomic
 
 _ID = re.compile(r"[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
 MAX_RUNS_LISTED = 500
@@ -23,21 +24,6 @@ MAX_RUNS_LISTED = 500
 
 class RunNotFound(KeyError):
     pass
-
-
-def _atomic_write(path: str, data: bytes) -> None:
-    folder = os.path.dirname(path)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 class RunStore:
@@ -56,11 +42,11 @@ class RunStore:
 
     def save(self, run: Dict[str, Any]) -> None:
         path = self._path(run["id"])
-        _atomic_write(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
+        write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
 
     def save_trace(self, run_id: str, data: bytes) -> str:
         path = self._path(run_id, ".trace")
-        _atomic_write(path, data)
+        write_atomic(path, data)
         return path
 
     def trace_path(self, run_id: str) -> Optional[str]:

@@ -11,8 +11,9 @@ from octoprint.filemanager.util import LineProcessorStream
 
 from ..core.compensator import Compensator, Options
 from ..core.lines import UNIVERSAL, join_output, split_ending
+from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, marker_hash
 from ..core.params import Params
-from ..engines.files import _MARKER_RE, ENCODING, ERRORS, MARKER_SCAN_LINES, marker_line
+from ..engines.files import marker_line
 
 
 class CompensatingStream(LineProcessorStream):
@@ -49,7 +50,7 @@ class CompensatingStream(LineProcessorStream):
         text = data.decode(ENCODING, ERRORS)
         raws = UNIVERSAL.findall(text) or [text]
         bodies = [split_ending(raw)[0] for raw in raws[:MARKER_SCAN_LINES]]
-        if any(_MARKER_RE.match(b) for b in bodies):
+        if any(marker_hash(b) is not None for b in bodies):
             self.passthrough = True
             return data
         first_ending = split_ending(raws[0])[1]

@@ -141,7 +141,8 @@ def plain_copy(src: str, dst: str) -> None:
 def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional[int] = None):
     """The straightforward path: every line through the general (non-fast) path."""
     from ..core.compensator import Compensator
-    from ..engines.files import ENCODING, ERRORS, compensate_lines, marker_line
+    from ..core.marker import ENCODING, ERRORS
+    from ..engines.files import compensate_lines, marker_line
 
     comp = Compensator(params)
     comp.fast_lines = False
@@ -194,9 +195,9 @@ def _child_rss(src: str, dst: str, params_json: str) -> dict:
     """Compensate in a fresh interpreter; its RSS (kB) after imports and at the peak."""
     code = (
         "import json,sys\n"
-        "from octoprint_kincomp.params import Params\n"
-        "from octoprint_kincomp.fileproc import compensate_file\n"
-        "import octoprint_kincomp.fastfile, numpy\n"
+        "from octoprint_kincomp.core.params import Params\n"
+        "from octoprint_kincomp.engines.files import compensate_file\n"
+        "import octoprint_kincomp.engines.vectorised, numpy\n"
         "p=Params.from_json(sys.argv[3])\n"
         "def status(key):\n"
         "    for l in open('/proc/self/status'):\n"

@@ -35,11 +35,10 @@ from octoprint_kincomp.core.backlash import Play
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.kinematics import changes_nothing
 from octoprint_kincomp.core.machine import FirmwareInterpreter
+from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import vectorised as fastfile
 from octoprint_kincomp.engines.files import (
-    ENCODING,
-    ERRORS,
     compensate_binary,
     compensate_lines,
     marker_line,

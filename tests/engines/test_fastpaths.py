@@ -12,11 +12,10 @@ import os
 import pytest
 
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
+from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import vectorised as fastfile
 from octoprint_kincomp.engines.files import (
-    ENCODING,
-    ERRORS,
     compensate_binary,
     compensate_lines,
     marker_line,

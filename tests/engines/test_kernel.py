@@ -10,9 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import kernel as kernel_mod
-from octoprint_kincomp.engines.files import ENCODING, ERRORS, compensate_binary
+from octoprint_kincomp.engines.files import compensate_binary
 from tests.support.helpers import kernel
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1500.0, "xz": -200.0},

@@ -6,12 +6,9 @@ import io
 import os
 
 from octoprint_kincomp.core.compensator import Options
+from octoprint_kincomp.core.marker import MARKER_SCAN_LINES
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.files import (
-    MARKER_SCAN_LINES,
-    compensate_binary,
-    marker_line,
-)
+from octoprint_kincomp.engines.files import compensate_binary, marker_line
 from octoprint_kincomp.plugin.upload import CompensatingStream
 from tests.support import DATA as DATA
 
