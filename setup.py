@@ -1,3 +1,4 @@
+import glob
 import os
 
 import setuptools
@@ -7,7 +8,8 @@ import setuptools
 # the kernel's arithmetic must round exactly as Python's does.
 kernel = setuptools.Extension(
     "octoprint_kincomp.engines._kernel",
-    ["octoprint_kincomp/engines/_kernel.c"],
+    sorted(glob.glob("octoprint_kincomp/engines/csrc/*.c")),
+    depends=glob.glob("octoprint_kincomp/engines/csrc/*.h"),
     optional=True,
     extra_compile_args=[] if os.name == "nt" else ["-ffp-contract=off"],
 )

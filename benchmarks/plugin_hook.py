@@ -29,7 +29,7 @@ def main() -> int:
         os.environ["KINCOMP_KERNEL"] = "0"
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-    from octoprint_kincomp.engines import kernel
+    from octoprint_kincomp.engines import select
     from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
     from octoprint_kincomp.plugin.queue import FILE_TAG
     from tests.support.mocked_plugin import mocked_plugin
@@ -55,7 +55,7 @@ def main() -> int:
             samples.append(dt)
     samples.sort()
     rep = p.queue.comp.report
-    print(f"engine: {'compiled' if kernel.available() else 'pure Python'}; "
+    print(f"engine: {select.engine()}; "
           f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups")
     print(f"KinCompPlugin.queuing_hook, G1 line: p50 {samples[len(samples) // 2] / 1000:.2f} us"
           f"  p99 {samples[int(len(samples) * 0.99)] / 1000:.2f} us ({len(samples)} lines)")

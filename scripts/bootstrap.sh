@@ -11,7 +11,7 @@ fi
 stamp=.venv/.kincomp-installed
 # (again when the packaging or the compiled kernel changed: the install builds it)
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] ||
-        [ octoprint_kincomp/engines/_kernel.c -nt "$stamp" ]; then
+        [ -n "$(find octoprint_kincomp/engines/csrc -newer "$stamp" 2>/dev/null)" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     .venv/bin/python -m pip install --quiet -e ".[test]"
     touch "$stamp"

@@ -1,11 +1,25 @@
-"""Shared fixtures. ``server``: one real OctoPrint (virtual printer, KinComp installed) for
-the end-to-end and browser tests of a session, on a free loopback port, stopped at the end.
-Set KINCOMP_E2E_KEEP=<dir> to keep its logs."""
+"""Shared fixtures.
+
+``engine``: the test runs once per engine (``"compiled"``: the C kernel, ``"python"``: the
+pure-Python paths), with every compensator made inside on that engine
+(``engines.select.use``). The compiled run fails if the kernel is not built: the test
+set-up builds it, so the compiled variants cannot silently test Python twice.
+``server``: one real OctoPrint (virtual printer, KinComp installed) for the end-to-end and
+browser tests of a session, on a free loopback port, stopped at the end. Set
+KINCOMP_E2E_KEEP=<dir> to keep its logs."""
 
 import os
 import shutil
 
 import pytest
+
+from octoprint_kincomp.engines.select import ENGINES, use
+
+
+@pytest.fixture(params=ENGINES)
+def engine(request):
+    with use(request.param):
+        yield request.param
 
 
 @pytest.fixture(scope="session")

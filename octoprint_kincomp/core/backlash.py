@@ -22,17 +22,44 @@ anchor is where the drive was last put (the home position after G28).
 
 from __future__ import annotations
 
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 from .params import AXES, Params
+from .state import BacklashState
 
 DEFAULT_DEADBAND_MM = 1e-6
 
 
-class BacklashTracker:
-    """Direction state and take-up offsets (mm) for the three axes."""
+def reversal(d: int, a: Optional[float], q: float, q_from: float,
+             deadband: float) -> Tuple[int, Optional[float]]:
+    """The reversal rule, once for every Python path: an axis travelling in direction ``d``
+    (+1/-1, 0 unknown) with anchor ``a`` (mm; None: unknown, the move's start ``q_from``
+    is taken) is commanded to ``q`` (mm). Returns (the new direction if this is a reversal,
+    else 0; the anchor after the point). On a reversal the anchor is ``q``."""
+    if d > 0:
+        if q >= a:
+            return 0, q
+        return (-1, q) if q < a - deadband else (0, a)
+    if d < 0:
+        if q <= a:
+            return 0, q
+        return (1, q) if q > a + deadband else (0, a)
+    if a is None:
+        a = q_from
+    if q > a + deadband:
+        return 1, q
+    if q < a - deadband:
+        return -1, q
+    return 0, a
 
-    def __init__(self, params: Params, deadband_mm: float = DEFAULT_DEADBAND_MM):
+
+class BacklashTracker:
+    """Take-up offsets (mm) for the three axes, from the backlash parameters and the
+    direction state ``state`` (a :class:`~.state.BacklashState`, part of the stream state
+    that the engines share; a fresh one if not given)."""
+
+    def __init__(self, params: Params, state: Optional[BacklashState] = None,
+                 deadband_mm: float = DEFAULT_DEADBAND_MM):
         self.tables = [params.backlash[a] for a in AXES]
         self.half = params.backlash_fraction * 1e-3 / 2.0  # um -> mm, half on each side
         self.active = [
@@ -41,74 +68,59 @@ class BacklashTracker:
         self.any_active = any(self.active)
         self.smoothing = params.backlash_smoothing_mm
         self.deadband = deadband_mm
-        self.reset()
+        self.s = state if state is not None else BacklashState()
 
     # -- state -------------------------------------------------------------------------
+    @property
+    def dir(self) -> List[int]:
+        """Per axis: +1/-1 the direction of travel, 0 unknown (see BacklashState)."""
+        return self.s.dir
+
+    @property
+    def anchor(self) -> List[Optional[float]]:
+        return self.s.anchor
+
     def reset(self, axes: Sequence[int] = (0, 1, 2)) -> None:
         """Forget the direction of ``axes`` (start, homing, position lost)."""
-        if not hasattr(self, "dir"):
-            self.dir = [0, 0, 0]
-            self.ramp_from = [0.0, 0.0, 0.0]
-            self.ramp_done = [0.0, 0.0, 0.0]  # path length travelled since the reversal
-            self.ramping = [False, False, False]
-            # geometric carriage command (mm, without the take-up offset) farthest along the
-            # current direction; None: not known yet (the next move's start is taken)
-            self.anchor: List[Optional[float]] = [None, None, None]
         for k in axes:
-            self.dir[k] = 0
-            self.anchor[k] = None
-            self.ramping[k] = False
-            self.ramp_from[k] = 0.0
-            self.ramp_done[k] = 0.0
+            self.s.forget(k)
 
     def target(self, k: int, q: float) -> float:
         """Settled offset (mm) of axis k at carriage position q for the current direction."""
-        if not self.active[k] or self.dir[k] == 0:
+        d = self.s.dir[k]
+        if not self.active[k] or d == 0:
             return 0.0
-        return self.dir[k] * self.half * self.tables[k].um_at(q)
+        return d * self.half * self.tables[k].um_at(q)
 
     def offset(self, k: int, q: float, extra_travel: float = 0.0) -> float:
         """Offset (mm) to command for axis k at carriage position q, ``extra_travel`` mm of
         path into the current move (used while a smoothed take-up is ramping)."""
         tgt = self.target(k, q)
-        if not self.ramping[k]:
+        s = self.s
+        if not s.ramping[k]:
             return tgt
-        f = (self.ramp_done[k] + extra_travel) / self.smoothing
+        f = (s.ramp_done[k] + extra_travel) / self.smoothing
         if f >= 1.0:
             return tgt
-        return self.ramp_from[k] + (tgt - self.ramp_from[k]) * f
+        return s.ramp_from[k] + (tgt - s.ramp_from[k]) * f
 
     def ramp_remaining(self, k: int) -> Optional[float]:
         """Path length (mm) left until axis k's smoothed take-up is complete, or None."""
-        if not self.ramping[k]:
+        s = self.s
+        if not s.ramping[k]:
             return None
-        return max(0.0, self.smoothing - self.ramp_done[k])
+        return max(0.0, self.smoothing - s.ramp_done[k])
 
     # -- updates -----------------------------------------------------------------------
     def turn(self, k: int, q_from: float, q: float) -> int:
         """New direction (+1/-1) if axis k's carriage command reverses on its way to ``q``
-        (mm), else 0. Without a reversal the anchor follows the command; on a reversal the
-        caller sets ``dir[k]`` and ``anchor[k] = q``. ``q_from`` (the move's start) is the
-        anchor when none is known."""
-        a = self.anchor[k]
-        d = self.dir[k]
-        if d > 0:
-            if q >= a:
-                self.anchor[k] = q
-                return 0
-            return -1 if q < a - self.deadband else 0
-        if d < 0:
-            if q <= a:
-                self.anchor[k] = q
-                return 0
-            return 1 if q > a + self.deadband else 0
-        if a is None:
-            a = self.anchor[k] = q_from
-        if q > a + self.deadband:
-            return 1
-        if q < a - self.deadband:
-            return -1
-        return 0
+        (mm), else 0 (see :func:`reversal`). Without a reversal the anchor follows the
+        command; on a reversal the caller sets ``dir[k]`` and ``anchor[k] = q``."""
+        s = self.s
+        new, s.anchor[k] = reversal(s.dir[k], s.anchor[k], q, q_from, self.deadband)
+        if new:  # (the caller decides what a reversal does; the anchor is its business)
+            s.anchor[k] = q
+        return new
 
     def detect_reversals(self, p0: Sequence[float], p1: Sequence[float],
                          q0: Sequence[float], ramp: bool = True) -> List[int]:
@@ -117,6 +129,7 @@ class BacklashTracker:
         from the offset in force at the move start (carriage position ``q0``).
         """
         reversed_axes = []
+        s = self.s
         for k in range(3):
             if not self.active[k]:
                 continue
@@ -126,29 +139,30 @@ class BacklashTracker:
             new = self.turn(k, a, b)
             if new:
                 start_offset = self.offset(k, q0[k])
-                self.dir[k] = new
-                self.anchor[k] = b
+                s.dir[k] = new
+                s.anchor[k] = b
                 reversed_axes.append(k)
-                self.ramping[k] = False
+                s.ramping[k] = False
                 if ramp and self.smoothing > 0:
-                    self.ramping[k] = True
-                    self.ramp_from[k] = start_offset
-                    self.ramp_done[k] = 0.0
+                    s.ramping[k] = True
+                    s.ramp_from[k] = start_offset
+                    s.ramp_done[k] = 0.0
         return reversed_axes
 
     def place(self, k: int, c: float) -> None:
         """The drive of axis k was put at ``c`` (mm) by something other than a compensated
         move (homing, G92 defining an unknown axis): direction unknown, anchored there."""
-        self.reset((k,))
-        self.anchor[k] = c
+        self.s.forget(k)
+        self.s.anchor[k] = c
 
     def advance(self, travel: float) -> None:
         """Account ``travel`` mm of path length for ramping take-ups."""
+        s = self.s
         for k in range(3):
-            if self.ramping[k]:
-                self.ramp_done[k] += travel
-                if self.ramp_done[k] >= self.smoothing - 1e-12:
-                    self.ramping[k] = False
+            if s.ramping[k]:
+                s.ramp_done[k] += travel
+                if s.ramp_done[k] >= self.smoothing - 1e-12:
+                    s.ramping[k] = False
 
     def observe(self, c0: Sequence[Optional[float]], c1: Sequence[Optional[float]]) -> None:
         """Track direction on a move passed through uncompensated (drive commands c0 -> c1,
@@ -156,43 +170,26 @@ class BacklashTracker:
         of compensated moves: the drive position minus the offset of the direction. It is
         set to where the move ends (not the farthest point): such moves are rare and their
         start may itself be uncertain, so the hysteresis restarts there."""
+        s = self.s
         for k in range(3):
             if not self.active[k] or c0[k] is None or c1[k] is None:
                 continue
             new = self.turn(k, c0[k] - self.target(k, c0[k]), c1[k] - self.target(k, c1[k]))
             if new:
-                self.dir[k] = new
-                self.ramping[k] = False
-            self.anchor[k] = c1[k] - self.target(k, c1[k])
+                s.dir[k] = new
+                s.ramping[k] = False
+            s.anchor[k] = c1[k] - self.target(k, c1[k])
 
 
 def hysteresis(q: List[float], d: int, a: Optional[float], q_start: float, db: float):
-    """:meth:`BacklashTracker.turn` along the commands ``q`` of one axis (mm) from direction
-    ``d`` and anchor ``a``, without changing a tracker: (direction after each point, reversal
-    at each point, last anchor). The file engine uses it where it cannot decide by steps."""
+    """:func:`reversal` along the commands ``q`` of one axis (mm) from direction ``d`` and
+    anchor ``a``, without changing a tracker: (direction after each point, reversal at each
+    point, last anchor). The file engine uses it where it cannot decide by steps."""
     dirs, revs = [], []
     for x in q:
-        new = 0
-        if d > 0:
-            if x >= a:
-                a = x
-            elif x < a - db:
-                new = -1
-        elif d < 0:
-            if x <= a:
-                a = x
-            elif x > a + db:
-                new = 1
-        else:
-            if a is None:
-                a = q_start
-            if x > a + db:
-                new = 1
-            elif x < a - db:
-                new = -1
+        new, a = reversal(d, a, x, q_start, db)
         if new:
             d = new
-            a = x
         dirs.append(d)
         revs.append(new != 0)
     return dirs, revs, a

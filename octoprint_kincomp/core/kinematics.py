@@ -123,10 +123,11 @@ class KinematicModel:
             affine and np.array_equal(self.A, np.eye(3)) and not np.any(self.b)
         )
         self.is_translation = bool(affine and np.array_equal(self.A, np.eye(3)))
-        # Plain-Python copies for the per-move hot path.
+        # Plain-Python copies for the per-move hot path and the accelerated engines:
+        # q = inverse_rows (p - offset_mm) for affine models.
         self._A_rows = tuple(tuple(float(v) for v in row) for row in self.A)
-        self._b_t = tuple(float(v) for v in self.b)
-        self._Ainv_rows = tuple(tuple(float(v) for v in row) for row in self.A_inv)
+        self.offset_mm = tuple(float(v) for v in self.b)
+        self.inverse_rows = tuple(tuple(float(v) for v in row) for row in self.A_inv)
         self.coupling = self._coupling()
 
     # -- structure ---------------------------------------------------------------------
@@ -190,7 +191,7 @@ class KinematicModel:
     def forward(self, p: Sequence[float]) -> Vec:
         """Commanded machine position (mm) -> actual nozzle position (mm)."""
         if self.is_affine:
-            A, b = self._A_rows, self._b_t
+            A, b = self._A_rows, self.offset_mm
             x, y, z = p
             return (
                 A[0][0] * x + A[0][1] * y + A[0][2] * z + b[0],
@@ -207,7 +208,7 @@ class KinematicModel:
         forward map preconditioned with the inverse linearisation (the paper's first-order
         "add the error" is only its first step).
         """
-        Ai, b = self._Ainv_rows, self._b_t
+        Ai, b = self.inverse_rows, self.offset_mm
         x, y, z = d[0] - b[0], d[1] - b[1], d[2] - b[2]
         q = (
             Ai[0][0] * x + Ai[0][1] * y + Ai[0][2] * z,

@@ -19,6 +19,7 @@ from ..core.lines import join_output, split_ending
 from ..core.marker import MARKER_SCAN_LINES, file_marker, find_marker, marker_hash
 from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
+from .select import make_compensator
 
 
 class AlreadyCompensated(ValueError):
@@ -61,7 +62,7 @@ def compensate_lines(lines: Iterable[str], comp: Compensator,
 
 def compensate_stream(src: IO[str], dst: IO[str], params: Params,
                       options: Optional[Options] = None) -> Report:
-    comp = Compensator(params, options)
+    comp = make_compensator(params, options)
     write = dst.write
     for out in compensate_lines(src, comp, marker_line(params)):
         write(out)
@@ -81,7 +82,7 @@ def compensate_binary(src: IO[bytes], dst: IO[bytes], params: Params,
     ``progress(bytes_read)`` is called as the input is consumed."""
     from .vectorised import FileEngine
 
-    comp = Compensator(params, options)
+    comp = make_compensator(params, options)
     FileEngine(comp).run(src.read, dst.write, marker_line(params), _check_head, progress)
     return comp.report
 

@@ -1,65 +1,57 @@
-"""The compiled fast path of the compensator (``_kernel.c``), where it could be built.
+"""The compiled kernel of the transform (``csrc/``), where it could be built.
 
-``Kernel.line(comp, line)`` is ``Compensator._fast_line`` compiled: the same lines, the same
-arithmetic in the same order, Python's own number parser and formatter, so the same text
-and the same state; where it does not decide (a limit touched, anything unusual) it returns
-None having changed nothing, and the general path takes the line. ``Kernel.feed(comp, buf,
-pos)`` runs it over the complete lines of a block of a file, with blank lines and ``;``
-comments, up to the first line it does not take. Both read the compensator's state at the
-start of a call and write it back at the end.
+``Kernel.line(state, line)`` compensates one plain absolute ``G0``/``G1`` line of an affine
+model exactly as the reference path (``core/path.py``) would: the same arithmetic in the
+same order, Python's own number rules, so the same text and the same stream state
+(``core/state.py``, which it reads and writes); where it does not decide (a limit touched,
+anything unusual) it returns None having changed nothing, and the reference path takes the
+line. ``Kernel.feed(state, buf, pos)`` runs it over the complete lines of a block of a
+file, with blank lines and ``;`` comments, up to the first line it does not take.
 
 The extension is optional: the package installs and works without it (no compiler, e.g.),
-on the pure-Python paths, only slower. ``KINCOMP_KERNEL=0`` in the environment turns it
-off. Before its first use it must write, on a fixed program full of rounding traps, exactly
-what the Python path writes (``self_check``): a platform where it would not (a compiler that
-fuses multiply-adds, say) runs on the Python paths. The tests run every equivalence check
-with and without it.
+only slower. Before it is used it must write, on a fixed program full of rounding traps,
+exactly what the reference path writes (:func:`self_check`): a platform where it would not
+(a compiler that fuses multiply-adds, say) runs without it. ``engines.select`` decides once
+whether it runs.
 """
 
-import contextlib
+from __future__ import annotations
+
 import logging
-import os
 import random
-from typing import Callable, Iterator, List, Optional
+from typing import Callable, List, Optional
+
+from ..core.compensator import Compensator, Options
+from ..core.params import Params
 
 try:  # built by setup.py when a C compiler is there
-    from . import _kernel
+    from . import _kernel as _ext
 except ImportError:  # pragma: no cover - depends on the installation
-    _kernel = None
+    _ext = None
 
 _log = logging.getLogger(__name__)
-_checked: Optional[bool] = None  # the result of self_check, once run
+
+MAX_POINTS = _ext.MAX_POINTS if _ext is not None else 64  # backlash table points it takes
 
 
-def available() -> bool:
-    """The kernel is built, not turned off, and passed its self-check."""
-    global _checked
-    if _kernel is None or os.environ.get("KINCOMP_KERNEL", "1") == "0":
-        return False
-    if _checked is None:
-        _checked = False  # (while the check runs, its reference compensators use Python)
-        _checked = self_check()
-        if not _checked:
-            _log.warning("KinComp: the compiled kernel disagrees with the Python path on "
-                         "this platform; the pure-Python paths are used")
-    return _checked
+def built() -> bool:
+    """The extension module was built and imports."""
+    return _ext is not None
 
 
-def for_compensator(comp) -> Optional[object]:
-    """A kernel for ``comp``'s model and options, or None (not built, turned off, or a
-    model outside the fast path: the Python paths then do everything)."""
-    if not comp.fast_lines or not available():
+def build(comp: Compensator) -> Optional[object]:
+    """A kernel for ``comp``'s model and options, or None (not built, or a model outside
+    what the kernel does: the reference path then does everything)."""
+    if _ext is None or not comp.accelerable:
         return None
-    return _make(comp)
-
-
-def _make(comp) -> Optional[object]:
     bl = comp.backlash
     tables = tuple(tuple(bl.tables[k].points) if bl.active[k] else None for k in range(3))
-    if any(t is not None and len(t) > _kernel.MAX_POINTS for t in tables):
+    if any(t is not None and len(t) > MAX_POINTS for t in tables):
         return None
-    return _kernel.Kernel(comp._affine, tables, comp._half, bl.deadband,
-                          comp.options.limits, comp.options.decimals)
+    model = comp.model
+    affine = tuple(v for row in model.inverse_rows for v in row) + tuple(model.offset_mm)
+    return _ext.Kernel(affine, tables, bl.half, bl.deadband, comp.options.limits,
+                       comp.options.decimals)
 
 
 def _check_program() -> List[str]:
@@ -88,11 +80,8 @@ def _check_program() -> List[str]:
 
 
 def self_check(make: Optional[Callable] = None) -> bool:
-    """True if a kernel (made by ``make``, default the real one) writes on the check program
-    exactly what the Python fast path writes: every line, the report and the state."""
-    from ..core.compensator import Compensator, Options
-    from ..core.params import Params
-
+    """True if a kernel (made by ``make``, default :func:`build`) writes on the check
+    program exactly what the reference path writes: every line, the report and the state."""
     params = Params.from_dict({
         "squareness_um_per_m": {"xy": -1234.5, "xz": 210.0, "yz": -80.0},
         "scale_ppm": {"x": 333.3, "y": -287.0, "z": 50.0},
@@ -101,10 +90,9 @@ def self_check(make: Optional[Callable] = None) -> bool:
     options = Options(limits=(-1.0, 201.0, -1.0, 201.0, 0.0, 200.0), policy="clamp")
     try:
         ref = Compensator(params, options)
-        ref._kernel = None
         got = Compensator(params, options)
-        got._kernel = (make or _make)(got)
-        if got._kernel is None:
+        got.fast = (make or build)(got)
+        if got.fast is None:
             return False
         for line in _check_program():
             if ref.process(line) != got.process(line):
@@ -112,20 +100,6 @@ def self_check(make: Optional[Callable] = None) -> bool:
     except Exception:  # noqa: BLE001 - a kernel that raises fails its check
         _log.exception("KinComp: the compiled kernel failed its self-check")
         return False
-    return (ref.report.to_dict() == got.report.to_dict() and ref.m == got.m
-            and ref.fw_text == got.fw_text and ref.backlash.dir == got.backlash.dir)
-
-
-@contextlib.contextmanager
-def switched(on: bool) -> Iterator[None]:
-    """Compensators made inside use the kernel (if built) or, ``on=False``, the pure-Python
-    paths (what an installation without a C compiler runs): benchmarks and tests."""
-    old = os.environ.get("KINCOMP_KERNEL")
-    os.environ["KINCOMP_KERNEL"] = "1" if on else "0"
-    try:
-        yield
-    finally:
-        if old is None:
-            del os.environ["KINCOMP_KERNEL"]
-        else:
-            os.environ["KINCOMP_KERNEL"] = old
+    a, b = ref.state, got.state
+    return (a.report.to_dict() == b.report.to_dict() and a.m == b.m
+            and a.fw_text == b.fw_text and a.backlash.dir == b.backlash.dir)

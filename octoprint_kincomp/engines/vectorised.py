@@ -32,17 +32,11 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..core import arcs as _arcs
 from ..core.backlash import hysteresis
-from ..core.compensator import (
-    _FAST_MAX_LEN,
-    _NUMBER_BYTES,
-    MM_PER_INCH,
-    Compensator,
-    _EDist,
-    word_shapes,
-)
+from ..core.compensator import MM_PER_INCH, Compensator
 from ..core.gcode import Word
 from ..core.lines import UNIVERSAL as _UNIVERSAL
 from ..core.lines import join_output, split_ending
+from ..core.path import EDistribution
 
 CHUNK_BYTES = 1 << 19
 MIN_VECTOR_LINES = 24  # shorter runs go line by line (numpy call overhead)
@@ -220,8 +214,30 @@ class _Rows(NamedTuple):
     resume: int
 
 
+# A line is read by its shape: the line with the number characters deleted, e.g.
+# "G2 X12.5 Y-3 I1 J0 E0.41" -> "G X Y I J E". A number then consists of [0-9.+-] only, and
+# on that alphabet float() accepts exactly the grammar of gcode.parse_words (anything else
+# raises and the reference path reports the line); lines longer than FAST_MAX_LEN (the
+# kernel's MAX_LINE) take the reference path, so no number reaches gcode.MAX_WORD_VALUE.
+NUMBER_BYTES = b"0123456789.+-"
+FAST_MAX_LEN = 96
+
+
+def word_shapes(letters: str):
+    """Every shape for words ``letters`` in this order, each one present or not: (present
+    flags, token index of each letter in ``line.split(" ")`` (0: absent), the shape)."""
+    for mask in range(1 << len(letters)):
+        on = [bool(mask >> i & 1) for i in range(len(letters))]
+        idx, n = [], 1
+        for present in on:
+            idx.append(n if present else 0)
+            n += present
+        key = " ".join(["G"] + [c for c, present in zip(letters, on) if present]).encode()
+        yield on, idx, key
+
+
 # slicer-style arcs: G2/G3, then X Y I J E F words in this order (I or J at least), single
-# spaces, no comment; the numbers read as on the compensator's per-line fast path
+# spaces, no comment
 _ARC_SHAPES = {key: tuple(idx) for on, idx, key in word_shapes("XYIJEF") if on[2] or on[3]}
 
 
@@ -242,9 +258,9 @@ def _parse_arc(raw: bytes) -> Optional[_Arc]:
     """A simple arc line (with its ending), or None for the compensator to handle."""
     crlf = raw[-2:] == b"\r\n"
     body = raw[:-2] if crlf else raw[:-1]
-    if len(body) > _FAST_MAX_LEN or body[:3] not in (b"G2 ", b"G3 "):
+    if len(body) > FAST_MAX_LEN or body[:3] not in (b"G2 ", b"G3 "):
         return None
-    shape = _ARC_SHAPES.get(body.translate(None, _NUMBER_BYTES))
+    shape = _ARC_SHAPES.get(body.translate(None, NUMBER_BYTES))
     if shape is None:
         return None
     ix, iy, ii, ij, ie, i_f = shape
@@ -275,8 +291,8 @@ class FileEngine:
         self.comp = comp
         # the compiled fast path, where it was built: it takes the move lines one by one
         # at a fraction of the cost of the vectorised path (kernel.py)
-        self.kernel = comp._kernel if comp.fast_lines else None
-        self.vector_ok = comp.fast_lines
+        self.kernel = comp.fast
+        self.vector_ok = comp.accelerable
 
     # -- driver --------------------------------------------------------------------------
     def run(self, read: Callable[[int], bytes], write: Callable[[bytes], object],
@@ -404,7 +420,7 @@ class FileEngine:
         pieces = []
         pos, size = 0, len(buf)
         while pos < size:
-            out, stop = feed(comp, buf, pos)
+            out, stop = feed(comp.state, buf, pos)
             pieces.append(out)
             if stop >= size:
                 break
@@ -433,15 +449,15 @@ class FileEngine:
         start, end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
         cand = np.flatnonzero(tk.cand[i0:i1]) + i0
         if len(cand) == 0:  # comments and inert commands only
-            comp.lineno += i1 - i0
+            comp.state.lineno += i1 - i0
             comp.report.lines += i1 - i0
             comp.report.lines_out += i1 - i0
             pieces.append(buf[start:end])
             return
         j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
         result = None
-        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
-                or tk.move_bad_number[j0:j1].any()):
+        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.state.absolute or None in comp.state.m
+                or comp.state.q_drive is not None or tk.move_bad_number[j0:j1].any()):
             result = self._vector(tk, i0, i1, cand, j0, j1)
         # short runs, or a limit error (the line path raises at its line)
         pieces.append(result if result is not None else self._lines(buf, start, end))
@@ -455,12 +471,12 @@ class FileEngine:
         nm = len(moves)
         if nm == 0:
             return self._finish_inert(tk, i0, i1, cand)
-        u = MM_PER_INCH if comp.inches else 1.0
+        u = MM_PER_INCH if comp.state.inches else 1.0
         v3 = tk.move_vals[j0:j1]  # (nm, 3), NaN where the axis is not given
         g3 = ~np.isnan(v3)
         P = np.empty((nm, 3))
         for k in range(3):
-            P[:, k] = _ffill(v3[:, k] * u - comp.w[k], g3[:, k], comp.m[k])
+            P[:, k] = _ffill(v3[:, k] * u - comp.state.w[k], g3[:, k], comp.state.m[k])
         seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
         ls = tk.ls[moves] - seg_start
         xyz_end = tk.xyz_end[j0:j1] - seg_start
@@ -484,8 +500,9 @@ class FileEngine:
         """Lines [i0, i1): no state-changing line but the simple arcs at ``arc_lines``."""
         comp = self.comp
         out = None
-        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.absolute or None in comp.m
-                or comp.plane != 17 or comp.ij_absolute or comp.pure_translation):
+        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.state.absolute or None in comp.state.m
+                or comp.state.q_drive is not None or comp.state.plane != 17
+                or comp.state.ij_absolute or comp.pure_translation):
             out = self._mixed(tk, i0, i1, arc_lines, arcs)
         if out is None:
             # what the vector path does not decide (an arc error, a limit error, absolute
@@ -510,7 +527,7 @@ class FileEngine:
         """Moves and simple arcs of lines [i0, i1) in one vectorised pass; None (nothing
         changed) when the line path has to decide."""
         comp = self.comp
-        u = MM_PER_INCH if comp.inches else 1.0
+        u = MM_PER_INCH if comp.state.inches else 1.0
         j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
         if tk.move_bad_number[j0:j1].any():
             return None
@@ -529,7 +546,7 @@ class FileEngine:
         G = ~np.isnan(V)
         T = np.empty_like(V)
         for k in range(3):
-            T[:, k] = _ffill(V[:, k] * u - comp.w[k], G[:, k], comp.m[k])
+            T[:, k] = _ffill(V[:, k] * u - comp.state.w[k], G[:, k], comp.state.m[k])
         arc_pos = np.flatnonzero(order >= nr)  # where the arcs are among the targets
         seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
         ch = self._chords(tk, i0, i1, arc_lines, arcs, T, arc_pos)
@@ -595,11 +612,11 @@ class FileEngine:
         and arcs in line order, ``arc_pos``: the arcs among them): their chord rows and the
         synthetic bytes of those rows; None when the line path has to decide."""
         comp = self.comp
-        u = MM_PER_INCH if comp.inches else 1.0
+        u = MM_PER_INCH if comp.state.inches else 1.0
         # E positions before each arc (absolute E only), from the E words of the run
         e_rel = comp.e_relative
         e_lines, e_starts, e_ends = tk.e_words(i0, i1)
-        breaks = comp._extreme_angles(17)
+        breaks = comp.moves.extreme_angles(17)
         tol = comp.options.chord_tol_mm
         synth = ["G1"]  # the synthetic pool: "G1", then the chord tails
         synth_len = 2
@@ -612,7 +629,7 @@ class FileEngine:
         last_arc_e: Optional[Tuple[int, float]] = None
         last_arc_f: Optional[Tuple[int, float]] = None
         Tl = T.tolist()
-        m0 = tuple(float(v) for v in comp.m)
+        m0 = tuple(float(v) for v in comp.state.m)
         e_list = e_lines.tolist()
         no_axes = (False, False, False)
         sqrt = math.sqrt
@@ -633,7 +650,7 @@ class FileEngine:
                 elif j >= 0:
                     e0 = float(tk.buf[int(e_starts[j]) + 1: int(e_ends[j])])
                 else:
-                    e0 = comp.e_pos
+                    e0 = comp.state.e_pos
                 if e0 is None:
                     return None  # absolute E from an unknown E: the line path passes it
             ca = start[0] + (arc.i * u if arc.i is not None else 0.0)
@@ -652,7 +669,7 @@ class FileEngine:
             ending = "\r\n" if arc.crlf else "\n"
             f_text = arc.f_text
             if e_word is not None:
-                edist = _EDist(e_word, e_rel, e0, sum(lengths))
+                edist = EDistribution(e_word, e_rel, e0, sum(lengths))
                 s_done = 0.0
             for idx in range(last + 1):
                 if e_word is not None:
@@ -690,20 +707,20 @@ class FileEngine:
         comp = self.comp
         rep = comp.report
         opts = comp.options
-        u = MM_PER_INCH if comp.inches else 1.0
-        dec = opts.decimals + (2 if comp.inches else 0)
+        u = MM_PER_INCH if comp.state.inches else 1.0
+        dec = opts.decimals + (2 if comp.state.inches else 0)
         fmtr = _Formatter(dec)
         P, g3, moves = rows.P, rows.given, rows.line
         nm = len(P)
-        m0 = comp.m
-        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = comp._Ai
-        b0, b1, b2 = comp._b
+        m0 = comp.state.m
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = comp.model.inverse_rows
+        b0, b1, b2 = comp.model.offset_mm
         x, y, z = P[:, 0] - b0, P[:, 1] - b1, P[:, 2] - b2
         Q = np.empty((nm, 3))
         Q[:, 0] = a00 * x + a01 * y + a02 * z
         Q[:, 1] = a10 * x + a11 * y + a12 * z
         Q[:, 2] = a20 * x + a21 * y + a22 * z
-        q0 = comp._qm
+        q0 = comp.state.q_last
         if q0 is None:
             q0 = comp.model.inverse(m0)
         Qp = np.empty_like(Q)
@@ -715,19 +732,19 @@ class FileEngine:
         bl = comp.backlash
         dirs_after = np.zeros((nm, 3), np.int64)
         rev_any = np.zeros(nm, bool)
-        anchors = list(bl.anchor)
+        anchors = list(bl.s.anchor)
         for k in range(3):
             if bl.active[k]:
                 # the tracker's own comparisons (q against anchor -/+ deadband: rounding at
                 # the deadband's edge must not differ from it)
                 up = Q[:, k] > Qp[:, k] + bl.deadband
                 down = Q[:, k] < Qp[:, k] - bl.deadband
-                a = bl.anchor[k]
+                a = bl.s.anchor[k]
                 if (a is not None and a != q0[k]) or np.any(
                         ~up & ~down & (Q[:, k] != Qp[:, k])):
                     # the anchor is not the current command somewhere: the tracker's
                     # hysteresis, point by point (arcs put chord ends next to reversals)
-                    dk, rk, anchors[k] = hysteresis(Q[:, k].tolist(), bl.dir[k], a, q0[k],
+                    dk, rk, anchors[k] = hysteresis(Q[:, k].tolist(), bl.s.dir[k], a, q0[k],
                                                     bl.deadband)
                     dirs_after[:, k] = dk
                     rev_any |= np.asarray(rk, bool)
@@ -735,16 +752,16 @@ class FileEngine:
                 # anchored at the start and no sub-deadband step: the anchor is always the
                 # current command, so a reversal is a step beyond the deadband against dir
                 s = np.where(up, 1, np.where(down, -1, 0))
-                after = _ffill_int(s, bl.dir[k])
+                after = _ffill_int(s, bl.s.dir[k])
                 before = np.empty_like(after)
-                before[0] = bl.dir[k]
+                before[0] = bl.s.dir[k]
                 before[1:] = after[:-1]
                 rev_any |= (s != 0) & (s != before)
                 dirs_after[:, k] = after
                 anchors[k] = float(Q[-1, k])
             else:
-                dirs_after[:, k] = bl.dir[k]
-        half = comp._half
+                dirs_after[:, k] = bl.s.dir[k]
+        half = comp.backlash.half
         C = Q.copy()
         tups = np.flatnonzero(rev_any)
         Ct = Qp[tups].copy()
@@ -779,15 +796,15 @@ class FileEngine:
             G[order_pos, k] = C[:, k]
             if len(tups):
                 G[tpos, k] = Ct[:, k]
-            fw = (G[:, k] + comp.g[k]) / u
+            fw = (G[:, k] + comp.state.g[k]) / u
             N[:, k], NEG[:, k] = fmtr.ints(fw)
         # written: given axes of moves, or text changed since the previous point
         prevN = np.empty_like(N)
         prevNEG = np.empty_like(NEG)
         for k in range(3):
-            old = comp.fw_text[k]
+            old = comp.state.fw_text[k]
             if old is None:
-                old = "%.*f" % (dec, comp.fw[k] / u)
+                old = "%.*f" % (dec, comp.state.fw[k] / u)
             on = int(old.lstrip("-").replace(".", ""))
             prevN[0, k] = on
             prevNEG[0, k] = old.startswith("-") and on > 0
@@ -869,15 +886,15 @@ class FileEngine:
         last = ntot - 1
         for k in range(3):
             text = fmtr.text(int(N[last, k]), bool(NEG[last, k]))
-            comp.fw_text[k] = text
-            comp.fw[k] = float(text) * u
-        comp.m = [float(P[-1, 0]), float(P[-1, 1]), float(P[-1, 2])]
-        comp._qm = (float(Q[-1, 0]), float(Q[-1, 1]), float(Q[-1, 2]))
-        comp._lim_hit = [True, True, True]
+            comp.state.fw_text[k] = text
+            comp.state.fw[k] = float(text) * u
+        comp.state.m = [float(P[-1, 0]), float(P[-1, 1]), float(P[-1, 2])]
+        comp.state.q_last = (float(Q[-1, 0]), float(Q[-1, 1]), float(Q[-1, 2]))
+        comp.state.limit_recheck = [True, True, True]
         for k in range(3):
-            bl.dir[k] = int(dirs_after[-1, k])
+            bl.s.dir[k] = int(dirs_after[-1, k])
             if bl.active[k]:
-                bl.anchor[k] = anchors[k]
+                bl.s.anchor[k] = anchors[k]
         return out, int(take_emit.sum())
 
     def _finish_counts(self, tk, i0, i1, cand, n_moves, n_take, n_arcs=0, n_chords=0,
@@ -887,7 +904,7 @@ class FileEngine:
         comp = self.comp
         rep = comp.report
         nl = i1 - i0
-        comp.lineno += nl
+        comp.state.lineno += nl
         rep.lines += nl
         rep.lines_out += nl + n_take + n_chords - n_arcs
         rep.moves += len(cand) + n_arcs
@@ -895,17 +912,17 @@ class FileEngine:
         rep.takeup_moves += n_take
         rep.arcs_linearised += n_arcs
         rep.arc_segments += n_chords
-        u = MM_PER_INCH if comp.inches else 1.0
+        u = MM_PER_INCH if comp.state.inches else 1.0
         fl = tk.last_value(5, i0, i1)
         if arc_f is not None and (fl is None or arc_f[0] > fl[0]):
             fl = arc_f
         if fl is not None:
-            comp.feed = fl[1] * u
+            comp.state.feed = fl[1] * u
         el = tk.last_value(4, i0, i1)
         if arc_e is not None and (el is None or arc_e[0] > el[0]):
             el = arc_e
         if el is not None:
-            comp.e_pos = None if comp.e_relative else el[1]
+            comp.state.e_pos = None if comp.e_relative else el[1]
 
     def _finish_inert(self, tk, i0, i1, cand) -> bytes:
         self._finish_counts(tk, i0, i1, cand, 0, 0)
@@ -942,7 +959,7 @@ class FileEngine:
         rep.source_outside += outside
         if events:
             events.sort()
-            base_line = comp.lineno - i0
+            base_line = comp.state.lineno - i0
             for _p, k, li, v in events:
                 rep.limit_hits += 1
                 if len(rep.limit_examples) < 20:

@@ -37,8 +37,8 @@ from ..core.kinematics import changes_nothing
 from ..core.marker import file_marker
 from ..core.messages import Msg, as_dict, error_message, translate
 from ..core.params import Params
-from ..engines import kernel
 from ..engines.files import AlreadyCompensated, compensate_file
+from ..engines.select import engine
 from .firmware_watch import FirmwareWatcher
 from .queue import FILE_TAG, QueueCompensator
 from .runs import RunNotFound, RunStore
@@ -154,7 +154,7 @@ class KinCompPlugin(
         self._apply_settings(self._current_settings(), immediately=True)
         self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
                           "on" if self.queue.enabled else "off",
-                          "compiled" if kernel.available() else "pure-Python")
+                          engine())
 
     # ~~ settings ----------------------------------------------------------------------------
     def get_settings_defaults(self):
@@ -625,7 +625,7 @@ class KinCompPlugin(
             version=__version__,
             settings=s,
             params_hash=params.hash(),
-            engine="compiled" if kernel.available() else "python",
+            engine=engine(),
             compensation=self.queue.status(),
             firmware={"skew": self.watch.skew, "backlash": self.watch.backlash,
                       "conflicts": self.watch.conflicts(params)},

@@ -33,8 +33,9 @@ import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
 
-from ..core.compensator import Compensator, LimitError, Options
+from ..core.compensator import LimitError, Options
 from ..core.params import Params
+from ..engines.select import make_compensator
 
 FILE_TAG = "source:file"
 JOB_TAG = "source:job"
@@ -63,7 +64,7 @@ class QueueCompensator:
         self.pass_through_on_error = pass_through_on_error
         self.on_error = on_error
         self.on_untouched = on_untouched
-        self.comp = Compensator(params, options)
+        self.comp = make_compensator(params, options)
         self.pending: Optional[Tuple[Params, Options, bool]] = None  # waits for a print end
         self.skip_file = False
         self.printing = False
@@ -164,7 +165,7 @@ class QueueCompensator:
             return True
 
     def _swap(self, params: Params, options: Options) -> None:
-        new = Compensator(params, options)
+        new = make_compensator(params, options)
         new.adopt_state(self.comp)
         self.comp = new
         self.pending = None

@@ -9,11 +9,12 @@ from typing import Callable, Dict, Optional
 
 from octoprint.filemanager.util import LineProcessorStream
 
-from ..core.compensator import Compensator, Options
+from ..core.compensator import Options
 from ..core.lines import UNIVERSAL, join_output, split_ending
 from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, marker_hash
 from ..core.params import Params
 from ..engines.files import marker_line
+from ..engines.select import make_compensator
 
 
 class CompensatingStream(LineProcessorStream):
@@ -28,7 +29,7 @@ class CompensatingStream(LineProcessorStream):
     def __init__(self, input_stream, params: Params, options: Options):
         super().__init__(input_stream)
         self.params = params
-        self.comp = Compensator(params, options)
+        self.comp = make_compensator(params, options)
         self.started = False
         self.passthrough = False
 

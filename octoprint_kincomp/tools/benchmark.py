@@ -29,7 +29,7 @@ import time
 from typing import Optional
 
 from ..core.params import Params
-from ..engines import kernel
+from ..engines import select
 
 BENCH_PARAMS = {
     "squareness_um_per_m": {"xy": -3638.6, "xz": 150.0, "yz": -80.0},
@@ -139,13 +139,12 @@ def plain_copy(src: str, dst: str) -> None:
 
 
 def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional[int] = None):
-    """The straightforward path: every line through the general (non-fast) path."""
+    """The straightforward path: every line through the reference compensator."""
     from ..core.compensator import Compensator
     from ..core.marker import ENCODING, ERRORS
     from ..engines.files import compensate_lines, marker_line
 
-    comp = Compensator(params)
-    comp.fast_lines = False
+    comp = Compensator(params)  # no accelerated engine: the reference path
     with open(src, encoding=ENCODING, errors=ERRORS, newline="") as f, \
             open(dst, "w", encoding=ENCODING, errors=ERRORS, newline="") as out:
         lines = f if max_lines is None else (l for i, l in enumerate(f) if i < max_lines)
@@ -156,7 +155,7 @@ def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional
 
 def engines() -> list:
     """The engines measured: "compiled" (if the kernel was built) and "python"."""
-    return (["compiled"] if kernel.available() else []) + ["python"]
+    return (["compiled"] if select.available() == "compiled" else []) + ["python"]
 
 
 def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = None) -> dict:
@@ -175,7 +174,7 @@ def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = No
     fast_out = os.path.join(workdir, "fast.gcode")
     ref_rep = reference_compensate(part, ref_out, params)
     for name in engines():
-        with kernel.switched(name == "compiled"):
+        with select.use(name):
             fast_rep = compensate_file(part, fast_out, params)
         lines = 0
         with open(ref_out, "rb") as a, open(fast_out, "rb") as b:
@@ -191,7 +190,7 @@ def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = No
     return {"verified_lines": lines, "identical": True, "engines": engines()}
 
 
-def _child_rss(src: str, dst: str, params_json: str) -> dict:
+def _child_rss(src: str, dst: str, params_json: str, engine: str) -> dict:
     """Compensate in a fresh interpreter; its RSS (kB) after imports and at the peak."""
     code = (
         "import json,sys\n"
@@ -209,7 +208,8 @@ def _child_rss(src: str, dst: str, params_json: str) -> dict:
         "print(json.dumps({'before_kb': before, 'peak_kb': peak}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, src, dst, params_json],
-                         capture_output=True, text=True, check=True, env=dict(os.environ))
+                         capture_output=True, text=True, check=True,
+                         env=dict(os.environ, KINCOMP_KERNEL="1" if engine == "compiled" else "0"))
     return json.loads(out.stdout)
 
 
@@ -218,10 +218,11 @@ def hook_latency(params: Params, lines) -> dict:
     and in order as OctoPrint's queuing hook gets them: of Compensator.process, and of the
     hook's core, QueueCompensator.handle (enabled, lines tagged as a print's file lines:
     its lock, error and report checks, the result as OctoPrint takes it)."""
-    from ..core.compensator import Compensator, Options
+    from ..core.compensator import Options
+    from ..engines.select import make_compensator
     from ..plugin.queue import FILE_TAG, QueueCompensator
 
-    comp = Compensator(params)
+    comp = make_compensator(params)
     queue = QueueCompensator(params, Options(), enabled=True)
     tags = {FILE_TAG, "source:file"}
     clock = time.perf_counter_ns
@@ -263,13 +264,13 @@ def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = F
         sample = [next(f).rstrip("\n") for _ in range(min(200000, res["lines"]))]
     res["engines"] = {}
     for name in engines():
-        with kernel.switched(name == "compiled"):
+        with select.use(name):
             t_copy, t_comp = _paired(lambda: plain_copy(src, dst),
                                      lambda: compensate_file(src, dst, params), repeat)
             t_copy_arc, t_comp_arc = _paired(
                 lambda: plain_copy(arc_src, dst), lambda: compensate_file(arc_src, dst, params),
                 repeat)
-            rss = _child_rss(src, dst, params.to_json())
+            rss = _child_rss(src, dst, params.to_json(), name)
             rss["growth_mb"] = (rss["peak_kb"] - rss["before_kb"]) / 1024.0
             res["engines"][name] = dict(
                 copy_s=t_copy, compensate_s=t_comp, ratio=t_comp / t_copy,

@@ -3,11 +3,15 @@
 import pytest
 
 from octoprint_kincomp.core.backlash import BacklashTracker, Play
-from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines.select import make_compensator
 from tests.core.test_compensator import assert_lands
-from tests.support.helpers import Printer, compensate_groups, dist
+from tests.support.helpers import Printer, compensate_groups, desired_positions, dist
+
+# every test here runs once per engine (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("engine")
 
 BL = Params.from_dict({"backlash": {"x": 40.0, "y": 25.0}})
 PER_SIDE = Params.from_dict({
@@ -44,7 +48,7 @@ def test_immediate_takeup_lands_on_every_point():
 def test_per_side_values_are_the_local_step():
     p = Params.from_dict({"backlash": {"x": [{"at_mm": 10, "um": 37.4},
                                               {"at_mm": 210, "um": 4.4}]}})
-    comp = Compensator(p, Options(decimals=6))
+    comp = make_compensator(p, Options(decimals=6))
     comp.process("G28")
     first = comp.process("G1 X210 Y0 Z1")
     # from home (direction unknown) the +X move ends on +b/2, b taken at X=210: 4.4 um
@@ -57,7 +61,7 @@ def test_per_side_values_are_the_local_step():
 
 def test_fraction_scales_the_takeup():
     half = Params.from_dict({"backlash": {"x": 40.0, "fraction": 0.5}})
-    comp = Compensator(half, Options(decimals=6))
+    comp = make_compensator(half, Options(decimals=6))
     comp.process("G28")
     comp.process("G1 X50 Y0 Z1")
     a = xs(comp.process("G1 X10")[0])["X"]
@@ -65,7 +69,7 @@ def test_fraction_scales_the_takeup():
 
 
 def test_deadband_ignores_float_noise_but_not_real_reversals():
-    comp = Compensator(BL, Options(decimals=8))
+    comp = make_compensator(BL, Options(decimals=8))
     comp.process("G28")
     comp.process("G1 X50 Y0 Z1")
     out = comp.process("G1 X49.9999999997")
@@ -95,12 +99,14 @@ def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
     """G28 X at Z=50 with XZ skew: the drive sits at the home command 0 while the X command
     for X=0 is -0.25 mm. The next move drives X from 0 to -0.25 - b/2, a -X move from a
     reset direction, and so it needs the take-up (judging it from inverse(home) saw no
-    step and left the carriage b/2 = 50 um off)."""
+    step and left the carriage b/2 = 50 um off). The take-up starts where the drive is
+    (the home command: b/2 to -0.05 mm), the move then carries the skew correction."""
     p = Params.from_dict({"squareness_um_per_m": {"xz": 5000.0}, "backlash": {"x": 100.0}})
     lines = ["G28", "G1 X0 Y0 Z50", "G28 X", "G1 Y10"]
     comp, groups = compensate_groups(p, lines, Options(decimals=6))
     take, move = groups[-1][1]  # a take-up move, then the move
-    assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
+    assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.05, abs=1e-6)
+    assert xs(move)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
     printer = Printer(p)
     for _, outs in groups:
         for o in outs:
@@ -168,3 +174,24 @@ def test_play_operator():
     assert pl.carriage(0, 0.95) == pytest.approx(0.95)  # inside the play: carriage stays
     assert pl.carriage(0, 0.92) == pytest.approx(0.95)
     assert pl.carriage(0, 0.5) == pytest.approx(0.55)
+
+
+def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():
+    """G28 Y under XY skew: X's drive stays put while the command of X's desired position
+    jumps with Y (X's command depends on Y). The next move must start from the drive, not
+    from that command: from there X continues in -X and needs no take-up, and a take-up of
+    another axis must not drag X to the jumped command first (found by the property
+    tests: 36 to 100 um off on a printer with play)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": -3000.0, "xz": -3000.0},
+                          "backlash": {"x": 100.0, "y": 100.0, "z": 60.0}})
+    lines = ["G28", "G1 X50 Y100 Z10", "G1 X0 Y100 Z0", "G28 Y Z", "G1 Z30", "G1 X20",
+             "G28 X", "G1 Y0"]
+    comp, groups = compensate_groups(p, lines, Options(decimals=6))
+    printer = Printer(p)
+    for (line, outs), want in zip(groups, desired_positions(lines)):
+        for o in outs:
+            printer.run_line(o)
+        if line.startswith("G1"):
+            assert dist(printer.actual(), want) < 2e-6, (line, outs)
+    after_home = dict(groups)["G1 Z30"]
+    assert all("X" not in xs(o) for o in after_home[:-1])  # no take-up drags X

@@ -4,9 +4,10 @@ import math
 
 import pytest
 
-from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines.select import make_compensator
 from tests.support.helpers import (
     Printer,
     compensate_groups,
@@ -14,6 +15,9 @@ from tests.support.helpers import (
     dist,
     dist_to_polyline,
 )
+
+# every test here runs once per engine (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("engine")
 
 SKEW = Params.from_dict({
     "squareness_um_per_m": {"xy": -3638.6, "xz": 420.0, "yz": -250.0},
@@ -51,7 +55,7 @@ def assert_lands(params, lines, options=None, tol=1e-6, **fw):
 
 
 def test_zero_params_pass_every_line_object_through():
-    comp = Compensator(Params())
+    comp = make_compensator(Params())
     for line in ["G28", "G1 X10 Y10", "G2 X20 Y10 I5 J0", "G91", "g1 x1", "; c", ""]:
         assert comp.process(line) is line
 
@@ -120,7 +124,7 @@ def test_g20_inches():
 
 
 def test_homing_never_transformed_and_makes_position_known():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     assert comp.process("G1 X10 Y10") == "G1 X10 Y10"  # unknown position: untouched
     assert comp.report.untouched_unknown == 1
     assert comp.process("G28 X Y") == "G28 X Y"
@@ -134,7 +138,7 @@ def test_homing_never_transformed_and_makes_position_known():
 
 def test_unknown_axis_not_needed_when_not_coupled():
     p = Params.from_dict({"squareness_um_per_m": {"xy": 500}})
-    comp = Compensator(p)
+    comp = make_compensator(p)
     comp.process("G28 X Y")
     out = comp.process("G1 X10 Y10")
     assert isinstance(out, list)  # Z unknown but X/Y do not depend on it
@@ -142,14 +146,14 @@ def test_unknown_axis_not_needed_when_not_coupled():
 
 
 def test_absolute_move_defines_unknown_position():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     out = comp.process("G1 X10 Y20 Z5")  # every needed axis is in the line itself
     assert isinstance(out, list)
     assert comp.known == (True, True, True)
 
 
 def test_relative_move_from_unknown_passes_untouched():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G91")
     assert comp.process("G1 X5") == "G1 X5"
     assert comp.report.untouched_unknown == 1
@@ -158,14 +162,14 @@ def test_relative_move_from_unknown_passes_untouched():
 @pytest.mark.parametrize("cmd", ["G29", "G29.2 S0", "G30", "G38.2 Z-5", "M48", "G80", "G27",
                                  "G380 S3 Z-5 F1200"])
 def test_probing_passes_untouched_and_forgets_position(cmd):
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G28")
     assert comp.process(cmd) == cmd
     assert comp.known == (False, False, False)
 
 
 def test_unknown_commands_and_tool_change():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G28")
     for c in ["M104 S200", "M620.1 E F523 T240", "G2814 Z0.32", "M1002 judge_flag x", "G4 P100",
               "M117 Hello; world"]:
@@ -176,7 +180,7 @@ def test_unknown_commands_and_tool_change():
 
 
 def test_line_numbers_and_checksums_are_stripped_from_rewritten_moves():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G28")
     out = comp.process("N12 G1 X10 Y10 Z1*77")
     assert isinstance(out, list) and not out[0].startswith("N") and "*" not in out[0]
@@ -184,7 +188,7 @@ def test_line_numbers_and_checksums_are_stripped_from_rewritten_moves():
 
 
 def test_malformed_motion_lines_pass_and_are_counted():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G28")
     for bad in ["G1 X10 X20", "G1 X1.2.3", "G1 X", "G1 Xfoo", "G1 X10 #"]:
         assert comp.process(bad) is bad
@@ -192,7 +196,7 @@ def test_malformed_motion_lines_pass_and_are_counted():
 
 
 def test_indentation_is_kept():
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G28")
     out = comp.process("    G1 X10 Y10 Z1")
     assert out[0].startswith("    G1 ")
@@ -321,23 +325,23 @@ def test_g92_on_an_unknown_axis_does_not_invent_a_machine_frame():
     """G92 X0 Y0 before homing says where the program's zero is, not where the machine is:
     the axes' frames are lost, absolute moves on them pass untouched (reported) until G28
     or G92.1 restores them; a known axis (Z here) keeps working through G92 as usual."""
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     comp.process("G1 Z5 F600")  # Z known from an absolute move (firmware frame = homed)
     assert comp.process("G92 X0 Y0") == "G92 X0 Y0"
-    assert comp.frame_lost == [True, True, False]
+    assert comp.state.frame_lost == [True, True, False]
     before = comp.report.untouched_unknown
     for line in ("G1 X10 Y100", "G1 X20 Y90 Z6"):
         assert comp.process(line) is line
     assert comp.known == (False, False, True)
     assert comp.report.untouched_unknown == before + 2
     comp.process("G92 Z0")  # a known axis: an ordinary offset
-    assert comp.frame_lost[2] is False and comp.known[2]
+    assert comp.state.frame_lost[2] is False and comp.known[2]
     comp.process("G28 X Y")
-    assert comp.frame_lost == [False, False, False]
+    assert comp.state.frame_lost == [False, False, False]
     assert comp.process("G1 X10 Y100") != ["G1 X10 Y100"]  # compensated again
     # G92.1 drops the offsets: the firmware frame is the native one, positions still unknown
-    comp2 = Compensator(SKEW)
+    comp2 = make_compensator(SKEW)
     comp2.process("G92 X5")
     comp2.process("G92.1")
-    assert comp2.frame_lost == [False, False, False] and comp2.known == (False, False, False)
+    assert comp2.state.frame_lost == [False, False, False] and comp2.known == (False, False, False)
     assert comp2.process("G1 X10 Y100 Z1") != "G1 X10 Y100 Z1"

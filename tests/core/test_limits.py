@@ -2,8 +2,12 @@
 
 import pytest
 
-from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
+from octoprint_kincomp.core.compensator import LimitError, Options
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines.select import make_compensator
+
+# every test here runs once per engine (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("engine")
 
 SKEW = {"squareness_um_per_m": {"xy": 2000.0}, "scale_ppm": {"x": 300.0}}
 LIMITS = (0, 200, 0, 200, 0, 180)
@@ -16,7 +20,7 @@ def edge_program():
 
 @pytest.mark.parametrize("policy", ["warn", "clamp"])
 def test_limit_policies_warn_and_clamp(policy):
-    comp = Compensator(Params.from_dict(SKEW), Options(limits=LIMITS, policy=policy))
+    comp = make_compensator(Params.from_dict(SKEW), Options(limits=LIMITS, policy=policy))
     outs = [comp.process(l) for l in edge_program()]
     assert comp.report.limit_hits == 1
     assert comp.report.limit_examples[0][:2] == (3, "X")
@@ -31,7 +35,7 @@ def test_limit_policies_warn_and_clamp(policy):
 
 
 def test_limit_policy_error_names_the_line():
-    comp = Compensator(Params.from_dict(SKEW), Options(limits=LIMITS, policy="error"))
+    comp = make_compensator(Params.from_dict(SKEW), Options(limits=LIMITS, policy="error"))
     with pytest.raises(LimitError, match=r"line 3: compensated X=-0\.1999 mm is outside"):
         for l in edge_program():
             comp.process(l)
@@ -45,7 +49,7 @@ def test_options_validation():
 
 
 def test_report_counts_and_max_correction():
-    comp = Compensator(Params.from_dict(SKEW))
+    comp = make_compensator(Params.from_dict(SKEW))
     for l in edge_program() + ["G2 X120 Y100 I10 J0", "G1 X1 X2"]:
         comp.process(l)
     r = comp.report.to_dict()

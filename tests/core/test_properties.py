@@ -12,12 +12,15 @@ spacing, lowercase, ``N<n> ... *<checksum>``, unknown commands and garbage. Prop
   program asks for (1e-6 mm at 6 decimals), also with backlash;
 * no input line, however broken, makes the compensator raise; malformed motion lines pass
   unchanged and are counted;
-* the file engine writes the same bytes and report as the per-line reference, and the
-  compiled kernel (kernel.py) the same as the pure-Python paths.
+* (tests/engines/test_file_properties.py: the file engines write the same bytes and report
+  as the per-line reference path.)
+
+Every property runs on each engine (the ``engine`` fixture: the compiled kernel and the
+pure-Python paths).
 
 The oracle for "where the program asks the head to go" is the firmware-like interpreter
 (:mod:`octoprint_kincomp.core.machine`); the printer replays the output with the true errors
-(:class:`tests.helpers.Printer`). Everything is derandomised for reproducible CI runs.
+(:class:`tests.support.helpers.Printer`). Everything is derandomised for reproducible CI runs.
 """
 
 import copy
@@ -27,23 +30,23 @@ import os
 import re
 from functools import reduce
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from octoprint_kincomp.core import arcs
 from octoprint_kincomp.core.backlash import Play
-from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
+from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import changes_nothing
 from octoprint_kincomp.core.machine import FirmwareInterpreter
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines import vectorised as fastfile
 from octoprint_kincomp.engines.files import (
     compensate_binary,
-    compensate_lines,
     marker_line,
 )
-from tests.support.helpers import Printer, dist, kernel
+from octoprint_kincomp.engines.select import make_compensator
+from tests.support.helpers import Printer, dist
 
 # Reproducible by default (derandomised, no example database, no deadline for slow CI
 # runners). KINCOMP_FUZZ_SCALE=N runs N times the examples with fresh random seeds (a deeper,
@@ -51,7 +54,11 @@ from tests.support.helpers import Printer, dist, kernel
 SCALE = int(os.environ.get("KINCOMP_FUZZ_SCALE", "0") or 0)
 BASE = settings(deadline=None, derandomize=not SCALE, database=None, print_blob=False,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                       HealthCheck.filter_too_much])
+                                       HealthCheck.filter_too_much,
+                                       HealthCheck.function_scoped_fixture])
+
+# every test here runs once per engine (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("engine")
 
 
 def cfg(n: int) -> settings:
@@ -383,7 +390,7 @@ def check_motion_group(line, info, outs, mode: EMode):
            {"kind": "arc", "e": "1.23457", "f": "1200", "indent": "", "comment": "; arc"})],
          Params.from_dict({"squareness_um_per_m": {"xy": 3000}}), Options())
 def test_every_line_maps_to_its_own_outputs_in_order(lines, p, opts):
-    comp = Compensator(p, opts)
+    comp = make_compensator(p, opts)
     mode = EMode()
     total = 0
     for line, info in lines:
@@ -419,7 +426,7 @@ ZEROS = [
        st.sampled_from(["\n", "\r\n"]), st.booleans())
 def test_zero_parameters_give_the_input_back(lines, zero, opts, ending, final_newline):
     p = Params.from_dict(zero)
-    comp = Compensator(p, opts)
+    comp = make_compensator(p, opts)
     for line, _ in lines:
         assert comp.process(line) is line
     assert comp.report.lines == len(lines) and comp.report.moves_compensated == 0
@@ -531,7 +538,7 @@ def replay(p, lines, opts, play=True):
     (with its play, or the kinematic errors only); yields (line, actual, wanted) at the end
     of every move the compensator rewrote. Homing is not compensated (the endstops decide)
     and other lines do not move the head, so those are not compared."""
-    comp = Compensator(p, opts)
+    comp = make_compensator(p, opts)
     oracle = FirmwareInterpreter()
     printer = Printer(p)
     if not play:
@@ -597,7 +604,7 @@ def test_landing_checks_can_fail():
     """The replay detects a wrong program (guards the properties above against vacuity)."""
     p = Params.from_dict({"squareness_um_per_m": {"xy": 3000.0}})
     lines = ["G28", "G1 X10 Y100 Z1"]
-    comp = Compensator(p, Options(decimals=6))
+    comp = make_compensator(p, Options(decimals=6))
     printer = Printer(p)
     for line in lines:
         printer.run_line(line)  # uncompensated
@@ -621,7 +628,7 @@ def test_landing_checks_can_fail():
 @example([("G28", {}), ("G1 X1 Y1 Z1", {})], Params.from_dict(
     {"backlash": {"x": 10, "smoothing_mm": 1}}), Options(), ["G1 X1" + "0" * 200])
 def test_no_line_makes_it_raise(prefix, p, opts, texts):
-    comp = Compensator(p, opts)
+    comp = make_compensator(p, opts)
     for line, _ in prefix:
         comp.process(line)
     for text in texts:
@@ -644,7 +651,7 @@ def test_arc_from_an_unknown_linear_axis_passes_untouched():
     TypeError in linearise)."""
     for p in (Params.from_dict({"scale_ppm": {"z": 1.0}}), SKEW):
         for arc in ("G2 Y0 I1 J1", "G3 X5 Y5 R5 Z2", "G2 X2 Y0 I1 J0 P1"):
-            comp = Compensator(p)
+            comp = make_compensator(p)
             comp.process("G1 X0 Y0 F60")
             assert comp.known == (True, True, False)
             assert comp.process(arc) is arc
@@ -655,7 +662,7 @@ def test_arc_with_a_huge_turn_count_passes_untouched():
     """P100000: the forced chord ends alone would exceed arcs.MAX_SEGMENTS (P1e18 used to
     run out of memory building them): not an arc we can linearise, so malformed."""
     for line in ["G2 X10 Y10 I5 J0 P100000", "G2 X10 Y10 I5 J0 P1" + "0" * 18]:
-        comp = Compensator(SKEW)
+        comp = make_compensator(SKEW)
         comp.process("G28")
         comp.process("G1 X1 Y1 Z1")
         assert comp.process(line) is line
@@ -667,7 +674,7 @@ def test_arc_with_a_huge_radius_passes_untouched():
     no coordinate at all (its square overflowed)."""
     for line in ["G3 X10 Y10 R1" + "0" * 20, "G2 X10 Y10 I1" + "0" * 20 + " J0",
                  "G2 X10 Y10 I1" + "0" * 200 + " J0"]:
-        comp = Compensator(SKEW)
+        comp = make_compensator(SKEW)
         comp.process("G28")
         comp.process("G1 X1 Y1 Z1")
         assert comp.process(line) is line
@@ -677,7 +684,7 @@ def test_arc_with_a_huge_radius_passes_untouched():
 def test_many_turn_arc_is_linearised_with_its_forced_points():
     """P1000 with skew: thousands of forced chord ends (the command extremes of every turn);
     filtering the uniform chords against them used to be quadratic (minutes)."""
-    comp = Compensator(SKEW, Options(decimals=6))
+    comp = make_compensator(SKEW, Options(decimals=6))
     comp.process("G28")
     comp.process("G1 X1 Y1 Z1")
     out = comp.process("G2 X1 Y1 I5 J0 P1000")
@@ -693,7 +700,7 @@ def test_many_turn_arc_is_linearised_with_its_forced_points():
 @given(st.lists(st.one_of(any_line(), malformed()), max_size=30), params(), options(),
        st.booleans())
 def test_malformed_motion_lines_pass_unchanged_and_are_counted(items, p, opts, homed):
-    comp = Compensator(p, opts)
+    comp = make_compensator(p, opts)
     rep = comp.report
     if homed:
         comp.process("G28")
@@ -706,127 +713,3 @@ def test_malformed_motion_lines_pass_unchanged_and_are_counted(items, p, opts, h
             assert out is line  # whatever made it malformed, it passes as written
             if rep.malformed <= 20:
                 assert rep.malformed_examples[-1] == (comp.lineno, line[:80])
-
-
-# -- 5. the vectorised file engine is the per-line engine ------------------------------------
-
-@st.composite
-def plain_run(draw):
-    """A run of plain slicer-style moves (what the vectorised engine takes)."""
-    n = draw(st.integers(1, 60))
-    x, y, z, e = (draw(st.floats(0, 200)), draw(st.floats(0, 200)),
-                  draw(st.floats(0.2, 5)), 0.0)
-    dec = draw(st.sampled_from([3, 3, 2, 4, 0, 1]))
-    out = []
-    for _ in range(n):
-        kind = draw(st.integers(0, 9))
-        x = min(230, max(-20, x + draw(st.floats(-30, 30))))
-        y = min(230, max(-20, y + draw(st.floats(-30, 30))))
-        e += draw(st.floats(0, 2))
-        if kind < 6:
-            line = f"G1 X{x:.{dec}f} Y{y:.{dec}f} E{e:.5f}"
-        elif kind == 6:
-            line = f"G0 F9000 X{x:.{dec}f} Y{y:.{dec}f}"
-        elif kind == 7:
-            z += 0.2
-            line = f"G1 Z{z:.2f} F600"
-        elif kind == 8:
-            line = f"G1 X{x:.{dec}f}"
-        else:
-            line = f"G1 Y{y:.{dec}f} F{draw(st.sampled_from([1200, 1800, 3000]))}"
-        if draw(st.integers(0, 9)) == 0:
-            line += " ; note"
-        out.append(line)
-    return out
-
-
-@st.composite
-def gcode_file(draw):
-    lines = ["G28", "G1 X100 Y100 Z0.3 F3000"] if draw(st.integers(0, 5)) else []
-    for _ in range(draw(st.integers(1, 8))):
-        if draw(st.booleans()):
-            lines += draw(plain_run())
-        else:
-            lines += [line for line, _ in draw(st.lists(any_line(text_ok=False), max_size=4))]
-    if lines and draw(st.integers(0, 5)) == 0:  # bytes that are not UTF-8
-        i = draw(st.integers(0, len(lines) - 1))
-        lines[i] += "\udcff\udcc3"
-    endings = draw(st.sampled_from(["\n", "\n", "\r\n", "\r\n", "mixed", "\r"]))
-    if endings == "mixed":
-        ends = [draw(st.sampled_from(["\n", "\r\n", "\n", "\r"])) for _ in lines]
-    else:
-        ends = [endings] * len(lines)
-    if ends and not draw(st.booleans()):
-        ends[-1] = ""  # no final newline
-    return "".join(a + b for a, b in zip(lines, ends))
-
-
-def _reference(text, p, opts, fast_lines=True, compiled=True):
-    with kernel(compiled):
-        comp = Compensator(p, opts)
-    comp.fast_lines = comp.fast_lines and fast_lines
-    try:
-        out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(p)))
-    except LimitError as exc:
-        return "error", str(exc)
-    return out.encode(ENCODING, ERRORS), comp.report.to_dict()
-
-
-def _engine(text, p, opts, chunk, compiled=True):
-    old = fastfile.CHUNK_BYTES
-    fastfile.CHUNK_BYTES = chunk or old
-    try:
-        dst = io.BytesIO()
-        with kernel(compiled):
-            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, p, opts)
-    except LimitError as exc:
-        return "error", str(exc)
-    finally:
-        fastfile.CHUNK_BYTES = old
-    return dst.getvalue(), rep.to_dict()
-
-
-@st.composite
-def engine_options(draw):
-    kw = {"decimals": draw(st.integers(3, 6))}
-    if draw(st.booleans()):
-        kw["limits"] = (0, 200, 0, 200, 0, 250)
-        kw["policy"] = draw(st.sampled_from(["warn", "clamp", "error"]))
-    return Options(**kw)
-
-
-UNICODE_INDENT_FILE = ("G28\nG1 X10 Y10 Z1\n" + "".join(f"G1 X{i} Y{i}\n" for i in range(10, 40))
-                       + "\xa0G1 X50 Y50\n" + "".join(f"G1 X{i} Y1\n" for i in range(30)))
-
-
-@cfg(80)
-@given(gcode_file(), params(), engine_options(), st.sampled_from([None, None, 97, 1000]))
-@example(UNICODE_INDENT_FILE, Params.from_dict({"squareness_um_per_m": {"xy": 3000}}),
-         Options(), None)
-@example(UNICODE_INDENT_FILE.replace("\xa0", "\x1c").replace("\n", "\r\n"),
-         Params.from_dict({"squareness_um_per_m": {"xy": 3000}}), Options(), None)
-# a last line ending in a lone CR that expands into a take-up and a move (and a CR-only file
-# of one line): the pieces are joined with that CR, not CRLF
-@example("G28\nG1 X1 Y1\r", Params.from_dict({"backlash": {"y": 0.5, "smoothing_mm": 0.1}}),
-         Options(), None)
-@example("G28\rG1 X1 Y1\r", Params.from_dict({"backlash": {"y": 20.0}}), Options(), 3)
-@example("\r", Params.from_dict({"backlash": {"y": 20.0}}), Options(), None)
-def test_file_engine_matches_the_per_line_reference(text, p, opts, chunk):
-    ref = _reference(text, p, opts)
-    assert _reference(text, p, opts, fast_lines=False) == ref  # general == per-line fast
-    assert _reference(text, p, opts, compiled=False) == ref  # compiled == Python
-    assert _engine(text, p, opts, chunk, compiled=False) == ref  # vectorised, no kernel
-    got = _engine(text, p, opts, chunk)
-    if ref[0] != "error" and got[0] != "error" and got[0] != ref[0]:
-        a, b = ref[0], got[0]
-        i = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
-        assert a == b, ("first difference at byte", i, a[max(0, i - 60):i + 60],
-                        b[max(0, i - 60):i + 60])
-    assert got == ref
-    if ref[0] != "error":
-        # line structure: the marker line, then one or more lines per input line, each with
-        # its input line's ending (an unterminated last line stays unterminated)
-        unterminated = bool(text) and not re.search(r"[\r\n]\Z", text)
-        assert ref[1]["lines"] == len(re.findall(r"\r\n|\r|\n", text)) + unterminated
-        out_endings = len(re.findall(rb"\r\n|\r|\n", ref[0]))
-        assert out_endings == (1 + ref[1]["lines_out"] - unterminated if text else 0)

@@ -1,10 +1,10 @@
-"""The fast paths give exactly what the general path gives (issue 5).
+"""Every engine gives exactly what the reference path gives (issue 5).
 
-The fast paths: the per-line fast branch of Compensator.process (the queuing hook), in
-Python and compiled (kernel.py), and the file engine (fastfile.py), which runs the compiled
-kernel over a block, or vectorises it with numpy (blocks with slicer arcs, or no kernel).
-Each must produce the same text and report as the general, line-by-line path on real
-slicer files and on awkward generated programs, with the kernel and without it."""
+The engines: the compiled kernel per line (the queuing hook) and over blocks of a file, and
+the vectorised numpy file engine (blocks with slicer arcs, and everything without the
+kernel). Each must produce the same text and report as the reference compensator, line by
+line, on real slicer files and on awkward generated programs. Tests that take the
+``engine`` fixture run once per engine."""
 
 import io
 import os
@@ -14,16 +14,17 @@ import pytest
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines import select
 from octoprint_kincomp.engines import vectorised as fastfile
 from octoprint_kincomp.engines.files import (
     compensate_binary,
     compensate_lines,
     marker_line,
 )
+from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
 from tests.support import DATA as SAMPLES
 from tests.support.gcodegen import random_program
-from tests.support.helpers import kernel
 
 PARAMS = [
     Params.from_dict(BENCH_PARAMS),
@@ -39,40 +40,40 @@ OPTIONS = [
 
 
 def general(text: str, params, options):
+    """The reference path: every line through Compensator.process, no engine."""
     comp = Compensator(params, options)
-    comp.fast_lines = False
     out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
     return out, comp.report.to_dict()
 
 
-def per_line(text: str, params, options, compiled=True):
-    with kernel(compiled):
-        comp = Compensator(params, options)
-    assert (comp._kernel is not None) == (compiled and comp.fast_lines)
+def per_line(text: str, params, options):
+    """Line by line through a compensator of the engine in use (the queuing hook's way)."""
+    comp = make_compensator(params, options)
+    assert (comp.fast is not None) == (select.engine() == "compiled" and comp.accelerable)
     out = "".join(compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params)))
     return out, comp.report.to_dict()
 
 
-def engine(text: str, params, options, chunk=None, compiled=True):
+def whole_file(text: str, params, options, chunk=None):
+    """The file engine of the engine in use (``chunk``: its block size, bytes)."""
     if chunk:
         old = fastfile.CHUNK_BYTES
         fastfile.CHUNK_BYTES = chunk
     try:
         dst = io.BytesIO()
-        with kernel(compiled):
-            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
-                                    options)
+        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
+                                options)
     finally:
         if chunk:
             fastfile.CHUNK_BYTES = old
     return dst.getvalue().decode(ENCODING, ERRORS), rep.to_dict()
 
 
-def check_all(text, params, options, chunk=None):
+def check(text, params, options, chunk=None):
+    """The engine in use, per line and on the whole file, equals the reference path."""
     ref = general(text, params, options)
-    for compiled in (True, False):
-        assert per_line(text, params, options, compiled) == ref, compiled
-        assert engine(text, params, options, chunk, compiled) == ref, compiled
+    assert per_line(text, params, options) == ref
+    assert whole_file(text, params, options, chunk) == ref
 
 
 def sample(name):
@@ -82,46 +83,44 @@ def sample(name):
 
 @pytest.mark.parametrize("params", PARAMS, ids=["bench", "skew", "backlash"])
 @pytest.mark.parametrize("options", OPTIONS, ids=["plain", "clamp", "warn4"])
-def test_real_slicer_files(params, options):
+def test_real_slicer_files(params, options, engine):
     for name in ("bambustudio-a1-hook.gcode", "bambustudio-square-ring.gcode"):
-        check_all(sample(name), params, options)
+        check(sample(name), params, options)
 
 
 @pytest.mark.parametrize("seed", range(12))
-def test_generated_awkward_programs(seed):
+def test_generated_awkward_programs(seed, engine):
     lines = random_program(seed, n=400, nasty=0.25 if seed % 2 else 0.02)
     params = PARAMS[seed % len(PARAMS)]
     options = OPTIONS[seed % len(OPTIONS)]
     for ending in ("\n", "\r\n"):
         text = ending.join(lines) + (ending if seed % 3 else "")
         # small chunks force chunk boundaries, segments and the short-run path
-        check_all(text, params, options, chunk=997 if seed % 4 == 0 else None)
+        check(text, params, options, chunk=997 if seed % 4 == 0 else None)
 
 
-def test_benchmark_style_file(tmp_path):
+def test_benchmark_style_file(tmp_path, engine):
     path = tmp_path / "b.gcode"
     generate(str(path), 30000)
     text = path.read_text()
     for params in PARAMS:
-        ref = general(text, params, Options())
-        assert engine(text, params, Options()) == ref
-        assert engine(text, params, Options(), compiled=False) == ref
+        assert whole_file(text, params, Options()) == general(text, params, Options())
 
 
-def test_trailing_space_on_the_last_line_of_a_block():
+def test_trailing_space_on_the_last_line_of_a_block(engine):
     # review finding: the tokeniser's word sums indexed past the block's end
     for text in ("G28\nG1 X1 Y1 \n", "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
                  "G28\n" + "G1 X5 Y5\n" * 40 + "G1 X1 Y1 \n", "G28\nG1 X1 Y1 \r\n"):
-        check_all(text, PARAMS[0], Options())
+        check(text, PARAMS[0], Options())
 
 
-def test_lone_cr_and_missing_newline():
+def test_lone_cr_and_missing_newline(engine):
     text = "G28\rG1 X10 Y10 Z1\rG1 X20 Y5\r; c\rG1 X30 Y30"
-    check_all(text, PARAMS[0], Options())
-    check_all("G28\nG1 X10 Y10 Z1\nG1 X20 Y5", PARAMS[0], Options())
+    check(text, PARAMS[0], Options())
+    check("G28\nG1 X10 Y10 Z1\nG1 X20 Y5", PARAMS[0], Options())
 
 
-def test_limit_error_raised_at_the_same_line():
+def test_limit_error_raised_at_the_same_line(engine):
     lines = ["G28", "G1 X10 Y100 Z1"] + [f"G1 X{50 + i % 7} Y{100 + i % 5}" for i in range(60)]
     lines += ["G1 X0 Y200", "G1 X10 Y10"]
     text = "\n".join(lines) + "\n"
@@ -129,14 +128,13 @@ def test_limit_error_raised_at_the_same_line():
     opts = Options(limits=(0, 200, 0, 200, 0, 250), policy="error")
     with pytest.raises(LimitError) as a:
         general(text, params, opts)
-    for compiled in (True, False):
-        with pytest.raises(LimitError) as b:
-            engine(text, params, opts, compiled=compiled)
-        assert str(a.value) == str(b.value)
+    with pytest.raises(LimitError) as b:
+        whole_file(text, params, opts)
+    assert str(a.value) == str(b.value)
 
 
-def test_fast_line_falls_back_on_malformed_numbers():
-    comp = Compensator(PARAMS[1])
+def test_a_malformed_number_is_reported_on_every_engine(engine):
+    comp = make_compensator(PARAMS[1])
     comp.process("G28")
     comp.process("G1 X1 Y1 Z1")
     assert comp.process("G1 X1.2.3 Y2") == "G1 X1.2.3 Y2"
@@ -155,14 +153,15 @@ TRICKY_FAST_LINES = [
 
 
 @pytest.mark.parametrize("params", PARAMS[:2], ids=["bench", "skew"])
-def test_fast_line_shapes_agree_with_the_general_path(params):
-    """The per-line fast path reads lines by their shape and float(); on every odd
-    spelling it either gives the general path's text and report, or leaves the line to it."""
+def test_odd_line_shapes_agree_with_the_reference_path(params, engine):
+    """The engines read lines by their shape and their own number parsers; on every odd
+    spelling they either give the reference path's text and report, or leave the line to
+    it."""
     for line in TRICKY_FAST_LINES:
         text = "G28\nG1 X10 Y10 Z1 E0\n" + line + "\nG1 X20 Y20\n"
         ref = general(text, params, Options())
         assert per_line(text, params, Options()) == ref, line
-        assert per_line(text, params, Options(), compiled=False) == ref, line
+        assert whole_file(text, params, Options()) == ref, line
 
 
 def arc_program(seed: int, n: int = 500, e_mode: str = "absolute", crlf=False) -> str:
@@ -225,7 +224,7 @@ ARC_PARAMS = PARAMS + [
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_arcs_are_vectorised_with_the_same_output(seed):
+def test_arcs_are_vectorised_with_the_same_output(seed, engine):
     from unittest import mock
 
     params = ARC_PARAMS[seed % len(ARC_PARAMS)]
@@ -240,15 +239,15 @@ def test_arcs_are_vectorised_with_the_same_output(seed):
         return out
 
     ref = general(text, params, options)
-    for compiled in (True, False):  # blocks with arcs take the vectorised path either way
-        with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
-            got = engine(text, params, options, 4093 if seed % 2 else None, compiled)
-        assert got == ref
+    # blocks with arcs take the vectorised path on either engine
+    with mock.patch.object(fastfile.FileEngine, "_mixed", spy):
+        got = whole_file(text, params, options, 4093 if seed % 2 else None)
+    assert got == ref
     assert ref[1]["arcs_linearised"] > 100
     assert taken and any(taken)  # the vectorised arc path did the work
 
 
-def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
+def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path(engine):
     # no G92 E0 and no E before the arcs: the line path passes such arcs as written
     lines = ["G28", "G1 X120 Y100 Z0.3"] + [
         f"G3 X{100 + 20 * __import__('math').cos(a / 10):.3f} "
@@ -256,12 +255,10 @@ def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path():
         for a in range(1, 40)]
     text = "\n".join(lines) + "\n"
     for params in ARC_PARAMS:
-        ref = general(text, params, Options())
-        assert engine(text, params, Options()) == ref
-        assert engine(text, params, Options(), compiled=False) == ref
+        assert whole_file(text, params, Options()) == general(text, params, Options())
 
 
-def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
+def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker(engine):
     """A retreat of the deadband plus an ulp (review finding): the vectorised shortcut used
     step < -db where the tracker compares q < anchor - db; they round differently there."""
     p = Params.from_dict({"backlash": {"x": 30.0}})
@@ -269,10 +266,10 @@ def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker():
             (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
             (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002))):
         text = "\n".join(lines + [f"G1 X{3 + i}" for i in range(30)]) + "\n"
-        check_all(text, p, opts)
+        check(text, p, opts)
 
 
-def test_limit_examples_of_arc_chords_come_in_emission_order():
+def test_limit_examples_of_arc_chords_come_in_emission_order(engine):
     import math
 
     p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
@@ -286,5 +283,4 @@ def test_limit_examples_of_arc_chords_come_in_emission_order():
         opts = Options(limits=(0, 300, 0, 300, 0, 300), policy=policy)
         ref = general(text, p, opts)
         assert len(ref[1]["limit_examples"]) >= 3
-        assert engine(text, p, opts) == ref
-        assert engine(text, p, opts, compiled=False) == ref
+        assert whole_file(text, p, opts) == ref

@@ -1,6 +1,6 @@
-"""The compiled kernel (kernel.py, _kernel.c): built here, taking the lines it should, and
-writing what the Python fast path writes, digit for digit, including the numbers where
-rounding is decided by the exact binary value (ties and near-ties)."""
+"""The compiled kernel (engines/kernel.py, engines/csrc/): built here, taking the lines it
+should, and writing what the reference path writes, digit for digit, including the numbers
+where rounding is decided by the exact binary value (ties and near-ties)."""
 
 import io
 from unittest import mock
@@ -13,8 +13,9 @@ from octoprint_kincomp.core.compensator import Compensator, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import kernel as kernel_mod
+from octoprint_kincomp.engines import select
 from octoprint_kincomp.engines.files import compensate_binary
-from tests.support.helpers import kernel
+from octoprint_kincomp.engines.select import make_compensator
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1500.0, "xz": -200.0},
                          "scale_ppm": {"x": 300.0, "y": -120.0},
@@ -24,51 +25,67 @@ SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1500.0, "xz": -200.0},
 BACKLASH_ONLY = Params.from_dict({"backlash": {"x": 30.0}})  # identity model: q == p
 
 
-def state(comp):
-    bl = comp.backlash
-    return (list(comp.m), list(comp.fw), list(comp.fw_text), comp._qm, list(comp._lim_hit),
-            list(bl.dir), list(bl.anchor), comp.lineno, comp.e_pos, comp.feed,
-            comp.report.to_dict())
+def state(comp, caches=True):
+    """The stream state; ``caches``: with the accelerated engines' own fields (q_last,
+    limit_recheck), which the reference path resets on every line it handles."""
+    st = comp.state
+    bl = st.backlash
+    own = (st.q_last, list(st.limit_recheck)) if caches else ()
+    return (list(st.m), list(st.fw), list(st.fw_text), list(bl.dir), list(bl.anchor),
+            st.lineno, st.e_pos, st.feed, st.report.to_dict()) + own
 
 
 def run(lines, params, options=None, compiled=True):
-    with kernel(compiled):
-        comp = Compensator(params, options)
+    """The lines through the kernel (where it takes them) or the reference path alone."""
+    comp = Compensator(params, options)
+    if compiled:
+        comp.fast = kernel_mod.build(comp)
+        assert comp.fast is not None
     out = [comp.process(line) for line in lines]
-    return [o if isinstance(o, str) else tuple(o) for o in out], state(comp)
+    return [o if isinstance(o, str) else tuple(o) for o in out], state(comp, caches=False)
 
 
 def test_the_kernel_is_built_in_the_test_environment():
     # the test set-up installs the package with its C extension; without this check a
     # missing compiler would make every "compiled" test quietly test Python twice
-    assert kernel_mod.available()
-    assert Compensator(SKEW)._kernel is not None
-    with kernel(False):
-        assert Compensator(SKEW)._kernel is None
-    assert Compensator(Params())._kernel is None  # all zero: nothing to compensate
+    assert kernel_mod.built() and select.available() == "compiled"
+    assert make_compensator(SKEW).fast is not None
+    with select.use("python"):
+        assert make_compensator(SKEW).fast is None
+    assert make_compensator(Params()).fast is None  # all zero: nothing to compensate
+    assert Compensator(SKEW).fast is None  # the reference path by itself
 
 
 def test_the_kernel_takes_the_plain_moves():
     lines = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X20 Y12 E0.5", "G1 X5 Y12 E1.0",
              "G0 F9000 X50 Y60", "G1 Z0.5", "G1 E-0.8 F2400"]
     ref = run(lines, SKEW, compiled=False)
-    with mock.patch.object(Compensator, "_fast_line", side_effect=AssertionError):
-        assert run(lines, SKEW) == ref  # not one line went to the Python fast path
+    seen = []
+    real = Compensator._dispatch
+
+    def spy(self, cmd, line):
+        seen.append(line)
+        return real(self, cmd, line)
+
+    with mock.patch.object(Compensator, "_dispatch", spy):
+        assert run(lines, SKEW) == ref
+    assert seen == ["G28"]  # every move went through the kernel
 
 
 def test_a_line_the_kernel_leaves_changes_nothing():
-    comp = Compensator(SKEW, Options(limits=(0, 200, 0, 200, 0, 200)))
+    comp = make_compensator(SKEW, Options(limits=(0, 200, 0, 200, 0, 200)))
     for line in ("G28", "G1 X10 Y10 Z1", "G1 X20 Y20"):
         comp.process(line)
     before = state(comp)
-    # the compensated X of this point leaves the limits: the Python path counts it
-    assert comp._kernel.line(comp, "G1 X0 Y199.9") is None
-    assert comp._kernel.line(comp, "G1 X10 Y10 ; comment") is None
-    assert comp._kernel.line(comp, "M104 S200") is None
+    k, st = comp.fast, comp.state
+    # the compensated X of this point leaves the limits: the reference path counts it
+    assert k.line(st, "G1 X0 Y199.9") is None
+    assert k.line(st, "G1 X10 Y10 ; comment") is None
+    assert k.line(st, "M104 S200") is None
     assert state(comp) == before
-    assert comp._kernel.feed(comp, b"G1 X0 Y199.9\nG1 X1 Y1\n", 0) == (b"", 0)
+    assert k.feed(st, b"G1 X0 Y199.9\nG1 X1 Y1\n", 0) == (b"", 0)
     assert state(comp) == before
-    out, stop = comp._kernel.feed(comp, b"; c\n\nG1 X30 Y30\r\nM106\nG1 X1 Y1\n", 0)
+    out, stop = k.feed(st, b"; c\n\nG1 X30 Y30\r\nM106\nG1 X1 Y1\n", 0)
     assert stop == len(b"; c\n\nG1 X30 Y30\r\n")
     assert out.startswith(b"; c\n\nG1 X") and out.endswith(b"\r\n")
     assert state(comp) != before
@@ -94,7 +111,7 @@ number = st.one_of(
                 min_size=1, max_size=12),
        st.sampled_from([SKEW, BACKLASH_ONLY]), st.integers(3, 8),
        st.sampled_from(["G21", "G20"]))
-def test_compiled_and_python_fast_paths_write_the_same(moves, params, decimals, units):
+def test_the_kernel_and_the_reference_path_write_the_same(moves, params, decimals, units):
     lines = ["G28", units, "G1 X10 Y10 Z1"]
     lines += [f"G1 X{x} Y{y}{tail}" for x, y, tail in moves] + ["G1 X1 Y1"]
     options = Options(decimals=decimals)
@@ -102,9 +119,9 @@ def test_compiled_and_python_fast_paths_write_the_same(moves, params, decimals, 
     assert run(lines, params, options) == ref
     text = "\n".join(lines) + "\n"
     outs = []
-    for compiled in (True, False):
+    for name in select.ENGINES:
         dst = io.BytesIO()
-        with kernel(compiled):
+        with select.use(name):
             rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
                                     options)
         outs.append((dst.getvalue(), rep.to_dict()))
@@ -130,23 +147,24 @@ def test_the_self_check_passes_here_and_catches_a_kernel_that_rounds_otherwise()
     assert kernel_mod.self_check()
 
     def shifted(comp):  # a kernel whose model is off by 0.1 um in X: some texts differ
-        saved = comp._affine
-        comp._affine = saved[:9] + (saved[9] + 1e-4,) + saved[10:]
+        model = comp.model
+        saved = model.offset_mm
+        model.offset_mm = (saved[0] + 1e-4,) + saved[1:]
         try:
-            return kernel_mod._make(comp)
+            return kernel_mod.build(comp)
         finally:
-            comp._affine = saved
+            model.offset_mm = saved
 
     assert not kernel_mod.self_check(make=shifted)
 
 
 def test_state_the_kernel_cannot_write_back_is_left_to_python():
     # review finding: a tuple where the kernel writes in place (it never is one in practice)
-    comp = Compensator(SKEW)
+    comp = make_compensator(SKEW)
     for line in ("G28", "G1 X10 Y10 Z1"):
         comp.process(line)
-    comp.fw = tuple(comp.fw)
-    assert comp._kernel.line(comp, "G1 X20 Y20") is None
+    comp.state.fw = tuple(comp.state.fw)
+    assert comp.fast.line(comp.state, "G1 X20 Y20") is None
 
 
 def test_negative_zero_anchor_is_written_like_python():
@@ -156,4 +174,4 @@ def test_negative_zero_anchor_is_written_like_python():
     lines = ["G28", "G1 X-0 Y10 Z-0", "G1 X-0 Y-0 Z-0", "G1 X0 Y0 Z0"]
     got, ref = run(lines, y_only), run(lines, y_only, compiled=False)
     assert got == ref
-    assert [str(a) for a in got[1][6]] == [str(a) for a in ref[1][6]]
+    assert [str(a) for a in got[1][4]] == [str(a) for a in ref[1][4]]

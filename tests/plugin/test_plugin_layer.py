@@ -80,7 +80,7 @@ def test_failure_suppresses_and_reports():
     assert errors and isinstance(errors[0][1], LimitError)
     assert q.status()["errors"] == 1 and q.status()["last_error"]["command"] == "G1 X0 Y100 Z1"
     # the refused line changed nothing: the position before it is still known
-    assert q.comp.known == (True, True, True) and q.comp.m == [0.0, 0.0, 0.0]
+    assert q.comp.known == (True, True, True) and q.comp.state.m == [0.0, 0.0, 0.0]
     # until the print resumes or ends, the print's later moves are held back (not sent as
     # written); other commands, and moves from scripts or the user, still go through
     assert q.handle("G1 X10 Y10 Z1", f) == [] and q.handle("g01 x5", f) == []

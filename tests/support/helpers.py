@@ -6,16 +6,16 @@ import math
 from typing import List, Sequence, Tuple
 
 from octoprint_kincomp.core.backlash import Play
-from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import KinematicModel
 from octoprint_kincomp.core.machine import FirmwareInterpreter, Home, Move
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.kernel import switched as kernel  # noqa: F401 (for the tests)
+from octoprint_kincomp.engines.select import make_compensator
 
 
 def compensate_groups(params: Params, lines: Sequence[str], options: Options = None):
     """[(input line, [output lines])] using one Compensator."""
-    comp = Compensator(params, options)
+    comp = make_compensator(params, options)
     groups = []
     for line in lines:
         out = comp.process(line)

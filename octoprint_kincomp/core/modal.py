@@ -1,0 +1,74 @@
+"""Commands that move no axis but change what later coordinates mean: G92 (set position),
+G92.1 (drop the offsets) and G28 (homing). They act on the stream state (positions in mm,
+see state.py) and the backlash direction state; G92 and G28 lines pass unchanged."""
+
+from __future__ import annotations
+
+from typing import List, Optional, Sequence
+
+from .gcode import parse_words
+from .state import StreamState
+
+AXIS_LETTERS = ("X", "Y", "Z")
+
+
+def set_position(st: StreamState, backlash, body: str, unit: float) -> Optional[bool]:
+    """G92 with the words of ``body`` (``unit``: mm per program unit). Returns None when
+    the words are malformed. An axis of unknown position loses its frame (module doc of
+    state.py): its new offset to the machine frame is unknown."""
+    words = parse_words(body)
+    if words is None:
+        return None
+    given = {w.letter: w.value for w in words}
+    if not any(k in given for k in ("X", "Y", "Z", "E")):
+        given = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+    for k, letter in enumerate(AXIS_LETTERS):
+        if letter not in given:
+            continue
+        v = given[letter] * unit
+        if st.m[k] is None:
+            st.frame_lost[k] = True
+            st.fw[k] = None
+            st.fw_text[k] = None
+            backlash.reset((k,))
+            continue
+        c = st.fw[k] - st.g[k]
+        st.w[k] = v - st.m[k]
+        st.g[k] = v - c
+        st.fw[k] = v
+        st.fw_text[k] = None
+    if "E" in given:
+        st.e_pos = given["E"]
+    return True
+
+
+def reset_offsets(st: StreamState) -> None:
+    """G92.1: the offsets are dropped. The head does not move, so the desired machine
+    position stays where it is (adding ``w`` to it would make the next move drive the axes
+    the program did not mention to ``m + w``); only the firmware coordinate loses ``g``."""
+    for k in range(3):
+        if st.m[k] is not None:
+            st.fw[k] -= st.g[k]
+            st.fw_text[k] = None
+        st.w[k] = 0.0
+        st.g[k] = 0.0
+        st.frame_lost[k] = False  # the firmware frame is the native one again
+
+
+def home(st: StreamState, backlash, body: str, home_mm: Sequence[float]) -> List[int]:
+    """G28 of the axes named in ``body`` (all when none): they are known at ``home_mm``
+    (mm, machine frame) and their frames are restored. Returns the homed axes."""
+    words = parse_words(body, allow_bare=True)
+    letters = {w.letter for w in words} if words is not None else set()
+    axes = [k for k, a in enumerate(AXIS_LETTERS) if a in letters] or [0, 1, 2]
+    for k in axes:
+        st.m[k] = float(home_mm[k])
+        st.fw[k] = float(home_mm[k])
+        st.fw_text[k] = None
+        st.w[k] = 0.0
+        st.g[k] = 0.0
+        st.frame_lost[k] = False
+        # the drive is at the home command, which under skew is not inverse(home): the
+        # first move's reversal is judged from there
+        backlash.place(k, float(home_mm[k]))
+    return axes

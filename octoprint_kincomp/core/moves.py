@@ -1,0 +1,199 @@
+"""Moves (G0/G1 and G2/G3): from a line's words to the desired machine path, which the path
+writer turns into compensated lines, or, when a position the move needs is unknown, the line
+as written with the head's new position still tracked (a position is never invented).
+
+A move needs every axis whose command it changes: under skew a Y-only move also moves X, so
+X must be known. Arcs are linearised into chords within ``chord_tol_mm`` (mm) with a chord
+end wherever a carriage command reverses (so backlash take-ups land exactly there).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import List, Optional, Sequence, Tuple
+
+from . import arcs
+from .gcode import Word
+
+MM_PER_INCH = 25.4
+
+
+class MoveHandler:
+    """The move lines of one compensator (shares its state, model, tracker and writer)."""
+
+    def __init__(self, comp):
+        self.comp = comp
+        self.state = comp.state
+        self.model = comp.model
+        self.backlash = comp.backlash
+        self.writer = comp.writer
+        self.options = comp.options
+
+    # -- shared --------------------------------------------------------------------------
+    def targets(self, words: Sequence[Word]):
+        """(given axes, desired machine target with None for unknown) of a move's words."""
+        st = self.state
+        u = MM_PER_INCH if st.inches else 1.0
+        target = list(st.m)
+        given = []
+        for w in words:
+            k = "XYZ".find(w.letter)
+            if k < 0:
+                continue
+            given.append(k)
+            if st.frame_lost[k]:
+                continue  # target stays unknown (None) until G28
+            if st.absolute:
+                target[k] = w.value * u - st.w[k]
+            elif st.m[k] is not None:
+                target[k] = st.m[k] + w.value * u
+        return given, target
+
+    def needed(self, given: Sequence[int]) -> set:
+        comp = self.comp
+        need = set(given)
+        for j in given:
+            for k in comp.moved_by[j]:
+                need |= comp.needs[k]
+        return need
+
+    def track_e(self, e_word: Optional[Word]) -> None:
+        """Absolute E position for splitting absolute-E arcs. Relative extrusion is not
+        summed (float sums of millions of moves mean little): the position becomes unknown
+        until ``G92 E`` or an absolute E move defines it again."""
+        if e_word is None:
+            return
+        self.state.e_pos = None if self.comp.e_relative else e_word.value
+
+    def untouched(self, given, words, known_before, line: str):
+        """Pass a move through as written and keep tracking where the head went."""
+        st = self.state
+        rep = st.report
+        rep.untouched_unknown += 0 if self.comp.passthrough else 1
+        st.q_drive = None  # the drives go where the line says
+        u = MM_PER_INCH if st.inches else 1.0
+        c_before = [None if v is None else v - st.g[k] for k, v in enumerate(st.fw)]
+        new_m = list(st.m)
+        for w in words:
+            k = "XYZ".find(w.letter)
+            if k < 0:
+                continue
+            if st.frame_lost[k]:
+                continue
+            if st.absolute:
+                new_m[k] = w.value * u - st.w[k]
+                st.fw[k] = w.value * u
+            elif st.m[k] is not None:
+                new_m[k] = st.m[k] + w.value * u
+                st.fw[k] += w.value * u
+            st.fw_text[k] = None
+        bl = self.backlash
+        if bl.any_active:
+            bl.observe(c_before, [None if v is None else v - st.g[k]
+                                  for k, v in enumerate(st.fw)])
+            for k in given:
+                if not known_before[k] and st.fw[k] is not None:
+                    bl.place(k, st.fw[k] - st.g[k])
+        st.m = new_m
+        e = next((w for w in words if w.letter == "E"), None)
+        self.track_e(e)
+        return line
+
+    # -- G0/G1 ---------------------------------------------------------------------------
+    def linear(self, cmd, words: List[Word], line: str):
+        st = self.state
+        given, target = self.targets(words)
+        e_word = next((w for w in words if w.letter == "E"), None)
+        f_word = next((w for w in words if w.letter == "F"), None)
+        if f_word is not None:
+            st.feed = f_word.value * (MM_PER_INCH if st.inches else 1.0)
+        if not given:
+            self.track_e(e_word)
+            return line
+        need = self.needed(given)
+        known_before = self.comp.known
+        if self.comp.passthrough or any(target[k] is None for k in need) or (
+            not st.absolute and any(st.m[k] is None for k in given)
+        ):
+            return self.untouched(given, words, known_before, line)
+        start = list(st.m)
+        tail = [w for w in words if w.letter not in "XYZ"]
+        out = self.writer.path(cmd.code_text, start, [tuple(target)], given, e_word, tail,
+                               cmd.comment, self.comp.e_relative)
+        self.track_e(e_word)
+        st.report.moves_compensated += 1
+        return out
+
+    # -- G2/G3 ---------------------------------------------------------------------------
+    def arc(self, cmd, words: List[Word], line: str):
+        st = self.state
+        comp = self.comp
+        clockwise = cmd.number == 2
+        plane = st.plane
+        ia, ib, il, la, lb = arcs.PLANES[plane]
+        wd = {w.letter: w for w in words}
+        given, target = self.targets(words)
+        e_word = wd.get("E")
+        f_word = wd.get("F")
+        u = MM_PER_INCH if st.inches else 1.0
+        if f_word is not None:
+            st.feed = f_word.value * u
+        turns_w = wd.get("P")
+        turns = int(turns_w.value) if turns_w is not None else 0
+        plane_axes = {ia, ib} | set(given)
+        need = self.needed(sorted(plane_axes))
+        known_before = comp.known
+        # The linear axis is interpolated along the chords (helix), so it must be known too:
+        # an XY arc from an unknown Z crashed in linearise (None - None).
+        if comp.passthrough or any(st.m[k] is None for k in need | plane_axes | {il}):
+            return self.untouched(given, words, known_before, line)
+        offs = (
+            wd[la].value * u if la in wd else None,
+            wd[lb].value * u if lb in wd else None,
+        )
+        radius = wd["R"].value * u if "R" in wd else None
+        start = tuple(st.m)
+        end = tuple(target)
+        try:
+            ca, cb = arcs.centre_from_words(start, end, plane, offs, radius, clockwise,
+                                            st.ij_absolute)
+            if st.ij_absolute:
+                ca -= st.w[ia]
+                cb -= st.w[ib]
+            pts = arcs.linearise(start, end, plane, ca, cb, clockwise,
+                                 self.options.chord_tol_mm, turns, self.extreme_angles(plane))
+        except arcs.ArcError:
+            comp.malformed(line)
+            return self.untouched(given, words, known_before, line)
+        if comp.pure_translation and not st.ij_absolute and turns == 0:
+            out = self.writer.path(cmd.code_text, list(start), [end], given, None,
+                                   [w for w in words if w.letter not in "XYZ"], cmd.comment,
+                                   comp.e_relative)
+            st.report.moves_compensated += 1
+            self.track_e(e_word)
+            return out
+        if e_word is not None and not comp.e_relative and st.e_pos is None:
+            # Absolute extrusion from an unknown E: the split cannot be computed.
+            return self.untouched(given, words, known_before, line)
+        tail = [w for w in words if w.letter not in "XYZIJKRP"]
+        out = self.writer.path("G1", list(start), pts, given, e_word, tail, cmd.comment,
+                               comp.e_relative)
+        self.track_e(e_word)
+        rep = st.report
+        rep.arcs_linearised += 1
+        rep.arc_segments += len(pts)
+        rep.moves_compensated += 1
+        return out
+
+    def extreme_angles(self, plane: int) -> Tuple[float, ...]:
+        """Arc angles (rad) at which a carriage command reaches an extreme (reverses).
+
+        For the command ``q = A_inv m`` on a circle in ``plane`` each command axis k is
+        ``A_inv[k, a] r cos t + A_inv[k, b] r sin t + const``: extreme at
+        ``atan2(A_inv[k, b], A_inv[k, a])`` (mod pi). Without errors these are the quadrants.
+        """
+        ia, ib, _, _, _ = arcs.PLANES[plane]
+        Ai = self.model.A_inv
+        return tuple(
+            math.atan2(Ai[k, ib], Ai[k, ia]) for k in range(3) if Ai[k, ia] or Ai[k, ib]
+        )

@@ -1,0 +1,258 @@
+"""Writing a compensated path: a polyline of desired machine positions in, G-code lines out.
+
+This is where a move is transformed (the reference implementation; the accelerated engines
+must write the same bytes): each point's desired machine position ``p`` (mm, homed frame)
+goes through the inverse kinematic model to the carriage command ``q``, gets the backlash
+take-up offset (``dir * fraction * b(q) / 2``, mm) and, with servo pre-compensation, the
+lead ``v * T`` per axis; the limits policy is applied; the firmware coordinate
+``fw = c + g`` is written with the output resolution (``decimals`` in mm, two more in
+inches). Backlash reversals are decided on the carriage command (under skew an axis can be
+driven back and forth although its desired coordinate does not change) and taken up by an
+extra move (``G1`` to the start point with the new offset) or ramped over ``smoothing_mm``
+of following path. E is split over sub-segments in proportion to their length.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import List, Optional, Tuple
+
+from .errors import CompensationError, LimitError
+from .gcode import Word, decimals_of, fmt
+from .params import AXES
+
+AXIS_LETTERS = ("X", "Y", "Z")
+
+
+class EDistribution:
+    """Splits one E word over sub-segments by path length, keeping the total exact: the
+    last piece of an absolute E is the word as written; relative E is split in whole units
+    of its own resolution (at least 5 decimals) so the pieces add up exactly."""
+
+    __slots__ = ("word", "relative", "e0", "total_len", "decimals", "scale", "units",
+                 "units_done")
+
+    def __init__(self, word: Optional[Word], relative: bool, e0: Optional[float],
+                 total_len: float):
+        self.word = word
+        self.relative = relative
+        self.e0 = e0
+        self.total_len = total_len
+        if word is not None:
+            self.decimals = max(decimals_of(word.text), 5)
+            self.scale = 10 ** self.decimals
+            if relative:
+                self.units = round(word.value * self.scale)
+                self.units_done = 0
+
+    def take(self, s_end: float, last: bool) -> Optional[str]:
+        """The E word of the piece that ends ``s_end`` mm along the path."""
+        w = self.word
+        if w is None:
+            return None
+        if last:
+            if not self.relative or self.units_done == 0:
+                return w.text  # the whole E word in one piece: exactly as written
+            return "E" + fmt((self.units - self.units_done) / self.scale, self.decimals)
+        f = s_end / self.total_len if self.total_len > 0 else 1.0
+        if self.relative:
+            upto = round(self.units * f)
+            part = upto - self.units_done
+            self.units_done = upto
+            return "E" + fmt(part / self.scale, self.decimals)
+        return "E" + fmt(self.e0 + (w.value - self.e0) * f, self.decimals)
+
+
+def lerp(a, b, f):
+    """Point ``f`` (0..1) of the way from ``a`` to ``b``; None stays None."""
+    return tuple(None if a[k] is None or b[k] is None else a[k] + (b[k] - a[k]) * f
+                 for k in range(3))
+
+
+class PathWriter:
+    """Emits polylines for one compensator: its model, backlash tracker, options, stream
+    state and servo lead (seconds per axis, or None)."""
+
+    def __init__(self, model, backlash, options, state, needs, servo_s):
+        self.model = model
+        self.backlash = backlash
+        self.options = options
+        self.state = state
+        self.needs = needs
+        self.servo_s = servo_s
+
+    def path(self, code_text: str, start: List[Optional[float]], points, given, e_word,
+             tail: List[Word], comment: str, e_relative: bool) -> List[str]:
+        """Emit the polyline ``start -> points`` (desired machine positions, mm).
+
+        ``tail`` are the line's words other than X/Y/Z in their original order; the first
+        piece carries them all, later pieces only their share of ``e_word`` (which is split
+        along the path). Handles backlash reversals (take-up moves or ramp splits), servo
+        lead, limits and output formatting.
+        """
+        bl = self.backlash
+        st = self.state
+        prev = start
+        lengths: List[Optional[float]] = []
+        for p in points:
+            if any(prev[k] is None and p[k] is not None for k in range(3)):
+                lengths.append(None)  # coming from an unknown position: length unknown
+            else:
+                lengths.append(math.sqrt(sum(
+                    (p[k] - prev[k]) ** 2 for k in range(3) if p[k] is not None
+                )))
+            prev = p
+        total_len = sum(lengths) if None not in lengths else 0.0
+        edist = EDistribution(e_word, e_relative, st.e_pos, total_len)
+        e_unsplittable = e_word is not None and not e_relative and st.e_pos is None
+        out: List[str] = []
+        first = True
+        s_done = 0.0
+        p0 = start
+        q0 = self.carriage(p0)
+        if st.q_drive is not None:  # drives that are not at the command of p0 (state.py)
+            q0 = tuple(q if d is None else d for q, d in zip(q0, st.q_drive))
+            st.q_drive = None
+        n_points = len(points)
+        for idx, p1 in enumerate(points):
+            seg_len = lengths[idx]
+            q1 = self.carriage(p1)
+            write_axes = set(given) if idx == n_points - 1 else set()
+            if bl.any_active:
+                if seg_len is None:
+                    bl.reset([k for k in range(3) if q0[k] is None])
+                rev = bl.detect_reversals(q0, q1, q0)
+                if rev and bl.smoothing == 0:
+                    takeup = self.emit("G1", p0, q0, set(), [], "", 0.0, None)
+                    if takeup is not None:
+                        out.append(takeup)
+                        st.report.takeup_moves += 1
+            # Sub-segment split points where smoothed take-ups finish. (An absolute E from
+            # an unknown E position cannot be split: the ramp then just completes over the
+            # whole move, which still ends on the right point.)
+            cuts = [1.0]
+            if bl.any_active and seg_len and not e_unsplittable:
+                for k in range(3):
+                    rem = bl.ramp_remaining(k)
+                    if rem is not None and 1e-9 < rem < seg_len - 1e-9:
+                        cuts.append(rem / seg_len)
+                cuts = sorted(set(cuts))
+            f_prev = 0.0
+            velocity = None
+            if self.servo_s is not None and seg_len and st.feed:
+                velocity = tuple(
+                    0.0 if p1[k] is None else (p1[k] - p0[k]) / seg_len * st.feed / 60.0
+                    for k in range(3)
+                )
+            for f in cuts:
+                if f < 1.0:
+                    p = lerp(p0, p1, f)
+                    q = lerp(q0, q1, f)
+                else:
+                    p, q = p1, q1
+                sub_len = (f - f_prev) * seg_len if seg_len is not None else 0.0
+                e_text = None
+                if e_word is not None:
+                    e_text = edist.take(s_done + sub_len, idx == n_points - 1 and f == 1.0)
+                if first:
+                    words = [e_text if w is e_word else w.text for w in tail]
+                    first = False
+                else:
+                    words = [e_text] if e_text is not None else []
+                out.append(self.emit(code_text, p, q, write_axes if f == 1.0 else (),
+                                     words, comment, sub_len, velocity, keep_empty=True))
+                comment = ""
+                if bl.any_active:
+                    bl.advance(sub_len)
+                s_done += sub_len
+                f_prev = f
+            p0, q0 = p1, q1
+        return out
+
+    def carriage(self, p) -> Tuple[Optional[float], Optional[float], Optional[float]]:
+        """Geometric command q (mm) for desired p; None where q needs an unknown axis."""
+        if None not in p:
+            return self.model.inverse(p)
+        q = self.model.inverse([v if v is not None else 0.0 for v in p])
+        return tuple(
+            None if any(p[j] is None for j in self.needs[k]) else q[k] for k in range(3)
+        )
+
+    def limit(self, k: int, p: float, c: float) -> float:
+        """Apply the limits policy to axis k's command ``c`` (mm) for desired ``p`` (mm)."""
+        opts = self.options
+        lo, hi = opts.limits[2 * k], opts.limits[2 * k + 1]
+        st = self.state
+        rep = st.report
+        if lo <= p <= hi:
+            if c < lo or c > hi:
+                rep.limit_hits += 1
+                if len(rep.limit_examples) < 20:
+                    rep.limit_examples.append((st.lineno, AXIS_LETTERS[k], round(c, 6)))
+                if opts.policy == "error":
+                    raise LimitError(
+                        f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
+                        f"limits {lo:g}..{hi:g} mm", st.lineno)
+                if opts.policy == "clamp":
+                    c = min(max(c, lo), hi)
+        elif p != st.m[k]:
+            rep.source_outside += 1
+        return c
+
+    def emit(self, code_text: str, p, q, write_axes, words: List[str], comment: str,
+             travel: float, velocity, keep_empty: bool = False) -> Optional[str]:
+        """Format one output move to desired position ``p`` and update the stream state.
+
+        Returns None when nothing would be written and ``keep_empty`` is false (a take-up
+        too small to show at the output resolution).
+        """
+        bl = self.backlash
+        st = self.state
+        u = 25.4 if st.inches else 1.0
+        dec = self.options.decimals + (2 if st.inches else 0)
+        lim = self.options.limits
+        axes_text = []
+        rep = st.report
+        for k in range(3):
+            if q[k] is None:
+                continue
+            c = q[k]
+            if bl.any_active:
+                c += bl.offset(k, q[k], travel)
+            if velocity is not None:
+                c += self.servo_s[k] * velocity[k]
+            if lim is not None:
+                c = self.limit(k, p[k], c)
+            corr = abs(c - p[k]) * 1000.0
+            if corr > rep.max_correction_um[AXES[k]]:
+                rep.max_correction_um[AXES[k]] = corr
+            fw = c + st.g[k]
+            text = fmt(fw / u, dec)
+            if st.absolute:
+                old_text = st.fw_text[k]
+                if old_text is None and st.fw[k] is not None:
+                    old_text = fmt(st.fw[k] / u, dec)
+                if k in write_axes or text != old_text:
+                    axes_text.append(AXIS_LETTERS[k] + text)
+                st.fw[k] = float(text) * u
+                st.fw_text[k] = text
+            else:
+                old = st.fw[k]
+                if old is None:  # cannot happen: relative moves need known axes
+                    raise CompensationError("relative move from an unknown position",
+                                            st.lineno)
+                delta = fmt(float(text) - old / u, dec)
+                if k in write_axes or delta.strip("0.") != "":
+                    axes_text.append(AXIS_LETTERS[k] + delta)
+                st.fw[k] = old + float(delta) * u
+                st.fw_text[k] = None
+        for k in range(3):
+            if p[k] is not None:
+                st.m[k] = p[k]
+        if not axes_text and not words and not keep_empty:
+            return None
+        parts = [code_text] + axes_text + words
+        out = " ".join(parts)
+        if comment:
+            out += " " + comment
+        return out

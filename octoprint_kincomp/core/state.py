@@ -1,0 +1,199 @@
+"""The stream state: the one record that the reference compensator and every accelerated
+engine (the compiled kernel, the vectorised file engine) read and write.
+
+It is declared here, field by field, because it is a contract: the C kernel
+(``engines/kernel/state.c``) reads and writes these attributes by name, in place where the
+Python code changes a list in place. A new field, a renamed one or a list replaced by a
+tuple must be mirrored there (the kernel leaves any state it cannot read to the Python path,
+and its self-check against the reference path catches a mismatch at start-up).
+
+Frames (mm): logical ``L`` is what the program writes (after G20 inch conversion); the
+desired machine position ``m = L - w`` (``w``: the program's G92 offset) is the homed frame
+in which the calibration holds; the commanded (carriage) position ``c`` is the inverse model
+of ``m`` plus the backlash offset; the firmware coordinate written on the line is
+``fw = c + g`` (``g``: the firmware's own G92 offset).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+from .params import AXES
+
+
+@dataclass
+class Report:
+    """What the compensator did (the dry-run report). Counts of lines; corrections in um."""
+
+    lines: int = 0
+    moves: int = 0
+    moves_compensated: int = 0
+    untouched_unknown: int = 0
+    malformed: int = 0
+    malformed_examples: List[Tuple[int, str]] = field(default_factory=list)
+    arcs_linearised: int = 0
+    arc_segments: int = 0
+    takeup_moves: int = 0
+    lines_out: int = 0
+    max_correction_um: Dict[str, float] = field(
+        default_factory=lambda: {a: 0.0 for a in AXES}
+    )
+    limit_hits: int = 0
+    limit_examples: List[Tuple[int, str, float]] = field(default_factory=list)
+    source_outside: int = 0
+
+    def to_dict(self) -> dict:
+        return {
+            "lines": self.lines,
+            "lines_out": self.lines_out,
+            "moves": self.moves,
+            "moves_compensated": self.moves_compensated,
+            "untouched_unknown_position": self.untouched_unknown,
+            "malformed": self.malformed,
+            "malformed_examples": [list(x) for x in self.malformed_examples],
+            "arcs_linearised": self.arcs_linearised,
+            "arc_segments": self.arc_segments,
+            "backlash_takeup_moves": self.takeup_moves,
+            "max_correction_um": {a: round(v, 3) for a, v in self.max_correction_um.items()},
+            "limit_hits": self.limit_hits,
+            "limit_examples": [list(x) for x in self.limit_examples],
+            "source_outside_limits": self.source_outside,
+        }
+
+
+class BacklashState:
+    """Per axis (x, y, z): the travel direction of the carriage command and where a
+    reversal would be measured from.
+
+    ``dir``: +1 the command last moved towards +, -1 towards -, 0 unknown (start, homing);
+    the commanded take-up offset has the sign of ``dir``.
+    ``anchor``: the geometric carriage command (mm, without the take-up offset) farthest
+    along the current direction; None: not known yet (the next move's start is taken).
+    ``ramping``, ``ramp_from`` (mm, offset at the reversal), ``ramp_done`` (mm of path since
+    the reversal): a take-up spread over ``smoothing_mm`` of path (see backlash.py).
+    """
+
+    # plain instance attributes (no __slots__): the kernel reads the instance dictionary
+    FIELDS = ("dir", "anchor", "ramping", "ramp_from", "ramp_done")
+
+    def __init__(self) -> None:
+        self.dir: List[int] = [0, 0, 0]
+        self.anchor: List[Optional[float]] = [None, None, None]
+        self.ramping: List[bool] = [False, False, False]
+        self.ramp_from: List[float] = [0.0, 0.0, 0.0]
+        self.ramp_done: List[float] = [0.0, 0.0, 0.0]
+
+    def forget(self, k: int) -> None:
+        """Axis ``k``'s direction is unknown from here on."""
+        self.dir[k] = 0
+        self.anchor[k] = None
+        self.ramping[k] = False
+        self.ramp_from[k] = 0.0
+        self.ramp_done[k] = 0.0
+
+
+class StreamState:
+    """Where the stream stands (see the module docstring for the frames).
+
+    Positions, per axis x, y, z, in mm:
+
+    * ``m``: desired machine position (None: unknown);
+    * ``fw``: firmware coordinate last commanded (None: unknown) and ``fw_text`` its text as
+      last written on a line (None: not written yet, or no longer what the firmware holds);
+    * ``w``, ``g``: the program's and the firmware's G92 offsets;
+    * ``frame_lost``: a G92 on an axis of unknown position shifted the firmware frame by an
+      unknown amount: its absolute coordinates give no machine position until G28/G92.1.
+
+    Modes: ``absolute`` (G90/G91), ``e_absolute_mode`` (M82 True / M83 False / None: follow
+    G90/G91), ``inches`` (G20/G21), ``plane`` (17/18/19), ``ij_absolute`` (G90.1/G91.1).
+    ``e_pos``: absolute E position (the program's E units; None: unknown), ``feed``: mm/min
+    (None: unknown), ``tool``: the last T number, ``lineno``: lines seen.
+
+    ``q_drive``: per axis, the geometric carriage command (mm) a drive is at where that is
+    not the command of the desired position ``m`` (after a partial G28 under skew, an axis
+    that was not homed but whose command depends on the homed ones), None elsewhere; None
+    as a whole when there is none. The next compensated move starts from there (and the
+    accelerated engines leave it to the reference path).
+
+    Accelerated engines only (the reference path resets them on every line it handles):
+    ``q_last``: the carriage command (mm) of the point the last line ended on, as a tuple,
+    None: recompute it; ``limit_recheck``: per axis, re-evaluate its text even if its
+    command did not change (it touched a limit).
+
+    ``backlash``: :class:`BacklashState`; ``report``: :class:`Report`.
+    """
+
+    # plain instance attributes (no __slots__): the kernel reads the instance dictionary
+
+    def __init__(self) -> None:
+        self.report = Report()
+        self.lineno = 0
+        self.backlash = BacklashState()
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the power-on state: positions unknown, G90, G21, M82, G17. The report and
+        the line count go on."""
+        self.m: List[Optional[float]] = [None, None, None]
+        self.fw: List[Optional[float]] = [None, None, None]
+        self.fw_text: List[Optional[str]] = [None, None, None]
+        self.w = [0.0, 0.0, 0.0]
+        self.g = [0.0, 0.0, 0.0]
+        self.frame_lost = [False, False, False]
+        self.absolute = True
+        self.e_absolute_mode: Optional[bool] = None
+        self.inches = False
+        self.plane = 17
+        self.ij_absolute = False
+        self.e_pos: Optional[float] = None
+        self.feed: Optional[float] = None
+        self.tool: Optional[int] = None
+        self.q_last: Optional[Tuple[float, float, float]] = None
+        self.limit_recheck = [True, True, True]
+        self.q_drive: Optional[Tuple[Optional[float], ...]] = None
+        for k in range(3):
+            self.backlash.forget(k)
+
+    def forget_position(self, axes=(0, 1, 2)) -> None:
+        """The position of ``axes`` is unknown (their next move must re-establish it)."""
+        for k in axes:
+            self.m[k] = None
+            self.fw[k] = None
+            self.fw_text[k] = None
+            self.backlash.forget(k)
+        self.q_drive = None
+
+    def take_over(self, other: "StreamState", backlash_axes=()) -> None:
+        """Continue from ``other``'s modes and positions (new parameters mid-stream: desired
+        positions do not depend on the model and the firmware coordinates are what the
+        firmware holds). Backlash directions carry over for ``backlash_axes`` (the anchor is
+        a geometric command, the same frame under either model)."""
+        for name in ("m", "fw", "fw_text", "w", "g", "frame_lost"):
+            setattr(self, name, list(getattr(other, name)))
+        for name in ("absolute", "e_absolute_mode", "inches", "plane", "ij_absolute", "e_pos",
+                     "feed", "tool", "lineno"):
+            setattr(self, name, getattr(other, name))
+        for k in backlash_axes:
+            self.backlash.dir[k] = other.backlash.dir[k]
+            self.backlash.anchor[k] = other.backlash.anchor[k]
+        self.q_last = None
+        self.limit_recheck = [True, True, True]
+        self.q_drive = None  # (a geometric command of the other model)
+
+    # what a line refused by the limits policy "error" must leave as it was
+    _RESTORED = ("m", "fw", "fw_text", "w", "g", "e_pos", "feed", "q_last", "limit_recheck",
+                 "q_drive")
+
+    def snapshot(self) -> tuple:
+        bl = self.backlash
+        return (tuple(copy.copy(getattr(self, a)) for a in self._RESTORED),
+                tuple(list(getattr(bl, a)) for a in BacklashState.FIELDS))
+
+    def restore(self, snap: tuple) -> None:
+        mine, bl = snap
+        for a, v in zip(self._RESTORED, mine):
+            setattr(self, a, copy.copy(v))
+        for a, v in zip(BacklashState.FIELDS, bl):
+            setattr(self.backlash, a, list(v))

@@ -1,0 +1,103 @@
+/* The compiled kernel of the transform (optional; see engines/kernel.py): shared types.
+ *
+ * It compensates plain G0/G1 lines with single-spaced X/Y/Z/E/F words in absolute mode,
+ * every axis known, with the arithmetic of the reference path (core/path.py) in the same
+ * order (IEEE doubles, no fused multiply-add: built with -ffp-contract=off) and Python's
+ * own number parser and formatter where the fast ones cannot be exact, so its text is the
+ * reference path's byte for byte. Whatever it does not decide (a limit touched, a value it
+ * cannot hold, any other line) it leaves alone, with the stream state untouched.
+ *
+ * Files: state.c reads and writes the stream state (core/state.py, the declared record),
+ * numbers.c parses and formats numbers, transform.c does one line, module.c is the Python
+ * type. Units: positions mm (inches only in the G-code text), backlash tables um, ``half``:
+ * the fraction of the backlash applied per side, um -> mm. Backlash direction +1: the
+ * carriage command last moved towards +, the take-up offset is + (half the backlash there).
+ */
+#ifndef KINCOMP_KERNEL_H
+#define KINCOMP_KERNEL_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <float.h>
+#include <math.h>
+#include <string.h>
+
+/* Doubles must round as Python's do: no excess precision (x87 on 32-bit x86). Where that is
+ * not so the extension is not built and the pure-Python paths run (setup.py: optional). */
+#if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD != 0
+#error "the kernel needs FLT_EVAL_METHOD == 0 (on i386: -msse2 -mfpmath=sse)"
+#endif
+
+#define MAX_LINE 96      /* longest line taken (longer: Python; no number reaches gcode's limit) */
+#define MAX_TEXT 120     /* longest number text kept (longer: Python decides) */
+#define MAX_PTS 64       /* backlash table points (more: no kernel) */
+#define OUT_LINE 1024
+
+#define MM_PER_INCH 25.4
+
+typedef struct {
+    int n;
+    double pos[MAX_PTS];
+    double um[MAX_PTS];
+} Table;
+
+typedef struct {
+    PyObject_HEAD
+    double A[9];     /* inverse of the affine model, row-major */
+    double b[3];     /* its offset: q = A (p - b) */
+    int active[3];   /* backlash active on the axis */
+    Table tab[3];
+    double half;
+    double deadband;
+    int has_limits;
+    double lim[6];   /* lo, hi per axis, mm */
+    int dec;         /* decimals written (mm) */
+} Kernel;
+
+/* The stream state (core/state.py) as the kernel holds it during a call. */
+typedef struct {
+    int absolute, inches, e_abs_mode; /* e_abs_mode: -1 None, 0 False, 1 True */
+    int m_known;
+    double m[3];
+    int fw_known[3];
+    double fw[3];
+    int fwt_len[3];                   /* -1: None */
+    char fwt[3][MAX_TEXT + 1];
+    int fwt_dirty[3];
+    double w[3], g[3];
+    int q_last_known;
+    double q_last[3];
+    int recheck[3];
+    long dir[3];
+    int anchor_known[3];
+    double anchor[3];
+    long long lineno, lines, moves, moves_comp, lines_out, takeup;
+    double maxc[3];
+    int e_set, e_none;
+    double e_pos;
+    int f_set;
+    double feed;
+    int moved;                        /* a move committed: m, fw, backlash to write */
+} State;
+
+/* The instance dictionaries the state lives in: the stream state's, its backlash state's
+ * and its report's (plain instance attributes, read and written without attribute lookup). */
+typedef struct {
+    PyObject *st, *bl, *rep;
+} Dicts;
+
+enum { LINE_OUT, LINE_SAME, LINE_PYTHON };
+
+/* state.c */
+int kk_intern_names(void);
+int kk_load(PyObject *state, State *s, Dicts *D);
+int kk_store(const Dicts *D, const State *s, const State *before);
+void kk_dicts_release(Dicts *d);
+/* numbers.c */
+int kk_parse_num(const char *text, Py_ssize_t len, double *out);
+int kk_format_num(double v, int dec, char *out);
+/* transform.c */
+int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
+               int *take_len, char *main_out, int *main_len);
+
+#endif

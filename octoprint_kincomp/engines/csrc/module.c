@@ -1,0 +1,288 @@
+/* The Python type ``Kernel``: one model's kernel, and its two entry points, ``line``
+ * (the queuing hook: one line) and ``feed`` (files: a block of lines). */
+#include "kernel.h"
+
+/* -- Python interface ------------------------------------------------------------------ */
+
+static int read_table(PyObject *seq, Table *t)
+{
+    Py_ssize_t i, n;
+    PyObject *fast = PySequence_Fast(seq, "a backlash table is a sequence of (mm, um)");
+    if (fast == NULL)
+        return -1;
+    n = PySequence_Fast_GET_SIZE(fast);
+    if (n < 1 || n > MAX_PTS) {
+        Py_DECREF(fast);
+        PyErr_SetString(PyExc_ValueError, "backlash table: 1..64 points");
+        return -1;
+    }
+    t->n = (int)n;
+    for (i = 0; i < n; i++) {
+        PyObject *pt = PySequence_Fast_GET_ITEM(fast, i);
+        if (!PyArg_ParseTuple(pt, "dd", &t->pos[i], &t->um[i])) {
+            Py_DECREF(fast);
+            return -1;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
+{
+    static char *kwlist[] = {"affine", "tables", "half", "deadband", "limits", "decimals",
+                             NULL};
+    PyObject *affine, *tables, *limits;
+    int k;
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOddOi", kwlist, &affine, &tables,
+                                     &self->half, &self->deadband, &limits, &self->dec))
+        return -1;
+    if (!PyArg_ParseTuple(affine, "dddddddddddd", &self->A[0], &self->A[1], &self->A[2],
+                          &self->A[3], &self->A[4], &self->A[5], &self->A[6], &self->A[7],
+                          &self->A[8], &self->b[0], &self->b[1], &self->b[2]))
+        return -1;
+    if (!PyTuple_Check(tables) || PyTuple_GET_SIZE(tables) != 3) {
+        PyErr_SetString(PyExc_TypeError, "tables: a tuple of 3 (None or a table)");
+        return -1;
+    }
+    for (k = 0; k < 3; k++) {
+        PyObject *t = PyTuple_GET_ITEM(tables, k);
+        self->active[k] = t != Py_None;
+        if (self->active[k] && read_table(t, &self->tab[k]) < 0)
+            return -1;
+    }
+    self->has_limits = limits != Py_None;
+    if (self->has_limits &&
+        !PyArg_ParseTuple(limits, "dddddd", &self->lim[0], &self->lim[1], &self->lim[2],
+                          &self->lim[3], &self->lim[4], &self->lim[5]))
+        return -1;
+    if (self->dec < 0 || self->dec > 12) {
+        PyErr_SetString(PyExc_ValueError, "decimals: 0..12");
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *make_str(const char *c, int len)
+{
+    return PyUnicode_DecodeASCII(c, len, NULL);
+}
+
+/* Kernel.line(state, line) -> None (the Python path decides) | line | [str, ...] */
+static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    PyObject *state, *line, *res = NULL;
+    const char *c;
+    Py_ssize_t n;
+    State s, before;
+    Dicts D;
+    char take[OUT_LINE], main_out[OUT_LINE];
+    int take_len = -1, main_len = 0, r;
+
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "line(state, line)");
+        return NULL;
+    }
+    state = args[0];
+    line = args[1];
+    if (!PyUnicode_Check(line) || !PyUnicode_IS_ASCII(line))
+        Py_RETURN_NONE;
+    c = (const char *)PyUnicode_DATA(line);
+    n = PyUnicode_GET_LENGTH(line);
+    if (n > MAX_LINE || n < 4 || c[0] != 'G')
+        Py_RETURN_NONE;  /* (do_line would say so too, after the costly load) */
+    if (kk_load(state, &s, &D) > 0)
+        Py_RETURN_NONE;
+    before = s;
+    r = kk_do_line(self, &s, c, n, take, &take_len, main_out, &main_len);
+    if (r == LINE_PYTHON) {
+        kk_dicts_release(&D);
+        Py_RETURN_NONE;
+    }
+    if (r == LINE_SAME) {
+        res = line;
+        Py_INCREF(res);
+    } else {
+        PyObject *a = NULL, *b;
+        res = PyList_New(take_len >= 0 ? 2 : 1);
+        if (res == NULL) {
+            kk_dicts_release(&D);
+            return NULL;
+        }
+        if (take_len >= 0) {
+            if (!(a = make_str(take, take_len))) {
+                Py_DECREF(res);
+                kk_dicts_release(&D);
+                return NULL;
+            }
+            PyList_SET_ITEM(res, 0, a);
+        }
+        if (!(b = make_str(main_out, main_len))) {
+            Py_DECREF(res);
+            kk_dicts_release(&D);
+            return NULL;
+        }
+        PyList_SET_ITEM(res, take_len >= 0 ? 1 : 0, b);
+    }
+    if (kk_store(&D, &s, &before) < 0)
+        Py_CLEAR(res);
+    kk_dicts_release(&D);
+    return res;
+}
+
+typedef struct {
+    char *data;
+    Py_ssize_t len, cap;
+} Buf;
+
+static int buf_put(Buf *b, const char *c, Py_ssize_t n)
+{
+    if (b->len + n > b->cap) {
+        Py_ssize_t cap = b->cap * 2 + n + 4096;
+        char *d = PyMem_Realloc(b->data, cap);
+        if (d == NULL) {
+            PyErr_NoMemory();
+            return -1;
+        }
+        b->data = d;
+        b->cap = cap;
+    }
+    memcpy(b->data + b->len, c, n);
+    b->len += n;
+    return 0;
+}
+
+/* Kernel.feed(state, buf, pos) -> (out, stop): complete lines of buf from pos on, as
+ * the reference path gives them, up to the first line the kernel does not take (stop: its
+ * start; len(buf) if none). Taken: blank lines and ';' comments (unchanged), and the fast
+ * path's move lines. A line with a lone CR is not taken (universal newlines are Python's). */
+static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    PyObject *state, *data, *res = NULL, *out = NULL;
+    const char *buf;
+    Py_ssize_t size, pos;
+    State s, before;
+    Dicts D;
+    Buf o = {NULL, 0, 0};
+    char take[OUT_LINE], main_out[OUT_LINE];
+    int r;
+
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "feed(state, buf, pos)");
+        return NULL;
+    }
+    state = args[0];
+    data = args[1];
+    if (!PyBytes_Check(data)) {
+        PyErr_SetString(PyExc_TypeError, "feed: buf must be bytes");
+        return NULL;
+    }
+    pos = PyLong_AsSsize_t(args[2]);
+    if (pos == -1 && PyErr_Occurred())
+        return NULL;
+    buf = PyBytes_AS_STRING(data);
+    size = PyBytes_GET_SIZE(data);
+    if (pos < 0 || pos > size) {
+        PyErr_SetString(PyExc_ValueError, "feed: pos outside buf");
+        return NULL;
+    }
+    if (kk_load(state, &s, &D) > 0)
+        return Py_BuildValue("(y#n)", "", (Py_ssize_t)0, pos);
+    before = s;
+    while (pos < size) {
+        const char *ln = buf + pos;
+        const char *nl = memchr(ln, '\n', size - pos);
+        Py_ssize_t n, raw;
+        int crlf, take_len = -1, main_len = 0;
+        if (nl == NULL)
+            break;
+        raw = nl - ln + 1;
+        n = raw - 1;
+        crlf = n > 0 && ln[n - 1] == '\r';
+        if (crlf)
+            n--;
+        if (memchr(ln, '\r', n) != NULL)
+            break;
+        if (n == 0 || ln[0] == ';') {
+            /* the reference path on a line that is no command */
+            s.lineno++;
+            s.lines++;
+            s.lines_out++;
+            s.q_last_known = 0;
+            s.recheck[0] = s.recheck[1] = s.recheck[2] = 1;
+            if (buf_put(&o, ln, raw) < 0) goto fail;
+            pos += raw;
+            continue;
+        }
+        r = kk_do_line(self, &s, ln, n, take, &take_len, main_out, &main_len);
+        if (r == LINE_PYTHON)
+            break;
+        if (r == LINE_SAME) {
+            if (buf_put(&o, ln, raw) < 0) goto fail;
+        } else {
+            const char *end = crlf ? "\r\n" : "\n";
+            if (take_len >= 0 && (buf_put(&o, take, take_len) < 0 ||
+                                  buf_put(&o, end, crlf + 1) < 0))
+                goto fail;
+            if (buf_put(&o, main_out, main_len) < 0 || buf_put(&o, end, crlf + 1) < 0)
+                goto fail;
+        }
+        pos += raw;
+    }
+    if (kk_store(&D, &s, &before) < 0)
+        goto fail;
+    out = PyBytes_FromStringAndSize(o.data ? o.data : "", o.len);
+    if (out == NULL)
+        goto fail;
+    res = Py_BuildValue("(Nn)", out, pos);
+fail:
+    kk_dicts_release(&D);
+    PyMem_Free(o.data);
+    return res;
+}
+
+static PyMethodDef Kernel_methods[] = {
+    {"line", (PyCFunction)(void (*)(void))Kernel_line, METH_FASTCALL,
+     "line(state, line): one line compensated as the reference path does (None: it decides)"},
+    {"feed", (PyCFunction)(void (*)(void))Kernel_feed, METH_FASTCALL,
+     "feed(state, buf, pos) -> (out, stop): the lines of buf from pos the kernel takes"},
+    {NULL}
+};
+
+static PyTypeObject KernelType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "octoprint_kincomp.engines._kernel.Kernel",
+    .tp_basicsize = sizeof(Kernel),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The kernel of one model: the transform of plain moves (see engines/kernel.py).",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Kernel_init,
+    .tp_methods = Kernel_methods,
+};
+
+static struct PyModuleDef kernel_module = {
+    PyModuleDef_HEAD_INIT, "_kernel", "Compiled kernel of the transform (see engines/kernel.py).", -1, NULL,
+};
+
+PyMODINIT_FUNC PyInit__kernel(void)
+{
+    PyObject *mod;
+    if (kk_intern_names() < 0)
+        return NULL;
+    if (PyType_Ready(&KernelType) < 0)
+        return NULL;
+    mod = PyModule_Create(&kernel_module);
+    if (mod == NULL)
+        return NULL;
+    Py_INCREF(&KernelType);
+    if (PyModule_AddIntConstant(mod, "MAX_POINTS", MAX_PTS) < 0) {
+        Py_DECREF(mod);
+        return NULL;
+    }
+    if (PyModule_AddObject(mod, "Kernel", (PyObject *)&KernelType) < 0) {
+        Py_DECREF(&KernelType);
+        Py_DECREF(mod);
+        return NULL;
+    }
+    return mod;
+}

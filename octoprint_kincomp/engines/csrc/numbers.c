@@ -1,0 +1,129 @@
+/* Numbers as Python reads and writes them: float(text) and "%.{dec}f" % v (gcode.fmt),
+ * fast where that is provably exact, Python's own parser and formatter elsewhere. */
+#include "kernel.h"
+
+static int format_slow(double v, int dec, char *out);
+
+static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
+                               1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
+                               1e22};
+
+/* float(text) for a number text of [0-9.+-] (text[len] need not be 0). Exact where the
+ * digits make an integer below 2**53 and there are at most 22 decimals: then the value is
+ * that integer divided by a power of ten, both exact, and IEEE division rounds it correctly,
+ * as Python's parser does (Clinger's fast path); anything else goes to Python's parser.
+ * Returns 0, -1 if the text is no number. */
+int kk_parse_num(const char *text, Py_ssize_t len, double *out)
+{
+    Py_ssize_t i = 0;
+    int neg = 0, digits = 0, decimals = 0, dot = 0;
+    unsigned long long mant = 0;
+    if (len > 0 && (text[0] == '+' || text[0] == '-')) {
+        neg = text[0] == '-';
+        i = 1;
+    }
+    for (; i < len; i++) {
+        char c = text[i];
+        if (c >= '0' && c <= '9') {
+            digits++;
+            if (mant > (1ULL << 53) / 10) {
+                digits = -1000;  /* too many digits for the fast path */
+                break;
+            }
+            mant = mant * 10 + (unsigned long long)(c - '0');
+            decimals += dot;
+        } else if (c == '.' && !dot) {
+            dot = 1;
+        } else {
+            return -1;  /* a second sign or dot: no number */
+        }
+    }
+    if (digits > 0 && mant <= (1ULL << 53) && decimals <= 22) {
+        double v = (double)mant / P10[decimals];
+        *out = neg ? -v : v;
+        return 0;
+    }
+    if (digits == 0)
+        return -1;
+    {
+        char buf[MAX_LINE + 1], *end;
+        double v;
+        if (len > MAX_LINE)
+            return -1;
+        memcpy(buf, text, len);
+        buf[len] = 0;
+        v = PyOS_string_to_double(buf, &end, NULL);
+        if (v == -1.0 && PyErr_Occurred()) {
+            PyErr_Clear();
+            return -1;
+        }
+        if (end != buf + len)
+            return -1;
+        *out = v;
+        return 0;
+    }
+}
+
+/* "%.{dec}f" % v without negative zero (gcode.fmt). Returns the length, -1: Python decides.
+ * Where |v| * 10**dec is at most 1e9 and not within 1e-6 of a half, rounding the scaled
+ * value (off the exact one by less than 2.5e-7) gives the correctly rounded digits that
+ * Python's formatter writes; elsewhere Python's formatter does it. */
+int kk_format_num(double v, int dec, char *out)
+{
+    double r = fabs(v) * P10[dec];
+    if (r <= 1e9) {
+        double fl = floor(r), frac = r - fl;
+        if (fabs(frac - 0.5) >= 1e-6) {
+            unsigned long long n = (unsigned long long)fl + (frac > 0.5);
+            unsigned long long ip = n / (unsigned long long)P10[dec];
+            unsigned long long fp = n % (unsigned long long)P10[dec];
+            char tmp[32];
+            int len = 0, t = 0, k;
+            if (v < 0 && n > 0)
+                out[len++] = '-';
+            do {
+                tmp[t++] = (char)('0' + ip % 10);
+                ip /= 10;
+            } while (ip);
+            while (t)
+                out[len++] = tmp[--t];
+            if (dec > 0) {
+                out[len++] = '.';
+                for (k = dec - 1; k >= 0; k--) {
+                    out[len + k] = (char)('0' + fp % 10);
+                    fp /= 10;
+                }
+                len += dec;
+            }
+            out[len] = 0;
+            return len;
+        }
+    }
+    return format_slow(v, dec, out);
+}
+
+static int format_slow(double v, int dec, char *out)
+{
+    char *s = PyOS_double_to_string(v, 'f', dec, 0, NULL);
+    size_t len;
+    const char *p;
+    if (s == NULL) {
+        PyErr_Clear();
+        return -1;
+    }
+    len = strlen(s);
+    p = s;
+    if (s[0] == '-' && strspn(s, "-0.") == len) {
+        p++;
+        len--;
+    }
+    if (len > MAX_TEXT) {
+        PyMem_Free(s);
+        return -1;
+    }
+    memcpy(out, p, len);
+    out[len] = 0;
+    PyMem_Free(s);
+    return (int)len;
+}
+

@@ -1,0 +1,269 @@
+/* One line through the transform: the reference path's arithmetic (core/path.py
+ * PathWriter.emit, core/backlash.py reversal) for a plain absolute G0/G1 line. */
+#include "kernel.h"
+
+/* BacklashAxis.um_at: um at carriage position q (mm), same operation order. */
+static double kk_um_at(const Table *t, double q)
+{
+    int i;
+    if (t->n == 1 || q <= t->pos[0])
+        return t->um[0];
+    if (q >= t->pos[t->n - 1])
+        return t->um[t->n - 1];
+    for (i = 0; i + 1 < t->n; i++) {
+        double p0 = t->pos[i], v0 = t->um[i], p1 = t->pos[i + 1], v1 = t->um[i + 1];
+        if (q < p1)
+            return (v1 - v0) / (p1 - p0) * (q - p0) + v0;
+        if (q == p1)
+            return v1;
+    }
+    return t->um[t->n - 1];
+}
+
+/* PathWriter.emit for one point: append " <axis><text>" for each axis written to out (after the
+ * code). Returns the number of axes written, -1: Python decides (nothing to undo: the
+ * caller drops the whole tentative state). */
+static int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
+                 const double *q_prev, const int *redo, const double *m_old, char *out,
+                 int *out_len)
+{
+    static const char LETTER[3] = {'X', 'Y', 'Z'};
+    double u = s->inches ? MM_PER_INCH : 1.0;
+    int dec = K->dec + (s->inches ? 2 : 0);
+    int k, written = 0;
+    char text[MAX_TEXT + 1], oldfmt[MAX_TEXT + 1];
+    for (k = 0; k < 3; k++) {
+        double c = q[k], corr, parsed;
+        int len, append;
+        if (!given[k] && c == q_prev[k] && !redo[k])
+            continue;
+        if (s->dir[k] && K->active[k])
+            c += (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], c);
+        if (K->has_limits) {
+            double lo = K->lim[2 * k], hi = K->lim[2 * k + 1];
+            if (lo <= p[k] && p[k] <= hi) {
+                if (c < lo || c > hi)
+                    return -1;  /* a limit hit: counted and reported by the Python path */
+            } else if (p[k] != m_old[k]) {
+                return -1;      /* a source point outside the limits: likewise */
+            }
+        }
+        s->recheck[k] = 0;
+        corr = fabs(c - p[k]) * 1000.0;
+        if (corr > s->maxc[k])
+            s->maxc[k] = corr;
+        len = kk_format_num((c + s->g[k]) / u, dec, text);
+        if (len < 0)
+            return -1;
+        if (s->fwt_len[k] == len && memcmp(text, s->fwt[k], len) == 0) {
+            append = given[k];
+        } else {
+            if (given[k] || s->fwt_len[k] >= 0) {
+                append = 1;
+            } else {
+                int ol;
+                if (!s->fw_known[k])
+                    return -1;
+                ol = kk_format_num(s->fw[k] / u, dec, oldfmt);
+                if (ol < 0)
+                    return -1;
+                append = !(ol == len && memcmp(text, oldfmt, len) == 0);
+            }
+            if (kk_parse_num(text, len, &parsed) < 0)
+                return -1;
+            s->fw[k] = parsed * u;
+            s->fw_known[k] = 1;
+            memcpy(s->fwt[k], text, len + 1);
+            s->fwt_len[k] = len;
+            s->fwt_dirty[k] = 1;
+        }
+        if (append) {
+            if (*out_len + 2 + len >= OUT_LINE)
+                return -1;
+            out[(*out_len)++] = ' ';
+            out[(*out_len)++] = LETTER[k];
+            memcpy(out + *out_len, text, len);
+            *out_len += len;
+            written++;
+        }
+    }
+    return written;
+}
+
+static void kk_inverse(const Kernel *K, const double *p, double *q)
+{
+    double x = p[0] - K->b[0], y = p[1] - K->b[1], z = p[2] - K->b[2];
+    q[0] = K->A[0] * x + K->A[1] * y + K->A[2] * z;
+    q[1] = K->A[3] * x + K->A[4] * y + K->A[5] * z;
+    q[2] = K->A[6] * x + K->A[7] * y + K->A[8] * z;
+}
+
+static int is_num_char(char c)
+{
+    return (c >= '0' && c <= '9') || c == '.' || c == '+' || c == '-';
+}
+
+/* One line (without its ending). LINE_OUT: the take-up line (if
+ * take_len >= 0) and the main line; LINE_SAME: the line as it is; LINE_PYTHON: nothing
+ * changed, the Python path decides. ``s`` is changed only for LINE_OUT and LINE_SAME. */
+int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
+                   int *take_len, char *main_out, int *main_len)
+{
+    /* slots: 0 F (first), 1 X, 2 Y, 3 Z, 4 E, 5 F (after) */
+    Py_ssize_t tok_start[6], tok_end[6];
+    int present[6] = {0, 0, 0, 0, 0, 0};
+    double val[6];
+    int last = -1, ntok = 0, k;
+    Py_ssize_t i;
+    State s;
+
+    if (n > MAX_LINE || n < 4 || ln[0] != 'G' || (ln[1] != '0' && ln[1] != '1') ||
+        ln[2] != ' ')
+        return LINE_PYTHON;
+    if (!s0->absolute || !s0->m_known)
+        return LINE_PYTHON;
+    i = 3;
+    while (i <= n) {
+        Py_ssize_t st = i, e;
+        int slot;
+        char L;
+        while (i < n && ln[i] != ' ')
+            i++;
+        e = i;  /* token [st, e) */
+        i++;    /* past the space (or the end) */
+        if (e == st)
+            return LINE_PYTHON;  /* empty token: two spaces or a trailing one */
+        L = ln[st];
+        switch (L) {
+        case 'X': slot = 1; break;
+        case 'Y': slot = 2; break;
+        case 'Z': slot = 3; break;
+        case 'E': slot = 4; break;
+        case 'F': slot = ntok == 0 ? 0 : 5; break;
+        default: return LINE_PYTHON;
+        }
+        if (slot <= last || (slot == 5 && present[0]))
+            return LINE_PYTHON;
+        for (Py_ssize_t j = st + 1; j < e; j++)
+            if (!is_num_char(ln[j]))
+                return LINE_PYTHON;
+        present[slot] = 1;
+        tok_start[slot] = st;
+        tok_end[slot] = e;
+        last = slot;
+        ntok++;
+    }
+    for (k = 0; k < 6; k++)
+        if (present[k] && kk_parse_num(ln + tok_start[k] + 1, tok_end[k] - tok_start[k] - 1,
+                                    &val[k]) < 0)
+            return LINE_PYTHON;
+    s = *s0;
+    {
+        double u = s.inches ? MM_PER_INCH : 1.0;
+        int given[3] = {present[1], present[2], present[3]};
+        int none[3] = {0, 0, 0};
+        int redo[3], rev = 0;
+        double p1[3], q1[3], q0[3];
+        Py_ssize_t tail_from = -1;
+        int f_first = present[0], fslot = present[0] ? 0 : 5;
+        if (present[fslot]) {
+            s.feed = val[fslot] * u;
+            s.f_set = 1;
+        }
+        if (present[4]) {
+            s.e_set = 1;
+            s.e_none = s.e_abs_mode == 0;
+            s.e_pos = val[4];
+        }
+        s.lineno++;
+        s.lines++;
+        s.moves++;
+        if (!given[0] && !given[1] && !given[2]) {
+            s.lines_out++;
+            *s0 = s;
+            return LINE_SAME;
+        }
+        for (k = 0; k < 3; k++)
+            p1[k] = given[k] ? val[k + 1] * u - s.w[k] : s.m[k];
+        kk_inverse(K, p1, q1);
+        if (s.q_last_known)
+            memcpy(q0, s.q_last, sizeof q0);
+        else
+            kk_inverse(K, s.m, q0);
+        memcpy(redo, s.recheck, sizeof redo);
+        *take_len = -1;
+        for (k = 0; k < 3; k++) {
+            /* backlash.reversal: a hysteresis of ``deadband`` around the anchor */
+            double q = q1[k], a;
+            long d;
+            if (!K->active[k])
+                continue;
+            d = s.dir[k];
+            a = s.anchor[k];
+            if (d != 0 && !s.anchor_known[k])
+                return LINE_PYTHON;  /* (a direction has an anchor) */
+            if (d > 0) {
+                if (q >= a) { s.anchor[k] = q; continue; }
+                if (q >= a - K->deadband) continue;
+                d = -1;
+            } else if (d < 0) {
+                if (q <= a) { s.anchor[k] = q; continue; }
+                if (q <= a + K->deadband) continue;
+                d = 1;
+            } else {
+                if (!s.anchor_known[k]) {
+                    a = s.anchor[k] = q0[k];
+                    s.anchor_known[k] = 1;
+                }
+                if (q > a + K->deadband) d = 1;
+                else if (q < a - K->deadband) d = -1;
+                else continue;
+            }
+            s.dir[k] = d;
+            s.anchor[k] = q;
+            s.anchor_known[k] = 1;
+            rev = redo[k] = 1;
+        }
+        if (rev) {
+            int tl = 2, r;
+            take[0] = 'G';
+            take[1] = '1';
+            r = kk_point(K, &s, s.m, q0, none, q0, redo, s0->m, take, &tl);
+            if (r < 0)
+                return LINE_PYTHON;
+            if (r > 0) {
+                *take_len = tl;
+                s.takeup++;
+            }
+        }
+        main_out[0] = 'G';
+        main_out[1] = ln[1];
+        *main_len = 2;
+        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, main_out, main_len) < 0)
+            return LINE_PYTHON;
+        /* the E/F words after X/Y/Z as written; a leading F word goes after them */
+        if (present[4])
+            tail_from = tok_start[4] - 1;
+        else if (present[5])
+            tail_from = tok_start[5] - 1;
+        if (f_first) {
+            Py_ssize_t fl = tok_end[0] - tok_start[0];
+            main_out[(*main_len)++] = ' ';
+            memcpy(main_out + *main_len, ln + tok_start[0], fl);
+            *main_len += (int)fl;
+        }
+        if (tail_from >= 0) {
+            memcpy(main_out + *main_len, ln + tail_from, n - tail_from);
+            *main_len += (int)(n - tail_from);
+        }
+        memcpy(s.m, p1, sizeof p1);
+        memcpy(s.q_last, q1, sizeof q1);
+        s.q_last_known = 1;
+        s.moved = 1;
+        s.moves_comp++;
+        s.lines_out += *take_len >= 0 ? 2 : 1;
+        *s0 = s;
+        return LINE_OUT;
+    }
+}
+
