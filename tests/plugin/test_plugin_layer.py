@@ -19,7 +19,7 @@ from octoprint_kincomp.plugin.settings import (
     migrate,
     validate_settings,
 )
-from tests.support.mocked_plugin import mocked_plugin
+from tests.support.mocked_plugin import api_app, mocked_plugin
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
 
@@ -307,19 +307,19 @@ def test_before_request_hook_answers_400_for_bad_settings(plugin):
     flask_babel.Babel(app)
     body = {"plugins": {"kincomp": {"limits_policy": "explode"}}}
     with app.test_request_context("/api/settings", method="POST", json=body):
-        with mock.patch("octoprint_kincomp.plugin.kincomp.Permissions") as perms:
+        with mock.patch("octoprint_kincomp.plugin.settings_store.Permissions") as perms:
             perms.SETTINGS.can.return_value = True
-            resp = plugin._check_settings_request()
+            resp = plugin.store.check_settings_request()
     assert resp.status_code == 400 and b"limits_policy" in resp.get_data()
     ok = {"plugins": {"kincomp": {"limits_policy": "clamp"}}}
     with app.test_request_context("/api/settings", method="POST", json=ok):
-        with mock.patch("octoprint_kincomp.plugin.kincomp.Permissions") as perms:
+        with mock.patch("octoprint_kincomp.plugin.settings_store.Permissions") as perms:
             perms.SETTINGS.can.return_value = True
-            assert plugin._check_settings_request() is None
+            assert plugin.store.check_settings_request() is None
 
 
 def test_compensation_error_pauses_the_print(plugin):
-    plugin._on_compensation_error("G1 X0", LimitError("outside", 3))
+    plugin.queue.on_error("G1 X0", LimitError("outside", 3))
     plugin._printer.pause_print.assert_called_once()
     msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
     assert msg["severity"] == "error" and "paused" in msg["text"]
@@ -332,7 +332,7 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     fo = mock.MagicMock()
     fo.filename = "part.gcode"
     fo.stream.return_value = io.BytesIO(src)
-    with mock.patch("octoprint_kincomp.plugin.kincomp.valid_file_type", return_value=True):
+    with mock.patch("octoprint_kincomp.plugin.files_api.valid_file_type", return_value=True):
         wrapped = plugin.preprocessor_hook("part.gcode", fo)
     out = wrapped.stream().read().decode()
     lines = out.splitlines()
@@ -342,13 +342,13 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     assert lines[3] == "M104 S200"
     # an already compensated upload goes through untouched
     fo.stream.return_value = io.BytesIO(out.encode())
-    with mock.patch("octoprint_kincomp.plugin.kincomp.valid_file_type", return_value=True):
+    with mock.patch("octoprint_kincomp.plugin.files_api.valid_file_type", return_value=True):
         again = plugin.preprocessor_hook("part.gcode", fo).stream().read().decode()
     assert again == out
 
 
 def test_hook_registration_runs_last():
-    from octoprint_kincomp.plugin.kincomp import KinCompPlugin, plugin_hooks
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin, plugin_hooks
 
     hooks = plugin_hooks(KinCompPlugin())
     cb, order = hooks["octoprint.comm.protocol.gcode.queuing"]
@@ -440,14 +440,14 @@ def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
     plugin.queuing_hook(comm, "queuing", "G1 X10 Y10", None, "G1",
                         tags={"source:file", "fileline:2"})
-    assert plugin._prints_begun == 1 and plugin.queue.comp.known == (True, True, True)
+    assert plugin.prints.begun == 1 and plugin.queue.comp.known == (True, True, True)
     # print B starts before A's PrintDone is processed
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
-    assert plugin._prints_begun == 2
+    assert plugin.prints.begun == 2
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # A's, late
     assert plugin.queue.printing and plugin.queue.comp.known == (True, True, True)
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})  # B's
-    assert plugin._prints_begun == 2
+    assert plugin.prints.begun == 2
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # B's
     assert not plugin.queue.printing
 
@@ -478,9 +478,9 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
     assert in_lookup.wait(5)
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
     hook.join(5)
-    assert plugin._prints_begun == 1 and plugin.files.paused
+    assert plugin.prints.begun == 1 and plugin.jobs.paused
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})
-    assert not plugin.queue.printing and not plugin.files.paused
+    assert not plugin.queue.printing and not plugin.jobs.paused
 
 
 def test_switching_on_mid_print_waits_for_the_next_print_unless_forced():
@@ -541,11 +541,8 @@ def test_a_failing_notification_never_lets_the_raw_move_out():
 
 
 def test_request_flags_must_be_booleans(plugin):
-    import flask
-
-    app = flask.Flask("t")
-    with mock.patch("octoprint_kincomp.plugin.kincomp._require"), \
-            mock.patch("octoprint_kincomp.plugin.kincomp.gettext", lambda m, **kw: m % kw):
+    app = api_app()
+    with mock.patch("octoprint_kincomp.plugin.http.require"):
         for path, view, body in (("/settings", plugin.api_settings, {"apply_now": "false"}),
                                  ("/program", plugin.api_program, {"print": "no"}),
                                  ("/apply", plugin.api_apply, {"params": {},
@@ -561,11 +558,11 @@ def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_pa
     _printing_plain_file(plugin, tmp_path)
     plugin.queuing_hook(object(), "queuing", "G28", None, "G28",
                         tags={"source:file", "fileline:1"})
-    plugin._prints_begun += 1  # drifted
+    plugin.prints.begun += 1  # drifted
     plugin._printer.is_printing.return_value = False
     plugin.on_event("PrintFailed", {"origin": "local", "path": "p.gcode"})
-    assert not plugin.queue.printing and not plugin.files.paused
-    assert plugin._start_events == plugin._prints_begun
+    assert not plugin.queue.printing and not plugin.jobs.paused
+    assert plugin.prints.start_events == plugin.prints.begun
 
 
 def test_marlin_is_asked_for_its_settings_after_m115(plugin):
@@ -584,15 +581,12 @@ def test_marlin_is_asked_for_its_settings_after_m115(plugin):
 
 
 def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
-    import flask
-
     run_id = plugin.runs.new_id()
     plugin.runs.save({"id": run_id, "filename": "../../etc/passwd trace.csv",
                       "diagnostics": {}})
     plugin.runs.save_trace(run_id, b"direction,angle_deg,deviation_um\nccw,0,1.5\n")
-    app = flask.Flask("t")
-    with mock.patch("octoprint_kincomp.plugin.kincomp._require"), \
-            mock.patch("octoprint_kincomp.plugin.kincomp.gettext", lambda m, **kw: m % kw):
+    app = api_app()
+    with mock.patch("octoprint_kincomp.plugin.http.require"):
         with app.test_request_context(f"/runs/{run_id}/trace"):
             resp = plugin.api_run_trace(run_id)
             resp.direct_passthrough = False
@@ -605,13 +599,10 @@ def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
 
 
 def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
-    import flask
-
     plugin._settings.set(["limits_policy"], "explode")  # e.g. edited by hand in config.yaml
-    assert plugin._current_settings()["limits_policy"] == "warn"  # the defaults apply
-    app = flask.Flask("t")
-    with mock.patch("octoprint_kincomp.plugin.kincomp._require"), \
-            mock.patch("octoprint_kincomp.plugin.kincomp.gettext", lambda m, **kw: m % kw if kw else m):
+    assert plugin.store.current()["limits_policy"] == "warn"  # the defaults apply
+    app = api_app()
+    with mock.patch("octoprint_kincomp.plugin.http.require"):
         with app.test_request_context("/status"):
             body = plugin.api_status().get_json()
     assert body["settings_problem"].startswith("limits_policy: must be one of")

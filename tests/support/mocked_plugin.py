@@ -13,7 +13,7 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0):
     from octoprint.plugin import PluginSettings
     from octoprint.settings import Settings
 
-    from octoprint_kincomp.plugin.kincomp import KinCompPlugin
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin
 
     p = KinCompPlugin()
     p._identifier = "kincomp"
@@ -40,3 +40,13 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0):
     p.initialize()
     p.on_after_startup()
     return p
+
+
+def api_app():
+    """A Flask app to call the plugin's views in (flask_babel set up: English messages)."""
+    import flask
+    import flask_babel
+
+    app = flask.Flask("t")
+    flask_babel.Babel(app)
+    return app
