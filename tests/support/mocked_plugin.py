@@ -1,7 +1,9 @@
 """KinCompPlugin on a real OctoPrint settings object, with mocks for the printer, event bus,
-plugin and file managers (the plugin-layer tests and benchmarks/plugin_hook.py)."""
+plugin and file managers (the plugin-layer tests and benchmarks/plugin_hook.py); a Flask
+app to call its views in; waiting for what the plugin's worker threads do."""
 
 import os
+import time
 from unittest import mock
 
 from octoprint_kincomp.plugin.settings import defaults
@@ -50,3 +52,12 @@ def api_app():
     app = flask.Flask("t")
     flask_babel.Babel(app)
     return app
+
+
+def wait_for(condition, timeout: float = 5.0) -> None:
+    """Waits until ``condition()`` is true (a worker thread's doing); fails after
+    ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
