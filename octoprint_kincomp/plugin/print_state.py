@@ -11,7 +11,8 @@
   resumes; PRINT_RESUMED comes only after OctoPrint has started sending again, so the hook
   follows the printer state (paused once, then printing again means resumed).
 * Moves sent as written (position unknown, malformed) are always logged and notified at
-  most once a minute.
+  most once a minute; so are prints from, and transfers to, the printer's SD card (KinComp
+  never sees their lines).
 """
 
 from __future__ import annotations
