@@ -1,6 +1,7 @@
-"""The OctoPrint side: the plugin class and its pieces (hooks, settings, calibration API,
-background jobs, firmware watch, demo). Only this floor imports OctoPrint."""
+"""The OctoPrint side: the plugin class (``kincomp_plugin``, start reading there) and its
+pieces (settings store, print state, firmware check, demo mode, the endpoints, background
+jobs, notifications). Only this floor imports OctoPrint."""
 
-from .kincomp import KinCompPlugin, plugin_hooks
+from .kincomp_plugin import KinCompPlugin, plugin_hooks
 
 __all__ = ["KinCompPlugin", "plugin_hooks"]

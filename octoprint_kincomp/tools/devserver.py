@@ -148,10 +148,6 @@ class DevServer:
     def admin_key(self) -> str:
         return self.logins[ADMIN]["apikey"]
 
-    @property
-    def viewer_key(self) -> str:
-        return self.logins[VIEWER]["apikey"]
-
     def start(self, timeout: float = 120.0, stdout=None) -> "DevServer":
         home = os.path.join(self.basedir, "home")
         tmp = os.path.join(self.basedir, "tmp")

@@ -1,7 +1,9 @@
 """KinCompPlugin on a real OctoPrint settings object, with mocks for the printer, event bus,
-plugin and file managers (the plugin-layer tests and benchmarks/plugin_hook.py)."""
+plugin and file managers (the plugin-layer tests and benchmarks/plugin_hook.py); a Flask
+app to call its views in; waiting for what the plugin's worker threads do."""
 
 import os
+import time
 from unittest import mock
 
 from octoprint_kincomp.plugin.settings import defaults
@@ -13,7 +15,7 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0):
     from octoprint.plugin import PluginSettings
     from octoprint.settings import Settings
 
-    from octoprint_kincomp.plugin.kincomp import KinCompPlugin
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin
 
     p = KinCompPlugin()
     p._identifier = "kincomp"
@@ -40,3 +42,22 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0):
     p.initialize()
     p.on_after_startup()
     return p
+
+
+def api_app():
+    """A Flask app to call the plugin's views in (flask_babel set up: English messages)."""
+    import flask
+    import flask_babel
+
+    app = flask.Flask("t")
+    flask_babel.Babel(app)
+    return app
+
+
+def wait_for(condition, timeout: float = 5.0) -> None:
+    """Waits until ``condition()`` is true (a worker thread's doing); fails after
+    ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)

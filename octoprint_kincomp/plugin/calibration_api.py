@@ -1,0 +1,296 @@
+"""The calibration endpoints: ballbar program, measurement upload and analysis, applying a
+proposal, the run history, comparing two runs, and demo mode's simulated trace.
+
+* ``POST /program``  writes a ballbar test program (radius mm, feed mm/min capped to the
+  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it.
+* ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
+  MAX_TRACE_UPLOAD bytes): analysed and stored as a run; nothing is applied.
+* ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
+* ``POST /apply``    a run's proposed parameters, or given ones, into the settings.
+* ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
+  ``/demo/trace``.
+
+Each method here is one route's body (the plugin class holds the routes); errors are JSON
+``{"error": ...}`` responses in the user's language.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import os
+import re
+from typing import Any, Dict, Optional
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+from octoprint.filemanager import FileDestinations
+from octoprint.filemanager.util import StreamWrapper
+
+from ..ballbar.analysis import Geometry, analyse, propose_params
+from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
+from ..ballbar.closedloop import table
+from ..ballbar.formats import TraceError, load_any
+from ..ballbar.program import (
+    ProgramError,
+    TestSpec,
+    cap_feed,
+    generate,
+    spec_dict,
+    spec_from_program,
+)
+from ..core.firmware import equivalents
+from ..core.messages import as_dict
+from ..core.params import Params
+from . import http
+from .demo_mode import DemoMode
+from .notify import Notifier
+from .queue import QueueCompensator
+from .runs import RunNotFound, RunStore
+from .settings import SettingsError, validate_settings
+from .settings_store import SettingsStore
+
+MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
+PROGRAM_FOLDER = "kincomp"  # where generated programs go in OctoPrint's local storage
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+def safe_name(name: str) -> str:
+    """``name`` with only letters, digits, '.', '_' and '-' (others become '_'), at most 100
+    characters, "trace" if nothing is left."""
+    return _UNSAFE.sub("_", name)[:100] or "trace"
+
+
+class CalibrationApi:
+    def __init__(self, store: SettingsStore, queue: QueueCompensator, runs: RunStore,
+                 demo: DemoMode, notifier: Notifier, printer, file_manager):
+        self._store = store
+        self._queue = queue
+        self._runs = runs
+        self._demo = demo
+        self._notifier = notifier
+        self._printer = printer
+        self._file_manager = file_manager
+
+    # ~~ the test program ------------------------------------------------------------------------
+    def program(self):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object() or {}
+        try:
+            do_print, mount_pause = http.flag(data, "print"), http.flag(data, "mount_pause")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        if do_print:
+            http.require(Permissions.PRINT)
+        try:
+            plane = str(data.get("plane", "XY")).upper()
+            feed = float(data.get("feed", 1850.0))
+            spec = TestSpec(
+                plane=plane,
+                centre=tuple(float(v) for v in data.get("centre", (110, 110, 10))),
+                radius_mm=float(data.get("radius", 100.0)),
+                feed_mm_min=cap_feed(feed, plane, self._store.max_feeds()),
+                requested_feed_mm_min=feed,
+                mount_pause=mount_pause,
+            )
+            params = self._queue.params
+            text = generate(spec, volume=self._store.limits(), params_hash=params.hash())
+        except (ProgramError, TypeError, ValueError) as exc:
+            return http.error(http.tr(exc), 400)
+        name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
+               f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        path = f"{PROGRAM_FOLDER}/{name}"
+        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
+                                      ignore_existing=True)
+        self._file_manager.add_file(
+            FileDestinations.LOCAL, path,
+            StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
+        _, prog_hash = spec_from_program(text)
+        self._demo.program_written(path, spec, prog_hash)
+        printing = False
+        if do_print:
+            if not self._printer.is_operational() or self._printer.is_printing():
+                return http.error(gettext("The printer is not ready to print"), 409)
+            self._printer.select_file(path, False, printAfterSelect=True,
+                                      tags={"plugin:kincomp", "kincomp:calibration"})
+            printing = True
+        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
+                             printing=printing, program_hash=prog_hash)
+
+    # ~~ measurements in ---------------------------------------------------------------------
+    def trace(self):
+        """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it and
+        store the run; nothing is applied."""
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        suffix, name_suffix = self._store.upload_fields()
+        tmp_path = flask.request.values.get("file." + suffix)
+        filename = flask.request.values.get("file." + name_suffix, "trace")
+        if tmp_path:
+            size = os.path.getsize(tmp_path)
+            if size > MAX_TRACE_UPLOAD:
+                return http.error(gettext("The file is too large"), 413)
+            with open(tmp_path, "rb") as f:
+                data = f.read()
+        else:
+            data = flask.request.get_data(cache=False)
+            if not data:
+                return http.error(gettext("No file uploaded (multipart field 'file')"), 400)
+            if len(data) > MAX_TRACE_UPLOAD:
+                return http.error(gettext("The file is too large"), 413)
+        return self._analyse_and_store(data, filename, "upload")
+
+    def analyze(self):
+        """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object()
+        if data is None:
+            return http.error(gettext("Expected a JSON object"), 400)
+        if "summary" in data:
+            return self._analyse_and_store(json.dumps(data["summary"]).encode(),
+                                           "typed summary", "summary")
+        if "artifact" in data:
+            a = data["artifact"]
+            if not isinstance(a, dict):
+                return http.error(gettext("Expected a JSON object"), 400)
+            try:
+                diag = diagnostics_from_artifact(
+                    str(a.get("plane", "XY")), float(a["ac"]), float(a["bd"]), float(a["ad"]),
+                    {k: [(float(n), float(m)) for n, m in v]
+                     for k, v in (a.get("lengths") or {}).items()})
+            except (ArtifactError, KeyError, TypeError, ValueError) as exc:
+                return http.error(gettext("Invalid artifact measurements: %(e)s",
+                                          e=http.tr(exc)), 400)
+            notes = []
+            current = self._queue.params
+            params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None), current,
+                                    notes)
+            return self._store_run({"diagnostics": diag, "parameters": params.to_dict(),
+                                    "firmware": equivalents(params), "notes": notes},
+                                   "printed artifact", "artifact", None)
+        return http.error(gettext("Give 'summary' or 'artifact'"), 400)
+
+    def _analyse_and_store(self, data: bytes, filename: str, source: str):
+        safe = safe_name(os.path.basename(str(filename)))
+        try:
+            trace = load_any(data, safe)
+            result = analyse(trace, current=self._queue.params)
+        except TraceError as exc:
+            return http.error(gettext("%(name)s: %(reason)s", name=safe,
+                                      reason=http.tr(exc)), 400)
+        kind = getattr(trace, "kind", source)
+        return self._store_run(result, safe, kind, data if kind != "summary" else None,
+                               result.get("plot"))
+
+    def _store_run(self, result: Dict[str, Any], filename: str, source: str,
+                   raw: Optional[bytes], plot=None):
+        run_id = self._runs.new_id()
+        current = self._queue.params
+        run = {
+            "id": run_id,
+            "date": _dt.datetime.now().isoformat(timespec="seconds"),
+            "filename": filename,
+            "source": source,
+            "simulated": bool(result["diagnostics"].get("simulated")),
+            "params_before": current.to_dict(),
+            "params_before_hash": current.hash(),
+            "diagnostics": result["diagnostics"],
+            "proposed": result["parameters"],
+            "firmware": http.with_i18n(result["firmware"]),
+            "notes": [str(n) for n in result["notes"]],
+            "notes_i18n": [as_dict(n) for n in result["notes"]],
+            "plot": plot,
+            "applied": None,
+        }
+        if raw is not None:
+            self._runs.save_trace(run_id, raw)
+        self._runs.save(run)
+        self._notifier.event("calibration_analysed", {"run": run_id, "source": source,
+                                                      "simulated": run["simulated"]})
+        return flask.jsonify(run)
+
+    # ~~ applying a proposal -----------------------------------------------------------------
+    def apply(self):
+        """Apply a run's proposed parameters ({"run": id}) or given ones ({"params": {...}})."""
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object() or {}
+        try:
+            apply_now = http.flag(data, "apply_now")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        run = None
+        if "run" in data:
+            try:
+                run = self._runs.get(str(data["run"]))
+            except RunNotFound:
+                return http.error(gettext("No such calibration run"), 404)
+            params_doc = run["proposed"]
+        elif "params" in data:
+            params_doc = data["params"]
+        else:
+            return http.error(gettext("Give 'run' or 'params'"), 400)
+        new = dict(self._store.current())
+        new["params"] = params_doc
+        if "enabled" in data:
+            new["enabled"] = data["enabled"]
+        try:
+            new = validate_settings(new, self._store.current(), replace_params=True)
+        except SettingsError as exc:
+            return http.error(http.tr(exc), 400)
+        self._store.save(new, immediately=apply_now or None)
+        self._store.write()
+        if run is not None:
+            run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
+            self._runs.save(run)
+        return flask.jsonify(params=new["params"],
+                             params_hash=Params.from_dict(new["params"]).hash(),
+                             compensation=self._queue.status())
+
+    # ~~ the run history -----------------------------------------------------------------------
+    def runs(self):
+        http.require(Permissions.STATUS)
+        return flask.jsonify(runs=self._runs.list())
+
+    def run(self, run_id: str):
+        http.require(Permissions.STATUS)
+        try:
+            return flask.jsonify(self._runs.get(run_id))
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+
+    def run_trace(self, run_id: str):
+        """The measurement file of a run as it was uploaded (trace, .b5r)."""
+        http.require(Permissions.STATUS)
+        try:
+            run = self._runs.get(run_id)
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+        path = self._runs.trace_path(run_id)
+        if path is None:
+            return http.error(gettext("This run has no stored measurement file"), 404)
+        name = safe_name(str(run.get("filename") or "trace"))
+        return flask.send_file(path, mimetype="application/octet-stream", as_attachment=True,
+                               download_name=name)
+
+    def compare(self):
+        http.require(Permissions.STATUS)
+        try:
+            a = self._runs.get(flask.request.args.get("before", ""))
+            b = self._runs.get(flask.request.args.get("after", ""))
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+        return flask.jsonify(table=table(a["diagnostics"], b["diagnostics"]),
+                             before=a["id"], after=b["id"])
+
+    # ~~ demo mode ---------------------------------------------------------------------------
+    def demo_trace(self):
+        http.require(Permissions.STATUS)
+        trace = self._demo.last_trace()
+        if trace is None:
+            return http.error(gettext("No simulated trace yet: print a ballbar program in "
+                                      "demo mode first"), 404)
+        resp = flask.make_response(trace.to_text())
+        resp.headers["Content-Type"] = "text/csv; charset=utf-8"
+        resp.headers["Content-Disposition"] = 'attachment; filename="simulated_trace.csv"'
+        return resp

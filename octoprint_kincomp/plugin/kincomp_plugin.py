@@ -1,0 +1,274 @@
+"""KinComp's OctoPrint plugin class: a thin composition of the pieces of this package.
+
+OctoPrint's mixin calls, hooks, events and routes arrive here and are handed on; the work
+is done by the pieces, which import neither this module nor each other in a circle:
+
+* ``settings_store``  the stored settings (read, validated, migrated, saved, applied to the
+                      queue) and the guard on OctoPrint's settings endpoint
+* ``queue``           the compensator as the queuing hook sees it
+* ``print_state``     the connection and the print on it (begins, ends, pause after an error)
+* ``firmware_check``  the firmware's own compensation (double compensation)
+* ``demo_mode``       the virtual ballbar in demo mode
+* ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
+                      the background jobs of ``jobs`` and the upload preprocessor)
+* ``notify``          notifications, plugin messages and custom events; ``http`` request
+                      helpers and the permission KinComp adds
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Dict
+
+import octoprint.plugin
+from flask_babel import gettext
+from octoprint.events import Events
+
+from .. import __version__
+from ..core.compensator import Options
+from ..core.params import Params
+from ..engines.select import engine
+from . import http
+from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
+from .demo_mode import DemoMode
+from .files_api import FilesApi
+from .firmware_check import FirmwareCheck
+from .firmware_watch import FirmwareWatcher
+from .notify import CUSTOM_EVENTS, Notifier
+from .print_state import PRINT_EVENTS, PrintState
+from .queue import FILE_TAG, QueueCompensator
+from .runs import RunStore
+from .settings import SETTINGS_VERSION, defaults
+from .settings_api import SettingsApi
+from .settings_store import SettingsStore
+
+route = octoprint.plugin.BlueprintPlugin.route
+
+
+class KinCompPlugin(
+    octoprint.plugin.StartupPlugin,
+    octoprint.plugin.SettingsPlugin,
+    octoprint.plugin.TemplatePlugin,
+    octoprint.plugin.AssetPlugin,
+    octoprint.plugin.BlueprintPlugin,
+    octoprint.plugin.EventHandlerPlugin,
+    octoprint.plugin.WizardPlugin,
+):
+    def __init__(self):
+        super().__init__()
+        self.watch = FirmwareWatcher()
+        # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
+        self.notifier = self.queue = self.runs = self.store = self.demo = None
+        self.firmware = self.prints = self.files = self.jobs = None
+        self.settings_api = self.calibration = None
+
+    # ~~ lifecycle ---------------------------------------------------------------------------
+    def initialize(self):
+        log, printer, files = self._logger, self._printer, self._file_manager
+        self.notifier = notifier = Notifier(self._plugin_manager, self._event_bus,
+                                            self._identifier)
+        self.runs = RunStore(self.get_plugin_data_folder())
+        self.queue = queue = QueueCompensator(Params(), Options())
+        self.demo = DemoMode(notifier, log)
+        self.firmware = FirmwareCheck(self.watch, queue, printer, notifier, log)
+        self.store = SettingsStore(
+            self._settings, self._identifier, self._printer_profile_manager, queue, notifier,
+            log, base_save=functools.partial(octoprint.plugin.SettingsPlugin.on_settings_save,
+                                             self),
+            on_applied=self._settings_applied)
+        self.files = FilesApi(self.store, queue, files, notifier, self.get_plugin_data_folder)
+        self.jobs = self.files.jobs
+        self.prints = PrintState(queue, self.watch, printer, files, notifier, log,
+                                 on_begin=self._print_began, on_end=self._print_ended)
+        queue.on_error = self.prints.compensation_failed
+        queue.on_untouched = self.prints.sent_as_written
+        self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
+        self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
+                                          printer, files)
+
+    def on_after_startup(self):
+        self.store.apply(self.store.current(), immediately=True)
+        self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
+                          "on" if self.queue.enabled else "off",
+                          engine())
+
+    def _settings_applied(self, s: Dict[str, Any]) -> None:
+        self.demo.set_enabled(s["demo"]["enabled"])
+        self.firmware.check()
+
+    def _print_began(self, payload: Dict[str, Any]) -> None:
+        self.jobs.set_paused(True)  # file work must not starve the print
+        self.demo.print_begins(payload)
+
+    def _print_ended(self, done: bool) -> None:
+        self.jobs.set_paused(False)
+        self.demo.print_ends(done)
+
+    # ~~ settings ----------------------------------------------------------------------------
+    def get_settings_defaults(self):
+        return defaults()
+
+    def get_settings_version(self):
+        return SETTINGS_VERSION
+
+    def on_settings_migrate(self, target, current):
+        self.store.migrate(target, current)
+
+    def on_settings_save(self, data):
+        return self.store.dialog_save(data)
+
+    # ~~ wizard, templates and assets --------------------------------------------------------
+    def is_wizard_required(self):
+        return True  # shown once (per wizard version): it introduces the calibration tab
+
+    def get_wizard_version(self):
+        return 1
+
+    def is_template_autoescaped(self):
+        return True
+
+    def get_template_configs(self):
+        return [
+            {"type": "settings", "name": "KinComp", "custom_bindings": True},
+            {"type": "tab", "name": gettext("Calibration"), "custom_bindings": True},
+            {"type": "wizard", "name": "KinComp", "custom_bindings": True},
+        ]
+
+    def get_assets(self):
+        return {"js": ["js/kincomp.js"], "css": ["css/kincomp.css"]}
+
+    # ~~ hooks -------------------------------------------------------------------------------
+    def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
+                     tags=None, *args, **kwargs):
+        prints = self.prints
+        if comm_instance is not prints.comm:
+            prints.connection_changed(comm_instance)
+        if tags and FILE_TAG in tags:
+            prints.file_line(tags)
+        queue = self.queue
+        if queue.halted:
+            prints.follow_pause(comm_instance)
+        if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
+            self.firmware.sent(cmd)
+        result = queue.handle(cmd, tags)
+        if self.demo.ballbar is not None:
+            self.demo.record(cmd, result)
+        return result
+
+    def received_hook(self, comm_instance, line, *args, **kwargs):
+        if comm_instance is not self.prints.comm:
+            self.prints.connection_changed(comm_instance)
+        self.firmware.received(line)
+        return line
+
+    def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
+                          allow_overwrite=False, *args, **kwargs):
+        return self.files.preprocess(path, file_object, printer_profile)
+
+    def permissions_hook(self, *args, **kwargs):
+        return http.permissions()
+
+    def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
+        return [("POST", r"/trace", MAX_TRACE_UPLOAD)]
+
+    def custom_events_hook(self, *args, **kwargs):
+        return list(CUSTOM_EVENTS)
+
+    def before_api_request_hook(self, plugin=None, *args, **kwargs):
+        return [self.store.check_settings_request]
+
+    # ~~ events ------------------------------------------------------------------------------
+    def on_event(self, event, payload):
+        payload = payload or {}
+        if event in PRINT_EVENTS:
+            self.prints.on_event(event, payload)
+        elif event == Events.FIRMWARE_DATA:
+            self.firmware.query(payload)
+        elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
+            # the bed volume (limits) and axis feeds come from the printer profile, which
+            # a connection may switch and the user may edit
+            self.store.apply(self.store.current())
+        elif event == Events.TRANSFER_STARTED:
+            self.prints.transfer_started()
+        elif event == Events.PRINT_PAUSED:
+            self.prints.paused()
+        elif event == Events.PRINT_RESUMED:
+            self.prints.resumed()
+        elif event == Events.FILE_ADDED:
+            self.files.file_added(payload)
+
+    # ~~ API (each route hands on to its piece) ----------------------------------------------
+    def is_blueprint_protected(self):
+        return True
+
+    def is_blueprint_csrf_protected(self):
+        return True
+
+    @route("/status", methods=["GET"])
+    def api_status(self):
+        return self.settings_api.status()
+
+    @route("/settings", methods=["POST"])
+    def api_settings(self):
+        return self.settings_api.save()
+
+    @route("/program", methods=["POST"])
+    def api_program(self):
+        return self.calibration.program()
+
+    @route("/demo/trace", methods=["GET"])
+    def api_demo_trace(self):
+        return self.calibration.demo_trace()
+
+    @route("/trace", methods=["POST"])
+    def api_trace(self):
+        return self.calibration.trace()
+
+    @route("/analyze", methods=["POST"])
+    def api_analyze(self):
+        return self.calibration.analyze()
+
+    @route("/apply", methods=["POST"])
+    def api_apply(self):
+        return self.calibration.apply()
+
+    @route("/runs", methods=["GET"])
+    def api_runs(self):
+        return self.calibration.runs()
+
+    @route("/runs/<run_id>", methods=["GET"])
+    def api_run(self, run_id):
+        return self.calibration.run(run_id)
+
+    @route("/runs/<run_id>/trace", methods=["GET"])
+    def api_run_trace(self, run_id):
+        return self.calibration.run_trace(run_id)
+
+    @route("/compare", methods=["GET"])
+    def api_compare(self):
+        return self.calibration.compare()
+
+    @route("/dryrun", methods=["GET"])
+    def api_dryrun(self):
+        return self.files.dryrun()
+
+    @route("/compensate", methods=["POST"])
+    def api_compensate(self):
+        return self.files.compensate()
+
+    @route("/files", methods=["GET"])
+    def api_files(self):
+        return self.files.files()
+
+
+def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
+    return {
+        # run last in queuing so other plugins' rewrites get compensated too
+        "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
+        "octoprint.comm.protocol.gcode.received": plugin.received_hook,
+        "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
+        "octoprint.access.permissions": plugin.permissions_hook,
+        "octoprint.server.http.bodysize": plugin.bodysize_hook,
+        "octoprint.events.register_custom_events": plugin.custom_events_hook,
+        "octoprint.server.api.before_request": plugin.before_api_request_hook,
+    }

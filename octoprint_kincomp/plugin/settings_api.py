@@ -1,0 +1,79 @@
+"""KinComp's own status and settings endpoints.
+
+* ``GET /status``: everything the UI shows at once: the settings, the parameter hash, which
+  engine runs, the queue's compensation state, what the firmware compensates itself (and
+  conflicts), the firmware equivalents of the parameters, demo mode, the bed limits (mm)
+  and axis max feeds (mm/min) of the printer profile, the background jobs, and a problem
+  with the stored settings (defaults used), if any.
+* ``POST /settings``: a partial settings document, validated whole (400 naming the field,
+  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print.
+"""
+
+from __future__ import annotations
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+
+from .. import __version__
+from ..core.firmware import equivalents
+from ..core.params import Params
+from ..engines.select import engine
+from . import http
+from .demo_mode import DemoMode
+from .firmware_watch import FirmwareWatcher
+from .jobs import BackgroundCompensator
+from .queue import QueueCompensator
+from .settings import SettingsError, validate_settings
+from .settings_store import SettingsStore
+
+
+class SettingsApi:
+    def __init__(self, store: SettingsStore, queue: QueueCompensator, watch: FirmwareWatcher,
+                 demo: DemoMode, jobs: BackgroundCompensator):
+        self._store = store
+        self._queue = queue
+        self._watch = watch
+        self._demo = demo
+        self._jobs = jobs
+
+    def status(self):
+        http.require(Permissions.STATUS)
+        store = self._store
+        s = store.current()
+        params = Params.from_dict(s["params"])
+        return flask.jsonify(
+            version=__version__,
+            settings=s,
+            params_hash=params.hash(),
+            engine=engine(),
+            compensation=self._queue.status(),
+            firmware={"skew": self._watch.skew, "backlash": self._watch.backlash,
+                      "conflicts": self._watch.conflicts(params)},
+            equivalents=http.with_i18n(equivalents(params)),
+            demo=self._demo.ballbar is not None,
+            limits=store.limits(),
+            max_feeds=store.max_feeds(),
+            jobs=[j.to_dict() for j in self._jobs.jobs.values()],
+            settings_problem=(http.tr(store.problem) if store.problem is not None else None),
+        )
+
+    def save(self):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object()
+        if data is None:
+            return http.error(gettext("Expected a JSON object"), 400)
+        try:
+            immediately = http.flag(data, "apply_now")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        data.pop("apply_now", None)
+        try:
+            new = validate_settings(data, self._store.current())
+        except SettingsError as exc:
+            return http.error(http.tr(exc), 400)
+        self._store.save(new, immediately=immediately or None)
+        self._store.write()
+        self._store.problem = None  # valid settings are stored now
+        return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
+                             compensation=self._queue.status())

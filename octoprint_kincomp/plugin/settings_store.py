@@ -1,0 +1,202 @@
+"""KinComp's settings as OctoPrint stores them, and how they take effect.
+
+The checks themselves live in :mod:`.settings` (no OctoPrint import); this piece reads the
+stored settings through OctoPrint's ``PluginSettings`` (invalid ones: the defaults, and the
+problem is kept to be shown in the UI), migrates old versions, saves a validated document
+(the params document replaced whole) and applies it to the queue's compensator, now or
+from the next print on. The machine limits (mm) and axis feeds (mm/min) come from the
+current printer profile.
+
+It also guards OctoPrint's own settings endpoint (``POST /api/settings``) for KinComp's
+part: 403 without KinComp's admin permission, 400 for invalid values; nothing is stored
+then.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Dict, Optional, Tuple
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+
+from ..core.compensator import Options
+from ..core.messages import error_message
+from ..core.params import Params
+from . import http
+from .notify import N_, Notifier
+from .queue import QueueCompensator
+from .settings import (
+    SettingsError,
+    defaults,
+    engine_config,
+    limits_from_profile,
+    max_feeds_from_profile,
+    migrate,
+    validate_settings,
+)
+
+
+class SettingsStore:
+    """The stored settings of the plugin ``identifier``.
+
+    ``base_save(data)`` is OctoPrint's ``SettingsPlugin.on_settings_save`` bound to the
+    plugin (it stores what differs from the defaults and returns that diff);
+    ``on_applied(settings)`` runs after every application to the queue (the plugin turns
+    demo mode on or off and checks for firmware conflicts there).
+    """
+
+    def __init__(self, settings, identifier: str, profiles, queue: QueueCompensator,
+                 notifier: Notifier, logger,
+                 base_save: Callable[[Dict[str, Any]], Any],
+                 on_applied: Callable[[Dict[str, Any]], None]):
+        self._settings = settings
+        self._identifier = identifier
+        self._profiles = profiles
+        self._queue = queue
+        self._notifier = notifier
+        self._logger = logger
+        self._base_save = base_save
+        self._on_applied = on_applied
+        # stored settings that could not be used (defaults instead), shown in the UI
+        self.problem = None
+
+    # ~~ reading ------------------------------------------------------------------------------
+    def current(self) -> Dict[str, Any]:
+        """The stored settings, validated; the defaults if they are invalid."""
+        current = {k: self._settings.get([k], merged=True) for k in defaults()}
+        try:
+            return validate_settings(current, defaults())
+        except SettingsError as exc:
+            self._logger.error("Stored KinComp settings are invalid (%s); using defaults", exc)
+            self.problem = error_message(exc)
+            return defaults()
+
+    def limits(self) -> Optional[Tuple[float, ...]]:
+        """The current printer profile's bed volume (x0, x1, y0, y1, z0, z1 mm), if any."""
+        try:
+            profile = self._profiles.get_current_or_default()
+        except Exception:  # noqa: BLE001 - no profile: no limits
+            profile = None
+        return limits_from_profile(profile)
+
+    def max_feeds(self) -> Optional[Dict[str, float]]:
+        """The current printer profile's axis max feeds (mm/min), if any."""
+        try:
+            return max_feeds_from_profile(self._profiles.get_current_or_default())
+        except Exception:  # noqa: BLE001
+            return None
+
+    def engine_config(self, s: Dict[str, Any], profile=None) -> Tuple[Params, Options]:
+        """The Params and Options that the settings ``s`` describe, with the limits of
+        ``profile`` (a printer profile) or else of the current profile."""
+        return engine_config(s, limits_from_profile(profile) or self.limits())
+
+    def upload_fields(self) -> Tuple[str, str]:
+        """The suffixes of the form fields in which OctoPrint hands an uploaded file's
+        temporary path and its name to a blueprint view (``file.<suffix>``)."""
+        suffix = self._settings.global_get(["server", "uploads", "pathSuffix"]) or "path"
+        name_suffix = self._settings.global_get(["server", "uploads", "nameSuffix"]) or "name"
+        return suffix, name_suffix
+
+    # ~~ migrating -----------------------------------------------------------------------------
+    def migrate(self, target: int, current: Optional[int]) -> None:
+        """Stored settings of version ``current`` (None: before versioning) brought to
+        ``target``: moved keys moved, invalid ones replaced by the defaults (and reported),
+        unknown keys removed."""
+        if current is None or current < target:
+            raw = self._settings.get_all_data(merged=False) or {}
+            if not raw:
+                return  # nothing stored yet: the defaults are current
+            migrated = migrate(raw, current)
+            try:
+                clean = validate_settings(
+                    {k: v for k, v in migrated.items() if k in defaults()}, defaults())
+            except SettingsError as exc:
+                self._logger.warning("Stored KinComp settings invalid (%s): defaults used", exc)
+                self.problem = error_message(exc)
+                clean = defaults()
+            for key, value in clean.items():
+                self._settings.set([key], value)
+            for key in set(migrated) - set(defaults()):
+                self._settings.remove([key])
+
+    # ~~ saving and applying -----------------------------------------------------------------
+    def dialog_save(self, data: Dict[str, Any]):
+        """The standard settings dialog path. Invalid values never get here through the UI
+        (the before_request hook answers 400 first); anything else invalid is refused
+        whole, logged and reported, and the stored settings stay as they were. Without the
+        KinComp admin permission nothing is changed (the request hook answers 403 first)."""
+        if flask.has_request_context() and not Permissions.PLUGIN_KINCOMP_ADMIN.can():
+            self._logger.warning("KinComp settings refused: the user lacks the KinComp "
+                                 "admin permission")
+            return {}
+        try:
+            new = validate_settings(data, self.current())
+        except SettingsError as exc:
+            self._logger.warning("KinComp settings refused: %s", exc)
+            self._notifier.notify("error", N_("KinComp settings not saved: %(reason)s"),
+                                  reason=error_message(exc))
+            return {}
+        return self.save(new)
+
+    def save(self, new: Dict[str, Any], immediately: Optional[bool] = None):
+        """Stores the validated settings ``new`` (not yet written to disk: see ``write``),
+        applies them and fires ``params_applied`` if the parameters changed. Returns the
+        diff OctoPrint stored."""
+        old = self.current()
+        # the base class merges into what is stored: optional params terms that the new
+        # document leaves out (servo_lag_ms, axis_errors, ...) would survive. Replace them.
+        self._settings.remove(["params"])
+        diff = self._base_save(new)
+        self.apply(new, immediately=immediately)
+        if new["params"] != old["params"]:
+            params = Params.from_dict(new["params"])
+            self._notifier.event("params_applied", {
+                "params_hash": params.hash(),
+                "previous_hash": Params.from_dict(old["params"]).hash(),
+                "pending_until_next_print": self._queue.pending is not None})
+        return diff
+
+    def write(self) -> None:
+        """Writes the stored settings to OctoPrint's config file."""
+        self._settings.save()
+
+    def apply(self, s: Dict[str, Any], immediately: Optional[bool] = None) -> None:
+        """The settings ``s`` to the queue's compensator: at once if ``immediately`` (None:
+        as the settings' ``apply_changes`` says), else from the next print on if one runs."""
+        params, options = self.engine_config(s)
+        now = s["apply_changes"] == "immediately" if immediately is None else immediately
+        q = self._queue
+        q.pass_through_on_error = s["pass_through_on_error"]
+        if not q.configure(params, options, s["enabled"], now):
+            self._notifier.notify(
+                "info", N_("A print is running: the new KinComp settings (parameters, "
+                           "compensation on or off) take effect from the next print on."))
+        self._on_applied(s)
+
+    # ~~ OctoPrint's settings endpoint --------------------------------------------------------
+    def check_settings_request(self):
+        """OctoPrint's settings endpoint, for KinComp's part: 403 unless the user has
+        KinComp's admin permission (OctoPrint's SETTINGS permission alone must not change
+        the machine model), and 400 (instead of OctoPrint's silent 200) for invalid values;
+        nothing is stored then. None lets the request through."""
+        req = flask.request
+        if req.method != "POST" or not req.path.rstrip("/").endswith("/api/settings"):
+            return None
+        if not Permissions.SETTINGS.can():
+            return None
+        data = req.get_json(silent=True)
+        if not isinstance(data, dict):
+            return None
+        mine = (data.get("plugins") or {}).get(self._identifier)
+        if mine is None:
+            return None
+        if not Permissions.PLUGIN_KINCOMP_ADMIN.can():
+            return http.error(gettext("Changing KinComp's settings needs the KinComp admin "
+                                      "permission"), 403)
+        try:
+            validate_settings(mine, self.current())
+        except SettingsError as exc:
+            return http.error(gettext("KinComp: %(reason)s", reason=http.tr(exc)), 400)
+        return None
