@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The second environment of the compatibility test (tests/e2e/test_compat.py): the oldest
+# OctoPrint release line KinComp supports (1.10.x, its latest patch on PyPI) with KinComp
+# installed from this tree (editable: the server runs the tree's code, as in .venv).
+# Idempotent: does nothing when it is there and the packaging did not change since.
+#   KINCOMP_COMPAT_VENV       where (default .venv-op110)
+#   KINCOMP_COMPAT_OCTOPRINT  which OctoPrint (default "OctoPrint==1.10.*")
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${KINCOMP_COMPAT_VENV:-.venv-op110}
+SPEC=${KINCOMP_COMPAT_OCTOPRINT:-OctoPrint==1.10.*}
+PY=${PYTHON:-python3}
+stamp="$VENV/.kincomp-installed"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$SPEC" ] && [ ! pyproject.toml -nt "$stamp" ] &&
+        [ ! setup.py -nt "$stamp" ] && [ ! octoprint_kincomp/engines/_kernel.c -nt "$stamp" ]; then
+    exit 0
+fi
+start=$(date +%s)
+if [ ! -x "$VENV/bin/python" ]; then
+    "$PY" -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install --quiet --upgrade pip
+"$VENV/bin/python" -m pip install --quiet "$SPEC" -e .
+echo "$SPEC" > "$stamp"
+version=$("$VENV/bin/python" -c "import octoprint; print(octoprint.__version__)")
+echo "compatibility environment $VENV: OctoPrint $version, KinComp from this tree" \
+     "($(( $(date +%s) - start )) s)" >&2
