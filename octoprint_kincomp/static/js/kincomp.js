@@ -139,7 +139,7 @@ $(function () {
         self.firmwareHelp = ko.observable("");
         // the firmware export: per firmware its ready-to-paste sections and notes
         self.exports = ko.observableArray([]);
-        self.fwTab = ko.observable("klipper");
+        self.fwTab = ko.observable("marlin");
         self.errors = ko.observable({});
         self.formError = ko.observable("");
         self.savedMessage = ko.observable("");
@@ -241,7 +241,7 @@ $(function () {
 
         self.showFirmware = function (eq) {
             if (!eq || !eq.export) return;
-            self.exports(_.map(["klipper", "marlin", "reprapfirmware"], function (key) {
+            self.exports(_.map(["marlin", "klipper", "reprapfirmware"], function (key) {
                 var fw = eq.export[key] || {name: key, sections: [], notes: []};
                 return {
                     key: key,
