@@ -7,6 +7,12 @@ only place that imports the OctoPrint glue.
 
 __version__ = "0.1.0"
 
+# the project's homepage (its README); also the plugin repository entry's homepage and source
+# (extras/kincomp.md) and the GitHub repository of releases (software update)
+__plugin_url__ = "https://github.com/kincomp/OctoPrint-KinComp"
+__plugin_author__ = "KinComp developers"
+__plugin_license__ = "AGPL-3.0-or-later"  # as setup.py
+
 __plugin_name__ = "KinComp"
 __plugin_pythoncompat__ = ">=3.8,<4"
 __plugin_description__ = (

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Create .venv with KinComp (editable) and its test dependencies, and make sure Debian's
-# chromium is there for the browser tests (Playwright drives it; no browser download).
-# Idempotent.
+# Create .venv with KinComp (editable) and its test dependencies, make sure Debian's
+# chromium is there for the browser tests (Playwright drives it; no browser download), and
+# create .venv-op110, the oldest supported OctoPrint (1.10.x) with KinComp, for the
+# compatibility test (scripts/compat-venv.sh). Idempotent. KINCOMP_NO_BROWSER=1 (run.sh:
+# only the server) skips chromium and .venv-op110; KINCOMP_NO_COMPAT=1 skips .venv-op110.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -27,4 +29,7 @@ if [ -z "${KINCOMP_NO_BROWSER:-}" ] && ! command -v chromium >/dev/null 2>&1; th
     else
         echo "chromium not found and no apt-get: the browser tests will fail" >&2
     fi
+fi
+if [ -z "${KINCOMP_NO_BROWSER:-}" ] && [ -z "${KINCOMP_NO_COMPAT:-}" ]; then
+    ./scripts/compat-venv.sh
 fi

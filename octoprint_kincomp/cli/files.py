@@ -1,13 +1,15 @@
 """File verbs of the command line: ``compensate`` (also a slicer post-processing script),
-``params`` (create or check a params file) and ``firmware`` (firmware equivalents)."""
+``params`` (create or check a params file) and ``firmware`` (firmware equivalents, or with
+``--format`` the ready-to-paste blocks for Klipper, Marlin and RepRapFirmware)."""
 
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 from ..core.compensator import CompensationError, Options
-from ..core.firmware import format_equivalents
+from ..core.firmware import FIRMWARES, format_equivalents, format_export
 from ..core.params import Params
 from ..engines.files import AlreadyCompensated, compensate_file
 from .common import EXIT_OK, CliError, floats, load_params
@@ -56,10 +58,35 @@ def cmd_params(args) -> int:
     raise CliError("params: use --init or --check FILE")
 
 
-def cmd_firmware(args) -> int:
-    sys.stdout.write(format_equivalents(load_params(args.params)))
-    return EXIT_OK
+# --format choices and the firmwares they print; which current values each one uses
+FORMATS = {"klipper": ("klipper",), "marlin": ("marlin",), "rrf": ("reprapfirmware",),
+           "all": FIRMWARES}
+CURRENT = (("steps_per_mm", "--steps-per-mm", ("marlin", "all")),
+           ("rotation_distance", "--rotation-distance", ("klipper", "all")))
 
+
+def _positive(text: str, flag: str):
+    vals = floats(text, 3, flag)
+    if not all(math.isfinite(v) and v > 0.0 for v in vals):
+        raise CliError(f"{flag}: expected 3 positive numbers (X,Y,Z), got {text!r}")
+    return vals
+
+
+def cmd_firmware(args) -> int:
+    current = {}
+    for name, flag, formats in CURRENT:
+        text = getattr(args, name)
+        if text is None:
+            continue
+        if args.format not in formats:
+            raise CliError(f"{flag} needs --format {' or '.join(formats)}")
+        current[name] = _positive(text, flag)
+    params = load_params(args.params)
+    if args.format is None:
+        sys.stdout.write(format_equivalents(params))
+    else:
+        sys.stdout.write(format_export(params, FORMATS[args.format], **current))
+    return EXIT_OK
 
 
 
@@ -88,6 +115,16 @@ def add_file_commands(sub) -> None:
     p.add_argument("--check", metavar="FILE", help="validate a params file")
     p.set_defaults(func=cmd_params)
 
-    f = sub.add_parser("firmware", help="print firmware equivalents (M852, M425, SET_SKEW, ...)")
+    f = sub.add_parser(
+        "firmware", help="print firmware equivalents (M852, M425, SET_SKEW, ...); with --format "
+                         "the ready-to-paste blocks")
     f.add_argument("--params", required=True)
+    f.add_argument("--format", choices=tuple(FORMATS),
+                   help="ready-to-paste blocks: Klipper printer.cfg and commands, Marlin "
+                        "commands with M500, RepRapFirmware config.g (default: one line per "
+                        "command for every firmware)")
+    f.add_argument("--steps-per-mm", metavar="X,Y,Z",
+                   help="the printer's current steps/mm (Marlin): print the new M92 values")
+    f.add_argument("--rotation-distance", metavar="X,Y,Z",
+                   help="the current rotation_distance in mm (Klipper): print the new values")
     f.set_defaults(func=cmd_firmware)

@@ -3,7 +3,8 @@ end-to-end tests' server.
 
 ``prepare`` writes a basedir (127.0.0.1 only, no first-run wizard, no online checks, the
 virtual printer on, ``serial.log`` on, an admin and a non-admin user with API keys);
-``DevServer`` starts ``octoprint serve`` on it and stops it again.
+``DevServer`` starts ``octoprint serve`` on it and stops it again; ``python`` picks another
+environment's OctoPrint (the compatibility test runs the oldest supported one).
 ``python -m octoprint_kincomp demo-server`` is the interactive version (demo mode on: the
 virtual printer gets hidden SIMULATED errors and a virtual ballbar).
 """
@@ -41,18 +42,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _octoprint_cmd() -> list:
-    exe = os.path.join(os.path.dirname(sys.executable), "octoprint")
+def _octoprint_cmd(python: Optional[str] = None) -> list:
+    """The ``octoprint`` command of the environment of ``python`` (default: this one)."""
+    python = python or sys.executable
+    exe = os.path.join(os.path.dirname(python), "octoprint")
     if os.path.exists(exe):
         return [exe]
-    return [sys.executable, "-m", "octoprint"]
+    return [python, "-m", "octoprint"]
 
 
 def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
             throttle: float = 0.0, password: Optional[str] = None,
             extra_config: Optional[Dict[str, Any]] = None,
-            users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None
-            ) -> Dict[str, str]:
+            users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None,
+            python: Optional[str] = None) -> Dict[str, str]:
     """Create (or refresh) a basedir; returns the logins {user: (password, apikey)}.
 
     ``kincomp`` replaces KinComp's stored settings (a fresh test server); ``demo`` only
@@ -101,7 +104,7 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
         if user in logins:
             continue
         pw = password if (password and user == ADMIN) else secrets.token_urlsafe(12)
-        cmd = _octoprint_cmd() + ["--basedir", basedir, "user", "add", user,
+        cmd = _octoprint_cmd(python) + ["--basedir", basedir, "user", "add", user,
                                   "--password", pw] + flags
         subprocess.run(cmd, check=True, capture_output=True, env=env)
         logins[user] = {"password": pw, "apikey": secrets.token_hex(16).upper()}
@@ -136,11 +139,13 @@ class DevServer:
     def __init__(self, basedir: str, port: Optional[int] = None,
                  kincomp: Optional[Dict[str, Any]] = None, throttle: float = 0.0,
                  extra_config: Optional[Dict[str, Any]] = None,
-                 users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None):
+                 users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None,
+                 python: Optional[str] = None):
         self.basedir = basedir
         self.port = port or free_port()
+        self.python = python  # None: this environment's OctoPrint
         self.logins = prepare(basedir, self.port, kincomp, throttle,
-                              extra_config=extra_config, users=users, demo=demo)
+                              extra_config=extra_config, users=users, demo=demo, python=python)
         self.proc: Optional[subprocess.Popen] = None
         self.url = f"http://127.0.0.1:{self.port}"
 
@@ -154,10 +159,11 @@ class DevServer:
         os.makedirs(home, exist_ok=True)
         os.makedirs(tmp, exist_ok=True)
         env = dict(os.environ, HOME=home, TMPDIR=tmp, PYTHONDONTWRITEBYTECODE="1")
-        args = _octoprint_cmd() + ["serve", "--basedir", self.basedir, "--host", "127.0.0.1",
-                                   "--port", str(self.port)]
+        cmd = _octoprint_cmd(self.python)
+        args = cmd + ["serve", "--basedir", self.basedir, "--host", "127.0.0.1",
+                      "--port", str(self.port)]
         if hasattr(os, "geteuid") and os.geteuid() == 0:
-            args.insert(len(_octoprint_cmd()) + 1, "--iknowwhatimdoing")
+            args.insert(len(cmd) + 1, "--iknowwhatimdoing")
         log = stdout or open(os.path.join(self.basedir, "server.out"), "wb")
         self.proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env,
                                      start_new_session=True)

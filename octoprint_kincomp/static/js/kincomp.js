@@ -48,6 +48,38 @@ $(function () {
         return new PNotify(_.extend({title_escape: true, text_escape: true}, options));
     };
 
+    // copy text to the clipboard: the Clipboard API where the page may use it (https,
+    // localhost), else a selected text area inside ``near`` (a modal dialog keeps the focus
+    // inside itself) and the browser's copy command; calls done(ok)
+    var copyText = function (text, near, done) {
+        if (navigator.clipboard && window.isSecureContext) {
+            navigator.clipboard.writeText(text).then(
+                function () { done(true); },
+                function () { done(false); });
+            return;
+        }
+        var area = $("<textarea readonly></textarea>")
+            .css({position: "fixed", top: 0, left: 0, width: "1px", height: "1px", opacity: 0})
+            .val(text);
+        $(near || "body").append(area);
+        area[0].select();
+        var ok = false;
+        try {
+            ok = document.execCommand("copy");
+        } catch (e) {
+            ok = false;
+        }
+        area.remove();
+        done(ok);
+    };
+
+    // KinComp's version and homepage (README) from a /status response
+    var about = function (status) {
+        var eq = status.equivalents || {};
+        return {version: status.version || "", homepage: (eq.about && eq.about.homepage) || "",
+                firmwareHelp: (eq.about && eq.about.firmware_help) || ""};
+    };
+
     // a Flot point symbol (Flot itself draws only circles without its symbol plugin)
     var drawCross = function (ctx, x, y, radius) {
         ctx.moveTo(x - radius, y - radius);
@@ -102,12 +134,12 @@ $(function () {
         self.paramsHash = ko.observable("");
         self.engine = ko.observable("");  // "compiled" or "python" (kernel.py)
         self.conflicts = ko.observableArray([]);
-        self.firmware = {
-            marlin: ko.observable(""),
-            klipper: ko.observable(""),
-            reprapfirmware: ko.observable(""),
-            notes: ko.observable("")
-        };
+        self.version = ko.observable("");
+        self.homepage = ko.observable("");
+        self.firmwareHelp = ko.observable("");
+        // the firmware export: per firmware its ready-to-paste sections and notes
+        self.exports = ko.observableArray([]);
+        self.fwTab = ko.observable("marlin");
         self.errors = ko.observable({});
         self.formError = ko.observable("");
         self.savedMessage = ko.observable("");
@@ -195,6 +227,10 @@ $(function () {
             self.limits(status.limits);
             self.paramsHash(status.params_hash);
             self.engine(status.engine || "");
+            var a = about(status);
+            self.version(a.version);
+            self.homepage(a.homepage);
+            self.firmwareHelp(a.firmwareHelp);
             self.showFirmware(status.equivalents);
             self.conflicts(
                 _.map(status.firmware.conflicts || {}, function (where, kind) {
@@ -204,11 +240,31 @@ $(function () {
         };
 
         self.showFirmware = function (eq) {
-            if (!eq) return;
-            self.firmware.marlin((eq.marlin || []).join("\n"));
-            self.firmware.klipper((eq.klipper || []).join("\n"));
-            self.firmware.reprapfirmware((eq.reprapfirmware || []).join("\n"));
-            self.firmware.notes(_.map(eq.notes_i18n || eq.notes || [], trMsg).join(" "));
+            if (!eq || !eq.export) return;
+            self.exports(_.map(["marlin", "klipper", "reprapfirmware"], function (key) {
+                var fw = eq.export[key] || {name: key, sections: [], notes: []};
+                return {
+                    key: key,
+                    name: fw.name,
+                    notes: _.map(fw.notes, trMsg),
+                    sections: _.map(fw.sections, function (section) {
+                        var copied = ko.observable("");
+                        return {
+                            key: key + "_" + section.key,
+                            title: trMsg(section.title),
+                            text: section.text,
+                            copied: copied,
+                            copy: function (data, event) {
+                                copyText(section.text, $(event.target).closest(".kincomp-fw-section"),
+                                    function (ok) {
+                                        copied(ok ? gettext("Copied") : gettext("Select the text and copy it"));
+                                        setTimeout(function () { copied(""); }, 3000);
+                                    });
+                            }
+                        };
+                    })
+                };
+            }));
         };
 
         self.load = function () {
@@ -379,6 +435,8 @@ $(function () {
         self.enabled = ko.observable(false);
         self.demo = ko.observable(false);
         self.paramsHash = ko.observable("");
+        self.version = ko.observable("");
+        self.homepage = ko.observable("");
         self.limits = ko.observable([0, 200, 0, 200, 0, 200]);
         self.outdatedFiles = ko.observableArray([]);
 
@@ -548,6 +606,9 @@ $(function () {
                     });
                 }
                 self.paramsHash(status.params_hash);
+                var a = about(status);
+                self.version(a.version);
+                self.homepage(a.homepage);
                 if (status.limits) {
                     self.limits(status.limits);
                     if (!self.programTouched) self.defaultsFromProfile(status.limits, status.max_feeds);
