@@ -49,6 +49,7 @@ def _mzc_range(theta, dev, iters: int = 300) -> float:
 
 
 def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[str, object]:
+    runs = [r.captured() for r in runs]
     by = {r.direction: r for r in runs}
     circ, mzc = {}, {}
     for d, r in by.items():
@@ -89,10 +90,12 @@ def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str,
     """What a ballbar plot shows: per direction the deviation (um) against the angle (deg)
     with the common least-squares centre and the mean radius removed, and the fitted model
     on the same footing (the fitted ellipse), averaged into ``bins`` angle bins."""
+    runs = [r.captured() for r in runs]
     theta = np.concatenate([r.theta for r in runs])
     dev = np.concatenate([r.dev for r in runs])
     _, coef = _lsc(theta, dev)
-    model = Model(geom, runs, "dT" in f.values, "sm" in f.values, None, "drift" in f.values)
+    model = Model(geom, runs, "dT" in f.values, "sm" in f.values, None, "drift" in f.values,
+                  f.fixed, f.t_ref)
     names = [n for n in model.names if n in f.values]
     model.names = names
     pred = model.predict(np.array([f.values[n] for n in names]))

@@ -6,7 +6,8 @@ Geometry and signs (A, B = the plane's first and second axis; angle t from +A to
 * squareness ``alpha`` (rad, reported in um/m): actual A = A + alpha*B (KinComp's ``xy``/``xz``/
   ``yz``); first-order signature ``(alpha R / 2) sin 2t``, the same in both directions;
 * scale mismatch ``ds = sA - sB`` (reported in ppm): ``R ds/2 cos 2t``; the mean scale ``sm``
-  only shows in the mean radius (fitted only for a calibrated bar);
+  only shows in the mean radius: fitted instead of the radius offset ``r0`` for a calibrated
+  bar (whose length is known), otherwise ``r0`` holds both it and the bar's length error;
 * servo mismatch ``dT = TA - TB`` (s, reported in ms): the A drive is ``dT * vA`` further
   behind than B, with ``vA, vB`` the commanded velocities of the planned motion at each sample
   (``-w v sin t, w v cos t`` at constant speed), so it flips with the direction;
@@ -15,7 +16,10 @@ Geometry and signs (A, B = the plane's first and second axis; angle t from +A to
 * straightness (bow) ``e_B = kA A^2``, ``e_A = kB B^2`` about the centre: the 3-theta terms that
   partial (220 deg) arcs need to keep the scale mismatch unbiased;
 * ``drift`` (mm/s): a bar length change linear in time (thermal drift), when sample times are
-  known; ``r0``, ``dA``, ``dB``: radius and centre offsets (set-up, discarded).
+  known; ``r0``, ``dA``, ``dB``: radius and centre offsets (set-up, discarded);
+* out of the plane (fixed, not fitted from one test): the third axis moves by
+  ``oA (1+sA) A + oB (1+sB) B`` (e.g. in YZ, X = xy*Y + xz*Z), which lengthens the bar by the
+  second order; a campaign's joint fit ties ``oA, oB`` to the squareness of the other planes.
 
 The fit is a joint least-squares fit of both directions with one common centre, iterated on the
 exact geometry (Gauss-Newton with the exact model and its numerical Jacobian). Samples within
@@ -50,10 +54,21 @@ class Run:
     t: Optional[np.ndarray] = None  # s, sample time (measured, or planned for angle traces)
     vA: Optional[np.ndarray] = None  # mm/s, commanded velocity of axis A (planned motion)
     vB: Optional[np.ndarray] = None
+    capture: Optional[np.ndarray] = None  # bool per sample: inside the capture arc (None: all)
+    start_theta: Optional[float] = None  # rad, where the arc started (a corner: masked)
 
     @property
     def w(self) -> int:
         return 1 if self.direction == "ccw" else -1
+
+    def captured(self) -> "Run":
+        """The samples inside the capture arc (what the ISO metrics evaluate)."""
+        if self.capture is None or self.capture.all():
+            return self
+        k = self.capture
+        pick = (lambda x: None if x is None else x[k])
+        return Run(self.direction, self.theta[k], self.dev[k], pick(self.t), pick(self.vA),
+                   pick(self.vB), None, self.start_theta)
 
 
 @dataclass
@@ -83,13 +98,16 @@ class Model:
     """Exact radial deviation (mm) of the circle test for a parameter vector."""
 
     def __init__(self, geom: Geometry, runs: Sequence[Run], fit_servo: bool,
-                 calibrated: bool, cyclic_pitch: Optional[float], fit_drift: bool = False):
+                 calibrated: bool, cyclic_pitch: Optional[float], fit_drift: bool = False,
+                 fixed: Optional[Dict[str, float]] = None, t_ref: Optional[float] = None):
         self.R = geom.radius
+        self.fixed = dict(fixed or {})
         v = geom.speed or 0.0
         self.names = list(BASE)
         if not fit_servo:
             self.names.remove("dT")
-        if calibrated:
+        if calibrated:  # the bar's length is known: the mean radius is the mean scale
+            self.names.remove("r0")
             self.names.append("sm")
         if fit_drift:
             self.names.append("drift")
@@ -108,11 +126,15 @@ class Model:
         self.vA = np.concatenate(vA)
         self.vB = np.concatenate(vB)
         t = np.concatenate(ts)
-        self.t = t - 0.5 * (t.min() + t.max()) if len(t) else t
+        if t_ref is None:
+            t_ref = 0.5 * (t.min() + t.max()) if len(t) else 0.0
+        self.t_ref = float(t_ref)
+        self.t = t - self.t_ref
         self._c, self._s = np.cos(self.theta), np.sin(self.theta)
 
     def predict(self, p: np.ndarray) -> np.ndarray:
-        P = dict(zip(self.names, p))
+        P = dict(self.fixed)
+        P.update(zip(self.names, p))
         R = self.R
         c, s = self._c, self._s
         A, B = R * c, R * s
@@ -130,7 +152,11 @@ class Model:
         sA, sB = sm + P["ds"] / 2, sm - P["ds"] / 2
         X = (1 + sA) * Ac + P["alpha"] * (1 + sB) * Bc - P["dA"]
         Y = (1 + sB) * Bc - P["dB"]
-        out = np.hypot(X, Y) - R + P["r0"]
+        if P.get("oA") or P.get("oB"):
+            Z = P.get("oA", 0.0) * (1 + sA) * Ac + P.get("oB", 0.0) * (1 + sB) * Bc
+            out = np.sqrt(X * X + Y * Y + Z * Z) - R + P.get("r0", 0.0)
+        else:
+            out = np.hypot(X, Y) - R + P.get("r0", 0.0)
         if "drift" in P:
             out = out + P["drift"] * self.t
         return out
@@ -162,6 +188,18 @@ def reversal_mask(theta: np.ndarray, w: np.ndarray, mask_deg: float) -> np.ndarr
     return keep
 
 
+def fit_mask(runs: Sequence[Run], mask_deg: float) -> np.ndarray:
+    """Samples the fit uses: the reversal mask, and ``mask_deg`` after the corner where an
+    arc starts (the feed-in corner reverses an axis too) when the run reaches back there."""
+    out = []
+    for r in runs:
+        keep = reversal_mask(r.theta, np.full(len(r.theta), r.w, dtype=float), mask_deg)
+        if r.start_theta is not None:
+            keep &= r.w * np.degrees(r.theta - r.start_theta) >= mask_deg
+        out.append(keep)
+    return np.concatenate(out) if out else np.zeros(0, dtype=bool)
+
+
 @dataclass
 class FitResult:
     values: Dict[str, float]
@@ -175,6 +213,8 @@ class FitResult:
     correlation_inflation: float = 1.0
     names: List[str] = field(default_factory=list)
     covariance: Optional[np.ndarray] = None  # of the values in ``names`` order
+    t_ref: float = 0.0  # s, the time the drift term is counted from
+    fixed: Dict[str, float] = field(default_factory=dict)
 
 
 def correlation_inflation(res_by_run: Sequence[np.ndarray]) -> float:
@@ -205,15 +245,16 @@ def covariance(J: np.ndarray, rms: float, dof: int, inflation: float) -> np.ndar
 
 def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
         calibrated: bool = False, cyclic_pitch: Optional[float] = None,
-        max_iter: int = 12, fit_drift: Optional[bool] = None) -> FitResult:
+        max_iter: int = 12, fit_drift: Optional[bool] = None,
+        fixed: Optional[Dict[str, float]] = None) -> FitResult:
     both = {r.direction for r in runs} == {"cw", "ccw"}
     has_v = all(r.vA is not None for r in runs)
     fit_servo = both and (bool(geom.speed) or has_v)
     if fit_drift is None:
         fit_drift = all(r.t is not None for r in runs)
-    model = Model(geom, runs, fit_servo, calibrated, cyclic_pitch, fit_drift)
+    model = Model(geom, runs, fit_servo, calibrated, cyclic_pitch, fit_drift, fixed)
     y = np.concatenate([r.dev for r in runs])
-    keep = reversal_mask(model.theta, model.w, mask_deg)
+    keep = fit_mask(runs, mask_deg)
     if keep.sum() < len(model.names) * 5:
         raise TraceError(Msg("too few samples left after masking the reversal points"))
     p = np.zeros(len(model.names))
@@ -249,6 +290,8 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
     out.sigma = {n: float(math.sqrt(max(cov[j, j], 0.0))) for j, n in enumerate(model.names)}
     out.covariance = cov
     out.names = list(model.names)
+    out.t_ref = model.t_ref
+    out.fixed = dict(model.fixed)
     return out
 
 
@@ -266,7 +309,7 @@ def diagnostic_values(v: Dict[str, float], radius: float) -> Dict[str, object]:
         "backlash_um": {"a_plus": v["bAp"] * 1e3, "a_minus": v["bAm"] * 1e3,
                         "b_plus": v["bBp"] * 1e3, "b_minus": v["bBm"] * 1e3},
         "centre_offset_um": {"a": v["dA"] * 1e3, "b": v["dB"] * 1e3},
-        "radius_offset_um": v["r0"] * 1e3,
+        "radius_offset_um": v.get("r0", 0.0) * 1e3,
         "straightness_um": {"a": v["kA"] * radius ** 2 * 1e3, "b": v["kB"] * radius ** 2 * 1e3},
     }
     if "sm" in v:

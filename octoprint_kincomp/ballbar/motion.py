@@ -255,6 +255,7 @@ class Plan:
     td: np.ndarray
     line: np.ndarray
     f: np.ndarray  # programmed speed (mm/s, before the axis caps)
+    vn: np.ndarray  # nominal speed (mm/s, the programmed one within the axis caps)
     end: np.ndarray  # final position
     settings: MotionSettings
 
@@ -422,7 +423,7 @@ def _plan_arrays(P0, P1, feed, line, wait, end, s: MotionSettings) -> Plan:
     dur = ta + tc + td
     t0 = np.concatenate([[0.0], np.cumsum(dur)[:-1]]) if n else np.zeros(0)
     return Plan(t0=t0, p0=P0, u=U, L=L, v0=v0, vc=vc, v1=v1, a=a, ta=ta, tc=tc, td=td,
-                line=line, f=feed / 60.0, end=end, settings=s)
+                line=line, f=feed / 60.0, vn=vn, end=end, settings=s)
 
 
 def _junction_v2(U, L, acc, vn2, stop, is_wait, s: MotionSettings) -> np.ndarray:

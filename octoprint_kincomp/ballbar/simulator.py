@@ -286,19 +286,17 @@ class Simulator:
 
     def run_program_angle(self, text: str, spec=None, prog_hash: str = "",
                           compensated_with: Optional[Params] = None) -> AngleTrace:
-        """The same run as an angle-domain trace: each capture sample at the nominal angle the
-        program commanded at that instant (what ballbar software exports). A program that
-        was compensated with ``compensated_with`` is mapped back to the nominal circle."""
+        """The same run as an angle-domain trace: each sample on the circle (capture and
+        overshoot arcs) at the nominal angle the program commanded at that instant (what
+        ballbar software exports). A program that was compensated with ``compensated_with``
+        is mapped back to the nominal circle."""
         spec, meta, plan, ts, u, vel, reading, runs = self._run(text, spec, prog_hash)
-        a, b = spec.axes
         rows: List[Tuple[str, float, float]] = []
         for direction, sel in runs:
             nominal = nominal_positions(plan, ts[sel], u[sel], compensated_with)
             theta, on_arc = arc_angles_of(nominal, spec, direction)
-            c0 = spec.start_deg
-            keep = on_arc & (theta >= c0 - 1e-9) & (theta <= c0 + spec.capture_deg + 1e-9)
-            rows.extend(zip([direction] * int(keep.sum()), theta[keep].tolist(),
-                            (reading[sel][keep] * 1e3).tolist()))
+            rows.extend(zip([direction] * int(on_arc.sum()), theta[on_arc].tolist(),
+                            (reading[sel][on_arc] * 1e3).tolist()))
         meta.pop("sample_rate_hz", None)
         return AngleTrace(meta=meta, rows=rows)
 

@@ -173,12 +173,16 @@ class PlannedTest:
             return cmd, vel
         return _undo_compensation(self.plan, ts, cmd, self.current), vel
 
-    def radial(self, ts: np.ndarray) -> np.ndarray:
-        """Planned distance from the circle (mm, in the plane): feed_in_mm .. 0."""
+    def radial(self, ts: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """Planned distance from the circle (mm, in the plane: feed_in_mm .. 0) and its rate
+        of change (mm/s)."""
         a, b = self.spec.axes
-        p, _ = self.nominal(ts)
+        p, v = self.nominal(ts)
         c = self.spec.centre
-        return np.hypot(p[:, a] - c[a], p[:, b] - c[b]) - self.spec.radius_mm
+        da, db = p[:, a] - c[a], p[:, b] - c[b]
+        rho = np.hypot(da, db)
+        rate = (da * v[:, a] + db * v[:, b]) / np.where(rho > 0, rho, 1.0)
+        return rho - self.spec.radius_mm, rate
 
 
 # ---------------------------------------------------------------------------------------
@@ -208,19 +212,45 @@ def _crossing_time(t: np.ndarray, r: np.ndarray, level: float, falling: bool,
 def _planned_crossing(test: PlannedTest, k0: int, k1: int, level: float) -> float:
     t0, t1 = test.span(k0, k1)
     ts = np.linspace(t0, t1, 400)
-    rp = test.radial(ts)
+    rp, _ = test.radial(ts)
     falling = rp[0] > rp[-1]
     tc = _crossing_time(ts, rp, level, falling)
     return t0 if tc is None else tc
 
 
-def _ramp_sse(test: PlannedTest, ramp: Ramp, tau: float) -> float:
-    """Residual sum of squares of ``reading = c0 + c1 * r_p(t - tau)`` (c0, c1 free)."""
-    rp = test.radial(ramp.t - tau)
+def _ramp_terms(test: PlannedTest, ramp: Ramp, tau: float):
+    """Residuals of ``reading = c0 + c1 * r_p(t - tau)`` (c0, c1 by least squares) and the
+    derivative of the residuals with respect to ``tau``, projected off the levels."""
+    rp, rate = test.radial(ramp.t - tau)
     M = np.stack([np.ones_like(rp), rp], axis=1)
     coef, *_ = np.linalg.lstsq(M, ramp.r, rcond=None)
     e = ramp.r - M @ coef
-    return float(e @ e)
+    g = coef[1] * rate  # d e / d tau
+    g = g - M @ np.linalg.lstsq(M, g, rcond=None)[0]
+    return e, g
+
+
+def _fit_tau(test: PlannedTest, ramps: List[Ramp], tau: float, iters: int = 8
+             ) -> Tuple[float, float]:
+    """Gauss-Newton on one time offset shared by ``ramps``; returns (tau, SSE)."""
+    for _ in range(iters):
+        num = den = 0.0
+        for ramp in ramps:
+            e, g = _ramp_terms(test, ramp, tau)
+            num += float(g @ e)
+            den += float(g @ g)
+        if den <= 0:
+            break
+        step = -num / den
+        step = max(-0.005, min(0.005, step))
+        tau += step
+        if abs(step) < 1e-8:
+            break
+    sse = 0.0
+    for ramp in ramps:
+        e, _ = _ramp_terms(test, ramp, tau)
+        sse += float(e @ e)
+    return tau, sse
 
 
 def _minimise(f, x0: float, half: float, step: float, tol: float = 2e-7) -> Tuple[float, float]:
@@ -306,15 +336,12 @@ def sync_run(test: PlannedTest, mr: MeasuredRun, common: bool) -> Sync:
     plan's timing between them is trusted: used to estimate the planner settings)."""
     fin, fout = mr.ramps
     tin0, tout0 = mr.tau0
-    step = max(2e-4, 0.5 * float(np.median(np.diff(fin.t))) if len(fin.t) > 1 else 2e-4)
     if common:
-        def f(tau):
-            return _ramp_sse(test, fin, tau) + _ramp_sse(test, fout, tau)
-        tau, sse = _minimise(f, 0.5 * (tin0 + tout0), 0.5 * abs(tout0 - tin0) + 0.006, step)
+        tau, sse = _fit_tau(test, [fin, fout], 0.5 * (tin0 + tout0))
         tau_in = tau_out = tau
     else:
-        tau_in, s1 = _minimise(lambda x: _ramp_sse(test, fin, x), tin0, 0.006, step)
-        tau_out, s2 = _minimise(lambda x: _ramp_sse(test, fout, x), tout0, 0.006, step)
+        tau_in, s1 = _fit_tau(test, [fin], tin0)
+        tau_out, s2 = _fit_tau(test, [fout], tout0)
         sse = s1 + s2
     t_in = test.span(*test.runs[mr.direction].feed_in)[1] + tau_in
     t_out = test.span(*test.runs[mr.direction].feed_out)[0] + tau_out
@@ -434,23 +461,49 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
     return geom, runs, mapping
 
 
+AT_SPEED = 0.98  # overshoot samples are fitted where the planned speed is this near nominal
+
+
 def _run_on_arc(test: PlannedTest, geom: Geometry, direction: str, tp: np.ndarray,
                 t: np.ndarray, r: np.ndarray) -> Run:
-    spec = test.spec
-    a, b = spec.axes
+    """The samples on the circle: the capture arc, and the overshoot arcs where the head runs
+    at its nominal speed (for the fit only; the ISO metrics use the capture arc)."""
     rp = test.runs[direction]
     blk = test.plan.block_at(tp)
     on_arc = (blk > rp.feed_in[1]) & (blk < rp.feed_out[0])
     pos, vel = test.nominal(tp)
-    c = spec.centre
+    theta = _angles(test, direction, pos)
+    return _arc_run(test, geom, direction, theta, r, t, tp, pos, vel, on_arc)
+
+
+def _angles(test: PlannedTest, direction: str, pos: np.ndarray) -> np.ndarray:
+    """Continuous nominal angles (rad) of positions, starting near the run's feed-in angle."""
+    a, b = test.spec.axes
+    c = test.spec.centre
     theta = np.unwrap(np.arctan2(pos[:, b] - c[b], pos[:, a] - c[a]))
-    a0 = math.radians(run_angles(spec, direction)[0])
+    a0 = math.radians(run_angles(test.spec, direction)[0])
     if len(theta):
         theta = theta + 2 * math.pi * round((a0 - theta[0]) / (2 * math.pi))
+    return theta
+
+
+def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarray,
+             dev: np.ndarray, t: np.ndarray, tp: np.ndarray, pos: np.ndarray, vel: np.ndarray,
+             on_arc: np.ndarray) -> Run:
+    """A run of the samples kept; the chords' sag (the commanded polyline runs up to
+    ``chord_error_um`` inside the circle) is taken off each reading."""
+    a, b = test.spec.axes
+    c = test.spec.centre
+    dev = dev - (np.hypot(pos[:, a] - c[a], pos[:, b] - c[b]) - test.spec.radius_mm)
     c0 = math.radians(geom.capture_start_deg)
     c1 = c0 + math.radians(geom.capture_deg)
-    keep = on_arc & (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
-    return Run(direction, theta[keep], r[keep], t[keep], vel[keep, a], vel[keep, b])
+    capture = (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
+    speed = np.hypot(vel[:, a], vel[:, b])
+    at_speed = speed >= AT_SPEED * test.plan.vn[test.plan.block_at(tp)]
+    keep = on_arc & (capture | at_speed)
+    start = math.radians(run_angles(test.spec, direction)[0])
+    return Run(direction, theta[keep], dev[keep], t[keep], vel[keep, a], vel[keep, b],
+               capture[keep], start)
 
 
 def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
@@ -487,14 +540,10 @@ def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
         t0 = test.span(*rp.feed_in)[1]
         t1 = test.span(*rp.feed_out)[0]
         tp = np.linspace(t0, t1, max(200, int((t1 - t0) * 1000)))
-        pos, _ = test.nominal(tp)
-        a, b = test.spec.axes
-        c = test.spec.centre
-        th = np.unwrap(np.arctan2(pos[:, b] - c[b], pos[:, a] - c[a]))
-        a0 = math.radians(run_angles(test.spec, d)[0])
-        th = th + 2 * math.pi * round((a0 - th[0]) / (2 * math.pi))
+        th = _angles(test, d, test.nominal(tp)[0])
         order = np.argsort(th)
         t_of = np.interp(theta, th[order], tp[order])
-        _, vel = test.plan.sample(t_of)
-        runs.append(Run(d, theta, dev, t_of, vel[:, a], vel[:, b]))
+        pos, vel = test.nominal(t_of)
+        on_arc = (theta >= th.min()) & (theta <= th.max())
+        runs.append(_arc_run(test, geom, d, theta, dev, t_of, t_of, pos, vel, on_arc))
     return geom, runs, Mapping(settings)

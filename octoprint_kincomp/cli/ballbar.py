@@ -89,22 +89,42 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def _pm(value, sigma) -> str:
+    return f"{value:10.2f}" + ("" if sigma is None else f" +- {sigma:.2f}")
+
+
+def diagnostic_lines(d) -> list:
+    """The fitted values of one test's diagnostics, with their 1-sigma uncertainties."""
+    u = d.get("uncertainty") or {}
+    lines = [f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
+             f"feed {d.get('feed_mm_min')} mm/min"]
+    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
+                      ("servo_mismatch_ms", "ms"), ("mean_scale_ppm", "ppm"),
+                      ("bar_drift_um_per_min", "um/min")):
+        if d.get(key) is not None:
+            lines.append(f"{key:22s} {_pm(d[key], u.get(key))} {unit}")
+    for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
+        if isinstance(d.get(key), dict):
+            sub = u.get(key) if isinstance(u.get(key), dict) else {}
+            lines.append(f"{key:22s} " + "  ".join(
+                f"{k} {v:.2f}" + (f" +- {sub[k]:.2f}" if sub.get(k) is not None else "")
+                for k, v in d[key].items()))
+    if d.get("hysteresis_um") is not None:
+        lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
+    return lines
+
+
 def format_diagnostics(result) -> str:
     d = result["diagnostics"]
     lines = []
     if d.get("simulated"):
         lines.append("SIMULATED data")
-    lines.append(f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
-                 f"feed {d.get('feed_mm_min')} mm/min")
-    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
-                      ("servo_mismatch_ms", "ms")):
-        if d.get(key) is not None:
-            lines.append(f"{key:22s} {d[key]:10.2f} {unit}")
-    for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
-        if isinstance(d.get(key), dict):
-            lines.append(f"{key:22s} " + "  ".join(f"{k} {v:.2f}" for k, v in d[key].items()))
-    if d.get("hysteresis_um") is not None:
-        lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
+    if "campaign" in d:
+        lines += format_campaign(d)
+    else:
+        lines += diagnostic_lines(d)
+        if d.get("uncertainty"):
+            lines.append("(+- : 1-sigma uncertainty from the fit's covariance and the noise)")
     lines.append("")
     lines.append("firmware equivalents:")
     for fam in ("marlin", "klipper", "reprapfirmware"):
