@@ -59,8 +59,10 @@ class TestSpec:
     mount_pause: bool = False
     requested_feed_mm_min: Optional[float] = None  # before capping (for the record)
     params_hash: Optional[str] = None  # of the parameters active when it runs (read back)
-    campaign: Optional[str] = None  # campaign id and "step/steps" (see campaign.py)
+    printer: Optional[str] = None  # printer name (campaign checks: one printer)
+    campaign: Optional[str] = None  # campaign id, this test's name and all tests' names
     campaign_step: Optional[str] = None
+    campaign_tests: Optional[str] = None
 
     def __post_init__(self):
         self.plane = str(self.plane).upper()
@@ -120,9 +122,12 @@ class TestSpec:
             "travel_feed_mm_min": f"{self.travel_feed_mm_min:g}",
             "mount_pause": "true" if self.mount_pause else "false",
         }
+        if self.printer:
+            out["printer"] = self.printer
         if self.campaign:
             out["campaign"] = self.campaign
             out["campaign_step"] = self.campaign_step or ""
+            out["campaign_tests"] = self.campaign_tests or ""
         return out
 
 
@@ -297,8 +302,10 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
         travel_feed_mm_min=float(meta.get("travel_feed_mm_min", 3000.0)),
         mount_pause=meta.get("mount_pause", "false") == "true",
         params_hash=meta.get("params_hash") or None,
+        printer=meta.get("printer") or None,
         campaign=meta.get("campaign") or None,
         campaign_step=meta.get("campaign_step") or None,
+        campaign_tests=meta.get("campaign_tests") or None,
     )
     return spec, meta.get("program_hash", "")
 

@@ -36,7 +36,7 @@ from ..core.params import AXES, Params
 from .formats import AngleTrace, NativeTrace, TraceError, meta_centre, meta_float, meta_plane
 from .model import Geometry, Run
 from .motion import Blocks, MotionSettings, Plan, program_blocks_of
-from .program import ProgramError, TestSpec, generate, run_angles
+from .program import ProgramError, TestSpec, arc_angles, generate, run_angles
 
 A_GRID = np.geomspace(100.0, 30000.0, 11)  # mm/s^2, estimation grid
 JD_GRID = np.geomspace(0.002, 0.3, 7)  # mm
@@ -461,6 +461,20 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
     return geom, runs, mapping
 
 
+def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:
+    """How far (mm) the program's chords run inside the circle at nominal angles ``theta``
+    (rad): ``R - R cos(d/2) / cos(t - t_mid)`` on the chord from ``t_mid - d/2`` to
+    ``t_mid + d/2``."""
+    a0, sweep = run_angles(spec, direction)
+    ends = np.radians(np.array([a0] + arc_angles(spec, a0, sweep)))
+    ends = np.sort(ends)
+    i = np.clip(np.searchsorted(ends, theta) - 1, 0, len(ends) - 2)
+    half = 0.5 * (ends[i + 1] - ends[i])
+    mid = ends[i] + half
+    R = spec.radius_mm
+    return R - R * np.cos(half) / np.cos(np.clip(theta - mid, -half, half))
+
+
 AT_SPEED = 0.98  # overshoot samples are fitted where the planned speed is this near nominal
 
 
@@ -490,11 +504,10 @@ def _angles(test: PlannedTest, direction: str, pos: np.ndarray) -> np.ndarray:
 def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarray,
              dev: np.ndarray, t: np.ndarray, tp: np.ndarray, pos: np.ndarray, vel: np.ndarray,
              on_arc: np.ndarray) -> Run:
-    """A run of the samples kept; the chords' sag (the commanded polyline runs up to
+    """A run of the samples kept; the chords' sag (the program's polyline runs up to
     ``chord_error_um`` inside the circle) is taken off each reading."""
     a, b = test.spec.axes
-    c = test.spec.centre
-    dev = dev - (np.hypot(pos[:, a] - c[a], pos[:, b] - c[b]) - test.spec.radius_mm)
+    dev = dev + chord_sag(test.spec, direction, theta)
     c0 = math.radians(geom.capture_start_deg)
     c1 = c0 + math.radians(geom.capture_deg)
     capture = (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
