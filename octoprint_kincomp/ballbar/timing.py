@@ -353,6 +353,8 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
     explain the runs' ramps and the time between them (grid, then golden refinement)."""
     base = MotionSettings()
 
+    n = sum(len(r.t) for mr in measured for r in mr.ramps)
+
     def cost(settings: MotionSettings) -> float:
         test.use(settings)
         total = 0.0
@@ -361,14 +363,19 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
             total += sync_run(test, mr2, common=True).sse
         return total
 
-    best = (cost(base.with_(constant_speed=True)), base.with_(constant_speed=True))
-    grid = {}
+    const = base.with_(constant_speed=True)
+    c_const = cost(const)
+    best = (math.inf, const)
     for a in A_GRID:
         for jd in JD_GRID:
             s = base.with_(accel_mm_s2=float(a), junction_deviation_mm=float(jd))
-            grid[(a, jd)] = c = cost(s)
+            c = cost(s)
             if c < best[0]:
                 best = (c, s)
+    # a planner must explain the ramps clearly better than constant speed (two more
+    # parameters: a likelihood-ratio margin of 10 noise variances)
+    if c_const - best[0] <= 10.0 * min(c_const, best[0]) / max(n, 1):
+        best = (c_const, const)
     if not best[1].constant_speed:
         la, lj = math.log(best[1].accel_mm_s2), math.log(best[1].junction_deviation_mm)
         da, dj = math.log(A_GRID[1] / A_GRID[0]), math.log(JD_GRID[1] / JD_GRID[0])
@@ -455,7 +462,7 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
     runs = []
     for mr in mruns:
         sync = sync_run(test, mr, common=False)
-        mapping.sync_ms[mr.direction] = (sync.tau_out - sync.tau_in) * 1e3
+        mapping.sync_ms[mr.direction] = float(sync.tau_out - sync.tau_in) * 1e3
         tp = mr.t - sync.tau(mr.t)
         runs.append(_run_on_arc(test, geom, mr.direction, tp, mr.t, mr.r))
     return geom, runs, mapping
