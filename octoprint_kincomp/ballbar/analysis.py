@@ -116,6 +116,12 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
                             mapping)
         plot = plot_data(geom, runs, f, diag)
         notes += mapping_notes(mapping)
+        measured_with = trace.meta.get("params_hash", "").strip()
+        if measured_with not in ("", "none", "-") and measured_with != current.hash():
+            notes.append(Msg("The trace was measured with parameters %(hash)s, but the "
+                             "analysis assumes %(current)s were in force: give the parameters "
+                             "that were active during the test, or the residuals are wrong.",
+                             hash=measured_with, current=current.hash()))
         if not calibrated:
             notes.append(Msg("The bar is not calibrated: the mean radius mixes the bar's own "
                              "length error with the mean axis scale, so only the scale "

@@ -239,7 +239,7 @@ def joint_fit(traces: Sequence[TraceFit], mask_deg: float, calibrated: bool,
             break
     cov = np.linalg.pinv(Ns) / np.outer(scale, scale)
     ev = np.linalg.eigvalsh(Ns)
-    cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+    cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else None  # None: singular
     rms = {}
     local = {}
     for i, t in enumerate(traces):

@@ -117,14 +117,19 @@ class Model:
         self.geom = geom
         self.theta = np.concatenate([r.theta for r in runs])
         self.w = np.concatenate([np.full(len(r.theta), r.w, dtype=float) for r in runs])
-        vA, vB, ts = [], [], []
+        vA, vB, ts, dA, dB = [], [], [], [], []
         for r in runs:
             s, c = np.sin(r.theta), np.cos(r.theta)
             vA.append(r.vA if r.vA is not None else -r.w * v * s)
             vB.append(r.vB if r.vB is not None else r.w * v * c)
+            # travel direction of each axis (also known when the feed is not)
+            dA.append(np.sign(r.vA) if r.vA is not None else np.sign(-r.w * s))
+            dB.append(np.sign(r.vB) if r.vB is not None else np.sign(r.w * c))
             ts.append(r.t if r.t is not None else np.zeros(len(r.theta)))
         self.vA = np.concatenate(vA)
         self.vB = np.concatenate(vB)
+        self.dirA = np.concatenate(dA)
+        self.dirB = np.concatenate(dB)
         t = np.concatenate(ts)
         if t_ref is None:
             t_ref = 0.5 * (t.min() + t.max()) if len(t) else 0.0
@@ -141,8 +146,8 @@ class Model:
         vA, vB = self.vA, self.vB
         bA = P["bAm"] + (P["bAp"] - P["bAm"]) * (1 + c) / 2
         bB = P["bBm"] + (P["bBp"] - P["bBm"]) * (1 + s) / 2
-        Ac = A - np.sign(vA) * bA / 2 - P.get("dT", 0.0) * vA + P["kB"] * B * B
-        Bc = B - np.sign(vB) * bB / 2 + P["kA"] * A * A
+        Ac = A - self.dirA * bA / 2 - P.get("dT", 0.0) * vA + P["kB"] * B * B
+        Bc = B - self.dirB * bB / 2 + P["kA"] * A * A
         if self.cyclic_pitch:
             ca, cb = self.geom.centre[self.geom.axes[0]], self.geom.centre[self.geom.axes[1]]
             k = 2 * math.pi / self.cyclic_pitch
@@ -260,7 +265,11 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
     p = np.zeros(len(model.names))
     it = 0
     for it in range(1, max_iter + 1):
-        r = (y - model.predict(p))[keep]
+        with np.errstate(all="ignore"):
+            r = (y - model.predict(p))[keep]
+        if not np.all(np.isfinite(r)):
+            p = p * np.nan
+            break
         if it <= 3:  # the model is mildly non-linear: later steps reuse the Jacobian
             J = model.jacobian(p, keep)
             # column scaling for a meaningful condition number and a stable solve
@@ -272,8 +281,11 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
         p = p + step
         if np.max(np.abs(step * scale)) < 1e-10:
             break
+    if not np.all(np.isfinite(p)):
+        raise TraceError(Msg("the fit does not converge: the readings do not look like this "
+                             "test (check the metadata: plane, radius, feed, angles)"))
     ev = np.linalg.eigvalsh(N)
-    cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+    cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else None  # None: singular
     res = y - model.predict(p)
     rms = float(np.sqrt(np.mean(res[keep] ** 2)))
     values = dict(zip(model.names, p.tolist()))

@@ -87,9 +87,10 @@ class TestSpec:
             self.start_deg = 0.0 if self.plane == "XY" else -20.0
         if not (10.0 <= float(self.capture_deg) <= 360.0):
             raise ProgramError(Msg("capture_deg must be within 10..360"))
-        for d in self.directions:
-            if d not in ("ccw", "cw"):
-                raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
+        self.directions = tuple(self.directions)
+        if not self.directions or len(set(self.directions)) != len(self.directions) or \
+                any(d not in ("ccw", "cw") for d in self.directions):
+            raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
 
     @property
     def axes(self) -> Tuple[int, int]:

@@ -423,7 +423,7 @@ def _planned_test(meta: Dict[str, str], current: Optional[Params]) -> PlannedTes
 def _settings_from_meta(meta: Dict[str, str]) -> Optional[MotionSettings]:
     try:
         return MotionSettings.from_metadata(meta)
-    except (ValueError, Exception) as exc:  # ParamsError is a ValueError
+    except ValueError as exc:  # ParamsError is a ValueError
         key = getattr(exc, "field", None) or (exc.args[0] if exc.args else "motion")
         raise TraceError(Msg("metadata '%(key)s' is not valid", key=str(key))) from None
 
