@@ -253,3 +253,16 @@ def test_joint_identification_whole_machine(accel, domain):
         j = t["joint"]
         plane_sq = e.squareness_um_per_m[t["plane"].lower()]
         assert abs(j["squareness_um_per_m"] - plane_sq) <= max(0.02 * abs(plane_sq), 5.0)
+
+
+def test_calibrated_bar_gives_absolute_scales(small):
+    """With a bar of known length the mean radius of each test measures the mean scale of its
+    two axes, so the campaign fits absolute per-axis scales (not just differences)."""
+    _, truth, items = small
+    out = analyse_campaign(items, calibrated=True)
+    c = out["diagnostics"]["campaign"]
+    assert c["scale_rule"].startswith("absolute")
+    for axis, v in c["scale_ppm"].items():
+        want = truth.errors.scale_ppm[axis]
+        assert abs(v - want) < max(3 * c["uncertainty"]["scale_ppm"][axis], 1.0), (axis, v)
+    assert out["parameters"]["scale_ppm"]["z"] == pytest.approx(150.0, abs=8)

@@ -94,3 +94,34 @@ def test_old_constant_speed_traces_stay_readable():
     assert d["servo_mismatch_ms"] == pytest.approx(0.5, abs=0.02)
     assert d["fit"]["motion"]["motion"] == "constant_speed"
     assert any("constant speed" in n for n in out["notes"])
+
+
+def test_angle_output_of_a_compensated_run(tmp_path):
+    """simulate --angle maps a compensated program back to the nominal circle; native and
+    angle traces of that re-test agree on the (near zero) residuals."""
+    import json
+
+    from octoprint_kincomp.ballbar.closedloop import compensate_text
+    from octoprint_kincomp.ballbar.formats import AngleTrace
+    from octoprint_kincomp.ballbar.program import body_hash
+    from octoprint_kincomp.ballbar.simulator import simulate_angle_trace, volume_truth
+    from octoprint_kincomp.cli import main
+
+    truth = volume_truth(noise_um=0.3, sample_rate_hz=250)
+    first = analyse(simulate_program(generate(SMALL), truth))
+    params = Params.from_dict(first["parameters"])
+    sent = compensate_text(generate(SMALL), params)
+    native = analyse(simulate_program(sent, truth, SMALL, body_hash(SMALL)), current=params)
+    angle = analyse(simulate_angle_trace(sent, truth, SMALL, body_hash(SMALL),
+                                         compensated_with=params), current=params)
+    for d in (native["diagnostics"], angle["diagnostics"]):
+        assert abs(d["squareness_um_per_m"]) < 5 and abs(d["scale_mismatch_ppm"]) < 5
+        assert max(abs(v) for v in d["backlash_um"].values()) < 1.0
+    prog, tr, out = tmp_path / "p.gcode", tmp_path / "t.json", tmp_path / "a.csv"
+    prog.write_text(generate(SMALL))
+    tr.write_text(json.dumps({"errors": {"squareness_um_per_m": {"xy": 300}},
+                              "accel_mm_s2": 800, "sample_rate_hz": 100}))
+    assert main(["simulate", str(prog), "--truth", str(tr), "--angle", "-o", str(out)]) == 0
+    trace = parse_csv_trace(out.read_text())
+    assert isinstance(trace, AngleTrace) and trace.meta["accel_mm_s2"] == "800"
+    assert analyse(trace)["diagnostics"]["squareness_um_per_m"] == pytest.approx(300, abs=6)
