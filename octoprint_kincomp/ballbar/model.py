@@ -143,7 +143,7 @@ class Model:
         R = self.R
         c, s = self._c, self._s
         A, B = R * c, R * s
-        vA, vB = self.vA, self.vB
+        vA = self.vA
         bA = P["bAm"] + (P["bAp"] - P["bAm"]) * (1 + c) / 2
         bB = P["bBm"] + (P["bBp"] - P["bBm"]) * (1 + s) / 2
         Ac = A - self.dirA * bA / 2 - P.get("dT", 0.0) * vA + P["kB"] * B * B
