@@ -58,6 +58,11 @@ class TestSpec:
     directions: Tuple[str, ...] = ("ccw", "cw")
     mount_pause: bool = False
     requested_feed_mm_min: Optional[float] = None  # before capping (for the record)
+    params_hash: Optional[str] = None  # of the parameters active when it runs (read back)
+    printer: Optional[str] = None  # printer name (campaign checks: one printer)
+    campaign: Optional[str] = None  # campaign id, this test's name and all tests' names
+    campaign_step: Optional[str] = None
+    campaign_tests: Optional[str] = None
 
     def __post_init__(self):
         self.plane = str(self.plane).upper()
@@ -82,9 +87,10 @@ class TestSpec:
             self.start_deg = 0.0 if self.plane == "XY" else -20.0
         if not (10.0 <= float(self.capture_deg) <= 360.0):
             raise ProgramError(Msg("capture_deg must be within 10..360"))
-        for d in self.directions:
-            if d not in ("ccw", "cw"):
-                raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
+        self.directions = tuple(self.directions)
+        if not self.directions or len(set(self.directions)) != len(self.directions) or \
+                any(d not in ("ccw", "cw") for d in self.directions):
+            raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
 
     @property
     def axes(self) -> Tuple[int, int]:
@@ -99,19 +105,31 @@ class TestSpec:
         return (p[0], p[1], p[2])
 
     def metadata(self) -> Dict[str, str]:
-        """The trace metadata this program implies (see formats.py)."""
-        return {
+        """The trace metadata this program implies (see formats.py); every value the program
+        body depends on, so that the program can be regenerated from a trace."""
+        out = {
             "plane": self.plane,
-            "radius_mm": f"{self.radius_mm:g}",
-            "feed_mm_min": f"{self.feed_mm_min:g}",
-            "centre": ",".join(f"{v:g}" for v in self.centre),
+            "radius_mm": f"{self.radius_mm:.10g}",
+            "feed_mm_min": f"{self.feed_mm_min:.10g}",
+            "centre": ",".join(f"{v:.10g}" for v in self.centre),
             "feed_in_mm": f"{self.feed_in_mm:g}",
             "overshoot_deg": f"{self.overshoot_deg:g}",
             "capture_deg": f"{self.capture_deg:g}",
             "start_deg": f"{self.start_deg:g}",
             "dwell_s": f"{self.dwell_s:g}",
             "directions": ",".join(self.directions),
+            "chord_error_um": f"{self.chord_error_um:g}",
+            "lift_mm": f"{self.lift_mm:g}",
+            "travel_feed_mm_min": f"{self.travel_feed_mm_min:g}",
+            "mount_pause": "true" if self.mount_pause else "false",
         }
+        if self.printer:
+            out["printer"] = self.printer
+        if self.campaign:
+            out["campaign"] = self.campaign
+            out["campaign_step"] = self.campaign_step or ""
+            out["campaign_tests"] = self.campaign_tests or ""
+        return out
 
 
 def cap_feed(feed: float, plane: str, max_feed_mm_min: Optional[Dict[str, float]]) -> float:
@@ -255,6 +273,7 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
         header.append(f"; feed capped from {spec.requested_feed_mm_min:g} mm/min "
                       "to the slowest axis' max feed")
     header += [f"; ballbar {k}: {v}" for k, v in meta.items()]
+    header.append(f"; ballbar params_hash: {params_hash}")
     header.append(f"; ballbar program_hash: {prog_hash}")
     return "\n".join(header) + "\n" + body_text
 
@@ -279,8 +298,27 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
         start_deg=float(meta["start_deg"]),
         dwell_s=float(meta.get("dwell_s", 1.0)),
         directions=tuple(meta.get("directions", "ccw,cw").split(",")),
+        chord_error_um=float(meta.get("chord_error_um", 0.5)),
+        lift_mm=float(meta.get("lift_mm", 10.0)),
+        travel_feed_mm_min=float(meta.get("travel_feed_mm_min", 3000.0)),
+        mount_pause=meta.get("mount_pause", "false") == "true",
+        params_hash=meta.get("params_hash") or None,
+        printer=meta.get("printer") or None,
+        campaign=meta.get("campaign") or None,
+        campaign_step=meta.get("campaign_step") or None,
+        campaign_tests=meta.get("campaign_tests") or None,
     )
     return spec, meta.get("program_hash", "")
+
+
+def body_hash(spec: TestSpec) -> str:
+    """The program hash of the test ``spec`` describes (the body does not depend on the date,
+    the params hash or the campaign)."""
+    text = generate(spec, date="-")
+    for line in text.splitlines()[:60]:
+        if line.startswith("; ballbar program_hash:"):
+            return line.split(":", 1)[1].strip()
+    return ""  # pragma: no cover - generate always writes it
 
 
 def spec_dict(spec: TestSpec) -> dict:

@@ -1,16 +1,23 @@
 """A printer with known ("true") errors and a virtual ballbar. All output is SIMULATED.
 
-The printer executes G-code with :class:`~..machine.FirmwareInterpreter` at constant speed
-(each move at its feed, no acceleration: a stated simplification), then applies, per axis and
-in this order: a first-order servo lag ``T`` (the drive follows the command, ``v*T`` behind at
-steady speed), the play of the drive (backlash, possibly different along the axis), reversal
-spikes (an extra lag decaying with the path travelled after each reversal), cyclic error, and
-finally the HTM kinematic model of the true errors (squareness, scale, straightness ...).
+The printer executes G-code like a firmware (:class:`~..machine.FirmwareInterpreter`) and
+moves the way its planner makes it move (:mod:`.motion`: trapezoidal velocity with
+acceleration, junction speeds, full stops at ``M400``/``G4``, per-axis feed caps; the former
+constant-speed motion only when the truth asks for ``"motion": "constant_speed"``). Then, per
+axis and in this order: optional stepper quantisation (the commanded position rounded to whole
+steps), a first-order servo lag ``T`` acting on the planned motion (the drive is ``v*T``
+behind at steady speed), the play of the drive (backlash, possibly different along the axis),
+reversal spikes (an extra lag decaying with the path travelled after each reversal), cyclic
+error, and finally the HTM kinematic model of the true errors (squareness, scale,
+straightness ...).
 
 The virtual ballbar has its pivot where the printer really puts the commanded centre (plus a
 set-up offset) and samples ``reading = |nozzle - pivot| - L`` (mm, positive = longer) at
-``sample_rate_hz`` with Gaussian noise. ``L`` is the nominal radius plus the bar's own length
-error (unknown to an uncalibrated bar).
+``sample_rate_hz`` with Gaussian noise, plus an optional thermal drift of the bar (um/min,
+positive = the bar grows, linear in time from the program's start). ``L`` is the nominal
+radius plus the bar's own length error (unknown to an uncalibrated bar).
+
+Units: mm, s; lags in ms, play and noise in um, drift in um/min, steps per mm.
 """
 
 from __future__ import annotations
@@ -18,24 +25,27 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Dict, Iterable, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from ..core.backlash import Play
 from ..core.kinematics import KinematicModel
-from ..core.machine import Dwell, FirmwareInterpreter, Move
 from ..core.messages import Msg
 from ..core.params import AXES, Params, ParamsError
-from .formats import NativeTrace
-from .program import END_MARKER, RUN_MARKER, ProgramError, spec_from_program
+from .formats import AngleTrace, NativeTrace
+from .motion import MotionSettings, Plan, plan_program
+from .program import END_MARKER, RUN_MARKER, ProgramError, run_angles, spec_from_program
+from .timing import nominal_positions
 
 SIMULATED_LABEL = "SIMULATED data (KinComp printer + ballbar simulator), not a measurement"
+MOTION_KEYS = ("motion", "accel_mm_s2", "junction_deviation_mm", "square_corner_velocity_mm_s",
+               "max_feed_mm_min", "max_accel_mm_s2", "constant_speed")
 
 
 @dataclass
 class Truth:
-    """The simulated printer's true errors (see the module docstring for the physics)."""
+    """The simulated printer's true errors and motion (see the module docstring)."""
 
     errors: Params = field(default_factory=Params)
     servo_lag_ms: Dict[str, float] = field(default_factory=lambda: {a: 0.0 for a in AXES})
@@ -47,6 +57,9 @@ class Truth:
     bar_length_error_um: float = 0.0
     sample_rate_hz: float = 500.0
     seed: int = 1
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    steps_per_mm: Dict[str, float] = field(default_factory=dict)  # empty: no quantisation
+    bar_drift_um_per_min: float = 0.0
 
     @staticmethod
     def from_dict(d: dict) -> "Truth":
@@ -55,7 +68,8 @@ class Truth:
         if "errors" not in d:  # a plain params document: errors only
             return Truth(errors=Params.from_dict(d))
         allowed = {"errors", "servo_lag_ms", "cyclic", "reversal_spikes", "noise_um",
-                   "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed"}
+                   "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed",
+                   "steps_per_mm", "bar_drift_um_per_min"} | set(MOTION_KEYS)
         for k in d:
             if k not in allowed:
                 raise ParamsError(k, Msg("unknown key (allowed: %(allowed)s)",
@@ -76,6 +90,17 @@ class Truth:
         t.seed = int(d.get("seed", 1))
         if not (10 <= t.sample_rate_hz <= 20000):
             raise ParamsError("sample_rate_hz", Msg("must be within 10..20000"))
+        t.motion = MotionSettings.from_dict({k: d[k] for k in MOTION_KEYS if k in d})
+        for a, v in (d.get("steps_per_mm") or {}).items():
+            if a not in AXES:
+                raise ParamsError(f"steps_per_mm.{a}", Msg("unknown axis (allowed: x, y, z)"))
+            v = float(v)
+            if not (0.0 < v <= 1e6):
+                raise ParamsError(f"steps_per_mm.{a}", Msg("must be within 0..1000000"))
+            t.steps_per_mm[a] = v
+        t.bar_drift_um_per_min = float(d.get("bar_drift_um_per_min", 0.0))
+        if not (abs(t.bar_drift_um_per_min) <= 1000.0):
+            raise ParamsError("bar_drift_um_per_min", Msg("must be within -1000..1000"))
         return t
 
     @staticmethod
@@ -108,59 +133,37 @@ def paper_truth(**overrides) -> Truth:
     return t
 
 
-class _Timeline:
-    """Piecewise-linear commanded position u(t) of a program at constant speed per move."""
-
-    def __init__(self, events: Iterable, start: Tuple[float, float, float]):
-        times = [0.0]
-        pts = [tuple(start)]
-        lines = [0]
-        t = 0.0
-        for ev in events:
-            if isinstance(ev, Move):
-                length = math.dist(ev.start, ev.end)
-                if length == 0.0:
-                    continue
-                if math.dist(ev.start, pts[-1]) > 1e-12:  # position jumped (homing, ...)
-                    times.append(t)
-                    pts.append(tuple(ev.start))
-                    lines.append(ev.lineno)
-                t += length / (ev.feed / 60.0)
-                times.append(t)
-                pts.append(tuple(ev.end))
-                lines.append(ev.lineno)
-            elif isinstance(ev, Dwell):
-                t += ev.seconds
-                times.append(t)
-                pts.append(pts[-1])
-                lines.append(ev.lineno)
-        self.t = np.array(times)
-        self.p = np.array(pts)
-        self.line = np.array(lines)
-        self.duration = t
-
-    def at(self, ts: np.ndarray) -> np.ndarray:
-        return np.stack([np.interp(ts, self.t, self.p[:, k]) for k in range(3)], axis=1)
-
-    def line_at(self, ts: np.ndarray) -> np.ndarray:
-        idx = np.searchsorted(self.t, ts, side="right")
-        return self.line[np.clip(idx, 0, len(self.line) - 1)]
+def volume_truth(**overrides) -> Truth:
+    """The paper's machine extended to the whole volume (issue 12): squareness xy -3638.6,
+    xz +800, yz -500 um/m; scale X -451.7, Y +287, Z +150 ppm; backlash X 37.4/4.4 um at the
+    -X/+X ends (x = 10/210 mm), Y 5.4/11.3 at -Y/+Y, Z 8 um; servo lag X 0.62 ms, Z 0.3 ms."""
+    t = paper_truth()
+    t.errors = Params.from_dict({
+        "squareness_um_per_m": {"xy": -3638.6, "xz": 800.0, "yz": -500.0},
+        "scale_ppm": {"x": -451.7, "y": 287.0, "z": 150.0},
+        "backlash": {"x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
+                     "y": [{"at_mm": 10.0, "um": 5.4}, {"at_mm": 210.0, "um": 11.3}],
+                     "z": 8.0},
+    })
+    t.servo_lag_ms = {"x": 0.62, "y": 0.0, "z": 0.3}
+    for k, v in overrides.items():
+        setattr(t, k, v)
+    return t
 
 
 def _servo(u: np.ndarray, dt: float, lag_s: float) -> np.ndarray:
-    """First-order lag of a sampled, piecewise-linear input (exact between samples)."""
-    if lag_s <= 0:
+    """First-order lag of a sampled input, exact for an input linear between samples.
+
+    The error ``e = y - u`` obeys ``e[n+1] = a e[n] - (1 - a) T du[n]/dt`` with
+    ``a = exp(-dt/T)``; it is summed as a convolution truncated where ``a^k < 1e-17``."""
+    if lag_s <= 0 or len(u) < 2:
         return u.copy()
     a = math.exp(-dt / lag_s)
-    y = np.empty_like(u)
-    y[0] = u[0]
-    d = np.diff(u) / dt  # slope of each interval
-    yy = u[0]
-    for n in range(len(u) - 1):
-        tv = lag_s * d[n]
-        yy = u[n + 1] - tv + (yy - u[n] + tv) * a
-        y[n + 1] = yy
-    return y
+    b = -(1.0 - a) * lag_s * np.diff(u) / dt
+    m = 1 if a <= 0 else int(math.ceil(math.log(1e-17) / math.log(a)))
+    m = max(1, min(m, len(b)))
+    e = np.convolve(b, a ** np.arange(m))[:len(b)]
+    return u + np.concatenate([[0.0], e])
 
 
 class Simulator:
@@ -170,19 +173,22 @@ class Simulator:
         self.truth = truth
         self.model = KinematicModel(truth.errors)
 
-    def actual_path(self, ts: np.ndarray, timeline: _Timeline) -> np.ndarray:
-        """Actual nozzle positions (mm) at times ``ts``."""
+    def actual_path(self, ts: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Actual nozzle positions (mm) at times ``ts`` for commanded positions ``u``."""
         tr = self.truth
         dt = float(ts[1] - ts[0]) if len(ts) > 1 else 1.0
-        u = timeline.at(ts)
+        u = u.copy()
+        for a, spm in tr.steps_per_mm.items():
+            k = AXES.index(a)
+            u[:, k] = np.round(u[:, k] * spm) / spm
         drive = np.stack(
             [_servo(u[:, k], dt, tr.servo_lag_ms.get(AXES[k], 0.0) * 1e-3) for k in range(3)],
             axis=1)
         play = Play(tr.errors)
-        carriage = np.empty_like(drive)
+        carriage = drive.copy()
         for k in range(3):
-            y = [play.carriage(k, v) for v in drive[:, k].tolist()]
-            carriage[:, k] = y
+            if not tr.errors.backlash[AXES[k]].is_zero:
+                carriage[:, k] = [play.carriage(k, v) for v in drive[:, k].tolist()]
         if tr.spike_um:
             carriage += self._spikes(drive)
         for a, (amp, pitch, phase) in tr.cyclic.items():
@@ -222,13 +228,7 @@ class Simulator:
                         out[n, k] = -direction * amp * math.exp(-travel / tr.spike_decay_mm)
         return out
 
-    def run_program(self, text: str, spec=None, prog_hash: str = "") -> NativeTrace:
-        """Simulate a KinComp ballbar program; returns the native time-series trace.
-
-        ``text`` may be the program as sent to a printer (comments stripped, line numbers,
-        compensated): runs are found by their ``M117`` markers; then ``spec`` (the test that
-        was generated) must be given.
-        """
+    def _run(self, text: str, spec, prog_hash: str):
         if spec is None:
             spec, prog_hash = spec_from_program(text)
         lines = [_strip_number(ln) for ln in text.splitlines()]
@@ -242,37 +242,94 @@ class Simulator:
                 end_line = i + 1
         if not run_starts:
             raise ProgramError(Msg("no ballbar runs found (no 'M117 Ballbar run' markers)"))
-        fw = FirmwareInterpreter(start=spec.centre)
-        events = list(fw.run(lines))
-        timeline = _Timeline(events, spec.centre)
         tr = self.truth
+        plan = plan_program(lines, spec.centre, tr.motion)
         fs = tr.sample_rate_hz
-        ts = np.arange(0.0, timeline.duration + 1e-9, 1.0 / fs)
-        actual = self.actual_path(ts, timeline)
+        ts = np.arange(0.0, plan.duration + 1e-9, 1.0 / fs)
+        u, vel = plan.sample(ts)
+        actual = self.actual_path(ts, u)
         centre_actual = np.array(self.model.forward(spec.centre))
         pivot = centre_actual + np.array(tr.setup_offset_um) * 1e-3
         length = spec.radius_mm + tr.bar_length_error_um * 1e-3
         reading = np.linalg.norm(actual - pivot, axis=1) - length
+        reading = reading + tr.bar_drift_um_per_min * 1e-3 / 60.0 * ts
         rng = np.random.default_rng(tr.seed)
         if tr.noise_um:
             reading = reading + rng.normal(0.0, tr.noise_um * 1e-3, size=reading.shape)
-        line_of = timeline.line_at(ts)
-        rows = []
+        line_of = plan.line_at(ts)
+        runs = []
         for idx, (ln, direction) in enumerate(run_starts):
             nxt = run_starts[idx + 1][0] if idx + 1 < len(run_starts) else end_line
-            sel = (line_of > ln) & (line_of < nxt)
-            for t, r in zip(ts[sel].tolist(), reading[sel].tolist()):
-                rows.append((direction, t, r))
+            runs.append((direction, np.nonzero((line_of > ln) & (line_of < nxt))[0]))
         meta = dict(spec.metadata())
         meta["sample_rate_hz"] = f"{fs:g}"
         meta["program_hash"] = prog_hash
+        if getattr(spec, "params_hash", None):
+            meta["params_hash"] = spec.params_hash
+        meta.update(tr.motion.metadata())
         meta["source"] = SIMULATED_LABEL
         meta["simulated"] = "true"
+        return spec, meta, plan, ts, u, vel, reading, runs
+
+    def run_program(self, text: str, spec=None, prog_hash: str = "") -> NativeTrace:
+        """Simulate a KinComp ballbar program; returns the native time-series trace.
+
+        ``text`` may be the program as sent to a printer (comments stripped, line numbers,
+        compensated): runs are found by their ``M117`` markers; then ``spec`` (the test that
+        was generated) must be given.
+        """
+        _, meta, _, ts, _, _, reading, runs = self._run(text, spec, prog_hash)
+        rows: List[Tuple[str, float, float]] = []
+        for direction, sel in runs:
+            rows.extend(zip([direction] * len(sel), ts[sel].tolist(), reading[sel].tolist()))
         return NativeTrace(meta=meta, rows=rows)
+
+    def run_program_angle(self, text: str, spec=None, prog_hash: str = "",
+                          compensated_with: Optional[Params] = None) -> AngleTrace:
+        """The same run as an angle-domain trace: each sample on the circle (capture and
+        overshoot arcs) at the nominal angle the program commanded at that instant (what
+        ballbar software exports). A program that was compensated with ``compensated_with``
+        is mapped back to the nominal circle."""
+        spec, meta, plan, ts, u, vel, reading, runs = self._run(text, spec, prog_hash)
+        rows: List[Tuple[str, float, float]] = []
+        for direction, sel in runs:
+            nominal = nominal_positions(plan, ts[sel], u[sel], compensated_with)
+            theta, on_arc = arc_angles_of(nominal, spec, direction)
+            rows.extend(zip([direction] * int(on_arc.sum()), theta[on_arc].tolist(),
+                            (reading[sel][on_arc] * 1e3).tolist()))
+        meta.pop("sample_rate_hz", None)
+        return AngleTrace(meta=meta, rows=rows)
+
+
+def arc_angles_of(nominal: np.ndarray, spec, direction: str, tol_mm: float = 0.003
+                  ) -> Tuple[np.ndarray, np.ndarray]:
+    """Nominal angles (deg, continuous from the run's feed-in angle) of positions (n, 3) and
+    whether each is on the circle (not on the radial feed-in/out)."""
+    a, b = spec.axes
+    da = nominal[:, a] - spec.centre[a]
+    db = nominal[:, b] - spec.centre[b]
+    theta = np.degrees(np.unwrap(np.arctan2(db, da)))
+    if len(theta):
+        a0 = run_angles(spec, direction)[0]
+        theta = theta + 360.0 * round((a0 - theta[0]) / 360.0)
+    on_arc = np.abs(np.hypot(da, db) - spec.radius_mm) < tol_mm
+    return theta, on_arc
 
 
 def simulate_program(text: str, truth: Truth, spec=None, prog_hash: str = "") -> NativeTrace:
     return Simulator(truth).run_program(text, spec, prog_hash)
+
+
+def simulate_angle_trace(text: str, truth: Truth, spec=None, prog_hash: str = "",
+                         compensated_with: Optional[Params] = None) -> AngleTrace:
+    return Simulator(truth).run_program_angle(text, spec, prog_hash, compensated_with)
+
+
+def planned(text: str, truth: Truth, spec=None) -> Plan:
+    """The planned motion of a program on the truth's printer (for tests and tools)."""
+    if spec is None:
+        spec, _ = spec_from_program(text)
+    return plan_program(text, spec.centre, truth.motion)
 
 
 def _strip_number(line: str) -> str:

@@ -1,5 +1,5 @@
-"""Ballbar commands of the CLI: ``program``, ``simulate``, ``analyze``, ``closed-loop``,
-``artifact``."""
+"""Ballbar commands of the CLI: ``program`` (one test or a whole campaign), ``simulate``,
+``analyze`` (one trace, or all traces of a campaign jointly), ``closed-loop``, ``artifact``."""
 
 from __future__ import annotations
 
@@ -10,23 +10,31 @@ from ..core.params import Params, ParamsError
 from .common import CliError, floats, load_params
 
 
+def _max_feed(args):
+    if not args.max_feed:
+        return None
+    return dict(zip("xyz", floats(args.max_feed, 3, "--max-feed")))
+
+
 def cmd_program(args) -> int:
     from ..ballbar.program import ProgramError, TestSpec, cap_feed, generate
 
+    if args.campaign:
+        return _program_campaign(args)
+    if not args.centre:
+        raise CliError("--centre is required (or --campaign with --volume)")
     centre = floats(args.centre, 3, "--centre")
-    max_feed = None
-    if args.max_feed:
-        vals = floats(args.max_feed, 3, "--max-feed")
-        max_feed = dict(zip("xyz", vals))
+    max_feed = _max_feed(args)
+    params_hash = load_params(args.params).hash() if args.params else "none"
     try:
         feed = cap_feed(args.feed, args.plane, max_feed)
         spec = TestSpec(plane=args.plane, centre=tuple(centre), radius_mm=args.radius,
                         feed_mm_min=feed, requested_feed_mm_min=args.feed,
                         feed_in_mm=args.feed_in, overshoot_deg=args.overshoot,
                         capture_deg=args.capture, start_deg=args.start,
-                        mount_pause=args.mount_pause)
+                        mount_pause=args.mount_pause, printer=args.printer)
         volume = floats(args.volume, 6, "--volume") if args.volume else None
-        text = generate(spec, volume=volume)
+        text = generate(spec, volume=volume, params_hash=params_hash)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
     if args.output:
@@ -37,9 +45,39 @@ def cmd_program(args) -> int:
     return 0
 
 
+def _program_campaign(args) -> int:
+    import os
+
+    from ..ballbar.campaign import MANIFEST_NAME, plan_campaign, write_campaign
+    from ..ballbar.program import ProgramError
+
+    if not args.volume:
+        raise CliError("--campaign needs the machine volume: --volume X0,X1,Y0,Y1,Z0,Z1")
+    if not args.output:
+        raise CliError("--campaign needs -o DIRECTORY for its programs and manifest")
+    volume = floats(args.volume, 6, "--volume")
+    params_hash = load_params(args.params).hash() if args.params else "none"
+    try:
+        steps = plan_campaign(volume, radius_xy=args.radius,
+                              radius_vertical=args.radius_vertical, feed=args.feed,
+                              second_height=args.second_height, second_feed=args.second_feed,
+                              max_feed=_max_feed(args), printer=args.printer)
+        write_campaign(steps, args.output, volume, params_hash=params_hash)
+    except ProgramError as exc:
+        raise CliError(str(exc)) from None
+    except OSError as exc:
+        raise CliError(f"{args.output}: {exc.strerror}") from None
+    for i, step in enumerate(steps, 1):
+        s = step.spec
+        print(f"{i}. {os.path.join(args.output, step.file)}: {s.plane} R{s.radius_mm:g} "
+              f"F{s.feed_mm_min:g} about {','.join(f'{v:g}' for v in s.centre)}")
+    print(f"manifest: {os.path.join(args.output, MANIFEST_NAME)}")
+    return 0
+
+
 def cmd_simulate(args) -> int:
     from ..ballbar.program import ProgramError
-    from ..ballbar.simulator import Truth, simulate_program
+    from ..ballbar.simulator import Truth, simulate_angle_trace, simulate_program
 
     try:
         truth = Truth.load(args.truth)
@@ -52,7 +90,11 @@ def cmd_simulate(args) -> int:
     try:
         with open(args.program) as f:
             text = f.read()
-        trace = simulate_program(text, truth)
+        if args.angle:
+            comp = load_params(args.compensated_with) if args.compensated_with else None
+            trace = simulate_angle_trace(text, truth, compensated_with=comp)
+        else:
+            trace = simulate_program(text, truth)
     except ProgramError as exc:
         raise CliError(f"{args.program}: {exc}") from None
     except OSError as exc:
@@ -65,20 +107,46 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def cmd_analyze(args) -> int:
-    from ..ballbar.analysis import analyse
+def _read_trace(path: str):
     from ..ballbar.formats import TraceError, load_any
 
-    current = load_params(args.current) if args.current else Params()
     try:
-        with open(args.trace, "rb") as f:
+        with open(path, "rb") as f:
             data = f.read()
-        result = analyse(load_any(data, args.trace), current=current, mask_deg=args.mask_deg,
-                         calibrated=args.calibrated_bar, cyclic_pitch=args.cyclic_pitch)
+        return load_any(data, path)
     except TraceError as exc:
-        raise CliError(f"{args.trace}: {exc}") from None
+        raise CliError(f"{path}: {exc}") from None
     except OSError as exc:
-        raise CliError(f"{args.trace}: {exc.strerror}") from None
+        raise CliError(f"{path}: {exc.strerror}") from None
+
+
+def cmd_analyze(args) -> int:
+    import os
+
+    from ..ballbar.analysis import analyse
+    from ..ballbar.formats import TraceError
+
+    current = load_params(args.current) if args.current else Params()
+    if len(args.trace) == 1 and not args.manifest:
+        path = args.trace[0]
+        trace = _read_trace(path)
+        try:
+            result = analyse(trace, current=current, mask_deg=args.mask_deg,
+                             calibrated=args.calibrated_bar, cyclic_pitch=args.cyclic_pitch)
+        except TraceError as exc:
+            raise CliError(f"{path}: {exc}") from None
+    else:
+        from ..ballbar.campaign import load_manifest
+        from ..ballbar.campaign_analysis import analyse_campaign
+
+        manifest = load_manifest(args.manifest) if args.manifest else None
+        items = [(os.path.basename(p), _read_trace(p)) for p in args.trace]
+        try:
+            result = analyse_campaign(items, current=current, mask_deg=args.mask_deg,
+                                      calibrated=args.calibrated_bar,
+                                      cyclic_pitch=args.cyclic_pitch, manifest=manifest)
+        except TraceError as exc:  # CampaignError names the file itself
+            raise CliError(str(exc)) from None
     if args.params_out:
         with open(args.params_out, "w") as f:
             json.dump(result["parameters"], f, indent=2)
@@ -89,22 +157,43 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def _pm(value, sigma, decimals: int = 2) -> str:
+    return f"{value:10.{decimals}f}" + ("" if sigma is None else f" +- {sigma:.{decimals}f}")
+
+
+def diagnostic_lines(d) -> list:
+    """The fitted values of one test's diagnostics, with their 1-sigma uncertainties."""
+    u = d.get("uncertainty") or {}
+    lines = [f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
+             f"feed {d.get('feed_mm_min')} mm/min"]
+    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
+                      ("servo_mismatch_ms", "ms"), ("mean_scale_ppm", "ppm"),
+                      ("bar_drift_um_per_min", "um/min")):
+        if d.get(key) is not None:
+            lines.append(f"{key:22s} {_pm(d[key], u.get(key), 3 if unit == 'ms' else 2)} "
+                         f"{unit}")
+    for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
+        if isinstance(d.get(key), dict):
+            sub = u.get(key) if isinstance(u.get(key), dict) else {}
+            lines.append(f"{key:22s} " + "  ".join(
+                f"{k} {v:.2f}" + (f" +- {sub[k]:.2f}" if sub.get(k) is not None else "")
+                for k, v in d[key].items()))
+    if d.get("hysteresis_um") is not None:
+        lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
+    return lines
+
+
 def format_diagnostics(result) -> str:
     d = result["diagnostics"]
     lines = []
     if d.get("simulated"):
         lines.append("SIMULATED data")
-    lines.append(f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
-                 f"feed {d.get('feed_mm_min')} mm/min")
-    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
-                      ("servo_mismatch_ms", "ms")):
-        if d.get(key) is not None:
-            lines.append(f"{key:22s} {d[key]:10.2f} {unit}")
-    for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
-        if isinstance(d.get(key), dict):
-            lines.append(f"{key:22s} " + "  ".join(f"{k} {v:.2f}" for k, v in d[key].items()))
-    if d.get("hysteresis_um") is not None:
-        lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
+    if "campaign" in d:
+        lines += format_campaign(d)
+    else:
+        lines += diagnostic_lines(d)
+        if d.get("uncertainty"):
+            lines.append("(+- : 1-sigma uncertainty from the fit's covariance and the noise)")
     lines.append("")
     lines.append("firmware equivalents:")
     for fam in ("marlin", "klipper", "reprapfirmware"):
@@ -112,6 +201,38 @@ def format_diagnostics(result) -> str:
     for n in result["notes"]:
         lines.append("note: " + n)
     return "\n".join(lines)
+
+
+def format_campaign(d) -> list:
+    """Text of a campaign's diagnostics: each test, then the joint values."""
+    lines = []
+    for tr in d["traces"]:
+        lines.append(f"--- {tr['file']}")
+        lines += diagnostic_lines(tr)
+    c = d["campaign"]
+    u = c["uncertainty"]
+    lines.append("")
+    lines.append(f"--- campaign: {len(d['traces'])} traces, planes {'+'.join(c['planes'])}, "
+                 "fitted jointly (+- : 1-sigma)")
+    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_ppm", "ppm"),
+                      ("scale_mismatch_ppm", "ppm"), ("servo_lag_ms", "ms"),
+                      ("servo_mismatch_ms", "ms")):
+        if isinstance(c.get(key), dict):
+            n = 3 if unit == "ms" else 2
+            lines.append(f"{key:22s} " + "  ".join(
+                f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" for k, v in c[key].items()) + f" {unit}")
+    for axis, v in c.get("backlash_um", {}).items():
+        if isinstance(v, list):
+            text = "  ".join(f"at {p['at_mm']:g} mm {p['um']:.2f} +- {s['um']:.2f}"
+                             for p, s in zip(v, u["backlash_um"][axis]))
+        else:
+            text = f"{v:.2f} +- {u['backlash_um'][axis]:.2f}"
+        lines.append(f"{'backlash_um.' + axis:22s} {text} um")
+    lines.append(f"scale: {c['scale_rule']}")
+    lines.append(f"servo: {c['servo_rule']}")
+    lines.append("servo pre-compensation: " + ("proposed" if c["servo_precomp"]["proposed"]
+                                              else "not proposed"))
+    return lines
 
 
 def cmd_artifact(args) -> int:
@@ -141,14 +262,15 @@ def cmd_artifact(args) -> int:
 def cmd_closed_loop(args) -> int:
     from ..ballbar.closedloop import main
 
-    return main(["--noise-um", str(args.noise_um)])
+    return main(["--noise-um", str(args.noise_um)] + (["--campaign"] if args.campaign else []))
 
 
 def add_ballbar_commands(sub) -> None:
     p = sub.add_parser("program", help="generate an ISO 230-4 ballbar test program")
     p.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
-    p.add_argument("--centre", required=True, metavar="X,Y,Z", help="pivot position, mm")
-    p.add_argument("--radius", type=float, default=100.0, help="mm (default 100)")
+    p.add_argument("--centre", metavar="X,Y,Z", help="pivot position, mm")
+    p.add_argument("--radius", type=float, default=100.0,
+                   help="mm (default 100; with --campaign: the XY tests)")
     p.add_argument("--feed", type=float, default=1850.0, help="mm/min (default 1850)")
     p.add_argument("--max-feed", metavar="FX,FY,FZ",
                    help="axis max feeds in mm/min: the feed is capped at the slowest")
@@ -160,7 +282,18 @@ def add_ballbar_commands(sub) -> None:
                    help="machine volume in mm: refuse a circle that does not fit")
     p.add_argument("--mount-pause", action="store_true",
                    help="pause (M0) to mount the ballbar at the start and unmount at the end")
-    p.add_argument("-o", "--output")
+    p.add_argument("--params", help="the params that will be in force (their hash is recorded)")
+    p.add_argument("--printer", help="printer name to record (campaign checks)")
+    p.add_argument("--campaign", action="store_true",
+                   help="write a whole campaign (XY, XZ, YZ on --volume) into the -o directory")
+    p.add_argument("--radius-vertical", type=float, default=50.0,
+                   help="campaign: radius of the XZ and YZ tests, mm (default 50)")
+    p.add_argument("--second-height", type=float, metavar="Z",
+                   help="campaign: XY again at this height (mm), squareness against Z")
+    p.add_argument("--second-feed", type=float, metavar="F",
+                   help="campaign: XY again at this feed (mm/min, e.g. 3700), decides servo "
+                        "pre-compensation")
+    p.add_argument("-o", "--output", help="output file (campaign: directory)")
     p.set_defaults(func=cmd_program)
 
     s = sub.add_parser("simulate", help="run a ballbar program on the simulated printer")
@@ -168,11 +301,18 @@ def add_ballbar_commands(sub) -> None:
     s.add_argument("--truth", required=True, help="JSON with the printer's true errors")
     s.add_argument("--noise-um", type=float, help="measurement noise (standard deviation), um")
     s.add_argument("--rate", type=float, help="ballbar sample rate, Hz (default 500)")
+    s.add_argument("--angle", action="store_true",
+                   help="write the angle-domain trace (direction,angle_deg,deviation_um)")
+    s.add_argument("--compensated-with", metavar="P.json",
+                   help="--angle: the params the program was compensated with")
     s.add_argument("-o", "--output")
     s.set_defaults(func=cmd_simulate)
 
-    a = sub.add_parser("analyze", help="fit a ballbar trace, .b5r or typed summary")
-    a.add_argument("trace")
+    a = sub.add_parser("analyze", help="fit a ballbar trace, .b5r or typed summary; several "
+                                       "traces of a campaign are fitted jointly")
+    a.add_argument("trace", nargs="+")
+    a.add_argument("--manifest", help="the campaign's campaign.json (checks every test is "
+                                      "there)")
     a.add_argument("--current", help="params that were active during the test (residual fit)")
     a.add_argument("--json", action="store_true", help="print one JSON object")
     a.add_argument("--mask-deg", type=float, default=15.0,
@@ -186,6 +326,8 @@ def add_ballbar_commands(sub) -> None:
     c = sub.add_parser("closed-loop", help="print the simulated one-round before/after table")
     c.add_argument("--noise-um", type=float, default=0.5,
                    help="ballbar measurement noise, um (1 sigma; default 0.5)")
+    c.add_argument("--campaign", action="store_true",
+                   help="one campaign over the whole volume, a table per plane")
     c.set_defaults(func=cmd_closed_loop)
 
     t = sub.add_parser("artifact", help="parameters from a printed square (and lengths)")
