@@ -5,14 +5,14 @@ A device that samples at a steady rate sends line ``n`` at ``t0 + n / rate``; th
 in bursts where several lines share one arrival time). Since the latency is never negative,
 the true times lie on the **lower envelope** of the arrival times against the line number:
 
-* ``rate`` given (the device's declared rate, trusted): ``t = t0 + n / rate`` with ``t0`` at
-  the lower envelope;
+* ``rate`` given (the device's declared rate, trusted whatever the arrival times say):
+  ``t = t0 + n / rate`` with ``t0`` at the lower envelope;
 * otherwise the rate is fitted: a least-squares line, refitted twice on the points at or below
   it (the low-latency arrivals), then ``t0`` moved to the envelope.
 
 If the residuals after that show the device's rate was not steady (lines lost in transit, a
 paused device: spread over 50 ms), the times follow the arrival times locally instead: the
-running minimum of the residual over about 0.5 s, smoothed. All times in s; the returned
+running minimum of the residual (against the median local rate) over about 0.5 s, smoothed. All times in s; the returned
 ``jitter_ms`` is the 95th percentile of the arrival delay over the envelope.
 """
 
@@ -65,12 +65,15 @@ def retime(seq, t_host, rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Di
     icept += float(np.percentile(res, 1))
     res = t - (slope * n + icept)
     out = slope * n + icept
-    if np.percentile(res, 99.5) - np.percentile(res, 0.5) > UNSTEADY_S:
+    if not rate_hz and np.percentile(res, 99.5) - np.percentile(res, 0.5) > UNSTEADY_S:
+        m = max(3, min(len(n) // 4, int(1.0 / slope) if slope > 0 else 3))
+        slope = float(np.median((t[m:] - t[:-m]) / (n[m:] - n[:-m])))  # ignores a jump
+        res = t - slope * n
         w = max(3, int(round(0.5 / slope))) if slope > 0 else 3
         env = _running_min(res, w)
         kernel = np.ones(w) / w
         env = np.convolve(np.pad(env, (w // 2, w - 1 - w // 2), mode="edge"), kernel, "valid")
-        out = np.maximum.accumulate(out + env)
+        out = np.maximum.accumulate(slope * n + env)
         res = t - out
         method += ", local envelope (rate not steady)"
     info = {"timing_method": method,

@@ -148,6 +148,7 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
     events = find_steps(t, r, shape)
     directions = list(spec.directions)
     chain: List[RunSegment] = []
+    best: List[RunSegment] = []
     det = Detection()
     k = 0
     while k < len(events) and len(chain) < len(directions):
@@ -162,16 +163,18 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
                 break  # this run is in progress
             f = events[k + 1]
             direction = directions[len(chain)]
-            if f.rising and _step_ok(f, shape) and \
+            pending = k + 2 == len(events) and math.isnan(f.after)  # its level comes next
+            if f.rising and (pending or _step_ok(f, shape)) and \
                     f.t - e.t >= ARC_MIN * shape.arc_s[direction]:
                 chain.append(RunSegment(direction, 0, 0, e.t, f.t, e.before, e.step, f.step))
+                best = chain if len(chain) >= len(best) else best
                 k += 2
                 continue
         chain = []  # not the start of a run, or a broken run
         k += 1
-    det.runs = chain
+    det.runs = chain if len(chain) == len(directions) else best
     if len(chain) < len(directions):
-        det.reason = _why(events, chain, directions, shape)
+        det.reason = _why(events, best, directions, shape)
         return det
     last = chain[-1]
     end_level = _level(t, r, last.t_out + shape.L, last.t_out + shape.L + shape.W)

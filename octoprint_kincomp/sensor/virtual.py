@@ -6,7 +6,8 @@ in real time or ``speedup`` times faster, so that KinComp reads it exactly as a 
 
 ``play(lines, start_time)`` gives it the G-code lines the virtual printer executes (as the
 printer receives them: comments stripped, line numbers, compensated or not) and the host time
-(``time.monotonic()``) at which the printer starts on them. The readings come from the
+(``time.monotonic()``) at which the printer starts on them (a time that passed while the
+simulator ran is replaced by the next sample: the program starts late rather than skipping). The readings come from the
 ballbar simulator (``ballbar/simulator.py``, with the printer's hidden errors of ``truth``):
 sample ``n`` of the simulated program goes out at ``start_time + n / (rate * speedup)`` with
 device clock ``n / rate`` after the program start. Before the program and after it, the bar
@@ -59,6 +60,7 @@ class VirtualSensor:
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._program = None  # (k0, readings by sample from k0)
+        self._k = 0  # next sample to send
         self._inject = bytearray()
         self._pending = bytearray()
         self._running = False
@@ -176,8 +178,11 @@ class VirtualSensor:
         j = np.rint(t[order] * self.rate).astype(np.int64)
         readings = np.interp(np.arange(j[0], j[-1] + 1), j, r[order])
         start = time.monotonic() if start_time is None else start_time
-        k0 = int(math.ceil((start - self._epoch) * self.speedup * self.rate)) + int(j[0])
+        k0 = int(math.ceil((start - self._epoch) * self.speedup * self.rate))
         with self._lock:
+            # a start that has passed while simulating begins now: skipping the program's
+            # first samples would make the bar jump
+            k0 = max(k0, self._k + 1) + int(j[0])
             self._program = (k0, readings)
         self.program_end = self._epoch + (k0 + len(readings)) / (self.rate * self.speedup)
         return trace
@@ -202,7 +207,7 @@ class VirtualSensor:
                 "# simulated: true"]
 
     def _loop(self) -> None:
-        k = 0
+        k = self._k = 0
         next_header = 0.0
         period_us = 1e6 / self.rate
         while self._running:
@@ -220,6 +225,7 @@ class VirtualSensor:
                     else:
                         out.append(value)
                     k += 1
+                self._k = k
                 injected, self._inject = bytes(self._inject), bytearray()
             self.sent_lines += len(out)
             data = ("\n".join(out) + "\n").encode("ascii") if out else b""
