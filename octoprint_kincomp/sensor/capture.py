@@ -89,6 +89,14 @@ class _Recording:
             self.mm.append(s.mm)
             self.line.append(s.seq)
 
+    def detect(self, rate_hz: float):
+        """The runs in what was recorded (times from a declared rate if given)."""
+        if rate_hz:  # the declared rate beats host arrival times
+            t = np.array(self.line, dtype=float) / rate_hz
+        else:
+            t = np.frombuffer(self.t, dtype=float)
+        return detect_runs(t, np.frombuffer(self.mm, dtype=float), self.spec)
+
     def drop_older(self, keep_s: float) -> None:
         if len(self.t) and self.t[-1] - self.t[0] > 1.5 * keep_s:
             k = int(np.searchsorted(np.frombuffer(self.t, dtype=float), self.t[-1] - keep_s))
@@ -116,6 +124,8 @@ class Capture:
         self._lock = threading.Lock()
         self._thread: Optional[threading.Thread] = None
         self._closing = False
+        self._ending = False  # the thread has left its loop and is shutting down
+        self._restart = False  # open()/arm() came while it was shutting down
         self._state = IDLE
         self._message: Optional[str] = None
         self._port_open = False
@@ -140,13 +150,17 @@ class Capture:
     def open(self) -> None:
         """Open the port in the capture thread (live preview); no-op if already open."""
         with self._lock:
-            if self._thread is not None and self._thread.is_alive():
-                return
             self._closing = False
-            self._message = None
-            self._thread = threading.Thread(target=self._run, name="kincomp-sensor",
-                                            daemon=True)
-            self._thread.start()
+            if self._thread is None:
+                self._start_locked()
+            elif self._ending:
+                self._restart = True  # the ending thread starts a new one when it is gone
+
+    def _start_locked(self) -> None:
+        self._message = None
+        self._ending = self._restart = False
+        self._thread = threading.Thread(target=self._run, name="kincomp-sensor", daemon=True)
+        self._thread.start()
 
     def arm(self, spec: TestSpec, program_hash: str = "",
             max_duration_s: Optional[float] = None,
@@ -179,6 +193,7 @@ class Capture:
         """Stop the thread and close the port (a running capture ends as failed)."""
         with self._lock:
             self._closing = True
+            self._restart = False
             thread = self._thread
         if wait_s and thread is not None and thread is not threading.current_thread():
             thread.join(wait_s)
@@ -238,6 +253,7 @@ class Capture:
             port = self._opener(self.config.port, self.config.baudrate)
         except SensorError as exc:
             self._port_failed(exc.message, None)
+            self._exit()
             return
         parser = self.config.make_parser()
         self._set(PREVIEW, None, _port_open=True)
@@ -268,6 +284,14 @@ class Capture:
                 port.close()
             except Exception:  # noqa: BLE001
                 pass
+            self._exit()
+
+    def _exit(self) -> None:
+        """The thread ends: start the next one if open() or arm() asked meanwhile."""
+        with self._lock:
+            self._thread = None
+            if self._restart and not self._closing:
+                self._start_locked()
 
     def _publish(self, parser) -> None:
         rec = self._rec
@@ -324,11 +348,8 @@ class Capture:
         return True
 
     def _check(self, parser, rec: _Recording) -> None:
-        t = np.frombuffer(rec.t, dtype=float)
-        rate = self.config.sample_rate_hz
-        if rate and not parser.device_clock:  # the declared rate beats the arrival times
-            t = np.frombuffer(rec.line, dtype=np.int64) / rate
-        det = detect_runs(t, np.frombuffer(rec.mm, dtype=float), rec.spec)
+        rate = self.config.sample_rate_hz if not parser.device_clock else 0.0
+        det = rec.detect(rate)
         rec.runs_found = len(det.runs)
         if det.complete:
             self._evaluate(parser, None)
@@ -387,6 +408,7 @@ class Capture:
     def _port_failed(self, message: Optional[str], parser) -> None:
         """The port is gone (or closed): a running capture fails with its data kept."""
         with self._lock:
+            self._ending = True
             arm, self._arm_request = self._arm_request, None
         if self._rec is None and arm is not None:  # armed, but the port never opened
             self._rec = _Recording(now=time.monotonic(), **arm)

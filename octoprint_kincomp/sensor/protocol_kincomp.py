@@ -10,7 +10,7 @@ What the device sends (ASCII, one record a line, LF or CR LF)::
     # resolution_um: 0.5
     # range: -2.5,2.5
     4294966296,1.000412          samples: t_us,reading
-    4294968296,1.000398          (t_us wraps at 2^32: 4294968296 arrives as 1000)
+    1000,1.000398                (t_us wrapped at 2^32: 2000 us after the sample before)
 
 * ``t_us``: the device's free-running microsecond clock, an unsigned integer; a 32-bit counter
   (e.g. Arduino ``micros()``) wraps every 71.6 min and is unwrapped here. A value that goes

@@ -249,3 +249,52 @@ def test_list_ports():
     ports = list_ports()
     assert isinstance(ports, list)
     assert all(set(p) == {"device", "description", "hwid"} for p in ports)
+
+
+@pytest.mark.slow
+def test_real_time_plain_readings_timed_by_the_host(sensors, captures, offline):
+    """In real time (about 60 s): plain readings through a pty, times from their arrival on
+    the host, the rate fitted; the analysis still equals the offline one."""
+    vs = sensors(transport="pty", protocol="plain", speedup=1.0)
+    cap = captures(SensorConfig(port=vs.url, protocol="plain"))
+    cap.open()
+    assert cap.wait(("preview",), 5) == "preview"
+    run_program(vs, cap, timeout=120.0)
+    res = cap.result
+    assert res.ok, res.message
+    assert res.trace.meta["timing_method"] == "fitted rate"
+    assert float(res.trace.meta["timing_rate_hz"]) == pytest.approx(500.0, rel=2e-3)
+    same_result(res.trace, offline, square=1.0, ppm=1.0, ms=0.01, um=0.2)
+
+
+def test_waiting_while_armed_keeps_only_the_last_seconds(sensors, captures):
+    vs = sensors(transport="pty")
+    cap = captures(SensorConfig(port=vs.url), pre_keep_s=2.0, tick_s=0.1)
+    cap.arm(SPEC)
+    time.sleep(2.0)  # 40 s of device time: 20,000 samples before the program starts
+    st = cap.status()
+    assert st["state"] == "armed" and 500 < st["samples"] <= 3000  # of 20,000
+    vs.play(PROGRAM, time.monotonic(), spec=SPEC)
+    assert cap.wait(("done", "failed"), 20) == "done", cap.result.message
+
+
+def test_arm_again_after_a_failure(captures):
+    calls = []
+
+    def flaky_opener(port, baudrate):
+        calls.append(port)
+        if len(calls) == 1:
+            raise SensorError("first open fails", "port")
+        ser = serial.serial_for_url("loop://", timeout=0.1)
+        ser.write(b"KINCOMP-BALLBAR 1\n0,0.5\n")
+        return ser
+
+    cap = captures(SensorConfig(port="loop://", no_data_timeout_s=1.0), opener=flaky_opener)
+    cap.arm(SPEC)
+    assert cap.wait(("failed",), 5) == "failed" and cap.result.message == "first open fails"
+    for _ in range(2):  # again at once, while the failed thread may still be ending
+        cap.arm(SPEC)
+        assert cap.wait(("armed",), 5) == "armed"
+        assert cap.wait(("failed",), 5) == "failed"  # loop:// sends nothing more
+        assert "no data" in cap.result.message
+    assert len(calls) == 2  # the port stayed open after the capture-level failure

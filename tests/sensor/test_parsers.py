@@ -262,3 +262,16 @@ def test_config_errors_name_the_setting(d, field):
     with pytest.raises(SensorError) as exc:
         SensorConfig.from_dict(d)
     assert exc.value.field == field
+
+
+def test_the_readme_example_parses_as_documented():
+    from tests.support import ROOT
+    import os
+
+    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    block = text.split("## Live ballbar capture")[1].split("```text\n")[1].split("```")[0]
+    p = KinCompParser()
+    s = p.feed(block.encode("ascii"), 0.0)
+    assert len(s) == 4 and p.diagnostics.bad_lines == 0
+    assert [round((b.t - a.t) * 1e6) for a, b in zip(s, s[1:])] == [2000] * 3  # across the wrap
+    assert p.info()["sensor_range"] == "-2,2" and p.info()["sensor_name"].startswith("DIY")
