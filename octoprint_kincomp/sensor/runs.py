@@ -227,12 +227,12 @@ def explain_failure(t, r, spec: TestSpec, detection: Detection) -> str:
     if detect_runs(t, -r, spec).runs:
         return Msg("the readings look inverted (the feed-in made the bar read longer): check "
                    "the sign setting ('positive')")
-    for factor, units in ((1e-3, "um"), (1e3, "m"), (25.4, "inch"), (1 / 25.4, "mm")):
+    for factor in (1e-3, 1e3, 25.4, 1 / 25.4):  # um, m, inch read as mm; mm read as inch
         for sign in (1.0, -1.0):
             if detect_runs(t, sign * factor * r, spec).runs:
                 return Msg("the feed-in steps are %(factor)s times the feed-in of %(d)s mm: "
-                           "check the units setting (the readings look like %(units)s)",
-                           factor=f"{1 / factor:g}", d=f"{spec.feed_in_mm:g}", units=units)
+                           "check the units setting", factor=f"{1 / factor:.4g}",
+                           d=f"{spec.feed_in_mm:g}")
     return detection.reason
 
 

@@ -136,7 +136,7 @@ def test_inverted_sign_and_wrong_units_get_a_hint(xy_stream):
     s = xy_stream
     with pytest.raises(SensorError, match="inverted"):
         trace_from_stream(device_stream(s.t, -s.r), s.spec)
-    with pytest.raises(SensorError, match="units .*look like um"):
+    with pytest.raises(SensorError, match="1000 times .* check the units setting"):
         trace_from_stream(device_stream(s.t, s.r * 1000.0), s.spec)
 
 
