@@ -9,7 +9,8 @@ States (``Capture.state``)::
 * ``preview``: the port is open and read; the live view (current reading, a moving chart,
   noise in um) is up to date; nothing is recorded.
 * ``armed``: ``arm(spec)`` was called: samples are recorded (only the last ``pre_keep_s``
-  seconds while no run has begun), the runs are looked for in the data every ``tick_s``.
+  seconds, at least 2 dwells + 1 s, while no run has begun), the runs are looked for in the
+  data every ``tick_s``.
 * ``capturing``: the first run's feed-in (after a still dwell) has been seen.
 * ``done``: every run and the dwell after the last one were seen: ``result.trace`` is the
   native trace, ``result.stream`` the raw stream. The port stays open (live view goes on).
@@ -17,7 +18,8 @@ States (``Capture.state``)::
   ``result.stream``. Port-level faults (cannot open, unplugged, read error, a stream of
   mostly bad lines) close the port; capture-level ones (no data for ``no_data_timeout_s``,
   more than ``max_samples``, longer than ``max_duration_s``, ``stop()`` before the end)
-  keep it open.
+  keep it open. More than 20,000 lines/s is a flood: it closes the port in any state, so a
+  runaway sensor cannot hog the host's CPU.
 
 Thread safety: every public method only takes a short lock and returns at once (no I/O, no
 waiting), so OctoPrint's comm thread and queuing hook can call them; the reading, parsing,
@@ -52,6 +54,7 @@ IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED = (
 STATES = (IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED)
 DEFAULT_MAX_SAMPLES = 1_000_000
 PRE_KEEP_S = 30.0
+MAX_LINE_RATE = 20_000  # lines/s: more is a flood (a 10 kHz sensor stays well below)
 
 
 @dataclass
@@ -251,13 +254,16 @@ class Capture:
     def _run(self) -> None:
         try:
             port = self._opener(self.config.port, self.config.baudrate)
-        except SensorError as exc:
-            self._port_failed(exc.message, None)
+        except Exception as exc:  # noqa: BLE001 - SensorError, or an opener's own fault
+            message = exc.message if isinstance(exc, SensorError) else Msg(
+                "cannot open %(port)s: %(error)s", port=self.config.port, error=str(exc)[:200])
+            self._port_failed(message, None)
             self._exit()
             return
         parser = self.config.make_parser()
         self._set(PREVIEW, None, _port_open=True)
         next_tick = time.monotonic()
+        rate_from, rate_lines = next_tick, None  # the first second may hold a backlog
         try:
             while not self._closing:
                 try:
@@ -269,6 +275,15 @@ class Capture:
                 now = time.monotonic()
                 if not self._step(parser, data, now):
                     return
+                if now - rate_from >= 1.0:
+                    base = parser.seq if rate_lines is None else rate_lines
+                    rate = (parser.seq - base) / (now - rate_from)
+                    if rate > MAX_LINE_RATE:  # would hog the host's CPU
+                        self._port_failed(Msg("the sensor floods the port: %(rate)s lines/s "
+                                              "(at most %(max)s)", rate=f"{rate:.0f}",
+                                              max=MAX_LINE_RATE), parser)
+                        return
+                    rate_from, rate_lines = now, parser.seq
                 if now >= next_tick:
                     next_tick = now + self.tick_s
                     self._publish(parser)
@@ -357,8 +372,8 @@ class Capture:
         if det.started and not rec.started:
             rec.started = True
             self._set(CAPTURING)
-        if not rec.started:
-            rec.drop_older(self.pre_keep_s)
+        if not rec.started:  # keep what the first run's dwell needs, however long the wait
+            rec.drop_older(max(self.pre_keep_s, 2.0 * rec.spec.dwell_s + 1.0))
 
     def _evaluate(self, parser, failure: Optional[str]) -> None:
         """Build the trace from what was recorded: done, or failed with ``failure``."""

@@ -36,7 +36,7 @@ from ..ballbar.simulator import Truth, simulate_program
 from .convention import UNITS
 from .protocol_kincomp import NAME, VERSION, US32
 
-MAX_PENDING = 1 << 20  # bytes held for a slow reader; older whole lines are dropped
+MAX_PENDING = 1 << 18  # bytes held for a slow reader; older whole lines are dropped
 TICK_S = 0.005
 
 
