@@ -109,7 +109,8 @@ class _Recording:
         if not len(self.t):
             return None
         t = np.array(self.t, dtype=float)
-        return RawStream(dict(info), t - t[0], np.array(self.mm, dtype=float),
+        t = np.round(t - t[0], 6)  # 1 us, as saved: a saved stream gives the same trace
+        return RawStream(dict(info), t, np.array(self.mm, dtype=float),
                          np.array(self.line, dtype=np.int64))
 
 
@@ -378,7 +379,7 @@ class Capture:
     def _evaluate(self, parser, failure: Optional[str]) -> None:
         """Build the trace from what was recorded: done, or failed with ``failure``."""
         rec = self._rec
-        stream = rec.stream(parser.info())
+        stream = rec.stream(self._info(parser))
         if stream is None:
             self._end(parser, failure or Msg("no data"))
             return
@@ -392,18 +393,23 @@ class Capture:
             return
         runs = [{"direction": r.direction, "feed_in_s": r.t_in - det.t_ref,
                  "feed_out_s": r.t_out - det.t_ref, "samples": r.i1 - r.i0} for r in det.runs]
-        name = stream.meta.get("sensor_name", self.config.protocol)
-        trace.meta["source"] = f"live capture: {name} on {self.config.port}"
-        if stream.meta.get("simulated") == "true":
-            trace.meta["source"] = "SIMULATED " + trace.meta["source"]
         self._finish(parser, CaptureResult(True, None, trace, stream, rec.spec,
                                            rec.program_hash, runs=runs))
+
+    def _info(self, parser) -> Dict[str, str]:
+        """The stream's metadata: the sensor's, and where it came from."""
+        info = parser.info() if parser is not None else {}
+        name = info.get("sensor_name", self.config.protocol)
+        info["source"] = f"live capture: {name} on {self.config.port}"
+        if info.get("simulated") == "true":
+            info["source"] = "SIMULATED " + info["source"]
+        return info
 
     def _end(self, parser, message: str, stream: Optional[RawStream] = None,
              close: bool = False) -> None:
         rec = self._rec
         if stream is None:
-            stream = rec.stream(parser.info() if parser is not None else {})
+            stream = rec.stream(self._info(parser))
         self._finish(parser, CaptureResult(False, message, None, stream, rec.spec,
                                            rec.program_hash), close)
 
