@@ -185,3 +185,12 @@ def test_raw_stream_round_trip(xy_stream):
     assert back.meta["sensor_name"] == "bar  one" and back.host_timed
     assert np.allclose(back.t, raw.t, atol=1e-6) and np.allclose(back.mm, raw.mm, atol=1e-7)
     assert list(back.line) == list(raw.line)
+
+
+@pytest.mark.parametrize("noise_mm,every", [(0.02, 1), (0.05, 1), (0.0, 25), (0.0, 50)])
+def test_noisy_or_slow_sensors(xy_stream, noise_mm, every):
+    """A noisy bar (20-50 um) or a slow one (20 Hz, 10 Hz): the runs are still found."""
+    s = xy_stream
+    r = s.r + np.random.default_rng(2).normal(0, noise_mm, len(s.r)) if noise_mm else s.r
+    det = detect_runs(s.t[::every], r[::every], s.spec)
+    assert det.complete and [run.direction for run in det.runs] == ["ccw", "cw"]
