@@ -19,10 +19,12 @@ States (``Capture.state``)::
   mostly bad lines) close the port; capture-level ones (no data for ``no_data_timeout_s``,
   more than ``max_samples``, longer than ``max_duration_s``, ``stop()`` before the end)
   keep it open. More than 20,000 lines/s is a flood: it closes the port in any state, so a
-  runaway sensor cannot hog the host's CPU.
+  runaway sensor cannot hog the host's CPU. A port-level fault while nothing is armed gives
+  ``failed`` with ``status()["message"]`` and no new result.
 
-Thread safety: every public method only takes a short lock and returns at once (no I/O, no
-waiting), so OctoPrint's comm thread and queuing hook can call them; the reading, parsing,
+Readings are mm, positive = bar longer; times s. Thread safety: every public method only
+takes a short lock and returns at once (no I/O; only ``close(wait_s>0)`` and ``wait()`` wait,
+when asked to), so OctoPrint's comm thread and queuing hook can call them; the reading, parsing,
 run detection and trace building happen in the capture's thread. ``listener(kind, status)``
 is called from that thread (``kind`` = ``"state"`` on every state change, ``"tick"`` about
 every ``tick_s`` while the port is open) and must return quickly. A capture never changes
@@ -138,7 +140,8 @@ class Capture:
         self._stop_request = False
         self._rec: Optional[_Recording] = None
         self._result: Optional[CaptureResult] = None
-        self._snapshot: Dict[str, object] = {}
+        self._snapshot: Dict[str, object] = {"sensor": {}, "diagnostics": {}, "samples": 0,
+                                             "elapsed_s": None, "runs_found": 0}
 
     # ---- public, thread-safe, never blocking ---------------------------------------------
 

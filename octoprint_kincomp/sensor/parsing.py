@@ -8,8 +8,9 @@ bounded memory (:mod:`.lines`). A :class:`Sample` holds
   pattern protocols; see :mod:`.retime` for how those are re-timed);
 * ``mm``: the bar length change in mm, positive = bar longer (converted by the
   :class:`~.convention.Convention`);
-* ``seq``: the number of the line in the stream (bad lines count too), so that host-timed
-  samples can be re-timed by their place in the device's regular sequence.
+* ``seq``: the number of the line in the stream (bad lines count too: a corrupted line most
+  likely was a sample; header and comment lines do not), so that host-timed samples can be
+  re-timed by their place in the device's regular sequence.
 
 Bad lines are counted in :attr:`Parser.diagnostics` (:mod:`.diagnostics`); a parser raises
 :class:`~.errors.SensorError` only for what no number of lines can fix (e.g. an unsupported
@@ -112,7 +113,8 @@ class Parser:
             except BadLine as bad:
                 diag.bad(bad.kind, text)
                 continue
-            if sample is None:
+            if sample is None:  # header or comment: not a sample, not counted in seq
+                self.seq -= 1
                 diag.other()
             else:
                 diag.good()

@@ -50,6 +50,7 @@ MAX_EXTRA_KEYS = 10
 US32 = 1 << 32
 MAX_GAP_US = 10_000_000
 CONVENTION_KEYS = ("units", "positive", "range")
+DEFAULTS = {"units": "mm", "positive": "longer", "range": ""}
 
 
 class KinCompParser(Parser):
@@ -131,12 +132,14 @@ class KinCompParser(Parser):
             self.meta[name] = value
 
     def _declare(self, key: str, value: str) -> None:
-        if self._declared.get(key) == value:
+        old = self._declared.get(key, DEFAULTS[key])
+        if key == "range":
+            value = ",".join(f"{v:g}" for v in parse_range(value))
+        if value == old:
             return
         if self._last_raw is not None:
             raise SensorError(Msg("the sensor changed '%(key)s' from %(old)s to %(new)s in the "
-                                  "middle of the stream", key=key,
-                                  old=repr(self._declared.get(key, "(default)")),
+                                  "middle of the stream", key=key, old=repr(old),
                                   new=repr(value)), key)
         self._declared[key] = value
         units = self._declared.get("units", "mm")

@@ -128,8 +128,9 @@ def test_kincomp_convention_change_mid_stream_fails():
     with pytest.raises(SensorError, match="units"):
         feed_all(p, b"# units: um\n")
     same = KinCompParser()
-    feed_all(same, HEADER + b"# units: mm\n1000,0.5\n" + HEADER + b"# units: mm\n3000,0.5\n")
-    assert same.diagnostics.samples == 2  # repeating the same header is fine
+    feed_all(same, HEADER + b"# range: -2,2\n1000,0.5\n" + HEADER + b"# units: mm\n"
+             b"# positive: LONGER\n# range: -2.0, 2\n3000,0.5\n")
+    assert same.diagnostics.samples == 2  # the same (or the default) again is fine
 
 
 @pytest.mark.parametrize("line,kind", [
@@ -151,7 +152,7 @@ def test_plain_readings_are_host_timed_and_converted():
     s = p.feed(b"# comment\n0.5\n+1e-1\nbad\n-.25\n", 12.5)
     assert [x.mm for x in s] == pytest.approx([-12.7, -2.54, 6.35])
     assert {x.t for x in s} == {12.5}
-    assert [x.seq for x in s] == [2, 3, 5]  # bad lines keep their place in the sequence
+    assert [x.seq for x in s] == [1, 2, 4]  # bad lines keep their place, comments do not
     assert p.info()["timing"] == "host arrival"
 
 
