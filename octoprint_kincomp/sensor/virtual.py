@@ -170,7 +170,8 @@ class VirtualSensor:
              spec: Optional[TestSpec] = None, program_hash: str = "") -> NativeTrace:
         """Simulate the printer executing ``lines`` from ``start_time`` (host monotonic s;
         default now) and stream the bar's readings at their times. Runs the simulator in the
-        caller's thread (about a second); returns the simulated trace (the offline stream)."""
+        caller's thread (about a second); returns the simulated trace (the offline stream).
+        Raises the simulator's ProgramError when the lines hold no ballbar runs."""
         trace = simulate_program("\n".join(lines) + "\n", self.truth, spec, program_hash)
         t = np.array([row[1] for row in trace.rows])
         r = np.array([row[2] for row in trace.rows])
