@@ -1,7 +1,8 @@
 """Command line: ``python -m octoprint_kincomp <command> ...``.
 
 One module per verb group: :mod:`.files` (``compensate``, ``params``, ``firmware``),
-:mod:`.ballbar` (``program``, ``simulate``, ``analyze``, ``closed-loop``, ``artifact``);
+:mod:`.ballbar` (``program``, ``simulate``, ``analyze``, ``closed-loop``, ``artifact``),
+:mod:`.sensor` (``sensor-ports``, ``sensor-capture``, ``sensor-trace``, ``sensor-virtual``);
 ``bench`` and ``demo-server`` hand over to the developer tools. Errors are reported in one
 line on stderr with a non-zero exit status.
 """
@@ -15,6 +16,7 @@ from typing import Optional, Sequence
 from .ballbar import add_ballbar_commands
 from .common import EXIT_ERROR, EXIT_OK, CliError
 from .files import add_file_commands
+from .sensor import add_sensor_commands
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("demo-server", help="OctoPrint + KinComp on the virtual printer (demo)")
 
     add_ballbar_commands(sub)
+    add_sensor_commands(sub)
     return ap
 
 
