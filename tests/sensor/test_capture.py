@@ -25,9 +25,15 @@ SPEEDUP = 20.0
 
 
 @pytest.fixture(scope="module")
-def offline():
-    """The offline analysis of the stream the virtual sensor plays (same truth and seed)."""
-    return analyse(simulate_program(generate(SPEC), demo_truth(), SPEC, "h1"))["diagnostics"]
+def offline_trace():
+    """The simulator's own trace of what the virtual sensor plays (same truth and seed)."""
+    return simulate_program(generate(SPEC), demo_truth(), SPEC, "h1")
+
+
+@pytest.fixture(scope="module")
+def offline(offline_trace):
+    """Its offline analysis."""
+    return analyse(offline_trace)["diagnostics"]
 
 
 @pytest.fixture
@@ -68,7 +74,8 @@ def run_program(vs, cap, timeout=30.0, spec=SPEC, program=PROGRAM):
     return played
 
 
-def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offline):
+def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offline,
+                                                        offline_trace):
     vs = sensors(transport="pty", clock_start_us=(1 << 32) - 2_000_000)  # wraps in the test
     states = []
     cap = captures(SensorConfig(port=vs.url),
@@ -82,7 +89,7 @@ def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offli
     assert 0.2 < live["noise_um"] < 1.0  # the virtual bar's 0.5 um
     json.dumps(cap.status())  # JSON-ready for the UI
     played = run_program(vs, cap)
-    assert len(played.rows) == 24706  # the same stream as the offline fixture
+    assert played.rows == offline_trace.rows  # the same stream as the offline fixture
     res = cap.result
     assert cap.state == "done" and res.ok, res.message
     assert states[:4] == ["preview", "armed", "capturing", "done"]
