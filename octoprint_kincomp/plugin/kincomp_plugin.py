@@ -135,7 +135,8 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp.js"], "css": ["css/kincomp.css"]}
+        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_settings.js",
+                       "js/kincomp_tab.js"], "css": ["css/kincomp.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,

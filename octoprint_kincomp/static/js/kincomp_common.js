@@ -1,0 +1,160 @@
+/*
+ * KinComp web UI, shared pieces (loaded first): the plugin's API address, number reading and
+ * formatting, error texts, notifications, copying to the clipboard, the translation of the
+ * core's messages and the server's notices, and the table rows of a ballbar result.
+ *
+ * Units as on the server: squareness um/m, scale ppm, backlash um, positions mm, feeds mm/min.
+ * Every string goes through gettext(); server notifications arrive as English message ids
+ * with parameters and are translated here.
+ */
+(function () {
+    "use strict";
+
+    var API = function (path) {
+        return OctoPrint.getBlueprintUrl("kincomp") + path;
+    };
+
+    var num = function (value) {
+        // a number from a text field ("1,5" accepted as 1.5); NaN when it is not one
+        if (typeof value === "number") return value;
+        var text = String(value === undefined || value === null ? "" : value).trim();
+        if (!text.length) return NaN;
+        text = text.replace(",", ".");
+        return /^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$/.test(text) ? parseFloat(text) : NaN;
+    };
+
+    var fmt = function (value, digits) {
+        if (value === null || value === undefined || isNaN(value)) return "–";
+        return Number(value).toFixed(digits === undefined ? 2 : digits);
+    };
+
+    var errorText = function (jqXHR) {
+        // the server's {"error": ...} message, or the HTTP status
+        var response = jqXHR && (jqXHR.responseJSON || jqXHR.response || jqXHR.responseText);
+        if (typeof response === "string") {
+            try {
+                response = JSON.parse(response);
+            } catch (e) {
+                return response;
+            }
+        }
+        if (response && response.error) return response.error;
+        return _.sprintf(gettext("Request failed (%(status)s)"), {
+            status: jqXHR ? jqXHR.status : "?"
+        });
+    };
+
+    var notify = function (options) {
+        // text may carry server or user strings (commands, file names): never as HTML
+        return new PNotify(_.extend({title_escape: true, text_escape: true}, options));
+    };
+
+    // copy text to the clipboard: the Clipboard API where the page may use it (https,
+    // localhost), else a selected text area inside ``near`` (a modal dialog keeps the focus
+    // inside itself) and the browser's copy command; calls done(ok)
+    var copyText = function (text, near, done) {
+        if (navigator.clipboard && window.isSecureContext) {
+            navigator.clipboard.writeText(text).then(
+                function () { done(true); },
+                function () { done(false); });
+            return;
+        }
+        var area = $("<textarea readonly></textarea>")
+            .css({position: "fixed", top: 0, left: 0, width: "1px", height: "1px", opacity: 0})
+            .val(text);
+        $(near || "body").append(area);
+        area[0].select();
+        var ok = false;
+        try {
+            ok = document.execCommand("copy");
+        } catch (e) {
+            ok = false;
+        }
+        area.remove();
+        done(ok);
+    };
+
+    // KinComp's version and homepage (README) from a /status response
+    var about = function (status) {
+        var eq = status.equivalents || {};
+        return {version: status.version || "", homepage: (eq.about && eq.about.homepage) || "",
+                firmwareHelp: (eq.about && eq.about.firmware_help) || ""};
+    };
+
+    // a Flot point symbol (Flot itself draws only circles without its symbol plugin)
+    var drawCross = function (ctx, x, y, radius) {
+        ctx.moveTo(x - radius, y - radius);
+        ctx.lineTo(x + radius, y + radius);
+        ctx.moveTo(x - radius, y + radius);
+        ctx.lineTo(x + radius, y - radius);
+    };
+
+    // a message of KinComp's core: {text, template, params} (params may be such messages
+    // too), translated here; a plain string as it is
+    var trMsg = function (msg) {
+        if (!msg || typeof msg !== "object") return msg;
+        if (!msg.template) return msg.text;
+        var params = _.mapValues(msg.params || {}, trMsg);
+        try {
+            return _.isEmpty(params) ? gettext(msg.template) : _.sprintf(gettext(msg.template), params);
+        } catch (e) {
+            return msg.text;
+        }
+    };
+
+    var translateNotice = function (data) {
+        var text = gettext(data.msgid);
+        var params = _.mapValues(data.params || {}, trMsg);
+        _.each(data.translate || [], function (key) {
+            if (_.has(params, key)) params[key] = gettext(params[key]);
+        });
+        try {
+            return _.sprintf(text, params);
+        } catch (e) {
+            return data.text;
+        }
+    };
+
+    /* ---------------------------------------------------------------- settings pane */
+
+    var rows = function () {
+        return [
+        ["squareness_um_per_m", gettext("Squareness"), "µm/m"],
+        ["scale_mismatch_ppm", gettext("Scale mismatch"), "ppm"],
+        ["servo_mismatch_ms", gettext("Servo mismatch"), "ms"],
+        ["backlash_um.a_plus", gettext("Backlash +A"), "µm"],
+        ["backlash_um.a_minus", gettext("Backlash −A"), "µm"],
+        ["backlash_um.b_plus", gettext("Backlash +B"), "µm"],
+        ["backlash_um.b_minus", gettext("Backlash −B"), "µm"],
+        ["circularity_um.ccw", gettext("Circularity CCW"), "µm"],
+        ["circularity_um.cw", gettext("Circularity CW"), "µm"],
+        ["circularity_um.bidirectional", gettext("Circularity bidirectional G(b)"), "µm"],
+        ["hysteresis_um", gettext("Hysteresis H"), "µm"]
+        ];
+    };
+
+    var pick = function (obj, path) {
+        _.each(path.split("."), function (part) {
+            obj = obj === null || obj === undefined ? undefined : obj[part];
+        });
+        return obj;
+    };
+
+    var NICE = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
+
+    window.KinComp = {
+        API: API,
+        num: num,
+        fmt: fmt,
+        errorText: errorText,
+        notify: notify,
+        copyText: copyText,
+        about: about,
+        drawCross: drawCross,
+        trMsg: trMsg,
+        translateNotice: translateNotice,
+        rows: rows,
+        pick: pick,
+        NICE: NICE
+    };
+})();

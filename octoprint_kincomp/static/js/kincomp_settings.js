@@ -1,0 +1,301 @@
+/*
+ * KinComp web UI: the settings pane (on/off, mode, parameters with their units and signs,
+ * backlash, limits, when changes take effect, firmware export with copy buttons).
+ */
+$(function () {
+    "use strict";
+    var K = window.KinComp;
+    var API = K.API;
+    var num = K.num;
+    var errorText = K.errorText;
+    var notify = K.notify;
+    var copyText = K.copyText;
+    var about = K.about;
+    var trMsg = K.trMsg;
+
+    function KinCompSettingsViewModel(parameters) {
+        var self = this;
+        self.access = parameters[0];
+        self.loginState = parameters[1];
+
+        self.enabled = ko.observable(false);
+        self.mode = ko.observable("on_the_fly");
+        self.chordTol = ko.observable("0.01");
+        self.limitsPolicy = ko.observable("warn");
+        self.applyChanges = ko.observable("next_print");
+        self.passThrough = ko.observable(false);
+        self.demo = ko.observable(false);
+        self.blFraction = ko.observable("1");
+        self.blSmoothing = ko.observable("0");
+        self.limits = ko.observable(null);
+        self.paramsHash = ko.observable("");
+        self.engine = ko.observable("");  // "compiled" or "python" (kernel.py)
+        self.conflicts = ko.observableArray([]);
+        self.version = ko.observable("");
+        self.homepage = ko.observable("");
+        self.firmwareHelp = ko.observable("");
+        // the firmware export: per firmware its ready-to-paste sections and notes
+        self.exports = ko.observableArray([]);
+        self.fwTab = ko.observable("marlin");
+        self.errors = ko.observable({});
+        self.formError = ko.observable("");
+        self.savedMessage = ko.observable("");
+        self.saving = ko.observable(false);
+        self.loaded = null; // the settings as last loaded (to keep what the form does not show)
+
+        var field = function (id, path, label, hint) {
+            return {id: id, path: path, label: label, hint: hint, value: ko.observable("0")};
+        };
+        self.squareness = [
+            field("sq_xy", "params.squareness_um_per_m.xy", gettext("XY"),
+                gettext("Positive: X grows with Y (the Y axis leans toward +X).")),
+            field("sq_xz", "params.squareness_um_per_m.xz", gettext("XZ"),
+                gettext("Positive: X grows with Z.")),
+            field("sq_yz", "params.squareness_um_per_m.yz", gettext("YZ"),
+                gettext("Positive: Y grows with Z."))
+        ];
+        self.scale = [
+            field("sc_x", "params.scale_ppm.x", gettext("X")),
+            field("sc_y", "params.scale_ppm.y", gettext("Y")),
+            field("sc_z", "params.scale_ppm.z", gettext("Z"))
+        ];
+        self.backlash = _.map(["x", "y", "z"], function (axis) {
+            return {
+                axis: axis,
+                label: axis.toUpperCase(),
+                path: "params.backlash." + axis,
+                varies: ko.observable(false),
+                single: ko.observable("0"),
+                at0: ko.observable("0"),
+                um0: ko.observable("0"),
+                at1: ko.observable("0"),
+                um1: ko.observable("0")
+            };
+        });
+
+        self.limitsText = ko.pureComputed(function () {
+            var l = self.limits();
+            if (!l) return gettext("No bed volume known (printer profile).");
+            return _.sprintf(
+                gettext("Bed volume from the printer profile: X %(x0)s…%(x1)s, Y %(y0)s…%(y1)s, Z %(z0)s…%(z1)s mm"),
+                {x0: l[0], x1: l[1], y0: l[2], y1: l[3], z0: l[4], z1: l[5]}
+            );
+        });
+
+        self.fieldError = function (path) {
+            var errs = self.errors();
+            return errs[path] || "";
+        };
+
+        self.fromStatus = function (status) {
+            var s = status.settings;
+            self.loaded = s;
+            self.enabled(s.enabled);
+            self.mode(s.mode);
+            self.chordTol(String(s.chord_tol_mm));
+            self.limitsPolicy(s.limits_policy);
+            self.applyChanges(s.apply_changes);
+            self.passThrough(s.pass_through_on_error);
+            self.demo(!!(s.demo && s.demo.enabled));
+            var p = s.params;
+            _.each(self.squareness, function (f) {
+                f.value(String(p.squareness_um_per_m[f.id.slice(3)]));
+            });
+            _.each(self.scale, function (f) {
+                f.value(String(p.scale_ppm[f.id.slice(3)]));
+            });
+            _.each(self.backlash, function (b) {
+                var v = p.backlash[b.axis];
+                b.table = _.isArray(v) ? v : null; // as stored (may have more than 2 points)
+                if (_.isArray(v)) {
+                    b.varies(true);
+                    b.at0(String(v[0].at_mm));
+                    b.um0(String(v[0].um));
+                    b.at1(String(v[v.length - 1].at_mm));
+                    b.um1(String(v[v.length - 1].um));
+                    b.single(String(v[0].um));
+                } else {
+                    b.varies(false);
+                    b.single(String(v));
+                }
+            });
+            self.blFraction(String(p.backlash.fraction));
+            self.blSmoothing(String(p.backlash.smoothing_mm));
+            self.limits(status.limits);
+            self.paramsHash(status.params_hash);
+            self.engine(status.engine || "");
+            var a = about(status);
+            self.version(a.version);
+            self.homepage(a.homepage);
+            self.firmwareHelp(a.firmwareHelp);
+            self.showFirmware(status.equivalents);
+            self.conflicts(
+                _.map(status.firmware.conflicts || {}, function (where, kind) {
+                    return kind + ": " + where;
+                })
+            );
+        };
+
+        self.showFirmware = function (eq) {
+            if (!eq || !eq.export) return;
+            self.exports(_.map(["marlin", "klipper", "reprapfirmware"], function (key) {
+                var fw = eq.export[key] || {name: key, sections: [], notes: []};
+                return {
+                    key: key,
+                    name: fw.name,
+                    notes: _.map(fw.notes, trMsg),
+                    sections: _.map(fw.sections, function (section) {
+                        var copied = ko.observable("");
+                        return {
+                            key: key + "_" + section.key,
+                            title: trMsg(section.title),
+                            text: section.text,
+                            copied: copied,
+                            copy: function (data, event) {
+                                copyText(section.text, $(event.target).closest(".kincomp-fw-section"),
+                                    function (ok) {
+                                        copied(ok ? gettext("Copied") : gettext("Select the text and copy it"));
+                                        setTimeout(function () { copied(""); }, 3000);
+                                    });
+                            }
+                        };
+                    })
+                };
+            }));
+        };
+
+        self.load = function () {
+            return OctoPrint.get(API("status")).done(function (status) {
+                self.fromStatus(status);
+                self.errors({});
+                self.formError("");
+            });
+        };
+
+        self.collect = function () {
+            // the settings document from the form; field errors for what is not a number
+            var errs = {};
+            var number = function (path, text) {
+                var v = num(text);
+                if (isNaN(v)) {
+                    errs[path] = gettext("Enter a number");
+                }
+                return v;
+            };
+            var params = JSON.parse(JSON.stringify(self.loaded.params));
+            _.each(self.squareness, function (f) {
+                params.squareness_um_per_m[f.id.slice(3)] = number(f.path, f.value());
+            });
+            _.each(self.scale, function (f) {
+                params.scale_ppm[f.id.slice(3)] = number(f.path, f.value());
+            });
+            _.each(self.backlash, function (b) {
+                var t = b.table;
+                var untouched = t && t.length > 2 &&
+                    num(b.at0()) === t[0].at_mm && num(b.um0()) === t[0].um &&
+                    num(b.at1()) === t[t.length - 1].at_mm && num(b.um1()) === t[t.length - 1].um;
+                if (b.varies() && untouched) {
+                    params.backlash[b.axis] = t; // the form shows the ends; keep the inner points
+                } else if (b.varies()) {
+                    params.backlash[b.axis] = [
+                        {at_mm: number(b.path, b.at0()), um: number(b.path, b.um0())},
+                        {at_mm: number(b.path, b.at1()), um: number(b.path, b.um1())}
+                    ];
+                } else {
+                    params.backlash[b.axis] = number(b.path, b.single());
+                }
+            });
+            params.backlash.fraction = number("params.backlash.fraction", self.blFraction());
+            params.backlash.smoothing_mm = number("params.backlash.smoothing_mm", self.blSmoothing());
+            return {
+                errors: errs,
+                data: {
+                    enabled: self.enabled(),
+                    mode: self.mode(),
+                    params: params,
+                    chord_tol_mm: number("chord_tol_mm", self.chordTol()),
+                    limits_policy: self.limitsPolicy(),
+                    apply_changes: self.applyChanges(),
+                    pass_through_on_error: self.passThrough(),
+                    demo: {enabled: self.demo()}
+                }
+            };
+        };
+
+        self.save = function () {
+            self.savedMessage("");
+            if (!self.loaded) return $.Deferred().reject().promise();
+            var collected = self.collect();
+            if (!_.isEmpty(collected.errors)) {
+                self.errors(collected.errors);
+                self.formError(gettext("Some values are not numbers; see the marked fields."));
+                return $.Deferred().reject().promise();
+            }
+            self.saving(true);
+            return OctoPrint.postJson(API("settings"), collected.data)
+                .done(function () {
+                    self.errors({});
+                    self.formError("");
+                    self.savedMessage(gettext("Saved."));
+                    self.load();
+                })
+                .fail(function (jqXHR) {
+                    var msg = errorText(jqXHR);
+                    // the server names the field first: "params.scale_ppm.x: ..."
+                    var path = msg.split(":")[0];
+                    var errs = {};
+                    var match = _.find(self.allPaths(), function (p) {
+                        return path === p || path.indexOf(p + ".") === 0 || path.indexOf(p + "[") === 0;
+                    });
+                    if (match) errs[match] = msg.slice(path.length + 1).trim();
+                    self.errors(errs);
+                    self.formError(msg);
+                })
+                .always(function () {
+                    self.saving(false);
+                });
+        };
+
+        self.allPaths = function () {
+            return _.pluck(self.squareness, "path")
+                .concat(_.pluck(self.scale, "path"))
+                .concat(_.pluck(self.backlash, "path"))
+                .concat(["params.backlash.fraction", "params.backlash.smoothing_mm", "chord_tol_mm"]);
+        };
+
+        self.onSettingsShown = function () {
+            self.savedMessage("");
+            self.load();
+        };
+
+        self.onSettingsBeforeSave = function () {
+            // OctoPrint's own Save button saves the KinComp pane too (through KinComp's API,
+            // which refuses invalid values with a message instead of dropping them)
+            if (!self.loaded) return;
+            var now = JSON.stringify(self.collect().data);
+            var before = JSON.stringify({
+                enabled: self.loaded.enabled, mode: self.loaded.mode, params: self.loaded.params,
+                chord_tol_mm: self.loaded.chord_tol_mm, limits_policy: self.loaded.limits_policy,
+                apply_changes: self.loaded.apply_changes,
+                pass_through_on_error: self.loaded.pass_through_on_error,
+                demo: {enabled: !!(self.loaded.demo && self.loaded.demo.enabled)}
+            });
+            if (now !== before) {
+                self.save().fail(function () {
+                    notify({
+                        title: gettext("KinComp settings not saved"),
+                        text: self.formError(),
+                        type: "error",
+                        hide: false
+                    });
+                });
+            }
+        };
+    }
+
+    OCTOPRINT_VIEWMODELS.push({
+        construct: KinCompSettingsViewModel,
+        dependencies: ["accessViewModel", "loginStateViewModel"],
+        elements: ["#settings_plugin_kincomp"]
+    });
+});

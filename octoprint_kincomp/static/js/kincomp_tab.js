@@ -1,0 +1,537 @@
+/*
+ * KinComp web UI: the calibration tab (1: the test program on the bed drawing, 2: the
+ * measurement, 3: the result with the ballbar polar plot, the table and the proposal, and
+ * the history) and the server's notifications.
+ */
+$(function () {
+    "use strict";
+    var K = window.KinComp;
+    var API = K.API;
+    var num = K.num;
+    var fmt = K.fmt;
+    var errorText = K.errorText;
+    var notify = K.notify;
+    var about = K.about;
+    var trMsg = K.trMsg;
+    var translateNotice = K.translateNotice;
+    var rows = K.rows;
+    var pick = K.pick;
+
+    function KinCompTabViewModel(parameters) {
+        var self = this;
+        self.loginState = parameters[0];
+        self.access = parameters[1];
+        self.printerState = parameters[2];
+
+        self.step = ko.observable("program");
+        self.error = ko.observable("");
+        self.busy = ko.observable(false);
+        self.enabled = ko.observable(false);
+        self.demo = ko.observable(false);
+        self.paramsHash = ko.observable("");
+        self.version = ko.observable("");
+        self.homepage = ko.observable("");
+        self.limits = ko.observable([0, 200, 0, 200, 0, 200]);
+        self.outdatedFiles = ko.observableArray([]);
+
+        self.canWrite = ko.pureComputed(function () {
+            self.loginState.currentUser(); // re-evaluate on login/logout
+            var perm = self.access.permissions.PLUGIN_KINCOMP_ADMIN;
+            return perm ? self.loginState.hasPermission(perm) : false;
+        });
+
+        // step 1
+        self.plane = ko.observable("XY");
+        self.cx = ko.observable("100");
+        self.cy = ko.observable("100");
+        self.cz = ko.observable("10");
+        self.radius = ko.observable("100");
+        self.feed = ko.observable("1850");
+        self.checkMounted = ko.observable(false);
+        self.checkHeight = ko.observable(false);
+        self.checkClear = ko.observable(false);
+        self.mountPause = ko.observable(false);
+        self.programPath = ko.observable("");
+        self.printing = ko.observable(false);
+
+        self.bed = ko.pureComputed(function () {
+            // the bed outline in the test plane and the circle, in mm (SVG y points down)
+            var l = self.limits() || [0, 200, 0, 200, 0, 200];
+            var plane = self.plane();
+            var ia = plane === "YZ" ? 1 : 0;
+            var ib = plane === "XY" ? 1 : 2;
+            var a0 = l[2 * ia], a1 = l[2 * ia + 1], b0 = l[2 * ib], b1 = l[2 * ib + 1];
+            var c = [num(self.cx()), num(self.cy()), num(self.cz())];
+            var r = num(self.radius());
+            var ca = c[ia], cb = c[ib];
+            var ok = !isNaN(ca) && !isNaN(cb) && r > 0;
+            var fits = ok && ca - r >= a0 && ca + r <= a1 && cb - r >= b0 && cb + r <= b1;
+            var pad = Math.max(a1 - a0, b1 - b0) * 0.05;
+            return {
+                viewBox: [a0 - pad, -(b1 + pad), a1 - a0 + 2 * pad, b1 - b0 + 2 * pad].join(" "),
+                x: a0, y: -b1, w: a1 - a0, h: b1 - b0,
+                cx: ok ? ca : 0, cy: ok ? -cb : 0, r: ok ? r : 0,
+                dot: Math.max(a1 - a0, b1 - b0) / 100,
+                fits: fits,
+                caption: ok
+                    ? _.sprintf(
+                          fits
+                              ? gettext("%(plane)s plane: the circle fits the bed (%(a0)s…%(a1)s × %(b0)s…%(b1)s mm).")
+                              : gettext("%(plane)s plane: the circle does NOT fit the bed (%(a0)s…%(a1)s × %(b0)s…%(b1)s mm)."),
+                          {plane: plane, a0: a0, a1: a1, b0: b0, b1: b1}
+                      )
+                    : gettext("Enter the centre and the radius.")
+            };
+        });
+
+        self.canPrint = ko.pureComputed(function () {
+            return (
+                self.canWrite() &&
+                self.checkMounted() &&
+                self.checkHeight() &&
+                self.checkClear() &&
+                self.bed().fits &&
+                self.printerState.isOperational() &&
+                !self.printerState.isPrinting() &&
+                !self.busy()
+            );
+        });
+
+        self.printHint = ko.pureComputed(function () {
+            if (!self.printerState.isOperational()) return gettext("Connect the printer first.");
+            if (!(self.checkMounted() && self.checkHeight() && self.checkClear()))
+                return gettext("Tick the checklist to print.");
+            return "";
+        });
+
+        self.progressPct = ko.pureComputed(function () {
+            var p = self.printerState.progress();
+            return p ? Math.round(p) : 0;
+        });
+        self.progressText = ko.pureComputed(function () {
+            return _.sprintf(gettext("Printing the test program: %(pct)s %%"), {pct: self.progressPct()});
+        });
+
+        // step 2
+        self.sPlane = ko.observable("XY");
+        self.sSquareness = ko.observable("");
+        self.sMismatch = ko.observable("");
+        self.sBlAp = ko.observable("");
+        self.sBlAm = ko.observable("");
+        self.sBlBp = ko.observable("");
+        self.sBlBm = ko.observable("");
+        self.aPlane = ko.observable("XY");
+        self.aAC = ko.observable("");
+        self.aBD = ko.observable("");
+        self.aAD = ko.observable("");
+
+        // step 3 and history
+        self.run = ko.observable(null);
+        self.trMsg = trMsg;
+        self.beforeRun = ko.observable(null);
+        self.compareRows = ko.observableArray([]);
+        self.runs = ko.observableArray([]);
+        self.compareBefore = ko.observable("");
+        self.compareAfter = ko.observable("");
+        self.plotCaption = ko.observable("");
+
+        self.fmt = fmt;
+
+        self.tableRows = ko.pureComputed(function () {
+            var run = self.run();
+            if (!run) return [];
+            var cmp = self.compareRows();
+            return _.map(rows(), function (row) {
+                var c = _.findWhere(cmp, {key: row[0]});
+                return {
+                    label: row[1],
+                    unit: row[2],
+                    value: fmt(pick(run.diagnostics, row[0])),
+                    before: c ? fmt(c.before) : "",
+                    reduction: c && c.reduction_pct !== null ? fmt(c.reduction_pct, 1) + " %" : ""
+                };
+            });
+        });
+
+        self.proposedRows = ko.pureComputed(function () {
+            var run = self.run();
+            if (!run || !run.proposed) return [];
+            var p = run.proposed;
+            var bl = function (v) {
+                if (_.isArray(v)) {
+                    return _.map(v, function (pt) {
+                        return _.sprintf(gettext("%(um)s µm at %(at)s mm"), {um: fmt(pt.um, 1), at: fmt(pt.at_mm, 0)});
+                    }).join(", ");
+                }
+                return fmt(v, 1) + " µm";
+            };
+            return [
+                {label: gettext("Squareness XY"), value: fmt(p.squareness_um_per_m.xy, 1) + " µm/m"},
+                {label: gettext("Squareness XZ"), value: fmt(p.squareness_um_per_m.xz, 1) + " µm/m"},
+                {label: gettext("Squareness YZ"), value: fmt(p.squareness_um_per_m.yz, 1) + " µm/m"},
+                {label: gettext("Scale X"), value: fmt(p.scale_ppm.x, 1) + " ppm"},
+                {label: gettext("Scale Y"), value: fmt(p.scale_ppm.y, 1) + " ppm"},
+                {label: gettext("Scale Z"), value: fmt(p.scale_ppm.z, 1) + " ppm"},
+                {label: gettext("Backlash X"), value: bl(p.backlash.x)},
+                {label: gettext("Backlash Y"), value: bl(p.backlash.y)},
+                {label: gettext("Backlash Z"), value: bl(p.backlash.z)}
+            ];
+        });
+
+        self.fail = function (jqXHR) {
+            var msg = errorText(jqXHR);
+            self.error(msg);
+            notify({title: gettext("KinComp"), text: msg, type: "error"});
+        };
+
+        self.refresh = function () {
+            var perm = self.access.permissions.STATUS;
+            if (!perm || !self.loginState.hasPermission(perm)) return;
+            OctoPrint.get(API("status")).done(function (status) {
+                self.enabled(status.settings.enabled);
+                self.demo(status.demo);
+                if (status.settings_problem && !self.problemShown) {
+                    self.problemShown = true;
+                    notify({
+                        title: gettext("KinComp settings reset"),
+                        text: _.sprintf(gettext("The stored KinComp settings could not be used (%(reason)s); the defaults apply and compensation is off. Check the settings and save them."), {reason: status.settings_problem}),
+                        type: "error",
+                        hide: false
+                    });
+                }
+                self.paramsHash(status.params_hash);
+                var a = about(status);
+                self.version(a.version);
+                self.homepage(a.homepage);
+                if (status.limits) {
+                    self.limits(status.limits);
+                    if (!self.programTouched) self.defaultsFromProfile(status.limits, status.max_feeds);
+                }
+            });
+            var files = self.access.permissions.FILES_LIST;
+            if (files && self.loginState.hasPermission(files)) {
+                OctoPrint.get(API("files")).done(function (resp) {
+                    self.outdatedFiles(_.pluck(_.where(resp.files, {outdated: true}), "path"));
+                });
+            }
+        };
+
+        // the test circle starts at the bed centre with the largest standard radius that
+        // fits (100 mm, else 50, 25), until the user edits the form
+        self.programTouched = false;
+        self.defaultsFromProfile = function (l, maxFeeds) {
+            var half = Math.min(l[1] - l[0], l[3] - l[2]) / 2 - 5;
+            // ISO 230-4's 1850 mm/min, or the slowest axis of the XY plane if it is slower
+            var feed = 1850;
+            if (maxFeeds) {
+                _.each(["x", "y"], function (a) {
+                    if (maxFeeds[a] > 0) feed = Math.min(feed, maxFeeds[a]);
+                });
+            }
+            self.feed(String(feed));
+            var radius = _.find([100, 50, 25], function (r) {
+                return r <= half;
+            }) || Math.max(5, Math.floor(half));
+            self.cx(String((l[0] + l[1]) / 2));
+            self.cy(String((l[2] + l[3]) / 2));
+            self.cz(String(Math.min(10, l[5])));
+            self.radius(String(radius));
+            self.programTouched = false;
+        };
+        _.each(["cx", "cy", "cz", "radius", "feed", "plane"], function (name) {
+            self[name].subscribe(function () {
+                self.programTouched = true;
+            });
+        });
+
+        self.programRequest = function (print) {
+            return {
+                plane: self.plane(),
+                centre: [num(self.cx()), num(self.cy()), num(self.cz())],
+                radius: num(self.radius()),
+                feed: num(self.feed()),
+                mount_pause: self.mountPause(),
+                print: print
+            };
+        };
+
+        self.sendProgram = function (print) {
+            self.error("");
+            self.busy(true);
+            return OctoPrint.postJson(API("program"), self.programRequest(print))
+                .done(function (resp) {
+                    self.programPath(resp.path);
+                    self.printing(resp.printing);
+                    if (resp.spec && resp.spec.feed_mm_min !== num(self.feed())) {
+                        notify({
+                            title: gettext("KinComp"),
+                            text: _.sprintf(gettext("Feed capped at %(feed)s mm/min (the slowest axis of the plane)."), {feed: resp.spec.feed_mm_min}),
+                            type: "info"
+                        });
+                    }
+                })
+                .fail(self.fail)
+                .always(function () {
+                    self.busy(false);
+                });
+        };
+
+        self.printProgram = function () {
+            self.sendProgram(true);
+        };
+        self.generateOnly = function () {
+            self.sendProgram(false);
+        };
+
+        self.showRun = function (run) {
+            self.run(run);
+            self.error("");
+            self.step("result");
+            self.plotLater();
+        };
+
+        self.analysed = function (run) {
+            // after "Re-test", beforeRun holds the previous run: the new one is compared to it
+            self.compareRows([]);
+            self.showRun(run);
+            self.loadRuns();
+        };
+
+        self.uploadBlob = function (blob, name) {
+            self.busy(true);
+            self.error("");
+            return OctoPrint.upload(API("trace"), blob, name)
+                .done(function (result) {
+                    self.analysed(result[0]);
+                })
+                .fail(function (result) {
+                    self.fail(result[0]);
+                })
+                .always(function () {
+                    self.busy(false);
+                    $("#kincomp_trace_file").val("");
+                });
+        };
+
+        self.uploadTrace = function (data, event) {
+            var file = event.target.files && event.target.files[0];
+            if (file) self.uploadBlob(file, file.name);
+        };
+
+        self.useSimulated = function () {
+            self.busy(true);
+            OctoPrint.get(API("demo/trace"), {dataType: "text"})
+                .done(function (text) {
+                    var blob = new Blob([text], {type: "text/csv"});
+                    self.uploadBlob(blob, "simulated_trace.csv");
+                })
+                .fail(function (jqXHR) {
+                    self.busy(false);
+                    self.fail(jqXHR);
+                });
+        };
+
+        self.analyseSummary = function () {
+            var summary = {plane: self.sPlane()};
+            var put = function (key, text) {
+                var v = num(text);
+                if (!isNaN(v)) summary[key] = v;
+            };
+            put("squareness_um_per_m", self.sSquareness());
+            put("scale_mismatch_ppm", self.sMismatch());
+            put("backlash_a_plus", self.sBlAp());
+            put("backlash_a_minus", self.sBlAm());
+            put("backlash_b_plus", self.sBlBp());
+            put("backlash_b_minus", self.sBlBm());
+            OctoPrint.postJson(API("analyze"), {summary: summary}).done(self.analysed).fail(self.fail);
+        };
+
+        self.analyseArtifact = function () {
+            OctoPrint.postJson(API("analyze"), {
+                artifact: {plane: self.aPlane(), ac: num(self.aAC()), bd: num(self.aBD()), ad: num(self.aAD())}
+            })
+                .done(self.analysed)
+                .fail(self.fail);
+        };
+
+        self.applyRun = function () {
+            var run = self.run();
+            if (!run) return;
+            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true})
+                .done(function (resp) {
+                    self.paramsHash(resp.params_hash);
+                    self.enabled(true);
+                    OctoPrint.get(API("runs/" + run.id)).done(function (fresh) {
+                        self.run(fresh);
+                    });
+                    var waiting = resp.compensation && resp.compensation.pending_params_hash;
+                    notify({
+                        title: gettext("KinComp"),
+                        text: waiting
+                            ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                            : gettext("Parameters applied; compensation is on. Re-test to see the improvement."),
+                        type: "success"
+                    });
+                    self.loadRuns();
+                })
+                .fail(self.fail);
+        };
+
+        self.retest = function () {
+            // the next result is compared with this one
+            self.beforeRun(self.run());
+            self.step("program");
+        };
+
+        self.loadRuns = function () {
+            OctoPrint.get(API("runs")).done(function (resp) {
+                self.runs(
+                    _.map(resp.runs, function (r) {
+                        return _.extend({}, r, {
+                            squareness: r.squareness_um_per_m,
+                            circularity: r.circularity_um
+                        });
+                    })
+                );
+            });
+        };
+
+        self.traceUrl = function (run) {
+            return API("runs/" + encodeURIComponent(run.id) + "/trace");
+        };
+
+        self.showHistory = function () {
+            self.step("history");
+            self.loadRuns();
+        };
+
+        self.openRun = function (summary) {
+            OctoPrint.get(API("runs/" + summary.id)).done(function (run) {
+                self.beforeRun(null);
+                self.compareRows([]);
+                self.showRun(run);
+            }).fail(self.fail);
+        };
+
+        self.compare = function () {
+            var a = self.compareBefore(), b = self.compareAfter();
+            $.when(OctoPrint.get(API("runs/" + a)), OctoPrint.get(API("runs/" + b)),
+                   OctoPrint.get(API("compare?before=" + encodeURIComponent(a) + "&after=" + encodeURIComponent(b))))
+                .done(function (ra, rb, cmp) {
+                    self.beforeRun(ra[0]);
+                    self.compareRows(cmp[0].table);
+                    self.showRun(rb[0]);
+                })
+                .fail(self.fail);
+        };
+
+        // an analysis right after a re-test is compared with the run before it
+        self.run.subscribe(function (run) {
+            var before = self.beforeRun();
+            if (!run || !before || before.id === run.id || self.compareRows().length) return;
+            OctoPrint.get(API("compare?before=" + encodeURIComponent(before.id) + "&after=" + encodeURIComponent(run.id)))
+                .done(function (cmp) {
+                    self.compareRows(cmp.table);
+                    self.plotLater();
+                });
+        });
+
+        /* the classic ballbar plot: deviation magnified around the nominal circle */
+        self.plotLater = function () {
+            window.setTimeout(self.plot, 50);
+        };
+
+        self.plot = function () {
+            var run = self.run();
+            var target = $("#kincomp_plot");
+            if (!run || !run.plot || !target.is(":visible")) return;
+            target.height(target.width()); // equal scales: a circle stays a circle
+            var runs = [run.plot];
+            var before = self.beforeRun();
+            if (before && before.plot && before.id !== run.id) runs.push(before.plot);
+            var perDiv = K.drawPolar(target, runs);
+            var axes = run.plot.axes || {a: "A", b: "B"};
+            self.plotCaption(
+                _.sprintf(
+                    gettext("%(plane)s plane, R %(r)s mm: radial deviation magnified, %(um)s µm per ring; angle from +%(a)s toward +%(b)s; least-squares centre removed."),
+                    {plane: run.plot.plane, r: run.plot.radius_mm, um: perDiv, a: axes.a, b: axes.b}
+                ) + (run.simulated ? " " + gettext("SIMULATED data.") : "")
+            );
+        };
+
+        self.step.subscribe(function (step) {
+            if (step === "result") self.plotLater();
+        });
+
+        self.onTabChange = function (current) {
+            if (current === "#tab_plugin_kincomp") {
+                self.refresh();
+                self.plotLater();
+            }
+        };
+
+        self.onUserLoggedIn = function () {
+            self.refresh();
+        };
+        self.onStartupComplete = function () {
+            self.refresh();
+        };
+        self.onEventPrintDone = function () {
+            self.printing(false);
+        };
+        self.onEventPrintFailed = self.onEventPrintDone;
+        self.onEventPrintCancelled = self.onEventPrintDone;
+        self.onEventSettingsUpdated = function () {
+            self.refresh();
+        };
+        self.onEventFileAdded = function () {
+            self.refresh();
+        };
+        // the custom event plugin_kincomp_params_applied, camel-cased by OctoPrint
+        self.onEventPluginKincompParamsApplied = function () {
+            self.refresh();
+        };
+
+        self.onDataUpdaterPluginMessage = function (plugin, data) {
+            if (plugin !== "kincomp" || !data) return;
+            if (data.type === "notify") {
+                notify({
+                    title: gettext("KinComp"),
+                    text: translateNotice(data),
+                    type: data.severity === "warning" ? "notice" : data.severity,
+                    hide: data.severity !== "error"
+                });
+            } else if (data.type === "demo_trace") {
+                self.printing(false);
+                self.step("measure");
+            } else if (data.type === "job" && data.job) {
+                var job = data.job;
+                if (job.state === "running") {
+                    self.jobNotice = self.jobNotice || notify({
+                        title: gettext("KinComp"), text: "", type: "info", hide: false
+                    });
+                    self.jobNotice.update({
+                        text: _.sprintf(gettext("Compensating %(path)s: %(pct)s %%"), {
+                            path: job.path, pct: Math.round((job.progress || 0) * 100)
+                        })
+                    });
+                } else if (self.jobNotice) {
+                    self.jobNotice.update({
+                        text: job.state === "done"
+                            ? _.sprintf(gettext("Compensated copy ready: %(path)s"), {path: job.result})
+                            : _.sprintf(gettext("Compensation of %(path)s failed: %(error)s"), {path: job.path, error: job.error}),
+                        type: job.state === "done" ? "success" : "error",
+                        hide: true
+                    });
+                    self.jobNotice = undefined;
+                }
+            }
+        };
+    }
+
+    OCTOPRINT_VIEWMODELS.push({
+        construct: KinCompTabViewModel,
+        dependencies: ["loginStateViewModel", "accessViewModel", "printerStateViewModel"],
+        elements: ["#tab_plugin_kincomp"]
+    });
+});
