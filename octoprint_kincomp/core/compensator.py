@@ -32,6 +32,7 @@ import math
 from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple, Union
 
+from .arcpath import ArcWriter
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
@@ -61,6 +62,8 @@ class Options:
     ``policy``: what happens when compensation pushes a point outside the limits: ``warn``
     (count it, send it), ``clamp`` (clamp the commanded point onto the limit) or ``error``
     (raise :class:`LimitError`). Points the program itself places outside are never altered.
+    ``chord_tol_mm``: how far a written arc or chord may deviate from the desired arc;
+    ``linearise_arcs``: write every G2/G3 as G1 chords (firmware without arc support).
     """
 
     chord_tol_mm: float = 0.01
@@ -70,6 +73,7 @@ class Options:
     home_mm: Tuple[float, float, float] = (0.0, 0.0, 0.0)
     deadband_mm: float = DEFAULT_DEADBAND_MM
     g90_influences_extruder: bool = True
+    linearise_arcs: bool = False
 
     def __post_init__(self):
         if self.policy not in POLICIES:
@@ -124,6 +128,7 @@ class Compensator:
         self.writer = PathWriter(self.model, self.backlash, self.options, self.state,
                                  self.needs, self.servo_s)
         self.moves = MoveHandler(self)
+        self.arc_writer = ArcWriter(self.writer, self)
         # policy "error": lines are processed so that a refused one changes nothing
         self._guarded = self.options.policy == "error" and self.options.limits is not None
         self.fast = fast

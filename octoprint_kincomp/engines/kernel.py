@@ -50,8 +50,13 @@ def build(comp: Compensator) -> Optional[object]:
         return None
     model = comp.model
     affine = tuple(v for row in model.inverse_rows for v in row) + tuple(model.offset_mm)
+    aw = comp.arc_writer
+    arcs = None
+    if not comp.options.linearise_arcs:
+        arcs = (comp.pure_translation, comp.options.chord_tol_mm, aw.k_dev, aw.budget,
+                aw.sliver, aw.max_offset, tuple(float(v) for v in aw.breaks[17]))
     return _ext.Kernel(affine, tables, bl.half, bl.deadband, comp.options.limits,
-                       comp.options.decimals)
+                       comp.options.decimals, arcs)
 
 
 def _check_program() -> List[str]:
