@@ -110,6 +110,34 @@ class ArcWriter:
                     return False
         return True
 
+    def monotone(self, arc: arcs.Arc, cuts: Sequence[float]) -> bool:
+        """Whether the command of every backlash axis moves one way along each piece
+        (checked at eighths of the piece): a spiral arc (end radius far from the start
+        radius) can reverse between the break angles of a circle; such arcs are linearised
+        (their chords take the reversals where they fall)."""
+        bl = self.backlash
+        if not bl.any_active:
+            return True
+        db = bl.deadband
+        carriage = self.w.carriage
+        fa = 0.0
+        for fb in cuts:
+            qs = [carriage(arc.point(fa + (fb - fa) * (j * 0.125))) for j in range(9)]
+            for k in range(3):
+                if not bl.active[k]:
+                    continue
+                up = down = False
+                for j in range(8):
+                    d = qs[j + 1][k] - qs[j][k]
+                    if d > db:
+                        up = True
+                    elif d < -db:
+                        down = True
+                if up and down:
+                    return False
+            fa = fb
+        return True
+
     # -- writing -----------------------------------------------------------------------
     def write(self, code_text: str, arc: arcs.Arc, cuts: Sequence[float], clockwise: bool,
               given, e_word, tail, comment: str, e_relative: bool) -> List[str]:

@@ -168,7 +168,8 @@ class MoveHandler:
             keep = writer.usable() and writer.inside_limits(arc)
             if keep:
                 cuts = arc.cuts(writer.breaks[plane])
-            else:
+                keep = writer.monotone(arc, cuts)
+            if not keep:
                 pts = arcs.linearise(start, end, plane, ca, cb, clockwise, tol, turns,
                                      self.extreme_angles(plane))
         except arcs.ArcError:

@@ -24,6 +24,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from octoprint_kincomp.core import arcs
 from octoprint_kincomp.core.backlash import Play
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import KinematicModel
@@ -33,36 +34,71 @@ from octoprint_kincomp.engines.select import make_compensator
 from tests.core.test_properties import cfg, geometry, program
 
 pytestmark = pytest.mark.usefixtures("engine")
-FINE = 1e-6  # sagitta of the chords the interpreters cut arcs into (mm)
+FINE = 1e-5  # sagitta of the chords the interpreters cut arcs into (mm)
+# Arcs whose end radius differs from the start radius by more than this (plus 0.1 %) are
+# spirals that firmware refuses (grbl, LinuxCNC); the random words of the property programs
+# make such arcs, and for them the check (radial distance at the same angle) overstates the
+# distance of a chord: they are not compared here.
+SPIRAL_MM = 0.05
 
 
-def _segments_distance(points, poly):
-    """Largest distance (mm) from each of ``points`` to the polyline ``poly``."""
-    P = np.asarray(points, float)
-    A = np.asarray(poly[:-1], float)
-    B = np.asarray(poly[1:], float)
-    if len(A) == 0:
-        return float(np.max(np.linalg.norm(P - np.asarray(poly[0]), axis=1)))
-    worst = 0.0
-    for i in range(0, len(P), 256):
-        p = P[i:i + 256, None, :]
-        ab = B - A
-        L2 = np.einsum("ij,ij->i", ab, ab)
-        t = np.clip(np.einsum("nij,ij->ni", p - A, ab) / np.where(L2 == 0, 1, L2), 0, 1)
-        d = np.linalg.norm(A + t[..., None] * ab - p, axis=2).min(axis=1)
-        worst = max(worst, float(d.max()))
-    return worst
+class _Recorder(FirmwareInterpreter):
+    """The firmware interpreter, remembering the geometry of the last arc it ran."""
+
+    arc = None
+
+    def _arc(self, clockwise, wd, start, end, u, de):
+        ia, ib, _, la, lb = arcs.PLANES[self.plane]
+        offs = (wd[la] * u if la in wd else None, wd[lb] * u if lb in wd else None)
+        radius = wd["R"] * u if "R" in wd else None
+        try:
+            ca, cb = arcs.centre_from_words(start, end, self.plane, offs, radius, clockwise,
+                                            self.ij_absolute)
+            if self.ij_absolute:
+                ca -= self.g[ia]
+                cb -= self.g[ib]
+            self.arc = arcs.Arc(start, end, self.plane, ca, cb, clockwise,
+                                int(wd.get("P", 0)))
+        except arcs.ArcError:
+            self.arc = None
+        return super()._arc(clockwise, wd, start, end, u, de)
 
 
-def hausdorff(a, b) -> float:
-    return max(_segments_distance(a, b), _segments_distance(b, a))
+def deviation(arc: arcs.Arc, path) -> float:
+    """How far the printed ``path`` (points, mm) strays from the desired ``arc``: each point
+    against the arc's point at the same angle about its centre (its radius and linear axis
+    there; an upper bound of the distance to the arc), the path's ends against the arc's
+    ends, and the angle it covers against the sweep. Between two points the path is straight:
+    it is checked at quarters of each segment too."""
+    V = np.asarray(path, float)
+    # the path is straight between its points: check those lines at quarters too
+    P = np.concatenate([V[:-1] + (V[1:] - V[:-1]) * t for t in (0.0, 0.25, 0.5, 0.75)]
+                       + [V[-1:]])
+    order = np.concatenate([np.arange(len(V) - 1) * 4 + i for i in range(4)] + [[4 * len(V)]])
+    P = P[np.argsort(order, kind="stable")]
+    a = P[:, arc.ia] - arc.ca
+    b = P[:, arc.ib] - arc.cb
+    ang = np.unwrap(np.arctan2(b, a))
+    ang += 2 * math.pi * round((arc.t0 - float(ang[0])) / (2 * math.pi))  # ang[0] ~ t0
+    f = np.clip((ang - arc.t0) / arc.sweep, 0.0, 1.0)
+    want_r = arc.r0 + arc.dr * f
+    want_l = arc.l0 + arc.dl * f
+    dr = np.hypot(a, b) - want_r
+    # beyond the ends the arc's end point is what is nearest
+    dl = P[:, arc.il] - want_l
+    d = np.hypot(dr, dl)
+    worst = float(d.max())
+    worst = max(worst, float(np.linalg.norm(P[0] - np.asarray(arc.start))),
+                float(np.linalg.norm(P[-1] - np.asarray(arc.end))))
+    gap = (abs(arc.sweep) - (ang.max() - ang.min())) * max(arc.r0, arc.r1)
+    return max(worst, gap)  # (gap: mm of arc the path never reached)
 
 
 def printed_arcs(p: Params, lines, opts: Options, play: bool):
-    """(input arc line, its output lines, max distance mm) for every arc the compensator
+    """(input arc line, its output lines, deviation mm) for every arc the compensator
     rewrote, the output printed on a printer with the errors (and play) of ``p``."""
     comp = make_compensator(p, opts)
-    want_fw = FirmwareInterpreter(arc_tol_mm=FINE)
+    want_fw = _Recorder(arc_tol_mm=FINE)
     got_fw = FirmwareInterpreter(arc_tol_mm=FINE)
     model = KinematicModel(p)
     backlash = Play(p) if play else None
@@ -71,12 +107,16 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
     for line in lines:
         out = comp.process(line)
         outs = [line] if out is line else out
+        want_fw.arc = None
         want = [ev for ev in want_fw.execute(line) if isinstance(ev, Move)]
         path = [pos] if pos is not None else []
         for o in outs:
             for ev in got_fw.execute(o):
-                if isinstance(ev, Home) and backlash is not None:
-                    backlash.reset(ev.axes)
+                if isinstance(ev, Home):
+                    pos = None  # (the head went home)
+                    path = []
+                    if backlash is not None:
+                        backlash.reset(ev.axes)
                 if not isinstance(ev, Move):
                     continue
                 ends = []
@@ -88,10 +128,10 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
                     path.append(ends[0])
                 pos = ends[1]
                 path.append(pos)
-        is_arc = want and want[0].kind == "arc"
-        if is_arc and out is not line and len(path) > 1:
-            desired = [want[0].start] + [ev.end for ev in want]
-            results.append((line, outs, hausdorff(path, desired)))
+        arc = want_fw.arc
+        if arc is not None and want and out is not line and len(path) > 1 and \
+                abs(arc.dr) <= SPIRAL_MM + 1e-3 * arc.r0:
+            results.append((line, outs, deviation(want_fw.arc, path)))
     return comp, results
 
 
@@ -166,7 +206,7 @@ def test_every_written_arc_prints_within_the_tolerance(lines, geo, tol, dec):
     opts = Options(chord_tol_mm=tol, decimals=dec)
     _, results = printed_arcs(p, lines, opts, play=False)
     for line, outs, d in results:
-        assert d <= tol + _resolution(opts) + 2 * FINE, (line, outs, d)
+        assert d <= tol + _resolution(opts) + FINE, (line, outs, d)
 
 
 @cfg(40)
@@ -176,7 +216,7 @@ def test_with_play_every_written_arc_prints_within_the_tolerance(lines, geo, bl,
     opts = Options(chord_tol_mm=tol, decimals=6)
     _, results = printed_arcs(p, lines, opts, play=True)
     for line, outs, d in results:
-        assert d <= tol + _resolution(opts) + 2 * FINE, (line, outs, d)
+        assert d <= tol + _resolution(opts) + FINE, (line, outs, d)
 
 
 @cfg(25)
@@ -186,7 +226,7 @@ def test_arcs_of_the_property_programs_print_within_the_tolerance(lines, geo, to
     opts = Options(chord_tol_mm=tol, decimals=6)
     _, results = printed_arcs(p, lines, opts, play=False)
     for line, outs, d in results:
-        assert d <= tol + _resolution(opts) + 2 * FINE, (line, outs, d)
+        assert d <= tol + _resolution(opts) + FINE, (line, outs, d)
 
 
 def test_slicer_arcs_are_kept_as_single_arcs():
@@ -213,15 +253,14 @@ def test_the_check_can_fail():
     vacuous comparison)."""
     p = Params.from_dict({"squareness_um_per_m": {"xy": 3000.0}})
     lines = ["G28", "G1 X100 Y100 Z1", "G2 X120 Y100 I10 J0"]
-    comp, results = printed_arcs(p, lines, Options(decimals=6), play=False)
+    _, results = printed_arcs(p, lines, Options(decimals=6), play=False)
     assert results and results[0][2] < 0.01
     model = KinematicModel(p)
-    fw = FirmwareInterpreter(arc_tol_mm=FINE)
-    pts = [model.forward(ev.end) for line in lines for ev in fw.execute(line)
-           if isinstance(ev, Move) and ev.kind == "arc"]
-    want = [ev.end for ev in FirmwareInterpreter(arc_tol_mm=FINE).run(lines)
-            if isinstance(ev, Move) and ev.kind == "arc"]
-    assert hausdorff(pts, want) > 0.05
+    fw = _Recorder(arc_tol_mm=FINE)
+    evs = [ev for line in lines for ev in fw.execute(line) if isinstance(ev, Move)]
+    pts = [model.forward(evs[-1].start)] + [model.forward(ev.end) for ev in evs
+                                           if ev.kind == "arc"]
+    assert deviation(fw.arc, pts) > 0.05
 
 
 def test_linearise_arcs_option_writes_chords():

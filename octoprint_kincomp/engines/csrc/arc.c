@@ -455,6 +455,38 @@ static int inside_limits(const Kernel *K, const Geo *a)
     return 1;
 }
 
+/* ArcWriter.monotone */
+static int monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
+{
+    double fa = 0.0, p[3], qs[9][3];
+    int c, j, k;
+    if (!K->any_active)
+        return 1;
+    for (c = 0; c < nc; c++) {
+        double fb = cuts[c];
+        for (j = 0; j < 9; j++) {
+            arc_point(a, fa + (fb - fa) * (j * 0.125), p);
+            kk_inverse(K, p, qs[j]);
+        }
+        for (k = 0; k < 3; k++) {
+            int up = 0, down = 0;
+            if (!K->active[k])
+                continue;
+            for (j = 0; j < 8; j++) {
+                double d = qs[j + 1][k] - qs[j][k];
+                if (d > K->deadband)
+                    up = 1;
+                else if (d < -K->deadband)
+                    down = 1;
+            }
+            if (up && down)
+                return 0;
+        }
+        fa = fb;
+    }
+    return 1;
+}
+
 /* arcs.arc_sweep and the checks of MoveHandler.arc; 0 or -1 (Python decides) */
 static int make_geo(const Kernel *K, Geo *a, const double *start, const double *end,
                     double ca, double cb, int cw)
@@ -577,7 +609,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         if (!inside_limits(K, &a))
             return LINE_PYTHON;
         nc = arc_cuts(K, &a, cuts);
-        if (nc < 0)
+        if (nc < 0 || !monotone(K, &a, cuts, nc))
             return LINE_PYTHON;
         j.K = K;
         j.s = &s;
