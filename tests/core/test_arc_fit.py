@@ -65,11 +65,10 @@ class _Recorder(FirmwareInterpreter):
 
 
 def deviation(arc: arcs.Arc, path) -> float:
-    """How far the printed ``path`` (points, mm) strays from the desired ``arc``: each point
-    against the arc's point at the same angle about its centre (its radius and linear axis
-    there; an upper bound of the distance to the arc), the path's ends against the arc's
-    ends, and the angle it covers against the sweep. Between two points the path is straight:
-    it is checked at quarters of each segment too."""
+    """How far the printed ``path`` (points, mm) strays from the desired ``arc``: each point's
+    distance to the arc (the nearest of the arc's points around the one at the same angle),
+    the path's ends against the arc's ends, and the angle it covers against the sweep.
+    Between two points the path is straight: it is checked at quarters of each segment too."""
     V = np.asarray(path, float)
     # the path is straight between its points: check those lines at quarters too
     P = np.concatenate([V[:-1] + (V[1:] - V[:-1]) * t for t in (0.0, 0.25, 0.5, 0.75)]
@@ -81,13 +80,22 @@ def deviation(arc: arcs.Arc, path) -> float:
     ang = np.unwrap(np.arctan2(b, a))
     ang += 2 * math.pi * round((arc.t0 - float(ang[0])) / (2 * math.pi))  # ang[0] ~ t0
     f = np.clip((ang - arc.t0) / arc.sweep, 0.0, 1.0)
-    want_r = arc.r0 + arc.dr * f
-    want_l = arc.l0 + arc.dl * f
-    dr = np.hypot(a, b) - want_r
-    # beyond the ends the arc's end point is what is nearest
-    dl = P[:, arc.il] - want_l
-    d = np.hypot(dr, dl)
-    worst = float(d.max())
+    # the nearest point of the arc is near the one at the same angle: search around it
+    # (twice, the second time 40 times finer), so a steep helix is not judged by its angle
+    width = min(0.5, 0.2 / (max(min(arc.r0, arc.r1), 1e-3) * abs(arc.sweep)))
+    for _ in range(2):
+        cand = np.clip(f[:, None] + width * np.linspace(-1.0, 1.0, 81)[None, :], 0.0, 1.0)
+        t = arc.t0 + arc.sweep * cand
+        r = arc.r0 + arc.dr * cand
+        da = a[:, None] - r * np.cos(t)
+        db = b[:, None] - r * np.sin(t)
+        dl = P[:, arc.il][:, None] - (arc.l0 + arc.dl * cand)
+        dist = np.sqrt(da * da + db * db + dl * dl)
+        best = np.argmin(dist, axis=1)
+        f = cand[np.arange(len(f)), best]
+        width /= 40.0
+    d = dist[np.arange(len(f)), best]
+    worst = float(d.max())  # (f, the fraction of each point's nearest arc point)
     worst = max(worst, float(np.linalg.norm(P[0] - np.asarray(arc.start))),
                 float(np.linalg.norm(P[-1] - np.asarray(arc.end))))
     gap = (abs(arc.sweep) - (ang.max() - ang.min())) * max(arc.r0, arc.r1)
