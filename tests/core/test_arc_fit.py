@@ -42,28 +42,6 @@ FINE = 1e-5  # sagitta of the chords the interpreters cut arcs into (mm)
 SPIRAL_MM = 0.05
 
 
-class _Recorder(FirmwareInterpreter):
-    """The firmware interpreter, remembering the geometry of the last arc it ran."""
-
-    arc = None
-
-    def _arc(self, clockwise, wd, start, end, u, de):
-        ia, ib, _, la, lb = arcs.PLANES[self.plane]
-        offs = (wd[la] * u if la in wd else None, wd[lb] * u if lb in wd else None)
-        radius = wd["R"] * u if "R" in wd else None
-        try:
-            ca, cb = arcs.centre_from_words(start, end, self.plane, offs, radius, clockwise,
-                                            self.ij_absolute)
-            if self.ij_absolute:
-                ca -= self.g[ia]
-                cb -= self.g[ib]
-            self.arc = arcs.Arc(start, end, self.plane, ca, cb, clockwise,
-                                int(wd.get("P", 0)))
-        except arcs.ArcError:
-            self.arc = None
-        return super()._arc(clockwise, wd, start, end, u, de)
-
-
 def deviation(arc: arcs.Arc, path) -> float:
     """How far the printed ``path`` (points, mm) strays from the desired ``arc``: each point's
     distance to the arc (the nearest of the arc's points around the one at the same angle),
@@ -106,7 +84,7 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
     """(input arc line, its output lines, deviation mm) for every arc the compensator
     rewrote, the output printed on a printer with the errors (and play) of ``p``."""
     comp = make_compensator(p, opts)
-    want_fw = _Recorder(arc_tol_mm=FINE)
+    want_fw = FirmwareInterpreter(arc_tol_mm=FINE)
     got_fw = FirmwareInterpreter(arc_tol_mm=FINE)
     model = KinematicModel(p)
     backlash = Play(p) if play else None
@@ -115,7 +93,7 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
     for line in lines:
         out = comp.process(line)
         outs = [line] if out is line else out
-        want_fw.arc = None
+        want_fw.last_arc = None
         want = [ev for ev in want_fw.execute(line) if isinstance(ev, Move)]
         path = [pos] if pos is not None else []
         for o in outs:
@@ -136,10 +114,10 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
                     path.append(ends[0])
                 pos = ends[1]
                 path.append(pos)
-        arc = want_fw.arc
+        arc = want_fw.last_arc
         if arc is not None and want and out is not line and len(path) > 1 and \
                 abs(arc.dr) <= SPIRAL_MM + 1e-3 * arc.r0:
-            results.append((line, outs, deviation(want_fw.arc, path)))
+            results.append((line, outs, deviation(arc, path)))
     return comp, results
 
 
@@ -265,11 +243,11 @@ def test_the_check_can_fail():
     _, results = printed_arcs(p, lines, Options(decimals=6), play=False)
     assert results and results[0][2] < 0.01
     model = KinematicModel(p)
-    fw = _Recorder(arc_tol_mm=FINE)
+    fw = FirmwareInterpreter(arc_tol_mm=FINE)
     evs = [ev for line in lines for ev in fw.execute(line) if isinstance(ev, Move)]
     pts = [model.forward(evs[-1].start)] + [model.forward(ev.end) for ev in evs
                                            if ev.kind == "arc"]
-    assert deviation(fw.arc, pts) > 0.05
+    assert deviation(fw.last_arc, pts) > 0.05
 
 
 def test_linearise_arcs_option_writes_chords():

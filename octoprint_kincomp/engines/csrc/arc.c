@@ -228,6 +228,16 @@ static int edist_take(EDist *e, double s_end, int last, char *out, int *len)
 
 /* -- pieces ------------------------------------------------------------------------------ */
 
+/* the command of axis k for geometric command q: q plus its take-up offset, as the reference
+ * adds it (``c += offset`` whenever some axis has backlash) */
+static double with_offset(const Kernel *K, const State *s, int k, double q)
+{
+    if (!K->any_active)
+        return q;
+    return q + ((s->dir[k] && K->active[k])
+                    ? (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], q) : 0.0);
+}
+
 /* Firmware coordinates (mm) of the compensated point for desired p (_Job.target) */
 static void target(const Job *j, const double *p, double *out)
 {
@@ -236,13 +246,8 @@ static void target(const Job *j, const double *p, double *out)
     double q[3];
     int k;
     kk_inverse(K, p, q);
-    for (k = 0; k < 3; k++) {
-        double c = q[k];
-        if (K->any_active)
-            c += (s->dir[k] && K->active[k])
-                     ? (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], q[k]) : 0.0;
-        out[k] = c + s->g[k];
-    }
+    for (k = 0; k < 3; k++)
+        out[k] = with_offset(K, s, k, q[k]) + s->g[k];
 }
 
 /* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after) */
@@ -272,14 +277,9 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
     double bx, by, cx, cy, d, b2, c2, ux, uy, radius, ka, kb, sa, sb, lin0, dlin;
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
     char text[MAX_TEXT + 1];
-    for (k = 0; k < 3; k++) {
-        double c = qb[k];
-        if (K->any_active)
-            c += (s->dir[k] && K->active[k])
-                     ? (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], qb[k]) : 0.0;
-        if (fw_after(s, dec, u, k, c, &E[k]) < 0)
+    for (k = 0; k < 3; k++)
+        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
             return -1;
-    }
     if (E[0] == S[0] && E[1] == S[1])
         return 2;
     if (budget <= 0.0)
@@ -634,34 +634,14 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             kk_inverse(K, pb, qb);
             for (k = 0; k < 3 && K->any_active; k++) {
                 /* BacklashTracker.detect_reversals from qa to qb */
-                double q = qb[k], an;
-                long d;
+                int r;
                 if (!K->active[k])
                     continue;
-                d = s.dir[k];
-                an = s.anchor[k];
-                if (d != 0 && !s.anchor_known[k])
+                r = kk_reversal(K, &s, k, qb[k], qa[k]);
+                if (r < 0)
                     return LINE_PYTHON;
-                if (d > 0) {
-                    if (q >= an) { s.anchor[k] = q; continue; }
-                    if (q >= an - K->deadband) continue;
-                    d = -1;
-                } else if (d < 0) {
-                    if (q <= an) { s.anchor[k] = q; continue; }
-                    if (q <= an + K->deadband) continue;
-                    d = 1;
-                } else {
-                    if (!s.anchor_known[k]) {
-                        an = s.anchor[k] = qa[k];
-                        s.anchor_known[k] = 1;
-                    }
-                    if (q > an + K->deadband) d = 1;
-                    else if (q < an - K->deadband) d = -1;
-                    else continue;
-                }
-                s.dir[k] = d;
-                s.anchor[k] = q;
-                s.anchor_known[k] = 1;
+                if (r == 0)
+                    continue;
                 rev = 1;
             }
             if (rev) {

@@ -122,6 +122,7 @@ int kk_format_num(double v, int dec, char *out);
 /* transform.c */
 int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
 double kk_um_at(const Table *t, double q);
+int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from);
 void kk_inverse(const Kernel *K, const double *p, double *q);
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
              const double *q_prev, const int *redo, const double *m_old, char *out,

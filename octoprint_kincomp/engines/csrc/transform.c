@@ -20,6 +20,37 @@ double kk_um_at(const Table *t, double q)
     return t->um[t->n - 1];
 }
 
+/* backlash.reversal for axis k commanded to q (from q_from): 1 a reversal (dir and anchor
+ * updated), 0 none (the anchor follows), -1 Python decides (a direction without anchor). */
+int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from)
+{
+    long d = s->dir[k];
+    double a = s->anchor[k];
+    if (d != 0 && !s->anchor_known[k])
+        return -1;
+    if (d > 0) {
+        if (q >= a) { s->anchor[k] = q; return 0; }
+        if (q >= a - K->deadband) return 0;
+        d = -1;
+    } else if (d < 0) {
+        if (q <= a) { s->anchor[k] = q; return 0; }
+        if (q <= a + K->deadband) return 0;
+        d = 1;
+    } else {
+        if (!s->anchor_known[k]) {
+            a = s->anchor[k] = q_from;
+            s->anchor_known[k] = 1;
+        }
+        if (q > a + K->deadband) d = 1;
+        else if (q < a - K->deadband) d = -1;
+        else return 0;
+    }
+    s->dir[k] = d;
+    s->anchor[k] = q;
+    s->anchor_known[k] = 1;
+    return 1;
+}
+
 /* PathWriter.emit for one point: append " <axis><text>" for each axis written to out (after the
  * code). Returns the number of axes written, -1: Python decides (nothing to undo: the
  * caller drops the whole tentative state). */
@@ -217,34 +248,14 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         memcpy(redo, s.recheck, sizeof redo);
         for (k = 0; k < 3; k++) {
             /* backlash.reversal: a hysteresis of ``deadband`` around the anchor */
-            double q = q1[k], a;
-            long d;
+            int r;
             if (!K->active[k])
                 continue;
-            d = s.dir[k];
-            a = s.anchor[k];
-            if (d != 0 && !s.anchor_known[k])
-                return LINE_PYTHON;  /* (a direction has an anchor) */
-            if (d > 0) {
-                if (q >= a) { s.anchor[k] = q; continue; }
-                if (q >= a - K->deadband) continue;
-                d = -1;
-            } else if (d < 0) {
-                if (q <= a) { s.anchor[k] = q; continue; }
-                if (q <= a + K->deadband) continue;
-                d = 1;
-            } else {
-                if (!s.anchor_known[k]) {
-                    a = s.anchor[k] = q0[k];
-                    s.anchor_known[k] = 1;
-                }
-                if (q > a + K->deadband) d = 1;
-                else if (q < a - K->deadband) d = -1;
-                else continue;
-            }
-            s.dir[k] = d;
-            s.anchor[k] = q;
-            s.anchor_known[k] = 1;
+            r = kk_reversal(K, &s, k, q1[k], q0[k]);
+            if (r < 0)
+                return LINE_PYTHON;
+            if (r == 0)
+                continue;
             rev = redo[k] = 1;
         }
         if (rev) {
