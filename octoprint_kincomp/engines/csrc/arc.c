@@ -5,21 +5,12 @@
  * limits near the arc, an unknown position or E, a radius too large). */
 #include "kernel.h"
 
-#define TWO_PI (2.0 * M_PI)
-#define MAX_PIECE_RAD (M_PI / 2.0)
-#define BREAK_EDGE 1e-9
 #define MAX_DEPTH 3
-#define MAX_CUTS 64
 
 static const double SAMPLES[6] = {0.125, 0.25, 0.375, 0.625, 0.75, 0.875};
 static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
                                1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
                                1e22};
-
-typedef struct {
-    double ca, cb, t0, sweep, r0, r1, dr, l0, dl;
-    double start[3], end[3];
-} Geo;
 
 /* EDistribution (core/path.py) */
 typedef struct {
@@ -45,102 +36,6 @@ typedef struct {
     Lines *out;
     double m_old[3];
 } Job;
-
-static double norm2(double a, double b)
-{
-    return sqrt(a * a + b * b);
-}
-
-static double py_mod(double a, double b)
-{
-    double m = fmod(a, b);
-    if (m != 0.0) {
-        if ((b < 0) != (m < 0))
-            m += b;
-    } else {
-        m = copysign(0.0, b);
-    }
-    return m;
-}
-
-static void arc_point(const Geo *a, double f, double *p)
-{
-    double t, r;
-    if (f == 0.0) {
-        memcpy(p, a->start, sizeof a->start);
-        return;
-    }
-    if (f == 1.0) {
-        memcpy(p, a->end, sizeof a->end);
-        return;
-    }
-    t = a->t0 + a->sweep * f;
-    r = a->r0 + a->dr * f;
-    p[0] = a->ca + r * cos(t);
-    p[1] = a->cb + r * sin(t);
-    p[2] = a->l0 + a->dl * f;
-}
-
-static double length_to(const Geo *a, double f)
-{
-    double planar = fabs(a->sweep) * f * (a->r0 + 0.5 * a->dr * f);
-    double lin = a->dl * f;
-    return sqrt(planar * planar + lin * lin);
-}
-
-/* Arc.cuts: -1 if there would be too many (Python decides) */
-static int arc_cuts(const Kernel *K, const Geo *a, double *cuts)
-{
-    double lo, hi, width = fabs(a->sweep), fr[3 * MAX_BREAKS + 4], fa = 0.0, prev = -1.0;
-    int nf = 0, nc = 0, i, j, first = 1;
-    if (a->sweep > 0) {
-        lo = a->t0;
-        hi = a->t0 + a->sweep;
-    } else {
-        lo = a->t0 + a->sweep;
-        hi = a->t0;
-    }
-    for (i = 0; i < K->nbreaks; i++) {
-        double phi = K->breaks[i], k = ceil((lo - phi) / M_PI);
-        while (phi + k * M_PI < hi) {
-            double f = (phi + k * M_PI - a->t0) / a->sweep;
-            if (BREAK_EDGE < f && f < 1.0 - BREAK_EDGE) {
-                if (nf >= 3 * MAX_BREAKS + 2)
-                    return -1;
-                fr[nf++] = f;
-            }
-            k += 1;
-        }
-    }
-    for (i = 1; i < nf; i++)  /* sort */
-        for (j = i; j > 0 && fr[j - 1] > fr[j]; j--) {
-            double t = fr[j];
-            fr[j] = fr[j - 1];
-            fr[j - 1] = t;
-        }
-    fr[nf++] = 1.0;
-    for (i = 0; i < nf; i++) {
-        double fb = fr[i], n;
-        long m;
-        if (!first && fb == prev)
-            continue;
-        first = 0;
-        prev = fb;
-        n = ceil(width * (fb - fa) / MAX_PIECE_RAD - 1e-9);
-        if (n > MAX_CUTS)
-            return -1;
-        for (m = 1; m < (long)n; m++) {
-            if (nc >= MAX_CUTS)
-                return -1;
-            cuts[nc++] = fa + (fb - fa) * (double)m / n;
-        }
-        if (nc >= MAX_CUTS)
-            return -1;
-        cuts[nc++] = fb;
-        fa = fb;
-    }
-    return nc;
-}
 
 /* -- E split ----------------------------------------------------------------------------- */
 
@@ -284,7 +179,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
         return 2;
     if (budget <= 0.0)
         return 0;
-    arc_point(a, fa + (fb - fa) * 0.5, p);
+    kk_arc_point(a, fa + (fb - fa) * 0.5, p);
     target(j, p, M);
     bx = M[0] - S[0];
     by = M[1] - S[1];
@@ -297,7 +192,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
     c2 = cx * cx + cy * cy;
     ux = (cy * b2 - by * c2) / d;
     uy = (bx * c2 - cx * b2) / d;
-    radius = norm2(ux, uy);
+    radius = kk_norm2(ux, uy);
     ka = S[0] + ux;
     kb = S[1] + uy;
     sa = -ux;
@@ -314,11 +209,11 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
     }
     for (i = 0; i < 6; i++) {
         double va, vb, dr, lin, dl, e;
-        arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
+        kk_arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
         target(j, p, T);
         va = T[0] - ka;
         vb = T[1] - kb;
-        dr = norm2(va, vb) - radius;
+        dr = kk_norm2(va, vb) - radius;
         lin = lin0;
         if (dlin != 0.0) {
             double ang = atan2(sa * vb - sb * va, sa * va + sb * vb);
@@ -327,7 +222,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
             lin = lin0 + dlin * (ang / sweep);
         }
         dl = T[2] - lin;
-        e = norm2(dr, dl);
+        e = kk_norm2(dr, dl);
         if (e > dev)
             dev = e;
     }
@@ -376,7 +271,7 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
             if (j->tail[t] == NULL)
                 continue;
             if (j->tail[t][0] == 'E') {
-                if (edist_take(&j->ed, length_to(j->a, f), last, o, &len) < 0)
+                if (edist_take(&j->ed, kk_length_to(j->a, f), last, o, &len) < 0)
                     return -1;
             } else {
                 o[len++] = ' ';
@@ -384,7 +279,7 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
                 len += j->tail_len[t];
             }
         }
-    } else if (j->ed.present && edist_take(&j->ed, length_to(j->a, f), last, o, &len) < 0) {
+    } else if (j->ed.present && edist_take(&j->ed, kk_length_to(j->a, f), last, o, &len) < 0) {
         return -1;
     }
     kk_line_end(j->out, len);
@@ -418,114 +313,13 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
     }
     if (depth < MAX_DEPTH) {
         double fm = fa + (fb - fa) * 0.5, pm[3], qm[3];
-        arc_point(a, fm, pm);
+        kk_arc_point(a, fm, pm);
         kk_inverse(j->K, pm, qm);
         if (piece(j, fa, fm, pm, qm, depth + 1) < 0)
             return -1;
         return piece(j, fm, fb, pb, qb, depth + 1);
     }
     return -1;  /* no arc fits: chords, written by the reference path */
-}
-
-/* ArcWriter.inside_limits */
-static int inside_limits(const Kernel *K, const Geo *a)
-{
-    double rmax = a->r0 > a->r1 ? a->r0 : a->r1, lo[3], hi[3], margin, p[3], q[3];
-    int i, k;
-    if (!K->has_limits)
-        return 1;
-    lo[0] = a->ca - rmax;
-    hi[0] = a->ca + rmax;
-    lo[1] = a->cb - rmax;
-    hi[1] = a->cb + rmax;
-    lo[2] = a->start[2] < a->end[2] ? a->start[2] : a->end[2];
-    hi[2] = a->start[2] > a->end[2] ? a->start[2] : a->end[2];
-    margin = K->tol + K->max_offset;
-    for (k = 0; k < 3; k++)
-        if (lo[k] < K->lim[2 * k] || hi[k] > K->lim[2 * k + 1])
-            return 0;
-    for (i = 0; i < 8; i++) {
-        for (k = 0; k < 3; k++)
-            p[k] = (i >> k & 1) ? hi[k] : lo[k];
-        kk_inverse(K, p, q);
-        for (k = 0; k < 3; k++)
-            if (q[k] - margin < K->lim[2 * k] || q[k] + margin > K->lim[2 * k + 1])
-                return 0;
-    }
-    return 1;
-}
-
-/* ArcWriter.monotone */
-static int monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
-{
-    double fa = 0.0, p[3], qs[9][3];
-    int c, j, k;
-    if (!K->any_active)
-        return 1;
-    for (c = 0; c < nc; c++) {
-        double fb = cuts[c];
-        for (j = 0; j < 9; j++) {
-            arc_point(a, fa + (fb - fa) * (j * 0.125), p);
-            kk_inverse(K, p, qs[j]);
-        }
-        for (k = 0; k < 3; k++) {
-            int up = 0, down = 0;
-            if (!K->active[k])
-                continue;
-            for (j = 0; j < 8; j++) {
-                double d = qs[j + 1][k] - qs[j][k];
-                if (d > K->deadband)
-                    up = 1;
-                else if (d < -K->deadband)
-                    down = 1;
-            }
-            if (up && down)
-                return 0;
-        }
-        fa = fb;
-    }
-    return 1;
-}
-
-/* arcs.arc_sweep and the checks of MoveHandler.arc; 0 or -1 (Python decides) */
-static int make_geo(const Kernel *K, Geo *a, const double *start, const double *end,
-                    double ca, double cb, int cw)
-{
-    double r0, r1, t0, t1, sweep, step, radius;
-    r0 = norm2(start[0] - ca, start[1] - cb);
-    r1 = norm2(end[0] - ca, end[1] - cb);
-    if (r0 < 1e-9 || r1 < 1e-9)
-        return -1;
-    t0 = atan2(start[1] - cb, start[0] - ca);
-    t1 = atan2(end[1] - cb, end[0] - ca);
-    if (norm2(end[0] - start[0], end[1] - start[1]) < 1e-6)
-        sweep = TWO_PI;
-    else if (cw)
-        sweep = py_mod(t0 - t1, TWO_PI);
-    else
-        sweep = py_mod(t1 - t0, TWO_PI);
-    if (sweep <= 0.0)
-        sweep = TWO_PI;
-    sweep += 0.0;  /* (no P turns here) */
-    a->ca = ca;
-    a->cb = cb;
-    a->t0 = t0;
-    a->sweep = cw ? -sweep : sweep;
-    a->r0 = r0;
-    a->r1 = r1;
-    a->dr = r1 - r0;
-    a->l0 = start[2];
-    a->dl = end[2] - start[2];
-    memcpy(a->start, start, sizeof a->start);
-    memcpy(a->end, end, sizeof a->end);
-    /* arcs.segment_angle: a radius too large for the tolerance is malformed */
-    radius = r0 > r1 ? r0 : r1;
-    if (radius > K->tol) {
-        step = 2.0 * acos(1.0 - K->tol / radius);
-        if (!(step > 0.0))
-            return -1;
-    }
-    return 0;
 }
 
 /* One G2/G3 line (ln[0..2] = "G2 " or "G3 "); as kk_do_line */
@@ -604,12 +398,12 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             ob = 0.0;
         ca = start[0] + oa;
         cb = start[1] + ob;
-        if (make_geo(K, &a, start, end, ca, cb, ln[1] == '2') < 0)
+        if (kk_make_geo(K, &a, start, end, ca, cb, ln[1] == '2') < 0)
             return LINE_PYTHON;
-        if (!inside_limits(K, &a))
+        if (!kk_inside_limits(K, &a))
             return LINE_PYTHON;
-        nc = arc_cuts(K, &a, cuts);
-        if (nc < 0 || !monotone(K, &a, cuts, nc))
+        nc = kk_arc_cuts(K, &a, cuts);
+        if (nc < 0 || !kk_monotone(K, &a, cuts, nc))
             return LINE_PYTHON;
         j.K = K;
         j.s = &s;
@@ -622,7 +416,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         memcpy(j.m_old, s0->m, sizeof j.m_old);
         if (edist_init(&j.ed, present[5] ? ln + ts[5] : NULL, present[5] ? (int)(te[5] - ts[5]) : 0,
                        present[5] ? val[5] : 0.0, e_rel, s.e_known, s.e_pos,
-                       length_to(&a, 1.0)) < 0)
+                       kk_length_to(&a, 1.0)) < 0)
             return LINE_PYTHON;
         fa = 0.0;
         memcpy(pa, start, sizeof pa);
@@ -630,7 +424,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         for (c = 0; c < nc; c++) {
             double fb = cuts[c], pb[3], qb[3];
             int rev = 0;
-            arc_point(&a, fb, pb);
+            kk_arc_point(&a, fb, pb);
             kk_inverse(K, pb, qb);
             for (k = 0; k < 3 && K->any_active; k++) {
                 /* BacklashTracker.detect_reversals from qa to qb */

@@ -127,6 +127,20 @@ void kk_inverse(const Kernel *K, const double *p, double *q);
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
              const double *q_prev, const int *redo, const double *m_old, char *out,
              int *out_len);
+/* arcgeo.c: one arc in G17 (core/arcs.py Arc), mm and rad */
+#define MAX_CUTS 64
+typedef struct {
+    double ca, cb, t0, sweep, r0, r1, dr, l0, dl;
+    double start[3], end[3];
+} Geo;
+double kk_norm2(double a, double b);
+void kk_arc_point(const Geo *a, double f, double *p);
+double kk_length_to(const Geo *a, double f);
+int kk_arc_cuts(const Kernel *K, const Geo *a, double *cuts);
+int kk_inside_limits(const Kernel *K, const Geo *a);
+int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc);
+int kk_make_geo(const Kernel *K, Geo *a, const double *start, const double *end, double ca,
+                double cb, int cw);
 /* arc.c */
 int kk_do_arc(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out);
 /* lines */

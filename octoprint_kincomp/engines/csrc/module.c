@@ -85,6 +85,16 @@ static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
     return 0;
 }
 
+/* One line: a move (transform.c) or an arc (arc.c); as kk_do_line */
+static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out)
+{
+    out->n = out->len = 0;
+    if (n >= 4 && n <= MAX_LINE && ln[0] == 'G' && (ln[1] == '2' || ln[1] == '3') &&
+        ln[2] == ' ')
+        return kk_do_arc(K, s, ln, n, out);
+    return kk_do_line(K, s, ln, n, out);
+}
+
 static PyObject *make_str(const char *c, int len)
 {
     return PyUnicode_DecodeASCII(c, len, NULL);
@@ -116,7 +126,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     if (kk_load(state, &s, &D) > 0)
         Py_RETURN_NONE;
     before = s;
-    r = kk_do_line(self, &s, c, n, &out);
+    r = do_line(self, &s, c, n, &out);
     if (r == LINE_PYTHON) {
         kk_dicts_release(&D);
         Py_RETURN_NONE;
@@ -235,7 +245,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
             pos += raw;
             continue;
         }
-        r = kk_do_line(self, &s, ln, n, lines);
+        r = do_line(self, &s, ln, n, lines);
         if (r == LINE_PYTHON)
             break;
         if (r == LINE_SAME) {

@@ -168,11 +168,8 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
     State s;
 
     out->n = out->len = 0;
-    if (n > MAX_LINE || n < 4 || ln[0] != 'G' || ln[2] != ' ')
-        return LINE_PYTHON;
-    if (ln[1] == '2' || ln[1] == '3')
-        return kk_do_arc(K, s0, ln, n, out);
-    if (ln[1] != '0' && ln[1] != '1')
+    if (n > MAX_LINE || n < 4 || ln[0] != 'G' || (ln[1] != '0' && ln[1] != '1') ||
+        ln[2] != ' ')
         return LINE_PYTHON;
     if (!s0->absolute || !s0->m_known)
         return LINE_PYTHON;
