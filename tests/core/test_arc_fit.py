@@ -207,8 +207,10 @@ def test_with_play_every_written_arc_prints_within_the_tolerance(lines, geo, bl,
 
 
 @cfg(25)
-@given(program(), geometry(), st.sampled_from([0.01, 0.05]))
+@given(program(partial_home=False), geometry(), st.sampled_from([0.01, 0.05]))
 def test_arcs_of_the_property_programs_print_within_the_tolerance(lines, geo, tol):
+    """(Full homing only: after a partial G28 under skew the drives are not at the command of
+    the desired start, so the next move starts off by that much, arc or chord alike.)"""
     p = Params.from_dict(geo)
     opts = Options(chord_tol_mm=tol, decimals=6)
     _, results = printed_arcs(p, lines, opts, play=False)
