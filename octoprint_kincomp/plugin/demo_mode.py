@@ -90,4 +90,7 @@ class DemoMode:
         if trace is not None:
             self._notifier.notify("success", N_(
                 "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
-            self._notifier.message({"type": "demo_trace"})
+            # a campaign's test is collected by the campaign's wizard
+            meta = getattr(trace, "meta", None) or {}
+            self._notifier.message({"type": "demo_trace", "campaign": meta.get("campaign"),
+                                    "campaign_step": meta.get("campaign_step")})

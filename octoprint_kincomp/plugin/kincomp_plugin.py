@@ -11,6 +11,7 @@ is done by the pieces, which import neither this module nor each other in a circ
 * ``demo_mode``       the virtual ballbar in demo mode
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
                       the background jobs of ``jobs`` and the upload preprocessor)
+* ``campaign_api``    the campaign endpoints (``campaigns``: their store)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
                       helpers and the permission KinComp adds
 """
@@ -30,6 +31,8 @@ from ..core.params import Params
 from ..engines.select import engine
 from . import http
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
+from .campaign_api import CampaignApi
+from .campaigns import CampaignStore
 from .demo_mode import DemoMode
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
@@ -60,7 +63,7 @@ class KinCompPlugin(
         # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
-        self.settings_api = self.calibration = None
+        self.settings_api = self.calibration = self.campaign = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -85,6 +88,9 @@ class KinCompPlugin(
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files)
+        self.campaign = CampaignApi(self.store, queue, self.runs,
+                                    CampaignStore(self.get_plugin_data_folder()),
+                                    self.calibration, self.demo, self._printer_profile_manager)
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -135,8 +141,9 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_settings.js",
-                       "js/kincomp_tab.js"], "css": ["css/kincomp.css"]}
+        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_campaign.js",
+                       "js/kincomp_settings.js", "js/kincomp_tab.js"],
+                "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
@@ -170,7 +177,8 @@ class KinCompPlugin(
         return http.permissions()
 
     def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
-        return [("POST", r"/trace", MAX_TRACE_UPLOAD)]
+        return [("POST", r"/trace", MAX_TRACE_UPLOAD),
+                ("POST", r"/campaigns/[^/]+/steps/[0-9]+/trace", MAX_TRACE_UPLOAD)]
 
     def custom_events_hook(self, *args, **kwargs):
         return list(CUSTOM_EVENTS)
@@ -248,6 +256,34 @@ class KinCompPlugin(
     @route("/compare", methods=["GET"])
     def api_compare(self):
         return self.calibration.compare()
+
+    @route("/campaign/plan", methods=["POST"])
+    def api_campaign_plan(self):
+        return self.campaign.plan()
+
+    @route("/campaigns", methods=["GET"])
+    def api_campaigns(self):
+        return self.campaign.list()
+
+    @route("/campaigns/<cid>", methods=["GET"])
+    def api_campaign(self, cid):
+        return self.campaign.get(cid)
+
+    @route("/campaigns/<cid>/steps/<int:n>/program", methods=["POST"])
+    def api_campaign_program(self, cid, n):
+        return self.campaign.program(cid, n)
+
+    @route("/campaigns/<cid>/steps/<int:n>/trace", methods=["POST"])
+    def api_campaign_trace(self, cid, n):
+        return self.campaign.trace(cid, n)
+
+    @route("/campaigns/<cid>/analyze", methods=["POST"])
+    def api_campaign_analyze(self, cid):
+        return self.campaign.analyze(cid)
+
+    @route("/campaigns/<cid>/apply", methods=["POST"])
+    def api_campaign_apply(self, cid):
+        return self.campaign.apply(cid)
 
     @route("/dryrun", methods=["GET"])
     def api_dryrun(self):
