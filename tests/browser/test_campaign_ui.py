@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from octoprint_kincomp.core.params import Params
 from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, browser, page  # noqa: F401
 from tests.support.serverutil import settings, status
 
@@ -53,6 +54,14 @@ def _analyse(page):
     page.wait_for_selector("#kincomp_campaign_result", state="visible", timeout=300_000)
     for i in range(4):
         page.wait_for_selector(f"#kincomp_campaign_plot_{i} canvas")
+
+
+def _reset_params(server):
+    """The whole parameter set back to none (a campaign's proposal also sets servo lags,
+    servo pre-compensation and the backlash fraction, which a partial update keeps)."""
+    code, resp = server.request("POST", f"{API}/apply", {"params": Params().to_dict(),
+                                                         "enabled": False, "apply_now": True})
+    assert code == 200, resp
 
 
 def _campaign(server, cid):
@@ -146,4 +155,5 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
             assert group.locator("a.kincomp-trace-link").count() == 4
         page.screenshot(path=os.path.join(SHOTS, "campaign-history.png"), full_page=True)
     finally:
-        settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
+        settings(server, demo={"enabled": False})
+        _reset_params(server)

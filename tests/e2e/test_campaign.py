@@ -7,6 +7,7 @@ import pytest
 
 from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
+from octoprint_kincomp.core.params import Params
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -15,6 +16,15 @@ ZERO = {"squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
         "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
         "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
 BASE = "/plugin/kincomp"
+
+
+def _reset_params(server):
+    """The whole parameter set back to none (a campaign's proposal also sets servo lags,
+    servo pre-compensation and the backlash fraction, which a partial update keeps)."""
+    code, resp = server.request("POST", f"{BASE}/apply", {"params": Params().to_dict(),
+                                                          "enabled": False,
+                                                          "apply_now": True})
+    assert code == 200, resp
 
 
 def _trace(doc, n):
@@ -82,4 +92,4 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
         assert sorted(r["campaign_step"] or "joint" for r in mine) == ["joint", "xy", "xz",
                                                                         "yz"]
     finally:
-        settings(server, enabled=False, params=ZERO)
+        _reset_params(server)
