@@ -41,6 +41,7 @@ from .runs import RunStore
 from .settings import SETTINGS_VERSION, defaults
 from .settings_api import SettingsApi
 from .settings_store import SettingsStore
+from .software_update import check_config
 
 route = octoprint.plugin.BlueprintPlugin.route
 
@@ -178,6 +179,10 @@ class KinCompPlugin(
     def before_api_request_hook(self, plugin=None, *args, **kwargs):
         return [self.store.check_settings_request]
 
+    def get_update_information(self, *args, **kwargs):
+        """The software update plugin's check for new KinComp versions (software_update)."""
+        return check_config(self.store.current()["software_update"], self._identifier)
+
     # ~~ events ------------------------------------------------------------------------------
     def on_event(self, event, payload):
         payload = payload or {}
@@ -272,4 +277,5 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         "octoprint.server.http.bodysize": plugin.bodysize_hook,
         "octoprint.events.register_custom_events": plugin.custom_events_hook,
         "octoprint.server.api.before_request": plugin.before_api_request_hook,
+        "octoprint.plugin.softwareupdate.check_config": plugin.get_update_information,
     }

@@ -14,6 +14,7 @@ from typing import Any, Dict, Optional, Sequence, Tuple
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
 from ..core.params import Params, ParamsError
+from . import software_update
 
 SETTINGS_VERSION = 1
 MODES = ("on_the_fly", "on_upload", "background")
@@ -39,6 +40,7 @@ def defaults() -> Dict[str, Any]:
         "pass_through_on_error": False,
         "apply_changes": "next_print",
         "demo": {"enabled": False},
+        "software_update": software_update.default_settings(),
     }
 
 
@@ -137,6 +139,10 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     if not isinstance(demo, dict) or set(demo) - {"enabled"}:
         raise SettingsError("demo", Msg("must be an object with 'enabled'"))
     demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
+    try:
+        out["software_update"] = software_update.validate(out["software_update"])
+    except software_update.UpdateSettingsError as exc:
+        raise SettingsError(exc.field, exc.message) from None
     try:
         out["params"] = Params.from_dict(out["params"]).to_dict()
     except ParamsError as exc:
