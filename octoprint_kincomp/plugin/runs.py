@@ -3,8 +3,10 @@
 A run records when it was made, where its data came from (trace, .b5r, typed summary,
 printed artifact; simulated or not), the parameters active during the test, the analysis
 (diagnostics), the proposed parameters, and whether and when they were applied. A trace
-file, if any, is kept next to it. Run ids are generated here and checked on every lookup,
-so a request can never name a path outside the runs folder.
+file, if any, is kept next to it, and for a live capture the sensor's raw stream (``.raw``);
+a live capture that failed is a run too (``status: failed``, its message, its partial data).
+Run ids are generated here and checked on every lookup, so a request can never name a path
+outside the runs folder.
 """
 
 from __future__ import annotations
@@ -53,6 +55,16 @@ class RunStore:
         path = self._path(run_id, ".trace")
         return path if os.path.exists(path) else None
 
+    def save_raw(self, run_id: str, data: bytes) -> str:
+        """A live capture's raw sensor stream (``time_s,reading_mm,line``)."""
+        path = self._path(run_id, ".raw")
+        write_atomic(path, data)
+        return path
+
+    def raw_path(self, run_id: str) -> Optional[str]:
+        path = self._path(run_id, ".raw")
+        return path if os.path.exists(path) else None
+
     def get(self, run_id: str) -> Dict[str, Any]:
         path = self._path(run_id)
         try:
@@ -87,11 +99,14 @@ class RunStore:
                 "applied": run.get("applied"),
                 "params_before_hash": run.get("params_before_hash"),
                 "has_trace": self.trace_path(run_id) is not None,
+                "has_raw": self.raw_path(run_id) is not None,
+                "status": run.get("status", "ok"),
+                "message": run.get("message"),
             })
         return out
 
     def delete(self, run_id: str) -> None:
-        for suffix in (".json", ".trace"):
+        for suffix in (".json", ".trace", ".raw"):
             path = self._path(run_id, suffix)
             if os.path.exists(path):
                 os.unlink(path)
