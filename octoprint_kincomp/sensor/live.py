@@ -78,15 +78,16 @@ def range_mm(sensor: Dict[str, str]) -> Optional[Tuple[float, float]]:
 
 def bar_check(status: Dict[str, object]) -> Dict[str, object]:
     """From a capture's status: ``data`` (samples arrive), ``steady`` (noise at most
-    STEADY_UM um: the bar rests in its cups), ``in_range`` (the reading inside the sensor's
-    range), ``range_mm`` and ``margin_mm`` (to the nearer end of the range). A check that
-    cannot be made (no data, no range known) is None."""
+    ``steady_max_um`` = STEADY_UM um: the bar rests in its cups), ``in_range`` (the reading
+    inside the sensor's range), ``range_mm`` and ``margin_mm`` (to the nearer end of the
+    range). A check that cannot be made (no data, no range known) is None."""
     age = status.get("last_data_age_s")
     reading, noise = status.get("reading_mm"), status.get("noise_um")
     data = age is not None and age <= FRESH_S and status.get("port_open", False)
     rng = range_mm(status.get("sensor") or {})
     out: Dict[str, object] = {"data": bool(data), "steady": None, "in_range": None,
-                              "range_mm": list(rng) if rng else None, "margin_mm": None}
+                              "range_mm": list(rng) if rng else None, "margin_mm": None,
+                              "steady_max_um": STEADY_UM}
     if not data or reading is None:
         return out
     if noise is not None:

@@ -256,7 +256,7 @@ $(function () {
             return [
                 {id: "data", label: gettext("Data arrives"), ok: self.isOpen() ? !!c.data : null, detail: ""},
                 {id: "steady", label: gettext("Bar steady (seated in its cups)"), ok: c.steady === undefined ? null : c.steady,
-                    detail: _.sprintf(gettext("noise %(um)s µm"), {um: self.noise()})},
+                    detail: c.steady_max_um ? _.sprintf(gettext("noise at most %(um)s µm"), {um: c.steady_max_um}) : ""},
                 {id: "range", label: gettext("Reading in the sensor's range"), ok: c.in_range === undefined ? null : c.in_range,
                     detail: rng ? _.sprintf(gettext("%(lo)s…%(hi)s mm, margin %(m)s mm"), {lo: fmt(rng[0], 2), hi: fmt(rng[1], 2), m: fmt(c.margin_mm, 2)})
                         : gettext("range unknown (set it in the settings or the sensor's header)")}
@@ -315,9 +315,10 @@ $(function () {
             var target = $("#kincomp_sensor_chart");
             if (!target.is(":visible") || !target.width()) return;
             var data = _.zip(self.chart.t || [], self.chart.mm || []);
+            var span = data.length ? Math.max(1, -data[0][0]) : 10;
             $.plot(target, [{data: data, color: "#1f5fbf", lines: {lineWidth: 1.2}, shadowSize: 0}], {
-                xaxis: {min: data.length ? Math.min(-1, data[0][0]) : -10, max: 0,
-                    tickFormatter: function (v) { return v.toFixed(0) + " s"; }},
+                xaxis: {min: -span, max: 0,
+                    tickFormatter: function (v) { return v.toFixed(span < 5 ? 1 : 0) + " s"; }},
                 yaxis: {tickFormatter: function (v) { return v.toFixed(3); }, labelWidth: 50},
                 grid: {borderWidth: 1, borderColor: "#cccccc", hoverable: false}
             });
