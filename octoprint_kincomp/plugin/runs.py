@@ -46,24 +46,21 @@ class RunStore:
         path = self._path(run["id"])
         write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
 
-    def save_trace(self, run_id: str, data: bytes) -> str:
-        path = self._path(run_id, ".trace")
+    def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
+        path = self._path(run_id, suffix)
         write_atomic(path, data)
         return path
 
-    def trace_path(self, run_id: str) -> Optional[str]:
-        path = self._path(run_id, ".trace")
+    def trace_path(self, run_id: str, suffix: str = ".trace") -> Optional[str]:
+        path = self._path(run_id, suffix)
         return path if os.path.exists(path) else None
 
     def save_raw(self, run_id: str, data: bytes) -> str:
         """A live capture's raw sensor stream (``time_s,reading_mm,line``)."""
-        path = self._path(run_id, ".raw")
-        write_atomic(path, data)
-        return path
+        return self.save_trace(run_id, data, ".raw")
 
     def raw_path(self, run_id: str) -> Optional[str]:
-        path = self._path(run_id, ".raw")
-        return path if os.path.exists(path) else None
+        return self.trace_path(run_id, ".raw")
 
     def get(self, run_id: str) -> Dict[str, Any]:
         path = self._path(run_id)

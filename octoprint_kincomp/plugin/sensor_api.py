@@ -44,6 +44,7 @@ from ..ballbar.program import END_MARKER, ProgramError, TestSpec, spec_from_prog
 from ..core.messages import Msg, as_dict
 from ..sensor import Capture, CaptureResult, SensorConfig, SensorError, list_ports
 from ..sensor.live import bar_check
+from ..sensor.runs import program_seconds
 from . import http
 from .demo_mode import DemoMode
 from .notify import N_, Notifier
@@ -53,6 +54,7 @@ from .settings import SettingsError
 
 END_GRACE_S = 5.0  # after the end marker, the data's end must be seen within this (or 3 dwells)
 STOP_WAIT_S = 5.0  # a stopped capture that gives no result by then is recorded as failed
+MOUNT_WAIT_S = 1800.0  # a program with a mount pause: the bar may be mounted this long
 CHART_S, CHART_POINTS = 10.0, 150  # the pushed moving chart
 MAX_PROGRAM_HEAD = 65536  # bytes of a program read for its ``; ballbar`` lines
 
@@ -185,7 +187,9 @@ class SensorApi:
                 if self._armed is not None:
                     raise SensorError(Msg("a capture is already running"))
                 previous = cap.result
-                cap.arm(spec, program_hash)
+                # a mount pause waits for the user: give them MOUNT_WAIT_S more to mount it
+                cap.arm(spec, program_hash, max_duration_s=3.0 * program_seconds(spec) + (
+                    MOUNT_WAIT_S if spec.mount_pause else 300.0))
                 self._armed = Armed(spec, program_hash, path, self._source, previous)
                 self.waiting = True
         self._request_push(cap)

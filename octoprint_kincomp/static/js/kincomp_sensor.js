@@ -138,32 +138,12 @@ $(function () {
         self.save = function () {
             self.savedMessage("");
             if (!self.loaded) return $.Deferred().reject().promise();
-            var collected = self.collect();
-            if (!_.isEmpty(collected.errors)) {
-                self.errors(collected.errors);
-                self.formError(gettext("Some values are not numbers; see the marked fields."));
-                return $.Deferred().reject().promise();
-            }
-            self.saving(true);
-            return OctoPrint.postJson(API("settings"), collected.data)
-                .done(function (resp) {
-                    self.errors({});
-                    self.formError("");
-                    self.savedMessage(gettext("Saved."));
-                    self.fromSettings(resp.settings, self.demo());
-                })
-                .fail(function (jqXHR) {
-                    // the server names the field first: "sensor.baudrate: ..."
-                    var msg = errorText(jqXHR);
-                    var path = msg.split(":")[0];
-                    var errs = {};
-                    if (path.indexOf("sensor.") === 0) errs[path] = msg.slice(path.length + 1).trim();
-                    self.errors(errs);
-                    self.formError(msg);
-                })
-                .always(function () {
-                    self.saving(false);
-                });
+            // the server names the field first: "sensor.baudrate: ..."
+            return K.saveSettings(self, self.collect(), function (path) {
+                return path.indexOf("sensor.") === 0 ? path : undefined;
+            }).done(function (resp) {
+                self.fromSettings(resp.settings, self.demo());
+            });
         };
 
         self.onSettingsShown = function () {
