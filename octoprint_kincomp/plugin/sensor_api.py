@@ -305,6 +305,7 @@ class SensorApi:
             return
         cfg, source = self._config(start=False)
         if cfg is None or source != self._source or (source == "sensor" and cfg != cap.config):
+            self._preview = False  # another sensor: its live view is opened anew
             self._release()
 
     def _release(self) -> None:
