@@ -2,7 +2,8 @@
 proposal, the run history, comparing two runs, and demo mode's simulated trace.
 
 * ``POST /program``  writes a ballbar test program (radius mm, feed mm/min capped to the
-  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it.
+  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it (a live
+  sensor, if one is set, is armed first through ``on_print``).
 * ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
   MAX_TRACE_UPLOAD bytes): analysed and stored as a run; nothing is applied.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
@@ -73,6 +74,9 @@ class CalibrationApi:
         self._notifier = notifier
         self._printer = printer
         self._file_manager = file_manager
+        # on_print(path, spec, program_hash) -> JSON-ready capture state: arms the live
+        # sensor just before the program is printed (None: no live capture)
+        self.on_print = None
 
     # ~~ the test program ------------------------------------------------------------------------
     def program(self):
@@ -109,15 +113,17 @@ class CalibrationApi:
             StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
         _, prog_hash = spec_from_program(text)
         self._demo.program_written(path, spec, prog_hash)
-        printing = False
+        printing, capture = False, None
         if do_print:
             if not self._printer.is_operational() or self._printer.is_printing():
                 return http.error(gettext("The printer is not ready to print"), 409)
+            if self.on_print is not None:
+                capture = self.on_print(path, spec, prog_hash)
             self._printer.select_file(path, False, printAfterSelect=True,
                                       tags={"plugin:kincomp", "kincomp:calibration"})
             printing = True
         return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash)
+                             printing=printing, program_hash=prog_hash, capture=capture)
 
     # ~~ measurements in ---------------------------------------------------------------------
     def trace(self):
@@ -185,6 +191,13 @@ class CalibrationApi:
 
     def _store_run(self, result: Dict[str, Any], filename: str, source: str,
                    raw: Optional[bytes], plot=None):
+        return flask.jsonify(self.record_run(result, filename, source, raw, plot))
+
+    def record_run(self, result: Dict[str, Any], filename: str, source: str,
+                   raw: Optional[bytes], plot=None,
+                   extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+        """Store an analysis as a run (``extra``: more fields) and announce it; returns the
+        run. Needs no request: the live capture's worker thread stores its runs here too."""
         run_id = self._runs.new_id()
         current = self._queue.params
         run = {
@@ -203,12 +216,13 @@ class CalibrationApi:
             "plot": plot,
             "applied": None,
         }
+        run.update(extra or {})
         if raw is not None:
             self._runs.save_trace(run_id, raw)
         self._runs.save(run)
         self._notifier.event("calibration_analysed", {"run": run_id, "source": source,
                                                       "simulated": run["simulated"]})
-        return flask.jsonify(run)
+        return run
 
     # ~~ applying a proposal -----------------------------------------------------------------
     def apply(self):
@@ -225,7 +239,10 @@ class CalibrationApi:
                 run = self._runs.get(str(data["run"]))
             except RunNotFound:
                 return http.error(gettext("No such calibration run"), 404)
-            params_doc = run["proposed"]
+            params_doc = run.get("proposed")
+            if params_doc is None:
+                return http.error(gettext("This run has no proposed parameters (its capture "
+                                          "failed)"), 400)
         elif "params" in data:
             params_doc = data["params"]
         else:

@@ -9,6 +9,8 @@ is done by the pieces, which import neither this module nor each other in a circ
 * ``print_state``     the connection and the print on it (begins, ends, pause after an error)
 * ``firmware_check``  the firmware's own compensation (double compensation)
 * ``demo_mode``       the virtual ballbar in demo mode
+* ``sensor_api``      the live ballbar sensor: preview, arming, the end of a capture
+                      (``sensor_runs`` stores it as a run)
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
                       the background jobs of ``jobs`` and the upload preprocessor)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
@@ -30,7 +32,7 @@ from ..core.params import Params
 from ..engines.select import engine
 from . import http
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
-from .demo_mode import DemoMode
+from .demo_mode import DemoMode, lines_as_sent
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
@@ -38,6 +40,8 @@ from .notify import CUSTOM_EVENTS, Notifier
 from .print_state import PRINT_EVENTS, PrintState
 from .queue import FILE_TAG, QueueCompensator
 from .runs import RunStore
+from .sensor_api import SensorApi
+from .sensor_runs import CaptureRecorder
 from .settings import SETTINGS_VERSION, defaults
 from .settings_api import SettingsApi
 from .settings_store import SettingsStore
@@ -61,7 +65,7 @@ class KinCompPlugin(
         # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
-        self.settings_api = self.calibration = None
+        self.settings_api = self.calibration = self.sensor = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -86,6 +90,12 @@ class KinCompPlugin(
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files)
+        self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
+        self.sensor = SensorApi(CaptureRecorder(self.calibration, self.runs, queue, notifier),
+                                self.runs, self.demo, notifier, printer, files, log,
+                                self._settings.global_get)
+        self.calibration.on_print = self.sensor.program_printing
+        self.settings_api.check = self.sensor.check_settings
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -94,7 +104,8 @@ class KinCompPlugin(
                           engine())
 
     def _settings_applied(self, s: Dict[str, Any]) -> None:
-        self.demo.set_enabled(s["demo"]["enabled"])
+        self.demo.set_enabled(s["demo"]["enabled"], s["demo"]["live"])
+        self.sensor.configure(s)
         self.firmware.check()
 
     def _print_began(self, payload: Dict[str, Any]) -> None:
@@ -104,6 +115,7 @@ class KinCompPlugin(
     def _print_ended(self, done: bool) -> None:
         self.jobs.set_paused(False)
         self.demo.print_ends(done)
+        self.sensor.print_ended(done)
 
     # ~~ settings ----------------------------------------------------------------------------
     def get_settings_defaults(self):
@@ -136,8 +148,9 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_settings.js",
-                       "js/kincomp_tab.js"], "css": ["css/kincomp.css"]}
+        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
+                       "js/kincomp_settings.js", "js/kincomp_tab.js"],
+                "css": ["css/kincomp.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
@@ -152,6 +165,8 @@ class KinCompPlugin(
             prints.follow_pause(comm_instance)
         if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
             self.firmware.sent(cmd)
+        if self.sensor.waiting and cmd[:4] == "M117":
+            self.sensor.command(cmd)  # the program's end marker ends the live capture
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result)
@@ -253,6 +268,38 @@ class KinCompPlugin(
     @route("/compare", methods=["GET"])
     def api_compare(self):
         return self.calibration.compare()
+
+    @route("/sensor/status", methods=["GET"])
+    def api_sensor_status(self):
+        return self.sensor.status()
+
+    @route("/sensor/live", methods=["GET"])
+    def api_sensor_live(self):
+        return self.sensor.live()
+
+    @route("/sensor/ports", methods=["GET"])
+    def api_sensor_ports(self):
+        return self.sensor.ports()
+
+    @route("/sensor/open", methods=["POST"])
+    def api_sensor_open(self):
+        return self.sensor.open()
+
+    @route("/sensor/close", methods=["POST"])
+    def api_sensor_close(self):
+        return self.sensor.close()
+
+    @route("/sensor/arm", methods=["POST"])
+    def api_sensor_arm(self):
+        return self.sensor.arm()
+
+    @route("/sensor/stop", methods=["POST"])
+    def api_sensor_stop(self):
+        return self.sensor.stop()
+
+    @route("/runs/<run_id>/raw", methods=["GET"])
+    def api_run_raw(self, run_id):
+        return self.sensor.raw(run_id)
 
     @route("/dryrun", methods=["GET"])
     def api_dryrun(self):

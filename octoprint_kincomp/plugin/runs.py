@@ -3,8 +3,10 @@
 A run records when it was made, where its data came from (trace, .b5r, typed summary,
 printed artifact; simulated or not), the parameters active during the test, the analysis
 (diagnostics), the proposed parameters, and whether and when they were applied. A trace
-file, if any, is kept next to it. Run ids are generated here and checked on every lookup,
-so a request can never name a path outside the runs folder.
+file, if any, is kept next to it, and for a live capture the sensor's raw stream (``.raw``);
+a live capture that failed is a run too (``status: failed``, its message, its partial data).
+Run ids are generated here and checked on every lookup, so a request can never name a path
+outside the runs folder.
 """
 
 from __future__ import annotations
@@ -44,14 +46,21 @@ class RunStore:
         path = self._path(run["id"])
         write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
 
-    def save_trace(self, run_id: str, data: bytes) -> str:
-        path = self._path(run_id, ".trace")
+    def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
+        path = self._path(run_id, suffix)
         write_atomic(path, data)
         return path
 
-    def trace_path(self, run_id: str) -> Optional[str]:
-        path = self._path(run_id, ".trace")
+    def trace_path(self, run_id: str, suffix: str = ".trace") -> Optional[str]:
+        path = self._path(run_id, suffix)
         return path if os.path.exists(path) else None
+
+    def save_raw(self, run_id: str, data: bytes) -> str:
+        """A live capture's raw sensor stream (``time_s,reading_mm,line``)."""
+        return self.save_trace(run_id, data, ".raw")
+
+    def raw_path(self, run_id: str) -> Optional[str]:
+        return self.trace_path(run_id, ".raw")
 
     def get(self, run_id: str) -> Dict[str, Any]:
         path = self._path(run_id)
@@ -87,11 +96,14 @@ class RunStore:
                 "applied": run.get("applied"),
                 "params_before_hash": run.get("params_before_hash"),
                 "has_trace": self.trace_path(run_id) is not None,
+                "has_raw": self.raw_path(run_id) is not None,
+                "status": run.get("status", "ok"),
+                "message": run.get("message"),
             })
         return out
 
     def delete(self, run_id: str) -> None:
-        for suffix in (".json", ".trace"):
+        for suffix in (".json", ".trace", ".raw"):
             path = self._path(run_id, suffix)
             if os.path.exists(path):
                 os.unlink(path)
