@@ -2,7 +2,8 @@
 proposal, the run history, comparing two runs, and demo mode's simulated trace.
 
 * ``POST /program``  writes a ballbar test program (radius mm, feed mm/min capped to the
-  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it.
+  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it (a live
+  sensor, if one is set, is armed first through ``on_print``).
 * ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
   MAX_TRACE_UPLOAD bytes): analysed and stored as a run; nothing is applied.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
@@ -82,6 +83,9 @@ class CalibrationApi:
         self._notifier = notifier
         self._printer = printer
         self._file_manager = file_manager
+        # on_print(path, spec, program_hash) -> JSON-ready capture state: arms the live
+        # sensor just before the program is printed (None: no live capture)
+        self.on_print = None
 
     # ~~ the test program ------------------------------------------------------------------------
     def program(self):
@@ -110,17 +114,19 @@ class CalibrationApi:
             return http.error(http.tr(exc), 400)
         name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
                f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
-        path, prog_hash = self.write_program(text, name)
-        printing = do_print and self.print_program(path)
+        path, prog_hash, _ = self.write_program(text, name)
+        printing, capture = self.print_program(path, spec, prog_hash) if do_print \
+            else (False, None)
         if do_print and not printing:
             return http.error(gettext("The printer is not ready to print"), 409)
         return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash)
+                             printing=printing, program_hash=prog_hash, capture=capture)
 
-    def write_program(self, text: str, name: str) -> Tuple[str, str]:
+    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
         """Writes the ballbar program ``text`` as ``kincomp/<name>`` into OctoPrint's storage
         and tells demo mode, with the test as the program states it (its params hash and
-        campaign keys go into the simulated trace); returns the path and the program hash."""
+        campaign keys go into the simulated trace); returns the path, the program hash and
+        that test."""
         path = f"{PROGRAM_FOLDER}/{name}"
         self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
                                       ignore_existing=True)
@@ -129,16 +135,19 @@ class CalibrationApi:
             StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
         stated, prog_hash = spec_from_program(text)
         self._demo.program_written(path, stated, prog_hash)
-        return path, prog_hash
+        return path, prog_hash, stated
 
-    def print_program(self, path: str) -> bool:
-        """Prints the program at ``path``; False (nothing started) if the printer is not
-        ready (not connected, or printing)."""
+    def print_program(self, path: str, spec: TestSpec,
+                      prog_hash: str) -> Tuple[bool, Optional[Dict[str, Any]]]:
+        """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
+        use, is armed first through ``on_print``. (printing, the capture's state); (False,
+        None) if the printer is not ready (not connected, or printing)."""
         if not self._printer.is_operational() or self._printer.is_printing():
-            return False
+            return False, None
+        capture = self.on_print(path, spec, prog_hash) if self.on_print is not None else None
         self._printer.select_file(path, False, printAfterSelect=True,
                                   tags={"plugin:kincomp", "kincomp:calibration"})
-        return True
+        return True, capture
 
     # ~~ measurements in ---------------------------------------------------------------------
     def trace(self):
@@ -220,8 +229,9 @@ class CalibrationApi:
     def record_run(self, result: Dict[str, Any], filename: str, source: str,
                    raw: Optional[bytes], plot=None,
                    extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-        """Stores an analysis as a run (and ``raw``, the measurement file, next to it);
-        ``extra`` adds or replaces fields (a campaign's keys, the parameters in force)."""
+        """Store an analysis as a run (and ``raw``, the measurement file, next to it;
+        ``extra``: more fields, e.g. a campaign's keys) and announce it; returns the run.
+        Needs no request: the live capture's worker thread stores its runs here too."""
         run_id = self._runs.new_id()
         current = self._queue.params
         run = {
@@ -263,7 +273,10 @@ class CalibrationApi:
                 run = self._runs.get(str(data["run"]))
             except RunNotFound:
                 return http.error(gettext("No such calibration run"), 404)
-            params_doc = run["proposed"]
+            params_doc = run.get("proposed")
+            if params_doc is None:
+                return http.error(gettext("This run has no proposed parameters (its capture "
+                                          "failed)"), 400)
         elif "params" in data:
             params_doc = data["params"]
         else:

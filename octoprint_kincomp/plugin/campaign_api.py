@@ -17,18 +17,17 @@ volume, printed test by test with the same parameters in force, fitted jointly
 * ``POST /campaigns/<id>/steps/<n>/trace``  test n's measurement: a file (multipart field
   ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace; it must be this test's
   trace (campaign, test, program and parameters in its metadata); analysed on its own and
-  stored as a run of the campaign.
+  stored as a run of the campaign. (A live sensor's capture of a test needs no request.)
 * ``POST /campaigns/<id>/analyze``  the joint fit over all tests, stored as a run (source
   ``campaign``): ONE parameter set; nothing applied. Refused (400 naming the file) for a
   missing or failed test or traces that are not one campaign.
 * ``POST /campaigns/<id>/apply``  that parameter set into the settings (``enabled``,
   ``apply_now`` as for ``/apply``).
 
-"In force" are the parameters the printed programs are compensated with: the current ones
-while compensation is on, none (zero) while it is off. A campaign keeps the hash of those it
-began with; when they (or the printer profile) change, it cannot go on (409): a joint fit of
-tests measured under different parameters would be wrong. Reading needs STATUS, everything
-else PLUGIN_KINCOMP_ADMIN, printing also PRINT.
+What is in force, when a campaign may go on (409 when the parameters in force or the
+printer profile changed since it began) and how a trace becomes a test's measurement (also a
+live capture's, armed when a test is printed) is :mod:`.campaign_measure`. Reading needs
+STATUS, everything else PLUGIN_KINCOMP_ADMIN, printing also PRINT.
 """
 
 from __future__ import annotations
@@ -41,18 +40,16 @@ import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
-from ..ballbar.analysis import analyse
 from ..ballbar.campaign import plan_campaign
 from ..ballbar.campaign_analysis import analyse_campaign
-from ..ballbar.formats import AngleTrace, NativeTrace, TraceError, load_any
+from ..ballbar.formats import TraceError, load_any
 from ..ballbar.program import ProgramError, TestSpec, generate
-from ..core.messages import as_dict
-from ..core.params import Params
+from ..core.messages import Msg, as_dict
 from . import http
 from .calibration_api import CalibrationApi, UploadRefused, safe_name
+from .campaign_measure import CampaignMeasurements, Refused, campaign_keys
 from .campaigns import CampaignNotFound, CampaignStore, new_campaign, now, view
 from .demo_mode import DemoMode
-from .queue import QueueCompensator
 from .runs import RunNotFound, RunStore
 from .settings_store import SettingsStore
 
@@ -82,47 +79,15 @@ def number(data: Dict[str, Any], key: str, default: Optional[float], lo: float,
 
 
 class CampaignApi:
-    def __init__(self, store: SettingsStore, queue: QueueCompensator, runs: RunStore,
-                 campaigns: CampaignStore, calibration: CalibrationApi, demo: DemoMode,
-                 profiles):
+    def __init__(self, store: SettingsStore, runs: RunStore, campaigns: CampaignStore,
+                 calibration: CalibrationApi, demo: DemoMode,
+                 measurements: CampaignMeasurements):
         self._store = store
-        self._queue = queue
         self._runs = runs
         self._campaigns = campaigns
         self._calibration = calibration
         self._demo = demo
-        self._profiles = profiles
-
-    # ~~ what is in force ----------------------------------------------------------------------
-    def in_force(self) -> Params:
-        """The parameters the programs are compensated with (none while compensation is
-        off)."""
-        return self._queue.params if self._queue.enabled else Params()
-
-    def printer(self) -> Optional[str]:
-        """The printer profile's name (the traces' ``printer``)."""
-        try:
-            profile = self._profiles.get_current_or_default() or {}
-        except Exception:  # noqa: BLE001 - no profile: no name
-            return None
-        name = profile.get("name") or profile.get("id")
-        return str(name) if name else None
-
-    def _unchanged(self, doc: Dict[str, Any]):
-        """None if the campaign may go on, else the 409 answer saying what changed."""
-        force = self.in_force().hash()
-        if force != doc["params_hash"]:
-            return http.error(gettext(
-                "The parameters in force changed since campaign %(id)s began (%(then)s, now "
-                "%(now)s): all tests of a campaign must be measured with the same parameters. "
-                "Start a new campaign.", id=doc["id"], then=doc["params_hash"], now=force), 409)
-        printer = self.printer()
-        if doc.get("printer") and printer != doc["printer"]:
-            return http.error(gettext(
-                "The printer profile changed since campaign %(id)s began (%(then)s, now "
-                "%(now)s): a campaign is measured on one printer. Start a new campaign.",
-                id=doc["id"], then=doc["printer"], now=printer or "-"), 409)
-        return None
+        self.measure = measurements
 
     # ~~ planning --------------------------------------------------------------------------------
     def plan(self):
@@ -146,17 +111,18 @@ class CampaignApi:
         if volume is None:
             return http.error(gettext("The printer profile has no build volume"), 409)
         cid = self._campaigns.new_id()
+        printer = self.measure.printer()
         try:
             steps = plan_campaign(
                 volume, radius_xy=options["radius_xy"],
                 radius_vertical=options["radius_vertical"], feed=options["feed"],
                 xy_height=options["xy_height"], second_height=options["second_height"],
                 second_feed=options["second_feed"], max_feed=self._store.max_feeds(),
-                printer=self.printer(), campaign_id=cid)
+                printer=printer, campaign_id=cid)
         except (ProgramError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
-        doc = new_campaign(cid, steps, volume, self.printer(), self.in_force().hash(), options,
-                           before["id"] if before else None)
+        doc = new_campaign(cid, steps, volume, printer, self.measure.in_force().hash(),
+                           options, before["id"] if before else None)
         if dry_run:
             return flask.jsonify(self._view(doc, stored=False))
         self._campaigns.save(doc)
@@ -176,22 +142,6 @@ class CampaignApi:
             return http.error(gettext("No such campaign"), 404)
 
     # ~~ one test --------------------------------------------------------------------------------
-    def _step(self, cid: str, n: int):
-        """(campaign, its test n) for a request that goes on with it, or (None, the answer
-        refusing it)."""
-        try:
-            doc = self._campaigns.get(cid)
-        except CampaignNotFound:
-            return None, http.error(gettext("No such campaign"), 404)
-        if not 1 <= n <= len(doc["steps"]):
-            return None, http.error(gettext("Campaign %(id)s has no test %(n)s", id=cid, n=n),
-                                    404)
-        if doc.get("result"):
-            return None, http.error(gettext(
-                "Campaign %(id)s is analysed and closed: to measure again, start a re-test "
-                "campaign.", id=cid), 409)
-        return doc, self._unchanged(doc)
-
     def program(self, cid: str, n: int):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         try:
@@ -200,135 +150,80 @@ class CampaignApi:
             return http.error(str(exc), 400)
         if do_print:
             http.require(Permissions.PRINT)
-        doc, refused = self._step(cid, n)
-        if refused is not None:
-            return refused
-        step = doc["steps"][n - 1]
         try:
+            doc, step = self.measure.open_step(cid, n)
             text = generate(TestSpec(**step["spec"]), volume=self._store.limits(),
                             params_hash=doc["params_hash"])
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
         except (ProgramError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
-        path, prog_hash = self._calibration.write_program(
+        path, prog_hash, stated = self._calibration.write_program(
             text, f"{cid}_{n}_{safe_name(step['name'])}.gcode")
         step["path"] = path
         step["program_hash"] = prog_hash
-        printing = do_print and self._calibration.print_program(path)
+        # the test as its program states it: a live capture's trace names campaign and test
+        printing, capture = self._calibration.print_program(path, stated, prog_hash) \
+            if do_print else (False, None)
         if printing:
             step["printed"] = now()
         self._campaigns.save(doc)
         if do_print and not printing:
             return http.error(gettext("The printer is not ready to print"), 409)
         return flask.jsonify(campaign=self._view(doc), path=path, printing=printing,
-                             program_hash=prog_hash)
+                             program_hash=prog_hash, capture=capture)
 
     def trace(self, cid: str, n: int):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         body = http.json_object()
         try:
             demo = http.flag(body or {}, "demo")
+            doc, step = self.measure.open_step(cid, n)
+            if body is not None and not demo:
+                raise Refused(Msg("Give the trace file (multipart field 'file') or "
+                                  "\"demo\": true"))
+            if demo:
+                data, filename = self._simulated(cid, step)
+            else:
+                data, filename = self._calibration.read_upload()
+            run = self.measure.measure(doc, step, data, safe_name(os.path.basename(filename)))
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
-        doc, refused = self._step(cid, n)
-        if refused is not None:
-            return refused
-        step = doc["steps"][n - 1]
-        if body is not None and not demo:
-            return http.error(gettext("Give the trace file (multipart field 'file') or "
-                                      "\"demo\": true"), 400)
-        if demo:
-            simulated = self._demo.last_trace()
-            if simulated is None or simulated.meta.get("campaign") != cid or \
-                    simulated.meta.get("campaign_step") != step["name"]:
-                return http.error(gettext("No simulated trace of test %(n)s (%(name)s) yet: "
-                                          "print its program in demo mode first", n=n,
-                                          name=step["name"]), 404)
-            data = simulated.to_text().encode()
-            filename = f"test{n}_{step['name']}_simulated.csv"
-        else:
-            try:
-                data, filename = self._calibration.read_upload()
-            except UploadRefused as exc:
-                return http.error(exc.message, exc.status)
-        name = safe_name(os.path.basename(str(filename)))
-        current = self.in_force()
-        try:
-            trace = load_any(data, name)
-            wrong = self._not_this_test(trace, doc, step)
-            if wrong is not None:
-                return http.error(gettext("%(name)s: %(reason)s", name=name, reason=wrong),
-                                  400)
-            result = analyse(trace, current=current)
-        except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
-            return http.error(gettext("%(name)s: %(reason)s", name=name,
-                                      reason=http.tr(exc)), 400)
-        run = self._calibration.record_run(
-            result, name, trace.kind, data, result.get("plot"),
-            self._campaign_keys(cid, step["name"], current))
-        step["run"] = run["id"]
-        step["measured"] = now()
-        self._campaigns.save(doc)
+        except UploadRefused as exc:
+            return http.error(exc.message, exc.status)
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
         return flask.jsonify(campaign=self._view(doc), run=self._runs.get(run["id"]))
 
-    @staticmethod
-    def _not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[str]:
-        """Why ``trace`` is not the measurement of ``step`` of campaign ``doc`` (None: it
-        is)."""
-        if not isinstance(trace, (NativeTrace, AngleTrace)):
-            return gettext("a campaign test needs a measured trace (native or angle CSV) "
-                           "written with the test's program, not a summary")
-        meta = trace.meta
-        got = (meta.get("campaign") or "").strip()
-        if got != doc["id"]:
-            return gettext("it belongs to campaign %(other)s, not to %(id)s",
-                           other=got or "-", id=doc["id"])
-        got = (meta.get("campaign_step") or "").strip()
-        if got != step["name"]:
-            return gettext("it is the trace of test %(other)s, not of test %(n)s (%(name)s)",
-                           other=got or "-", n=step["n"], name=step["name"])
-        got = (meta.get("program_hash") or "").strip()
-        if got != step["program_hash"]:
-            return gettext("its program (program_hash %(got)s) is not test %(n)s's program "
-                           "(%(want)s): the metadata does not match the program",
-                           got=got or "-", n=step["n"], want=step["program_hash"])
-        got = (meta.get("params_hash") or "").strip()
-        if got != doc["params_hash"]:
-            return gettext("it was measured with parameters %(got)s, but the campaign runs "
-                           "with %(want)s", got=got or "-", want=doc["params_hash"])
-        got = (meta.get("printer") or "").strip()
-        if doc.get("printer") and got != doc["printer"]:
-            return gettext("it comes from printer %(got)s, but the campaign is for "
-                           "%(want)s", got=got or "-", want=doc["printer"])
-        return None
-
-    @staticmethod
-    def _campaign_keys(cid: str, step: Optional[str], current: Params) -> Dict[str, Any]:
-        return {"campaign": cid, "campaign_step": step, "params_before": current.to_dict(),
-                "params_before_hash": current.hash()}
+    def _simulated(self, cid: str, step: Dict[str, Any]) -> Tuple[bytes, str]:
+        """Demo mode's SIMULATED trace of ``step`` (Refused, 404, when there is none)."""
+        simulated = self._demo.last_trace()
+        if simulated is None or simulated.meta.get("campaign") != cid or \
+                simulated.meta.get("campaign_step") != step["name"]:
+            raise Refused(Msg("No simulated trace of test %(n)s (%(name)s) yet: print its "
+                              "program in demo mode first", n=step["n"], name=step["name"]),
+                          404)
+        return simulated.to_text().encode(), f"test{step['n']}_{step['name']}_simulated.csv"
 
     # ~~ the joint analysis and applying it ----------------------------------------------------
     def analyze(self, cid: str):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        current = self.measure.in_force()
         try:
             doc = self._campaigns.get(cid)
+            self.measure.check_unchanged(doc)
+            result = analyse_campaign(self._traces(doc), current=current)
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)
-        refused = self._unchanged(doc)
-        if refused is not None:
-            return refused
-        current = self.in_force()
-        try:
-            items = self._traces(doc)
-            result = analyse_campaign(items, current=current)
-        except _Missing as exc:
-            return http.error(str(exc), 400)
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
         except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
             return http.error(http.tr(exc), 400)
         camp = result["diagnostics"]["campaign"]
         for key in ("scale_rule", "servo_rule"):
             camp[key + "_i18n"] = as_dict(camp[key])
         camp["servo_precomp"]["reason_i18n"] = as_dict(camp["servo_precomp"]["reason"])
-        extra = self._campaign_keys(cid, None, current)
+        extra = campaign_keys(cid, None, current)
         extra.update(plots=result["plots"], campaign_steps=[s["name"] for s in doc["steps"]],
                      step_runs=[s["run"] for s in doc["steps"]])
         run = self._calibration.record_run(result, f"campaign {cid}", "campaign", None, None,
@@ -339,7 +234,7 @@ class CampaignApi:
         return flask.jsonify(self._view(doc))
 
     def _traces(self, doc: Dict[str, Any]) -> List[Tuple[str, object]]:
-        """[(file name, trace)] of the campaign's tests, in order; _Missing names the first
+        """[(file name, trace)] of the campaign's tests, in order; Refused names the first
         test without a measurement."""
         items = []
         for step in doc["steps"]:
@@ -350,7 +245,7 @@ class CampaignApi:
             except RunNotFound:
                 run = None
             if run is None or path is None:
-                raise _Missing(gettext(
+                raise Refused(Msg(
                     "The campaign is incomplete: test %(n)s (%(name)s, %(file)s) has no "
                     "measurement; nothing is analysed from a partial campaign", n=step["n"],
                     name=step["name"], file=os.path.basename(step.get("path") or "-")))
@@ -382,8 +277,5 @@ class CampaignApi:
 
     def _view(self, doc: Dict[str, Any], stored: bool = True,
               analysis: bool = True) -> Dict[str, Any]:
-        return view(doc, self._runs, self._campaigns, self.in_force().hash(), stored, analysis)
-
-
-class _Missing(Exception):
-    """A test of the campaign has no measurement."""
+        return view(doc, self._runs, self._campaigns, self.measure.in_force().hash(), stored,
+                    analysis)

@@ -9,9 +9,12 @@ is done by the pieces, which import neither this module nor each other in a circ
 * ``print_state``     the connection and the print on it (begins, ends, pause after an error)
 * ``firmware_check``  the firmware's own compensation (double compensation)
 * ``demo_mode``       the virtual ballbar in demo mode
+* ``sensor_api``      the live ballbar sensor: preview, arming, the end of a capture
+                      (``sensor_runs`` stores it as a run)
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
                       the background jobs of ``jobs`` and the upload preprocessor)
-* ``campaign_api``    the campaign endpoints (``campaigns``: their store)
+* ``campaign_api``    the campaign endpoints (``campaigns``: their store;
+                      ``campaign_measure``: a trace as a campaign test's measurement)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
                       helpers and the permission KinComp adds
 """
@@ -32,8 +35,9 @@ from ..engines.select import engine
 from . import http
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
 from .campaign_api import CampaignApi
+from .campaign_measure import CampaignMeasurements
 from .campaigns import CampaignStore
-from .demo_mode import DemoMode
+from .demo_mode import DemoMode, lines_as_sent
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
@@ -41,9 +45,12 @@ from .notify import CUSTOM_EVENTS, Notifier
 from .print_state import PRINT_EVENTS, PrintState
 from .queue import FILE_TAG, QueueCompensator
 from .runs import RunStore
+from .sensor_api import SensorApi
+from .sensor_runs import CaptureRecorder
 from .settings import SETTINGS_VERSION, defaults
 from .settings_api import SettingsApi
 from .settings_store import SettingsStore
+from .software_update import check_config
 
 route = octoprint.plugin.BlueprintPlugin.route
 
@@ -63,7 +70,7 @@ class KinCompPlugin(
         # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
-        self.settings_api = self.calibration = self.campaign = None
+        self.settings_api = self.calibration = self.sensor = self.campaign = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -88,9 +95,18 @@ class KinCompPlugin(
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files)
-        self.campaign = CampaignApi(self.store, queue, self.runs,
-                                    CampaignStore(self.get_plugin_data_folder()),
-                                    self.calibration, self.demo, self._printer_profile_manager)
+        self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
+        recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
+        self.sensor = SensorApi(recorder, self.runs, self.demo, notifier, printer, files, log,
+                                self._settings.global_get)
+        self.calibration.on_print = self.sensor.program_printing
+        self.settings_api.check = self.sensor.check_settings
+        campaigns = CampaignStore(self.get_plugin_data_folder())
+        measurements = CampaignMeasurements(queue, self.runs, campaigns, self.calibration,
+                                            notifier, self._printer_profile_manager)
+        recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
+        self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
+                                    self.demo, measurements)
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -99,7 +115,8 @@ class KinCompPlugin(
                           engine())
 
     def _settings_applied(self, s: Dict[str, Any]) -> None:
-        self.demo.set_enabled(s["demo"]["enabled"])
+        self.demo.set_enabled(s["demo"]["enabled"], s["demo"]["live"])
+        self.sensor.configure(s)
         self.firmware.check()
 
     def _print_began(self, payload: Dict[str, Any]) -> None:
@@ -109,6 +126,7 @@ class KinCompPlugin(
     def _print_ended(self, done: bool) -> None:
         self.jobs.set_paused(False)
         self.demo.print_ends(done)
+        self.sensor.print_ended(done)
 
     # ~~ settings ----------------------------------------------------------------------------
     def get_settings_defaults(self):
@@ -141,7 +159,7 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js",
+        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
                        "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
                        "js/kincomp_settings.js", "js/kincomp_tab.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
@@ -159,6 +177,8 @@ class KinCompPlugin(
             prints.follow_pause(comm_instance)
         if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
             self.firmware.sent(cmd)
+        if self.sensor.waiting and cmd[:4] == "M117":
+            self.sensor.command(cmd)  # the program's end marker ends the live capture
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result)
@@ -186,6 +206,10 @@ class KinCompPlugin(
 
     def before_api_request_hook(self, plugin=None, *args, **kwargs):
         return [self.store.check_settings_request]
+
+    def get_update_information(self, *args, **kwargs):
+        """The software update plugin's check for new KinComp versions (software_update)."""
+        return check_config(self.store.current()["software_update"], self._identifier)
 
     # ~~ events ------------------------------------------------------------------------------
     def on_event(self, event, payload):
@@ -258,6 +282,38 @@ class KinCompPlugin(
     def api_compare(self):
         return self.calibration.compare()
 
+    @route("/sensor/status", methods=["GET"])
+    def api_sensor_status(self):
+        return self.sensor.status()
+
+    @route("/sensor/live", methods=["GET"])
+    def api_sensor_live(self):
+        return self.sensor.live()
+
+    @route("/sensor/ports", methods=["GET"])
+    def api_sensor_ports(self):
+        return self.sensor.ports()
+
+    @route("/sensor/open", methods=["POST"])
+    def api_sensor_open(self):
+        return self.sensor.open()
+
+    @route("/sensor/close", methods=["POST"])
+    def api_sensor_close(self):
+        return self.sensor.close()
+
+    @route("/sensor/arm", methods=["POST"])
+    def api_sensor_arm(self):
+        return self.sensor.arm()
+
+    @route("/sensor/stop", methods=["POST"])
+    def api_sensor_stop(self):
+        return self.sensor.stop()
+
+    @route("/runs/<run_id>/raw", methods=["GET"])
+    def api_run_raw(self, run_id):
+        return self.sensor.raw(run_id)
+
     @route("/campaign/plan", methods=["POST"])
     def api_campaign_plan(self):
         return self.campaign.plan()
@@ -309,4 +365,5 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         "octoprint.server.http.bodysize": plugin.bodysize_hook,
         "octoprint.events.register_custom_events": plugin.custom_events_hook,
         "octoprint.server.api.before_request": plugin.before_api_request_hook,
+        "octoprint.plugin.softwareupdate.check_config": plugin.get_update_information,
     }

@@ -4,9 +4,11 @@ A run records when it was made, where its data came from (trace, .b5r, typed sum
 printed artifact; simulated or not), the parameters active during the test, the analysis
 (diagnostics), the proposed parameters, and whether and when they were applied; a run of a
 campaign also its campaign id and test (``campaign``, ``campaign_step``; the joint analysis
-has no test). A trace file, if any, is kept next to it. Run ids are generated here and
-checked on every lookup, so a request can never name a path outside the runs folder (the
-campaign store, ``campaigns.py``, keeps its documents by the same rules).
+has no test). A trace file, if any, is kept next to it, and for a live capture the sensor's
+raw stream (``.raw``); a live capture that failed is a run too (``status: failed``, its
+message, its partial data). Run ids are generated here and checked on every lookup, so a
+request can never name a path outside the runs folder (the campaign store, ``campaigns.py``,
+keeps its documents by the same rules).
 """
 
 from __future__ import annotations
@@ -51,14 +53,21 @@ class RunStore:
         path = self._path(run["id"])
         write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
 
-    def save_trace(self, run_id: str, data: bytes) -> str:
-        path = self._path(run_id, ".trace")
+    def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
+        path = self._path(run_id, suffix)
         write_atomic(path, data)
         return path
 
-    def trace_path(self, run_id: str) -> Optional[str]:
-        path = self._path(run_id, ".trace")
+    def trace_path(self, run_id: str, suffix: str = ".trace") -> Optional[str]:
+        path = self._path(run_id, suffix)
         return path if os.path.exists(path) else None
+
+    def save_raw(self, run_id: str, data: bytes) -> str:
+        """A live capture's raw sensor stream (``time_s,reading_mm,line``)."""
+        return self.save_trace(run_id, data, ".raw")
+
+    def raw_path(self, run_id: str) -> Optional[str]:
+        return self.trace_path(run_id, ".raw")
 
     def get(self, run_id: str) -> Dict[str, Any]:
         path = self._path(run_id)
@@ -100,12 +109,15 @@ class RunStore:
             "applied": run.get("applied"),
             "params_before_hash": run.get("params_before_hash"),
             "has_trace": self.trace_path(run_id) is not None,
+            "has_raw": self.raw_path(run_id) is not None,
+            "status": run.get("status", "ok"),
+            "message": run.get("message"),
             "campaign": run.get("campaign"),
             "campaign_step": run.get("campaign_step"),
         }
 
     def delete(self, run_id: str) -> None:
-        for suffix in (".json", ".trace"):
+        for suffix in (".json", ".trace", ".raw"):
             path = self._path(run_id, suffix)
             if os.path.exists(path):
                 os.unlink(path)

@@ -1,8 +1,10 @@
 """KinComp's OctoPrint settings: defaults, version migration and validation (no OctoPrint import).
 
-The settings hold the params document (see :mod:`params`) plus how the plugin applies it.
-``validate_settings`` returns a complete, checked copy or raises :class:`SettingsError`
-naming the field, so that the API can answer 400 and keep the old values.
+The settings hold the params document (see :mod:`params`) plus how the plugin applies it,
+demo mode, and the live ballbar sensor (``sensor``: port, baud rate in bit/s, protocol, units,
+sign, pattern and scale; see :mod:`..sensor.config`). ``validate_settings`` returns a
+complete, checked copy or raises :class:`SettingsError` naming the field, so that the API can
+answer 400 and keep the old values.
 """
 
 from __future__ import annotations
@@ -14,6 +16,10 @@ from typing import Any, Dict, Optional, Sequence, Tuple
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
 from ..core.params import Params, ParamsError
+from ..sensor.config import SensorConfig
+from ..sensor.errors import SensorError
+from ..sensor.protocol_pattern import check_scale, compile_pattern
+from . import software_update
 
 SETTINGS_VERSION = 1
 MODES = ("on_the_fly", "on_upload", "background")
@@ -38,8 +44,23 @@ def defaults() -> Dict[str, Any]:
         "home_mm": [0.0, 0.0, 0.0],
         "pass_through_on_error": False,
         "apply_changes": "next_print",
-        "demo": {"enabled": False},
+        # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
+        "demo": {"enabled": False, "live": True},
+        "sensor": sensor_defaults(),
+        "software_update": software_update.default_settings(),
     }
+
+
+# the sensor settings the plugin stores (SensorConfig's others keep their defaults)
+SENSOR_KEYS = ("enabled", "port", "baudrate", "protocol", "units", "positive", "pattern",
+               "scale", "range", "sample_rate_hz")
+MERGED = ("demo", "sensor")  # objects updated key by key (a form may send only some keys)
+
+
+def sensor_defaults() -> Dict[str, Any]:
+    """No live sensor: tests are measured by uploading a trace."""
+    cfg = SensorConfig().to_dict()
+    return dict({k: cfg[k] for k in SENSOR_KEYS if k != "enabled"}, enabled=False)
 
 
 SETTING_KEYS = tuple(defaults())
@@ -119,6 +140,9 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     if not replace_params and isinstance(data.get("params"), dict) and \
             isinstance(out.get("params"), dict):
         data["params"] = merge_params(out["params"], data["params"])
+    for key in MERGED:
+        if isinstance(data.get(key), dict) and isinstance(out.get(key), dict):
+            data[key] = dict(out[key], **data[key])
     out.update(data)
     out["enabled"] = _bool(out["enabled"], "enabled")
     out["mode"] = _choice(out["mode"], "mode", MODES)
@@ -134,15 +158,49 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
     out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
     demo = out["demo"]
-    if not isinstance(demo, dict) or set(demo) - {"enabled"}:
-        raise SettingsError("demo", Msg("must be an object with 'enabled'"))
+    if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
+        raise SettingsError("demo", Msg("must be an object with 'enabled' and 'live'"))
     demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
+    demo["live"] = _bool(demo.get("live", True), "demo.live")
+    out["sensor"] = validate_sensor(out["sensor"])
+    try:
+        out["software_update"] = software_update.validate(out["software_update"])
+    except software_update.UpdateSettingsError as exc:
+        raise SettingsError(exc.field, exc.message) from None
     try:
         out["params"] = Params.from_dict(out["params"]).to_dict()
     except ParamsError as exc:
         raise SettingsError(f"params.{exc.field}" if exc.field else "params",
                             exc.message) from None
     return out
+
+
+def validate_sensor(value: Any) -> Dict[str, Any]:
+    """The sensor settings checked (complete: missing keys get their defaults); the field
+    at fault is named ``sensor.<key>``."""
+    if not isinstance(value, dict):
+        raise SettingsError("sensor", Msg("must be an object"))
+    for key in value:
+        if key not in SENSOR_KEYS:
+            raise SettingsError(f"sensor.{key}", Msg("unknown setting"))
+    out = dict(sensor_defaults(), **value)
+    enabled = _bool(out.pop("enabled"), "sensor.enabled")
+    for key in ("port", "range", "pattern"):
+        if not isinstance(out[key], str):
+            raise SettingsError(f"sensor.{key}", Msg("must be a text"))
+    out["port"] = out["port"].strip()
+    try:
+        cfg = SensorConfig.from_dict(out)
+        cfg.scale = check_scale(cfg.scale)  # kept for the pattern protocol: checked always
+        if cfg.pattern:
+            compile_pattern(cfg.pattern)
+    except SensorError as exc:
+        raise SettingsError(f"sensor.{exc.field}" if exc.field else "sensor",
+                            exc.message) from None
+    if enabled and not cfg.port:
+        raise SettingsError("sensor.port", Msg("choose the sensor's port (or switch live "
+                                               "capture off)"))
+    return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
 
 
 def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]

@@ -6,7 +6,9 @@
   and axis max feeds (mm/min) of the printer profile, the background jobs, and a problem
   with the stored settings (defaults used), if any.
 * ``POST /settings``: a partial settings document, validated whole (400 naming the field,
-  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print.
+  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print. ``check``
+  (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
+  printer's own).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ class SettingsApi:
         self._watch = watch
         self._demo = demo
         self._jobs = jobs
+        self.check = None  # check(settings): raises SettingsError; None: nothing more
 
     def status(self):
         http.require(Permissions.STATUS)
@@ -70,6 +73,8 @@ class SettingsApi:
         data.pop("apply_now", None)
         try:
             new = validate_settings(data, self._store.current())
+            if self.check is not None:
+                self.check(new)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         self._store.save(new, immediately=immediately or None)

@@ -126,7 +126,8 @@ def test_settings_change_save_and_refuse_invalid(page, server):
 
 
 def test_calibration_wizard_demo_loop(page, server):
-    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    # the fallback path: the trace simulated after the print (live: test_live_view.py)
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
     try:
         _open_tab(page)
         page.fill("#kincomp_cx", "100")
@@ -203,7 +204,7 @@ def test_calibration_wizard_demo_loop(page, server):
         code, text = server.request("GET", path)
         assert code == 200 and "direction,time_s,reading_mm" in text
     finally:
-        settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
+        settings(server, demo={"enabled": False, "live": True}, params=ZERO, enabled=False)
 
 
 def test_files_compensated_with_older_parameters_are_flagged(page, server):

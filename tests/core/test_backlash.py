@@ -8,7 +8,13 @@ from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.select import make_compensator
 from tests.core.test_compensator import assert_lands
-from tests.support.helpers import Printer, compensate_groups, desired_positions, dist
+from tests.support.helpers import (
+    Printer,
+    compensate_groups,
+    desired_positions,
+    dist,
+    printed,
+)
 
 # every test here runs once per engine (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("engine")
@@ -107,11 +113,7 @@ def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
     take, move = groups[-1][1]  # a take-up move, then the move
     assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.05, abs=1e-6)
     assert xs(move)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
-    printer = Printer(p)
-    for _, outs in groups:
-        for o in outs:
-            printer.run_line(o)
-    assert dist(printer.actual(), (0, 10, 50)) < 2e-6
+    assert dist(printed(p, groups).actual(), (0, 10, 50)) < 2e-6
 
 
 def test_smoothing_spreads_takeup_over_following_path():
@@ -130,11 +132,7 @@ def test_smoothing_spreads_takeup_over_following_path():
     assert a["E"] + b["E"] == pytest.approx(1.0, abs=1e-9) and a["E"] == pytest.approx(0.2)
     assert comp.report.takeup_moves == 0
     # after the ramp the printer lands exactly again
-    pr = Printer(p)
-    for _, outs_ in groups:
-        for o in outs_:
-            pr.run_line(o)
-    assert dist(pr.actual(), (30, 0, 1)) < 1e-6
+    assert dist(printed(p, groups).actual(), (30, 0, 1)) < 1e-6
 
 
 def test_smoothing_ramp_spanning_several_moves():

@@ -16,7 +16,14 @@ import pytest
 
 from octoprint_kincomp import __version__
 from octoprint_kincomp.tools.devserver import ADMIN, DevServer
-from tests.support.serverutil import BrowserSession, marker, offline, sent, settings, status
+from tests.support.serverutil import (
+    BrowserSession,
+    marker,
+    offline,
+    sent,
+    settings,
+    status,
+)
 
 pytestmark = pytest.mark.slow
 

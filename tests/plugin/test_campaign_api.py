@@ -161,7 +161,8 @@ def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
 
 
 def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
-    plugin.on_settings_save({"demo": {"enabled": True}})
+    # the demo without its live path: the simulated trace is collected per test
+    plugin.on_settings_save({"demo": {"enabled": True, "live": False}})
     doc = plan(app, plugin)
     done = run_campaign(app, plugin, doc)
     assert done["state"] == "analysed" and done["next_step"] is None
@@ -315,6 +316,47 @@ def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_
     code, _ = upload(app, plugin, tmp_path, cid, 3, offline_trace(doc, 3), "t3.csv")
     code, resp = call(app, plugin.api_campaign_analyze, cid)
     assert code == 200 and resp["state"] == "analysed"
+
+
+def _live_run(plugin, text, name="live_XZ_R50.csv"):
+    """A live capture of ``text`` as the sensor's recorder stores it (its trace names no
+    parameters: a capture has only the program's metadata)."""
+    from octoprint_kincomp.ballbar.analysis import analyse
+    from octoprint_kincomp.ballbar.formats import load_any
+
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("# params_hash:"))
+    data = (text + "\n").encode()
+    result = analyse(load_any(data, name), current=plugin.queue.params)
+    run = plugin.calibration.record_run(result, name, "live", data, result.get("plot"),
+                                        extra={"status": "ok", "capture": {"samples": 1}})
+    plugin.runs.save_raw(run["id"], b"time_s,reading_mm,line\n0.0,1.0,1.0\n")
+    return run
+
+
+def test_a_live_capture_of_a_test_becomes_its_measurement(app, plugin):
+    recorder = plugin.sensor._recorder
+    assert recorder.on_recorded == plugin.campaign.measure.take_capture
+    doc = plan(app, plugin)
+    live = _live_run(plugin, offline_trace(doc, 2))
+    taken = recorder.on_recorded(live)
+    # one run per trace: the capture's run is replaced by the campaign's, raw stream kept
+    assert taken["id"] != live["id"] and taken["campaign"] == doc["id"]
+    assert taken["campaign_step"] == "xz" and taken["source"] == "live"
+    assert taken["capture"] == {"samples": 1} and plugin.runs.raw_path(taken["id"])
+    assert [r["id"] for r in plugin.runs.list()] == [taken["id"]]
+    assert plugin.campaign._campaigns.get(doc["id"])["steps"][1]["run"] == taken["id"]
+    # a capture that is no campaign's test stays as it was
+    single = _live_run(plugin, offline_trace(doc, 1).replace(f"# campaign: {doc['id']}",
+                                                             "# campaign: "))
+    assert recorder.on_recorded(single) is single
+    # once the parameters changed, the campaign does not take it; the user is told
+    plugin.on_settings_save({"enabled": True, "params": SKEW})
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    late = _live_run(plugin, offline_trace(doc, 3))
+    assert recorder.on_recorded(late) is late
+    msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
+    assert msg["severity"] == "error" and "parameters in force changed" in msg["text"]
+    assert plugin.campaign._campaigns.get(doc["id"])["steps"][2]["run"] is None
 
 
 def test_printing_a_test_needs_a_ready_printer(app, plugin):

@@ -10,9 +10,14 @@ from octoprint_kincomp.ballbar.program import TestSpec
 from octoprint_kincomp.sensor.errors import SensorError
 from octoprint_kincomp.sensor.retime import retime
 from octoprint_kincomp.sensor.runs import detect_runs
-from octoprint_kincomp.sensor.stream import RawStream, parse_raw_stream, trace_from_stream
+from octoprint_kincomp.sensor.stream import (
+    RawStream,
+    parse_raw_stream,
+    trace_from_stream,
+)
 
 from .conftest import same_result
+
 
 def device_stream(t, r, meta=None):
     return RawStream(dict(meta or {"timing": "device clock"}), t - t[0], r,

@@ -515,12 +515,23 @@ $(function () {
         self.onEventSettingsUpdated = self.onEventPrintDone;
         self.onEventPluginKincompParamsApplied = self.onEventPrintDone;
 
+        // a test's trace arrives: the live sensor's capture, already taken by the campaign
+        // (sensor_run), or demo mode's simulated trace without the live path (demo_trace)
         self.onDataUpdaterPluginMessage = function (plugin, data) {
-            if (plugin !== "kincomp" || !data || data.type !== "demo_trace" || !data.campaign) return;
+            if (plugin !== "kincomp" || !data) return;
             var c = self.campaign();
-            if (!c || c.id !== data.campaign || !self.canWrite()) return;
-            var step = _.findWhere(c.steps, {name: data.campaign_step});
-            if (step && !step.run) self.collect(step.n);
+            if (data.type === "sensor_run" && data.run && data.run.campaign) {
+                if (!c || c.id !== data.run.campaign) return;
+                $.when(OctoPrint.get(API("campaigns/" + c.id)),
+                       OctoPrint.get(API("runs/" + encodeURIComponent(data.run.id))))
+                    .done(function (fresh, run) {
+                        self.measured({campaign: fresh[0], run: run[0]});
+                    });
+            } else if (data.type === "demo_trace" && data.campaign) {
+                if (!c || c.id !== data.campaign || !self.canWrite()) return;
+                var step = _.findWhere(c.steps, {name: data.campaign_step});
+                if (step && !step.run) self.collect(step.n);
+            }
         };
     }
 

@@ -175,6 +175,40 @@
 
     var NICE = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 
+    /* ---------------------------------------------------------------- settings forms */
+
+    // save a settings form through KinComp's API: ``vm`` has the observables errors,
+    // formError, savedMessage and saving; ``collected`` is {errors (fields that are not
+    // numbers), data}; ``fieldOf(path)`` gives the form's key of the field the server names
+    // first in its message ("params.scale_ppm.x: ..."), or nothing
+    var saveSettings = function (vm, collected, fieldOf) {
+        vm.savedMessage("");
+        if (!_.isEmpty(collected.errors)) {
+            vm.errors(collected.errors);
+            vm.formError(gettext("Some values are not numbers; see the marked fields."));
+            return $.Deferred().reject().promise();
+        }
+        vm.saving(true);
+        return OctoPrint.postJson(API("settings"), collected.data)
+            .done(function () {
+                vm.errors({});
+                vm.formError("");
+                vm.savedMessage(gettext("Saved."));
+            })
+            .fail(function (jqXHR) {
+                var msg = errorText(jqXHR);
+                var path = msg.split(":")[0];
+                var errs = {};
+                var field = fieldOf(path);
+                if (field) errs[field] = msg.slice(path.length + 1).trim();
+                vm.errors(errs);
+                vm.formError(msg);
+            })
+            .always(function () {
+                vm.saving(false);
+            });
+    };
+
     window.KinComp = {
         API: API,
         num: num,
@@ -189,6 +223,7 @@
         rows: rows,
         pick: pick,
         proposedRows: proposedRows,
-        NICE: NICE
+        NICE: NICE,
+        saveSettings: saveSettings
     };
 })();
