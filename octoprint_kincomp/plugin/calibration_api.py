@@ -137,14 +137,15 @@ class CalibrationApi:
         self._demo.program_written(path, stated, prog_hash)
         return path, prog_hash, stated
 
-    def print_program(self, path: str, spec: TestSpec,
-                      prog_hash: str) -> Tuple[bool, Optional[Dict[str, Any]]]:
+    def print_program(self, path: str, spec: TestSpec, prog_hash: str,
+                      arm: bool = True) -> Tuple[bool, Optional[Dict[str, Any]]]:
         """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
-        use, is armed first through ``on_print``. (printing, the capture's state); (False,
-        None) if the printer is not ready (not connected, or printing)."""
+        use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
+        state); (False, None) if the printer is not ready (not connected, or printing)."""
         if not self._printer.is_operational() or self._printer.is_printing():
             return False, None
-        capture = self.on_print(path, spec, prog_hash) if self.on_print is not None else None
+        capture = self.on_print(path, spec, prog_hash) \
+            if arm and self.on_print is not None else None
         self._printer.select_file(path, False, printAfterSelect=True,
                                   tags={"plugin:kincomp", "kincomp:calibration"})
         return True, capture

@@ -162,8 +162,11 @@ class CampaignApi:
             text, f"{cid}_{n}_{safe_name(step['name'])}.gcode")
         step["path"] = path
         step["program_hash"] = prog_hash
-        # the test as its program states it: a live capture's trace names campaign and test
-        printing, capture = self._calibration.print_program(path, stated, prog_hash) \
+        # the test as its program states it: a live capture's trace names campaign and test.
+        # Demo mode measures the campaign with its simulated trace of the printed commands
+        # (its virtual bar's live capture is not used here: see the README)
+        printing, capture = self._calibration.print_program(
+            path, stated, prog_hash, arm=self._demo.ballbar is None) \
             if do_print else (False, None)
         if printing:
             step["printed"] = now()

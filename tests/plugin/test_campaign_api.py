@@ -161,8 +161,8 @@ def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
 
 
 def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
-    # the demo without its live path: the simulated trace is collected per test
-    plugin.on_settings_save({"demo": {"enabled": True, "live": False}})
+    # demo mode measures a campaign with the simulated trace of the printed commands
+    plugin.on_settings_save({"demo": {"enabled": True}})
     doc = plan(app, plugin)
     done = run_campaign(app, plugin, doc)
     assert done["state"] == "analysed" and done["next_step"] is None
@@ -373,6 +373,19 @@ def test_printing_a_test_needs_a_ready_printer(app, plugin):
     spec = plugin.demo._program_spec
     assert spec.campaign == doc["id"] and spec.campaign_step == "xy"
     assert spec.params_hash == doc["params_hash"] and spec.printer == "Virtual P1"
+    # a live sensor in use is armed with the test as its program states it (the capture's
+    # trace then names the campaign and the test); demo mode uses its own simulated trace
+    plugin._printer.is_printing.return_value = False
+    plugin.calibration.on_print = mock.MagicMock(return_value={"armed": True})
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={"print": True})
+    assert code == 200 and resp["capture"] == {"armed": True}
+    path, armed, prog_hash = plugin.calibration.on_print.call_args[0]
+    assert path == resp["path"] and prog_hash == resp["program_hash"]
+    assert (armed.campaign, armed.campaign_step) == (doc["id"], "xz")
+    plugin.on_settings_save({"demo": {"enabled": True}})
+    plugin.calibration.on_print.reset_mock()
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
+    assert code == 200 and resp["capture"] is None and not plugin.calibration.on_print.called
 
 
 def test_each_route_asks_for_its_permissions(app, plugin):

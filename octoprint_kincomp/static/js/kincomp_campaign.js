@@ -247,15 +247,19 @@ $(function () {
                 gettext("The program moves there and pauses: mount the bar, continue; it pauses again at the end: unmount it, continue.");
         };
 
+        // the campaign's test whose program is printing or paused now (None: none is)
+        self.jobStep = ko.pureComputed(function () {
+            var c = self.campaign();
+            var ps = self.printerState;
+            if (!c || !(ps.isPrinting() || ps.isPaused())) return null;
+            var path = ps.filepath ? ps.filepath() : null;
+            return _.find(c.steps, function (s) {
+                return s.path && s.path === path;
+            }) || null;
+        });
         var onJob = function (step) {
-            var path = self.printerState.filepath ? self.printerState.filepath() : null;
-            return step && step.path && path === step.path;
-        };
-        self.printingThis = function (step) {
-            return onJob(step) && self.printerState.isPrinting();
-        };
-        self.pausedThis = function (step) {
-            return onJob(step) && self.printerState.isPaused();
+            var job = self.jobStep();
+            return job !== null && job.n === step.n;
         };
 
         self.printPct = ko.pureComputed(function () {
@@ -266,7 +270,7 @@ $(function () {
             return _.sprintf(gettext("Printing the test: %(pct)s %%"), {pct: self.printPct()});
         });
         self.pauseText = function (step) {
-            return self.printPct() < 50
+            return !step.run && self.printPct() < 50
                 ? _.sprintf(gettext("Paused: mount the bar for %(plane)s now (pivot at %(c)s mm), then continue."), {plane: step.plane, c: self.centreText(step)})
                 : gettext("Paused: the test is done; unmount the bar, then continue.");
         };
@@ -293,8 +297,7 @@ $(function () {
                 var s = step.summary;
                 return s ? _.sprintf(gettext("measured ✓ (squareness %(sq)s µm/m)"), {sq: fmt(s.squareness_um_per_m, 1)}) : gettext("measured ✓");
             }
-            if (self.pausedThis(step)) return gettext("paused");
-            if (self.printingThis(step)) return gettext("printing");
+            if (onJob(step)) return self.printerState.isPaused() ? gettext("paused") : gettext("printing");
             if (step.printed) return gettext("printed: waiting for its measurement");
             return step.path ? gettext("program written") : gettext("planned");
         };
