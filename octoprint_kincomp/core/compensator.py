@@ -230,17 +230,21 @@ class Compensator:
         command of the home position; the command of an axis that is not homed can depend on
         the homed ones (X's on Y under XY skew) while its drive stays where it was. The next
         move starts from where the drives really are (``StreamState.q_drive``), so its
-        backlash reversals and take-ups are judged from there."""
+        backlash reversals and take-ups are judged from there: homing axes one G28 at a time
+        leaves them where one G28 of them all does."""
         st = self.state
-        q_before = self.writer.carriage(st.m)
+        q_cmd = self.writer.carriage(st.m)
+        before = st.q_drive or (None, None, None)
+        drive = [q_cmd[k] if before[k] is None else before[k] for k in range(3)]
         homed = home(st, self.backlash, body, self.options.home_mm)
         if self.passthrough:
+            st.q_drive = None
             return
+        for k in homed:
+            drive[k] = float(self.options.home_mm[k])
         q_after = self.writer.carriage(st.m)
-        drive = [float(self.options.home_mm[k]) if k in homed else q_before[k]
+        stays = [None if drive[k] is None or q_after[k] == drive[k] else drive[k]
                  for k in range(3)]
-        stays = [None if drive[k] is None or q_after[k] is None or q_after[k] == drive[k]
-                 else drive[k] for k in range(3)]
         st.q_drive = None if stays == [None, None, None] else tuple(stays)
 
     def malformed(self, line: str) -> str:

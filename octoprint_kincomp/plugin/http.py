@@ -70,3 +70,18 @@ def require(permission) -> None:
     """Aborts the request with 403 unless the user has ``permission``."""
     if not permission.can():
         flask.abort(403)
+
+
+def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
+    """403 if the request changes where KinComp's updates come from (the archive pip will
+    install as OctoPrint's admin) without OctoPrint's own permission to configure software
+    updates (an administrator's, not KinComp's); None otherwise."""
+    if old.get("software_update") == new.get("software_update"):
+        return None
+    from octoprint.access.permissions import Permissions
+
+    needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None) or Permissions.ADMIN
+    if needed.can():
+        return None
+    return error(gettext("Changing where KinComp's updates come from needs OctoPrint's "
+                         "permission to configure software updates"), 403)

@@ -71,12 +71,16 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
+        current = self._store.current()
         try:
-            new = validate_settings(data, self._store.current())
+            new = validate_settings(data, current)
             if self.check is not None:
                 self.check(new)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
+        refused = http.update_source_refused(current, new)
+        if refused is not None:
+            return refused
         self._store.save(new, immediately=immediately or None)
         self._store.write()
         self._store.problem = None  # valid settings are stored now

@@ -195,8 +195,9 @@ class SettingsStore:
         if not Permissions.PLUGIN_KINCOMP_ADMIN.can():
             return http.error(gettext("Changing KinComp's settings needs the KinComp admin "
                                       "permission"), 403)
+        current = self.current()
         try:
-            validate_settings(mine, self.current())
+            new = validate_settings(mine, current)
         except SettingsError as exc:
             return http.error(gettext("KinComp: %(reason)s", reason=http.tr(exc)), 400)
-        return None
+        return http.update_source_refused(current, new)

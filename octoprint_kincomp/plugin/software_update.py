@@ -5,7 +5,9 @@
   (``__plugin_url__``), installed from the release's source archive;
 * ``{"type": "jsondata", "version_url": ..., "archive_url": ...}``: a plain archive URL for
   mirrors and forks: ``version_url`` answers ``{"version": "x.y.z"}``, ``archive_url`` names
-  the archive to install, with ``{target_version}`` where the version goes.
+  the archive to install, with ``{target_version}`` where the version goes. Both https only;
+  changing the source needs OctoPrint's permission to configure software updates (pip
+  installs the archive as the user OctoPrint runs as), not only KinComp's admin permission.
 
 The running version is the package's own ``__version__``. No OctoPrint import here.
 """
@@ -33,11 +35,12 @@ def default_settings() -> Dict[str, Any]:
 
 
 def _url(value: Any, field: str, template: bool = False) -> str:
+    # https only: pip installs what this names, as the user OctoPrint runs as
     if not isinstance(value, str) or len(value) > 500:
-        raise UpdateSettingsError(field, Msg("must be a web address (http or https)"))
+        raise UpdateSettingsError(field, Msg("must be an https address"))
     parts = urlsplit(value)
-    if parts.scheme not in ("http", "https") or not parts.netloc:
-        raise UpdateSettingsError(field, Msg("must be a web address (http or https)"))
+    if parts.scheme != "https" or not parts.netloc:
+        raise UpdateSettingsError(field, Msg("must be an https address"))
     if template and "{target_version}" not in value:
         raise UpdateSettingsError(field, Msg("must contain {target_version} where the "
                                              "version goes"))

@@ -55,14 +55,17 @@ class _Version(http.server.BaseHTTPRequestHandler):
 
 
 def test_a_plain_archive_source_is_checked_by_octoprints_jsondata_check():
+    s = validate_settings({"software_update": {
+        "type": "jsondata", "version_url": "https://example.org/kincomp.json",
+        "archive_url": "https://example.org/kincomp-{target_version}.zip"}})
+    assert check_config(s["software_update"])["kincomp"]["jsondata"] == \
+        "https://example.org/kincomp.json"
     server = http.server.HTTPServer(("127.0.0.1", 0), _Version)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
+        # (the test's server speaks plain http on loopback: the setting itself takes https)
         url = f"http://127.0.0.1:{server.server_port}/kincomp.json"
-        s = validate_settings({"software_update": {
-            "type": "jsondata", "version_url": url,
-            "archive_url": "https://example.org/kincomp-{target_version}.zip"}})
-        check = check_config(s["software_update"])["kincomp"]
+        check = check_config(dict(s["software_update"], version_url=url))["kincomp"]
         info, is_current = jsondata.get_latest("kincomp", check, online=True)
         assert info["local"]["value"] == __version__ and info["remote"]["value"] == "9.9.9"
         assert is_current is False
@@ -75,6 +78,10 @@ def test_a_plain_archive_source_is_checked_by_octoprints_jsondata_check():
     ({"type": "svn"}, "software_update.type"),
     ({"type": "jsondata", "version_url": "ftp://x/y", "archive_url": "https://a/{target_version}"},
      "software_update.version_url"),
+    ({"type": "jsondata", "version_url": "http://x/v.json",
+      "archive_url": "https://a/{target_version}"}, "software_update.version_url"),
+    ({"type": "jsondata", "version_url": "https://x/v.json",
+      "archive_url": "http://a/{target_version}"}, "software_update.archive_url"),
     ({"type": "jsondata", "version_url": "https://x/v.json", "archive_url": "https://a/b.zip"},
      "software_update.archive_url"),
     ({"type": "github_release", "branch": "x"}, "software_update"),
@@ -84,3 +91,30 @@ def test_a_bad_update_source_is_refused_naming_the_field(value, field):
     with pytest.raises(SettingsError) as exc:
         validate_settings({"software_update": value})
     assert exc.value.field == field
+
+
+def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path):
+    """KinComp's own admin permission is not enough to change what pip will install."""
+    from unittest import mock
+
+    from tests.support.mocked_plugin import api_app
+
+    plugin = mocked_plugin(str(tmp_path))
+    body = {"software_update": {"type": "jsondata", "version_url": "https://e.org/v.json",
+                                "archive_url": "https://e.org/k-{target_version}.zip"}}
+    app = api_app()
+    for allowed, status in ((False, 403), (True, 200)):
+        with mock.patch("octoprint_kincomp.plugin.http.require"), \
+                mock.patch("octoprint.access.permissions.Permissions") as perms:
+            perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = allowed
+            with app.test_request_context("/settings", method="POST", json=body):
+                resp = plugin.api_settings()
+        assert getattr(resp, "status_code", 200) == status
+        stored = plugin.store.current()["software_update"]["type"]
+        assert stored == ("jsondata" if allowed else "github_release")
+    # the rest of the settings needs no more than before
+    with mock.patch("octoprint_kincomp.plugin.http.require"), \
+            mock.patch("octoprint.access.permissions.Permissions") as perms:
+        perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = False
+        with app.test_request_context("/settings", method="POST", json={"enabled": True}):
+            assert getattr(plugin.api_settings(), "status_code", 200) == 200
