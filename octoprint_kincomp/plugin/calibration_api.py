@@ -22,7 +22,7 @@ import io
 import json
 import os
 import re
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -56,6 +56,15 @@ from .settings_store import SettingsStore
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
 PROGRAM_FOLDER = "kincomp"  # where generated programs go in OctoPrint's local storage
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+class UploadRefused(Exception):
+    """No uploaded file, or one too large: the message and the HTTP status."""
+
+    def __init__(self, message: str, status: int):
+        super().__init__(message)
+        self.message = message
+        self.status = status
 
 
 def safe_name(name: str) -> str:
@@ -105,47 +114,72 @@ class CalibrationApi:
             return http.error(http.tr(exc), 400)
         name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
                f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        path, prog_hash, _ = self.write_program(text, name)
+        printing, capture = self.print_program(path, spec, prog_hash) if do_print \
+            else (False, None)
+        if do_print and not printing:
+            return http.error(gettext("The printer is not ready to print"), 409)
+        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
+                             printing=printing, program_hash=prog_hash, capture=capture)
+
+    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
+        """Writes the ballbar program ``text`` as ``kincomp/<name>`` into OctoPrint's storage
+        and tells demo mode, with the test as the program states it (its params hash and
+        campaign keys go into the simulated trace); returns the path, the program hash and
+        that test."""
         path = f"{PROGRAM_FOLDER}/{name}"
         self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
                                       ignore_existing=True)
         self._file_manager.add_file(
             FileDestinations.LOCAL, path,
             StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
-        _, prog_hash = spec_from_program(text)
-        self._demo.program_written(path, spec, prog_hash)
-        printing, capture = False, None
-        if do_print:
-            if not self._printer.is_operational() or self._printer.is_printing():
-                return http.error(gettext("The printer is not ready to print"), 409)
-            if self.on_print is not None:
-                capture = self.on_print(path, spec, prog_hash)
-            self._printer.select_file(path, False, printAfterSelect=True,
-                                      tags={"plugin:kincomp", "kincomp:calibration"})
-            printing = True
-        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash, capture=capture)
+        stated, prog_hash = spec_from_program(text)
+        self._demo.program_written(path, stated, prog_hash)
+        return path, prog_hash, stated
+
+    def print_program(self, path: str, spec: TestSpec, prog_hash: str,
+                      arm: bool = True) -> Tuple[bool, Optional[Dict[str, Any]]]:
+        """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
+        use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
+        state); (False, None) if the printer is not ready (not connected, or printing)."""
+        if not self._printer.is_operational() or self._printer.is_printing():
+            return False, None
+        capture = self.on_print(path, spec, prog_hash) \
+            if arm and self.on_print is not None else None
+        self._printer.select_file(path, False, printAfterSelect=True,
+                                  tags={"plugin:kincomp", "kincomp:calibration"})
+        return True, capture
 
     # ~~ measurements in ---------------------------------------------------------------------
     def trace(self):
         """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it and
         store the run; nothing is applied."""
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        try:
+            data, filename = self.read_upload()
+        except UploadRefused as exc:
+            return http.error(exc.message, exc.status)
+        return self._analyse_and_store(data, filename, "upload")
+
+    def read_upload(self) -> Tuple[bytes, str]:
+        """The uploaded file (multipart field 'file', or the raw body) and its name; raises
+        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes."""
         suffix, name_suffix = self._store.upload_fields()
         tmp_path = flask.request.values.get("file." + suffix)
         filename = flask.request.values.get("file." + name_suffix, "trace")
         if tmp_path:
             size = os.path.getsize(tmp_path)
             if size > MAX_TRACE_UPLOAD:
-                return http.error(gettext("The file is too large"), 413)
+                raise UploadRefused(gettext("The file is too large"), 413)
             with open(tmp_path, "rb") as f:
                 data = f.read()
         else:
             data = flask.request.get_data(cache=False)
             if not data:
-                return http.error(gettext("No file uploaded (multipart field 'file')"), 400)
+                raise UploadRefused(gettext("No file uploaded (multipart field 'file')"), 400)
             if len(data) > MAX_TRACE_UPLOAD:
-                return http.error(gettext("The file is too large"), 413)
-        return self._analyse_and_store(data, filename, "upload")
+                raise UploadRefused(gettext("The file is too large"), 413)
+        return data, filename
 
     def analyze(self):
         """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
@@ -196,8 +230,9 @@ class CalibrationApi:
     def record_run(self, result: Dict[str, Any], filename: str, source: str,
                    raw: Optional[bytes], plot=None,
                    extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
-        """Store an analysis as a run (``extra``: more fields) and announce it; returns the
-        run. Needs no request: the live capture's worker thread stores its runs here too."""
+        """Store an analysis as a run (and ``raw``, the measurement file, next to it;
+        ``extra``: more fields, e.g. a campaign's keys) and announce it; returns the run.
+        Needs no request: the live capture's worker thread stores its runs here too."""
         run_id = self._runs.new_id()
         current = self._queue.params
         run = {
@@ -247,10 +282,16 @@ class CalibrationApi:
             params_doc = data["params"]
         else:
             return http.error(gettext("Give 'run' or 'params'"), 400)
+        return self.apply_params(params_doc, apply_now, run,
+                                 {"enabled": data["enabled"]} if "enabled" in data else None)
+
+    def apply_params(self, params_doc, apply_now: bool, run: Optional[Dict[str, Any]] = None,
+                     settings: Optional[Dict[str, Any]] = None):
+        """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
+        whole (400 naming the field, nothing saved); marks ``run`` applied."""
         new = dict(self._store.current())
         new["params"] = params_doc
-        if "enabled" in data:
-            new["enabled"] = data["enabled"]
+        new.update(settings or {})
         try:
             new = validate_settings(new, self._store.current(), replace_params=True)
         except SettingsError as exc:

@@ -4,7 +4,9 @@
 The last ballbar program KinComp wrote is remembered; when a print of it begins, the
 commands leaving KinComp's queuing hook are recorded; when that print is done the simulator
 runs on its own thread (seconds, never on OctoPrint's event thread) and the UI is told that
-the simulated trace is ready. A print that fails or is cancelled drops the recording.
+the simulated trace is ready (a campaign's test: its campaign and test are in the message, and
+the campaign mode collects the trace). A print that fails or is cancelled drops the
+recording.
 
 The live path (``demo.live``, the default): the virtual ballbar is also a live sensor
 (:class:`..sensor.virtual.VirtualSensor` on a pseudo-terminal, started when KinComp's
@@ -170,7 +172,13 @@ class DemoMode:
         except Exception:  # noqa: BLE001 - a demo failure must not disturb anything else
             self._logger.exception("KinComp demo: simulation failed")
             return
-        if trace is not None and not self._played:  # else the live capture tells
+        if trace is None:
+            return
+        meta = getattr(trace, "meta", None) or {}
+        if meta.get("campaign"):  # a campaign's test: the campaign's wizard collects it
+            self._notifier.message({"type": "demo_trace", "campaign": meta["campaign"],
+                                    "campaign_step": meta.get("campaign_step")})
+        elif not self._played:  # else the live capture tells
             self._notifier.notify("success", N_(
                 "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
             self._notifier.message({"type": "demo_trace"})

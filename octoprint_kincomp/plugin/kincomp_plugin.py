@@ -13,6 +13,8 @@ is done by the pieces, which import neither this module nor each other in a circ
                       (``sensor_runs`` stores it as a run)
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
                       the background jobs of ``jobs`` and the upload preprocessor)
+* ``campaign_api``    the campaign endpoints (``campaigns``: their store;
+                      ``campaign_measure``: a trace as a campaign test's measurement)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
                       helpers and the permission KinComp adds
 """
@@ -32,6 +34,9 @@ from ..core.params import Params
 from ..engines.select import engine
 from . import http
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
+from .campaign_api import CampaignApi
+from .campaign_measure import CampaignMeasurements
+from .campaigns import CampaignStore
 from .demo_mode import DemoMode, lines_as_sent
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
@@ -65,7 +70,7 @@ class KinCompPlugin(
         # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
-        self.settings_api = self.calibration = self.sensor = None
+        self.settings_api = self.calibration = self.sensor = self.campaign = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -91,11 +96,17 @@ class KinCompPlugin(
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files)
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
-        self.sensor = SensorApi(CaptureRecorder(self.calibration, self.runs, queue, notifier),
-                                self.runs, self.demo, notifier, printer, files, log,
+        recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
+        self.sensor = SensorApi(recorder, self.runs, self.demo, notifier, printer, files, log,
                                 self._settings.global_get)
         self.calibration.on_print = self.sensor.program_printing
         self.settings_api.check = self.sensor.check_settings
+        campaigns = CampaignStore(self.get_plugin_data_folder())
+        measurements = CampaignMeasurements(queue, self.runs, campaigns, self.calibration,
+                                            notifier, self._printer_profile_manager)
+        recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
+        self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
+                                    self.demo, measurements)
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -149,8 +160,9 @@ class KinCompPlugin(
 
     def get_assets(self):
         return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
+                       "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
                        "js/kincomp_settings.js", "js/kincomp_tab.js"],
-                "css": ["css/kincomp.css"]}
+                "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
@@ -186,7 +198,8 @@ class KinCompPlugin(
         return http.permissions()
 
     def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
-        return [("POST", r"/trace", MAX_TRACE_UPLOAD)]
+        return [("POST", r"/trace", MAX_TRACE_UPLOAD),
+                ("POST", r"/campaigns/[^/]+/steps/[0-9]+/trace", MAX_TRACE_UPLOAD)]
 
     def custom_events_hook(self, *args, **kwargs):
         return list(CUSTOM_EVENTS)
@@ -300,6 +313,34 @@ class KinCompPlugin(
     @route("/runs/<run_id>/raw", methods=["GET"])
     def api_run_raw(self, run_id):
         return self.sensor.raw(run_id)
+
+    @route("/campaign/plan", methods=["POST"])
+    def api_campaign_plan(self):
+        return self.campaign.plan()
+
+    @route("/campaigns", methods=["GET"])
+    def api_campaigns(self):
+        return self.campaign.list()
+
+    @route("/campaigns/<cid>", methods=["GET"])
+    def api_campaign(self, cid):
+        return self.campaign.get(cid)
+
+    @route("/campaigns/<cid>/steps/<int:n>/program", methods=["POST"])
+    def api_campaign_program(self, cid, n):
+        return self.campaign.program(cid, n)
+
+    @route("/campaigns/<cid>/steps/<int:n>/trace", methods=["POST"])
+    def api_campaign_trace(self, cid, n):
+        return self.campaign.trace(cid, n)
+
+    @route("/campaigns/<cid>/analyze", methods=["POST"])
+    def api_campaign_analyze(self, cid):
+        return self.campaign.analyze(cid)
+
+    @route("/campaigns/<cid>/apply", methods=["POST"])
+    def api_campaign_apply(self, cid):
+        return self.campaign.apply(cid)
 
     @route("/dryrun", methods=["GET"])
     def api_dryrun(self):

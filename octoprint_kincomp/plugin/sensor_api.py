@@ -291,7 +291,7 @@ class SensorApi:
 
     def _recorded(self, run: Dict[str, Any], cap: Capture) -> None:
         self._last_run = {k: run.get(k) for k in ("id", "status", "message", "message_i18n",
-                                                  "simulated")}
+                                                  "simulated", "campaign", "campaign_step")}
         self._notifier.message({"type": "sensor_run", "run": self._last_run})
         if not self._preview:
             self._release()

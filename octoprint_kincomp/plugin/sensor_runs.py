@@ -16,7 +16,7 @@ Readings are mm, positive = bar longer; times s; ``armed_at``/``ended_at`` ISO d
 from __future__ import annotations
 
 import datetime as _dt
-from typing import Any, Dict, Optional
+from typing import Any, Callable, Dict, Optional
 
 from ..ballbar.analysis import analyse
 from ..ballbar.formats import TraceError, load_any
@@ -40,6 +40,8 @@ class CaptureRecorder:
         self._runs = runs
         self._queue = queue
         self._notifier = notifier
+        # on_recorded(run) -> run: a stored capture handed on (a campaign's test takes it)
+        self.on_recorded: Optional[Callable[[Dict[str, Any]], Dict[str, Any]]] = None
 
     def record(self, res: CaptureResult, armed, port: str) -> Dict[str, Any]:
         """Store the capture ``res`` of ``armed`` (sensor_api.Armed) on ``port``; returns
@@ -59,7 +61,7 @@ class CaptureRecorder:
         run = self._calibration.record_run(result, filename, SOURCE, data, result.get("plot"),
                                            extra={"status": "ok", "capture": capture})
         self._save_raw(run["id"], res)
-        return run
+        return self.on_recorded(run) if self.on_recorded is not None else run
 
     def record_missing(self, armed, message) -> Dict[str, Any]:
         """A capture that ended without any result (``message`` says why)."""

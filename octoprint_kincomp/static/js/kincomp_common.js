@@ -140,6 +140,39 @@
         return obj;
     };
 
+    // the table rows of a proposed parameter set (a run's "proposed"); ``servo``: with the
+    // servo lags and pre-compensation
+    var proposedRows = function (p, servo) {
+        var bl = function (v) {
+            if (_.isArray(v)) {
+                return _.map(v, function (pt) {
+                    return _.sprintf(gettext("%(um)s µm at %(at)s mm"), {um: fmt(pt.um, 1), at: fmt(pt.at_mm, 0)});
+                }).join(", ");
+            }
+            return fmt(v, 1) + " µm";
+        };
+        var out = [
+            {label: gettext("Squareness XY"), value: fmt(p.squareness_um_per_m.xy, 1) + " µm/m"},
+            {label: gettext("Squareness XZ"), value: fmt(p.squareness_um_per_m.xz, 1) + " µm/m"},
+            {label: gettext("Squareness YZ"), value: fmt(p.squareness_um_per_m.yz, 1) + " µm/m"},
+            {label: gettext("Scale X"), value: fmt(p.scale_ppm.x, 1) + " ppm"},
+            {label: gettext("Scale Y"), value: fmt(p.scale_ppm.y, 1) + " ppm"},
+            {label: gettext("Scale Z"), value: fmt(p.scale_ppm.z, 1) + " ppm"},
+            {label: gettext("Backlash X"), value: bl(p.backlash.x)},
+            {label: gettext("Backlash Y"), value: bl(p.backlash.y)},
+            {label: gettext("Backlash Z"), value: bl(p.backlash.z)}
+        ];
+        if (servo && p.servo_lag_ms) {
+            _.each(["x", "y", "z"], function (a) {
+                out.push({label: _.sprintf(gettext("Servo lag %(axis)s"), {axis: a.toUpperCase()}),
+                          value: fmt(p.servo_lag_ms[a], 3) + " ms"});
+            });
+            out.push({label: gettext("Servo pre-compensation"),
+                      value: p.servo_precomp ? gettext("on") : gettext("off")});
+        }
+        return out;
+    };
+
     var NICE = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
 
     /* ---------------------------------------------------------------- settings forms */
@@ -189,6 +222,7 @@
         translateNotice: translateNotice,
         rows: rows,
         pick: pick,
+        proposedRows: proposedRows,
         NICE: NICE,
         saveSettings: saveSettings
     };

@@ -155,27 +155,7 @@ $(function () {
 
         self.proposedRows = ko.pureComputed(function () {
             var run = self.run();
-            if (!run || !run.proposed) return [];
-            var p = run.proposed;
-            var bl = function (v) {
-                if (_.isArray(v)) {
-                    return _.map(v, function (pt) {
-                        return _.sprintf(gettext("%(um)s µm at %(at)s mm"), {um: fmt(pt.um, 1), at: fmt(pt.at_mm, 0)});
-                    }).join(", ");
-                }
-                return fmt(v, 1) + " µm";
-            };
-            return [
-                {label: gettext("Squareness XY"), value: fmt(p.squareness_um_per_m.xy, 1) + " µm/m"},
-                {label: gettext("Squareness XZ"), value: fmt(p.squareness_um_per_m.xz, 1) + " µm/m"},
-                {label: gettext("Squareness YZ"), value: fmt(p.squareness_um_per_m.yz, 1) + " µm/m"},
-                {label: gettext("Scale X"), value: fmt(p.scale_ppm.x, 1) + " ppm"},
-                {label: gettext("Scale Y"), value: fmt(p.scale_ppm.y, 1) + " ppm"},
-                {label: gettext("Scale Z"), value: fmt(p.scale_ppm.z, 1) + " ppm"},
-                {label: gettext("Backlash X"), value: bl(p.backlash.x)},
-                {label: gettext("Backlash Y"), value: bl(p.backlash.y)},
-                {label: gettext("Backlash Z"), value: bl(p.backlash.z)}
-            ];
+            return run && run.proposed ? K.proposedRows(run.proposed) : [];
         });
 
         self.fail = function (jqXHR) {
@@ -385,8 +365,12 @@ $(function () {
 
         self.loadRuns = function () {
             OctoPrint.get(API("runs")).done(function (resp) {
+                // a campaign's runs are grouped with their campaign (kincomp_campaign.js)
+                var single = _.filter(resp.runs, function (r) {
+                    return !r.campaign;
+                });
                 self.runs(
-                    _.map(resp.runs, function (r) {
+                    _.map(single, function (r) {
                         return _.extend({}, r, {
                             squareness: r.squareness_um_per_m,
                             circularity: r.circularity_um
@@ -501,7 +485,7 @@ $(function () {
                     type: data.severity === "warning" ? "notice" : data.severity,
                     hide: data.severity !== "error"
                 });
-            } else if (data.type === "demo_trace") {
+            } else if (data.type === "demo_trace" && !data.campaign) {
                 self.printing(false);
                 self.step("measure");
             } else if (data.type === "job" && data.job) {
