@@ -214,9 +214,9 @@ class JobQueue:
     def _save(self) -> None:
         if not self._history:
             return
-        with self._cond:
+        with self._cond:  # (held while writing: an older list never overwrites a newer)
             listed = [j.to_dict() for j in self.jobs.values()]
-        try:
-            write_atomic(self._history, json.dumps(listed, allow_nan=False).encode())
-        except (OSError, ValueError, TypeError):
-            _log.exception("KinComp: the job list could not be saved")
+            try:
+                write_atomic(self._history, json.dumps(listed, allow_nan=False).encode())
+            except (OSError, ValueError, TypeError):
+                _log.exception("KinComp: the job list could not be saved")

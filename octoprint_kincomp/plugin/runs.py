@@ -4,7 +4,9 @@ A run records when it was made, where its data came from (trace, .b5r, typed sum
 printed artifact; simulated or not), the parameters active during the test, the analysis
 (diagnostics), the proposed parameters, and whether and when they were applied. A trace
 file, if any, is kept next to it. Run ids are generated here and checked on every lookup,
-so a request can never name a path outside the runs folder.
+so a request can never name a path outside the runs folder. A run that is not plain JSON
+(a NaN or an infinity) is never stored; one stored by an older version is read with those
+numbers as null, so it can still be shown.
 """
 
 from __future__ import annotations
@@ -26,6 +28,10 @@ class RunNotFound(KeyError):
     pass
 
 
+class RunNotStorable(ValueError):
+    """The run holds a number that is not finite (or something that is not JSON)."""
+
+
 class RunStore:
     def __init__(self, data_folder: str):
         self.folder = os.path.join(data_folder, "runs")
@@ -40,9 +46,17 @@ class RunStore:
         now = _dt.datetime.now()
         return now.strftime("%Y%m%d-%H%M%S-") + secrets.token_hex(3)
 
-    def save(self, run: Dict[str, Any]) -> None:
+    def save(self, run: Dict[str, Any], trace: Optional[bytes] = None) -> None:
+        """Stores ``run`` (and its measurement file ``trace``); :class:`RunNotStorable`
+        (nothing stored) if it is not plain JSON."""
         path = self._path(run["id"])
-        write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
+        try:
+            text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise RunNotStorable(str(exc)) from None
+        if trace is not None:
+            self.save_trace(run["id"], trace)
+        write_atomic(path, text.encode())
 
     def save_trace(self, run_id: str, data: bytes) -> str:
         path = self._path(run_id, ".trace")
@@ -57,8 +71,8 @@ class RunStore:
         path = self._path(run_id)
         try:
             with open(path, encoding="utf-8") as f:
-                return json.load(f)
-        except (OSError, ValueError):
+                return json.load(f, parse_constant=lambda name: None)  # NaN, Infinity
+        except (OSError, ValueError, RecursionError):
             raise RunNotFound(run_id) from None
 
     def list(self) -> List[Dict[str, Any]]:

@@ -182,16 +182,17 @@ class WorkerProcess:
                     what, _, value = pickle.load(proc.stdout)
                     if what == "progress":
                         progress(value)
-                    elif what == "done":
-                        return value
                     else:
-                        raise value
+                        break
             except (EOFError, OSError, pickle.UnpicklingError):
                 self._reap()
                 raise WorkerDied("the worker process stopped in the middle of the job") \
                     from None
             finally:
                 self.last_used = time.monotonic()
+        if what == "done":
+            return value
+        raise value  # the job's own error, raised in the child
 
     def _reap(self) -> None:
         proc, self._proc = self._proc, None
@@ -224,6 +225,23 @@ class WorkerProcess:
                 time.monotonic() - self.last_used > idle_s:
             with self._lock:
                 self._reap()  # end of its input: the child returns
+
+
+class InProcessWorker:
+    """The same calls, run in the calling thread (tests; where no child process can be
+    started)."""
+
+    pid = None
+
+    def call(self, job_id: str, kind: str, args: Dict[str, Any],
+             progress: Callable[[float], None]) -> Any:
+        return TASKS[kind](progress=progress, **args)
+
+    def stop(self) -> None:
+        pass
+
+    def stop_if_idle(self, idle_s: float) -> None:
+        pass
 
 
 if __name__ == "__main__":
