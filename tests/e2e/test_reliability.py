@@ -70,11 +70,41 @@ PHASE_S = 8.0
 ROUNDS = 3
 
 
+def _worker(srv, sig):
+    """Send ``sig`` to KinComp's worker process, if it runs. The quiet phases stop it
+    (SIGSTOP): on this shared 2-core machine a nice-19 process gets next to no CPU while the
+    print streams, so queued dry runs would otherwise still be running in them."""
+    import psutil
+
+    for child in psutil.Process(srv.proc.pid).children(recursive=True):
+        if "octoprint_kincomp.plugin.worker" in " ".join(child.cmdline()):
+            child.send_signal(sig)
+
+
+def _cancel_print(srv):
+    if srv.request("GET", "/api/job")[1]["state"] != "Operational":
+        srv.request("POST", "/api/job", {"command": "cancel"})
+        _wait(lambda: srv.request("GET", "/api/job")[1]["state"] == "Operational", 120,
+              "the cancel")
+
+
+def _fast_print(path, lines):
+    """A print the virtual printer streams as fast as the CPU lets it: 0.05 mm moves at
+    200 mm/s take it 25 us each (it simulates moves at ten times their speed), so the
+    Send: rate measures the serial stream, not simulated motion."""
+    with open(path, "w") as f:
+        f.write("G28\nG90\nM83\nG1 X100 Y20 Z0.3 F12000\n")
+        for i in range(lines):
+            f.write(f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} "
+                    f"E0.001\n")
+
+
 def test_read_only_dry_runs_do_not_starve_a_print(server):
     uploads = os.path.join(server.basedir, "uploads")
     big = [f"kc-big-{i}.gcode" for i in range(3)]
-    for name in big:  # ~30 MB each, straight into the storage (no upload analysis)
-        _big_gcode(os.path.join(uploads, name), 600_000)
+    for name in big:  # ~15 MB each, straight into the storage (no upload analysis)
+        _big_gcode(os.path.join(uploads, name), 300_000)
+    _fast_print(os.path.join(uploads, "kc-long-print.gcode"), 1_500_000)
     settings(server, enabled=True, params=SKEW)
     results, stop = [], threading.Event()
 
@@ -88,18 +118,19 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             time.sleep(0.05)
 
     try:
-        code, body = server.upload("/api/files/local", "kc-long-print.gcode",
-                                   open(os.path.join(uploads, big[0]), "rb").read()[:12_000_000],
-                                   {"select": "true", "print": "true"})
-        assert code == 201, body
+        code, body = server.request("POST", "/api/files/local/kc-long-print.gcode",
+                                    {"command": "select", "print": True})
+        assert code == 204, body
         _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60,
               "the print")
         time.sleep(3.0)  # past the start
         phases = []
         for _ in range(ROUNDS):
+            _worker(server, signal.SIGSTOP)  # quiet: nothing of the dry runs runs at all
             t0 = time.time()
             time.sleep(PHASE_S)
             phases.append(("quiet", t0, time.time()))
+            _worker(server, signal.SIGCONT)
             stop.clear()
             threads = [threading.Thread(target=reader, args=(k,)) for k in range(4)]
             for t in threads:
@@ -112,7 +143,6 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             stop.set()
             for t in threads:
                 t.join()
-            _wait(lambda: not _active_jobs(server), 300, "the dry runs to finish")
         assert server.request("GET", "/api/job")[1]["state"] == "Printing", \
             "the print ended before the measurement did"
         times = _send_times(server)
@@ -123,22 +153,22 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
               f"(median {quiet:.0f}), with 4 read-only clients' dry runs {rates['load']} "
               f"(median {load:.0f}): {load / quiet:.0%}")
         assert load >= 0.8 * quiet, (rates, quiet, load)
+        _worker(server, signal.SIGCONT)
+        _cancel_print(server)  # the dry runs at nice 19 get the CPU the print leaves
+        _wait(lambda: not _active_jobs(server), 600, "the dry runs to finish")
         codes = {c for c, _ in results}
         assert codes <= {200, 202, 429}, codes
         assert 200 in codes or 202 in codes
         jobs = [j for j in status(server)["jobs"] if j["kind"] == "dryrun"]
         assert jobs and all(j["state"] == "done" for j in jobs), jobs
-        assert all(j["report"]["report"]["moves"] > 500_000 for j in jobs)
+        assert all(j["report"]["report"]["moves"] > 300_000 for j in jobs)
     finally:
         stop.set()
-        if server.request("GET", "/api/job")[1]["state"] != "Operational":
-            server.request("POST", "/api/job", {"command": "cancel"})
-            _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Operational",
-                  120, "the cancel")
+        _worker(server, signal.SIGCONT)
+        _cancel_print(server)
         settings(server, enabled=False)
-        for name in big:
+        for name in big + ["kc-long-print.gcode"]:
             os.unlink(os.path.join(uploads, name))
-        server.request("DELETE", "/api/files/local/kc-long-print.gcode")
 
 
 GARBAGE = {"enabled": True,
