@@ -95,6 +95,7 @@ class JobQueue:
         self._queue: List[Job] = []
         self.jobs: Dict[str, Job] = {}
         self.paused = False  # a print runs: jobs held_while_printing wait
+        self.stopping = False  # the server stops: a job ended now was interrupted
         self._load()
         self._thread = threading.Thread(target=self._loop, name="kincomp-jobs", daemon=True)
         self._thread.start()
@@ -129,6 +130,7 @@ class JobQueue:
 
     def stop(self) -> None:
         """The server stops: the worker process ends (its partial output is removed)."""
+        self.stopping = True
         if self.worker is not None:
             self.worker.stop()
 
@@ -144,12 +146,13 @@ class JobQueue:
         while True:
             with self._cond:
                 job = self._next()
-                while job is None:
+                if job is None:
                     self._cond.wait(timeout=30.0)
-                    if self.worker is not None:
-                        self.worker.stop_if_idle(IDLE_STOP_S)
                     job = self._next()
-            self._execute(job)
+            if job is not None:
+                self._execute(job)
+            elif self.worker is not None:
+                self.worker.stop_if_idle(IDLE_STOP_S)
 
     def _execute(self, job: Job) -> None:
         job.state = "running"
@@ -169,7 +172,7 @@ class JobQueue:
         except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
             job.state = "failed"
             job.exception = exc
-            job.error = str(exc) or type(exc).__name__
+            job.error = INTERRUPTED if self.stopping else (str(exc) or type(exc).__name__)
         job.finished = time.time()
         job.run = None
         self._changed(job)
