@@ -92,6 +92,9 @@ class FilesApi:
         http.require(Permissions.STATUS)
         http.require(Permissions.FILES_LIST)
         path = flask.request.args.get("path", "")
+        running = self.jobs.under_way("dryrun", path)
+        if running is not None:  # asked again: the answer costs nothing more
+            return self.job_api.answer(running, lambda j: j.report)
         disk = self._local_file(path)
         try:
             s = self._store.require_usable()

@@ -21,6 +21,7 @@ from .jobs import Job, JobQueue, QueueFull
 
 WAIT_S = 2.0  # a result ready within this many seconds comes in the response itself
 MAX_WAITERS = 2  # requests waiting for a result at once
+RETRY_AFTER_S = 1  # the Retry-After of a 202 (twice that for a 429), in seconds
 
 
 class JobApi:
@@ -34,7 +35,10 @@ class JobApi:
         try:
             return self.jobs.submit(kind, path, run, held_while_printing=held_while_printing)
         except QueueFull:
-            http.abort(429, gettext("Too many KinComp jobs are waiting; try again later"))
+            resp = http.error(gettext("Too many KinComp jobs are waiting; try again later"),
+                              429)
+            resp.headers["Retry-After"] = str(RETRY_AFTER_S * 2)
+            flask.abort(resp)
 
     def answer(self, job: Job, body: Callable[[Job], Dict[str, Any]], wait: float = WAIT_S,
                failed: Optional[Callable[[Job], str]] = None):
@@ -52,7 +56,9 @@ class JobApi:
                 return http.error(failed(job), 400)
             return http.error(http.tr(job.exception) if job.exception is not None
                               else str(job.error), 400)
-        return flask.make_response(flask.jsonify(job=job.to_dict()), 202)
+        resp = flask.make_response(flask.jsonify(job=job.to_dict()), 202)
+        resp.headers["Retry-After"] = str(RETRY_AFTER_S)  # when to ask GET /jobs/<id>
+        return resp
 
     def job(self, job_id: str):
         """GET /jobs/<id>: one job (state, progress, result or error)."""

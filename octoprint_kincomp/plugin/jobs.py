@@ -101,15 +101,20 @@ class JobQueue:
         self._thread.start()
 
     # ~~ submitting ----------------------------------------------------------------------------
+    def under_way(self, kind: str, path: str) -> Optional[Job]:
+        """The job of ``kind`` on ``path`` that is queued or running, if any."""
+        with self._cond:
+            return next((j for j in self.jobs.values()
+                         if j.active and j.kind == kind and j.path == path), None)
+
     def submit(self, kind: str, path: Optional[str], run: Callable,
                held_while_printing: bool = False) -> Job:
         """A new job, or the one of this kind on ``path`` already under way. Raises
         :class:`QueueFull` when ``limit`` jobs are queued or running."""
         with self._cond:
-            if path is not None:
-                for job in self.jobs.values():
-                    if job.active and job.kind == kind and job.path == path:
-                        return job
+            job = self.under_way(kind, path) if path is not None else None
+            if job is not None:
+                return job
             if sum(1 for j in self.jobs.values() if j.active) >= self.limit:
                 raise QueueFull(kind)
             job = Job(kind, path, run, held_while_printing)
