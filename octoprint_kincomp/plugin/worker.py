@@ -101,8 +101,9 @@ def child_main() -> int:
     os.dup2(2, 1)  # stray prints must not break the protocol
     inp = sys.stdin.buffer
     parent = os.getppid()
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        signal.signal(sig, _stop)
+    for sig in (signal.SIGTERM, signal.SIGINT, getattr(signal, "SIGHUP", None)):
+        if sig is not None:
+            signal.signal(sig, _stop)
     lower_priority()
 
     def send(msg) -> None:
