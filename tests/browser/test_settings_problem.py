@@ -7,7 +7,13 @@ import os
 import pytest
 
 from octoprint_kincomp.tools.devserver import DevServer
-from tests.browser.test_ui import SHOTS, _no_popups, _open_settings, browser  # noqa: F401
+from tests.browser.test_ui import (  # noqa: F401 (browser: the fixture)
+    SHOTS,
+    _no_popups,
+    _open_settings,
+    browser,
+    login,
+)
 from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
@@ -25,11 +31,7 @@ def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_
         os.makedirs(SHOTS, exist_ok=True)
         page = context.new_page()
         page.set_default_timeout(60_000)
-        page.goto(srv.url + "/")
-        page.fill("#login-user", "admin")
-        page.fill("#login-password", srv.logins["admin"]["password"])
-        page.click("#login-button")
-        page.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+        login(page, srv)
         _open_settings(page)
         page.wait_for_selector("#kincomp_settings_problem >> text=params.squareness_um_per_m.xy")
         assert page.is_visible("#settings_plugin_kincomp .control-group.error #kincomp_sq_xy")

@@ -32,12 +32,18 @@ SKEW = {"squareness_um_per_m": {"xy": 1500.0, "xz": 1200.0, "yz": -900.0}}
 _SEND_TS = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) - Send: N\d+ ")
 
 
-def _big_gcode(path, lines):
+def _write_gcode(path, lines, move, first="G1 Z0.3 F3000"):
+    """A G-code file: homing, modes, ``first``, then ``move(i)`` for i < ``lines``."""
     with open(path, "w") as f:
-        f.write("G28\nG90\nM83\nG1 Z0.3 F3000\n")
-        for i in range(lines):
-            f.write(f"G1 X{20 + (i * 37) % 180}.{i % 10} Y{20 + (i * 53) % 180}.{i % 7} "
-                    f"E0.0{i % 9 + 1} F{1800 + i % 5 * 600} ; extrude {i}\n")
+        f.write(f"G28\nG90\nM83\n{first}\n")
+        f.writelines(move(i) for i in range(lines))
+
+
+def _big_gcode(path, lines):
+    """Slicer-like moves all over the bed (what a dry run chews on)."""
+    _write_gcode(path, lines, lambda i: (
+        f"G1 X{20 + (i * 37) % 180}.{i % 10} Y{20 + (i * 53) % 180}.{i % 7} "
+        f"E0.0{i % 9 + 1} F{1800 + i % 5 * 600} ; extrude {i}\n"))
 
 
 def _send_times(srv):
@@ -92,11 +98,9 @@ def _fast_print(path, lines):
     """A print the virtual printer streams as fast as the CPU lets it: 0.05 mm moves at
     200 mm/s take it 25 us each (it simulates moves at ten times their speed), so the
     Send: rate measures the serial stream, not simulated motion."""
-    with open(path, "w") as f:
-        f.write("G28\nG90\nM83\nG1 X100 Y20 Z0.3 F12000\n")
-        for i in range(lines):
-            f.write(f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} "
-                    f"E0.001\n")
+    _write_gcode(path, lines, lambda i: (
+        f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} E0.001\n"),
+        first="G1 X100 Y20 Z0.3 F12000")
 
 
 def test_read_only_dry_runs_do_not_starve_a_print(server):
