@@ -12,7 +12,9 @@ is done by the pieces, which import neither this module nor each other in a circ
 * ``sensor_api``      the live ballbar sensor: preview, arming, the end of a capture
                       (``sensor_runs`` stores it as a run)
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
-                      the background jobs of ``jobs`` and the upload preprocessor)
+                      the background jobs of ``jobs``, run in the low-priority process of
+                      ``worker``, answered through ``job_api``, and the upload
+                      preprocessor)
 * ``campaign_api``    the campaign endpoints (``campaigns``: their store;
                       ``campaign_measure``: a trace as a campaign test's measurement)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
@@ -27,6 +29,7 @@ from typing import Any, Dict
 import octoprint.plugin
 from flask_babel import gettext
 from octoprint.events import Events
+from octoprint.util.comm import parse_position_line
 
 from .. import __version__
 from ..core.compensator import Options
@@ -43,7 +46,7 @@ from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
 from .notify import CUSTOM_EVENTS, Notifier
 from .print_state import PRINT_EVENTS, PrintState
-from .queue import FILE_TAG, QueueCompensator
+from .queue import FILE_TAG, HOME_QUERY, QueueCompensator
 from .runs import RunStore
 from .sensor_api import SensorApi
 from .sensor_runs import CaptureRecorder
@@ -57,6 +60,7 @@ route = octoprint.plugin.BlueprintPlugin.route
 
 class KinCompPlugin(
     octoprint.plugin.StartupPlugin,
+    octoprint.plugin.ShutdownPlugin,
     octoprint.plugin.SettingsPlugin,
     octoprint.plugin.TemplatePlugin,
     octoprint.plugin.AssetPlugin,
@@ -94,7 +98,7 @@ class KinCompPlugin(
         queue.on_untouched = self.prints.sent_as_written
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
-                                          printer, files)
+                                          printer, files, self.files.job_api)
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
         recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
         self.sensor = SensorApi(recorder, self.runs, self.demo, notifier, printer, files, log,
@@ -113,6 +117,9 @@ class KinCompPlugin(
         self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
                           "on" if self.queue.enabled else "off",
                           engine())
+
+    def on_shutdown(self):
+        self.jobs.stop()  # the worker process ends; a file it was writing is removed
 
     def _settings_applied(self, s: Dict[str, Any]) -> None:
         self.demo.set_enabled(s["demo"]["enabled"], s["demo"]["live"])
@@ -188,7 +195,16 @@ class KinCompPlugin(
         if comm_instance is not self.prints.comm:
             self.prints.connection_changed(comm_instance)
         self.firmware.received(line)
+        if self.queue.home_query_out:  # the firmware's answer to our M114 after G28
+            position = parse_position_line(line)
+            if position is not None:
+                self.queue.home_reported(position)
         return line
+
+    def sent_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None,
+                  *args, **kwargs):
+        if cmd == HOME_QUERY and tags and f"plugin:{self._identifier}" in tags:
+            self.queue.home_query_sent()
 
     def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
                           allow_overwrite=False, *args, **kwargs):
@@ -346,6 +362,14 @@ class KinCompPlugin(
     def api_dryrun(self):
         return self.files.dryrun()
 
+    @route("/jobs/<job_id>", methods=["GET"])
+    def api_job(self, job_id):
+        return self.files.job_api.job(job_id)
+
+    @octoprint.plugin.BlueprintPlugin.errorhandler(http.BadRequest)
+    def api_bad_request(self, exc):
+        return http.bad_request(exc)
+
     @route("/compensate", methods=["POST"])
     def api_compensate(self):
         return self.files.compensate()
@@ -360,6 +384,7 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         # run last in queuing so other plugins' rewrites get compensated too
         "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
         "octoprint.comm.protocol.gcode.received": plugin.received_hook,
+        "octoprint.comm.protocol.gcode.sent": plugin.sent_hook,
         "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
         "octoprint.access.permissions": plugin.permissions_hook,
         "octoprint.server.http.bodysize": plugin.bodysize_hook,

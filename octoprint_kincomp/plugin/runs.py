@@ -8,7 +8,9 @@ has no test). A trace file, if any, is kept next to it, and for a live capture t
 raw stream (``.raw``); a live capture that failed is a run too (``status: failed``, its
 message, its partial data). Run ids are generated here and checked on every lookup, so a
 request can never name a path outside the runs folder (the campaign store, ``campaigns.py``,
-keeps its documents by the same rules).
+keeps its documents by the same rules). A run that is not plain JSON (a NaN or an infinity)
+is never stored; one stored by an older version is read with those numbers as null, so it
+can still be shown.
 """
 
 from __future__ import annotations
@@ -30,6 +32,10 @@ class RunNotFound(KeyError):
     pass
 
 
+class RunNotStorable(ValueError):
+    """The run holds a number that is not finite (or something that is not JSON)."""
+
+
 class RunStore:
     FOLDER = "runs"  # in the plugin's data folder
     ID = _ID  # what an id looks like (checked on every lookup)
@@ -49,9 +55,17 @@ class RunStore:
         now = _dt.datetime.now()
         return self.PREFIX + now.strftime("%Y%m%d-%H%M%S-") + secrets.token_hex(3)
 
-    def save(self, run: Dict[str, Any]) -> None:
+    def save(self, run: Dict[str, Any], trace: Optional[bytes] = None) -> None:
+        """Stores ``run`` (and its measurement file ``trace``); :class:`RunNotStorable`
+        (nothing stored) if it is not plain JSON."""
         path = self._path(run["id"])
-        write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
+        try:
+            text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise RunNotStorable(str(exc)) from None
+        if trace is not None:
+            self.save_trace(run["id"], trace)
+        write_atomic(path, text.encode())
 
     def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
         path = self._path(run_id, suffix)
@@ -73,8 +87,8 @@ class RunStore:
         path = self._path(run_id)
         try:
             with open(path, encoding="utf-8") as f:
-                return json.load(f)
-        except (OSError, ValueError):
+                return json.load(f, parse_constant=lambda name: None)  # NaN, Infinity
+        except (OSError, ValueError, RecursionError):
             raise self.NotFound(run_id) from None
 
     def ids(self) -> List[str]:

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Any, Dict, Optional, Sequence, Tuple
+import re
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
@@ -33,6 +34,17 @@ class SettingsError(ValueError):
         super().__init__(f"{field}: {message}" if field else message)
 
 
+class SettingsInvalid(SettingsError):
+    """The stored settings are invalid (``reason``: the SettingsError); compensation and
+    file jobs refuse to run until the user fixes them."""
+
+    def __init__(self, reason: SettingsError):
+        self.reason = reason
+        super().__init__(reason.field, Msg(
+            "the stored KinComp settings are invalid (%(reason)s); fix them in KinComp's "
+            "settings first", reason=str(reason)))
+
+
 def defaults() -> Dict[str, Any]:
     return {
         "enabled": False,
@@ -41,7 +53,7 @@ def defaults() -> Dict[str, Any]:
         "limits_policy": "warn",
         "chord_tol_mm": 0.01,
         "decimals": 3,
-        "home_mm": [0.0, 0.0, 0.0],
+        "home_mm": None,  # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
         "pass_through_on_error": False,
         "apply_changes": "next_print",
         # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
@@ -152,9 +164,12 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
         raise SettingsError("decimals", Msg("must be an integer within 3..6"))
     home = out["home_mm"]
-    if not isinstance(home, list) or len(home) != 3:
-        raise SettingsError("home_mm", Msg("must be a list of three numbers (mm)"))
-    out["home_mm"] = [_number(v, f"home_mm[{i}]", -10000, 10000) for i, v in enumerate(home)]
+    if home is not None:
+        if not isinstance(home, list) or len(home) != 3:
+            raise SettingsError("home_mm", Msg("must be a list of three numbers (mm) or "
+                                               "null (learned from the printer)"))
+        out["home_mm"] = [None if v is None else _number(v, f"home_mm[{i}]", -10000, 10000)
+                          for i, v in enumerate(home)]
     out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
     out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
     demo = out["demo"]
@@ -212,9 +227,78 @@ def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
         limits=limits,
         policy=settings["limits_policy"],
         decimals=int(settings["decimals"]),
-        home_mm=tuple(float(v) for v in settings["home_mm"]),
+        home_mm=home_position(settings),
     )
     return params, options
+
+
+def home_position(settings: Dict[str, Any]) -> Tuple[Optional[float], ...]:
+    """Where G28 leaves X, Y, Z (mm), None for an axis whose home is not set: the plugin then
+    learns it from the printer (M114 after G28), files leave it unknown."""
+    home = settings.get("home_mm")
+    if home is None:
+        return (None, None, None)
+    return tuple(None if v is None else float(v) for v in home)
+
+
+def _path(field: str) -> List[Any]:
+    """``"params.backlash.x[1].um"`` -> ``["params", "backlash", "x", 1, "um"]``."""
+    out: List[Any] = []
+    for part in field.split("."):
+        m = re.fullmatch(r"([^\[]*)((?:\[\d+\])*)", part)
+        if m is None:
+            return out
+        if m.group(1):
+            out.append(m.group(1))
+        out.extend(int(i) for i in re.findall(r"\[(\d+)\]", m.group(2)))
+    return out
+
+
+def _lookup(doc: Any, path: List[Any]) -> Tuple[bool, Any]:
+    for key in path:
+        if isinstance(doc, dict) and isinstance(key, str) and key in doc:
+            doc = doc[key]
+        elif isinstance(doc, list) and isinstance(key, int) and key < len(doc):
+            doc = doc[key]
+        else:
+            return False, None
+    return True, doc
+
+
+MAX_REPAIRS = 100
+
+
+def repaired(stored: Dict[str, Any]) -> Tuple[Dict[str, Any], List[SettingsError]]:
+    """Valid settings for showing and editing invalid stored ones: each invalid value in
+    ``stored`` replaced by its default (or dropped where it has none, e.g. an unknown key
+    or a bad backlash point), one after the other; and the problems found, first first.
+    (Only a view: the stored document itself stays as it is.)"""
+    doc = copy.deepcopy(stored)
+    problems: List[SettingsError] = []
+    base = defaults()
+    for _ in range(MAX_REPAIRS):
+        try:
+            return validate_settings(doc, base), problems
+        except SettingsError as exc:
+            problems.append(exc)
+            path = _path(exc.field)
+            while path:
+                there, parent = _lookup(doc, path[:-1])
+                key = path[-1]
+                holds = there and (
+                    (isinstance(parent, dict) and key in parent)
+                    or (isinstance(parent, list) and isinstance(key, int) and key < len(parent)))
+                found, default = _lookup(base, path)
+                if found and (holds or isinstance(parent, dict)):
+                    parent[key] = copy.deepcopy(default)
+                    break
+                if holds:
+                    del parent[key]
+                    break
+                path = path[:-1]
+            if not path:
+                break
+    return defaults(), problems
 
 
 def limits_from_profile(profile: Optional[Dict[str, Any]]) -> Optional[Tuple[float, ...]]:

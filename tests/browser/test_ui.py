@@ -47,16 +47,21 @@ def page(browser, server):
     pg.on("pageerror", lambda e: errors.append(f"{e} {getattr(e, 'stack', '')}"))
     # OctoPrint catches view model callback exceptions and logs them to the console
     pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    pg.goto(server.url + "/")
-    pg.fill("#login-user", "admin")
-    pg.fill("#login-password", server.logins["admin"]["password"])
-    pg.click("#login-button")
-    pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+    login(pg, server)
     pg.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
     yield pg
     context.close()
     kincomp_errors = [e for e in errors if "kincomp" in e.lower()]
     assert not kincomp_errors, kincomp_errors
+
+
+def login(pg, server):
+    """The admin logs in on ``server``'s page."""
+    pg.goto(server.url + "/")
+    pg.fill("#login-user", "admin")
+    pg.fill("#login-password", server.logins["admin"]["password"])
+    pg.click("#login-button")
+    pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
 
 
 def _no_popups(page):

@@ -39,6 +39,8 @@ $(function () {
         self.errors = ko.observable({});
         self.formError = ko.observable("");
         self.savedMessage = ko.observable("");
+        // what is wrong with the stored settings (compensation is off until it is fixed)
+        self.settingsProblem = ko.observable("");
         self.saving = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
 
@@ -166,7 +168,10 @@ $(function () {
         self.load = function () {
             return OctoPrint.get(API("status")).done(function (status) {
                 self.fromStatus(status);
-                self.errors({});
+                var errs = {};
+                if (status.settings_problem_field) errs[status.settings_problem_field] = status.settings_problem;
+                self.errors(errs);
+                self.settingsProblem(status.settings_problem || "");
                 self.formError("");
             });
         };

@@ -173,8 +173,8 @@ $(function () {
                 if (status.settings_problem && !self.problemShown) {
                     self.problemShown = true;
                     notify({
-                        title: gettext("KinComp settings reset"),
-                        text: _.sprintf(gettext("The stored KinComp settings could not be used (%(reason)s); the defaults apply and compensation is off. Check the settings and save them."), {reason: status.settings_problem}),
+                        title: gettext("KinComp settings invalid"),
+                        text: _.sprintf(gettext("The stored KinComp settings are invalid (%(reason)s): compensation is off until you fix them in KinComp's settings. Nothing stored was changed."), {reason: status.settings_problem}),
                         type: "error",
                         hide: false
                     });
@@ -282,7 +282,11 @@ $(function () {
             self.error("");
             return OctoPrint.upload(API("trace"), blob, name)
                 .done(function (result) {
-                    self.analysed(result[0]);
+                    if (result[0] && result[0].job) {
+                        self.waitForRun(result[0].job.id);  // a big trace: analysed in the background
+                    } else {
+                        self.analysed(result[0]);
+                    }
                 })
                 .fail(function (result) {
                     self.fail(result[0]);
@@ -291,6 +295,27 @@ $(function () {
                     self.busy(false);
                     $("#kincomp_trace_file").val("");
                 });
+        };
+
+        self.waitForRun = function (jobId) {
+            // poll the analysis job until it is done, then show its run
+            self.busy(true);
+            OctoPrint.get(API("jobs/" + jobId)).done(function (resp) {
+                var job = resp.job;
+                if (job.state === "done") {
+                    OctoPrint.get(API("runs/" + job.result)).done(self.analysed).fail(self.fail)
+                        .always(function () { self.busy(false); });
+                } else if (job.state === "failed") {
+                    self.busy(false);
+                    self.error(job.error);
+                    notify({title: gettext("KinComp"), text: job.error, type: "error"});
+                } else {
+                    setTimeout(function () { self.waitForRun(jobId); }, 1000);
+                }
+            }).fail(function (jqXHR) {
+                self.busy(false);
+                self.fail(jqXHR);
+            });
         };
 
         self.uploadTrace = function (data, event) {
