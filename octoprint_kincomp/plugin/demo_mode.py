@@ -61,6 +61,7 @@ class DemoMode:
         self.live = False  # the virtual ballbar streams as a live sensor
         self._sensor: Optional[VirtualSensor] = None
         self._played = False  # the current print is played on the live sensor
+        self._simulating = False  # its stream is being simulated: its end is not known yet
         # the program's lines as the printer receives them (the plugin compensates them)
         self.lines_as_sent: Callable[[str], List[str]] = str.splitlines
 
@@ -98,9 +99,12 @@ class DemoMode:
 
     def stream_end(self) -> Optional[float]:
         """When (time.monotonic()) the program being played has been streamed; None if
-        nothing is played."""
+        nothing is played; ``inf`` while its stream is still being simulated (a slow
+        vertical test takes seconds: its end is not known yet)."""
         sensor = self._sensor
-        return sensor.program_end if sensor is not None and self._played else None
+        if sensor is None or not self._played:
+            return None
+        return float("inf") if self._simulating else sensor.program_end
 
     def _play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str,
               start: float) -> None:
@@ -112,6 +116,8 @@ class DemoMode:
         except (ProgramError, OSError, ValueError):
             self._logger.exception("KinComp demo: the virtual ballbar could not play the "
                                    "program")
+        finally:
+            self._simulating = False
 
     def program_written(self, path: str, spec: TestSpec, program_hash: str) -> None:
         """KinComp wrote the ballbar program ``spec`` to ``path`` (in OctoPrint's storage)."""
@@ -133,6 +139,7 @@ class DemoMode:
             sensor = self._sensor if self.live else None
             self._played = sensor is not None
             if sensor is not None:
+                self._simulating = True  # (until _play has the stream: its end unknown)
                 threading.Thread(target=self._play, name="kincomp-demo-ballbar", daemon=True,
                                  args=(sensor, self._program_spec, self._program_hash,
                                        time.monotonic())).start()

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import os
+import math
 import queue
 import threading
 import time
@@ -74,6 +75,9 @@ class Armed:
     previous: Optional[CaptureResult]  # the capture's result before it was armed
     stop_at: Optional[float] = None  # time.monotonic() at which to stop it
     stopped_at: Optional[float] = None
+    # demo: stop this long after the virtual bar's stream ends (its end may not be known
+    # yet when the program's end is seen: it is then re-read until it is)
+    after_stream_s: Optional[float] = None
 
 
 class SensorApi:
@@ -215,11 +219,21 @@ class SensorApi:
             if armed is None:
                 return
             at = time.monotonic() + seconds
-            stream_end = self._demo.stream_end() if armed.source == "demo" else None
-            if seconds and stream_end is not None:
-                at = max(at, stream_end + seconds)  # the virtual bar may still be playing
+            if seconds and armed.source == "demo":
+                armed.after_stream_s = seconds  # the virtual bar may still be playing
+                at = max(at, self._stream_stop(armed, at))
             if armed.stop_at is None or at < armed.stop_at:
                 armed.stop_at = at
+
+    def _stream_stop(self, armed: Armed, at: float) -> float:
+        """Demo: when to stop, after the virtual bar's stream (``at`` while it is not
+        known: the caller asks again then)."""
+        end = self._demo.stream_end()
+        if end is None or armed.after_stream_s is None:
+            return at
+        if math.isinf(end):
+            return at + armed.after_stream_s  # still simulating: look again then
+        return end + armed.after_stream_s
 
     # ~~ the worker ------------------------------------------------------------------------------
     def _listen(self, cap: Capture, kind: str, status: Dict[str, Any]) -> None:
@@ -268,6 +282,9 @@ class SensorApi:
             self._ended(cap)
             return
         now = time.monotonic()
+        if armed.stop_at is not None and now >= armed.stop_at and \
+                armed.after_stream_s is not None:
+            armed.stop_at = max(armed.stop_at, self._stream_stop(armed, armed.stop_at))
         if armed.stop_at is not None and now >= armed.stop_at:
             armed.stop_at, armed.stopped_at = None, now
             cap.stop()

@@ -248,19 +248,27 @@ def test_arm_and_stop_by_hand(plugin, call, bar, tmp_path):
     assert call(plugin.api_sensor_arm, "/sensor/arm", "POST", {})[0] == 400
 
 
-def test_demo_mode_streams_the_virtual_bar_live(plugin, call):
-    status, _ = call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
-    assert status == 200 and plugin.demo.live
-    status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
-    assert prog["capture"]["armed"] and prog["capture"]["source"] == "demo"
-    assert prog["capture"]["port"].startswith("/dev/")  # a pseudo-terminal, through pyserial
+def print_program(plugin, call, program, spec):
+    """Write ``program`` through the program route and send it as OctoPrint would (comments
+    stripped, through the queuing hook); returns the route's answer."""
+    status, prog = call(plugin.api_program, "/program", "POST", program)
+    assert status == 200, prog
     plugin.on_event("PrintStarted", {"origin": "local", "path": prog["path"]})
     comm = plugin.prints.comm
-    for line in generate(SPEC).splitlines():  # OctoPrint sends it, comments stripped
+    for line in generate(spec).splitlines():
         cmd = line.split(";")[0].strip()
         if cmd:
             plugin.queuing_hook(comm, "queuing", cmd, None, cmd.split()[0],
                                 tags={"source:file"})
+    return prog
+
+
+def test_demo_mode_streams_the_virtual_bar_live(plugin, call):
+    status, _ = call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
+    assert status == 200 and plugin.demo.live
+    prog = print_program(plugin, call, PROGRAM, SPEC)
+    assert prog["capture"]["armed"] and prog["capture"]["source"] == "demo"
+    assert prog["capture"]["port"].startswith("/dev/")  # a pseudo-terminal, through pyserial
     run = finished_run(plugin, timeout=60)
     assert run["status"] == "ok" and run["simulated"], run.get("message")
     assert run["capture"]["source"] == "demo"
@@ -277,3 +285,20 @@ def test_demo_mode_streams_the_virtual_bar_live(plugin, call):
     assert plugin.store.current()["demo"] == {"enabled": True, "live": False}
     status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
     assert prog["capture"] is None
+
+
+@pytest.mark.slow
+def test_demo_captures_a_slow_vertical_test_live(plugin, call):
+    """A vertical test at F200 takes the virtual bar seconds to simulate and its 1 s dwells
+    are shorter than the step windows: the capture waits for the simulated stream's end
+    (not for a guess made before it was known) and finds both runs."""
+    call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
+    program = {"plane": "XZ", "radius": 40, "centre": [110, 110, 60], "feed": 200,
+               "print": True}
+    spec = TestSpec(plane="XZ", centre=(110.0, 110.0, 60.0), radius_mm=40.0,
+                    feed_mm_min=200.0)
+    prog = print_program(plugin, call, program, spec)
+    assert prog["capture"]["source"] == "demo"
+    run = finished_run(plugin, timeout=120)
+    assert run["status"] == "ok", run.get("message")
+    assert run["diagnostics"]["plane"] == "XZ" and run["capture"]["source"] == "demo"
