@@ -164,7 +164,7 @@ class CampaignApi:
         step["program_hash"] = prog_hash
         # the test as its program states it: a live capture's trace names campaign and test.
         # Demo mode measures the campaign with its simulated trace of the printed commands
-        # (its virtual bar's live capture is not used here: see the README)
+        # (its virtual bar is not captured live for a campaign yet: see the README)
         printing, capture = self._calibration.print_program(
             path, stated, prog_hash, arm=self._demo.ballbar is None) \
             if do_print else (False, None)
