@@ -4,7 +4,7 @@
 ``QueueCompensator.handle``) without OctoPrint. This script measures the plugin's hook
 function itself, as OctoPrint's comm layer calls it for the lines of a print (tags
 ``source:file`` and ``fileline:N``), on a plugin instance with a real OctoPrint settings
-object and mocks for the printer, event bus and file manager (tests/mocked_plugin.py), compensation on with the
+object and mocks for the printer, event bus and file manager (tests/support/mocked_plugin.py), compensation on with the
 benchmark's parameters (squareness + scale + position-dependent backlash) and the bed as
 limits. Prints p50/p99 in us over the G1 X/Y lines of a 200,000-line slicer-like stream.
 

@@ -15,8 +15,8 @@ PY=${PYTHON:-python3}
 # cap (installs made before limits 5 have it; OctoPrint 1.11 caps it itself)
 CONSTRAINTS="limits<5"
 stamp="$VENV/.kincomp-installed"
-if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$SPEC $CONSTRAINTS" ] &&
-        [ ! pyproject.toml -nt "$stamp" ] && [ ! setup.py -nt "$stamp" ] && [ ! octoprint_kincomp/engines/_kernel.c -nt "$stamp" ]; then
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$SPEC $CONSTRAINTS compat" ] &&
+        [ ! pyproject.toml -nt "$stamp" ] && [ ! setup.py -nt "$stamp" ] && [ -z "$(find octoprint_kincomp/engines/csrc -newer "$stamp" 2>/dev/null)" ]; then
     exit 0
 fi
 start=$(date +%s)
@@ -24,8 +24,11 @@ if [ ! -x "$VENV/bin/python" ]; then
     "$PY" -m venv "$VENV"
 fi
 "$VENV/bin/python" -m pip install --quiet --upgrade pip
-"$VENV/bin/python" -m pip install --quiet "$SPEC" "$CONSTRAINTS" -e .
-echo "$SPEC $CONSTRAINTS" > "$stamp"
+# editable in "compat" mode: a path entry, not an import hook (OctoPrint 1.10 looks plugins
+# up with imp.find_module, which sees only sys.path, as a normal install provides)
+"$VENV/bin/python" -m pip install --quiet "$SPEC" "$CONSTRAINTS" -e . \
+    --config-settings editable_mode=compat
+echo "$SPEC $CONSTRAINTS compat" > "$stamp"
 version=$("$VENV/bin/python" -c "import octoprint; print(octoprint.__version__)")
 echo "compatibility environment $VENV: OctoPrint $version, KinComp from this tree" \
      "($(( $(date +%s) - start )) s)" >&2

@@ -51,10 +51,25 @@ def load_runs(trace, current: Optional[Params] = None) -> Tuple[Geometry, List[R
 def load_runs_mapped(trace, current: Optional[Params] = None
                      ) -> Tuple[Geometry, List[Run], Mapping]:
     if isinstance(trace, NativeTrace):
-        return runs_from_native(trace, current)
-    if isinstance(trace, AngleTrace):
-        return runs_from_angle(trace, current)
-    raise TraceError(Msg("not a trace"))
+        loaded = runs_from_native(trace, current)
+    elif isinstance(trace, AngleTrace):
+        loaded = runs_from_angle(trace, current)
+    else:
+        raise TraceError(Msg("not a trace"))
+    return loaded
+
+
+def _check_both_directions(runs: Sequence[Run]) -> None:
+    """Both directions must have samples: with one, the fit cannot tell squareness from
+    servo mismatch (a lag difference dT shows as R * omega * dT / 2 of squareness), so a
+    truncated trace or a capture stopped early would propose a wrong squareness."""
+    present = {r.direction for r in runs if len(r.theta)}
+    for d in ("ccw", "cw"):
+        if d not in present:
+            raise TraceError(Msg(
+                "the trace has no %(direction)s run: with one direction the fit cannot tell "
+                "squareness from servo mismatch; test (or export) both directions",
+                direction=d.upper()))
 
 
 def analyse_runs(geom: Geometry, runs: Sequence[Run], meta: Dict[str, str],
@@ -111,6 +126,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         notes += trace.notes
     else:
         geom, runs, mapping = load_runs_mapped(trace, current)
+        _check_both_directions(runs)
         f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
         diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cyclic_pitch, f,
                             mapping)

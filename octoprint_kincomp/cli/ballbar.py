@@ -4,10 +4,9 @@
 from __future__ import annotations
 
 import json
-import sys
 
 from ..core.params import Params, ParamsError
-from .common import CliError, floats, load_params
+from .common import CliError, floats, load_params, read_text, write_text
 
 
 def _max_feed(args):
@@ -37,11 +36,7 @@ def cmd_program(args) -> int:
         text = generate(spec, volume=volume, params_hash=params_hash)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
-    if args.output:
-        with open(args.output, "w") as f:
-            f.write(text)
-    else:
-        sys.stdout.write(text)
+    write_text(args.output, text)
     return 0
 
 
@@ -87,9 +82,8 @@ def cmd_simulate(args) -> int:
         truth.noise_um = args.noise_um
     if args.rate is not None:
         truth.sample_rate_hz = args.rate
+    text = read_text(args.program)
     try:
-        with open(args.program) as f:
-            text = f.read()
         if args.angle:
             comp = load_params(args.compensated_with) if args.compensated_with else None
             trace = simulate_angle_trace(text, truth, compensated_with=comp)
@@ -97,13 +91,7 @@ def cmd_simulate(args) -> int:
             trace = simulate_program(text, truth)
     except ProgramError as exc:
         raise CliError(f"{args.program}: {exc}") from None
-    except OSError as exc:
-        raise CliError(f"{args.program}: {exc.strerror}") from None
-    if args.output:
-        with open(args.output, "w") as f:
-            trace.write(f)
-    else:
-        trace.write(sys.stdout)
+    write_text(args.output, trace.to_text())
     return 0
 
 
@@ -139,17 +127,16 @@ def cmd_analyze(args) -> int:
         from ..ballbar.campaign import load_manifest
         from ..ballbar.campaign_analysis import analyse_campaign
 
-        manifest = load_manifest(args.manifest) if args.manifest else None
         items = [(os.path.basename(p), _read_trace(p)) for p in args.trace]
         try:
+            manifest = load_manifest(args.manifest) if args.manifest else None
             result = analyse_campaign(items, current=current, mask_deg=args.mask_deg,
                                       calibrated=args.calibrated_bar,
                                       cyclic_pitch=args.cyclic_pitch, manifest=manifest)
         except TraceError as exc:  # CampaignError names the file itself
             raise CliError(str(exc)) from None
     if args.params_out:
-        with open(args.params_out, "w") as f:
-            json.dump(result["parameters"], f, indent=2)
+        write_text(args.params_out, json.dumps(result["parameters"], indent=2))
     if args.json:
         print(json.dumps(result, indent=2, default=float))
     else:

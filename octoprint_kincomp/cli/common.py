@@ -3,6 +3,7 @@ on stderr, and the readers of numbers and params files given on the command line
 
 from __future__ import annotations
 
+import sys
 from typing import List, Optional
 
 from ..core.params import Params, ParamsError
@@ -32,3 +33,28 @@ def load_params(path: Optional[str]) -> Params:
         return Params.load(path)
     except ParamsError as exc:
         raise CliError(f"invalid params file {path}: {exc}") from None
+
+
+def read_text(path: str) -> str:
+    """The UTF-8 text of ``path``; a missing, unreadable or binary file is a CliError
+    naming it."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except UnicodeDecodeError as exc:
+        raise CliError(f"{path}: not a UTF-8 text file (byte {exc.start})") from None
+    except OSError as exc:
+        raise CliError(f"{path}: {exc.strerror}") from None
+
+
+def write_text(path: Optional[str], text: str) -> None:
+    """``text`` into ``path`` (``-`` or None: standard output); a path that cannot be
+    written is a CliError naming it."""
+    if path in (None, "-"):
+        sys.stdout.write(text)
+        return
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as exc:
+        raise CliError(f"{path}: {exc.strerror}") from None

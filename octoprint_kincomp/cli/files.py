@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 
+from ..core.atomic import Interrupted, clean_stale, signals_raise
 from ..core.compensator import CompensationError, Options
 from ..core.firmware import FIRMWARES, format_equivalents, format_export
 from ..core.params import Params
@@ -23,18 +25,43 @@ def _options(args) -> Options:
             limits=tuple(floats(args.limits, 6, "--limits")) if args.limits else None,
             policy=args.policy,
             decimals=args.decimals,
-            home_mm=tuple(floats(args.home, 3, "--home")) if args.home else (0.0, 0.0, 0.0),
+            home_mm=_home(args.home),
         )
     except ValueError as exc:
         raise CliError(str(exc)) from None
 
 
+def _home(text):
+    """--home X,Y,Z: where G28 leaves each axis (mm); a '?' (or nothing): not known, the
+    homed axis stays unknown until an absolute move names it."""
+    if not text:
+        return (None, None, None)
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise CliError(f"--home: expected 3 comma-separated numbers or '?', got {text!r}")
+    out = []
+    for part in parts:
+        part = part.strip()
+        out.append(None if part in ("", "?") else floats(part, 1, "--home")[0])
+    return tuple(out)
+
+
 def cmd_compensate(args) -> int:
     params = load_params(args.params)
     options = _options(args)
+    if not args.dry_run:
+        # leftovers of a run that was killed outright (only our own temp-file pattern)
+        target = os.path.realpath(args.output or args.input)
+        clean_stale(os.path.dirname(target) or ".")
     try:
-        report = compensate_file(args.input, args.output, params, options,
-                                 dry_run=args.dry_run)
+        with signals_raise():
+            report = compensate_file(args.input, args.output, params, options,
+                                     dry_run=args.dry_run)
+    except (Interrupted, KeyboardInterrupt) as exc:
+        signum = exc.signum if isinstance(exc, Interrupted) else 2
+        print(f"kincomp: interrupted; {args.output or args.input} was not changed",
+              file=sys.stderr)
+        return 128 + signum
     except AlreadyCompensated as exc:
         raise CliError(f"{args.input}: {exc}") from None
     except CompensationError as exc:
@@ -109,7 +136,10 @@ def add_file_commands(sub) -> None:
     c.add_argument("--linearise-arcs", action="store_true",
                    help="write G2/G3 as G1 segments (firmware without arc support)")
     c.add_argument("--decimals", type=int, default=3, help="X/Y/Z decimals in mm (default 3)")
-    c.add_argument("--home", metavar="X,Y,Z", help="position after G28 (default 0,0,0)")
+    c.add_argument("--home", metavar="X,Y,Z",
+                   help="position after G28 in mm, '?' for an axis whose home is not known "
+                        "(default: none known; homed axes are then compensated from their "
+                        "first absolute move on)")
     c.add_argument("--report", action="store_true", help="print the report as JSON")
     c.add_argument("--dry-run", action="store_true", help="only print the report, write nothing")
     c.set_defaults(func=cmd_compensate)

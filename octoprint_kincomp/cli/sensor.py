@@ -7,29 +7,18 @@ from __future__ import annotations
 import sys
 import time
 
-from .common import CliError
+from .common import CliError, read_text, write_text
 
 
 def _spec(path: str):
     from ..ballbar.program import ProgramError, spec_from_program
 
+    text = read_text(path)
     try:
-        with open(path) as f:
-            text = f.read()
         spec, prog_hash = spec_from_program(text)
     except ProgramError as exc:
         raise CliError(f"{path}: {exc}") from None
-    except OSError as exc:
-        raise CliError(f"{path}: {exc.strerror}") from None
     return text, spec, prog_hash
-
-
-def _write(path, text: str) -> None:
-    if path in (None, "-"):
-        sys.stdout.write(text)
-        return
-    with open(path, "w") as f:
-        f.write(text)
 
 
 def _config(args):
@@ -89,11 +78,11 @@ def cmd_capture(args) -> int:
     if res is None:
         raise CliError(str(cap.status()["message"]))
     if args.raw and res.stream is not None:
-        _write(args.raw, res.stream.to_text())
+        write_text(args.raw, res.stream.to_text())
     if not res.ok:
         raise CliError(f"capture failed: {res.message}" +
                        (f" (raw stream kept in {args.raw})" if args.raw and res.stream else ""))
-    _write(args.output, res.trace.to_text())
+    write_text(args.output, res.trace.to_text())
     print(f"captured {len(res.trace.rows)} samples in {len(res.runs)} runs", file=sys.stderr)
     return 0
 
@@ -103,15 +92,13 @@ def cmd_trace(args) -> int:
     from ..sensor import SensorError, parse_raw_stream, trace_from_stream
 
     _, spec, prog_hash = _spec(args.program)
+    raw = read_text(args.raw)
     try:
-        with open(args.raw) as f:
-            stream = parse_raw_stream(f.read())
+        stream = parse_raw_stream(raw)
         trace, _ = trace_from_stream(stream, spec, prog_hash, args.rate or None)
     except (TraceError, SensorError) as exc:
         raise CliError(f"{args.raw}: {exc}") from None
-    except OSError as exc:
-        raise CliError(f"{args.raw}: {exc.strerror}") from None
-    _write(args.output, trace.to_text())
+    write_text(args.output, trace.to_text())
     return 0
 
 

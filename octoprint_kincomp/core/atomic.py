@@ -1,23 +1,51 @@
 """Writing a file so that readers see the old content or the new, never half of it: the
-data goes to a hidden temporary file beside the target (``.kincomp-*``), which replaces
-the target only when complete; on any error it is removed and the target is untouched."""
+data goes to a hidden temporary file beside the target, named
+``.kincomp-<pid>-<random><suffix>`` (``pid``: the writing process), which replaces the
+target only when complete; on any error, and on SIGTERM/SIGINT where the program turns
+them into exceptions (:func:`signals_raise`), it is removed and the target is untouched.
+
+A temporary file of a process that was killed outright (SIGKILL, power loss) stays behind:
+:func:`clean_stale` removes those of processes that no longer run. A symbolic link as the
+target is followed: the file it points to gets the new content and the link stays a link.
+Errors name the target, never the temporary file.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import re
+import signal
 import tempfile
-from typing import BinaryIO, Iterator
+import time
+from typing import BinaryIO, Iterator, List
 
 TEMP_PREFIX = ".kincomp-"
+# ours: the writer's pid, then mkstemp's random letters (never a '-'), then the suffix
+_OURS = re.compile(r"\.kincomp-(\d+)-[a-z0-9_]+(\.[A-Za-z0-9]+)?\Z")
+# those of versions before the pid was in the name: only removed once clearly abandoned
+_LEGACY = re.compile(r"\.kincomp-[a-z0-9_]{8}\.(gcode|tmp)\Z")
+LEGACY_STALE_S = 3600.0
+
+
+def _named(exc: OSError, target: str) -> OSError:
+    """``exc`` about ``target`` (the user's file) rather than the temporary file."""
+    return type(exc)(exc.errno, exc.strerror or os.strerror(exc.errno or 0), target)
 
 
 @contextlib.contextmanager
 def replacing(target: str, suffix: str = ".tmp") -> Iterator[BinaryIO]:
     """A binary file to write the new content of ``target`` into; on leaving the block it
-    replaces ``target`` (keeping its permission bits), or, on an error, is removed."""
-    directory = os.path.dirname(os.path.abspath(target)) or "."
-    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, suffix=suffix, dir=directory)
+    replaces ``target`` (keeping its permission bits; through a symbolic link: the file the
+    link points to), or, on an error, is removed."""
+    target = os.path.realpath(target)
+    directory = os.path.dirname(target) or "."
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", suffix=suffix,
+                                   dir=directory)
+    except OSError as exc:
+        raise _named(exc, target) from None
     try:
         with os.fdopen(fd, "wb") as f:
             yield f
@@ -26,7 +54,10 @@ def replacing(target: str, suffix: str = ".tmp") -> Iterator[BinaryIO]:
                 os.chmod(tmp, os.stat(target).st_mode & 0o777)
             except OSError:
                 pass
-        os.replace(tmp, target)
+        try:
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise _named(exc, target) from None
     except BaseException:
         try:
             os.unlink(tmp)
@@ -39,3 +70,75 @@ def write_atomic(path: str, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     with replacing(path) as f:
         f.write(data)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's process
+    except OSError as exc:
+        return exc.errno != errno.ESRCH
+    return True
+
+
+def clean_stale(directory: str) -> List[str]:
+    """Remove the temporary files of this module in ``directory`` (not below it) whose
+    writer no longer runs; those of older versions (no pid in the name) once untouched for
+    an hour. Only this module's own name pattern is touched. Returns the removed paths."""
+    removed = []
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return removed
+    now = time.time()
+    for name in names:
+        if not name.startswith(TEMP_PREFIX):
+            continue
+        path = os.path.join(directory, name)
+        m = _OURS.match(name)
+        try:
+            if m is not None:
+                stale = int(m.group(1)) != os.getpid() and not _alive(int(m.group(1)))
+            elif _LEGACY.match(name):
+                stale = now - os.lstat(path).st_mtime > LEGACY_STALE_S
+            else:
+                continue
+            if stale and os.path.isfile(path) and not os.path.islink(path):
+                os.unlink(path)
+                removed.append(path)
+        except OSError:
+            continue
+    return removed
+
+
+class Interrupted(BaseException):
+    """SIGTERM or SIGHUP, raised where the program was (see :func:`signals_raise`)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def signals_raise() -> Iterator[None]:
+    """Within the block SIGTERM and SIGHUP raise :class:`Interrupted` (SIGINT raises
+    KeyboardInterrupt anyway), so that :func:`replacing` removes its temporary file; the
+    previous handlers come back afterwards. Main thread only (a no-op elsewhere)."""
+    def handler(signum, frame):
+        raise Interrupted(signum)
+
+    saved = {}
+    try:
+        for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+            if sig is not None:
+                saved[sig] = signal.signal(sig, handler)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield
+    finally:
+        for sig, old in saved.items():
+            signal.signal(sig, old)

@@ -16,7 +16,10 @@ unchanged. G92 lines are never rewritten; their effect is tracked in ``w`` and `
 
 A move is compensated when every axis it needs has a known position; otherwise it passes
 untouched and is counted in the report (``untouched_unknown``). Homing (G28) makes the homed
-axes known at ``home_mm``; probing and other commands that move the head on their own make
+axes known at ``home_mm`` (None for an axis: where the firmware homes it is not known, so it
+stays unknown until :meth:`Compensator.homed_at` learns it or an absolute move names it; a Z
+move right after G28 then goes out as written instead of dragging X and Y to an assumed
+home: the plugin and the command line default to that); probing and other commands that move the head on their own make
 positions unknown again; tool changes too (hotend offsets).
 
 Absent other information the firmware frame is taken as the homed frame (``g == 0``): an
@@ -37,7 +40,7 @@ from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
 from .kinematics import KinematicModel, changes_nothing
-from .modal import home, reset_offsets, set_position
+from .modal import home, homed_axes, reset_offsets, set_position
 from .moves import MoveHandler
 from .params import AXES, Params
 from .path import PathWriter
@@ -64,13 +67,16 @@ class Options:
     (raise :class:`LimitError`). Points the program itself places outside are never altered.
     ``chord_tol_mm``: how far a written arc or chord may deviate from the desired arc;
     ``linearise_arcs``: write every G2/G3 as G1 chords (firmware without arc support).
+    ``home_mm``: per axis where G28 leaves it (mm, machine frame), None: not known (see the
+    module docstring; the library default 0,0,0 suits the simulator's printers, not every
+    real one).
     """
 
     chord_tol_mm: float = 0.01
     limits: Optional[Tuple[float, float, float, float, float, float]] = None
     policy: str = "warn"
     decimals: int = 3
-    home_mm: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    home_mm: Tuple[Optional[float], Optional[float], Optional[float]] = (0.0, 0.0, 0.0)
     deadband_mm: float = DEFAULT_DEADBAND_MM
     g90_influences_extruder: bool = True
     linearise_arcs: bool = False
@@ -89,6 +95,12 @@ class Options:
             if lim[0] >= lim[1] or lim[2] >= lim[3] or lim[4] >= lim[5]:
                 raise ValueError("limits must be given as min,max pairs with min < max")
             self.limits = lim
+        home_mm = tuple(self.home_mm)
+        if len(home_mm) != 3 or any(
+                v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                   or not math.isfinite(v)) for v in home_mm):
+            raise ValueError("home_mm needs three finite numbers or None (unknown)")
+        self.home_mm = tuple(None if v is None else float(v) for v in home_mm)
 
 
 class Compensator:
@@ -231,21 +243,29 @@ class Compensator:
             self._guarded = True
 
     def _home(self, body: str) -> None:
-        """G28. The homed drives are at the home command, which under skew is not the
-        command of the home position; the command of an axis that is not homed can depend on
-        the homed ones (X's on Y under XY skew) while its drive stays where it was. The next
-        move starts from where the drives really are (``StreamState.q_drive``), so its
+        """G28: the homed axes are at ``options.home_mm`` (unknown where that is None)."""
+        self.homed_at(homed_axes(body), self.options.home_mm)
+
+    def homed_at(self, axes: Sequence[int], at: Sequence[Optional[float]]) -> None:
+        """The drives of ``axes`` were homed and are at ``at[k]`` (mm; None: not known):
+        G28, or the firmware's position report after it (the plugin learns an unknown
+        home so). The homed drives are at the home command, which under skew is not the
+        command of the home position; the command of an axis that is not homed can depend
+        on the homed ones (X's on Y under XY skew) while its drive stays where it was. The
+        next move starts from where the drives really are (``StreamState.q_drive``), so its
         backlash reversals and take-ups are judged from there."""
         st = self.state
         q_before = self.writer.carriage(st.m)
-        homed = home(st, self.backlash, body, self.options.home_mm)
+        if st.q_drive is not None:
+            q_before = [q if d is None else d for q, d in zip(q_before, st.q_drive)]
+        home(st, self.backlash, axes, at)
         if self.passthrough:
+            st.q_drive = None
             return
         q_after = self.writer.carriage(st.m)
-        drive = [float(self.options.home_mm[k]) if k in homed else q_before[k]
+        drive = [at[k] if k in axes else q_before[k] for k in range(3)]
+        stays = [None if drive[k] is None or q_after[k] == drive[k] else float(drive[k])
                  for k in range(3)]
-        stays = [None if drive[k] is None or q_after[k] is None or q_after[k] == drive[k]
-                 else drive[k] for k in range(3)]
         st.q_drive = None if stays == [None, None, None] else tuple(stays)
 
     def malformed(self, line: str) -> str:

@@ -141,7 +141,7 @@ class FirmwareInterpreter:
             return []
         if num > 3:
             return []
-        if "F" in wd:
+        if wd.get("F", 0.0) > 0.0:  # (Marlin, RRF: a feed of 0 or less is ignored)
             self.feed = wd["F"] * u
         target = list(self.machine)
         for k, a in enumerate("XYZ"):

@@ -1,6 +1,9 @@
 """Commands that move no axis but change what later coordinates mean: G92 (set position),
 G92.1 (drop the offsets) and G28 (homing). They act on the stream state (positions in mm,
-see state.py) and the backlash direction state; G92 and G28 lines pass unchanged."""
+see state.py) and the backlash direction state; G92 and G28 lines pass unchanged. Where the
+firmware homes an axis may be unknown (None): the axis is then unknown after G28 until
+the position is learned (the plugin asks the firmware with M114) or an absolute move names
+it."""
 
 from __future__ import annotations
 
@@ -55,20 +58,31 @@ def reset_offsets(st: StreamState) -> None:
         st.frame_lost[k] = False  # the firmware frame is the native one again
 
 
-def home(st: StreamState, backlash, body: str, home_mm: Sequence[float]) -> List[int]:
-    """G28 of the axes named in ``body`` (all when none): they are known at ``home_mm``
-    (mm, machine frame) and their frames are restored. Returns the homed axes."""
+def homed_axes(body: str) -> List[int]:
+    """The axes a G28 with the words of ``body`` homes (all when it names none)."""
     words = parse_words(body, allow_bare=True)
     letters = {w.letter for w in words} if words is not None else set()
-    axes = [k for k, a in enumerate(AXIS_LETTERS) if a in letters] or [0, 1, 2]
+    return [k for k, a in enumerate(AXIS_LETTERS) if a in letters] or [0, 1, 2]
+
+
+def home(st: StreamState, backlash, axes: Sequence[int],
+         at: Sequence[Optional[float]]) -> None:
+    """The drives of ``axes`` were homed: their frames are restored and each is known at
+    ``at[k]`` (mm, machine frame = firmware frame after homing), or, where ``at[k]`` is None
+    (where the firmware homes is not known), unknown: no correction may then assume a home
+    position (a printer homing X at its maximum would be driven across the bed)."""
     for k in axes:
-        st.m[k] = float(home_mm[k])
-        st.fw[k] = float(home_mm[k])
-        st.fw_text[k] = None
         st.w[k] = 0.0
         st.g[k] = 0.0
         st.frame_lost[k] = False
+        st.fw_text[k] = None
+        if at[k] is None:
+            st.m[k] = None
+            st.fw[k] = None
+            backlash.reset((k,))
+            continue
+        st.m[k] = float(at[k])
+        st.fw[k] = float(at[k])
         # the drive is at the home command, which under skew is not inverse(home): the
         # first move's reversal is judged from there
-        backlash.place(k, float(home_mm[k]))
-    return axes
+        backlash.place(k, float(at[k]))

@@ -9,8 +9,8 @@ Units and signs are the contract of this module (and of every params file):
 * ``scale_ppm`` (ppm): positive means the axis travels too far,
   ``actual = (1 + s*1e-6) * commanded`` about the machine origin.
 * ``backlash`` (um of lost motion on a reversal, >= 0) per axis ``x``/``y``/``z``: either one
-  number, or a list of ``{"at_mm": position, "um": value}`` points, linearly interpolated along
-  the axis and held constant outside. ``fraction`` (0..1) scales what is applied,
+  number, or a list of at most 64 ``{"at_mm": position, "um": value}`` points, linearly
+  interpolated along the axis and held constant outside. ``fraction`` (0..1) scales what is applied,
   ``smoothing_mm`` spreads each take-up over that much following path length (0 = immediate
   take-up move).
 * ``axis_errors`` (optional full HTM terms): per axis, the translation errors ``tx_um``,
@@ -55,6 +55,9 @@ MAX_NOZZLE_OFFSET_MM = 500.0
 MAX_POSITION_MM = 10000.0
 MAX_SERVO_LAG_MS = 100.0
 MAX_POLY_DEGREE = 5
+# Backlash points per axis: every move walks the table, and the compiled kernel takes at most
+# this many (engines/kernel.py MAX_POINTS; a test keeps the two equal).
+MAX_BACKLASH_POINTS = 64
 
 
 class ParamsError(ValueError):
@@ -260,6 +263,9 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
         raise ParamsError(
             field, Msg("must be a number (um) or a non-empty list of {at_mm, um} points")
         )
+    if len(value) > MAX_BACKLASH_POINTS:
+        raise ParamsError(field, Msg("at most %(n)s points, got %(count)s",
+                                     n=MAX_BACKLASH_POINTS, count=len(value)))
     pts = []
     for i, item in enumerate(value):
         f = f"{field}[{i}]"

@@ -2,7 +2,7 @@
 engine (the compiled kernel, the vectorised file engine) read and write.
 
 It is declared here, field by field, because it is a contract: the C kernel
-(``engines/kernel/state.c``) reads and writes these attributes by name, in place where the
+(``engines/csrc/state.c``) reads and writes these attributes by name, in place where the
 Python code changes a list in place. A new field, a renamed one or a list replaced by a
 tuple must be mirrored there (the kernel leaves any state it cannot read to the Python path,
 and its self-check against the reference path catches a mismatch at start-up).
@@ -124,9 +124,9 @@ class StreamState:
     (None: unknown), ``tool``: the last T number, ``lineno``: lines seen.
 
     ``q_drive``: per axis, the geometric carriage command (mm) a drive is at where that is
-    not the command of the desired position ``m`` (after a partial G28 under skew, an axis
-    that was not homed but whose command depends on the homed ones), None elsewhere; None
-    as a whole when there is none. The next compensated move starts from there (and the
+    not the command of the desired position ``m`` (after G28: a homed drive at the home
+    command, and under skew an axis that was not homed but whose command depends on the
+    homed ones), None elsewhere; None as a whole when there is none. The next compensated move starts from there (and the
     accelerated engines leave it to the reference path).
 
     Accelerated engines only (the reference path resets them on every line it handles):
@@ -192,7 +192,8 @@ class StreamState:
             self.backlash.anchor[k] = other.backlash.anchor[k]
         self.q_last = None
         self.limit_recheck = [True, True, True]
-        self.q_drive = None  # (a geometric command of the other model)
+        # where the drives are does not depend on the model
+        self.q_drive = other.q_drive
 
     # what a line refused by the limits policy "error" must leave as it was
     _RESTORED = ("m", "fw", "fw_text", "w", "g", "e_pos", "feed", "q_last", "limit_recheck",

@@ -2,16 +2,20 @@
 proposal, the run history, comparing two runs, and demo mode's simulated trace.
 
 * ``POST /program``  writes a ballbar test program (radius mm, feed mm/min capped to the
-  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it.
+  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it (a live
+  sensor, if one is set, is armed first through ``on_print``).
 * ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
-  MAX_TRACE_UPLOAD bytes): analysed and stored as a run; nothing is applied.
+  MAX_TRACE_UPLOAD bytes): analysed in the worker process (a background job: the run comes
+  in the response if it is ready within TRACE_WAIT_S, else 202 with the job, whose result
+  is the run id) and stored as a run; nothing is applied.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
 * ``POST /apply``    a run's proposed parameters, or given ones, into the settings.
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
   ``/demo/trace``.
 
 Each method here is one route's body (the plugin class holds the routes); errors are JSON
-``{"error": ...}`` responses in the user's language.
+``{"error": ...}`` responses in the user's language, 400 naming the field for bad input.
+A run whose numbers are not all finite is never stored.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import io
 import json
 import os
 import re
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -34,6 +38,7 @@ from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
 from ..ballbar.closedloop import table
 from ..ballbar.formats import TraceError, load_any
 from ..ballbar.program import (
+    PLANES,
     ProgramError,
     TestSpec,
     cap_feed,
@@ -43,18 +48,30 @@ from ..ballbar.program import (
 )
 from ..core.firmware import equivalents
 from ..core.messages import as_dict
-from ..core.params import Params
+from ..core.params import Params, ParamsError
 from . import http
 from .demo_mode import DemoMode
+from .job_api import JobApi
 from .notify import Notifier
 from .queue import QueueCompensator
-from .runs import RunNotFound, RunStore
+from .runs import RunNotFound, RunNotStorable, RunStore
 from .settings import SettingsError, validate_settings
 from .settings_store import SettingsStore
 
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
+TRACE_WAIT_S = 20.0  # an analysis done within this many seconds comes in the response
+MAX_LENGTH_PAIRS = 100  # nominal/measured pairs per axis of a printed artifact
 PROGRAM_FOLDER = "kincomp"  # where generated programs go in OctoPrint's local storage
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+class UploadRefused(Exception):
+    """No uploaded file, or one too large: the message and the HTTP status."""
+
+    def __init__(self, message: str, status: int):
+        super().__init__(message)
+        self.message = message
+        self.status = status
 
 
 def safe_name(name: str) -> str:
@@ -65,7 +82,8 @@ def safe_name(name: str) -> str:
 
 class CalibrationApi:
     def __init__(self, store: SettingsStore, queue: QueueCompensator, runs: RunStore,
-                 demo: DemoMode, notifier: Notifier, printer, file_manager):
+                 demo: DemoMode, notifier: Notifier, printer, file_manager,
+                 job_api: JobApi):
         self._store = store
         self._queue = queue
         self._runs = runs
@@ -73,6 +91,10 @@ class CalibrationApi:
         self._notifier = notifier
         self._printer = printer
         self._file_manager = file_manager
+        # on_print(path, spec, program_hash) -> JSON-ready capture state: arms the live
+        # sensor just before the program is printed (None: no live capture)
+        self.on_print = None
+        self._job_api = job_api
 
     # ~~ the test program ------------------------------------------------------------------------
     def program(self):
@@ -85,61 +107,103 @@ class CalibrationApi:
         if do_print:
             http.require(Permissions.PRINT)
         try:
-            plane = str(data.get("plane", "XY")).upper()
-            feed = float(data.get("feed", 1850.0))
+            plane = http.choice(data, "plane", tuple(PLANES), "XY")
+            feed = http.number(data, "feed", 1850.0)
             spec = TestSpec(
                 plane=plane,
-                centre=tuple(float(v) for v in data.get("centre", (110, 110, 10))),
-                radius_mm=float(data.get("radius", 100.0)),
+                centre=tuple(http.numbers(data, "centre", 3, (110.0, 110.0, 10.0))),
+                radius_mm=http.number(data, "radius", 100.0),
                 feed_mm_min=cap_feed(feed, plane, self._store.max_feeds()),
                 requested_feed_mm_min=feed,
                 mount_pause=mount_pause,
             )
             params = self._queue.params
             text = generate(spec, volume=self._store.limits(), params_hash=params.hash())
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
         except (ProgramError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
         name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
                f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        path, prog_hash, _ = self.write_program(text, name)
+        printing, capture = self.print_program(path, spec, prog_hash) if do_print \
+            else (False, None)
+        if do_print and not printing:
+            return http.error(gettext("The printer is not ready to print"), 409)
+        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
+                             printing=printing, program_hash=prog_hash, capture=capture)
+
+    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
+        """Writes the ballbar program ``text`` as ``kincomp/<name>`` into OctoPrint's storage
+        and tells demo mode, with the test as the program states it (its params hash and
+        campaign keys go into the simulated trace); returns the path, the program hash and
+        that test."""
         path = f"{PROGRAM_FOLDER}/{name}"
         self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
                                       ignore_existing=True)
         self._file_manager.add_file(
             FileDestinations.LOCAL, path,
             StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
-        _, prog_hash = spec_from_program(text)
-        self._demo.program_written(path, spec, prog_hash)
-        printing = False
-        if do_print:
-            if not self._printer.is_operational() or self._printer.is_printing():
-                return http.error(gettext("The printer is not ready to print"), 409)
-            self._printer.select_file(path, False, printAfterSelect=True,
-                                      tags={"plugin:kincomp", "kincomp:calibration"})
-            printing = True
-        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash)
+        stated, prog_hash = spec_from_program(text)
+        self._demo.program_written(path, stated, prog_hash)
+        return path, prog_hash, stated
+
+    def print_program(self, path: str, spec: TestSpec, prog_hash: str,
+                      arm: bool = True) -> Tuple[bool, Optional[Dict[str, Any]]]:
+        """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
+        use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
+        state); (False, None) if the printer is not ready (not connected, or printing)."""
+        if not self._printer.is_operational() or self._printer.is_printing():
+            return False, None
+        capture = self.on_print(path, spec, prog_hash) \
+            if arm and self.on_print is not None else None
+        self._printer.select_file(path, False, printAfterSelect=True,
+                                  tags={"plugin:kincomp", "kincomp:calibration"})
+        return True, capture
 
     # ~~ measurements in ---------------------------------------------------------------------
     def trace(self):
-        """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it and
-        store the run; nothing is applied."""
+        """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it (in the
+        worker process) and store the run; nothing is applied."""
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        try:
+            data, filename = self.read_upload()
+        except UploadRefused as exc:
+            return http.error(exc.message, exc.status)
+        safe = safe_name(os.path.basename(str(filename)))
+        args = {"data": data, "name": safe, "current": self._queue.params.to_dict()}
+
+        def run(job, progress) -> None:
+            result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
+            kind = result.pop("kind", None) or "upload"
+            job.result = self.record_run(result, safe, kind,
+                                         data if kind != "summary" else None,
+                                         result.get("plot"))["id"]
+
+        job = self._job_api.submit("analyse", None, run)
+        return self._job_api.answer(
+            job, lambda j: self._runs.get(j.result), wait=TRACE_WAIT_S,
+            failed=lambda j: self._analysis_failed(safe, j.exception or j.error))
+
+    def read_upload(self) -> Tuple[bytes, str]:
+        """The uploaded file (multipart field 'file', or the raw body) and its name; raises
+        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes."""
         suffix, name_suffix = self._store.upload_fields()
         tmp_path = flask.request.values.get("file." + suffix)
         filename = flask.request.values.get("file." + name_suffix, "trace")
         if tmp_path:
             size = os.path.getsize(tmp_path)
             if size > MAX_TRACE_UPLOAD:
-                return http.error(gettext("The file is too large"), 413)
+                raise UploadRefused(gettext("The file is too large"), 413)
             with open(tmp_path, "rb") as f:
                 data = f.read()
         else:
             data = flask.request.get_data(cache=False)
             if not data:
-                return http.error(gettext("No file uploaded (multipart field 'file')"), 400)
+                raise UploadRefused(gettext("No file uploaded (multipart field 'file')"), 400)
             if len(data) > MAX_TRACE_UPLOAD:
-                return http.error(gettext("The file is too large"), 413)
-        return self._analyse_and_store(data, filename, "upload")
+                raise UploadRefused(gettext("The file is too large"), 413)
+        return data, filename
 
     def analyze(self):
         """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
@@ -148,28 +212,57 @@ class CalibrationApi:
         if data is None:
             return http.error(gettext("Expected a JSON object"), 400)
         if "summary" in data:
+            if not isinstance(data["summary"], dict):
+                return http.error(gettext("'%(key)s' must be an object", key="summary"), 400)
             return self._analyse_and_store(json.dumps(data["summary"]).encode(),
                                            "typed summary", "summary")
         if "artifact" in data:
-            a = data["artifact"]
-            if not isinstance(a, dict):
-                return http.error(gettext("Expected a JSON object"), 400)
             try:
-                diag = diagnostics_from_artifact(
-                    str(a.get("plane", "XY")), float(a["ac"]), float(a["bd"]), float(a["ad"]),
-                    {k: [(float(n), float(m)) for n, m in v]
-                     for k, v in (a.get("lengths") or {}).items()})
-            except (ArtifactError, KeyError, TypeError, ValueError) as exc:
+                diag = self._artifact(data["artifact"])
+                notes = []
+                params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None),
+                                        self._queue.params, notes)
+            except http.BadRequest as exc:
+                return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)),
+                                  400)
+            except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
                 return http.error(gettext("Invalid artifact measurements: %(e)s",
                                           e=http.tr(exc)), 400)
-            notes = []
-            current = self._queue.params
-            params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None), current,
-                                    notes)
             return self._store_run({"diagnostics": diag, "parameters": params.to_dict(),
                                     "firmware": equivalents(params), "notes": notes},
                                    "printed artifact", "artifact", None)
         return http.error(gettext("Give 'summary' or 'artifact'"), 400)
+
+    @staticmethod
+    def _artifact(a: Any) -> Dict[str, Any]:
+        """Diagnostics of printed-artifact measurements ({plane, ac, bd, ad, lengths}),
+        each field checked (:class:`http.BadRequest` naming it)."""
+        if not isinstance(a, dict):
+            raise http.BadRequest(gettext("'%(key)s' must be an object", key="artifact"))
+        plane = http.choice(a, "plane", tuple(PLANES), "XY")
+        ac, bd, ad = (http.number(a, k, None, "artifact.") for k in ("ac", "bd", "ad"))
+        lengths = a.get("lengths") or {}
+        if not isinstance(lengths, dict) or set(lengths) - set("xyzXYZ"):
+            raise http.BadRequest(gettext(
+                "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
+                key="artifact.lengths"))
+        pairs = {}
+        for axis, items in lengths.items():
+            where = f"artifact.lengths.{axis}"
+            if not isinstance(items, list) or not 0 < len(items) <= MAX_LENGTH_PAIRS or \
+                    not all(isinstance(p, list) and len(p) == 2 for p in items):
+                raise http.BadRequest(gettext(
+                    "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
+                    key=where, n=MAX_LENGTH_PAIRS))
+            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p)
+                           for p in items]
+        diag = diagnostics_from_artifact(plane, ac, bd, ad, pairs)
+        http.check_json(diag)  # an overflow (1e308 mm) is no measurement
+        return diag
+
+    def _analysis_failed(self, name: str, exc) -> str:
+        return gettext("%(name)s: %(reason)s", name=name, reason=http.tr(exc)
+                       if isinstance(exc, BaseException) else str(exc))
 
     def _analyse_and_store(self, data: bytes, filename: str, source: str):
         safe = safe_name(os.path.basename(str(filename)))
@@ -177,14 +270,29 @@ class CalibrationApi:
             trace = load_any(data, safe)
             result = analyse(trace, current=self._queue.params)
         except TraceError as exc:
-            return http.error(gettext("%(name)s: %(reason)s", name=safe,
-                                      reason=http.tr(exc)), 400)
+            return http.error(self._analysis_failed(safe, exc), 400)
+        except (ParamsError, KeyError, TypeError, ValueError, ArithmeticError) as exc:
+            # values the formats accept but the analysis cannot use: the user's input
+            return http.error(self._analysis_failed(safe, exc), 400)
         kind = getattr(trace, "kind", source)
         return self._store_run(result, safe, kind, data if kind != "summary" else None,
                                result.get("plot"))
 
     def _store_run(self, result: Dict[str, Any], filename: str, source: str,
                    raw: Optional[bytes], plot=None):
+        try:
+            return flask.jsonify(self.record_run(result, filename, source, raw, plot))
+        except RunNotStorable:
+            return http.error(gettext("The analysis gave numbers that are not finite; check "
+                                      "the measurements (nothing was stored)"), 400)
+
+    def record_run(self, result: Dict[str, Any], filename: str, source: str,
+                   raw: Optional[bytes], plot=None,
+                   extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+        """Store an analysis as a run (and ``raw``, the measurement file, next to it;
+        ``extra``: more fields, e.g. a campaign's keys) and announce it; returns the run.
+        Raises :class:`RunNotStorable` (nothing stored) if a number is not finite. Needs
+        no request: the worker and the live capture's thread store their runs here too."""
         run_id = self._runs.new_id()
         current = self._queue.params
         run = {
@@ -203,12 +311,11 @@ class CalibrationApi:
             "plot": plot,
             "applied": None,
         }
-        if raw is not None:
-            self._runs.save_trace(run_id, raw)
-        self._runs.save(run)
+        run.update(extra or {})
+        self._runs.save(run, raw)
         self._notifier.event("calibration_analysed", {"run": run_id, "source": source,
                                                       "simulated": run["simulated"]})
-        return flask.jsonify(run)
+        return run
 
     # ~~ applying a proposal -----------------------------------------------------------------
     def apply(self):
@@ -225,17 +332,27 @@ class CalibrationApi:
                 run = self._runs.get(str(data["run"]))
             except RunNotFound:
                 return http.error(gettext("No such calibration run"), 404)
-            params_doc = run["proposed"]
+            params_doc = run.get("proposed")
+            if params_doc is None:
+                return http.error(gettext("This run has no proposed parameters (its capture "
+                                          "failed)"), 400)
         elif "params" in data:
+            if not isinstance(data["params"], dict):
+                return http.error(gettext("'%(key)s' must be an object", key="params"), 400)
             params_doc = data["params"]
         else:
             return http.error(gettext("Give 'run' or 'params'"), 400)
-        new = dict(self._store.current())
-        new["params"] = params_doc
-        if "enabled" in data:
-            new["enabled"] = data["enabled"]
+        return self.apply_params(params_doc, apply_now, run,
+                                 {"enabled": data["enabled"]} if "enabled" in data else None)
+
+    def apply_params(self, params_doc, apply_now: bool, run: Optional[Dict[str, Any]] = None,
+                     settings: Optional[Dict[str, Any]] = None):
+        """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
+        whole (400 naming the field, nothing saved); marks ``run`` applied."""
+        new = {"params": params_doc}
+        new.update(settings or {})
         try:
-            new = validate_settings(new, self._store.current(), replace_params=True)
+            new = validate_settings(new, self._store.stored(), replace_params=True)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         self._store.save(new, immediately=apply_now or None)

@@ -4,18 +4,49 @@
 The last ballbar program KinComp wrote is remembered; when a print of it begins, the
 commands leaving KinComp's queuing hook are recorded; when that print is done the simulator
 runs on its own thread (seconds, never on OctoPrint's event thread) and the UI is told that
-the simulated trace is ready. A print that fails or is cancelled drops the recording.
+the simulated trace is ready (a campaign's test: its campaign and test are in the message, and
+the campaign mode collects the trace). A print that fails or is cancelled drops the
+recording.
+
+The live path (``demo.live``, the default): the virtual ballbar is also a live sensor
+(:class:`..sensor.virtual.VirtualSensor` on a pseudo-terminal, started when KinComp's
+sensor piece asks for its port, stopped when it lets go). When the program's print begins,
+the program as the printer receives it (compensated with the queue's parameters if
+compensation is on) is played on it from that moment, DEMO_SPEEDUP times faster than the
+simulated printer moves (as OctoPrint's virtual printer runs its moves), so that the capture
+reads it through pyserial exactly as a USB bar. The recorded commands are still simulated
+after the print, for "Analyse the simulated trace" (the fallback), without a notice then.
 """
 
 from __future__ import annotations
 
 import threading
-from typing import Any, Dict, List, Optional
+import time
+from typing import Any, Callable, Dict, List, Optional
 
 from ..ballbar.demo import DemoBallbar
 from ..ballbar.formats import NativeTrace
-from ..ballbar.program import TestSpec
+from ..ballbar.program import ProgramError, TestSpec, generate
+from ..engines.select import make_compensator
+from ..sensor.virtual import VirtualSensor
 from .notify import N_, Notifier
+
+DEMO_SPEEDUP = 10.0  # OctoPrint's virtual printer runs its moves 10 times faster than feed
+DEMO_RANGE_MM = (-1.5, 2.5)  # the virtual bar's measuring range (mm, positive = longer)
+
+
+def lines_as_sent(queue, text: str) -> List[str]:
+    """The lines of ``text`` as the printer receives them from ``queue`` (a
+    QueueCompensator): compensated by a fresh compensator with its parameters and options
+    when compensation is on."""
+    if not queue.enabled:
+        return text.splitlines()
+    comp = make_compensator(queue.params, queue.comp.options)
+    out: List[str] = []
+    for line in text.splitlines():
+        res = comp.process(line)
+        out.extend([res] if isinstance(res, str) else res)
+    return out
 
 
 class DemoMode:
@@ -27,13 +58,66 @@ class DemoMode:
         self._program_path: Optional[str] = None
         self._program_spec: Optional[TestSpec] = None
         self._program_hash = ""
+        self.live = False  # the virtual ballbar streams as a live sensor
+        self._sensor: Optional[VirtualSensor] = None
+        self._played = False  # the current print is played on the live sensor
+        self._simulating = False  # its stream is being simulated: its end is not known yet
+        # the program's lines as the printer receives them (the plugin compensates them)
+        self.lines_as_sent: Callable[[str], List[str]] = str.splitlines
 
-    def set_enabled(self, enabled: bool) -> None:
-        """Turns demo mode on (a fresh virtual ballbar, unless one is there) or off."""
+    def set_enabled(self, enabled: bool, live: bool = True) -> None:
+        """Turns demo mode on (a fresh virtual ballbar, unless one is there) or off;
+        ``live``: its readings stream as a live sensor."""
         if enabled and self.ballbar is None:
             self.ballbar = DemoBallbar()
         elif not enabled:
             self.ballbar = None
+        self.live = bool(enabled and live)
+        if not self.live:
+            self.release_sensor()
+
+    # ~~ the virtual ballbar as a live sensor ------------------------------------------------
+    def sensor_port(self) -> Optional[str]:
+        """The virtual ballbar's port (a pseudo-terminal, started now if it is not running);
+        None when the live path is off."""
+        demo = self.ballbar
+        if not self.live or demo is None:
+            return None
+        with self._lock:
+            if self._sensor is None:
+                self._sensor = VirtualSensor(demo.truth, speedup=DEMO_SPEEDUP,
+                                             range_mm=DEMO_RANGE_MM)
+                self._sensor.start()
+            return self._sensor.url
+
+    def release_sensor(self) -> None:
+        """Stop the virtual ballbar's stream (nobody reads it any more)."""
+        with self._lock:
+            sensor, self._sensor = self._sensor, None
+        if sensor is not None:
+            sensor.stop()
+
+    def stream_end(self) -> Optional[float]:
+        """When (time.monotonic()) the program being played has been streamed; None if
+        nothing is played; ``inf`` while its stream is still being simulated (a slow
+        vertical test takes seconds: its end is not known yet)."""
+        sensor = self._sensor
+        if sensor is None or not self._played:
+            return None
+        return float("inf") if self._simulating else sensor.program_end
+
+    def _play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str,
+              start: float) -> None:
+        """Simulate the program (about a second, on its own thread) and stream it from
+        ``start`` on."""
+        try:
+            lines = self.lines_as_sent(generate(spec))
+            sensor.play(lines, start, spec=spec, program_hash=prog_hash)
+        except (ProgramError, OSError, ValueError):
+            self._logger.exception("KinComp demo: the virtual ballbar could not play the "
+                                   "program")
+        finally:
+            self._simulating = False
 
     def program_written(self, path: str, spec: TestSpec, program_hash: str) -> None:
         """KinComp wrote the ballbar program ``spec`` to ``path`` (in OctoPrint's storage)."""
@@ -49,8 +133,16 @@ class DemoMode:
             return
         with self._lock:
             if payload.get("path") != self._program_path or self._program_spec is None:
+                self._played = False
                 return
             demo.start(self._program_spec, self._program_hash)
+            sensor = self._sensor if self.live else None
+            self._played = sensor is not None
+            if sensor is not None:
+                self._simulating = True  # (until _play has the stream: its end unknown)
+                threading.Thread(target=self._play, name="kincomp-demo-ballbar", daemon=True,
+                                 args=(sensor, self._program_spec, self._program_hash,
+                                       time.monotonic())).start()
 
     def record(self, cmd: str, result: Optional[List[str]]) -> None:
         """What the queuing hook sends for ``cmd``: ``result`` (None: ``cmd`` as it is).
@@ -87,7 +179,13 @@ class DemoMode:
         except Exception:  # noqa: BLE001 - a demo failure must not disturb anything else
             self._logger.exception("KinComp demo: simulation failed")
             return
-        if trace is not None:
+        if trace is None:
+            return
+        meta = getattr(trace, "meta", None) or {}
+        if meta.get("campaign"):  # a campaign's test: the campaign's wizard collects it
+            self._notifier.message({"type": "demo_trace", "campaign": meta["campaign"],
+                                    "campaign_step": meta.get("campaign_step")})
+        elif not self._played:  # else the live capture tells
             self._notifier.notify("success", N_(
                 "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
             self._notifier.message({"type": "demo_trace"})

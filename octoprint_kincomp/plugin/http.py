@@ -7,6 +7,7 @@ permission KinComp adds to OctoPrint (``PLUGIN_KINCOMP_ADMIN``).
 
 from __future__ import annotations
 
+import math
 from typing import Any, Dict, List, Optional
 
 import flask
@@ -47,14 +48,58 @@ def with_i18n(eq: Dict[str, Any]) -> Dict[str, Any]:
     return dict(eq, notes_i18n=[as_dict(n) for n in eq.get("notes", [])])
 
 
-def json_object() -> Optional[Dict[str, Any]]:
-    """The request's JSON body if it is an object, else None."""
-    data = flask.request.get_json(silent=True)
-    return data if isinstance(data, dict) else None
+MAX_JSON_DEPTH = 32  # nesting levels of a request body (ours need fewer than 10)
 
 
 class BadRequest(ValueError):
     """A request field of the wrong type (answered 400 with this message)."""
+
+
+def abort(status: int, message: str):
+    """Ends the request with the JSON error response ``message`` (``status``)."""
+    flask.abort(error(message, status))
+
+
+def check_json(data: Any) -> None:
+    """:class:`BadRequest` for a body nested deeper than MAX_JSON_DEPTH or holding a number
+    that is not finite (NaN, Infinity, 1e400), naming the field."""
+    stack = [(data, "", 1)]
+    while stack:
+        value, where, depth = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
+        if isinstance(value, (dict, list)):
+            if depth > MAX_JSON_DEPTH:
+                raise BadRequest(gettext("The request body is nested too deeply (at most "
+                                         "%(n)s levels)", n=MAX_JSON_DEPTH))
+            items = value.items() if isinstance(value, dict) else enumerate(value)
+            for key, item in items:
+                name = f"{where}[{key}]" if isinstance(key, int) else \
+                    (f"{where}.{key}" if where else str(key))
+                stack.append((item, name, depth + 1))
+
+
+def json_body() -> Any:
+    """The request's JSON body (None if there is none or it is not JSON), checked with
+    :func:`check_json`."""
+    try:
+        data = flask.request.get_json(silent=True)
+    except RecursionError:
+        raise BadRequest(gettext("The request body is nested too deeply (at most %(n)s "
+                                 "levels)", n=MAX_JSON_DEPTH)) from None
+    check_json(data)
+    return data
+
+
+def json_object() -> Optional[Dict[str, Any]]:
+    """The request's JSON body if it is an object, else None (see :func:`json_body`)."""
+    data = json_body()
+    return data if isinstance(data, dict) else None
+
+
+def bad_request(exc: BadRequest):
+    """The blueprint's handler of :class:`BadRequest`: 400 with its message."""
+    return error(str(exc), 400)
 
 
 def flag(data: Dict[str, Any], key: str) -> bool:
@@ -66,7 +111,49 @@ def flag(data: Dict[str, Any], key: str) -> bool:
     return value
 
 
+def number(data: Dict[str, Any], key: str, default: Optional[float] = None,
+           prefix: str = "") -> float:
+    """A finite JSON number field (``default`` when absent; required when that is None)."""
+    value = data.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(float(value)):
+        raise BadRequest(gettext("'%(key)s' must be a finite number", key=prefix + key))
+    return float(value)
+
+
+def numbers(data: Dict[str, Any], key: str, n: int, default) -> List[float]:
+    """A field holding a list of ``n`` finite numbers (``default`` when absent)."""
+    value = data.get(key, default)
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise BadRequest(gettext("'%(key)s' must be a list of %(n)s numbers", key=key, n=n))
+    return [number({key: v}, key) for v in value]
+
+
+def choice(data: Dict[str, Any], key: str, choices, default: str) -> str:
+    """A field holding one of ``choices`` (upper-case; any case accepted)."""
+    value = data.get(key, default)
+    if not isinstance(value, str) or value.upper() not in choices:
+        raise BadRequest(gettext("'%(key)s' must be one of %(choices)s", key=key,
+                                 choices=", ".join(choices)))
+    return value.upper()
+
+
 def require(permission) -> None:
     """Aborts the request with 403 unless the user has ``permission``."""
     if not permission.can():
         flask.abort(403)
+
+
+def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
+    """403 if the request changes where KinComp's updates come from (the archive pip will
+    install as OctoPrint's admin) without OctoPrint's own permission to configure software
+    updates (an administrator's, not KinComp's); None otherwise."""
+    if old.get("software_update") == new.get("software_update"):
+        return None
+    from octoprint.access.permissions import Permissions
+
+    needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None) or Permissions.ADMIN
+    if needed.can():
+        return None
+    return error(gettext("Changing where KinComp's updates come from needs OctoPrint's "
+                         "permission to configure software updates"), 403)

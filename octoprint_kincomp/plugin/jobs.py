@@ -1,91 +1,230 @@
-"""Background file compensation: a worker thread that compensates queued G-code files one
-after the other (OctoPrint-free; the plugin supplies the work and hears of every change).
+"""Background jobs: the bounded queue in front of the worker process (OctoPrint-free; the
+plugin supplies each job's work and hears of every change).
 
-A Job's progress runs 0..1; its state goes queued -> running -> done or failed (with the
-error). The worker is held while a print runs, so file work never starves the print.
+* One job at a time, by one dispatcher thread; the heavy part of a job runs in the
+  low-priority worker process (:mod:`.worker`), so neither a request thread nor OctoPrint's
+  interpreter does it while a print runs.
+* At most ``limit`` jobs queued or running (:class:`QueueFull` beyond: the endpoints answer
+  429); at most one job of a kind per file at a time (submitting it again returns the job
+  under way, and the endpoints answer 202 with its id).
+* A job's progress runs 0..1; its state goes queued -> running -> done or failed (with the
+  error). Jobs marked ``held_while_printing`` (writing a compensated copy) wait while a
+  print runs; dry runs and analyses go on at low priority.
+* The job list survives a restart (``history`` file): a job that was queued or running when
+  the server stopped is listed as failed ("interrupted").
 """
 
 from __future__ import annotations
 
+import json
+import logging
+import os
+import secrets
 import threading
 import time
-from typing import Callable, Dict, Optional
+from typing import Any, Callable, Dict, List, Optional
+
+from ..core.atomic import write_atomic
+
+MAX_HISTORY = 50  # finished jobs kept in the list
+IDLE_STOP_S = 300.0  # the worker process ends after this long without a job
+INTERRUPTED = "interrupted: the server stopped before the job finished"
+
+_log = logging.getLogger(__name__)
+
+
+class QueueFull(RuntimeError):
+    """Too many jobs are queued or running."""
 
 
 class Job:
-    """One background compensation (progress 0..1, result or error)."""
+    """One background job (progress 0..1, result or error)."""
 
-    def __init__(self, path: str):
-        self.path = path
+    def __init__(self, kind: str, path: Optional[str], run=None,
+                 held_while_printing: bool = False):
+        self.id = secrets.token_hex(6)
+        self.kind = kind  # compensate, dryrun, analyse
+        self.path = path  # the file it works on (None: no file, e.g. an uploaded trace)
         self.progress = 0.0
         self.state = "queued"  # queued, running, done, failed
-        self.result: Optional[str] = None
+        self.result: Any = None
         self.error: Optional[str] = None
+        self.exception: Optional[BaseException] = None  # (not listed) to translate the error
         self.report: Optional[Dict] = None
         self.started = time.time()
+        self.finished: Optional[float] = None
+        self.held_while_printing = held_while_printing
+        self.run = run  # run(job, progress): the work
+        self.done = threading.Event()
+
+    @property
+    def active(self) -> bool:
+        return self.state in ("queued", "running")
 
     def to_dict(self) -> Dict:
-        return {"path": self.path, "progress": round(self.progress, 3), "state": self.state,
-                "result": self.result, "error": self.error, "report": self.report}
+        return {"id": self.id, "kind": self.kind, "path": self.path,
+                "progress": round(self.progress, 3), "state": self.state,
+                "result": self.result, "error": self.error, "report": self.report,
+                "started": self.started, "finished": self.finished}
+
+    @staticmethod
+    def from_dict(d: Dict) -> "Job":
+        job = Job(str(d.get("kind") or "compensate"), d.get("path"))
+        job.id = str(d.get("id") or job.id)
+        for key in ("progress", "state", "result", "error", "report", "started", "finished"):
+            if key in d:
+                setattr(job, key, d[key])
+        job.done.set()
+        return job
 
 
-class BackgroundCompensator:
-    """A worker thread that compensates queued files one after the other.
+class JobQueue:
+    """Jobs run one after the other by a dispatcher thread.
 
-    ``run_job(job, progress)`` does the work (the plugin supplies it: read from the file
-    manager, compensate with the fast engine, add the result as a new file); ``notify(job)``
-    is called on every state change and progress step.
-    """
+    ``notify(job)`` is called on every state change and progress step; ``history`` (a file
+    path, or None) keeps the job list over restarts; ``worker`` (a ``WorkerProcess`` or
+    None) is the process the jobs' work runs in, stopped when idle."""
 
-    def __init__(self, run_job: Callable[[Job, Callable[[float], None]], None],
-                 notify: Callable[[Job], None]):
-        self._run_job = run_job
+    def __init__(self, notify: Callable[[Job], None], limit: int = 8,
+                 history: Optional[str] = None, worker=None):
         self._notify = notify
-        self._queue = []
+        self.limit = limit
+        self._history = history
+        self.worker = worker
         self._cond = threading.Condition()
+        self._queue: List[Job] = []
         self.jobs: Dict[str, Job] = {}
-        self.paused = False  # held while printing: file work must not starve the print
-        self._thread = threading.Thread(target=self._loop, name="kincomp-files", daemon=True)
+        self.paused = False  # a print runs: jobs held_while_printing wait
+        self.stopping = False  # the server stops: a job ended now was interrupted
+        self._load()
+        self._thread = threading.Thread(target=self._loop, name="kincomp-jobs", daemon=True)
         self._thread.start()
 
-    def submit(self, path: str) -> Job:
+    # ~~ submitting ----------------------------------------------------------------------------
+    def under_way(self, kind: str, path: str) -> Optional[Job]:
+        """The job of ``kind`` on ``path`` that is queued or running, if any."""
         with self._cond:
-            job = self.jobs.get(path)
-            if job is not None and job.state in ("queued", "running"):
+            return next((j for j in self.jobs.values()
+                         if j.active and j.kind == kind and j.path == path), None)
+
+    def submit(self, kind: str, path: Optional[str], run: Callable,
+               held_while_printing: bool = False) -> Job:
+        """A new job, or the one of this kind on ``path`` already under way. Raises
+        :class:`QueueFull` when ``limit`` jobs are queued or running."""
+        with self._cond:
+            job = self.under_way(kind, path) if path is not None else None
+            if job is not None:
                 return job
-            job = Job(path)
-            self.jobs[path] = job
+            if sum(1 for j in self.jobs.values() if j.active) >= self.limit:
+                raise QueueFull(kind)
+            job = Job(kind, path, run, held_while_printing)
+            self.jobs[job.id] = job
             self._queue.append(job)
-            self._cond.notify()
-        self._notify(job)
+            self._trim()
+            self._cond.notify_all()
+        self._changed(job)
         return job
+
+    def get(self, job_id: str) -> Optional[Job]:
+        return self.jobs.get(job_id) if isinstance(job_id, str) else None
 
     def set_paused(self, paused: bool) -> None:
         with self._cond:
             self.paused = paused
-            self._cond.notify()
+            self._cond.notify_all()
+
+    def stop(self) -> None:
+        """The server stops: the worker process ends (its partial output is removed)."""
+        self.stopping = True
+        if self.worker is not None:
+            self.worker.stop()
+
+    # ~~ inside ----------------------------------------------------------------------------------
+    def _next(self) -> Optional[Job]:
+        for job in self._queue:
+            if not (self.paused and job.held_while_printing):
+                self._queue.remove(job)
+                return job
+        return None
 
     def _loop(self) -> None:
         while True:
             with self._cond:
-                while not self._queue or self.paused:
-                    self._cond.wait()
-                job = self._queue.pop(0)
-            job.state = "running"
+                job = self._next()
+                if job is None:
+                    self._cond.wait(timeout=30.0)
+                    job = self._next()
+            if job is not None:
+                self._execute(job)
+            elif self.worker is not None:
+                self.worker.stop_if_idle(IDLE_STOP_S)
+
+    def _execute(self, job: Job) -> None:
+        job.state = "running"
+        self._changed(job)
+        last = [0.0]
+
+        def progress(frac: float) -> None:
+            job.progress = max(0.0, min(1.0, float(frac)))
+            if job.progress - last[0] >= 0.05:
+                last[0] = job.progress
+                self._notify_safely(job)
+
+        try:
+            job.run(job, progress)
+            job.state = "done"
+            job.progress = 1.0
+        except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
+            job.state = "failed"
+            job.exception = exc
+            job.error = INTERRUPTED if self.stopping else (str(exc) or type(exc).__name__)
+        job.finished = time.time()
+        job.run = None
+        self._changed(job)
+        job.done.set()
+
+    def _changed(self, job: Job) -> None:
+        self._save()
+        self._notify_safely(job)
+
+    def _notify_safely(self, job: Job) -> None:
+        try:
             self._notify(job)
-            last = [0.0]
+        except Exception:  # noqa: BLE001 - a notification must not end the dispatcher
+            _log.exception("KinComp: job notification failed")
 
-            def progress(frac: float) -> None:
-                job.progress = frac
-                if frac - last[0] >= 0.05:
-                    last[0] = frac
-                    self._notify(job)
+    def _trim(self) -> None:
+        finished = sorted((j for j in self.jobs.values() if not j.active),
+                          key=lambda j: j.finished or j.started)
+        for job in finished[:max(0, len(finished) - MAX_HISTORY)]:
+            del self.jobs[job.id]
 
-            try:
-                self._run_job(job, progress)
-                job.state = "done"
-                job.progress = 1.0
-            except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
+    # ~~ the job list over restarts ----------------------------------------------------------
+    def _load(self) -> None:
+        if not self._history or not os.path.exists(self._history):
+            return
+        try:
+            with open(self._history, encoding="utf-8") as f:
+                stored = json.load(f)
+            jobs = [Job.from_dict(d) for d in stored if isinstance(d, dict)]
+        except (OSError, ValueError, TypeError, AttributeError):
+            _log.warning("KinComp: the job list %s could not be read", self._history)
+            return
+        for job in jobs:
+            if job.state not in ("done", "failed"):
                 job.state = "failed"
-                job.error = str(exc)
-            self._notify(job)
+                job.error = INTERRUPTED
+                job.finished = job.finished or time.time()
+            self.jobs[job.id] = job
+        self._trim()
+        self._save()
+
+    def _save(self) -> None:
+        if not self._history:
+            return
+        with self._cond:  # (held while writing: an older list never overwrites a newer)
+            listed = [j.to_dict() for j in self.jobs.values()]
+            try:
+                write_atomic(self._history, json.dumps(listed, allow_nan=False).encode())
+            except (OSError, ValueError, TypeError):
+                _log.exception("KinComp: the job list could not be saved")

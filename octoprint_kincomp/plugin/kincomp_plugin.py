@@ -9,8 +9,14 @@ is done by the pieces, which import neither this module nor each other in a circ
 * ``print_state``     the connection and the print on it (begins, ends, pause after an error)
 * ``firmware_check``  the firmware's own compensation (double compensation)
 * ``demo_mode``       the virtual ballbar in demo mode
+* ``sensor_api``      the live ballbar sensor: preview, arming, the end of a capture
+                      (``sensor_runs`` stores it as a run)
 * ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
-                      the background jobs of ``jobs`` and the upload preprocessor)
+                      the background jobs of ``jobs``, run in the low-priority process of
+                      ``worker``, answered through ``job_api``, and the upload
+                      preprocessor)
+* ``campaign_api``    the campaign endpoints (``campaigns``: their store;
+                      ``campaign_measure``: a trace as a campaign test's measurement)
 * ``notify``          notifications, plugin messages and custom events; ``http`` request
                       helpers and the permission KinComp adds
 """
@@ -23,6 +29,7 @@ from typing import Any, Dict
 import octoprint.plugin
 from flask_babel import gettext
 from octoprint.events import Events
+from octoprint.util.comm import parse_position_line
 
 from .. import __version__
 from ..core.compensator import Options
@@ -30,23 +37,30 @@ from ..core.params import Params
 from ..engines.select import engine
 from . import http
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
-from .demo_mode import DemoMode
+from .campaign_api import CampaignApi
+from .campaign_measure import CampaignMeasurements
+from .campaigns import CampaignStore
+from .demo_mode import DemoMode, lines_as_sent
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
 from .notify import CUSTOM_EVENTS, Notifier
 from .print_state import PRINT_EVENTS, PrintState
-from .queue import FILE_TAG, QueueCompensator
+from .queue import FILE_TAG, HOME_QUERY, QueueCompensator
 from .runs import RunStore
+from .sensor_api import SensorApi
+from .sensor_runs import CaptureRecorder
 from .settings import SETTINGS_VERSION, defaults
 from .settings_api import SettingsApi
 from .settings_store import SettingsStore
+from .software_update import check_config
 
 route = octoprint.plugin.BlueprintPlugin.route
 
 
 class KinCompPlugin(
     octoprint.plugin.StartupPlugin,
+    octoprint.plugin.ShutdownPlugin,
     octoprint.plugin.SettingsPlugin,
     octoprint.plugin.TemplatePlugin,
     octoprint.plugin.AssetPlugin,
@@ -60,7 +74,7 @@ class KinCompPlugin(
         # the pieces, made in initialize() (OctoPrint injects what they use after __init__)
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
-        self.settings_api = self.calibration = None
+        self.settings_api = self.calibration = self.sensor = self.campaign = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -84,7 +98,19 @@ class KinCompPlugin(
         queue.on_untouched = self.prints.sent_as_written
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
-                                          printer, files)
+                                          printer, files, self.files.job_api)
+        self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
+        recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
+        self.sensor = SensorApi(recorder, self.runs, self.demo, notifier, printer, files, log,
+                                self._settings.global_get)
+        self.calibration.on_print = self.sensor.program_printing
+        self.settings_api.check = self.sensor.check_settings
+        campaigns = CampaignStore(self.get_plugin_data_folder())
+        measurements = CampaignMeasurements(queue, self.runs, campaigns, self.calibration,
+                                            notifier, self._printer_profile_manager)
+        recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
+        self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
+                                    self.demo, measurements)
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -92,8 +118,12 @@ class KinCompPlugin(
                           "on" if self.queue.enabled else "off",
                           engine())
 
+    def on_shutdown(self):
+        self.jobs.stop()  # the worker process ends; a file it was writing is removed
+
     def _settings_applied(self, s: Dict[str, Any]) -> None:
-        self.demo.set_enabled(s["demo"]["enabled"])
+        self.demo.set_enabled(s["demo"]["enabled"], s["demo"]["live"])
+        self.sensor.configure(s)
         self.firmware.check()
 
     def _print_began(self, payload: Dict[str, Any]) -> None:
@@ -103,6 +133,7 @@ class KinCompPlugin(
     def _print_ended(self, done: bool) -> None:
         self.jobs.set_paused(False)
         self.demo.print_ends(done)
+        self.sensor.print_ended(done)
 
     # ~~ settings ----------------------------------------------------------------------------
     def get_settings_defaults(self):
@@ -135,8 +166,10 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_settings.js",
-                       "js/kincomp_tab.js"], "css": ["css/kincomp.css"]}
+        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
+                       "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
+                       "js/kincomp_settings.js", "js/kincomp_tab.js"],
+                "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
     def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
@@ -151,6 +184,8 @@ class KinCompPlugin(
             prints.follow_pause(comm_instance)
         if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
             self.firmware.sent(cmd)
+        if self.sensor.waiting and cmd[:4] == "M117":
+            self.sensor.command(cmd)  # the program's end marker ends the live capture
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result)
@@ -160,7 +195,16 @@ class KinCompPlugin(
         if comm_instance is not self.prints.comm:
             self.prints.connection_changed(comm_instance)
         self.firmware.received(line)
+        if self.queue.home_query_out:  # the firmware's answer to our M114 after G28
+            position = parse_position_line(line)
+            if position is not None:
+                self.queue.home_reported(position)
         return line
+
+    def sent_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None,
+                  *args, **kwargs):
+        if cmd == HOME_QUERY and tags and f"plugin:{self._identifier}" in tags:
+            self.queue.home_query_sent()
 
     def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
                           allow_overwrite=False, *args, **kwargs):
@@ -170,13 +214,18 @@ class KinCompPlugin(
         return http.permissions()
 
     def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
-        return [("POST", r"/trace", MAX_TRACE_UPLOAD)]
+        return [("POST", r"/trace", MAX_TRACE_UPLOAD),
+                ("POST", r"/campaigns/[^/]+/steps/[0-9]+/trace", MAX_TRACE_UPLOAD)]
 
     def custom_events_hook(self, *args, **kwargs):
         return list(CUSTOM_EVENTS)
 
     def before_api_request_hook(self, plugin=None, *args, **kwargs):
         return [self.store.check_settings_request]
+
+    def get_update_information(self, *args, **kwargs):
+        """The software update plugin's check for new KinComp versions (software_update)."""
+        return check_config(self.store.current()["software_update"], self._identifier)
 
     # ~~ events ------------------------------------------------------------------------------
     def on_event(self, event, payload):
@@ -249,9 +298,77 @@ class KinCompPlugin(
     def api_compare(self):
         return self.calibration.compare()
 
+    @route("/sensor/status", methods=["GET"])
+    def api_sensor_status(self):
+        return self.sensor.status()
+
+    @route("/sensor/live", methods=["GET"])
+    def api_sensor_live(self):
+        return self.sensor.live()
+
+    @route("/sensor/ports", methods=["GET"])
+    def api_sensor_ports(self):
+        return self.sensor.ports()
+
+    @route("/sensor/open", methods=["POST"])
+    def api_sensor_open(self):
+        return self.sensor.open()
+
+    @route("/sensor/close", methods=["POST"])
+    def api_sensor_close(self):
+        return self.sensor.close()
+
+    @route("/sensor/arm", methods=["POST"])
+    def api_sensor_arm(self):
+        return self.sensor.arm()
+
+    @route("/sensor/stop", methods=["POST"])
+    def api_sensor_stop(self):
+        return self.sensor.stop()
+
+    @route("/runs/<run_id>/raw", methods=["GET"])
+    def api_run_raw(self, run_id):
+        return self.sensor.raw(run_id)
+
+    @route("/campaign/plan", methods=["POST"])
+    def api_campaign_plan(self):
+        return self.campaign.plan()
+
+    @route("/campaigns", methods=["GET"])
+    def api_campaigns(self):
+        return self.campaign.list()
+
+    @route("/campaigns/<cid>", methods=["GET"])
+    def api_campaign(self, cid):
+        return self.campaign.get(cid)
+
+    @route("/campaigns/<cid>/steps/<int:n>/program", methods=["POST"])
+    def api_campaign_program(self, cid, n):
+        return self.campaign.program(cid, n)
+
+    @route("/campaigns/<cid>/steps/<int:n>/trace", methods=["POST"])
+    def api_campaign_trace(self, cid, n):
+        return self.campaign.trace(cid, n)
+
+    @route("/campaigns/<cid>/analyze", methods=["POST"])
+    def api_campaign_analyze(self, cid):
+        return self.campaign.analyze(cid)
+
+    @route("/campaigns/<cid>/apply", methods=["POST"])
+    def api_campaign_apply(self, cid):
+        return self.campaign.apply(cid)
+
     @route("/dryrun", methods=["GET"])
     def api_dryrun(self):
         return self.files.dryrun()
+
+    @route("/jobs/<job_id>", methods=["GET"])
+    def api_job(self, job_id):
+        return self.files.job_api.job(job_id)
+
+    @octoprint.plugin.BlueprintPlugin.errorhandler(http.BadRequest)
+    def api_bad_request(self, exc):
+        return http.bad_request(exc)
 
     @route("/compensate", methods=["POST"])
     def api_compensate(self):
@@ -267,9 +384,11 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         # run last in queuing so other plugins' rewrites get compensated too
         "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
         "octoprint.comm.protocol.gcode.received": plugin.received_hook,
+        "octoprint.comm.protocol.gcode.sent": plugin.sent_hook,
         "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
         "octoprint.access.permissions": plugin.permissions_hook,
         "octoprint.server.http.bodysize": plugin.bodysize_hook,
         "octoprint.events.register_custom_events": plugin.custom_events_hook,
         "octoprint.server.api.before_request": plugin.before_api_request_hook,
+        "octoprint.plugin.softwareupdate.check_config": plugin.get_update_information,
     }

@@ -19,6 +19,13 @@ Resends never come back through the hook, so nothing is ever compensated twice o
   whose start position is unknown (``"unknown"``) and for a malformed move (``"malformed"``:
   it passes through as the firmware may still execute it, and the tracked position is
   forgotten, so later moves are not computed from a wrong start).
+* Where the printer homes may be unknown (the setting ``home_mm``: None, the default): a
+  G28 then leaves the homed axes unknown and is followed by an ``M114``; the firmware's
+  position report after it (``home_query_sent``, then ``home_reported`` from the received
+  hook) makes them known where the printer really is. Until then a move that needs them
+  goes out as written, so no correction can move the head by more than itself. A line that
+  moves the head or changes its frame before the report arrives cancels the learning (the
+  report would be stale).
 * New parameters, and switching compensation on or off, apply at the next print start
   (``apply_changes = next_print``) or at once: turning it on or off in the middle of a print
   would shift every later move by the correction (a seam). Either way the new model takes
@@ -28,18 +35,22 @@ Resends never come back through the hook, so nothing is ever compensated twice o
 from __future__ import annotations
 
 import logging
+import math
 import re
 import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
 
-from ..core.compensator import LimitError, Options
+from ..core.compensator import INVALIDATING_G, INVALIDATING_M, LimitError, Options
+from ..core.gcode import parse_command
+from ..core.modal import homed_axes
 from ..core.params import Params
 from ..engines.select import make_compensator
 
 FILE_TAG = "source:file"
 JOB_TAG = "source:job"
 _MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
+HOME_QUERY = "M114"  # sent after a G28 whose home position is not known
 
 
 _log = logging.getLogger(__name__)
@@ -73,6 +84,8 @@ class QueueCompensator:
         self.passed_on_error = 0
         self.halted = False
         self.held_moves = 0
+        self.awaiting_home: Tuple[int, ...] = ()  # homed axes whose position is asked for
+        self.home_query_out = False  # the M114 asking for it has been sent
 
     @property
     def params(self) -> Params:
@@ -91,10 +104,14 @@ class QueueCompensator:
         with self._lock:
             rep = self.comp.report
             unknown, malformed = rep.untouched_unknown, rep.malformed
+            home = self._homing(cmd)
             try:
                 out = self.comp.process(cmd)
             except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
                 return self._failed(cmd, exc)
+            if home:
+                self.awaiting_home, self.home_query_out = home, False
+                return [cmd if out is cmd else out[0], HOME_QUERY]
             why = None
             if rep.malformed != malformed and _MOTION.match(cmd):
                 self.comp.invalidate()
@@ -108,6 +125,47 @@ class QueueCompensator:
         # the replacement lines as a list of strings (fresh from the compensator): OctoPrint
         # normalises each string exactly as a 1-tuple (same command type and tags)
         return out
+
+    # -- learning where the printer homes ----------------------------------------------------
+    def _homing(self, cmd: str) -> Tuple[int, ...]:
+        """For a G28: the homed axes whose home position is not known (to be asked for).
+        Any other line that moves the head or changes its frame ends a pending question."""
+        if not self.awaiting_home and (
+                "28" not in cmd or None not in self.comp.options.home_mm):
+            return ()  # (the common case, cheaply: this runs for every line)
+        parsed = parse_command(cmd) if cmd.lstrip()[:1] in "GgTtMm" else None
+        if parsed is None:
+            return ()
+        kind, num = parsed.kind, parsed.number
+        if kind == "G" and num == 28 and parsed.sub is None:
+            home_mm = self.comp.options.home_mm
+            return tuple(k for k in homed_axes(parsed.body) if home_mm[k] is None)
+        if self.awaiting_home and (
+                kind == "T" or (kind == "G" and (num <= 3 or num == 92 or num in INVALIDATING_G))
+                or (kind == "M" and num in INVALIDATING_M)):
+            self.awaiting_home, self.home_query_out = (), False
+        return ()
+
+    def home_query_sent(self) -> None:
+        """Our M114 after a G28 went out: the next position report answers it."""
+        with self._lock:
+            self.home_query_out = bool(self.awaiting_home)
+
+    def home_reported(self, position: Dict[str, float]) -> bool:
+        """The firmware's position report (x, y, z in mm) after our M114: the homed axes
+        are known there. Returns whether it was taken."""
+        with self._lock:
+            if not (self.home_query_out and self.awaiting_home):
+                return False
+            axes, self.awaiting_home, self.home_query_out = self.awaiting_home, (), False
+            st = self.comp.state
+            at = [position.get(a) for a in "xyz"]
+            axes = [k for k in axes if st.m[k] is None and isinstance(at[k], float)
+                    and math.isfinite(at[k])]
+            if st.inches or not axes:
+                return False
+            self.comp.homed_at(axes, at)
+            return True
 
     def _failed(self, cmd: str, exc: Exception):
         self.errors += 1
@@ -139,6 +197,7 @@ class QueueCompensator:
         with self._lock:
             self.comp.reset()
             self.halted = False
+            self.awaiting_home, self.home_query_out = (), False
 
     def set_enabled(self, enabled: bool) -> None:
         with self._lock:
@@ -182,6 +241,7 @@ class QueueCompensator:
             self.halted = False
             self._apply_pending()
             self.comp.reset()
+            self.awaiting_home, self.home_query_out = (), False
             self.skip_file = precompensated
 
     def print_ended(self) -> None:
@@ -191,6 +251,7 @@ class QueueCompensator:
             self.skip_file = False
             self._apply_pending()
             self.comp.reset()
+            self.awaiting_home, self.home_query_out = (), False
 
     # -- reporting -----------------------------------------------------------------------
     def status(self) -> Dict[str, object]:

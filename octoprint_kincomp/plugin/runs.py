@@ -2,9 +2,15 @@
 
 A run records when it was made, where its data came from (trace, .b5r, typed summary,
 printed artifact; simulated or not), the parameters active during the test, the analysis
-(diagnostics), the proposed parameters, and whether and when they were applied. A trace
-file, if any, is kept next to it. Run ids are generated here and checked on every lookup,
-so a request can never name a path outside the runs folder.
+(diagnostics), the proposed parameters, and whether and when they were applied; a run of a
+campaign also its campaign id and test (``campaign``, ``campaign_step``; the joint analysis
+has no test). A trace file, if any, is kept next to it, and for a live capture the sensor's
+raw stream (``.raw``); a live capture that failed is a run too (``status: failed``, its
+message, its partial data). Run ids are generated here and checked on every lookup, so a
+request can never name a path outside the runs folder (the campaign store, ``campaigns.py``,
+keeps its documents by the same rules). A run that is not plain JSON (a NaN or an infinity)
+is never stored; one stored by an older version is read with those numbers as null, so it
+can still be shown.
 """
 
 from __future__ import annotations
@@ -26,72 +32,106 @@ class RunNotFound(KeyError):
     pass
 
 
+class RunNotStorable(ValueError):
+    """The run holds a number that is not finite (or something that is not JSON)."""
+
+
 class RunStore:
+    FOLDER = "runs"  # in the plugin's data folder
+    ID = _ID  # what an id looks like (checked on every lookup)
+    PREFIX = ""  # of new ids
+    NotFound = RunNotFound
+
     def __init__(self, data_folder: str):
-        self.folder = os.path.join(data_folder, "runs")
+        self.folder = os.path.join(data_folder, self.FOLDER)
         os.makedirs(self.folder, exist_ok=True)
 
     def _path(self, run_id: str, suffix: str = ".json") -> str:
-        if not isinstance(run_id, str) or not _ID.fullmatch(run_id):
-            raise RunNotFound(run_id)
+        if not isinstance(run_id, str) or not self.ID.fullmatch(run_id):
+            raise self.NotFound(run_id)
         return os.path.join(self.folder, run_id + suffix)
 
     def new_id(self) -> str:
         now = _dt.datetime.now()
-        return now.strftime("%Y%m%d-%H%M%S-") + secrets.token_hex(3)
+        return self.PREFIX + now.strftime("%Y%m%d-%H%M%S-") + secrets.token_hex(3)
 
-    def save(self, run: Dict[str, Any]) -> None:
+    def save(self, run: Dict[str, Any], trace: Optional[bytes] = None) -> None:
+        """Stores ``run`` (and its measurement file ``trace``); :class:`RunNotStorable`
+        (nothing stored) if it is not plain JSON."""
         path = self._path(run["id"])
-        write_atomic(path, json.dumps(run, indent=1, sort_keys=True, default=float).encode())
+        try:
+            text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise RunNotStorable(str(exc)) from None
+        if trace is not None:
+            self.save_trace(run["id"], trace)
+        write_atomic(path, text.encode())
 
-    def save_trace(self, run_id: str, data: bytes) -> str:
-        path = self._path(run_id, ".trace")
+    def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
+        path = self._path(run_id, suffix)
         write_atomic(path, data)
         return path
 
-    def trace_path(self, run_id: str) -> Optional[str]:
-        path = self._path(run_id, ".trace")
+    def trace_path(self, run_id: str, suffix: str = ".trace") -> Optional[str]:
+        path = self._path(run_id, suffix)
         return path if os.path.exists(path) else None
+
+    def save_raw(self, run_id: str, data: bytes) -> str:
+        """A live capture's raw sensor stream (``time_s,reading_mm,line``)."""
+        return self.save_trace(run_id, data, ".raw")
+
+    def raw_path(self, run_id: str) -> Optional[str]:
+        return self.trace_path(run_id, ".raw")
 
     def get(self, run_id: str) -> Dict[str, Any]:
         path = self._path(run_id)
         try:
             with open(path, encoding="utf-8") as f:
-                return json.load(f)
-        except (OSError, ValueError):
-            raise RunNotFound(run_id) from None
+                return json.load(f, parse_constant=lambda name: None)  # NaN, Infinity
+        except (OSError, ValueError, RecursionError):
+            raise self.NotFound(run_id) from None
+
+    def ids(self) -> List[str]:
+        """The stored ids, newest first (at most MAX_RUNS_LISTED)."""
+        names = sorted((n[:-5] for n in os.listdir(self.folder) if n.endswith(".json")),
+                       reverse=True)
+        return [n for n in names if self.ID.fullmatch(n)][:MAX_RUNS_LISTED]
 
     def list(self) -> List[Dict[str, Any]]:
         """Summaries, newest first."""
         out = []
-        names = sorted((n for n in os.listdir(self.folder) if n.endswith(".json")),
-                       reverse=True)[:MAX_RUNS_LISTED]
-        for name in names:
-            run_id = name[:-5]
-            if not _ID.fullmatch(run_id):
-                continue
+        for run_id in self.ids():
             try:
-                run = self.get(run_id)
+                out.append(self.summary(self.get(run_id)))
             except RunNotFound:
                 continue
-            d = run.get("diagnostics") or {}
-            out.append({
-                "id": run_id,
-                "date": run.get("date"),
-                "source": run.get("source"),
-                "simulated": bool(d.get("simulated") or run.get("simulated")),
-                "plane": d.get("plane"),
-                "filename": run.get("filename"),
-                "squareness_um_per_m": d.get("squareness_um_per_m"),
-                "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
-                "applied": run.get("applied"),
-                "params_before_hash": run.get("params_before_hash"),
-                "has_trace": self.trace_path(run_id) is not None,
-            })
         return out
 
+    def summary(self, run: Dict[str, Any]) -> Dict[str, Any]:
+        """What the history shows of ``run``."""
+        run_id = run.get("id", "")
+        d = run.get("diagnostics") or {}
+        return {
+            "id": run_id,
+            "date": run.get("date"),
+            "source": run.get("source"),
+            "simulated": bool(d.get("simulated") or run.get("simulated")),
+            "plane": d.get("plane"),
+            "filename": run.get("filename"),
+            "squareness_um_per_m": d.get("squareness_um_per_m"),
+            "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
+            "applied": run.get("applied"),
+            "params_before_hash": run.get("params_before_hash"),
+            "has_trace": self.trace_path(run_id) is not None,
+            "has_raw": self.raw_path(run_id) is not None,
+            "status": run.get("status", "ok"),
+            "message": run.get("message"),
+            "campaign": run.get("campaign"),
+            "campaign_step": run.get("campaign_step"),
+        }
+
     def delete(self, run_id: str) -> None:
-        for suffix in (".json", ".trace"):
+        for suffix in (".json", ".trace", ".raw"):
             path = self._path(run_id, suffix)
             if os.path.exists(path):
                 os.unlink(path)

@@ -1,19 +1,26 @@
 """KinComp's OctoPrint settings: defaults, version migration and validation (no OctoPrint import).
 
-The settings hold the params document (see :mod:`params`) plus how the plugin applies it.
-``validate_settings`` returns a complete, checked copy or raises :class:`SettingsError`
-naming the field, so that the API can answer 400 and keep the old values.
+The settings hold the params document (see :mod:`params`) plus how the plugin applies it,
+demo mode, and the live ballbar sensor (``sensor``: port, baud rate in bit/s, protocol, units,
+sign, pattern and scale; see :mod:`..sensor.config`). ``validate_settings`` returns a
+complete, checked copy or raises :class:`SettingsError` naming the field, so that the API can
+answer 400 and keep the old values.
 """
 
 from __future__ import annotations
 
 import copy
 import math
-from typing import Any, Dict, Optional, Sequence, Tuple
+import re
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
 from ..core.params import Params, ParamsError
+from ..sensor.config import SensorConfig
+from ..sensor.errors import SensorError
+from ..sensor.protocol_pattern import check_scale, compile_pattern
+from . import software_update
 
 SETTINGS_VERSION = 1
 MODES = ("on_the_fly", "on_upload", "background")
@@ -27,6 +34,17 @@ class SettingsError(ValueError):
         super().__init__(f"{field}: {message}" if field else message)
 
 
+class SettingsInvalid(SettingsError):
+    """The stored settings are invalid (``reason``: the SettingsError); compensation and
+    file jobs refuse to run until the user fixes them."""
+
+    def __init__(self, reason: SettingsError):
+        self.reason = reason
+        super().__init__(reason.field, Msg(
+            "the stored KinComp settings are invalid (%(reason)s); fix them in KinComp's "
+            "settings first", reason=str(reason)))
+
+
 def defaults() -> Dict[str, Any]:
     return {
         "enabled": False,
@@ -36,11 +54,26 @@ def defaults() -> Dict[str, Any]:
         "chord_tol_mm": 0.01,
         "linearise_arcs": False,
         "decimals": 3,
-        "home_mm": [0.0, 0.0, 0.0],
+        "home_mm": None,  # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
         "pass_through_on_error": False,
         "apply_changes": "next_print",
-        "demo": {"enabled": False},
+        # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
+        "demo": {"enabled": False, "live": True},
+        "sensor": sensor_defaults(),
+        "software_update": software_update.default_settings(),
     }
+
+
+# the sensor settings the plugin stores (SensorConfig's others keep their defaults)
+SENSOR_KEYS = ("enabled", "port", "baudrate", "protocol", "units", "positive", "pattern",
+               "scale", "range", "sample_rate_hz")
+MERGED = ("demo", "sensor")  # objects updated key by key (a form may send only some keys)
+
+
+def sensor_defaults() -> Dict[str, Any]:
+    """No live sensor: tests are measured by uploading a trace."""
+    cfg = SensorConfig().to_dict()
+    return dict({k: cfg[k] for k in SENSOR_KEYS if k != "enabled"}, enabled=False)
 
 
 SETTING_KEYS = tuple(defaults())
@@ -120,6 +153,9 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     if not replace_params and isinstance(data.get("params"), dict) and \
             isinstance(out.get("params"), dict):
         data["params"] = merge_params(out["params"], data["params"])
+    for key in MERGED:
+        if isinstance(data.get(key), dict) and isinstance(out.get(key), dict):
+            data[key] = dict(out[key], **data[key])
     out.update(data)
     out["enabled"] = _bool(out["enabled"], "enabled")
     out["mode"] = _choice(out["mode"], "mode", MODES)
@@ -130,21 +166,58 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
         raise SettingsError("decimals", Msg("must be an integer within 3..6"))
     home = out["home_mm"]
-    if not isinstance(home, list) or len(home) != 3:
-        raise SettingsError("home_mm", Msg("must be a list of three numbers (mm)"))
-    out["home_mm"] = [_number(v, f"home_mm[{i}]", -10000, 10000) for i, v in enumerate(home)]
+    if home is not None:
+        if not isinstance(home, list) or len(home) != 3:
+            raise SettingsError("home_mm", Msg("must be a list of three numbers (mm) or "
+                                               "null (learned from the printer)"))
+        out["home_mm"] = [None if v is None else _number(v, f"home_mm[{i}]", -10000, 10000)
+                          for i, v in enumerate(home)]
     out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
     out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
     demo = out["demo"]
-    if not isinstance(demo, dict) or set(demo) - {"enabled"}:
-        raise SettingsError("demo", Msg("must be an object with 'enabled'"))
+    if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
+        raise SettingsError("demo", Msg("must be an object with 'enabled' and 'live'"))
     demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
+    demo["live"] = _bool(demo.get("live", True), "demo.live")
+    out["sensor"] = validate_sensor(out["sensor"])
+    try:
+        out["software_update"] = software_update.validate(out["software_update"])
+    except software_update.UpdateSettingsError as exc:
+        raise SettingsError(exc.field, exc.message) from None
     try:
         out["params"] = Params.from_dict(out["params"]).to_dict()
     except ParamsError as exc:
         raise SettingsError(f"params.{exc.field}" if exc.field else "params",
                             exc.message) from None
     return out
+
+
+def validate_sensor(value: Any) -> Dict[str, Any]:
+    """The sensor settings checked (complete: missing keys get their defaults); the field
+    at fault is named ``sensor.<key>``."""
+    if not isinstance(value, dict):
+        raise SettingsError("sensor", Msg("must be an object"))
+    for key in value:
+        if key not in SENSOR_KEYS:
+            raise SettingsError(f"sensor.{key}", Msg("unknown setting"))
+    out = dict(sensor_defaults(), **value)
+    enabled = _bool(out.pop("enabled"), "sensor.enabled")
+    for key in ("port", "range", "pattern"):
+        if not isinstance(out[key], str):
+            raise SettingsError(f"sensor.{key}", Msg("must be a text"))
+    out["port"] = out["port"].strip()
+    try:
+        cfg = SensorConfig.from_dict(out)
+        cfg.scale = check_scale(cfg.scale)  # kept for the pattern protocol: checked always
+        if cfg.pattern:
+            compile_pattern(cfg.pattern)
+    except SensorError as exc:
+        raise SettingsError(f"sensor.{exc.field}" if exc.field else "sensor",
+                            exc.message) from None
+    if enabled and not cfg.port:
+        raise SettingsError("sensor.port", Msg("choose the sensor's port (or switch live "
+                                               "capture off)"))
+    return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
 
 
 def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
@@ -157,9 +230,78 @@ def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
         limits=limits,
         policy=settings["limits_policy"],
         decimals=int(settings["decimals"]),
-        home_mm=tuple(float(v) for v in settings["home_mm"]),
+        home_mm=home_position(settings),
     )
     return params, options
+
+
+def home_position(settings: Dict[str, Any]) -> Tuple[Optional[float], ...]:
+    """Where G28 leaves X, Y, Z (mm), None for an axis whose home is not set: the plugin then
+    learns it from the printer (M114 after G28), files leave it unknown."""
+    home = settings.get("home_mm")
+    if home is None:
+        return (None, None, None)
+    return tuple(None if v is None else float(v) for v in home)
+
+
+def _path(field: str) -> List[Any]:
+    """``"params.backlash.x[1].um"`` -> ``["params", "backlash", "x", 1, "um"]``."""
+    out: List[Any] = []
+    for part in field.split("."):
+        m = re.fullmatch(r"([^\[]*)((?:\[\d+\])*)", part)
+        if m is None:
+            return out
+        if m.group(1):
+            out.append(m.group(1))
+        out.extend(int(i) for i in re.findall(r"\[(\d+)\]", m.group(2)))
+    return out
+
+
+def _lookup(doc: Any, path: List[Any]) -> Tuple[bool, Any]:
+    for key in path:
+        if isinstance(doc, dict) and isinstance(key, str) and key in doc:
+            doc = doc[key]
+        elif isinstance(doc, list) and isinstance(key, int) and key < len(doc):
+            doc = doc[key]
+        else:
+            return False, None
+    return True, doc
+
+
+MAX_REPAIRS = 100
+
+
+def repaired(stored: Dict[str, Any]) -> Tuple[Dict[str, Any], List[SettingsError]]:
+    """Valid settings for showing and editing invalid stored ones: each invalid value in
+    ``stored`` replaced by its default (or dropped where it has none, e.g. an unknown key
+    or a bad backlash point), one after the other; and the problems found, first first.
+    (Only a view: the stored document itself stays as it is.)"""
+    doc = copy.deepcopy(stored)
+    problems: List[SettingsError] = []
+    base = defaults()
+    for _ in range(MAX_REPAIRS):
+        try:
+            return validate_settings(doc, base), problems
+        except SettingsError as exc:
+            problems.append(exc)
+            path = _path(exc.field)
+            while path:
+                there, parent = _lookup(doc, path[:-1])
+                key = path[-1]
+                holds = there and (
+                    (isinstance(parent, dict) and key in parent)
+                    or (isinstance(parent, list) and isinstance(key, int) and key < len(parent)))
+                found, default = _lookup(base, path)
+                if found and (holds or isinstance(parent, dict)):
+                    parent[key] = copy.deepcopy(default)
+                    break
+                if holds:
+                    del parent[key]
+                    break
+                path = path[:-1]
+            if not path:
+                break
+    return defaults(), problems
 
 
 def limits_from_profile(profile: Optional[Dict[str, Any]]) -> Optional[Tuple[float, ...]]:

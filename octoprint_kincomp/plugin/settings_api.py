@@ -3,10 +3,13 @@
 * ``GET /status``: everything the UI shows at once: the settings, the parameter hash, which
   engine runs, the queue's compensation state, what the firmware compensates itself (and
   conflicts), the firmware equivalents of the parameters, demo mode, the bed limits (mm)
-  and axis max feeds (mm/min) of the printer profile, the background jobs, and a problem
-  with the stored settings (defaults used), if any.
+  and axis max feeds (mm/min) of the printer profile, the background jobs, and what is wrong
+  with the stored settings, if anything (``settings_problem``, its ``settings_problem_field``;
+  compensation is off then, ``settings`` shows the invalid value as its default).
 * ``POST /settings``: a partial settings document, validated whole (400 naming the field,
-  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print.
+  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print. ``check``
+  (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
+  printer's own).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from ..engines.select import engine
 from . import http
 from .demo_mode import DemoMode
 from .firmware_watch import FirmwareWatcher
-from .jobs import BackgroundCompensator
+from .jobs import JobQueue
 from .queue import QueueCompensator
 from .settings import SettingsError, validate_settings
 from .settings_store import SettingsStore
@@ -30,17 +33,18 @@ from .settings_store import SettingsStore
 
 class SettingsApi:
     def __init__(self, store: SettingsStore, queue: QueueCompensator, watch: FirmwareWatcher,
-                 demo: DemoMode, jobs: BackgroundCompensator):
+                 demo: DemoMode, jobs: JobQueue):
         self._store = store
         self._queue = queue
         self._watch = watch
         self._demo = demo
         self._jobs = jobs
+        self.check = None  # check(settings): raises SettingsError; None: nothing more
 
     def status(self):
         http.require(Permissions.STATUS)
         store = self._store
-        s = store.current()
+        s = store.editable()
         params = Params.from_dict(s["params"])
         return flask.jsonify(
             version=__version__,
@@ -56,6 +60,8 @@ class SettingsApi:
             max_feeds=store.max_feeds(),
             jobs=[j.to_dict() for j in self._jobs.jobs.values()],
             settings_problem=(http.tr(store.problem) if store.problem is not None else None),
+            settings_problem_field=(store.problem.field if store.problem is not None
+                                    else None),
         )
 
     def save(self):
@@ -68,12 +74,17 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
+        stored = self._store.stored()
         try:
-            new = validate_settings(data, self._store.current())
+            new = validate_settings(data, stored)
+            if self.check is not None:
+                self.check(new)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
+        refused = http.update_source_refused(stored, new)
+        if refused is not None:
+            return refused
         self._store.save(new, immediately=immediately or None)
         self._store.write()
-        self._store.problem = None  # valid settings are stored now
         return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
                              compensation=self._queue.status())

@@ -1,10 +1,16 @@
 """KinComp's settings as OctoPrint stores them, and how they take effect.
 
 The checks themselves live in :mod:`.settings` (no OctoPrint import); this piece reads the
-stored settings through OctoPrint's ``PluginSettings`` (invalid ones: the defaults, and the
-problem is kept to be shown in the UI), migrates old versions, saves a validated document
-(the params document replaced whole) and applies it to the queue's compensator, now or
-from the next print on. The machine limits (mm) and axis feeds (mm/min) come from the
+stored settings through OctoPrint's ``PluginSettings``, migrates old versions, saves a
+validated document (the params document replaced whole) and applies it to the queue's
+compensator, now or from the next print on.
+
+Invalid stored settings (a hand-edited config.yaml, a downgrade) are never overwritten:
+the stored document stays exactly as it is, compensation is off (nothing is compensated,
+no file is written or marked) and the problem is reported (log, ``/status``, the UI) until
+the user fixes it. A save is merged into the stored document, so it keeps every stored key
+it does not name; while the stored document is invalid a save that does not fix the bad
+value is refused (400 naming it). The machine limits (mm) and axis feeds (mm/min) come from the
 current printer profile.
 
 It also guards OctoPrint's own settings endpoint (``POST /api/settings``) for KinComp's
@@ -28,11 +34,13 @@ from .notify import N_, Notifier
 from .queue import QueueCompensator
 from .settings import (
     SettingsError,
+    SettingsInvalid,
     defaults,
     engine_config,
     limits_from_profile,
     max_feeds_from_profile,
     migrate,
+    repaired,
     validate_settings,
 )
 
@@ -58,19 +66,58 @@ class SettingsStore:
         self._logger = logger
         self._base_save = base_save
         self._on_applied = on_applied
-        # stored settings that could not be used (defaults instead), shown in the UI
-        self.problem = None
+        # what is wrong with the stored settings (a SettingsError), None when they are valid
+        self.problem: Optional[SettingsError] = None
 
     # ~~ reading ------------------------------------------------------------------------------
+    def stored(self) -> Dict[str, Any]:
+        """The stored settings over the defaults, as they are (not validated): what a
+        partial save is merged into."""
+        return {k: self._settings.get([k], merged=True) for k in defaults()}
+
     def current(self) -> Dict[str, Any]:
-        """The stored settings, validated; the defaults if they are invalid."""
-        current = {k: self._settings.get([k], merged=True) for k in defaults()}
+        """The settings in effect: the stored ones, validated; while they are invalid the
+        defaults with compensation off (the stored ones stay untouched, ``problem`` says
+        what is wrong)."""
         try:
-            return validate_settings(current, defaults())
+            s = validate_settings(self.stored(), defaults())
         except SettingsError as exc:
-            self._logger.error("Stored KinComp settings are invalid (%s); using defaults", exc)
-            self.problem = error_message(exc)
-            return defaults()
+            self._set_problem(exc)
+            s = defaults()
+            s["enabled"] = False
+            return s
+        if self.problem is not None:
+            self._logger.info("KinComp: the stored settings are valid again")
+            self.problem = None
+        return s
+
+    def editable(self) -> Dict[str, Any]:
+        """The settings to show and edit: the stored ones, with any invalid value shown as
+        its default (see ``problem``)."""
+        s = self.current()
+        if self.problem is None:
+            return s
+        view, _ = repaired(self.stored())
+        return view
+
+    def require_usable(self) -> Dict[str, Any]:
+        """The current settings, or :class:`SettingsInvalid` while the stored ones are
+        invalid (compensation and file jobs refuse to run then)."""
+        s = self.current()
+        if self.problem is not None:
+            raise SettingsInvalid(self.problem)
+        return s
+
+    def _set_problem(self, exc: SettingsError) -> None:
+        if self.problem is None or str(self.problem) != str(exc):
+            self._logger.error(
+                "Stored KinComp settings are invalid (%s): compensation is off until they "
+                "are fixed; nothing stored was changed", exc)
+            self._notifier.notify(
+                "error", N_("The stored KinComp settings are invalid (%(reason)s): "
+                            "compensation is off until you fix them in KinComp's settings. "
+                            "Nothing stored was changed."), reason=error_message(exc))
+        self.problem = exc
 
     def limits(self) -> Optional[Tuple[float, ...]]:
         """The current printer profile's bed volume (x0, x1, y0, y1, z0, z1 mm), if any."""
@@ -102,23 +149,24 @@ class SettingsStore:
     # ~~ migrating -----------------------------------------------------------------------------
     def migrate(self, target: int, current: Optional[int]) -> None:
         """Stored settings of version ``current`` (None: before versioning) brought to
-        ``target``: moved keys moved, invalid ones replaced by the defaults (and reported),
-        unknown keys removed."""
+        ``target``: moved keys moved, unknown keys removed; every value kept as it is (an
+        invalid one is reported by ``current``, never replaced; nothing but the moved keys
+        is touched then)."""
         if current is None or current < target:
             raw = self._settings.get_all_data(merged=False) or {}
             if not raw:
                 return  # nothing stored yet: the defaults are current
             migrated = migrate(raw, current)
+            for key, value in migrated.items():
+                if key in defaults():
+                    self._settings.set([key], value)
             try:
-                clean = validate_settings(
-                    {k: v for k, v in migrated.items() if k in defaults()}, defaults())
-            except SettingsError as exc:
-                self._logger.warning("Stored KinComp settings invalid (%s): defaults used", exc)
-                self.problem = error_message(exc)
-                clean = defaults()
-            for key, value in clean.items():
-                self._settings.set([key], value)
-            for key in set(migrated) - set(defaults()):
+                validate_settings({k: v for k, v in migrated.items() if k in defaults()},
+                                  defaults())
+                unused = set(raw) - set(defaults())  # moved, or no longer known
+            except SettingsError:
+                unused = set(raw) - set(migrated)  # only what moved: nothing else is touched
+            for key in unused:
                 self._settings.remove([key])
 
     # ~~ saving and applying -----------------------------------------------------------------
@@ -132,7 +180,7 @@ class SettingsStore:
                                  "admin permission")
             return {}
         try:
-            new = validate_settings(data, self.current())
+            new = validate_settings(data, self.stored())
         except SettingsError as exc:
             self._logger.warning("KinComp settings refused: %s", exc)
             self._notifier.notify("error", N_("KinComp settings not saved: %(reason)s"),
@@ -141,7 +189,8 @@ class SettingsStore:
         return self.save(new)
 
     def save(self, new: Dict[str, Any], immediately: Optional[bool] = None):
-        """Stores the validated settings ``new`` (not yet written to disk: see ``write``),
+        """Stores the validated settings ``new`` (complete: made by ``validate_settings``
+        over ``stored()``; not yet written to disk: see ``write``),
         applies them and fires ``params_applied`` if the parameters changed. Returns the
         diff OctoPrint stored."""
         old = self.current()
@@ -186,17 +235,25 @@ class SettingsStore:
             return None
         if not Permissions.SETTINGS.can():
             return None
-        data = req.get_json(silent=True)
-        if not isinstance(data, dict):
+        try:
+            data = req.get_json(silent=True)
+        except RecursionError:
+            return http.error(gettext("The request body is nested too deeply"), 400)
+        if not isinstance(data, dict) or not isinstance(data.get("plugins"), dict):
             return None
-        mine = (data.get("plugins") or {}).get(self._identifier)
+        mine = data["plugins"].get(self._identifier)
         if mine is None:
             return None
         if not Permissions.PLUGIN_KINCOMP_ADMIN.can():
             return http.error(gettext("Changing KinComp's settings needs the KinComp admin "
                                       "permission"), 403)
         try:
-            validate_settings(mine, self.current())
+            http.check_json(mine)
+        except http.BadRequest as exc:
+            return http.error(gettext("KinComp: %(reason)s", reason=str(exc)), 400)
+        stored = self.stored()
+        try:
+            new = validate_settings(mine, stored)
         except SettingsError as exc:
             return http.error(gettext("KinComp: %(reason)s", reason=http.tr(exc)), 400)
-        return None
+        return http.update_source_refused(stored, new)

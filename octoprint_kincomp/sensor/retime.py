@@ -39,11 +39,24 @@ def _lower_line(n: np.ndarray, t: np.ndarray) -> Tuple[float, float]:
 
 
 def _running_min(x: np.ndarray, w: int) -> np.ndarray:
+    """Minimum over a centred window of ``w`` samples, in O(n) whatever ``w`` (van Herk /
+    Gil-Werman: per block of ``w``, prefix and suffix minima; a window meets two blocks)."""
     if w <= 1:
         return x.copy()
     pad = np.concatenate([np.full(w // 2, np.inf), x, np.full(w - 1 - w // 2, np.inf)])
-    view = np.lib.stride_tricks.sliding_window_view(pad, w)
-    return view.min(axis=1)
+    n = len(pad)
+    blocks = np.concatenate([pad, np.full(-n % w, np.inf)]).reshape(-1, w)
+    prefix = np.minimum.accumulate(blocks, axis=1).ravel()
+    suffix = np.minimum.accumulate(blocks[:, ::-1], axis=1)[:, ::-1].ravel()
+    j = np.arange(n - w + 1)
+    return np.minimum(suffix[j], prefix[j + w - 1])
+
+
+def _running_mean(x: np.ndarray, w: int) -> np.ndarray:
+    """Mean over a centred window of ``w`` samples (edges repeated), in O(n)."""
+    pad = np.pad(x, (w // 2, w - 1 - w // 2), mode="edge")
+    c = np.concatenate([[0.0], np.cumsum(pad)])
+    return (c[w:] - c[:-w]) / w
 
 
 def retime(seq, t_host, rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, object]]:
@@ -70,9 +83,7 @@ def retime(seq, t_host, rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Di
         slope = float(np.median((t[m:] - t[:-m]) / (n[m:] - n[:-m])))  # ignores a jump
         res = t - slope * n
         w = max(3, int(round(0.5 / slope))) if slope > 0 else 3
-        env = _running_min(res, w)
-        kernel = np.ones(w) / w
-        env = np.convolve(np.pad(env, (w // 2, w - 1 - w // 2), mode="edge"), kernel, "valid")
+        env = _running_mean(_running_min(res, w), w)
         out = np.maximum.accumulate(slope * n + env)
         res = t - out
         method += ", local envelope (rate not steady)"

@@ -156,8 +156,11 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
         if not e.rising and _step_ok(e, shape) and _still(
                 t, r, e.t - shape.L - shape.pre, e.t - shape.L, e.before, shape.tol):
             det.started = True
-            if chain and not _still(t, r, chain[-1].t_out + shape.L, e.t - shape.L, e.before,
-                                    shape.tol):
+            # the gap since the last run is still (at a slow feed the steps' windows L may
+            # cover most of a short dwell: then the window checked just above stands for it)
+            gap_from = min(chain[-1].t_out + shape.L, e.t - shape.L - shape.pre) if chain \
+                else 0.0
+            if chain and not _still(t, r, gap_from, e.t - shape.L, e.before, shape.tol):
                 chain = []  # something happened between the runs: start again here
             if k + 1 == len(events):
                 break  # this run is in progress

@@ -14,7 +14,9 @@ device clock ``n / rate`` after the program start. Before the program and after 
 holds its reading (with fresh noise); before any program it reads ``idle_mm``. Readings are
 mm, positive = bar longer, unless ``units``/``longer_positive`` ask for another convention.
 The device clock is a 32-bit microsecond counter starting at ``clock_start_us`` (so tests can
-cross its wrap); the header block is repeated every ``header_every_s`` of device time.
+cross its wrap); the header block is repeated every ``header_every_s`` of device time. With
+``range_mm`` (low, high in mm, positive = longer) the header declares the bar's measuring
+range (in the units and sign it sends).
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ class VirtualSensor:
     def __init__(self, truth: Optional[Truth] = None, transport: str = "pty",
                  protocol: str = "kincomp", speedup: float = 1.0,
                  idle_mm: float = 1.0, clock_start_us: int = 0, header_every_s: float = 2.0,
-                 units: str = "mm", longer_positive: bool = True, seed: int = 7):
+                 units: str = "mm", longer_positive: bool = True, seed: int = 7,
+                 range_mm: Optional[Sequence[float]] = None):
         if transport not in ("pty", "tcp") or protocol not in ("kincomp", "plain"):
             raise ValueError("transport is 'pty' or 'tcp', protocol 'kincomp' or 'plain'")
         self.truth = truth or demo_truth()
@@ -57,6 +60,7 @@ class VirtualSensor:
         self.units, self.longer_positive = units, longer_positive
         self._factor = (1.0 if longer_positive else -1.0) / UNITS[units]
         self._decimals = {"mm": 6, "um": 3, "inch": 7}[units]
+        self.range_mm = tuple(range_mm) if range_mm is not None else None
         self._rng = np.random.default_rng(seed)
         self._lock = threading.Lock()
         self._program = None  # (k0, readings by sample from k0)
@@ -205,7 +209,13 @@ class VirtualSensor:
                 f"# units: {self.units}",
                 f"# positive: {'longer' if self.longer_positive else 'shorter'}",
                 f"# sample_rate_hz: {self.rate:g}", "# resolution_um: 0.001",
-                "# simulated: true"]
+                "# simulated: true"] + self._range_line()
+
+    def _range_line(self) -> List[str]:
+        if self.range_mm is None:
+            return []
+        lo, hi = sorted(v * self._factor for v in self.range_mm)
+        return [f"# range: {lo:g},{hi:g}"]
 
     def _loop(self) -> None:
         k = self._k = 0

@@ -31,9 +31,12 @@ ADMIN = "admin"
 VIEWER = "viewer"
 # a test user who may change OctoPrint's settings but lacks KinComp's admin permission
 SETTINGS_ONLY = "settingsonly"
+# a test user of OctoPrint's read-only group (status, file list: may ask for dry runs)
+READER = "reader"
 # `octoprint user add` flags of the users a basedir can get
 USER_FLAGS = {ADMIN: ["--admin"], VIEWER: [],
-              SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"]}
+              SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"],
+              READER: ["-g", "readonly"]}
 
 
 def free_port() -> int:

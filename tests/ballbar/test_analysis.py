@@ -16,7 +16,7 @@ from octoprint_kincomp.ballbar.analysis import (
     propose_params,
     reversal_mask,
 )
-from octoprint_kincomp.ballbar.formats import AngleTrace, parse_csv_trace, parse_summary
+from octoprint_kincomp.ballbar.formats import AngleTrace, TraceError, parse_csv_trace, parse_summary
 from octoprint_kincomp.ballbar.program import TestSpec, generate
 from octoprint_kincomp.ballbar.simulator import Truth, paper_truth, simulate_program
 from octoprint_kincomp.cli import main
@@ -262,3 +262,17 @@ def test_optional_cyclic_error():
     assert with_cyclic["cyclic_error_um"]["b"] < 0.3
     without = analyse(trace)["diagnostics"]
     assert without["fit"]["rms_um"] > 2 * with_cyclic["fit"]["rms_um"]
+
+
+def test_a_trace_with_one_direction_is_refused():
+    """Review finding: with the CW run missing (a capture stopped early, a truncated file)
+    the servo mismatch went into the squareness (hundreds of um/m, with a 1 um/m sigma)."""
+    spec = TestSpec(radius_mm=50.0)
+    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 150.0}}),
+                  servo_lag_ms={"x": 2.0, "y": 3.0}, noise_um=0.3)
+    text = simulate_program(generate(spec), truth).to_text()
+    one = "\n".join(line for line in text.splitlines() if not line.startswith("cw,")) + "\n"
+    with pytest.raises(TraceError, match="no CW run"):
+        analyse(parse_csv_trace(one))
+    assert analyse(parse_csv_trace(text))["diagnostics"]["squareness_um_per_m"] == \
+        pytest.approx(150.0, abs=5.0)

@@ -47,16 +47,21 @@ def page(browser, server):
     pg.on("pageerror", lambda e: errors.append(f"{e} {getattr(e, 'stack', '')}"))
     # OctoPrint catches view model callback exceptions and logs them to the console
     pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    pg.goto(server.url + "/")
-    pg.fill("#login-user", "admin")
-    pg.fill("#login-password", server.logins["admin"]["password"])
-    pg.click("#login-button")
-    pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+    login(pg, server)
     pg.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
     yield pg
     context.close()
     kincomp_errors = [e for e in errors if "kincomp" in e.lower()]
     assert not kincomp_errors, kincomp_errors
+
+
+def login(pg, server):
+    """The admin logs in on ``server``'s page."""
+    pg.goto(server.url + "/")
+    pg.fill("#login-user", "admin")
+    pg.fill("#login-password", server.logins["admin"]["password"])
+    pg.click("#login-button")
+    pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
 
 
 def _no_popups(page):
@@ -126,7 +131,8 @@ def test_settings_change_save_and_refuse_invalid(page, server):
 
 
 def test_calibration_wizard_demo_loop(page, server):
-    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    # the fallback path: the trace simulated after the print (live: test_live_view.py)
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
     try:
         _open_tab(page)
         page.fill("#kincomp_cx", "100")
@@ -203,7 +209,7 @@ def test_calibration_wizard_demo_loop(page, server):
         code, text = server.request("GET", path)
         assert code == 200 and "direction,time_s,reading_mm" in text
     finally:
-        settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
+        settings(server, demo={"enabled": False, "live": True}, params=ZERO, enabled=False)
 
 
 def test_files_compensated_with_older_parameters_are_flagged(page, server):

@@ -2,7 +2,6 @@
 same trace again offline from the saved raw stream, and clear errors. SIMULATED data."""
 
 import threading
-import time
 
 from octoprint_kincomp.ballbar.program import TestSpec, generate
 from octoprint_kincomp.cli import main

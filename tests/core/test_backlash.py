@@ -8,7 +8,13 @@ from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.select import make_compensator
 from tests.core.test_compensator import assert_lands
-from tests.support.helpers import Printer, compensate_groups, desired_positions, dist
+from tests.support.helpers import (
+    Printer,
+    compensate_groups,
+    desired_positions,
+    dist,
+    printed,
+)
 
 # every test here runs once per engine (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("engine")
@@ -107,11 +113,7 @@ def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
     take, move = groups[-1][1]  # a take-up move, then the move
     assert set(xs(take)) == {"X"} and xs(take)["X"] == pytest.approx(-0.05, abs=1e-6)
     assert xs(move)["X"] == pytest.approx(-0.25 - 0.05, abs=1e-6)
-    printer = Printer(p)
-    for _, outs in groups:
-        for o in outs:
-            printer.run_line(o)
-    assert dist(printer.actual(), (0, 10, 50)) < 2e-6
+    assert dist(printed(p, groups).actual(), (0, 10, 50)) < 2e-6
 
 
 def test_smoothing_spreads_takeup_over_following_path():
@@ -130,11 +132,7 @@ def test_smoothing_spreads_takeup_over_following_path():
     assert a["E"] + b["E"] == pytest.approx(1.0, abs=1e-9) and a["E"] == pytest.approx(0.2)
     assert comp.report.takeup_moves == 0
     # after the ramp the printer lands exactly again
-    pr = Printer(p)
-    for _, outs_ in groups:
-        for o in outs_:
-            pr.run_line(o)
-    assert dist(pr.actual(), (30, 0, 1)) < 1e-6
+    assert dist(printed(p, groups).actual(), (30, 0, 1)) < 1e-6
 
 
 def test_smoothing_ramp_spanning_several_moves():
@@ -195,3 +193,27 @@ def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():
             assert dist(printer.actual(), want) < 2e-6, (line, outs)
     after_home = dict(groups)["G1 Z30"]
     assert all("X" not in xs(o) for o in after_home[:-1])  # no take-up drags X
+
+
+@pytest.mark.parametrize("home, apart", [
+    ((0.0, 200.0, 0.0), ["G28 X", "G28 Y", "G28 Z"]),  # X homed while Y is unknown
+    ((0.0, 0.0, 0.0), ["G28 X", "G28 Y"]),
+])
+def test_homing_axes_one_by_one_leaves_the_drives_where_one_g28_does(home, apart):
+    """Review finding: a second partial G28 forgot where the first had left the drives."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}, "backlash": {"x": 100.0}})
+    o = Options(home_mm=home)
+    pre = ["G28", "G1 X10 Y100 Z5"]
+    together = " ".join(["G28"] + [line[-1] for line in apart])
+    _, a = compensate_groups(p, pre + [together, "G1 X5 Y10 Z1"], o)
+    _, b = compensate_groups(p, pre + apart + ["G1 X5 Y10 Z1"], o)
+    assert b[-1][1] == a[-1][1]
+
+
+def test_the_printer_with_play_lands_after_homing_axes_one_by_one():
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0},
+                          "backlash": {"x": 100.0, "y": 40.0}})
+    lines = ["G28", "G1 X45.381 Y59.404", "G1 X10.303 Y122.670", "G1 X37.939 Y104.742",
+             "G28 X", "G28 Y", "G1 X0.082 Y96.494"]
+    _, groups = compensate_groups(p, lines, Options(decimals=6))
+    assert dist(printed(p, groups).actual(), desired_positions(lines)[-1]) < 2e-6

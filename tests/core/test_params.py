@@ -95,3 +95,16 @@ def test_meta_must_be_json():
     with pytest.raises(ParamsError, match="meta"):
         Params.from_dict({"meta": {"x": float("nan")}})
     assert json.loads(Params.from_dict({"meta": {"note": "ok"}}).to_json())["meta"] == {"note": "ok"}
+
+
+def test_backlash_tables_are_bounded_by_the_kernels_limit():
+    """Issue 17: every move walks the table; 2,500 points were accepted."""
+    from octoprint_kincomp.core.params import MAX_BACKLASH_POINTS
+    from octoprint_kincomp.engines.kernel import MAX_POINTS
+
+    assert MAX_BACKLASH_POINTS == MAX_POINTS == 64
+    table = [{"at_mm": float(i), "um": 10.0} for i in range(65)]
+    with pytest.raises(ParamsError) as e:
+        Params.from_dict({"backlash": {"y": table}})
+    assert e.value.field == "backlash.y" and "64" in str(e.value)
+    assert len(Params.from_dict({"backlash": {"y": table[:64]}}).backlash["y"].points) == 64

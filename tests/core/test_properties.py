@@ -517,8 +517,12 @@ def program(draw, max_ops=30, partial_home=True):
                 "G92 " + " ".join(f"{a}{val(-50, 150)}" for a in
                                   draw(st.sampled_from(["X", "Y", "Z", "XY", "XYZ", "E"]))))
         elif op == "home":
-            add(draw(st.sampled_from(["G28", "G28 X", "G28 Y Z", "G28 X Y Z"] if partial_home
-                                     else ["G28", "G28 X Y Z"])))
+            homes = draw(st.sampled_from(
+                [("G28",), ("G28 X",), ("G28 Y Z",), ("G28 X Y Z",), ("G28 X", "G28 Y"),
+                 ("G28 Y", "G28 X", "G28 Z"), ("G28 Z", "G28 X")] if partial_home
+                else [("G28",), ("G28 X Y Z",)]))
+            for h in homes:  # (axes homed one G28 at a time, too)
+                add(h)
         else:
             add(draw(st.sampled_from(["M104 S200", "G4 P10", "; layer", "", "M106 S128",
                                       "M117 hi"])))

@@ -16,7 +16,14 @@ import pytest
 
 from octoprint_kincomp import __version__
 from octoprint_kincomp.tools.devserver import ADMIN, DevServer
-from tests.support.serverutil import BrowserSession, marker, offline, sent, settings, status
+from tests.support.serverutil import (
+    BrowserSession,
+    marker,
+    offline,
+    sent,
+    settings,
+    status,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -87,7 +94,8 @@ def test_plugin_loads_and_renders(compat_server):
 
 def test_commands_go_out_compensated_once(compat_server):
     srv, _ = compat_server
-    settings(srv, enabled=True, mode="on_the_fly", params=PARAMS)
+    # (commands queued at once: the home is given, see test_server.py)
+    settings(srv, enabled=True, mode="on_the_fly", params=PARAMS, home_mm=[0.0, 0.0, 0.0])
     start = marker(srv)
     code, _ = srv.request("POST", "/api/printer/command", {"commands": COMMANDS})
     assert code == 204
@@ -97,4 +105,4 @@ def test_commands_go_out_compensated_once(compat_server):
     assert "G1 X50 Y60 F3000" not in got  # compensated...
     assert len(got) > len(COMMANDS)  # ...and the arc linearised
     assert all(c in got for c in ("G90", "G91", "M82", "M18", "G28"))
-    settings(srv, enabled=False)
+    settings(srv, enabled=False, home_mm=None)

@@ -1,5 +1,6 @@
-"""The whole calibration loop in demo mode on a real server: print the ballbar program,
-fetch the SIMULATED trace, analyse, apply, re-test with compensation on."""
+"""The whole calibration loop in demo mode on a real server, on the fallback path (demo's
+live capture off; the live path is tests/e2e/test_live_capture.py): print the ballbar
+program, fetch the SIMULATED trace, analyse, apply, re-test with compensation on."""
 
 import time
 
@@ -37,7 +38,7 @@ def _ballbar_run(server):
 
 
 def test_demo_calibrate_apply_retest(server):
-    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
     try:
         assert status(server)["demo"] is True
         before = _ballbar_run(server)
@@ -69,4 +70,4 @@ def test_demo_calibrate_apply_retest(server):
         code, again = server.request("GET", f"/plugin/kincomp/runs/{before['id']}")
         assert code == 200 and again["applied"]
     finally:
-        settings(server, demo={"enabled": False}, params=ZERO, enabled=False)
+        settings(server, demo={"enabled": False, "live": True}, params=ZERO, enabled=False)

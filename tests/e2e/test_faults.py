@@ -183,7 +183,7 @@ def test_path_traversal_is_impossible(server):
     for path in ("../config.yaml", "../../users.yaml", "/etc/passwd", "..%2F..%2Fusers.yaml",
                  "../uploads/x.gcode", "../x.gcode", "../../../../etc/x.gcode", {"a": 1}):
         code, _ = server.request("POST", "/plugin/kincomp/compensate", {"path": path})
-        assert code == 404, path
+        assert code == (404 if isinstance(path, str) else 400), path  # 400: not a path
         if isinstance(path, str):
             code, _ = server.request("GET", f"/plugin/kincomp/dryrun?path={path}")
             assert code == 404, path

@@ -58,7 +58,10 @@ def _print_file(server, name, data):
 
 
 def test_api_commands_and_jog_go_out_compensated_once(server):
-    settings(server, enabled=True, mode="on_the_fly", params=PARAMS)
+    # commands queued at once: the M114 after G28 is answered only after all are queued, so
+    # the home is given (the virtual printer homes at 0,0,0; the answer is tested in
+    # test_reliability.py)
+    settings(server, enabled=True, mode="on_the_fly", params=PARAMS, home_mm=[0.0, 0.0, 0.0])
     start = marker(server)
     commands = ["G90", "G21", "M82", "G28", "G1 Z5 F600", "G1 X50 Y60 F3000",
                 "G0 X120 Y30", "g1 x80 y90", "G01 X60.5 Y70.25 E1.5",
@@ -89,6 +92,7 @@ def test_api_commands_and_jog_go_out_compensated_once(server):
     assert any(c.startswith("G1 X") and c.endswith("Z5.000 F600") for c in got)
     rep = status(server)["compensation"]["report"]
     assert rep["moves_compensated"] >= len(moves) - 1 and rep["malformed"] == 0
+    settings(server, home_mm=None)
 
 
 def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):

@@ -137,7 +137,8 @@ def test_print_state_is_set_up_by_the_first_file_line(plugin, tmp_path):
 
 
 def test_new_connection_forgets_positions_synchronously(plugin):
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
+                             "home_mm": [0.0, 0.0, 0.0]})  # a known home: G28 makes X, Y, Z known
     first, second = object(), object()
     plugin.queuing_hook(first, "queuing", "G28", None, "G28", tags={"source:api"})
     assert plugin.queuing_hook(first, "queuing", "G1 X10 Y50", None, "G1") is not None
@@ -164,7 +165,8 @@ def _printing_plain_file(plugin, tmp_path, job=True):
 def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
     """PRINT_STARTED before or after the first file line: one print begins; a PrintDone of
     the previous print that arrives after the next print's first line is ignored."""
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
+                             "home_mm": [0.0, 0.0, 0.0]})
     _printing_plain_file(plugin, tmp_path)
     comm = object()
     line = {"source:file", "fileline:1"}

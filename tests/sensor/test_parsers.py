@@ -266,8 +266,9 @@ def test_config_errors_name_the_setting(d, field):
 
 
 def test_the_readme_example_parses_as_documented():
-    from tests.support import ROOT
     import os
+
+    from tests.support import ROOT
 
     text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
     block = text.split("## Live ballbar capture")[1].split("```text\n")[1].split("```")[0]

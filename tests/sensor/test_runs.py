@@ -10,9 +10,14 @@ from octoprint_kincomp.ballbar.program import TestSpec
 from octoprint_kincomp.sensor.errors import SensorError
 from octoprint_kincomp.sensor.retime import retime
 from octoprint_kincomp.sensor.runs import detect_runs
-from octoprint_kincomp.sensor.stream import RawStream, parse_raw_stream, trace_from_stream
+from octoprint_kincomp.sensor.stream import (
+    RawStream,
+    parse_raw_stream,
+    trace_from_stream,
+)
 
 from .conftest import same_result
+
 
 def device_stream(t, r, meta=None):
     return RawStream(dict(meta or {"timing": "device clock"}), t - t[0], r,
@@ -194,3 +199,20 @@ def test_noisy_or_slow_sensors(xy_stream, noise_mm, every):
     r = s.r + np.random.default_rng(2).normal(0, noise_mm, len(s.r)) if noise_mm else s.r
     det = detect_runs(s.t[::every], r[::every], s.spec)
     assert det.complete and [run.direction for run in det.runs] == ["ccw", "cw"]
+
+
+def test_slow_vertical_test_with_short_dwells():
+    """At a slow feed (F200: a 1 mm feed-in takes 0.3 s, the step window L is 1.2 s) the
+    default 1 s dwells are shorter than the windows around the steps: both runs are still
+    found (the CW run was lost once, the gap between the runs seemed not still)."""
+    from octoprint_kincomp.ballbar.simulator import volume_truth
+
+    from .conftest import SimStream
+
+    spec = TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=40, feed_mm_min=200)
+    s = SimStream(spec, volume_truth(noise_um=0.5))
+    det = detect_runs(s.t, s.r, spec)
+    assert det.complete, det.reason
+    assert [run.direction for run in det.runs] == ["ccw", "cw"]
+    ccw, cw = det.runs
+    assert ccw.i1 == cw.i0 and ccw.t_out < s.t[ccw.i1] < cw.t_in

@@ -81,3 +81,12 @@ def dist_to_polyline(p, pts) -> float:
     closest = a + t[:, None] * ab
     return float(np.min(np.linalg.norm(closest - np.asarray(p), axis=1)))
 
+
+def printed(truth: Params, groups) -> "Printer":
+    """A printer with the errors of ``truth`` after running every output line of
+    ``groups`` ([(input line, [output lines])], as compensate_groups gives them)."""
+    printer = Printer(truth)
+    for _, outs in groups:
+        for o in outs:
+            printer.run_line(o)
+    return printer

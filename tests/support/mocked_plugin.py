@@ -9,12 +9,18 @@ from unittest import mock
 from octoprint_kincomp.plugin.settings import defaults
 
 
-def mocked_plugin(basedir: str, bed_mm: float = 200.0):
+def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None):
     """A started plugin (initialize + on_after_startup) keeping its files under ``basedir``;
-    the printer prints, the profile's bed is ``bed_mm`` square and high."""
+    the printer prints, the profile's bed is ``bed_mm`` square and high. ``stored``:
+    KinComp's settings in config.yaml before the start (as a user may have edited them)."""
+    import yaml
     from octoprint.plugin import PluginSettings
     from octoprint.settings import Settings
 
+    if stored is not None:
+        os.makedirs(os.path.join(basedir, "base"), exist_ok=True)
+        with open(os.path.join(basedir, "base", "config.yaml"), "w") as f:
+            yaml.safe_dump({"plugins": {"kincomp": stored}}, f)
     from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin
 
     p = KinCompPlugin()

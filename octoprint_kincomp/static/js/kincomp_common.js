@@ -140,7 +140,74 @@
         return obj;
     };
 
+    // the table rows of a proposed parameter set (a run's "proposed"); ``servo``: with the
+    // servo lags and pre-compensation
+    var proposedRows = function (p, servo) {
+        var bl = function (v) {
+            if (_.isArray(v)) {
+                return _.map(v, function (pt) {
+                    return _.sprintf(gettext("%(um)s µm at %(at)s mm"), {um: fmt(pt.um, 1), at: fmt(pt.at_mm, 0)});
+                }).join(", ");
+            }
+            return fmt(v, 1) + " µm";
+        };
+        var out = [
+            {label: gettext("Squareness XY"), value: fmt(p.squareness_um_per_m.xy, 1) + " µm/m"},
+            {label: gettext("Squareness XZ"), value: fmt(p.squareness_um_per_m.xz, 1) + " µm/m"},
+            {label: gettext("Squareness YZ"), value: fmt(p.squareness_um_per_m.yz, 1) + " µm/m"},
+            {label: gettext("Scale X"), value: fmt(p.scale_ppm.x, 1) + " ppm"},
+            {label: gettext("Scale Y"), value: fmt(p.scale_ppm.y, 1) + " ppm"},
+            {label: gettext("Scale Z"), value: fmt(p.scale_ppm.z, 1) + " ppm"},
+            {label: gettext("Backlash X"), value: bl(p.backlash.x)},
+            {label: gettext("Backlash Y"), value: bl(p.backlash.y)},
+            {label: gettext("Backlash Z"), value: bl(p.backlash.z)}
+        ];
+        if (servo && p.servo_lag_ms) {
+            _.each(["x", "y", "z"], function (a) {
+                out.push({label: _.sprintf(gettext("Servo lag %(axis)s"), {axis: a.toUpperCase()}),
+                          value: fmt(p.servo_lag_ms[a], 3) + " ms"});
+            });
+            out.push({label: gettext("Servo pre-compensation"),
+                      value: p.servo_precomp ? gettext("on") : gettext("off")});
+        }
+        return out;
+    };
+
     var NICE = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000];
+
+    /* ---------------------------------------------------------------- settings forms */
+
+    // save a settings form through KinComp's API: ``vm`` has the observables errors,
+    // formError, savedMessage and saving; ``collected`` is {errors (fields that are not
+    // numbers), data}; ``fieldOf(path)`` gives the form's key of the field the server names
+    // first in its message ("params.scale_ppm.x: ..."), or nothing
+    var saveSettings = function (vm, collected, fieldOf) {
+        vm.savedMessage("");
+        if (!_.isEmpty(collected.errors)) {
+            vm.errors(collected.errors);
+            vm.formError(gettext("Some values are not numbers; see the marked fields."));
+            return $.Deferred().reject().promise();
+        }
+        vm.saving(true);
+        return OctoPrint.postJson(API("settings"), collected.data)
+            .done(function () {
+                vm.errors({});
+                vm.formError("");
+                vm.savedMessage(gettext("Saved."));
+            })
+            .fail(function (jqXHR) {
+                var msg = errorText(jqXHR);
+                var path = msg.split(":")[0];
+                var errs = {};
+                var field = fieldOf(path);
+                if (field) errs[field] = msg.slice(path.length + 1).trim();
+                vm.errors(errs);
+                vm.formError(msg);
+            })
+            .always(function () {
+                vm.saving(false);
+            });
+    };
 
     window.KinComp = {
         API: API,
@@ -155,6 +222,8 @@
         translateNotice: translateNotice,
         rows: rows,
         pick: pick,
-        NICE: NICE
+        proposedRows: proposedRows,
+        NICE: NICE,
+        saveSettings: saveSettings
     };
 })();

@@ -7,7 +7,6 @@ $(function () {
     var K = window.KinComp;
     var API = K.API;
     var num = K.num;
-    var errorText = K.errorText;
     var notify = K.notify;
     var copyText = K.copyText;
     var about = K.about;
@@ -41,6 +40,8 @@ $(function () {
         self.errors = ko.observable({});
         self.formError = ko.observable("");
         self.savedMessage = ko.observable("");
+        // what is wrong with the stored settings (compensation is off until it is fixed)
+        self.settingsProblem = ko.observable("");
         self.saving = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
 
@@ -169,7 +170,10 @@ $(function () {
         self.load = function () {
             return OctoPrint.get(API("status")).done(function (status) {
                 self.fromStatus(status);
-                self.errors({});
+                var errs = {};
+                if (status.settings_problem_field) errs[status.settings_problem_field] = status.settings_problem;
+                self.errors(errs);
+                self.settingsProblem(status.settings_problem || "");
                 self.formError("");
             });
         };
@@ -228,35 +232,14 @@ $(function () {
         self.save = function () {
             self.savedMessage("");
             if (!self.loaded) return $.Deferred().reject().promise();
-            var collected = self.collect();
-            if (!_.isEmpty(collected.errors)) {
-                self.errors(collected.errors);
-                self.formError(gettext("Some values are not numbers; see the marked fields."));
-                return $.Deferred().reject().promise();
-            }
-            self.saving(true);
-            return OctoPrint.postJson(API("settings"), collected.data)
-                .done(function () {
-                    self.errors({});
-                    self.formError("");
-                    self.savedMessage(gettext("Saved."));
-                    self.load();
-                })
-                .fail(function (jqXHR) {
-                    var msg = errorText(jqXHR);
-                    // the server names the field first: "params.scale_ppm.x: ..."
-                    var path = msg.split(":")[0];
-                    var errs = {};
-                    var match = _.find(self.allPaths(), function (p) {
-                        return path === p || path.indexOf(p + ".") === 0 || path.indexOf(p + "[") === 0;
-                    });
-                    if (match) errs[match] = msg.slice(path.length + 1).trim();
-                    self.errors(errs);
-                    self.formError(msg);
-                })
-                .always(function () {
-                    self.saving(false);
+            // the server names the field first: "params.scale_ppm.x: ..."
+            return K.saveSettings(self, self.collect(), function (path) {
+                return _.find(self.allPaths(), function (p) {
+                    return path === p || path.indexOf(p + ".") === 0 || path.indexOf(p + "[") === 0;
                 });
+            }).done(function () {
+                self.load();
+            });
         };
 
         self.allPaths = function () {

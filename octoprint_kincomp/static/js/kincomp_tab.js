@@ -155,27 +155,7 @@ $(function () {
 
         self.proposedRows = ko.pureComputed(function () {
             var run = self.run();
-            if (!run || !run.proposed) return [];
-            var p = run.proposed;
-            var bl = function (v) {
-                if (_.isArray(v)) {
-                    return _.map(v, function (pt) {
-                        return _.sprintf(gettext("%(um)s µm at %(at)s mm"), {um: fmt(pt.um, 1), at: fmt(pt.at_mm, 0)});
-                    }).join(", ");
-                }
-                return fmt(v, 1) + " µm";
-            };
-            return [
-                {label: gettext("Squareness XY"), value: fmt(p.squareness_um_per_m.xy, 1) + " µm/m"},
-                {label: gettext("Squareness XZ"), value: fmt(p.squareness_um_per_m.xz, 1) + " µm/m"},
-                {label: gettext("Squareness YZ"), value: fmt(p.squareness_um_per_m.yz, 1) + " µm/m"},
-                {label: gettext("Scale X"), value: fmt(p.scale_ppm.x, 1) + " ppm"},
-                {label: gettext("Scale Y"), value: fmt(p.scale_ppm.y, 1) + " ppm"},
-                {label: gettext("Scale Z"), value: fmt(p.scale_ppm.z, 1) + " ppm"},
-                {label: gettext("Backlash X"), value: bl(p.backlash.x)},
-                {label: gettext("Backlash Y"), value: bl(p.backlash.y)},
-                {label: gettext("Backlash Z"), value: bl(p.backlash.z)}
-            ];
+            return run && run.proposed ? K.proposedRows(run.proposed) : [];
         });
 
         self.fail = function (jqXHR) {
@@ -193,8 +173,8 @@ $(function () {
                 if (status.settings_problem && !self.problemShown) {
                     self.problemShown = true;
                     notify({
-                        title: gettext("KinComp settings reset"),
-                        text: _.sprintf(gettext("The stored KinComp settings could not be used (%(reason)s); the defaults apply and compensation is off. Check the settings and save them."), {reason: status.settings_problem}),
+                        title: gettext("KinComp settings invalid"),
+                        text: _.sprintf(gettext("The stored KinComp settings are invalid (%(reason)s): compensation is off until you fix them in KinComp's settings. Nothing stored was changed."), {reason: status.settings_problem}),
                         type: "error",
                         hide: false
                     });
@@ -302,7 +282,11 @@ $(function () {
             self.error("");
             return OctoPrint.upload(API("trace"), blob, name)
                 .done(function (result) {
-                    self.analysed(result[0]);
+                    if (result[0] && result[0].job) {
+                        self.waitForRun(result[0].job.id);  // a big trace: analysed in the background
+                    } else {
+                        self.analysed(result[0]);
+                    }
                 })
                 .fail(function (result) {
                     self.fail(result[0]);
@@ -311,6 +295,27 @@ $(function () {
                     self.busy(false);
                     $("#kincomp_trace_file").val("");
                 });
+        };
+
+        self.waitForRun = function (jobId) {
+            // poll the analysis job until it is done, then show its run
+            self.busy(true);
+            OctoPrint.get(API("jobs/" + jobId)).done(function (resp) {
+                var job = resp.job;
+                if (job.state === "done") {
+                    OctoPrint.get(API("runs/" + job.result)).done(self.analysed).fail(self.fail)
+                        .always(function () { self.busy(false); });
+                } else if (job.state === "failed") {
+                    self.busy(false);
+                    self.error(job.error);
+                    notify({title: gettext("KinComp"), text: job.error, type: "error"});
+                } else {
+                    setTimeout(function () { self.waitForRun(jobId); }, 1000);
+                }
+            }).fail(function (jqXHR) {
+                self.busy(false);
+                self.fail(jqXHR);
+            });
         };
 
         self.uploadTrace = function (data, event) {
@@ -385,8 +390,12 @@ $(function () {
 
         self.loadRuns = function () {
             OctoPrint.get(API("runs")).done(function (resp) {
+                // a campaign's runs are grouped with their campaign (kincomp_campaign.js)
+                var single = _.filter(resp.runs, function (r) {
+                    return !r.campaign;
+                });
                 self.runs(
-                    _.map(resp.runs, function (r) {
+                    _.map(single, function (r) {
                         return _.extend({}, r, {
                             squareness: r.squareness_um_per_m,
                             circularity: r.circularity_um
@@ -501,7 +510,7 @@ $(function () {
                     type: data.severity === "warning" ? "notice" : data.severity,
                     hide: data.severity !== "error"
                 });
-            } else if (data.type === "demo_trace") {
+            } else if (data.type === "demo_trace" && !data.campaign) {
                 self.printing(false);
                 self.step("measure");
             } else if (data.type === "job" && data.job) {

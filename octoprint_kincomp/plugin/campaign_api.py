@@ -1,0 +1,284 @@
+"""The campaign endpoints: one calibration round over the whole volume (XY, XZ and YZ;
+optionally XY at a second height and at a second feed), planned on the printer profile's
+volume, printed test by test with the same parameters in force, fitted jointly
+(:mod:`..ballbar.campaign_analysis`) and applied once.
+
+* ``POST /campaign/plan``  plans a campaign (``radius_xy``, ``radius_vertical`` mm,
+  ``feed`` mm/min, ``xy_height`` mm above the bed, ``second_height`` absolute Z of a second
+  XY test in mm or null, ``second_feed`` mm/min or null, ``retest_of`` an earlier campaign
+  whose options are the defaults and whose result is the "before"); ``"dry_run": true``
+  only answers the plan (for the drawing), else it is stored.
+* ``GET /campaigns``, ``GET /campaigns/<id>``  the campaigns, newest first; one campaign with
+  its progress and, once analysed, the joint result and per test the comparison with the
+  campaign it re-tests (the paper's Table 2 per plane).
+* ``POST /campaigns/<id>/steps/<n>/program``  writes test n's program (n from 1) into
+  OctoPrint's storage, ``"print": true`` prints it (it pauses (M0) to mount the bar and to
+  unmount it).
+* ``POST /campaigns/<id>/steps/<n>/trace``  test n's measurement: a file (multipart field
+  ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace; it must be this test's
+  trace (campaign, test, program and parameters in its metadata); analysed on its own and
+  stored as a run of the campaign. (A live sensor's capture of a test needs no request.)
+* ``POST /campaigns/<id>/analyze``  the joint fit over all tests, stored as a run (source
+  ``campaign``): ONE parameter set; nothing applied. Refused (400 naming the file) for a
+  missing or failed test or traces that are not one campaign.
+* ``POST /campaigns/<id>/apply``  that parameter set into the settings (``enabled``,
+  ``apply_now`` as for ``/apply``).
+
+What is in force, when a campaign may go on (409 when the parameters in force or the
+printer profile changed since it began) and how a trace becomes a test's measurement (also a
+live capture's, armed when a test is printed) is :mod:`.campaign_measure`. Reading needs
+STATUS, everything else PLUGIN_KINCOMP_ADMIN, printing also PRINT.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, Dict, List, Optional, Tuple
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+
+from ..ballbar.campaign import plan_campaign
+from ..ballbar.campaign_analysis import analyse_campaign
+from ..ballbar.formats import TraceError, load_any
+from ..ballbar.program import ProgramError, TestSpec, generate
+from ..core.messages import Msg, as_dict
+from . import http
+from .calibration_api import CalibrationApi, UploadRefused, safe_name
+from .campaign_measure import CampaignMeasurements, Refused, campaign_keys
+from .campaigns import CampaignNotFound, CampaignStore, new_campaign, now, view
+from .demo_mode import DemoMode
+from .runs import RunNotFound, RunStore
+from .settings_store import SettingsStore
+
+# request field: (default, lowest, highest); None as default: optional (null: left out)
+PLAN_FIELDS = {
+    "radius_xy": (100.0, 5.0, 1000.0),  # mm
+    "radius_vertical": (50.0, 5.0, 1000.0),  # mm
+    "feed": (1850.0, 10.0, 60000.0),  # mm/min
+    "xy_height": (10.0, 0.0, 10000.0),  # mm above the bed
+    "second_height": (None, -10000.0, 10000.0),  # mm, absolute Z
+    "second_feed": (None, 10.0, 60000.0),  # mm/min
+}
+
+
+def number(data: Dict[str, Any], key: str, default: Optional[float], lo: float,
+           hi: float) -> Optional[float]:
+    """The JSON number ``data[key]`` (``default`` when absent; None when null and
+    optional); raises http.BadRequest naming ``key`` for anything else or out of range."""
+    value = data.get(key, default)
+    if value is None and default is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+            not math.isfinite(value) or not lo <= value <= hi:
+        raise http.BadRequest(gettext("'%(key)s' must be a number from %(lo)s to %(hi)s",
+                                      key=key, lo=f"{lo:g}", hi=f"{hi:g}"))
+    return float(value)
+
+
+class CampaignApi:
+    def __init__(self, store: SettingsStore, runs: RunStore, campaigns: CampaignStore,
+                 calibration: CalibrationApi, demo: DemoMode,
+                 measurements: CampaignMeasurements):
+        self._store = store
+        self._runs = runs
+        self._campaigns = campaigns
+        self._calibration = calibration
+        self._demo = demo
+        self.measure = measurements
+
+    # ~~ planning --------------------------------------------------------------------------------
+    def plan(self):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object()
+        if data is None:
+            return http.error(gettext("Expected a JSON object"), 400)
+        before = None
+        try:
+            dry_run = http.flag(data, "dry_run")
+            if data.get("retest_of") is not None:
+                before = self._campaigns.get(str(data["retest_of"]))
+                data = dict(before.get("options") or {}, **{k: v for k, v in data.items()
+                                                           if k in PLAN_FIELDS})
+            options = {k: number(data, k, *v) for k, v in PLAN_FIELDS.items()}
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        except CampaignNotFound:
+            return http.error(gettext("'retest_of': no such campaign"), 400)
+        volume = self._store.limits()
+        if volume is None:
+            return http.error(gettext("The printer profile has no build volume"), 409)
+        cid = self._campaigns.new_id()
+        printer = self.measure.printer()
+        try:
+            steps = plan_campaign(
+                volume, radius_xy=options["radius_xy"],
+                radius_vertical=options["radius_vertical"], feed=options["feed"],
+                xy_height=options["xy_height"], second_height=options["second_height"],
+                second_feed=options["second_feed"], max_feed=self._store.max_feeds(),
+                printer=printer, campaign_id=cid)
+        except (ProgramError, ValueError) as exc:
+            return http.error(http.tr(exc), 400)
+        doc = new_campaign(cid, steps, volume, printer, self.measure.in_force().hash(),
+                           options, before["id"] if before else None)
+        if dry_run:
+            return flask.jsonify(self._view(doc, stored=False))
+        self._campaigns.save(doc)
+        return flask.jsonify(self._view(doc))
+
+    # ~~ reading -------------------------------------------------------------------------------
+    def list(self):
+        http.require(Permissions.STATUS)
+        return flask.jsonify(campaigns=[self._view(d, analysis=False)
+                                        for d in self._campaigns.list()])
+
+    def get(self, cid: str):
+        http.require(Permissions.STATUS)
+        try:
+            return flask.jsonify(self._view(self._campaigns.get(cid)))
+        except CampaignNotFound:
+            return http.error(gettext("No such campaign"), 404)
+
+    # ~~ one test --------------------------------------------------------------------------------
+    def program(self, cid: str, n: int):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        try:
+            do_print = http.flag(http.json_object() or {}, "print")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        if do_print:
+            http.require(Permissions.PRINT)
+        try:
+            doc, step = self.measure.open_step(cid, n)
+            text = generate(TestSpec(**step["spec"]), volume=self._store.limits(),
+                            params_hash=doc["params_hash"])
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
+        except (ProgramError, TypeError, ValueError) as exc:
+            return http.error(http.tr(exc), 400)
+        path, prog_hash, stated = self._calibration.write_program(
+            text, f"{cid}_{n}_{safe_name(step['name'])}.gcode")
+        step["path"] = path
+        step["program_hash"] = prog_hash
+        # the test as its program states it: a live capture's trace names campaign and test.
+        # Demo mode measures the campaign with its simulated trace of the printed commands
+        # (its virtual bar is not captured live for a campaign yet: see the README)
+        printing, capture = self._calibration.print_program(
+            path, stated, prog_hash, arm=self._demo.ballbar is None) \
+            if do_print else (False, None)
+        if printing:
+            step["printed"] = now()
+        self._campaigns.save(doc)
+        if do_print and not printing:
+            return http.error(gettext("The printer is not ready to print"), 409)
+        return flask.jsonify(campaign=self._view(doc), path=path, printing=printing,
+                             program_hash=prog_hash, capture=capture)
+
+    def trace(self, cid: str, n: int):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        body = http.json_object()
+        try:
+            demo = http.flag(body or {}, "demo")
+            doc, step = self.measure.open_step(cid, n)
+            if body is not None and not demo:
+                raise Refused(Msg("Give the trace file (multipart field 'file') or "
+                                  "\"demo\": true"))
+            if demo:
+                data, filename = self._simulated(cid, step)
+            else:
+                data, filename = self._calibration.read_upload()
+            run = self.measure.measure(doc, step, data, safe_name(os.path.basename(filename)))
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        except UploadRefused as exc:
+            return http.error(exc.message, exc.status)
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
+        return flask.jsonify(campaign=self._view(doc), run=self._runs.get(run["id"]))
+
+    def _simulated(self, cid: str, step: Dict[str, Any]) -> Tuple[bytes, str]:
+        """Demo mode's SIMULATED trace of ``step`` (Refused, 404, when there is none)."""
+        simulated = self._demo.last_trace()
+        if simulated is None or simulated.meta.get("campaign") != cid or \
+                simulated.meta.get("campaign_step") != step["name"]:
+            raise Refused(Msg("No simulated trace of test %(n)s (%(name)s) yet: print its "
+                              "program in demo mode first", n=step["n"], name=step["name"]),
+                          404)
+        return simulated.to_text().encode(), f"test{step['n']}_{step['name']}_simulated.csv"
+
+    # ~~ the joint analysis and applying it ----------------------------------------------------
+    def analyze(self, cid: str):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        current = self.measure.in_force()
+        try:
+            doc = self._campaigns.get(cid)
+            self.measure.check_unchanged(doc)
+            result = analyse_campaign(self._traces(doc), current=current)
+        except CampaignNotFound:
+            return http.error(gettext("No such campaign"), 404)
+        except Refused as exc:
+            return http.error(http.tr(exc.message), exc.status)
+        except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
+            return http.error(http.tr(exc), 400)
+        camp = result["diagnostics"]["campaign"]
+        for key in ("scale_rule", "servo_rule"):
+            camp[key + "_i18n"] = as_dict(camp[key])
+        camp["servo_precomp"]["reason_i18n"] = as_dict(camp["servo_precomp"]["reason"])
+        extra = campaign_keys(cid, None, current)
+        extra.update(plots=result["plots"], campaign_steps=[s["name"] for s in doc["steps"]],
+                     step_runs=[s["run"] for s in doc["steps"]])
+        run = self._calibration.record_run(result, f"campaign {cid}", "campaign", None, None,
+                                           extra)
+        doc["result"] = run["id"]
+        doc["analysed"] = now()
+        self._campaigns.save(doc)
+        return flask.jsonify(self._view(doc))
+
+    def _traces(self, doc: Dict[str, Any]) -> List[Tuple[str, object]]:
+        """[(file name, trace)] of the campaign's tests, in order; Refused names the first
+        test without a measurement."""
+        items = []
+        for step in doc["steps"]:
+            path = None
+            try:
+                run = self._runs.get(step.get("run") or "")
+                path = self._runs.trace_path(run["id"])
+            except RunNotFound:
+                run = None
+            if run is None or path is None:
+                raise Refused(Msg(
+                    "The campaign is incomplete: test %(n)s (%(name)s, %(file)s) has no "
+                    "measurement; nothing is analysed from a partial campaign", n=step["n"],
+                    name=step["name"], file=os.path.basename(step.get("path") or "-")))
+            with open(path, "rb") as f:
+                items.append((run["filename"], load_any(f.read(), run["filename"])))
+        return items
+
+    def apply(self, cid: str):
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        data = http.json_object() or {}
+        try:
+            apply_now = http.flag(data, "apply_now")
+            doc = self._campaigns.get(cid)
+            run = self._runs.get(doc.get("result") or "")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        except CampaignNotFound:
+            return http.error(gettext("No such campaign"), 404)
+        except RunNotFound:
+            return http.error(gettext("Campaign %(id)s has no joint analysis to apply: "
+                                      "analyse it first", id=cid), 409)
+        resp = self._calibration.apply_params(
+            run["proposed"], apply_now, run,
+            {"enabled": data["enabled"]} if "enabled" in data else None)
+        if resp.status_code == 200:
+            doc["applied"] = now()
+            self._campaigns.save(doc)
+        return resp
+
+    def _view(self, doc: Dict[str, Any], stored: bool = True,
+              analysis: bool = True) -> Dict[str, Any]:
+        return view(doc, self._runs, self._campaigns, self.measure.in_force().hash(), stored,
+                    analysis)

@@ -1,0 +1,69 @@
+"""The HTTP side of background jobs, shared by the endpoints that start them (dry runs,
+compensations, trace analyses): submitting (429 when too many wait), answering (the result
+if it is ready within a few seconds, else 202 with the job to poll) and ``GET /jobs/<id>``.
+
+A request thread only ever waits for a job, never does its work, and at most
+``MAX_WAITERS`` requests wait at once (OctoPrint serves requests from a small thread pool:
+the others get their 202 at once).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Callable, Dict, Optional
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+
+from . import http
+from .jobs import Job, JobQueue, QueueFull
+
+WAIT_S = 2.0  # a result ready within this many seconds comes in the response itself
+MAX_WAITERS = 2  # requests waiting for a result at once
+RETRY_AFTER_S = 1  # the Retry-After of a 202 (twice that for a 429), in seconds
+
+
+class JobApi:
+    def __init__(self, jobs: JobQueue):
+        self.jobs = jobs
+        self._waiters = threading.BoundedSemaphore(MAX_WAITERS)
+
+    def submit(self, kind: str, path: Optional[str], run: Callable,
+               held_while_printing: bool = False) -> Job:
+        """``jobs.submit``; ends the request with 429 when too many jobs wait."""
+        try:
+            return self.jobs.submit(kind, path, run, held_while_printing=held_while_printing)
+        except QueueFull:
+            resp = http.error(gettext("Too many KinComp jobs are waiting; try again later"),
+                              429)
+            resp.headers["Retry-After"] = str(RETRY_AFTER_S * 2)
+            flask.abort(resp)
+
+    def answer(self, job: Job, body: Callable[[Job], Dict[str, Any]], wait: float = WAIT_S,
+               failed: Optional[Callable[[Job], str]] = None):
+        """200 with ``body(job)`` if ``job`` is done within ``wait`` seconds, 400 with
+        ``failed(job)`` (default: its error) if it failed, else 202 with the job."""
+        if not job.done.is_set() and self._waiters.acquire(blocking=False):
+            try:
+                job.done.wait(wait)
+            finally:
+                self._waiters.release()
+        if job.state == "done":
+            return flask.jsonify(body(job))
+        if job.state == "failed":
+            if failed is not None:
+                return http.error(failed(job), 400)
+            return http.error(http.tr(job.exception) if job.exception is not None
+                              else str(job.error), 400)
+        resp = flask.make_response(flask.jsonify(job=job.to_dict()), 202)
+        resp.headers["Retry-After"] = str(RETRY_AFTER_S)  # when to ask GET /jobs/<id>
+        return resp
+
+    def job(self, job_id: str):
+        """GET /jobs/<id>: one job (state, progress, result or error)."""
+        http.require(Permissions.STATUS)
+        job = self.jobs.get(job_id)
+        if job is None:
+            return http.error(gettext("No such job"), 404)
+        return flask.jsonify(job=job.to_dict())

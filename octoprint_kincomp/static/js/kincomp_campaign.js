@@ -1,0 +1,546 @@
+/*
+ * KinComp web UI: campaign mode of the calibration tab (one calibration round over the whole
+ * volume) and the campaigns in its history.
+ *
+ * Plan: the options (radii mm, feed mm/min, heights mm) are planned by the server on the
+ * printer profile's volume (a dry run) and drawn from three sides (top XY, front XZ, side
+ * YZ; SVG y points down, so heights are drawn negated). Tests: one after another; each
+ * program pauses (M0) to mount the bar and to unmount it, the wizard shows the test, its
+ * print progress and the pause; the measurement is uploaded (or, in demo mode, the SIMULATED
+ * trace is collected as soon as it is ready). Result: per test its polar plot and the
+ * paper's Table 2 (before: the same test of the campaign it re-tests), the joint fit, ONE
+ * proposed parameter set and ONE Apply. Units as on the server: um/m, ppm, um, ms, mm. The
+ * drawings and the result's tables are made by kincomp_campaign_draw.js (KinComp.campaign).
+ */
+$(function () {
+    "use strict";
+    var K = window.KinComp;
+    var API = K.API;
+    var num = K.num;
+    var fmt = K.fmt;
+    var trMsg = K.trMsg;
+
+    function KinCompCampaignViewModel(parameters) {
+        var self = this;
+        self.loginState = parameters[0];
+        self.access = parameters[1];
+        self.printerState = parameters[2];
+        self.tab = parameters[3];
+
+        self.fmt = fmt;
+        self.trMsg = trMsg;
+        self.error = ko.observable("");
+        self.busy = ko.observable(false);
+        self.busyText = ko.observable("");
+        self.campaign = ko.observable(null);
+        self.planning = ko.observable(true);
+        self.preview = ko.observable(null);
+        self.campaigns = ko.observableArray([]);
+        self.checked = ko.observable(false);
+
+        // plan options
+        self.radiusXY = ko.observable("100");
+        self.radiusV = ko.observable("50");
+        self.feed = ko.observable("1850");
+        self.xyHeight = ko.observable("10");
+        self.useSecondHeight = ko.observable(false);
+        self.secondHeight = ko.observable("60");
+        self.useSecondFeed = ko.observable(false);
+        self.secondFeed = ko.observable("3700");
+        self.touched = false;
+
+        self.canWrite = ko.pureComputed(function () {
+            self.loginState.currentUser();
+            var perm = self.access.permissions.PLUGIN_KINCOMP_ADMIN;
+            return perm ? self.loginState.hasPermission(perm) : false;
+        });
+
+        self.view = ko.pureComputed(function () {
+            var c = self.campaign();
+            if (!c || self.planning()) return "plan";
+            return c.analysis ? "result" : "steps";
+        });
+
+        self.options = function () {
+            var o = {
+                radius_xy: num(self.radiusXY()),
+                radius_vertical: num(self.radiusV()),
+                feed: num(self.feed()),
+                xy_height: num(self.xyHeight()),
+                second_height: self.useSecondHeight() ? num(self.secondHeight()) : null,
+                second_feed: self.useSecondFeed() ? num(self.secondFeed()) : null
+            };
+            // a field that is not a number goes as text: the server names it
+            _.each([["radius_xy", self.radiusXY], ["radius_vertical", self.radiusV],
+                    ["feed", self.feed], ["xy_height", self.xyHeight]], function (f) {
+                if (isNaN(o[f[0]])) o[f[0]] = f[1]();
+            });
+            return o;
+        };
+
+        /* ------------------------------------------------------------ failures and busy */
+        self.fail = function (jqXHR) {
+            var msg = K.errorText(jqXHR);
+            self.error(msg);
+            K.notify({title: gettext("KinComp campaign"), text: msg, type: "error"});
+        };
+
+        self.working = function (text, request) {
+            self.busy(true);
+            self.busyText(text);
+            self.error("");
+            return request.always(function () {
+                self.busy(false);
+            });
+        };
+
+        /* --------------------------------------------------------------------- planning */
+        self.planError = ko.observable("");
+        var asked = 0; // only the answer to the latest options counts
+        self.refreshPreview = _.debounce(function () {
+            if (!self.canWrite() || self.view() !== "plan") return;
+            var mine = ++asked;
+            OctoPrint.postJson(API("campaign/plan"), _.extend(self.options(), {dry_run: true}))
+                .done(function (plan) {
+                    if (mine !== asked) return;
+                    self.preview(plan);
+                    self.planError("");
+                })
+                .fail(function (jqXHR) {
+                    if (mine !== asked) return;
+                    self.preview(null);
+                    self.planError(K.errorText(jqXHR));
+                });
+        }, 300);
+        _.each(["radiusXY", "radiusV", "feed", "xyHeight", "useSecondHeight", "secondHeight",
+                "useSecondFeed", "secondFeed"], function (name) {
+            self[name].subscribe(function () {
+                self.touched = true;
+                self.refreshPreview();
+            });
+        });
+
+        self.defaultsFromProfile = function (limits) {
+            // the largest standard XY radius that fits the bed (ISO 230-4: 100 mm)
+            var half = Math.min(limits[1] - limits[0], limits[3] - limits[2]) / 2 - 5;
+            var r = _.find([100, 50, 25], function (v) {
+                return v <= half;
+            }) || Math.max(5, Math.floor(half));
+            self.radiusXY(String(r));
+            self.radiusV(String(Math.min(50, r)));
+            self.secondHeight(String(Math.round(Math.min(limits[5] / 2, 100))));
+            self.touched = false;
+        };
+
+        self.canStart = ko.pureComputed(function () {
+            return self.canWrite() && !self.busy() && self.preview() !== null;
+        });
+
+        self.start = function () {
+            self.working(gettext("Planning…"),
+                OctoPrint.postJson(API("campaign/plan"), self.options())
+                    .done(function (c) {
+                        self.show(c);
+                        self.loadCampaigns();
+                    })
+                    .fail(self.fail));
+        };
+
+        self.backToCampaign = function () {
+            self.planning(false);
+        };
+
+        self.newCampaign = function () {
+            self.planning(true);
+            self.refreshPreview();
+        };
+
+        self.retest = function () {
+            var c = self.campaign();
+            self.working(gettext("Planning…"),
+                OctoPrint.postJson(API("campaign/plan"), {retest_of: c.id})
+                    .done(function (fresh) {
+                        self.show(fresh);
+                        self.loadCampaigns();
+                    })
+                    .fail(self.fail));
+        };
+
+        /* the drawing: the campaign's tests, or the plan's while planning */
+        self.drawing = ko.pureComputed(function () {
+            var plan = self.view() === "plan" ? self.preview() : self.campaign();
+            var limits = self.tab.limits() || [0, 200, 0, 200, 0, 200];
+            var steps = plan ? plan.steps : [];
+            var volume = plan ? plan.volume : limits;
+            var cur = self.current();
+            return {
+                steps: steps,
+                views: K.campaign.views(volume, steps, cur ? cur.n : null)
+            };
+        });
+
+        self.planNote = ko.pureComputed(function () {
+            if (self.view() === "plan" && self.planError()) return self.planError();
+            var plan = self.view() === "plan" ? self.preview() : self.campaign();
+            if (!plan) return "";
+            var capped = _.filter(plan.steps, function (s) {
+                return s.requested_feed_mm_min && s.requested_feed_mm_min !== s.feed_mm_min;
+            });
+            var text = _.sprintf(gettext("%(n)s tests on the %(x)s × %(y)s × %(z)s mm volume; the numbers are the order."), {
+                n: plan.steps.length,
+                x: plan.volume[1] - plan.volume[0],
+                y: plan.volume[3] - plan.volume[2],
+                z: plan.volume[5] - plan.volume[4]
+            });
+            if (capped.length) {
+                text += " " + _.sprintf(gettext("Feed capped to the axes' max feed in: %(tests)s."), {
+                    tests: _.pluck(capped, "name").join(", ")
+                });
+            }
+            return text;
+        });
+
+        self.centreText = function (step) {
+            return _.map(step.centre, function (v) {
+                return fmt(v, 0);
+            }).join(", ");
+        };
+
+        /* ------------------------------------------------------------ the tests in turn */
+        self.show = function (c) {
+            self.campaign(c);
+            self.planning(false);
+            self.error("");
+            self.checked(false);
+            if (c && c.analysis) self.plotLater();
+        };
+
+        self.current = ko.pureComputed(function () {
+            var c = self.campaign();
+            if (!c || c.next_step === null) return null;
+            return _.findWhere(c.steps, {n: c.next_step});
+        });
+
+        self.donePct = ko.pureComputed(function () {
+            var c = self.campaign();
+            return c ? Math.round((100 * c.measured) / c.steps.length) : 0;
+        });
+
+        self.progressText = ko.pureComputed(function () {
+            var c = self.campaign();
+            if (!c) return "";
+            return _.sprintf(gettext("%(done)s of %(n)s tests measured."), {done: c.measured, n: c.steps.length});
+        });
+
+        self.stepTitle = function (step) {
+            return _.sprintf(gettext("Test %(n)s of %(total)s: %(plane)s, radius %(r)s mm, %(feed)s mm/min"), {
+                n: step.n, total: self.campaign().steps.length, plane: step.plane,
+                r: step.radius_mm, feed: step.feed_mm_min
+            });
+        };
+
+        self.stepWhere = function (step) {
+            var how = step.plane === "XY"
+                ? gettext("Pivot (centre ball) at %(c)s mm; the bar lies flat.")
+                : gettext("Pivot at %(c)s mm; the bar stands upright in the %(plane)s plane.");
+            return _.sprintf(how, {c: self.centreText(step), plane: step.plane}) + " " +
+                gettext("The program moves there and pauses: mount the bar, continue; it pauses again at the end: unmount it, continue.");
+        };
+
+        // the campaign's test whose program is printing or paused now (None: none is)
+        self.jobStep = ko.pureComputed(function () {
+            var c = self.campaign();
+            var ps = self.printerState;
+            if (!c || !(ps.isPrinting() || ps.isPaused())) return null;
+            var path = ps.filepath ? ps.filepath() : null;
+            return _.find(c.steps, function (s) {
+                return s.path && s.path === path;
+            }) || null;
+        });
+        var onJob = function (step) {
+            var job = self.jobStep();
+            return job !== null && job.n === step.n;
+        };
+
+        self.printPct = ko.pureComputed(function () {
+            var p = self.printerState.progress();
+            return p ? Math.round(p) : 0;
+        });
+        self.printText = ko.pureComputed(function () {
+            return _.sprintf(gettext("Printing the test: %(pct)s %%"), {pct: self.printPct()});
+        });
+        self.pauseText = function (step) {
+            return !step.run && self.printPct() < 50
+                ? _.sprintf(gettext("Paused: mount the bar for %(plane)s now (pivot at %(c)s mm), then continue."), {plane: step.plane, c: self.centreText(step)})
+                : gettext("Paused: the test is done; unmount the bar, then continue.");
+        };
+
+        self.canPrint = ko.pureComputed(function () {
+            var c = self.campaign();
+            return (
+                c && !c.params_changed && self.canWrite() && self.checked() &&
+                self.printerState.isOperational() && !self.printerState.isPrinting() &&
+                !self.printerState.isPaused() && !self.busy()
+            );
+        });
+
+        self.printHint = ko.pureComputed(function () {
+            var c = self.campaign();
+            if (c && c.params_changed) return "";
+            if (!self.printerState.isOperational()) return gettext("Connect the printer first.");
+            if (!self.checked()) return gettext("Tick the box to print.");
+            return "";
+        });
+
+        self.stepState = function (step) {
+            if (step.run) {
+                var s = step.summary;
+                return s ? _.sprintf(gettext("measured ✓ (squareness %(sq)s µm/m)"), {sq: fmt(s.squareness_um_per_m, 1)}) : gettext("measured ✓");
+            }
+            if (onJob(step)) return self.printerState.isPaused() ? gettext("paused") : gettext("printing");
+            if (step.printed) return gettext("printed: waiting for its measurement");
+            return step.path ? gettext("program written") : gettext("planned");
+        };
+
+        self.printStep = function (step) {
+            var c = self.campaign();
+            self.working(gettext("Writing the program…"),
+                OctoPrint.postJson(API("campaigns/" + c.id + "/steps/" + step.n + "/program"), {print: true})
+                    .done(function (resp) {
+                        self.campaign(resp.campaign);
+                        self.checked(false);
+                    })
+                    .fail(self.fail));
+        };
+
+        self.resume = function () {
+            OctoPrint.job.resume().fail(self.fail);
+        };
+
+        self.measured = function (resp) {
+            self.show(resp.campaign);
+            var d = resp.run && resp.run.diagnostics;
+            if (d) {
+                K.notify({
+                    title: gettext("KinComp campaign"),
+                    text: _.sprintf(gettext("Test %(name)s measured: squareness %(sq)s µm/m, circularity %(c)s µm."), {
+                        name: resp.run.campaign_step,
+                        sq: fmt(d.squareness_um_per_m, 1),
+                        c: fmt(d.circularity_um && d.circularity_um.bidirectional, 1)
+                    }),
+                    type: "success"
+                });
+            }
+            self.loadCampaigns();
+        };
+
+        self.traceUrl = function (summary) {
+            return API("runs/" + encodeURIComponent(summary.id) + "/trace");
+        };
+
+        self.uploadTrace = function (data, event) {
+            var file = event.target.files && event.target.files[0];
+            var c = self.campaign(), step = self.current();
+            if (!file || !c || !step) return;
+            self.working(gettext("Analysing the test…"),
+                OctoPrint.upload(API("campaigns/" + c.id + "/steps/" + step.n + "/trace"), file, file.name)
+                    .done(function (result) {
+                        self.measured(result[0]);
+                    })
+                    .fail(function (result) {
+                        self.fail(result[0]);
+                    })
+                    .always(function () {
+                        $("#kincomp_campaign_trace_file").val("");
+                    }));
+        };
+
+        self.collect = function (n) {
+            var c = self.campaign();
+            return self.working(gettext("Analysing the test…"),
+                OctoPrint.postJson(API("campaigns/" + c.id + "/steps/" + n + "/trace"), {demo: true})
+                    .done(self.measured)
+                    .fail(self.fail));
+        };
+
+        self.useSimulated = function (step) {
+            self.collect(step.n);
+        };
+
+        self.analyse = function () {
+            var c = self.campaign();
+            self.working(gettext("Fitting all tests together…"),
+                OctoPrint.postJson(API("campaigns/" + c.id + "/analyze"), {})
+                    .done(function (fresh) {
+                        self.show(fresh);
+                        self.loadCampaigns();
+                    })
+                    .fail(self.fail));
+        };
+
+        self.apply = function () {
+            var c = self.campaign();
+            self.working(gettext("Applying…"),
+                OctoPrint.postJson(API("campaigns/" + c.id + "/apply"), {enabled: true})
+                    .done(function (resp) {
+                        self.tab.paramsHash(resp.params_hash);
+                        self.tab.enabled(true);
+                        var waiting = resp.compensation && resp.compensation.pending_params_hash;
+                        K.notify({
+                            title: gettext("KinComp campaign"),
+                            text: waiting
+                                ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                                : gettext("Parameters applied; compensation is on. Re-test the campaign to see the improvement in every plane."),
+                            type: "success"
+                        });
+                        self.reload();
+                    })
+                    .fail(self.fail));
+        };
+
+        /* ------------------------------------------------------------------- the result */
+        self.analysis = ko.pureComputed(function () {
+            var c = self.campaign();
+            return c && c.analysis ? c.analysis : null;
+        });
+
+        self.planes = ko.pureComputed(function () {
+            return self.analysis() ? K.campaign.planes(self.analysis()) : [];
+        });
+
+        self.jointRows = ko.pureComputed(function () {
+            return self.analysis() ? K.campaign.jointRows(self.analysis()) : [];
+        });
+
+        // the notes, without the servo decision (shown on its own)
+        self.notes = ko.pureComputed(function () {
+            var a = self.analysis();
+            if (!a) return [];
+            var reason = a.diagnostics.campaign.servo_precomp.reason;
+            return _.filter(a.notes_i18n || [], function (n) {
+                return n.text !== reason;
+            });
+        });
+
+        self.proposedRows = ko.pureComputed(function () {
+            var a = self.analysis();
+            return a && a.proposed ? K.proposedRows(a.proposed, true) : [];
+        });
+
+        self.plotLater = function () {
+            window.setTimeout(self.plot, 50);
+        };
+
+        self.plot = function () {
+            _.each(self.planes(), function (p) {
+                var target = $("#kincomp_campaign_plot_" + p.index);
+                if (!p.plot || !target.is(":visible")) return;
+                target.height(target.width());
+                var runs = [p.plot];
+                if (p.before) runs.push(p.before);
+                var perDiv = K.drawPolar(target, runs);
+                var axes = p.plot.axes || {a: "A", b: "B"};
+                target.parent().find(".kincomp-legend").text(
+                    _.sprintf(gettext("%(um)s µm per ring; angle from +%(a)s toward +%(b)s."), {um: perDiv, a: axes.a, b: axes.b}) +
+                    (p.plot.simulated ? " " + gettext("SIMULATED data.") : "")
+                );
+            });
+        };
+
+        /* ------------------------------------------------------------------ the history */
+        self.stateText = function (c) {
+            return {
+                measuring: _.sprintf(gettext("measuring (%(done)s of %(n)s)"), {done: c.measured, n: c.steps.length}),
+                measured: gettext("measured, not analysed"),
+                analysed: gettext("analysed"),
+                applied: gettext("applied")
+            }[c.state] || c.state;
+        };
+
+        self.loadCampaigns = function () {
+            var perm = self.access.permissions.STATUS;
+            if (!perm || !self.loginState.hasPermission(perm)) return $.Deferred().reject();
+            return OctoPrint.get(API("campaigns")).done(function (resp) {
+                self.campaigns(resp.campaigns);
+            });
+        };
+
+        self.open = function (summary) {
+            OctoPrint.get(API("campaigns/" + summary.id)).done(function (c) {
+                self.show(c);
+                self.tab.step("campaign");
+            }).fail(self.fail);
+        };
+
+        self.reload = function () {
+            var c = self.campaign();
+            if (!c || !c.stored) return;
+            OctoPrint.get(API("campaigns/" + c.id)).done(self.show);
+        };
+
+        // the newest campaign is where the user left off (after a reload of the page)
+        self.resumeLatest = function () {
+            var req = self.loadCampaigns();
+            req.done(function () {
+                var latest = self.campaigns()[0];
+                if (!latest || self.campaign()) return;
+                OctoPrint.get(API("campaigns/" + latest.id)).done(self.show);
+            });
+        };
+
+        /* ------------------------------------------------------------- OctoPrint's calls */
+        self.tab.step.subscribe(function (step) {
+            if (step === "campaign") {
+                if (!self.touched && self.tab.limits()) self.defaultsFromProfile(self.tab.limits());
+                if (self.view() === "plan") self.refreshPreview();
+                else self.reload();
+                self.plotLater();
+            } else if (step === "history") {
+                self.loadCampaigns();
+            }
+        });
+        self.view.subscribe(function (v) {
+            if (v === "result") self.plotLater();
+        });
+
+        self.onTabChange = function (current) {
+            if (current === "#tab_plugin_kincomp") self.plotLater();
+        };
+
+        self.onStartupComplete = function () {
+            self.resumeLatest();
+        };
+        self.onUserLoggedIn = self.onStartupComplete;
+
+        self.onEventPrintDone = function () {
+            self.reload();
+        };
+        self.onEventSettingsUpdated = self.onEventPrintDone;
+        self.onEventPluginKincompParamsApplied = self.onEventPrintDone;
+
+        // a test's trace arrives: the live sensor's capture, already taken by the campaign
+        // (sensor_run), or demo mode's simulated trace without the live path (demo_trace)
+        self.onDataUpdaterPluginMessage = function (plugin, data) {
+            if (plugin !== "kincomp" || !data) return;
+            var c = self.campaign();
+            if (data.type === "sensor_run" && data.run && data.run.campaign) {
+                if (!c || c.id !== data.run.campaign) return;
+                $.when(OctoPrint.get(API("campaigns/" + c.id)),
+                       OctoPrint.get(API("runs/" + encodeURIComponent(data.run.id))))
+                    .done(function (fresh, run) {
+                        self.measured({campaign: fresh[0], run: run[0]});
+                    });
+            } else if (data.type === "demo_trace" && data.campaign) {
+                if (!c || c.id !== data.campaign || !self.canWrite()) return;
+                var step = _.findWhere(c.steps, {name: data.campaign_step});
+                if (step && !step.run) self.collect(step.n);
+            }
+        };
+    }
+
+    OCTOPRINT_VIEWMODELS.push({
+        construct: KinCompCampaignViewModel,
+        dependencies: ["loginStateViewModel", "accessViewModel", "printerStateViewModel", "kinCompTabViewModel"],
+        elements: ["#kincomp_campaign", "#kincomp_campaign_history"]
+    });
+});

@@ -1,0 +1,159 @@
+"""Campaign mode of the Calibration tab in a real headless Chromium, in demo mode on the real
+server's virtual printer (issue 12): plan XY, XZ, YZ and XY at a second feed on the volume
+drawing, print every test (continuing at each mount pause), analyse jointly, see the result
+per plane, apply the ONE parameter set, re-test the whole campaign and see the reductions per
+plane; a wrong file is refused naming it; the history groups the campaigns' runs.
+Screenshots go to test-artifacts/screenshots/ (campaign.png is the README's)."""
+
+import os
+import time
+
+import pytest
+
+from octoprint_kincomp.core.params import Params
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, browser, page  # noqa: F401
+from tests.support.serverutil import settings, status
+
+pytestmark = pytest.mark.slow
+
+API = "/plugin/kincomp"
+
+
+def _open_campaign_mode(page):
+    _open_tab(page)
+    page.click("#kincomp_step_campaign")
+    # the newest campaign is shown where it was left (e.g. by another test): plan a new one
+    page.wait_for_selector("#kincomp_campaign", state="visible")
+    for button in ("#kincomp_campaign_new", "#kincomp_campaign_restart"):
+        if page.is_visible(button):
+            page.click(button)
+    page.wait_for_selector("#kincomp_campaign_plan", state="visible")
+
+
+def _measure_every_test(page, server, shot=None):
+    """Prints the campaign's tests in turn; the demo's traces are collected by the page."""
+    total = page.locator("#kincomp_campaign_table tbody tr").count()
+    for n in range(1, total + 1):
+        page.wait_for_selector(f"#kincomp_campaign_current >> text=Test {n} of {total}")
+        page.check("#kincomp_campaign_check")
+        page.click("#kincomp_campaign_print")
+        for k in range(2):  # mount the bar, then unmount it
+            page.wait_for_selector("#kincomp_campaign_paused", state="visible", timeout=180_000)
+            if shot and n == 2 and k == 0:
+                _no_popups(page)
+                page.screenshot(path=os.path.join(SHOTS, shot), full_page=True)
+            page.click("#kincomp_campaign_resume")
+            page.wait_for_selector("#kincomp_campaign_paused", state="hidden")
+        page.wait_for_selector(f"#kincomp_campaign_progress >> text={n} of {total} tests",
+                               timeout=300_000)
+    server.wait_print_done()
+
+
+def _analyse(page):
+    page.click("#kincomp_campaign_analyse")
+    page.wait_for_selector("#kincomp_campaign_result", state="visible", timeout=300_000)
+    for i in range(4):
+        page.wait_for_selector(f"#kincomp_campaign_plot_{i} canvas")
+
+
+def _reset_params(server):
+    """The whole parameter set back to none (a campaign's proposal also sets servo lags,
+    servo pre-compensation and the backlash fraction, which a partial update keeps)."""
+    code, resp = server.request("POST", f"{API}/apply", {"params": Params().to_dict(),
+                                                         "enabled": False, "apply_now": True})
+    assert code == 200, resp
+
+
+def _campaign(server, cid):
+    code, doc = server.request("GET", f"{API}/campaigns/{cid}")
+    assert code == 200, doc
+    return doc
+
+
+def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    try:
+        _open_campaign_mode(page)
+        page.fill("#kincomp_campaign_rxy", "50")
+        page.check("#kincomp_campaign_use_feed")
+        page.fill("#kincomp_campaign_feed2", "3700")
+        # planned on the volume: four tests drawn from three sides
+        page.wait_for_function(
+            "document.querySelectorAll('#kincomp_campaign_table tbody tr').length == 4")
+        assert page.locator("#kincomp_campaign_views polyline").count() == 12
+        assert page.is_visible("#kincomp_campaign_table >> text=xy-f3700")
+        page.fill("#kincomp_campaign_rxy", "120")  # does not fit the 200 mm bed
+        page.wait_for_selector("#kincomp_campaign >> text=campaign test xy")
+        assert page.is_disabled("#kincomp_campaign_start")
+        page.fill("#kincomp_campaign_rxy", "50")
+        page.wait_for_selector("#kincomp_campaign_start:enabled")
+        page.screenshot(path=os.path.join(SHOTS, "campaign-plan.png"), full_page=True)
+        page.click("#kincomp_campaign_start")
+        page.wait_for_selector("#kincomp_campaign_current", state="visible")
+        cid = server.request("GET", f"{API}/campaigns")[1]["campaigns"][0]["id"]
+        assert page.is_visible(f"#kincomp_campaign_steps >> text={cid}")
+        _measure_every_test(page, server, shot="campaign-pause.png")
+        _analyse(page)
+        first = _campaign(server, cid)
+        proposed = first["analysis"]["proposed"]
+        assert page.locator(".kincomp-campaign-plane").count() == 4
+        shown = page.inner_text("#kincomp_campaign_proposed")
+        assert f"{proposed['squareness_um_per_m']['xz']:.1f} µm/m" in shown
+        assert page.is_visible("#kincomp_campaign_servo >> text=servo pre-compensation is "
+                               "proposed")
+        assert page.is_visible("#kincomp_campaign_result >> text=SIMULATED")
+        _no_popups(page)
+        page.locator("#kincomp_campaign_result").screenshot(
+            path=os.path.join(SHOTS, "campaign-first.png"))
+
+        # ONE apply: the parameters change through the API too
+        page.click("#kincomp_campaign_apply")
+        page.wait_for_selector("#kincomp_state_on", state="visible")
+        page.wait_for_selector("#kincomp_campaign_result >> text=Applied on")
+        st = status(server)
+        assert st["settings"]["enabled"] is True
+        assert st["settings"]["params"]["squareness_um_per_m"] == \
+            pytest.approx(proposed["squareness_um_per_m"])
+        assert st["settings"]["params"]["scale_ppm"] == pytest.approx(proposed["scale_ppm"])
+        assert st["settings"]["params"]["servo_precomp"] is True
+        assert _campaign(server, cid)["state"] == "applied"
+
+        # the re-test: the same campaign with the new parameters in force
+        page.click("#kincomp_campaign_retest")
+        page.wait_for_selector("#kincomp_campaign_current >> text=Test 1 of 4")
+        again = server.request("GET", f"{API}/campaigns")[1]["campaigns"][0]
+        assert again["retest_of"] == cid and again["params_hash"] == st["params_hash"]
+        # a file of another test is refused, named, and nothing is measured
+        wrong = first["steps"][1]["summary"]
+        code, text = server.request("GET", f"{API}/runs/{wrong['id']}/trace")
+        assert code == 200
+        page.set_input_files("#kincomp_campaign_trace_file", files=[{
+            "name": "wrong.csv", "mimeType": "text/csv", "buffer": text.encode()}])
+        page.wait_for_selector("#kincomp_campaign_error >> text=wrong.csv: it belongs to "
+                               f"campaign {cid}")
+        assert _campaign(server, again["id"])["measured"] == 0
+        _measure_every_test(page, server)
+        _analyse(page)
+        page.wait_for_selector("#kincomp_campaign_result >> text=Reduction")
+        after = _campaign(server, again["id"])["analysis"]
+        for cmp in after["comparison"]:
+            rows = {r["key"]: r for r in cmp["rows"]}
+            assert rows["squareness_um_per_m"]["reduction_pct"] > 95, cmp["step"]
+        xy = page.locator("#kincomp_campaign_plane_xy tr", has_text="Squareness").inner_text()
+        assert float(xy.split()[-2]) > 95, xy
+        page.wait_for_selector("#kincomp_campaign_plot_0 .legend >> text=CCW (before)")
+        time.sleep(0.5)
+        _no_popups(page)
+        page.locator("#kincomp_campaign_result").screenshot(
+            path=os.path.join(SHOTS, "campaign.png"))
+
+        # the history groups each campaign's runs
+        page.click("#kincomp_step_history")
+        for c in (cid, again["id"]):
+            group = page.locator(f"#kincomp_campaign_group_{c}")
+            group.wait_for()
+            assert group.locator("a.kincomp-trace-link").count() == 4
+        page.screenshot(path=os.path.join(SHOTS, "campaign-history.png"), full_page=True)
+    finally:
+        settings(server, demo={"enabled": False})
+        _reset_params(server)

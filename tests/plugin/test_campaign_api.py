@@ -1,0 +1,420 @@
+"""The campaign endpoints (plugin/campaign_api.py) on the plugin with mocked OctoPrint objects
+(tests/support/mocked_plugin.py): planning on the profile's volume, printing test by test,
+the demo's SIMULATED traces collected per test, the joint analysis, ONE apply, the re-test
+compared with the campaign before it, and every way a campaign refuses to go on (issue 12)."""
+
+import os
+import re
+from unittest import mock
+
+import pytest
+
+from octoprint_kincomp.ballbar.demo import demo_truth
+from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
+from octoprint_kincomp.ballbar.simulator import simulate_program
+from octoprint_kincomp.core.params import Params
+from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
+
+PROFILE = {"id": "_default", "name": "Virtual P1",
+           "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
+           "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}}}
+PLAN = {"radius_xy": 50}
+SKEW = {"squareness_um_per_m": {"xy": 500.0, "xz": 0.0, "yz": 0.0}}
+
+
+@pytest.fixture
+def plugin(tmp_path):
+    p = mocked_plugin(str(tmp_path))
+    p._printer_profile_manager.get_current_or_default.return_value = PROFILE
+    p._printer.is_printing.return_value = False
+    return p
+
+
+@pytest.fixture
+def app():
+    return api_app()
+
+
+def call(app, view, *args, json=None, data=None, path="/"):
+    """(status, JSON body) of a view, every permission granted."""
+    with app.test_request_context(path, method="POST", json=json, data=data):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            resp = view(*args)
+    return resp.status_code, resp.get_json()
+
+
+def plan(app, plugin, **options):
+    code, doc = call(app, plugin.api_campaign_plan, json=dict(PLAN, **options))
+    assert code == 200, doc
+    return doc
+
+
+def offline_trace(doc, n, truth=None):
+    """The SIMULATED trace of test n of campaign ``doc`` as a printer without compensation
+    would give it (the program as KinComp writes it)."""
+    step = doc["steps"][n - 1]
+    text = generate(TestSpec(**step["spec"]), params_hash=doc["params_hash"])
+    spec, prog_hash = spec_from_program(text)
+    return simulate_program(text, truth or demo_truth(), spec, prog_hash).to_text()
+
+
+def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv"):
+    """The test's trace as OctoPrint hands an upload to a view (a temporary file)."""
+    path = tmp_path / f"upload-{n}-{name}"
+    path.write_text(text)
+    return call(app, plugin.api_campaign_trace, cid, n,
+                data={"file.path": str(path), "file.name": name})
+
+
+def print_in_demo_mode(plugin, path):
+    """The program at ``path`` printed on the demo's virtual printer: its commands go out
+    through KinComp's queuing hook (comments stripped as OctoPrint does), then the print is
+    done and the SIMULATED trace is made."""
+    text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": path}}
+    plugin.on_event("PrintStarted", {"origin": "local", "path": path})
+    for line in text.splitlines():
+        cmd = line.split(";")[0].strip()
+        if cmd:
+            plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
+                                tags={"source:file"})
+    plugin.on_event("PrintDone", {"origin": "local", "path": path})
+    wait_for(lambda: plugin.demo.last_trace() is not None, 60)
+
+
+def run_campaign(app, plugin, doc):
+    """Every test printed and its demo trace collected; returns the campaign analysed."""
+    for step in doc["steps"]:
+        code, resp = call(app, plugin.api_campaign_program, doc["id"], step["n"],
+                          json={"print": True})
+        assert code == 200 and resp["printing"], resp
+        assert resp["path"] == f"kincomp/{doc['id']}_{step['n']}_{step['name']}.gcode"
+        print_in_demo_mode(plugin, resp["path"])
+        code, resp = call(app, plugin.api_campaign_trace, doc["id"], step["n"],
+                          json={"demo": True})
+        assert code == 200, resp
+        run = resp["run"]
+        assert run["campaign"] == doc["id"] and run["campaign_step"] == step["name"]
+        assert run["simulated"] and run["diagnostics"]["plane"] == step["plane"]
+    code, done = call(app, plugin.api_campaign_analyze, doc["id"])
+    assert code == 200, done
+    return done
+
+
+def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
+    slow_z = dict(PROFILE, axes=dict(PROFILE["axes"], z={"speed": 1200}))
+    plugin._printer_profile_manager.get_current_or_default.return_value = slow_z
+    code, dry = call(app, plugin.api_campaign_plan, json=dict(PLAN, dry_run=True,
+                                                                 second_feed=3700,
+                                                                 second_height=100))
+    assert code == 200 and dry["stored"] is False
+    assert [s["name"] for s in dry["steps"]] == ["xy", "xz", "yz", "xy-z100", "xy-f3700"]
+    assert [s["plane"] for s in dry["steps"]] == ["XY", "XZ", "YZ", "XY", "XY"]
+    xy, xz = dry["steps"][0], dry["steps"][1]
+    assert xy["centre"] == [100.0, 100.0, 10.0] and xy["radius_mm"] == 50.0
+    # vertical tests: capped to the slowest axis of their plane (Z: 1200 mm/min)
+    assert xz["feed_mm_min"] == 1200.0 and xz["requested_feed_mm_min"] == 1850.0
+    assert dry["steps"][3]["centre"][2] == 100.0
+    assert dry["printer"] == "Virtual P1" and dry["volume"] == [0, 200, 0, 200, 0, 200]
+    assert dry["params_hash"] == Params().hash() and dry["state"] == "measuring"
+    assert dry["next_step"] == 1 and dry["measured"] == 0
+    with app.test_request_context("/campaigns"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            assert plugin.api_campaigns().get_json()["campaigns"] == []  # a dry run
+    doc = plan(app, plugin)
+    assert doc["stored"] and [s["name"] for s in doc["steps"]] == ["xy", "xz", "yz"]
+    with app.test_request_context("/campaigns"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            listed = plugin.api_campaigns().get_json()["campaigns"]
+            assert [c["id"] for c in listed] == [doc["id"]]
+            assert plugin.api_campaign(doc["id"]).get_json()["steps"][0]["program_hash"] \
+                == doc["steps"][0]["program_hash"]
+            assert plugin.api_campaign("c20990101-000000-abcdef").status_code == 404
+            assert plugin.api_campaign("../../etc/passwd").status_code == 404
+
+
+@pytest.mark.parametrize("body, field", [
+    ({"radius_xy": "100"}, "radius_xy"),
+    ({"radius_xy": True}, "radius_xy"),
+    ({"radius_vertical": 2}, "radius_vertical"),
+    ({"feed": None}, "feed"),
+    ({"second_feed": "fast"}, "second_feed"),
+    ({"second_height": [1]}, "second_height"),
+    ({"dry_run": "true"}, "dry_run"),
+    ({"retest_of": "c20990101-000000-abcdef"}, "retest_of"),
+])
+def test_bad_plan_requests_are_refused_naming_the_field(app, plugin, body, field):
+    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, **body))
+    assert code == 400 and field in resp["error"], resp
+
+
+def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
+    code, resp = call(app, plugin.api_campaign_plan, json={"radius_xy": 100})
+    assert code == 400 and "campaign test xy" in resp["error"] and "does not fit" in \
+        resp["error"]
+    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, feed=6000,
+                                                               second_feed=9000))
+    assert code == 400 and "second XY feed is capped" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_plan, json=["radius_xy"])
+    assert code == 400
+    assert os.listdir(plugin.campaign._campaigns.folder) == []
+
+
+def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
+    # demo mode measures a campaign with the simulated trace of the printed commands
+    plugin.on_settings_save({"demo": {"enabled": True}})
+    doc = plan(app, plugin)
+    done = run_campaign(app, plugin, doc)
+    assert done["state"] == "analysed" and done["next_step"] is None
+    a = done["analysis"]
+    assert a["source"] == "campaign" and a["simulated"] and a["campaign"] == doc["id"]
+    assert [t["plane"] for t in a["diagnostics"]["traces"]] == ["XY", "XZ", "YZ"]
+    assert len(a["plots"]) == 3 and a["campaign_steps"] == ["xy", "xz", "yz"]
+    # one parameter set for the whole volume: the demo printer's hidden errors
+    p = a["proposed"]
+    assert p["squareness_um_per_m"] == pytest.approx({"xy": -3638.6, "xz": 800.0,
+                                                      "yz": -500.0}, abs=10)
+    # the first campaign has nothing to compare with: the rows hold the measured values
+    xz = a["comparison"][1]
+    assert xz["step"] == "xz" and xz["before_plot"] is None
+    rows = {r["key"]: r for r in xz["rows"]}
+    assert rows["squareness_um_per_m"]["before"] is None
+    assert rows["squareness_um_per_m"]["after"] == pytest.approx(800.0, abs=10)
+    servo = a["diagnostics"]["campaign"]["servo_precomp"]
+    assert servo["reason_i18n"]["template"].startswith("XY ran at one feed only")
+    # the campaign's runs: one per test, grouped by the campaign id in the history
+    runs = plugin.runs.list()
+    assert sorted(r["campaign_step"] or "" for r in runs if r["campaign"] == doc["id"]) == \
+        ["", "xy", "xz", "yz"]
+    assert sum(r["has_trace"] for r in runs) == 3
+    # analysed: closed to more measurements
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={})
+    assert code == 409 and "re-test" in resp["error"]
+
+    # ONE apply: the joint proposal becomes the parameters, compensation on
+    code, applied = call(app, plugin.api_campaign_apply, doc["id"], json={"enabled": True})
+    assert code == 200, applied
+    assert plugin.queue.enabled and plugin.queue.params.hash() == applied["params_hash"]
+    assert plugin.queue.params.squareness_um_per_m["xz"] == \
+        pytest.approx(p["squareness_um_per_m"]["xz"])
+    assert plugin.runs.get(a["id"])["applied"]
+    with app.test_request_context("/"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            assert plugin.api_campaign(doc["id"]).get_json()["state"] == "applied"
+
+    # the re-test: the same plan, measured with the new parameters in force (the demo
+    # records the compensated commands), compared test by test with the first campaign
+    code, again = call(app, plugin.api_campaign_plan, json={"retest_of": doc["id"]})
+    assert code == 200 and again["retest_of"] == doc["id"]
+    assert again["options"] == doc["options"]
+    assert again["params_hash"] == applied["params_hash"]
+    after = run_campaign(app, plugin, again)["analysis"]
+    for cmp in after["comparison"]:
+        rows = {r["key"]: r for r in cmp["rows"]}
+        assert cmp["before_plot"] is not None and cmp["before_run"] == a["id"]
+        assert rows["squareness_um_per_m"]["reduction_pct"] > 95, cmp["step"]
+        assert rows["scale_mismatch_ppm"]["reduction_pct"] > 95, cmp["step"]
+        assert abs(rows["squareness_um_per_m"]["after"]) < 5, cmp["step"]
+
+
+def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tmp_path):
+    doc = plan(app, plugin)
+    trace = offline_trace(doc, 1)
+    code, _ = upload(app, plugin, tmp_path, doc["id"], 1, trace)
+    assert code == 200
+    plugin.on_settings_save({"enabled": True, "params": SKEW})
+    for view, args, body in ((plugin.api_campaign_program, (doc["id"], 2), {"print": True}),
+                             (plugin.api_campaign_trace, (doc["id"], 2), {"demo": True}),
+                             (plugin.api_campaign_analyze, (doc["id"],), {})):
+        code, resp = call(app, view, *args, json=body)
+        assert code == 409 and "parameters in force changed" in resp["error"], resp
+        assert doc["params_hash"] in resp["error"]
+    assert not plugin._printer.select_file.called
+    with app.test_request_context("/"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            view = plugin.api_campaign(doc["id"]).get_json()
+    assert view["params_changed"] and view["in_force_hash"] == Params.from_dict(SKEW).hash()
+    # back to the campaign's parameters (compensation off: none in force): it goes on
+    plugin.on_settings_save({"enabled": False})
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    assert code == 200 and resp["printing"] is False
+    # another printer profile: refused too
+    plugin._printer_profile_manager.get_current_or_default.return_value = dict(
+        PROFILE, name="Other")
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    assert code == 409 and "printer profile changed" in resp["error"]
+
+
+def _edited(text, key, value):
+    """``text`` (a trace) with its metadata line ``key`` set to ``value``."""
+    assert f"# {key}: " in text
+    return "\n".join(f"# {key}: {value}" if ln.startswith(f"# {key}: ") else ln
+                     for ln in text.splitlines()) + "\n"
+
+
+def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
+    doc = plan(app, plugin)
+    other = plan(app, plugin)
+    cid = doc["id"]
+    xy = offline_trace(doc, 1)
+    cases = [
+        (2, xy, "xy.csv", "it is the trace of test xy, not of test 2 (xz)"),
+        (1, offline_trace(other, 1), "other.csv", f"belongs to campaign {other['id']}"),
+        (1, _edited(xy, "program_hash", "0123456789ab"), "edited.csv",
+         "the metadata does not match the program"),
+        (1, _edited(xy, "params_hash", "ffffffffffff"), "params.csv",
+         "measured with parameters ffffffffffff"),
+        (1, _edited(xy, "printer", "Other printer"), "printer.csv",
+         "comes from printer Other printer"),
+        (1, "plane: XY\nsquareness_um_per_m: 5\n", "summary.json", "not a summary"),
+        (1, "direction,time_s,reading_mm\nccw,zero,1\n", "broken.csv", "broken.csv: "),
+    ]
+    for n, text, name, expected in cases:
+        code, resp = upload(app, plugin, tmp_path, cid, n, text, name)
+        assert code == 400 and resp["error"].startswith(name), resp
+        assert expected in resp["error"], resp
+    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": True})
+    assert code == 404 and "No simulated trace of test 1" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": "yes"})
+    assert code == 400 and "'demo'" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={})
+    assert code == 400 and "multipart field 'file'" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_trace, cid, 9, json={"demo": True})
+    assert code == 404
+    assert plugin.runs.list() == []
+    # its own trace is taken (again: the newer replaces the older)
+    for _ in range(2):
+        code, resp = upload(app, plugin, tmp_path, cid, 1, xy, "xy.csv")
+        assert code == 200 and resp["campaign"]["steps"][0]["run"] == resp["run"]["id"]
+    assert resp["campaign"]["measured"] == 1 and resp["campaign"]["next_step"] == 2
+
+
+def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_path):
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    before = plugin._settings.get(["params"])
+    for n in (1, 2):
+        code, _ = upload(app, plugin, tmp_path, cid, n, offline_trace(doc, n), f"t{n}.csv")
+        assert code == 200
+    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    assert code == 400 and "test 3 (yz" in resp["error"] and "incomplete" in resp["error"]
+    # the YZ test failed: the bar slipped half-way (a 30 um jump in every reading after it)
+    lines = offline_trace(doc, 3).splitlines()
+    rows = [i for i, ln in enumerate(lines) if ln.startswith("ccw,")]
+    for i in rows[len(rows) // 2:]:
+        d, t, r = lines[i].split(",")
+        lines[i] = f"{d},{t},{float(r) + 0.03:.7f}"
+    code, resp = upload(app, plugin, tmp_path, cid, 3, "\n".join(lines) + "\n", "slipped.csv")
+    assert code == 200
+    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    assert code == 400 and resp["error"].startswith("slipped.csv: the fit leaves"), resp
+    assert "repeat this test" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_apply, cid, json={"enabled": True})
+    assert code == 409 and "analyse it first" in resp["error"]
+    assert plugin._settings.get(["params"]) == before and not plugin.queue.enabled
+    # the test measured again: the campaign is analysed
+    code, _ = upload(app, plugin, tmp_path, cid, 3, offline_trace(doc, 3), "t3.csv")
+    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    assert code == 200 and resp["state"] == "analysed"
+
+
+def _live_run(plugin, text, name="live_XZ_R50.csv"):
+    """A live capture of ``text`` as the sensor's recorder stores it (its trace names no
+    parameters: a capture has only the program's metadata)."""
+    from octoprint_kincomp.ballbar.analysis import analyse
+    from octoprint_kincomp.ballbar.formats import load_any
+
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("# params_hash:"))
+    data = (text + "\n").encode()
+    result = analyse(load_any(data, name), current=plugin.queue.params)
+    run = plugin.calibration.record_run(result, name, "live", data, result.get("plot"),
+                                        extra={"status": "ok", "capture": {"samples": 1}})
+    plugin.runs.save_raw(run["id"], b"time_s,reading_mm,line\n0.0,1.0,1.0\n")
+    return run
+
+
+def test_a_live_capture_of_a_test_becomes_its_measurement(app, plugin):
+    recorder = plugin.sensor._recorder
+    assert recorder.on_recorded == plugin.campaign.measure.take_capture
+    doc = plan(app, plugin)
+    live = _live_run(plugin, offline_trace(doc, 2))
+    taken = recorder.on_recorded(live)
+    # one run per trace: the capture's run is replaced by the campaign's, raw stream kept
+    assert taken["id"] != live["id"] and taken["campaign"] == doc["id"]
+    assert taken["campaign_step"] == "xz" and taken["source"] == "live"
+    assert taken["capture"] == {"samples": 1} and plugin.runs.raw_path(taken["id"])
+    assert [r["id"] for r in plugin.runs.list()] == [taken["id"]]
+    assert plugin.campaign._campaigns.get(doc["id"])["steps"][1]["run"] == taken["id"]
+    # a capture that is no campaign's test stays as it was
+    single = _live_run(plugin, offline_trace(doc, 1).replace(f"# campaign: {doc['id']}",
+                                                             "# campaign: "))
+    assert recorder.on_recorded(single) is single
+    # once the parameters changed, the campaign does not take it; the user is told
+    plugin.on_settings_save({"enabled": True, "params": SKEW})
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    late = _live_run(plugin, offline_trace(doc, 3))
+    assert recorder.on_recorded(late) is late
+    msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
+    assert msg["severity"] == "error" and "parameters in force changed" in msg["text"]
+    assert plugin.campaign._campaigns.get(doc["id"])["steps"][2]["run"] is None
+
+
+def test_printing_a_test_needs_a_ready_printer(app, plugin):
+    doc = plan(app, plugin)
+    plugin._printer.is_printing.return_value = True
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={"print": True})
+    assert code == 409 and "not ready" in resp["error"]
+    step = plugin.campaign._campaigns.get(doc["id"])["steps"][0]
+    assert step["path"] and step["printed"] is None
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={"print": 1})
+    assert code == 400 and "'print' must be true or false" in resp["error"]
+    # the program the demo gets is the test as the program states it (campaign keys, the
+    # parameters' hash): its simulated trace then names its campaign and test
+    spec = plugin.demo._program_spec
+    assert spec.campaign == doc["id"] and spec.campaign_step == "xy"
+    assert spec.params_hash == doc["params_hash"] and spec.printer == "Virtual P1"
+    # a live sensor in use is armed with the test as its program states it (the capture's
+    # trace then names the campaign and the test); demo mode uses its own simulated trace
+    plugin._printer.is_printing.return_value = False
+    plugin.calibration.on_print = mock.MagicMock(return_value={"armed": True})
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={"print": True})
+    assert code == 200 and resp["capture"] == {"armed": True}
+    path, armed, prog_hash = plugin.calibration.on_print.call_args[0]
+    assert path == resp["path"] and prog_hash == resp["program_hash"]
+    assert (armed.campaign, armed.campaign_step) == (doc["id"], "xz")
+    plugin.on_settings_save({"demo": {"enabled": True}})
+    plugin.calibration.on_print.reset_mock()
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
+    assert code == 200 and resp["capture"] is None and not plugin.calibration.on_print.called
+
+
+def test_each_route_asks_for_its_permissions(app, plugin):
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    routes = [
+        (plugin.api_campaign_plan, (), {"dry_run": True}, {"ADMIN"}),
+        (plugin.api_campaigns, (), None, {"STATUS"}),
+        (plugin.api_campaign, (cid,), None, {"STATUS"}),
+        (plugin.api_campaign_program, (cid, 1), {}, {"ADMIN"}),
+        (plugin.api_campaign_program, (cid, 1), {"print": True}, {"ADMIN", "PRINT"}),
+        (plugin.api_campaign_trace, (cid, 1), {"demo": True}, {"ADMIN"}),
+        (plugin.api_campaign_analyze, (cid,), {}, {"ADMIN"}),
+        (plugin.api_campaign_apply, (cid,), {}, {"ADMIN"}),
+    ]
+    for view, args, body, wanted in routes:
+        asked = []
+        with mock.patch("octoprint_kincomp.plugin.campaign_api.Permissions") as perms:
+            perms.STATUS, perms.PLUGIN_KINCOMP_ADMIN, perms.PRINT = "STATUS", "ADMIN", "PRINT"
+            with mock.patch("octoprint_kincomp.plugin.http.require", side_effect=asked.append):
+                with app.test_request_context("/", method="POST" if body is not None
+                                              else "GET", json=body):
+                    view(*args)
+        assert set(asked) == wanted, (view.__name__, asked)
+
+
+def test_the_trace_upload_route_may_carry_a_large_trace():
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin, plugin_hooks
+
+    sizes = plugin_hooks(KinCompPlugin())["octoprint.server.http.bodysize"]([])
+    route = [r for m, r, s in sizes if m == "POST" and "campaigns" in r]
+    assert route and re.match(route[0], "/campaigns/c20990101-000000-abcdef/steps/2/trace")

@@ -1,0 +1,91 @@
+"""Issue 17, case 6: a Z move right after G28 never sends the head across the bed. Where
+the printer homes is not known by default: G28 is followed by M114, and the firmware's
+position report after it makes the homed axes known where they really are; until then a
+move that needs them goes out as written (no correction moves an axis by more than the
+correction itself)."""
+
+from octoprint_kincomp.core.compensator import Compensator, Options
+from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines.select import make_compensator
+from octoprint_kincomp.plugin.queue import QueueCompensator
+from octoprint_kincomp.plugin.settings import defaults, engine_config
+
+SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 800.0, "xz": 1500.0, "yz": -1200.0},
+                         "backlash": {"x": 40.0}})
+
+
+def words(line):
+    return {w[0]: float(w[1:]) for w in line.split()[1:]}
+
+
+def queue():
+    _, options = engine_config(defaults(), None)  # the plugin's default: home unknown
+    return QueueCompensator(SKEW, options, enabled=True)
+
+
+def test_prusaslicer_start_z_move_goes_out_as_written_until_the_home_is_known():
+    q = queue()
+    assert q.handle("G28", {"source:file"}) == ["G28", "M114"]
+    assert q.handle("G1 Z.35 F7800", {"source:file"}) is None  # as written: X, Y unknown
+    assert q.comp.known == (False, False, True)
+    out = q.handle("G1 X110 Y110 F9000", {"source:file"})
+    assert out is not None and out[-1].startswith("G1 X")  # compensated from here on
+
+
+def test_the_position_report_after_g28_makes_the_home_known_at_x_max():
+    q = queue()
+    q.handle("G28")
+    assert not q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})  # before our M114: stale
+    q.home_query_sent()
+    assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})  # homes at X max
+    assert q.comp.known == (True, True, True)
+    out = q.handle("G1 Z.35 F7800")
+    got = words(out[-1])
+    ref = Compensator(SKEW, Options(home_mm=(220.0, 0.0, 0.0)))
+    ref.process("G28")
+    want = words(ref.process("G1 Z.35 F7800")[-1])
+    assert got == want
+    # the head stays where it is, give or take the correction: the skew at Z=0.35 (< 1 um)
+    # and X's backlash take-up (40 um / 2)
+    assert abs(got["X"] - 220.0) <= 0.0215 and abs(got.get("Y", 0.0)) < 0.002
+
+
+def test_a_move_before_the_report_cancels_the_learning():
+    q = queue()
+    q.handle("G28")
+    q.handle("G91")
+    q.handle("G1 X-5")  # a jog queued before the report: the report would be stale
+    q.home_query_sent()
+    assert not q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
+    assert q.comp.known[0] is False
+
+
+def test_a_known_home_needs_no_question_and_a_partial_g28_asks_for_its_axes():
+    s = dict(defaults(), home_mm=[0.0, 0.0, 0.0])
+    params, options = engine_config(s, None)
+    q = QueueCompensator(SKEW, options, enabled=True)
+    assert q.handle("G28") is None and q.comp.known == (True, True, True)
+    s = dict(defaults(), home_mm=[None, 0.0, 0.0])
+    q = QueueCompensator(SKEW, engine_config(s, None)[1], enabled=True)
+    q.handle("G28")
+    assert q.awaiting_home == (0,)
+    q = queue()
+    q.handle("G28")
+    q.home_query_sent()
+    q.home_reported({"x": 220.0, "y": 200.0, "z": 0.0})
+    q.handle("G1 X100 Y100 Z5")
+    assert q.handle("G28 Z") == ["G28 Z", "M114"] and q.awaiting_home == (2,)
+
+
+def test_homing_with_an_unknown_home_keeps_q_drive_for_the_axes_it_did_not_home():
+    """G28 Z with XZ skew and Z's home unknown: X's command depends on Z, but its drive
+    stays where it was; once Z is learned, the next move starts from that drive."""
+    comp = make_compensator(SKEW, Options(home_mm=(0.0, 0.0, None)))
+    comp.process("G28")  # X, Y known at 0; Z unknown
+    comp.homed_at([2], [None, None, 0.0])
+    comp.process("G1 X50 Y50 Z20 F3000")
+    drive_x = comp.writer.carriage(comp.state.m)[0]
+    comp.process("G28 Z")
+    assert comp.state.q_drive is not None and comp.state.q_drive[0] == drive_x
+    comp.homed_at([2], [None, None, 0.0])
+    assert comp.state.q_drive[0] == drive_x
