@@ -11,7 +11,12 @@ kernel = setuptools.Extension(
     sorted(glob.glob("octoprint_kincomp/engines/csrc/*.c")),
     depends=glob.glob("octoprint_kincomp/engines/csrc/*.h"),
     optional=True,
-    extra_compile_args=[] if os.name == "nt" else ["-ffp-contract=off"],
+    # (no builtins for the libm functions: the kernel must call the very functions Python's
+    # math module calls, not a merged sincos or a compile-time constant)
+    extra_compile_args=[] if os.name == "nt" else [
+        "-ffp-contract=off", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-atan2",
+        "-fno-builtin-acos"],
+    libraries=[] if os.name == "nt" else ["m"],
 )
 
 setuptools.setup(license="AGPL-3.0-or-later", ext_modules=[kernel])

@@ -21,6 +21,7 @@ def _options(args) -> Options:
     try:
         return Options(
             chord_tol_mm=args.chord_tol,
+            linearise_arcs=args.linearise_arcs,
             limits=tuple(floats(args.limits, 6, "--limits")) if args.limits else None,
             policy=args.policy,
             decimals=args.decimals,
@@ -130,7 +131,10 @@ def add_file_commands(sub) -> None:
     c.add_argument("--policy", choices=("warn", "clamp", "error"), default="warn",
                    help="what to do when compensation pushes a point outside --limits")
     c.add_argument("--chord-tol", type=float, default=0.01, metavar="MM",
-                   help="chord tolerance for linearised arcs (default 0.01 mm)")
+                   help="how far a compensated arc may deviate from the true arc "
+                        "(default 0.01 mm)")
+    c.add_argument("--linearise-arcs", action="store_true",
+                   help="write G2/G3 as G1 segments (firmware without arc support)")
     c.add_argument("--decimals", type=int, default=3, help="X/Y/Z decimals in mm (default 3)")
     c.add_argument("--home", metavar="X,Y,Z",
                    help="position after G28 in mm, '?' for an axis whose home is not known "

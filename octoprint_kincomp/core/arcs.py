@@ -29,6 +29,12 @@ class ArcError(ValueError):
     """The arc words do not describe an arc (radius too small, zero radius, ...)."""
 
 
+def norm2(a: float, b: float) -> float:
+    """sqrt(a*a + b*b): the length every engine computes the same way (math.hypot is
+    more accurate but its algorithm differs between Python versions and C libraries)."""
+    return math.sqrt(a * a + b * b)
+
+
 def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
                            clockwise: bool) -> Tuple[float, float]:
     """Centre (a, b) of the arc from (a0, b0) to (a1, b1) with signed radius ``r``.
@@ -36,7 +42,7 @@ def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
     A negative ``r`` selects the arc longer than 180 degrees (RS274 convention).
     """
     da, db = a1 - a0, b1 - b0
-    chord = math.hypot(da, db)
+    chord = norm2(da, db)
     if chord < FULL_CIRCLE_EPS_MM:
         raise ArcError("R-form arc with identical start and end (full circles need I/J/K)")
     if r == 0.0:
@@ -65,13 +71,13 @@ def arc_sweep(a0: float, b0: float, a1: float, b1: float, ca: float, cb: float,
     An arc whose end equals its start is a full circle. ``turns`` adds complete circles
     (Marlin's ``P`` word).
     """
-    r0 = math.hypot(a0 - ca, b0 - cb)
-    r1 = math.hypot(a1 - ca, b1 - cb)
+    r0 = norm2(a0 - ca, b0 - cb)
+    r1 = norm2(a1 - ca, b1 - cb)
     if r0 < 1e-9 or r1 < 1e-9:
         raise ArcError("arc centre coincides with its start or end point")
     t0 = math.atan2(b0 - cb, a0 - ca)
     t1 = math.atan2(b1 - cb, a1 - ca)
-    if math.hypot(a1 - a0, b1 - b0) < FULL_CIRCLE_EPS_MM:
+    if norm2(a1 - a0, b1 - b0) < FULL_CIRCLE_EPS_MM:
         sweep = TWO_PI
     elif clockwise:
         sweep = (t0 - t1) % TWO_PI
@@ -160,14 +166,6 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
     return pts
 
 
-def arc_length(start: Sequence[float], end: Sequence[float], plane: int, ca: float, cb: float,
-               clockwise: bool, turns: int = 0) -> float:
-    """Helical length of the arc in mm."""
-    ia, ib, il, _, _ = PLANES[plane]
-    _, sweep, r0, r1 = arc_sweep(start[ia], start[ib], end[ia], end[ib], ca, cb, clockwise, turns)
-    planar = abs(sweep) * (r0 + r1) / 2.0
-    return math.hypot(planar, end[il] - start[il])
-
 
 def centre_from_words(start: Sequence[float], end: Sequence[float], plane: int,
                       offsets: Tuple[Optional[float], Optional[float]], radius: Optional[float],
@@ -184,3 +182,86 @@ def centre_from_words(start: Sequence[float], end: Sequence[float], plane: int,
     if radius is None:
         raise ArcError("arc without centre offsets or R")
     return arc_centre_from_radius(start[ia], start[ib], end[ia], end[ib], radius, clockwise)
+
+
+# Arcs kept as arcs (core/arcpath.py) are cut into pieces of at most this sweep (rad) before
+# they are fitted, and at the break angles (where a carriage command reverses)
+MAX_PIECE_RAD = math.pi / 2
+BREAK_EDGE = 1e-9  # break fractions closer than this to an end are not cut (no slivers)
+
+
+class Arc:
+    """One G2/G3 in the desired frame (mm): ``point(f)`` is the point a fraction ``f``
+    (0..1) of the way along it, by angle: the radius blends linearly from the start radius to
+    the end radius (so slightly inconsistent slicer arcs still end on their end point) and
+    the linear axis moves in proportion (helix). Every engine evaluates it with the same
+    operations in the same order."""
+
+    __slots__ = ("plane", "ia", "ib", "il", "ca", "cb", "t0", "sweep", "r0", "r1", "dr",
+                 "l0", "dl", "start", "end")
+
+    def __init__(self, start: Sequence[float], end: Sequence[float], plane: int, ca: float,
+                 cb: float, clockwise: bool, turns: int = 0):
+        ia, ib, il, _, _ = PLANES[plane]
+        self.plane, self.ia, self.ib, self.il = plane, ia, ib, il
+        self.ca, self.cb = ca, cb
+        self.t0, self.sweep, self.r0, self.r1 = arc_sweep(start[ia], start[ib], end[ia],
+                                                          end[ib], ca, cb, clockwise, turns)
+        self.dr = self.r1 - self.r0
+        self.l0 = start[il]
+        self.dl = end[il] - start[il]
+        self.start = (float(start[0]), float(start[1]), float(start[2]))
+        self.end = (float(end[0]), float(end[1]), float(end[2]))
+
+    def point(self, f: float) -> Vec:
+        if f == 0.0:
+            return self.start
+        if f == 1.0:
+            return self.end
+        t = self.t0 + self.sweep * f
+        r = self.r0 + self.dr * f
+        p = [0.0, 0.0, 0.0]
+        p[self.ia] = self.ca + r * math.cos(t)
+        p[self.ib] = self.cb + r * math.sin(t)
+        p[self.il] = self.l0 + self.dl * f
+        return (p[0], p[1], p[2])
+
+    def length_to(self, f: float) -> float:
+        """Path length (mm) from the start to fraction ``f`` (the helix of the blended
+        radius; E is split in proportion to it)."""
+        planar = abs(self.sweep) * f * (self.r0 + 0.5 * self.dr * f)
+        lin = self.dl * f
+        return math.sqrt(planar * planar + lin * lin)
+
+    def cuts(self, breaks: Sequence[float]) -> List[float]:
+        """End fractions of the pieces the arc is written in (the last is 1.0): cut at every
+        angle ``breaks[i] + n*pi`` inside the sweep, then each piece into equal parts of at
+        most ``MAX_PIECE_RAD``."""
+        t0, sweep = self.t0, self.sweep
+        lo, hi = (t0, t0 + sweep) if sweep > 0 else (t0 + sweep, t0)
+        width = abs(sweep)
+        if (len(breaks) + 1) * width / math.pi > MAX_SEGMENTS:
+            raise ArcError(f"arc of {width / TWO_PI:.0f} turns needs too many pieces")
+        fracs = []
+        for phi in breaks:
+            k = math.ceil((lo - phi) / math.pi)
+            while phi + k * math.pi < hi:
+                f = (phi + k * math.pi - t0) / sweep
+                if BREAK_EDGE < f < 1.0 - BREAK_EDGE:
+                    fracs.append(f)
+                k += 1
+        fracs.sort()
+        fracs.append(1.0)
+        out = []
+        fa = 0.0
+        prev = None
+        for fb in fracs:
+            if fb == prev:
+                continue  # two axes reverse at the same angle
+            prev = fb
+            n = math.ceil(width * (fb - fa) / MAX_PIECE_RAD - 1e-9)
+            for i in range(1, n):
+                out.append(fa + (fb - fa) * i / n)
+            out.append(fb)
+            fa = fb
+        return out

@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple, Union
 
+from .arcpath import ArcWriter
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
@@ -64,6 +65,8 @@ class Options:
     ``policy``: what happens when compensation pushes a point outside the limits: ``warn``
     (count it, send it), ``clamp`` (clamp the commanded point onto the limit) or ``error``
     (raise :class:`LimitError`). Points the program itself places outside are never altered.
+    ``chord_tol_mm``: how far a written arc or chord may deviate from the desired arc;
+    ``linearise_arcs``: write every G2/G3 as G1 chords (firmware without arc support).
     ``home_mm``: per axis where G28 leaves it (mm, machine frame), None: not known (see the
     module docstring; the library default 0,0,0 suits the simulator's printers, not every
     real one).
@@ -76,6 +79,7 @@ class Options:
     home_mm: Tuple[Optional[float], Optional[float], Optional[float]] = (0.0, 0.0, 0.0)
     deadband_mm: float = DEFAULT_DEADBAND_MM
     g90_influences_extruder: bool = True
+    linearise_arcs: bool = False
 
     def __post_init__(self):
         if self.policy not in POLICIES:
@@ -136,6 +140,7 @@ class Compensator:
         self.writer = PathWriter(self.model, self.backlash, self.options, self.state,
                                  self.needs, self.servo_s)
         self.moves = MoveHandler(self)
+        self.arc_writer = ArcWriter(self.writer, self)
         # policy "error": lines are processed so that a refused one changes nothing
         self._guarded = self.options.policy == "error" and self.options.limits is not None
         self.fast = fast

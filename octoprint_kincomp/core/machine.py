@@ -65,6 +65,7 @@ class FirmwareInterpreter:
         self.e = 0.0
         self.lineno = 0
         self.malformed = 0
+        self.last_arc: Optional[arcs.Arc] = None  # the geometry of the last arc run
 
     @property
     def logical(self) -> Vec:
@@ -176,8 +177,10 @@ class FirmwareInterpreter:
                 ca -= self.g[ia]
                 cb -= self.g[ib]
             pts = arcs.linearise(start, end, self.plane, ca, cb, clockwise, self.arc_tol, turns)
+            self.last_arc = arcs.Arc(start, end, self.plane, ca, cb, clockwise, turns)
         except arcs.ArcError:
             self.malformed += 1
+            self.last_arc = None
             pts = [end]
         total = 0.0
         prev = start

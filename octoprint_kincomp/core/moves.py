@@ -3,8 +3,9 @@ writer turns into compensated lines, or, when a position the move needs is unkno
 as written with the head's new position still tracked (a position is never invented).
 
 A move needs every axis whose command it changes: under skew a Y-only move also moves X, so
-X must be known. Arcs are linearised into chords within ``chord_tol_mm`` (mm) with a chord
-end wherever a carriage command reverses (so backlash take-ups land exactly there).
+X must be known. Arcs are written as arcs (``core/arcpath.py``) or linearised into chords
+within ``chord_tol_mm`` (mm) with a chord end wherever a carriage command reverses (so
+backlash take-ups land exactly there).
 """
 
 from __future__ import annotations
@@ -154,14 +155,23 @@ class MoveHandler:
         radius = wd["R"].value * u if "R" in wd else None
         start = tuple(st.m)
         end = tuple(target)
+        tol = self.options.chord_tol_mm
+        writer = comp.arc_writer
         try:
             ca, cb = arcs.centre_from_words(start, end, plane, offs, radius, clockwise,
                                             st.ij_absolute)
             if st.ij_absolute:
                 ca -= st.w[ia]
                 cb -= st.w[ib]
-            pts = arcs.linearise(start, end, plane, ca, cb, clockwise,
-                                 self.options.chord_tol_mm, turns, self.extreme_angles(plane))
+            arc = arcs.Arc(start, end, plane, ca, cb, clockwise, turns)
+            arcs.segment_angle(max(arc.r0, arc.r1), tol)  # (raises for a huge radius)
+            keep = writer.usable() and writer.inside_limits(arc)
+            if keep:
+                cuts = arc.cuts(writer.breaks[plane])
+                keep = writer.monotone(arc, cuts)
+            if not keep:
+                pts = arcs.linearise(start, end, plane, ca, cb, clockwise, tol, turns,
+                                     self.extreme_angles(plane))
         except arcs.ArcError:
             comp.malformed(line)
             return self.untouched(given, words, known_before, line)
@@ -170,30 +180,37 @@ class MoveHandler:
                                    [w for w in words if w.letter not in "XYZ"], cmd.comment,
                                    comp.e_relative)
             st.report.moves_compensated += 1
+            st.report.arcs_kept += 1
             self.track_e(e_word)
             return out
         if e_word is not None and not comp.e_relative and st.e_pos is None:
             # Absolute extrusion from an unknown E: the split cannot be computed.
             return self.untouched(given, words, known_before, line)
         tail = [w for w in words if w.letter not in "XYZIJKRP"]
-        out = self.writer.path("G1", list(start), pts, given, e_word, tail, cmd.comment,
-                               comp.e_relative)
-        self.track_e(e_word)
         rep = st.report
-        rep.arcs_linearised += 1
-        rep.arc_segments += len(pts)
+        if keep:
+            out = writer.write(cmd.code_text, arc, cuts, clockwise, given, e_word, tail,
+                               cmd.comment, comp.e_relative)
+        else:
+            out = self.writer.path("G1", list(start), pts, given, e_word, tail, cmd.comment,
+                                   comp.e_relative)
+            rep.arcs_linearised += 1
+            rep.arc_segments += len(pts)
+        self.track_e(e_word)
         rep.moves_compensated += 1
         return out
 
-    def extreme_angles(self, plane: int) -> Tuple[float, ...]:
-        """Arc angles (rad) at which a carriage command reaches an extreme (reverses).
-
-        For the command ``q = A_inv m`` on a circle in ``plane`` each command axis k is
-        ``A_inv[k, a] r cos t + A_inv[k, b] r sin t + const``: extreme at
+    def extreme_axes(self, plane: int) -> Tuple[Tuple[int, float], ...]:
+        """(command axis, arc angle in rad) where that axis' carriage command reaches an
+        extreme (reverses) on a circle in ``plane``: for ``q = A_inv m`` each command axis k
+        is ``A_inv[k, a] r cos t + A_inv[k, b] r sin t + const``, extreme at
         ``atan2(A_inv[k, b], A_inv[k, a])`` (mod pi). Without errors these are the quadrants.
         """
         ia, ib, _, _, _ = arcs.PLANES[plane]
         Ai = self.model.A_inv
-        return tuple(
-            math.atan2(Ai[k, ib], Ai[k, ia]) for k in range(3) if Ai[k, ia] or Ai[k, ib]
-        )
+        return tuple((k, math.atan2(Ai[k, ib], Ai[k, ia])) for k in range(3)
+                     if Ai[k, ia] or Ai[k, ib])
+
+    def extreme_angles(self, plane: int) -> Tuple[float, ...]:
+        """The angles of :meth:`extreme_axes` (chord ends are placed there)."""
+        return tuple(phi for _, phi in self.extreme_axes(plane))

@@ -22,6 +22,7 @@ from .gcode import Word, decimals_of, fmt
 from .params import AXES
 
 AXIS_LETTERS = ("X", "Y", "Z")
+MM_PER_INCH = 25.4
 
 
 class EDistribution:
@@ -98,9 +99,12 @@ class PathWriter:
             if any(prev[k] is None and p[k] is not None for k in range(3)):
                 lengths.append(None)  # coming from an unknown position: length unknown
             else:
-                lengths.append(math.sqrt(sum(
-                    (p[k] - prev[k]) ** 2 for k in range(3) if p[k] is not None
-                )))
+                acc = 0.0
+                for k in range(3):
+                    if p[k] is not None:
+                        d = p[k] - prev[k]
+                        acc += d * d
+                lengths.append(math.sqrt(acc))
             prev = p
         total_len = sum(lengths) if None not in lengths else 0.0
         edist = EDistribution(e_word, e_relative, st.e_pos, total_len)
@@ -199,6 +203,25 @@ class PathWriter:
             rep.source_outside += 1
         return c
 
+    def fw_after(self, k: int, c: float, u: float, dec: int):
+        """Axis ``k`` commanded to ``c`` (mm, carriage frame), without changing the state:
+        (its word on the line, whether it changed, the firmware coordinate (mm) and its text
+        after the move). Absolute output writes the rounded coordinate; relative output the
+        difference of the rounded coordinates, so rounding never accumulates. ``u``: mm per
+        output unit, ``dec``: output decimals."""
+        st = self.state
+        text = fmt((c + st.g[k]) / u, dec)
+        if st.absolute:
+            old_text = st.fw_text[k]
+            if old_text is None and st.fw[k] is not None:
+                old_text = fmt(st.fw[k] / u, dec)
+            return text, text != old_text, float(text) * u, text
+        old = st.fw[k]
+        if old is None:  # cannot happen: relative moves need known axes
+            raise CompensationError("relative move from an unknown position", st.lineno)
+        delta = fmt(float(text) - old / u, dec)
+        return delta, delta.strip("0.") != "", old + float(delta) * u, None
+
     def emit(self, code_text: str, p, q, write_axes, words: List[str], comment: str,
              travel: float, velocity, keep_empty: bool = False) -> Optional[str]:
         """Format one output move to desired position ``p`` and update the stream state.
@@ -208,7 +231,7 @@ class PathWriter:
         """
         bl = self.backlash
         st = self.state
-        u = 25.4 if st.inches else 1.0
+        u = MM_PER_INCH if st.inches else 1.0
         dec = self.options.decimals + (2 if st.inches else 0)
         lim = self.options.limits
         axes_text = []
@@ -226,26 +249,9 @@ class PathWriter:
             corr = abs(c - p[k]) * 1000.0
             if corr > rep.max_correction_um[AXES[k]]:
                 rep.max_correction_um[AXES[k]] = corr
-            fw = c + st.g[k]
-            text = fmt(fw / u, dec)
-            if st.absolute:
-                old_text = st.fw_text[k]
-                if old_text is None and st.fw[k] is not None:
-                    old_text = fmt(st.fw[k] / u, dec)
-                if k in write_axes or text != old_text:
-                    axes_text.append(AXIS_LETTERS[k] + text)
-                st.fw[k] = float(text) * u
-                st.fw_text[k] = text
-            else:
-                old = st.fw[k]
-                if old is None:  # cannot happen: relative moves need known axes
-                    raise CompensationError("relative move from an unknown position",
-                                            st.lineno)
-                delta = fmt(float(text) - old / u, dec)
-                if k in write_axes or delta.strip("0.") != "":
-                    axes_text.append(AXIS_LETTERS[k] + delta)
-                st.fw[k] = old + float(delta) * u
-                st.fw_text[k] = None
+            word, changed, st.fw[k], st.fw_text[k] = self.fw_after(k, c, u, dec)
+            if k in write_axes or changed:
+                axes_text.append(AXIS_LETTERS[k] + word)
         for k in range(3):
             if p[k] is not None:
                 st.m[k] = p[k]

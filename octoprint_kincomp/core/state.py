@@ -25,7 +25,13 @@ from .params import AXES
 
 @dataclass
 class Report:
-    """What the compensator did (the dry-run report). Counts of lines; corrections in um."""
+    """What the compensator did (the dry-run report). Counts of lines; corrections in um.
+
+    Arcs: ``arcs_kept`` written as one G2/G3, ``arcs_split`` as several (cut where a
+    backlash axis reverses, or where one circle does not fit), ``arcs_linearised`` as G1
+    chords only; ``arc_segments``: the lines written for arcs (take-ups not counted);
+    ``arc_max_deviation_um``: the largest estimated deviation of a written arc from the
+    compensated path (core/arcpath.py)."""
 
     lines: int = 0
     moves: int = 0
@@ -33,8 +39,11 @@ class Report:
     untouched_unknown: int = 0
     malformed: int = 0
     malformed_examples: List[Tuple[int, str]] = field(default_factory=list)
+    arcs_kept: int = 0
+    arcs_split: int = 0
     arcs_linearised: int = 0
     arc_segments: int = 0
+    arc_max_deviation_um: float = 0.0
     takeup_moves: int = 0
     lines_out: int = 0
     max_correction_um: Dict[str, float] = field(
@@ -53,8 +62,11 @@ class Report:
             "untouched_unknown_position": self.untouched_unknown,
             "malformed": self.malformed,
             "malformed_examples": [list(x) for x in self.malformed_examples],
+            "arcs_kept": self.arcs_kept,
+            "arcs_split": self.arcs_split,
             "arcs_linearised": self.arcs_linearised,
             "arc_segments": self.arc_segments,
+            "arc_max_deviation_um": round(self.arc_max_deviation_um, 3),
             "backlash_takeup_moves": self.takeup_moves,
             "max_correction_um": {a: round(v, 3) for a, v in self.max_correction_um.items()},
             "limit_hits": self.limit_hits,

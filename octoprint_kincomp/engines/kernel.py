@@ -1,7 +1,8 @@
 """The compiled kernel of the transform (``csrc/``), where it could be built.
 
-``Kernel.line(state, line)`` compensates one plain absolute ``G0``/``G1`` line of an affine
-model exactly as the reference path (``core/path.py``) would: the same arithmetic in the
+``Kernel.line(state, line)`` compensates one plain absolute ``G0``/``G1`` line, or a ``G2``/
+``G3`` kept as arcs, of an affine model exactly as the reference path (``core/path.py``,
+``core/arcpath.py``) would: the same arithmetic in the
 same order, Python's own number rules, so the same text and the same stream state
 (``core/state.py``, which it reads and writes); where it does not decide (a limit touched,
 anything unusual) it returns None having changed nothing, and the reference path takes the
@@ -18,6 +19,7 @@ whether it runs.
 from __future__ import annotations
 
 import logging
+import math
 import random
 from typing import Callable, List, Optional
 
@@ -50,8 +52,13 @@ def build(comp: Compensator) -> Optional[object]:
         return None
     model = comp.model
     affine = tuple(v for row in model.inverse_rows for v in row) + tuple(model.offset_mm)
+    aw = comp.arc_writer
+    arcs = None
+    if not comp.options.linearise_arcs:
+        arcs = (comp.pure_translation, comp.options.chord_tol_mm, aw.k_dev, aw.budget,
+                aw.sliver, aw.max_offset, tuple(float(v) for v in aw.breaks[17]))
     return _ext.Kernel(affine, tables, bl.half, bl.deadband, comp.options.limits,
-                       comp.options.decimals)
+                       comp.options.decimals, arcs)
 
 
 def _check_program() -> List[str]:
@@ -74,8 +81,17 @@ def _check_program() -> List[str]:
         if i % 37 == 0:
             lines.append("G1 F%d X%s Y%s Z%.2f" % (rnd.randint(600, 9000), y, x,
                                                    rnd.uniform(0.2, 5)))
+        if i % 11 == 0:  # an arc from here (kept as arcs: libm's trigonometry, the fit)
+            r, a, b = rnd.uniform(1, 30), rnd.uniform(0, 6.28), rnd.uniform(-3, 3)
+            lines.append("G1 X100 Y100")
+            lines.append("%s X%.3f Y%.3f I%.3f J%.3f E%.5f" % (
+                "G2" if b < 0 else "G3", 100 + r * math.cos(a) - r * math.cos(a + b),
+                100 + r * math.sin(a) - r * math.sin(a + b), r * math.cos(a), r * math.sin(a),
+                rnd.uniform(0, 50)))
         if i == 200:
-            lines += ["G20", "G1 X1.23456 Y2.34567", "G1 X0.5 Y3.25"]
+            lines += ["G20", "G1 X1.23456 Y2.34567", "G1 X0.5 Y3.25",
+                      "G3 X1.5 Y3.25 I0.5 J0 Z0.1", "G21", "M83", "G2 X120 Y100 I10 J0 E0.5",
+                      "G1 X100 Y100 E0.1", "M82"]
     return lines + ["G21", "G1 X1 Y1"]
 
 

@@ -52,6 +52,7 @@ def defaults() -> Dict[str, Any]:
         "params": Params().to_dict(),
         "limits_policy": "warn",
         "chord_tol_mm": 0.01,
+        "linearise_arcs": False,
         "decimals": 3,
         "home_mm": None,  # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
         "pass_through_on_error": False,
@@ -160,6 +161,7 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     out["mode"] = _choice(out["mode"], "mode", MODES)
     out["limits_policy"] = _choice(out["limits_policy"], "limits_policy", POLICIES)
     out["chord_tol_mm"] = _number(out["chord_tol_mm"], "chord_tol_mm", 0.0005, 1.0)
+    out["linearise_arcs"] = _bool(out["linearise_arcs"], "linearise_arcs")
     dec = out["decimals"]
     if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
         raise SettingsError("decimals", Msg("must be an integer within 3..6"))
@@ -224,6 +226,7 @@ def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
     params = Params.from_dict(settings["params"])
     options = Options(
         chord_tol_mm=float(settings["chord_tol_mm"]),
+        linearise_arcs=bool(settings.get("linearise_arcs", False)),
         limits=limits,
         policy=settings["limits_policy"],
         decimals=int(settings["decimals"]),

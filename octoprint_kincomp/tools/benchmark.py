@@ -69,12 +69,20 @@ def generate(path: str, n_lines: int, arc_fraction: float = 0.0, seed: int = 1) 
             count += 2
             for i in range(1, n + 1):
                 if arc_fraction and rng.random() < arc_fraction:
-                    a0 = 2 * math.pi * (i - 1) / n
-                    a1 = 2 * math.pi * i / n
-                    ex, ey = cx + r * math.cos(a1), cy + r * math.sin(a1)
-                    sx, sy = cx + r * math.cos(a0), cy + r * math.sin(a0)
-                    e += r * (a1 - a0) * 0.0333
-                    w(f"G3 X{ex:.3f} Y{ey:.3f} I{cx - sx:.3f} J{cy - sy:.3f} E{e:.5f}\n")
+                    # an arc from where the head is: radius 2-20 mm, sweep up to 90 deg,
+                    # its centre towards the perimeter's centre, either direction
+                    ra = rng.uniform(2.0, 20.0)
+                    sweep = math.radians(rng.uniform(5.0, 90.0))
+                    d = math.hypot(cx - x, cy - y) or 1.0
+                    kx, ky = x + (cx - x) / d * ra, y + (cy - y) / d * ra
+                    a0 = math.atan2(y - ky, x - kx)
+                    cw = rng.random() < 0.5
+                    a1 = a0 - sweep if cw else a0 + sweep
+                    ex, ey = kx + ra * math.cos(a1), ky + ra * math.sin(a1)
+                    e += ra * sweep * 0.0333
+                    w(f"{'G2' if cw else 'G3'} X{ex:.3f} Y{ey:.3f} I{kx - x:.3f} "
+                      f"J{ky - y:.3f} E{e:.5f}\n")
+                    x, y = float(f"{ex:.3f}"), float(f"{ey:.3f}")
                 else:
                     a = 2 * math.pi * i / n
                     nx, ny = cx + r * math.cos(a), cy + r * math.sin(a)
@@ -106,15 +114,6 @@ def generate(path: str, n_lines: int, arc_fraction: float = 0.0, seed: int = 1) 
         w("M104 S0\nM140 S0\nM84\n")
         count += 3
     return count
-
-
-def _time(fn, repeat: int = 3) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def _paired(fn_a, fn_b, repeat: int):
@@ -214,10 +213,11 @@ def _child_rss(src: str, dst: str, params_json: str, engine: str) -> dict:
 
 
 def hook_latency(params: Params, lines) -> dict:
-    """Per-line cost (us) on the G1 X/Y lines of a slicer-like stream, one line at a time
-    and in order as OctoPrint's queuing hook gets them: of Compensator.process, and of the
-    hook's core, QueueCompensator.handle (enabled, lines tagged as a print's file lines:
-    its lock, error and report checks, the result as OctoPrint takes it)."""
+    """Per-line cost (us) on the G1 X/Y lines and the G2/G3 lines of a slicer-like stream
+    with arcs, one line at a time and in order as OctoPrint's queuing hook gets them: of
+    Compensator.process, and of the hook's core, QueueCompensator.handle (enabled, lines
+    tagged as a print's file lines: its lock, error and report checks, the result as
+    OctoPrint takes it)."""
     from ..core.compensator import Options
     from ..engines.select import make_compensator
     from ..plugin.queue import FILE_TAG, QueueCompensator
@@ -230,18 +230,112 @@ def hook_latency(params: Params, lines) -> dict:
     for name, call in (("process", comp.process),
                        ("handle", lambda line: queue.handle(line, tags))):
         samples = []
+        arcs = []
         for line in lines:
             t0 = clock()
             call(line)
             dt = clock() - t0
             if line.startswith("G1 X"):
                 samples.append(dt)
-        samples.sort()
-        res[name] = {"p50_us": samples[len(samples) // 2] / 1000.0,
-                     "p99_us": samples[int(len(samples) * 0.99)] / 1000.0,
-                     "mean_us": statistics.fmean(samples) / 1000.0}
-    res["lines"] = len(samples)
+            elif line.startswith(("G2 ", "G3 ")):
+                arcs.append(dt)
+        for key, got in ((name, samples), (name + "_arc", arcs)):
+            got.sort()
+            res[key] = {"p50_us": got[len(got) // 2] / 1000.0,
+                        "p99_us": got[int(len(got) * 0.99)] / 1000.0,
+                        "mean_us": statistics.fmean(got) / 1000.0, "lines": len(got)}
     res["takeup_share"] = comp.report.takeup_moves / max(1, comp.report.moves_compensated)
+    return res
+
+
+A1_FILE = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
+    os.path.abspath(__file__)))), "tests", "data", "bambustudio-a1-hook.gcode")
+BAUDS = (115200, 250000)
+# what a sender adds to each line (OctoPrint: "N<n> " and "*<checksum>"), bytes
+LINE_FRAMING = 10
+
+
+def _sent_lines(path: str):
+    """(commands, bytes) a sender sends for a G-code file: no comments, no blank lines."""
+    from ..core.gcode import split_comment
+
+    out = []
+    with open(path, encoding="utf-8", errors="surrogateescape") as f:
+        for line in f:
+            code = split_comment(line)[0].strip()
+            if code:
+                out.append(code)
+    return out
+
+
+def serial_estimate(path: str, params: Params, options) -> dict:
+    """Lines per second the printer needs at the file's own speeds (F words, moves timed as
+    length / feed, no acceleration) against what a serial link carries: per 1 s of print
+    time the lines sent (the busiest second and the 99th percentile), and the link's
+    lines/s for the file's mean line length (8N1: baud / 10 bytes/s, plus the sender's
+    line number and checksum)."""
+    from ..core.compensator import Compensator
+    from ..core.gcode import split_comment
+    from ..core.machine import FirmwareInterpreter, Move
+
+    fw = FirmwareInterpreter()
+    comp = Compensator(params, options)
+    t = 0.0
+    per_second: dict = {}
+    n_bytes = n_lines = 0
+    with open(path, encoding="utf-8", errors="surrogateescape") as f:
+        for raw in f:
+            line = raw.rstrip("\r\n")
+            out = comp.process(line)
+            outs = [line] if out is line else out
+            sent = [c for c in (split_comment(o)[0].strip() for o in outs) if c]
+            for ev in fw.execute(line):
+                if isinstance(ev, Move) and ev.feed > 0:
+                    t += math.dist(ev.start, ev.end) / (ev.feed / 60.0)
+            sec = int(t)
+            per_second[sec] = per_second.get(sec, 0) + len(sent)
+            n_lines += len(sent)
+            n_bytes += sum(len(c) + 1 + LINE_FRAMING for c in sent)
+    counts = sorted(per_second.values())
+    mean_len = n_bytes / max(1, n_lines)
+    return {"lines": n_lines, "print_s": t, "mean_line_bytes": mean_len,
+            "needed_peak": counts[-1], "needed_p99": counts[int(len(counts) * 0.99)],
+            "needed_mean": n_lines / max(t, 1e-9),
+            "capacity": {b: b / 10.0 / mean_len for b in BAUDS}}
+
+
+def a1_figures(path: str = A1_FILE) -> Optional[dict]:
+    """Output growth (lines, bytes) of the real BambuStudio A1 file at 200 and 1000 um/m
+    of XY squareness, arcs kept and linearised (as before arcs were kept), and the serial-link
+    estimate for both at 200 um/m."""
+    from ..core.compensator import Options
+    from ..engines.files import compensate_file
+
+    if not os.path.exists(path):
+        return None
+    src_lines = len(_sent_lines(path))
+    src_bytes = os.path.getsize(path)
+    with open(path, "rb") as f:
+        src_all = sum(1 for _ in f)
+    res: dict = {"file": os.path.basename(path), "lines": src_all, "commands": src_lines,
+                 "bytes": src_bytes, "growth": {}}
+    tmp = tempfile.mkdtemp(prefix="kincomp-a1-")
+    dst = os.path.join(tmp, "out.gcode")
+    for um in (200.0, 1000.0):
+        p = Params.from_dict({"squareness_um_per_m": {"xy": um}})
+        for mode, opts in (("arcs kept", Options()), ("linearised", Options(linearise_arcs=True))):
+            rep = compensate_file(path, dst, p, opts)
+            with open(dst, "rb") as f:
+                n = sum(1 for _ in f) - 1  # (without the marker line)
+            res["growth"][f"{um:g} {mode}"] = {
+                "lines": n / src_all, "bytes": os.path.getsize(dst) / src_bytes,
+                "arcs_kept": rep.arcs_kept, "arcs_split": rep.arcs_split,
+                "arcs_linearised": rep.arcs_linearised,
+                "max_dev_um": rep.arc_max_deviation_um}
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 200.0}})
+    res["serial"] = {"source": serial_estimate(path, Params(), Options()),
+                     "arcs kept": serial_estimate(path, p, Options()),
+                     "linearised": serial_estimate(path, p, Options(linearise_arcs=True))}
     return res
 
 
@@ -260,8 +354,8 @@ def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = F
     res["file_mb"] = os.path.getsize(src) / 1e6
     res["verify"] = verify(src, params, tmp, verify_lines)
     repeat = 1 if quick else 5
-    with open(src) as f:
-        sample = [next(f).rstrip("\n") for _ in range(min(200000, res["lines"]))]
+    with open(arc_src) as f:
+        sample = [next(f).rstrip("\n") for _ in range(min(200000, res["arc_lines"]))]
     res["engines"] = {}
     for name in engines():
         with select.use(name):
@@ -278,6 +372,7 @@ def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = F
                 arc_copy_s=t_copy_arc, arc_compensate_s=t_comp_arc,
                 arc_ratio=t_comp_arc / t_copy_arc, arc_lines_per_s=res["arc_lines"] / t_comp_arc,
                 rss=rss, hook=hook_latency(params, sample))
+    res["a1"] = a1_figures()
     return res
 
 
@@ -299,6 +394,7 @@ def main(argv=None) -> int:
           f"{res['verify']['verified_lines']} output lines")
     if "compiled" not in res["engines"]:
         print("(the compiled kernel is not built here: pure-Python figures only)")
+    print("arc file: radii 2-20 mm, sweeps 5-90 deg, 20 % of the perimeter moves")
     for name, e in res["engines"].items():
         print(f"-- {name} engine")
         print(f"plain copy            {e['copy_s']:7.2f} s")
@@ -311,7 +407,22 @@ def main(argv=None) -> int:
         h = e["hook"]
         for name, label in (("process", "Compensator.process"),
                             ("handle", "QueueCompensator.handle")):
-            print(f"hook path, G1 line, {label:24s} p50 {h[name]['p50_us']:.2f} us  "
-                  f"p99 {h[name]['p99_us']:.2f} us")
+            for key, kind in ((name, "G1"), (name + "_arc", "G2")):
+                print(f"hook path, {kind} line, {label:24s} p50 {h[key]['p50_us']:.2f} us  "
+                      f"p99 {h[key]['p99_us']:.2f} us")
         print(f"({h['takeup_share'] * 100:.0f} % of the moves need a backlash take-up)")
+    a1 = res.get("a1")
+    if a1:
+        print(f"-- {a1['file']}: {a1['lines']} lines ({a1['commands']} commands), "
+              f"{a1['bytes'] / 1e6:.2f} MB; XY squareness only")
+        for key, g in a1["growth"].items():
+            print(f"{key + ' um/m:':28s} lines {g['lines']:.3f}x  bytes {g['bytes']:.3f}x  "
+                  f"arcs kept {g['arcs_kept']}, split {g['arcs_split']}, linearised "
+                  f"{g['arcs_linearised']}, worst deviation {g['max_dev_um']:.2f} um")
+        for key, s in a1["serial"].items():
+            cap = ", ".join(f"{b} baud {c:.0f}" for b, c in s["capacity"].items())
+            print(f"serial link, {key + ':':11s} needs {s['needed_mean']:.0f} lines/s on "
+                  f"average, {s['needed_p99']} (p99 second), {s['needed_peak']} (busiest "
+                  f"second); the link carries lines/s: {cap} ({s['mean_line_bytes']:.1f} "
+                  "bytes a line)")
     return 0

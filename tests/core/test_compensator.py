@@ -223,9 +223,9 @@ ARC_CASES = [
 @pytest.mark.parametrize("lines", ARC_CASES)
 def test_arcs_linearised_and_land_on_the_arc(lines):
     params = SKEW
-    opts = Options(decimals=8, chord_tol_mm=0.005)
+    opts = Options(decimals=8, chord_tol_mm=0.005, linearise_arcs=True)
     comp, groups = compensate_groups(params, lines, opts)
-    # every output of an arc is a G1 chord
+    # linearised (firmware without arcs): every output of an arc is a G1 chord
     arc_out = [o for line, outs in groups if is_arc(line) for o in outs]
     assert arc_out and all(o.startswith("G1") for o in arc_out)
     assert comp.report.arcs_linearised >= 1
@@ -244,7 +244,7 @@ def test_arcs_linearised_and_land_on_the_arc(lines):
 
 def test_arc_e_split_relative_sums_exactly():
     lines = ["G28", "M83", "G1 X50 Y50 Z1 F3000", "G2 X70 Y50 I10 J0 E1.23457"]
-    comp, groups = compensate_groups(SKEW, lines, Options(decimals=8))
+    comp, groups = compensate_groups(SKEW, lines, Options(decimals=8, linearise_arcs=True))
     outs = groups[3][1]
     es = [words(o)["E"] for o in outs]
     assert len(es) > 10
@@ -276,7 +276,7 @@ def test_arc_with_absolute_e_and_unknown_e_passes_untouched():
 
 def test_arc_chords_end_where_the_skewed_commands_reverse():
     lines = ["G28", "G1 X50 Y50 Z1 F3000", "G3 X50 Y50 I15 J0"]
-    comp, outs = run(SKEW, lines, Options(decimals=8, chord_tol_mm=0.5))
+    comp, outs = run(SKEW, lines, Options(decimals=8, chord_tol_mm=0.5, linearise_arcs=True))
     pts = [(words(o).get("X"), words(o).get("Y")) for o in outs[2]]
     # commanded X and Y as functions of the arc angle: each chord must be monotonic in both,
     # i.e. every local extreme of the command sequence is a chord end (not inside a chord)

@@ -49,7 +49,7 @@ def test_options_validation():
 
 
 def test_report_counts_and_max_correction():
-    comp = make_compensator(Params.from_dict(SKEW))
+    comp = make_compensator(Params.from_dict(SKEW), Options(linearise_arcs=True))
     for l in edge_program() + ["G2 X120 Y100 I10 J0", "G1 X1 X2"]:
         comp.process(l)
     r = comp.report.to_dict()

@@ -688,7 +688,7 @@ def test_arc_with_a_huge_radius_passes_untouched():
 def test_many_turn_arc_is_linearised_with_its_forced_points():
     """P1000 with skew: thousands of forced chord ends (the command extremes of every turn);
     filtering the uniform chords against them used to be quadratic (minutes)."""
-    comp = make_compensator(SKEW, Options(decimals=6))
+    comp = make_compensator(SKEW, Options(decimals=6, linearise_arcs=True))
     comp.process("G28")
     comp.process("G1 X1 Y1 Z1")
     out = comp.process("G2 X1 Y1 I5 J0 P1000")

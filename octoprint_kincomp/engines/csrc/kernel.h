@@ -29,9 +29,12 @@
 #endif
 
 #define MAX_LINE 96      /* longest line taken (longer: Python; no number reaches gcode's limit) */
-#define MAX_TEXT 120     /* longest number text kept (longer: Python decides) */
+#define MAX_TEXT 40      /* longest number text kept (longer: Python decides) */
 #define MAX_PTS 64       /* backlash table points (more: no kernel) */
 #define OUT_LINE 1024
+#define OUT_BUF 16384    /* the output of one input line (more: Python decides) */
+#define MAX_OUT 128      /* lines written for one input line (more: Python decides) */
+#define MAX_BREAKS 3
 
 #define MM_PER_INCH 25.4
 
@@ -52,11 +55,28 @@ typedef struct {
     int has_limits;
     double lim[6];   /* lo, hi per axis, mm */
     int dec;         /* decimals written (mm) */
+    int any_active;  /* backlash active on some axis */
+    /* arcs (core/arcpath.py): kept as arcs, or left to Python (linearised there) */
+    int keep_arcs, pure_translation;
+    double tol;                   /* chord_tol_mm */
+    double k_dev;                 /* gain * sample margin */
+    double budget[2], sliver[2];  /* mm, [mm output, inch output] */
+    double max_offset;            /* largest take-up offset, mm */
+    int nbreaks;
+    double breaks[MAX_BREAKS];    /* G17: angles (rad) where a backlash axis reverses */
 } Kernel;
+
+/* The lines written for one input line, without endings. */
+typedef struct {
+    int n, len;
+    int start[MAX_OUT + 1];
+    char buf[OUT_BUF];
+} Lines;
 
 /* The stream state (core/state.py) as the kernel holds it during a call. */
 typedef struct {
     int absolute, inches, e_abs_mode; /* e_abs_mode: -1 None, 0 False, 1 True */
+    int plane, ij_absolute;
     int m_known;
     double m[3];
     int fw_known[3];
@@ -72,8 +92,11 @@ typedef struct {
     int anchor_known[3];
     double anchor[3];
     long long lineno, lines, moves, moves_comp, lines_out, takeup;
+    long long arcs_kept, arcs_split, arcs_lin, arc_segments;
+    double arc_dev;
     double maxc[3];
-    int e_set, e_none;
+    int e_set, e_none;                /* an E word was seen: e_pos written (None if e_none) */
+    int e_known;                      /* e_pos as loaded/updated is a number */
     double e_pos;
     int f_set;
     double feed;
@@ -97,7 +120,31 @@ void kk_dicts_release(Dicts *d);
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
 int kk_format_num(double v, int dec, char *out);
 /* transform.c */
-int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
-               int *take_len, char *main_out, int *main_len);
+int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
+double kk_um_at(const Table *t, double q);
+int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from);
+void kk_inverse(const Kernel *K, const double *p, double *q);
+int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
+             const double *q_prev, const int *redo, const double *m_old, char *out,
+             int *out_len);
+/* arcgeo.c: one arc in G17 (core/arcs.py Arc), mm and rad */
+#define MAX_CUTS 64
+typedef struct {
+    double ca, cb, t0, sweep, r0, r1, dr, l0, dl;
+    double start[3], end[3];
+} Geo;
+double kk_norm2(double a, double b);
+void kk_arc_point(const Geo *a, double f, double *p);
+double kk_length_to(const Geo *a, double f);
+int kk_arc_cuts(const Kernel *K, const Geo *a, double *cuts);
+int kk_inside_limits(const Kernel *K, const Geo *a);
+int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc);
+int kk_make_geo(const Kernel *K, Geo *a, const double *start, const double *end, double ca,
+                double cb, int cw);
+/* arc.c */
+int kk_do_arc(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out);
+/* lines */
+char *kk_line_begin(Lines *o);
+int kk_line_end(Lines *o, int len);
 
 #endif

@@ -31,12 +31,33 @@ static int read_table(PyObject *seq, Table *t)
 static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
 {
     static char *kwlist[] = {"affine", "tables", "half", "deadband", "limits", "decimals",
-                             NULL};
-    PyObject *affine, *tables, *limits;
+                             "arcs", NULL};
+    PyObject *affine, *tables, *limits, *arcs = Py_None, *breaks;
     int k;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOddOi", kwlist, &affine, &tables,
-                                     &self->half, &self->deadband, &limits, &self->dec))
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOddOi|O", kwlist, &affine, &tables,
+                                     &self->half, &self->deadband, &limits, &self->dec,
+                                     &arcs))
         return -1;
+    /* arcs: None (left to Python), or (pure_translation, tol, k_dev, (budget mm, budget
+     * inch), (sliver mm, sliver inch), max_offset, G17 breaks) */
+    self->keep_arcs = arcs != Py_None;
+    if (self->keep_arcs) {
+        Py_ssize_t i;
+        if (!PyArg_ParseTuple(arcs, "pdd(dd)(dd)dO", &self->pure_translation, &self->tol,
+                              &self->k_dev, &self->budget[0], &self->budget[1],
+                              &self->sliver[0], &self->sliver[1], &self->max_offset, &breaks))
+            return -1;
+        if (!PyTuple_Check(breaks) || PyTuple_GET_SIZE(breaks) > MAX_BREAKS) {
+            PyErr_SetString(PyExc_TypeError, "arcs: breaks must be a tuple of at most 3");
+            return -1;
+        }
+        self->nbreaks = (int)PyTuple_GET_SIZE(breaks);
+        for (i = 0; i < self->nbreaks; i++) {
+            self->breaks[i] = PyFloat_AsDouble(PyTuple_GET_ITEM(breaks, i));
+            if (self->breaks[i] == -1.0 && PyErr_Occurred())
+                return -1;
+        }
+    }
     if (!PyArg_ParseTuple(affine, "dddddddddddd", &self->A[0], &self->A[1], &self->A[2],
                           &self->A[3], &self->A[4], &self->A[5], &self->A[6], &self->A[7],
                           &self->A[8], &self->b[0], &self->b[1], &self->b[2]))
@@ -50,6 +71,7 @@ static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
         self->active[k] = t != Py_None;
         if (self->active[k] && read_table(t, &self->tab[k]) < 0)
             return -1;
+        self->any_active |= self->active[k];
     }
     self->has_limits = limits != Py_None;
     if (self->has_limits &&
@@ -61,6 +83,16 @@ static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
         return -1;
     }
     return 0;
+}
+
+/* One line: a move (transform.c) or an arc (arc.c); as kk_do_line */
+static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out)
+{
+    out->n = out->len = 0;
+    if (n >= 4 && n <= MAX_LINE && ln[0] == 'G' && (ln[1] == '2' || ln[1] == '3') &&
+        ln[2] == ' ')
+        return kk_do_arc(K, s, ln, n, out);
+    return kk_do_line(K, s, ln, n, out);
 }
 
 static PyObject *make_str(const char *c, int len)
@@ -76,8 +108,8 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     Py_ssize_t n;
     State s, before;
     Dicts D;
-    char take[OUT_LINE], main_out[OUT_LINE];
-    int take_len = -1, main_len = 0, r;
+    Lines out;
+    int r, i;
 
     if (nargs != 2) {
         PyErr_SetString(PyExc_TypeError, "line(state, line)");
@@ -94,7 +126,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     if (kk_load(state, &s, &D) > 0)
         Py_RETURN_NONE;
     before = s;
-    r = kk_do_line(self, &s, c, n, take, &take_len, main_out, &main_len);
+    r = do_line(self, &s, c, n, &out);
     if (r == LINE_PYTHON) {
         kk_dicts_release(&D);
         Py_RETURN_NONE;
@@ -103,26 +135,20 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
         res = line;
         Py_INCREF(res);
     } else {
-        PyObject *a = NULL, *b;
-        res = PyList_New(take_len >= 0 ? 2 : 1);
+        res = PyList_New(out.n);
         if (res == NULL) {
             kk_dicts_release(&D);
             return NULL;
         }
-        if (take_len >= 0) {
-            if (!(a = make_str(take, take_len))) {
+        for (i = 0; i < out.n; i++) {
+            PyObject *o = make_str(out.buf + out.start[i], out.start[i + 1] - out.start[i]);
+            if (o == NULL) {
                 Py_DECREF(res);
                 kk_dicts_release(&D);
                 return NULL;
             }
-            PyList_SET_ITEM(res, 0, a);
+            PyList_SET_ITEM(res, i, o);
         }
-        if (!(b = make_str(main_out, main_len))) {
-            Py_DECREF(res);
-            kk_dicts_release(&D);
-            return NULL;
-        }
-        PyList_SET_ITEM(res, take_len >= 0 ? 1 : 0, b);
     }
     if (kk_store(&D, &s, &before) < 0)
         Py_CLEAR(res);
@@ -164,7 +190,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
     State s, before;
     Dicts D;
     Buf o = {NULL, 0, 0};
-    char take[OUT_LINE], main_out[OUT_LINE];
+    Lines *lines = NULL;
     int r;
 
     if (nargs != 3) {
@@ -186,14 +212,19 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
         PyErr_SetString(PyExc_ValueError, "feed: pos outside buf");
         return NULL;
     }
-    if (kk_load(state, &s, &D) > 0)
+    lines = PyMem_Malloc(sizeof(Lines));
+    if (lines == NULL)
+        return PyErr_NoMemory();
+    if (kk_load(state, &s, &D) > 0) {
+        PyMem_Free(lines);
         return Py_BuildValue("(y#n)", "", (Py_ssize_t)0, pos);
+    }
     before = s;
     while (pos < size) {
         const char *ln = buf + pos;
         const char *nl = memchr(ln, '\n', size - pos);
         Py_ssize_t n, raw;
-        int crlf, take_len = -1, main_len = 0;
+        int crlf, i;
         if (nl == NULL)
             break;
         raw = nl - ln + 1;
@@ -214,18 +245,18 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
             pos += raw;
             continue;
         }
-        r = kk_do_line(self, &s, ln, n, take, &take_len, main_out, &main_len);
+        r = do_line(self, &s, ln, n, lines);
         if (r == LINE_PYTHON)
             break;
         if (r == LINE_SAME) {
             if (buf_put(&o, ln, raw) < 0) goto fail;
         } else {
             const char *end = crlf ? "\r\n" : "\n";
-            if (take_len >= 0 && (buf_put(&o, take, take_len) < 0 ||
-                                  buf_put(&o, end, crlf + 1) < 0))
-                goto fail;
-            if (buf_put(&o, main_out, main_len) < 0 || buf_put(&o, end, crlf + 1) < 0)
-                goto fail;
+            for (i = 0; i < lines->n; i++)
+                if (buf_put(&o, lines->buf + lines->start[i],
+                            lines->start[i + 1] - lines->start[i]) < 0
+                    || buf_put(&o, end, crlf + 1) < 0)
+                    goto fail;
         }
         pos += raw;
     }
@@ -238,6 +269,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
 fail:
     kk_dicts_release(&D);
     PyMem_Free(o.data);
+    PyMem_Free(lines);
     return res;
 }
 

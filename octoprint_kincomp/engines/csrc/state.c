@@ -6,7 +6,8 @@
 static PyObject *s_q_drive, *s_m, *s_fw, *s_fw_text, *s_w, *s_g, *s_q_last, *s_limit_recheck, *s_backlash,
     *s_dir, *s_anchor, *s_report, *s_lines, *s_moves, *s_moves_compensated, *s_lines_out,
     *s_takeup_moves, *s_max_correction_um, *s_lineno, *s_inches, *s_e_absolute_mode,
-    *s_e_pos, *s_feed, *s_absolute, *s_axis_key[3];
+    *s_e_pos, *s_feed, *s_absolute, *s_axis_key[3], *s_plane, *s_ij_absolute, *s_arcs_kept,
+    *s_arcs_split, *s_arcs_linearised, *s_arc_segments, *s_arc_max_deviation_um;
 
 
 int kk_intern_names(void)
@@ -36,6 +37,13 @@ int kk_intern_names(void)
     INTERN(s_e_pos, "e_pos");
     INTERN(s_feed, "feed");
     INTERN(s_absolute, "absolute");
+    INTERN(s_plane, "plane");
+    INTERN(s_ij_absolute, "ij_absolute");
+    INTERN(s_arcs_kept, "arcs_kept");
+    INTERN(s_arcs_split, "arcs_split");
+    INTERN(s_arcs_linearised, "arcs_linearised");
+    INTERN(s_arc_segments, "arc_segments");
+    INTERN(s_arc_max_deviation_um, "arc_max_deviation_um");
     INTERN(s_axis_key[0], "x");
     INTERN(s_axis_key[1], "y");
     INTERN(s_axis_key[2], "z");
@@ -168,7 +176,19 @@ int kk_load(PyObject *state, State *s, Dicts *D)
         goto python;
     if (get_flag(D->st, s_absolute, &s->absolute, 0) < 0 ||
         get_flag(D->st, s_inches, &s->inches, 0) < 0 ||
-        get_flag(D->st, s_e_absolute_mode, &s->e_abs_mode, 1) < 0)
+        get_flag(D->st, s_e_absolute_mode, &s->e_abs_mode, 1) < 0 ||
+        get_flag(D->st, s_ij_absolute, &s->ij_absolute, 0) < 0)
+        goto python;
+    {
+        long long plane;
+        if (get_ll(D->st, s_plane, &plane) < 0)
+            goto python;
+        s->plane = (int)plane;
+    }
+    if (!(o = dget(D->st, s_e_pos)))
+        goto python;
+    s->e_known = o != Py_None;
+    if (s->e_known && get_double(o, &s->e_pos) < 0)
         goto python;
     if (!(o = dget(D->st, s_m)) || get3(o, s->m, known, 1) < 0)
         goto python;
@@ -223,7 +243,13 @@ int kk_load(PyObject *state, State *s, Dicts *D)
         get_ll(D->rep, s_moves, &s->moves) < 0 ||
         get_ll(D->rep, s_moves_compensated, &s->moves_comp) < 0 ||
         get_ll(D->rep, s_lines_out, &s->lines_out) < 0 ||
-        get_ll(D->rep, s_takeup_moves, &s->takeup) < 0)
+        get_ll(D->rep, s_takeup_moves, &s->takeup) < 0 ||
+        get_ll(D->rep, s_arcs_kept, &s->arcs_kept) < 0 ||
+        get_ll(D->rep, s_arcs_split, &s->arcs_split) < 0 ||
+        get_ll(D->rep, s_arcs_linearised, &s->arcs_lin) < 0 ||
+        get_ll(D->rep, s_arc_segments, &s->arc_segments) < 0)
+        goto python;
+    if (!(o = dget(D->rep, s_arc_max_deviation_um)) || get_double(o, &s->arc_dev) < 0)
         goto python;
     if (!(o = dget(D->rep, s_max_correction_um)) || !PyDict_CheckExact(o))
         goto python;
@@ -303,7 +329,13 @@ int kk_store(const Dicts *D, const State *s, const State *before)
         set_ll(D->rep, s_moves, s->moves, before->moves) < 0 ||
         set_ll(D->rep, s_moves_compensated, s->moves_comp, before->moves_comp) < 0 ||
         set_ll(D->rep, s_lines_out, s->lines_out, before->lines_out) < 0 ||
-        set_ll(D->rep, s_takeup_moves, s->takeup, before->takeup) < 0)
+        set_ll(D->rep, s_takeup_moves, s->takeup, before->takeup) < 0 ||
+        set_ll(D->rep, s_arcs_kept, s->arcs_kept, before->arcs_kept) < 0 ||
+        set_ll(D->rep, s_arcs_split, s->arcs_split, before->arcs_split) < 0 ||
+        set_ll(D->rep, s_arcs_linearised, s->arcs_lin, before->arcs_lin) < 0 ||
+        set_ll(D->rep, s_arc_segments, s->arc_segments, before->arc_segments) < 0)
+        return -1;
+    if (s->arc_dev != before->arc_dev && set_double(D->rep, s_arc_max_deviation_um, s->arc_dev) < 0)
         return -1;
     if (s->e_set) {
         if (s->e_none ? PyDict_SetItem(D->st, s_e_pos, Py_None) < 0

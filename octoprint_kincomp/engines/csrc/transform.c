@@ -3,7 +3,7 @@
 #include "kernel.h"
 
 /* BacklashAxis.um_at: um at carriage position q (mm), same operation order. */
-static double kk_um_at(const Table *t, double q)
+double kk_um_at(const Table *t, double q)
 {
     int i;
     if (t->n == 1 || q <= t->pos[0])
@@ -20,12 +20,43 @@ static double kk_um_at(const Table *t, double q)
     return t->um[t->n - 1];
 }
 
+/* backlash.reversal for axis k commanded to q (from q_from): 1 a reversal (dir and anchor
+ * updated), 0 none (the anchor follows), -1 Python decides (a direction without anchor). */
+int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from)
+{
+    long d = s->dir[k];
+    double a = s->anchor[k];
+    if (d != 0 && !s->anchor_known[k])
+        return -1;
+    if (d > 0) {
+        if (q >= a) { s->anchor[k] = q; return 0; }
+        if (q >= a - K->deadband) return 0;
+        d = -1;
+    } else if (d < 0) {
+        if (q <= a) { s->anchor[k] = q; return 0; }
+        if (q <= a + K->deadband) return 0;
+        d = 1;
+    } else {
+        if (!s->anchor_known[k]) {
+            a = s->anchor[k] = q_from;
+            s->anchor_known[k] = 1;
+        }
+        if (q > a + K->deadband) d = 1;
+        else if (q < a - K->deadband) d = -1;
+        else return 0;
+    }
+    s->dir[k] = d;
+    s->anchor[k] = q;
+    s->anchor_known[k] = 1;
+    return 1;
+}
+
 /* PathWriter.emit for one point: append " <axis><text>" for each axis written to out (after the
  * code). Returns the number of axes written, -1: Python decides (nothing to undo: the
  * caller drops the whole tentative state). */
-static int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
-                 const double *q_prev, const int *redo, const double *m_old, char *out,
-                 int *out_len)
+int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
+             const double *q_prev, const int *redo, const double *m_old, char *out,
+             int *out_len)
 {
     static const char LETTER[3] = {'X', 'Y', 'Z'};
     double u = s->inches ? MM_PER_INCH : 1.0;
@@ -90,7 +121,7 @@ static int kk_point(Kernel *K, State *s, const double *p, const double *q, const
     return written;
 }
 
-static void kk_inverse(const Kernel *K, const double *p, double *q)
+void kk_inverse(const Kernel *K, const double *p, double *q)
 {
     double x = p[0] - K->b[0], y = p[1] - K->b[1], z = p[2] - K->b[2];
     q[0] = K->A[0] * x + K->A[1] * y + K->A[2] * z;
@@ -103,12 +134,31 @@ static int is_num_char(char c)
     return (c >= '0' && c <= '9') || c == '.' || c == '+' || c == '-';
 }
 
-/* One line (without its ending). LINE_OUT: the take-up line (if
- * take_len >= 0) and the main line; LINE_SAME: the line as it is; LINE_PYTHON: nothing
- * changed, the Python path decides. ``s`` is changed only for LINE_OUT and LINE_SAME. */
-int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
-                   int *take_len, char *main_out, int *main_len)
+/* The output lines of one input line: kk_line_begin gives where the next line goes (room
+ * for OUT_LINE bytes; NULL: no room, Python decides), kk_line_end records its length. */
+char *kk_line_begin(Lines *o)
 {
+    if (o->n >= MAX_OUT || o->len + OUT_LINE > OUT_BUF)
+        return NULL;
+    o->start[o->n] = o->len;
+    return o->buf + o->len;
+}
+
+int kk_line_end(Lines *o, int len)
+{
+    o->len += len;
+    o->n++;
+    o->start[o->n] = o->len;
+    return 0;
+}
+
+/* One line (without its ending). LINE_OUT: the lines in ``out`` (a take-up line, then the
+ * move); LINE_SAME: the line as it is; LINE_PYTHON: nothing changed, the Python path
+ * decides. ``s`` is changed only for LINE_OUT and LINE_SAME. */
+int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
+{
+    char *take, *main_out;
+    int take_len = -1, main_len = 0;
     /* slots: 0 F (first), 1 X, 2 Y, 3 Z, 4 E, 5 F (after) */
     Py_ssize_t tok_start[6], tok_end[6];
     int present[6] = {0, 0, 0, 0, 0, 0};
@@ -117,6 +167,7 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
     Py_ssize_t i;
     State s;
 
+    out->n = out->len = 0;
     if (n > MAX_LINE || n < 4 || ln[0] != 'G' || (ln[1] != '0' && ln[1] != '1') ||
         ln[2] != ' ')
         return LINE_PYTHON;
@@ -173,6 +224,7 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
         if (present[4]) {
             s.e_set = 1;
             s.e_none = s.e_abs_mode == 0;
+            s.e_known = !s.e_none;
             s.e_pos = val[4];
         }
         s.lineno++;
@@ -191,55 +243,37 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
         else
             kk_inverse(K, s.m, q0);
         memcpy(redo, s.recheck, sizeof redo);
-        *take_len = -1;
         for (k = 0; k < 3; k++) {
             /* backlash.reversal: a hysteresis of ``deadband`` around the anchor */
-            double q = q1[k], a;
-            long d;
+            int r;
             if (!K->active[k])
                 continue;
-            d = s.dir[k];
-            a = s.anchor[k];
-            if (d != 0 && !s.anchor_known[k])
-                return LINE_PYTHON;  /* (a direction has an anchor) */
-            if (d > 0) {
-                if (q >= a) { s.anchor[k] = q; continue; }
-                if (q >= a - K->deadband) continue;
-                d = -1;
-            } else if (d < 0) {
-                if (q <= a) { s.anchor[k] = q; continue; }
-                if (q <= a + K->deadband) continue;
-                d = 1;
-            } else {
-                if (!s.anchor_known[k]) {
-                    a = s.anchor[k] = q0[k];
-                    s.anchor_known[k] = 1;
-                }
-                if (q > a + K->deadband) d = 1;
-                else if (q < a - K->deadband) d = -1;
-                else continue;
-            }
-            s.dir[k] = d;
-            s.anchor[k] = q;
-            s.anchor_known[k] = 1;
+            r = kk_reversal(K, &s, k, q1[k], q0[k]);
+            if (r < 0)
+                return LINE_PYTHON;
+            if (r == 0)
+                continue;
             rev = redo[k] = 1;
         }
         if (rev) {
             int tl = 2, r;
+            take = kk_line_begin(out);
             take[0] = 'G';
             take[1] = '1';
             r = kk_point(K, &s, s.m, q0, none, q0, redo, s0->m, take, &tl);
             if (r < 0)
                 return LINE_PYTHON;
             if (r > 0) {
-                *take_len = tl;
+                take_len = tl;
+                kk_line_end(out, tl);
                 s.takeup++;
             }
         }
+        main_out = kk_line_begin(out);
         main_out[0] = 'G';
         main_out[1] = ln[1];
-        *main_len = 2;
-        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, main_out, main_len) < 0)
+        main_len = 2;
+        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, main_out, &main_len) < 0)
             return LINE_PYTHON;
         /* the E/F words after X/Y/Z as written; a leading F word goes after them */
         if (present[4])
@@ -248,20 +282,21 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, char *take,
             tail_from = tok_start[5] - 1;
         if (f_first) {
             Py_ssize_t fl = tok_end[0] - tok_start[0];
-            main_out[(*main_len)++] = ' ';
-            memcpy(main_out + *main_len, ln + tok_start[0], fl);
-            *main_len += (int)fl;
+            main_out[main_len++] = ' ';
+            memcpy(main_out + main_len, ln + tok_start[0], fl);
+            main_len += (int)fl;
         }
         if (tail_from >= 0) {
-            memcpy(main_out + *main_len, ln + tail_from, n - tail_from);
-            *main_len += (int)(n - tail_from);
+            memcpy(main_out + main_len, ln + tail_from, n - tail_from);
+            main_len += (int)(n - tail_from);
         }
+        kk_line_end(out, main_len);
         memcpy(s.m, p1, sizeof p1);
         memcpy(s.q_last, q1, sizeof q1);
         s.q_last_known = 1;
         s.moved = 1;
         s.moves_comp++;
-        s.lines_out += *take_len >= 0 ? 2 : 1;
+        s.lines_out += take_len >= 0 ? 2 : 1;
         *s0 = s;
         return LINE_OUT;
     }

@@ -23,6 +23,7 @@ $(function () {
         self.limitsPolicy = ko.observable("warn");
         self.applyChanges = ko.observable("next_print");
         self.passThrough = ko.observable(false);
+        self.lineariseArcs = ko.observable(false);
         self.demo = ko.observable(false);
         self.blFraction = ko.observable("1");
         self.blSmoothing = ko.observable("0");
@@ -97,6 +98,7 @@ $(function () {
             self.limitsPolicy(s.limits_policy);
             self.applyChanges(s.apply_changes);
             self.passThrough(s.pass_through_on_error);
+            self.lineariseArcs(!!s.linearise_arcs);
             self.demo(!!(s.demo && s.demo.enabled));
             var p = s.params;
             _.each(self.squareness, function (f) {
@@ -221,6 +223,7 @@ $(function () {
                     limits_policy: self.limitsPolicy(),
                     apply_changes: self.applyChanges(),
                     pass_through_on_error: self.passThrough(),
+                    linearise_arcs: self.lineariseArcs(),
                     demo: {enabled: self.demo()}
                 }
             };
@@ -261,6 +264,7 @@ $(function () {
                 chord_tol_mm: self.loaded.chord_tol_mm, limits_policy: self.loaded.limits_policy,
                 apply_changes: self.loaded.apply_changes,
                 pass_through_on_error: self.loaded.pass_through_on_error,
+                linearise_arcs: !!self.loaded.linearise_arcs,
                 demo: {enabled: !!(self.loaded.demo && self.loaded.demo.enabled)}
             });
             if (now !== before) {

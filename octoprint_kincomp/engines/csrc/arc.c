@@ -1,0 +1,487 @@
+/* G2/G3 lines kept as arcs: core/arcpath.py (the reference) and core/arcs.py (Arc), the
+ * same operations in the same order. Taken: absolute mode, G17, IJ form (X Y Z I J E F
+ * words, each at most once, single-spaced, no comment), no P; every piece must fit as an
+ * arc or be a G1 (the reference's chord fallback is left to Python, as is anything else:
+ * limits near the arc, an unknown position or E, a radius too large). */
+#include "kernel.h"
+
+#define MAX_DEPTH 3
+
+static const double SAMPLES[6] = {0.125, 0.25, 0.375, 0.625, 0.75, 0.875};
+static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
+                               1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
+                               1e22};
+
+/* EDistribution (core/path.py) */
+typedef struct {
+    int present, relative, dec;
+    const char *text;  /* the word as written, "E..." */
+    int text_len;
+    double value, scale, e0, total;
+    long long units, done;
+} EDist;
+
+typedef struct {
+    Kernel *K;
+    State *s;
+    const Geo *a;
+    int cw;
+    const int *given;
+    EDist ed;
+    const char *code;           /* "G2"/"G3" */
+    const char *tail[2];        /* E/F tokens in input order (NULL: none) */
+    int tail_len[2];
+    int first, arcs, segments;
+    double dev;                 /* worst deviation of a written arc (um) */
+    Lines *out;
+    double m_old[3];
+} Job;
+
+/* -- E split ----------------------------------------------------------------------------- */
+
+static int decimals_of(const char *t, int len)
+{
+    int i = 0, d;
+    while (i < len && t[i] != '.')
+        i++;
+    if (i == len)
+        return 0;
+    d = 0;
+    for (i++; i < len && t[i] >= '0' && t[i] <= '9'; i++)
+        d++;
+    return d;
+}
+
+/* 0, or -1: outside what the kernel holds (Python decides) */
+static int edist_init(EDist *e, const char *text, int len, double value, int relative,
+                      int e_known, double e_pos, double total)
+{
+    e->present = text != NULL;
+    if (!e->present)
+        return 0;
+    e->text = text;
+    e->text_len = len;
+    e->value = value;
+    e->relative = relative;
+    e->e0 = e_pos;
+    e->total = total;
+    e->dec = decimals_of(text + 1, len - 1);
+    if (e->dec < 5)
+        e->dec = 5;
+    if (e->dec > 12)  /* (the fast formatter's integer range) */
+        return -1;
+    e->scale = P10[e->dec];
+    if (relative) {
+        double x = value * e->scale;
+        if (!(fabs(x) < 4503599627370496.0))  /* 2**52: Python's round() is exact there */
+            return -1;
+        e->units = (long long)nearbyint(x);
+        e->done = 0;
+    } else if (!e_known) {
+        return -1;
+    }
+    return 0;
+}
+
+/* EDistribution.take: appends " E..." to out; -1: Python decides */
+static int edist_take(EDist *e, double s_end, int last, char *out, int *len)
+{
+    char text[MAX_TEXT + 1];
+    int n;
+    double v;
+    if (last && (!e->relative || e->done == 0)) {
+        out[(*len)++] = ' ';
+        memcpy(out + *len, e->text, e->text_len);
+        *len += e->text_len;
+        return 0;
+    }
+    if (last) {
+        v = (double)(e->units - e->done) / e->scale;
+    } else {
+        double f = e->total > 0 ? s_end / e->total : 1.0;
+        if (e->relative) {
+            double x = (double)e->units * f;
+            long long upto;
+            if (!(fabs(x) < 4503599627370496.0))
+                return -1;
+            upto = (long long)nearbyint(x);
+            v = (double)(upto - e->done) / e->scale;
+            e->done = upto;
+        } else {
+            v = e->e0 + (e->value - e->e0) * f;
+        }
+    }
+    n = kk_format_num(v, e->dec, text);
+    if (n < 0)
+        return -1;
+    out[(*len)++] = ' ';
+    out[(*len)++] = 'E';
+    memcpy(out + *len, text, n);
+    *len += n;
+    return 0;
+}
+
+/* -- pieces ------------------------------------------------------------------------------ */
+
+/* the command of axis k for geometric command q: q plus its take-up offset, as the reference
+ * adds it (``c += offset`` whenever some axis has backlash) */
+static double with_offset(const Kernel *K, const State *s, int k, double q)
+{
+    if (!K->any_active)
+        return q;
+    return q + ((s->dir[k] && K->active[k])
+                    ? (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], q) : 0.0);
+}
+
+/* Firmware coordinates (mm) of the compensated point for desired p (_Job.target) */
+static void target(const Job *j, const double *p, double *out)
+{
+    const Kernel *K = j->K;
+    const State *s = j->s;
+    double q[3];
+    int k;
+    kk_inverse(K, p, q);
+    for (k = 0; k < 3; k++)
+        out[k] = with_offset(K, s, k, q[k]) + s->g[k];
+}
+
+/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after) */
+static int fw_after(const State *s, int dec, double u, int k, double c, double *fw)
+{
+    char text[MAX_TEXT + 1];
+    int len = kk_format_num((c + s->g[k]) / u, dec, text);
+    double v;
+    if (len < 0 || kk_parse_num(text, len, &v) < 0)
+        return -1;
+    *fw = v * u;
+    return 0;
+}
+
+/* _Job.fit: 1 fits (words in ij, deviation mm in dev), 0 no fit, 2 the rounded end is the
+ * start, -1 Python decides */
+static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij_len,
+               double *dev_out)
+{
+    const Kernel *K = j->K;
+    const State *s = j->s;
+    const Geo *a = j->a;
+    double u = s->inches ? MM_PER_INCH : 1.0;
+    int dec = K->dec + (s->inches ? 2 : 0), k, i, n;
+    const double *S = s->fw;
+    double E[3], M[3], p[3], T[3];
+    double bx, by, cx, cy, d, b2, c2, ux, uy, radius, ka, kb, sa, sb, lin0, dlin;
+    double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
+    char text[MAX_TEXT + 1];
+    for (k = 0; k < 3; k++)
+        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
+            return -1;
+    if (E[0] == S[0] && E[1] == S[1])
+        return 2;
+    if (budget <= 0.0)
+        return 0;
+    kk_arc_point(a, fa + (fb - fa) * 0.5, p);
+    target(j, p, M);
+    bx = M[0] - S[0];
+    by = M[1] - S[1];
+    cx = E[0] - S[0];
+    cy = E[1] - S[1];
+    d = 2.0 * (bx * cy - by * cx);
+    if (d == 0.0 || (d > 0.0) == j->cw)
+        return 0;
+    b2 = bx * bx + by * by;
+    c2 = cx * cx + cy * cy;
+    ux = (cy * b2 - by * c2) / d;
+    uy = (bx * c2 - cx * b2) / d;
+    radius = kk_norm2(ux, uy);
+    ka = S[0] + ux;
+    kb = S[1] + uy;
+    sa = -ux;
+    sb = -uy;
+    lin0 = S[2];
+    dlin = E[2] - lin0;
+    if (dlin != 0.0) {
+        double ea = E[0] - ka, eb = E[1] - kb;
+        sweep = atan2(sa * eb - sb * ea, sa * ea + sb * eb);
+        if (j->cw)
+            sweep = -sweep;
+        if (!(sweep > 0.0))
+            return 0;
+    }
+    for (i = 0; i < 6; i++) {
+        double va, vb, dr, lin, dl, e;
+        kk_arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
+        target(j, p, T);
+        va = T[0] - ka;
+        vb = T[1] - kb;
+        dr = kk_norm2(va, vb) - radius;
+        lin = lin0;
+        if (dlin != 0.0) {
+            double ang = atan2(sa * vb - sb * va, sa * va + sb * vb);
+            if (j->cw)
+                ang = -ang;
+            lin = lin0 + dlin * (ang / sweep);
+        }
+        dl = T[2] - lin;
+        e = kk_norm2(dr, dl);
+        if (e > dev)
+            dev = e;
+    }
+    dev *= K->k_dev;
+    if (dev > budget)
+        return 0;
+    *ij_len = 0;
+    n = kk_format_num(ux / u, dec, text);
+    if (n < 0)
+        return -1;
+    ij[(*ij_len)++] = ' ';
+    ij[(*ij_len)++] = 'I';
+    memcpy(ij + *ij_len, text, n);
+    *ij_len += n;
+    n = kk_format_num(uy / u, dec, text);
+    if (n < 0)
+        return -1;
+    ij[(*ij_len)++] = ' ';
+    ij[(*ij_len)++] = 'J';
+    memcpy(ij + *ij_len, text, n);
+    *ij_len += n;
+    *dev_out = dev;
+    return 1;
+}
+
+/* _Job.line: one output line ending at fraction f, desired point p, command q */
+static int write_line(Job *j, const char *code, const double *p, const double *q, double f,
+                      const char *extra, int extra_len)
+{
+    static const int NONE[3] = {0, 0, 0}, ALL[3] = {1, 1, 1};
+    char *o = kk_line_begin(j->out);
+    int len = 2, last = f == 1.0, t;
+    State *s = j->s;
+    if (o == NULL)
+        return -1;
+    o[0] = code[0];
+    o[1] = code[1];
+    if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, o, &len) < 0)
+        return -1;
+    memcpy(s->m, p, 3 * sizeof(double));
+    memcpy(o + len, extra, extra_len);
+    len += extra_len;
+    if (j->first) {
+        j->first = 0;
+        for (t = 0; t < 2; t++) {
+            if (j->tail[t] == NULL)
+                continue;
+            if (j->tail[t][0] == 'E') {
+                if (edist_take(&j->ed, kk_length_to(j->a, f), last, o, &len) < 0)
+                    return -1;
+            } else {
+                o[len++] = ' ';
+                memcpy(o + len, j->tail[t], j->tail_len[t]);
+                len += j->tail_len[t];
+            }
+        }
+    } else if (j->ed.present && edist_take(&j->ed, kk_length_to(j->a, f), last, o, &len) < 0) {
+        return -1;
+    }
+    kk_line_end(j->out, len);
+    j->segments++;
+    return 0;
+}
+
+/* _Job.piece: 0, or -1 (Python decides: the chord fallback, or anything odd) */
+static int piece(Job *j, double fa, double fb, const double *pb, const double *qb, int depth)
+{
+    const Geo *a = j->a;
+    double half = fabs(a->sweep) * (fb - fa) * 0.5, rmax = a->r0 > a->r1 ? a->r0 : a->r1;
+    double dev = 0.0;
+    char ij[2 * MAX_TEXT + 8];
+    int ij_len = 0, r;
+    if (rmax * half * half * 0.5 <= j->K->sliver[j->s->inches])
+        return write_line(j, "G1", pb, qb, fb, "", 0);
+    r = fit(j, fa, fb, qb, ij, &ij_len, &dev);
+    if (r < 0)
+        return -1;
+    if (r == 2)
+        return write_line(j, "G1", pb, qb, fb, "", 0);
+    if (r == 1) {
+        if (write_line(j, j->code, pb, qb, fb, ij, ij_len) < 0)
+            return -1;
+        j->arcs++;
+        dev *= 1000.0;
+        if (dev > j->dev)
+            j->dev = dev;
+        return 0;
+    }
+    if (depth < MAX_DEPTH) {
+        double fm = fa + (fb - fa) * 0.5, pm[3], qm[3];
+        kk_arc_point(a, fm, pm);
+        kk_inverse(j->K, pm, qm);
+        if (piece(j, fa, fm, pm, qm, depth + 1) < 0)
+            return -1;
+        return piece(j, fm, fb, pb, qb, depth + 1);
+    }
+    return -1;  /* no arc fits: chords, written by the reference path */
+}
+
+/* One G2/G3 line (ln[0..2] = "G2 " or "G3 "); as kk_do_line */
+int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
+{
+    /* slots: 0 X, 1 Y, 2 Z, 3 I, 4 J, 5 E, 6 F */
+    static const char LETTERS[] = "XYZIJEF";
+    Py_ssize_t ts[7], te[7], i = 3;
+    int present[7] = {0, 0, 0, 0, 0, 0, 0}, k, ntail = 0, nc, c;
+    double val[7], start[3], end[3], ca, cb, oa, ob, cuts[MAX_CUTS], fa, pa[3], qa[3];
+    Geo a;
+    Job j;
+    State s;
+
+    if (!K->keep_arcs || K->pure_translation || !s0->absolute || !s0->m_known ||
+        s0->plane != 17 || s0->ij_absolute)
+        return LINE_PYTHON;
+    for (k = 0; k < 3; k++)
+        if (!s0->fw_known[k])
+            return LINE_PYTHON;
+    memset(&j, 0, sizeof j);
+    while (i <= n) {
+        Py_ssize_t st = i, e;
+        const char *L;
+        int slot;
+        while (i < n && ln[i] != ' ')
+            i++;
+        e = i;
+        i++;
+        if (e - st < 2)
+            return LINE_PYTHON;
+        L = strchr(LETTERS, ln[st]);
+        if (L == NULL || ln[st] == 0)
+            return LINE_PYTHON;
+        slot = (int)(L - LETTERS);
+        if (present[slot])
+            return LINE_PYTHON;
+        for (Py_ssize_t q = st + 1; q < e; q++) {
+            char ch = ln[q];
+            if (!((ch >= '0' && ch <= '9') || ch == '.' || ch == '+' || ch == '-'))
+                return LINE_PYTHON;
+        }
+        if (kk_parse_num(ln + st + 1, e - st - 1, &val[slot]) < 0)
+            return LINE_PYTHON;
+        present[slot] = 1;
+        ts[slot] = st;
+        te[slot] = e;
+        if (slot >= 5) {
+            j.tail[ntail] = ln + st;
+            j.tail_len[ntail++] = (int)(e - st);
+        }
+    }
+    if (!present[3] && !present[4])
+        return LINE_PYTHON;
+    s = *s0;
+    {
+        double u = s.inches ? MM_PER_INCH : 1.0;
+        int given[3] = {present[0], present[1], present[2]};
+        int e_rel = s.e_abs_mode == 0;
+        if (present[6]) {
+            s.feed = val[6] * u;
+            s.f_set = 1;
+        }
+        s.lineno++;
+        s.lines++;
+        s.moves++;
+        for (k = 0; k < 3; k++) {
+            start[k] = s.m[k];
+            end[k] = given[k] ? val[k] * u - s.w[k] : s.m[k];
+        }
+        oa = present[3] ? val[3] * u : 0.0;
+        ob = present[4] ? val[4] * u : 0.0;
+        if (oa == 0.0)
+            oa = 0.0;  /* (Python's ``oa or 0.0``: -0.0 becomes 0.0) */
+        if (ob == 0.0)
+            ob = 0.0;
+        ca = start[0] + oa;
+        cb = start[1] + ob;
+        if (kk_make_geo(K, &a, start, end, ca, cb, ln[1] == '2') < 0)
+            return LINE_PYTHON;
+        if (!kk_inside_limits(K, &a))
+            return LINE_PYTHON;
+        nc = kk_arc_cuts(K, &a, cuts);
+        if (nc < 0 || !kk_monotone(K, &a, cuts, nc))
+            return LINE_PYTHON;
+        j.K = K;
+        j.s = &s;
+        j.a = &a;
+        j.cw = ln[1] == '2';
+        j.given = given;
+        j.code = ln;
+        j.first = 1;
+        j.out = out;
+        memcpy(j.m_old, s0->m, sizeof j.m_old);
+        if (edist_init(&j.ed, present[5] ? ln + ts[5] : NULL, present[5] ? (int)(te[5] - ts[5]) : 0,
+                       present[5] ? val[5] : 0.0, e_rel, s.e_known, s.e_pos,
+                       kk_length_to(&a, 1.0)) < 0)
+            return LINE_PYTHON;
+        fa = 0.0;
+        memcpy(pa, start, sizeof pa);
+        kk_inverse(K, pa, qa);
+        for (c = 0; c < nc; c++) {
+            double fb = cuts[c], pb[3], qb[3];
+            int rev = 0;
+            kk_arc_point(&a, fb, pb);
+            kk_inverse(K, pb, qb);
+            for (k = 0; k < 3 && K->any_active; k++) {
+                /* BacklashTracker.detect_reversals from qa to qb */
+                int r;
+                if (!K->active[k])
+                    continue;
+                r = kk_reversal(K, &s, k, qb[k], qa[k]);
+                if (r < 0)
+                    return LINE_PYTHON;
+                if (r == 0)
+                    continue;
+                rev = 1;
+            }
+            if (rev) {
+                static const int NONE[3] = {0, 0, 0}, ALL[3] = {1, 1, 1};
+                char *o = kk_line_begin(out);
+                int tl = 2, r;
+                if (o == NULL)
+                    return LINE_PYTHON;
+                o[0] = 'G';
+                o[1] = '1';
+                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, o, &tl);
+                if (r < 0)
+                    return LINE_PYTHON;
+                memcpy(s.m, pa, sizeof pa);
+                if (r > 0) {
+                    kk_line_end(out, tl);
+                    s.takeup++;
+                }
+            }
+            if (piece(&j, fa, fb, pb, qb, 0) < 0)
+                return LINE_PYTHON;
+            fa = fb;
+            memcpy(pa, pb, sizeof pa);
+            memcpy(qa, qb, sizeof qa);
+        }
+        if (j.arcs == 0)
+            s.arcs_lin++;
+        else if (j.segments == 1)
+            s.arcs_kept++;
+        else
+            s.arcs_split++;
+        s.arc_segments += j.segments;
+        if (j.dev > s.arc_dev)
+            s.arc_dev = j.dev;
+        if (present[5]) {
+            s.e_set = 1;
+            s.e_none = e_rel;
+            s.e_known = !e_rel;
+            s.e_pos = val[5];
+        }
+        memcpy(s.q_last, qa, sizeof qa);
+        s.q_last_known = 1;
+        s.moved = 1;
+        s.moves_comp++;
+        s.lines_out += out->n;
+        *s0 = s;
+        return LINE_OUT;
+    }
+}

@@ -1,0 +1,207 @@
+/* The geometry of a G17 arc (core/arcs.py: arc_sweep, Arc.point, Arc.length_to, Arc.cuts)
+ * and the checks before an arc is kept (core/arcpath.py: ArcWriter.monotone,
+ * ArcWriter.inside_limits; core/moves.py: the radius check), with the reference's operations
+ * in the same order. Lengths mm, angles rad (from +X towards +Y). */
+#include "kernel.h"
+
+#define TWO_PI (2.0 * M_PI)
+#define MAX_PIECE_RAD (M_PI / 2.0)
+#define BREAK_EDGE 1e-9
+
+double kk_norm2(double a, double b)
+{
+    return sqrt(a * a + b * b);
+}
+
+static double py_mod(double a, double b)
+{
+    double m = fmod(a, b);
+    if (m != 0.0) {
+        if ((b < 0) != (m < 0))
+            m += b;
+    } else {
+        m = copysign(0.0, b);
+    }
+    return m;
+}
+
+void kk_arc_point(const Geo *a, double f, double *p)
+{
+    double t, r;
+    if (f == 0.0) {
+        memcpy(p, a->start, sizeof a->start);
+        return;
+    }
+    if (f == 1.0) {
+        memcpy(p, a->end, sizeof a->end);
+        return;
+    }
+    t = a->t0 + a->sweep * f;
+    r = a->r0 + a->dr * f;
+    p[0] = a->ca + r * cos(t);
+    p[1] = a->cb + r * sin(t);
+    p[2] = a->l0 + a->dl * f;
+}
+
+double kk_length_to(const Geo *a, double f)
+{
+    double planar = fabs(a->sweep) * f * (a->r0 + 0.5 * a->dr * f);
+    double lin = a->dl * f;
+    return sqrt(planar * planar + lin * lin);
+}
+
+/* Arc.cuts: -1 if there would be too many (Python decides) */
+int kk_arc_cuts(const Kernel *K, const Geo *a, double *cuts)
+{
+    double lo, hi, width = fabs(a->sweep), fr[3 * MAX_BREAKS + 4], fa = 0.0, prev = -1.0;
+    int nf = 0, nc = 0, i, j, first = 1;
+    if (a->sweep > 0) {
+        lo = a->t0;
+        hi = a->t0 + a->sweep;
+    } else {
+        lo = a->t0 + a->sweep;
+        hi = a->t0;
+    }
+    for (i = 0; i < K->nbreaks; i++) {
+        double phi = K->breaks[i], k = ceil((lo - phi) / M_PI);
+        while (phi + k * M_PI < hi) {
+            double f = (phi + k * M_PI - a->t0) / a->sweep;
+            if (BREAK_EDGE < f && f < 1.0 - BREAK_EDGE) {
+                if (nf >= 3 * MAX_BREAKS + 2)
+                    return -1;
+                fr[nf++] = f;
+            }
+            k += 1;
+        }
+    }
+    for (i = 1; i < nf; i++)  /* sort */
+        for (j = i; j > 0 && fr[j - 1] > fr[j]; j--) {
+            double t = fr[j];
+            fr[j] = fr[j - 1];
+            fr[j - 1] = t;
+        }
+    fr[nf++] = 1.0;
+    for (i = 0; i < nf; i++) {
+        double fb = fr[i], n;
+        long m;
+        if (!first && fb == prev)
+            continue;
+        first = 0;
+        prev = fb;
+        n = ceil(width * (fb - fa) / MAX_PIECE_RAD - 1e-9);
+        if (n > MAX_CUTS)
+            return -1;
+        for (m = 1; m < (long)n; m++) {
+            if (nc >= MAX_CUTS)
+                return -1;
+            cuts[nc++] = fa + (fb - fa) * (double)m / n;
+        }
+        if (nc >= MAX_CUTS)
+            return -1;
+        cuts[nc++] = fb;
+        fa = fb;
+    }
+    return nc;
+}
+
+/* ArcWriter.inside_limits */
+int kk_inside_limits(const Kernel *K, const Geo *a)
+{
+    double rmax = a->r0 > a->r1 ? a->r0 : a->r1, lo[3], hi[3], margin, p[3], q[3];
+    int i, k;
+    if (!K->has_limits)
+        return 1;
+    lo[0] = a->ca - rmax;
+    hi[0] = a->ca + rmax;
+    lo[1] = a->cb - rmax;
+    hi[1] = a->cb + rmax;
+    lo[2] = a->start[2] < a->end[2] ? a->start[2] : a->end[2];
+    hi[2] = a->start[2] > a->end[2] ? a->start[2] : a->end[2];
+    margin = K->tol + K->max_offset;
+    for (k = 0; k < 3; k++)
+        if (lo[k] < K->lim[2 * k] || hi[k] > K->lim[2 * k + 1])
+            return 0;
+    for (i = 0; i < 8; i++) {
+        for (k = 0; k < 3; k++)
+            p[k] = (i >> k & 1) ? hi[k] : lo[k];
+        kk_inverse(K, p, q);
+        for (k = 0; k < 3; k++)
+            if (q[k] - margin < K->lim[2 * k] || q[k] + margin > K->lim[2 * k + 1])
+                return 0;
+    }
+    return 1;
+}
+
+/* ArcWriter.monotone */
+int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
+{
+    double fa = 0.0, p[3], qs[9][3];
+    int c, j, k;
+    if (!K->any_active)
+        return 1;
+    for (c = 0; c < nc; c++) {
+        double fb = cuts[c];
+        for (j = 0; j < 9; j++) {
+            kk_arc_point(a, fa + (fb - fa) * (j * 0.125), p);
+            kk_inverse(K, p, qs[j]);
+        }
+        for (k = 0; k < 3; k++) {
+            int up = 0, down = 0;
+            if (!K->active[k])
+                continue;
+            for (j = 0; j < 8; j++) {
+                double d = qs[j + 1][k] - qs[j][k];
+                if (d > K->deadband)
+                    up = 1;
+                else if (d < -K->deadband)
+                    down = 1;
+            }
+            if (up && down)
+                return 0;
+        }
+        fa = fb;
+    }
+    return 1;
+}
+
+/* arcs.arc_sweep and the checks of MoveHandler.arc; 0 or -1 (Python decides) */
+int kk_make_geo(const Kernel *K, Geo *a, const double *start, const double *end,
+                    double ca, double cb, int cw)
+{
+    double r0, r1, t0, t1, sweep, step, radius;
+    r0 = kk_norm2(start[0] - ca, start[1] - cb);
+    r1 = kk_norm2(end[0] - ca, end[1] - cb);
+    if (r0 < 1e-9 || r1 < 1e-9)
+        return -1;
+    t0 = atan2(start[1] - cb, start[0] - ca);
+    t1 = atan2(end[1] - cb, end[0] - ca);
+    if (kk_norm2(end[0] - start[0], end[1] - start[1]) < 1e-6)
+        sweep = TWO_PI;
+    else if (cw)
+        sweep = py_mod(t0 - t1, TWO_PI);
+    else
+        sweep = py_mod(t1 - t0, TWO_PI);
+    if (sweep <= 0.0)
+        sweep = TWO_PI;
+    sweep += 0.0;  /* (no P turns here) */
+    a->ca = ca;
+    a->cb = cb;
+    a->t0 = t0;
+    a->sweep = cw ? -sweep : sweep;
+    a->r0 = r0;
+    a->r1 = r1;
+    a->dr = r1 - r0;
+    a->l0 = start[2];
+    a->dl = end[2] - start[2];
+    memcpy(a->start, start, sizeof a->start);
+    memcpy(a->end, end, sizeof a->end);
+    /* arcs.segment_angle: a radius too large for the tolerance is malformed */
+    radius = r0 > r1 ? r0 : r1;
+    if (radius > K->tol) {
+        step = 2.0 * acos(1.0 - K->tol / radius);
+        if (!(step > 0.0))
+            return -1;
+    }
+    return 0;
+}
+
