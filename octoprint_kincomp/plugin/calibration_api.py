@@ -117,7 +117,7 @@ class CalibrationApi:
                 requested_feed_mm_min=feed,
                 mount_pause=mount_pause,
             )
-            params = self._queue.params
+            params = self._queue.in_force
             text = generate(spec, volume=self._store.limits(), params_hash=params.hash())
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
@@ -171,7 +171,7 @@ class CalibrationApi:
         except UploadRefused as exc:
             return http.error(exc.message, exc.status)
         safe = safe_name(os.path.basename(str(filename)))
-        args = {"data": data, "name": safe, "current": self._queue.params.to_dict()}
+        args = {"data": data, "name": safe, "current": self._queue.in_force.to_dict()}
 
         def run(job, progress) -> None:
             result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
@@ -221,7 +221,7 @@ class CalibrationApi:
                 diag = self._artifact(data["artifact"])
                 notes = []
                 params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None),
-                                        self._queue.params, notes)
+                                        self._queue.in_force, notes)
             except http.BadRequest as exc:
                 return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)),
                                   400)
@@ -268,7 +268,7 @@ class CalibrationApi:
         safe = safe_name(os.path.basename(str(filename)))
         try:
             trace = load_any(data, safe)
-            result = analyse(trace, current=self._queue.params)
+            result = analyse(trace, current=self._queue.in_force)
         except TraceError as exc:
             return http.error(self._analysis_failed(safe, exc), 400)
         except (ParamsError, KeyError, TypeError, ValueError, ArithmeticError) as exc:
@@ -294,7 +294,7 @@ class CalibrationApi:
         Raises :class:`RunNotStorable` (nothing stored) if a number is not finite. Needs
         no request: the worker and the live capture's thread store their runs here too."""
         run_id = self._runs.new_id()
-        current = self._queue.params
+        current = self._queue.in_force
         run = {
             "id": run_id,
             "date": _dt.datetime.now().isoformat(timespec="seconds"),

@@ -55,7 +55,7 @@ class CampaignMeasurements:
     def in_force(self) -> Params:
         """The parameters the programs are compensated with (none while compensation is
         off)."""
-        return self._queue.params if self._queue.enabled else Params()
+        return self._queue.in_force
 
     def printer(self) -> Optional[str]:
         """The printer profile's name (the traces' ``printer``)."""

@@ -89,7 +89,14 @@ class QueueCompensator:
 
     @property
     def params(self) -> Params:
+        """The stored parameters (whether compensation is on or not)."""
         return self.comp.params
+
+    @property
+    def in_force(self) -> Params:
+        """The parameters moves go out with: none while compensation is off. A test printed
+        now is measured with these, so an analysis takes them as its ``current``."""
+        return self.comp.params if self.enabled else Params()
 
     # -- the hook ------------------------------------------------------------------------
     def handle(self, cmd: str, tags=None) -> Optional[List[str]]:

@@ -55,7 +55,7 @@ class CaptureRecorder:
         data = res.trace.to_text().encode()
         try:
             trace = load_any(data, filename)
-            result = analyse(trace, current=self._queue.params)
+            result = analyse(trace, current=self._queue.in_force)
         except TraceError as exc:
             return self._failed(error_message(exc), capture, res)
         run = self._calibration.record_run(result, filename, SOURCE, data, result.get("plot"),
@@ -83,7 +83,7 @@ class CaptureRecorder:
 
     def _failed(self, message, capture: Dict[str, Any], res: Optional[CaptureResult]
                 ) -> Dict[str, Any]:
-        current = self._queue.params
+        current = self._queue.in_force
         run_id = self._runs.new_id()
         plane = res.spec.plane if res is not None else None
         run = {

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from octoprint_kincomp.ballbar.program import spec_from_program
 from tests.support.blueprint import PREFIX, blueprint_client
 
 
@@ -169,3 +170,26 @@ def test_random_json_bodies_never_give_a_500(api, body):
         assert resp.status_code < 500, (route, raw, resp.get_data()[:300])
     resp = api.client.get(PREFIX + "/dryrun", query_string={"path": str(body)[:200]})
     assert resp.status_code < 500
+
+
+def test_a_test_measured_with_compensation_off_is_analysed_against_no_parameters(api):
+    """Stored parameters do not act while compensation is off: a test printed then measures
+    the whole error, so the analysis must not add it to the stored parameters (it did once:
+    the proposal was stored + measured, twice the error)."""
+    stored = {"squareness_um_per_m": {"xy": 300.0}}
+    summary = {"summary": {"plane": "XY", "squareness_um_per_m": 40.0}}
+    assert post(api, "/settings", {"enabled": False, "params": stored})[0] == 200
+    code, off = post(api, "/analyze", summary)
+    assert code == 200, off
+    assert off["params_before"]["squareness_um_per_m"]["xy"] == 0.0
+    whole = off["proposed"]["squareness_um_per_m"]["xy"]
+    assert abs(whole) == pytest.approx(40.0, abs=1e-6)
+    code, prog = post(api, "/program", {"plane": "XY", "centre": [100, 100, 5], "radius": 30})
+    assert code == 200, prog
+    written = api.plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
+    assert spec_from_program(written)[0].params_hash == off["params_before_hash"]  # none
+    # on: the same reading is a residual on top of the parameters in force
+    assert post(api, "/settings", {"enabled": True})[0] == 200
+    code, on = post(api, "/analyze", summary)
+    assert code == 200 and on["params_before"]["squareness_um_per_m"]["xy"] == 300.0
+    assert on["proposed"]["squareness_um_per_m"]["xy"] == pytest.approx(300.0 + whole, abs=1e-6)
