@@ -32,6 +32,10 @@ from .proposal import alignment_matrix, checked_params, proposal_meta, split_ali
 
 RMS_OUTLIER = 4.0  # a trace whose residual is this many times the campaign's median failed
 AGREE_SIGMA = 2.0  # lags at two feeds agree when they differ by less than this many sigma
+# ... or by less than this share of the lag: the lead v*T then removes at least 80 % of it at
+# every speed (lags are measured to a few um/s: sigma alone would call a lag that differs by
+# 2 % between the feeds "not proportional" and throw the whole lead away)
+AGREE_FRACTION = 0.2
 
 
 def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Params] = None,
@@ -170,16 +174,30 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
     a, sa = lo["servo_mismatch_ms"], lo["uncertainty"]["servo_mismatch_ms"]
     b, sb = hi["servo_mismatch_ms"], hi["uncertainty"]["servo_mismatch_ms"]
     diff, sdiff = b - a, math.hypot(sa, sb)
+    # measured with the lead on, a and b are residuals: the lag itself is the lead's + them
+    lead = current.servo_lag_ms["x"] - current.servo_lag_ms["y"] if current.servo_precomp \
+        else 0.0
+    size = max(abs(a + lead), abs(b + lead))
     w = 1 / sa ** 2 + 1 / sb ** 2
     mean, smean = (a / sa ** 2 + b / sb ** 2) / w, 1 / math.sqrt(w)
     fmt = dict(f1=f"{lo['feed_mm_min']:g}", f2=f"{hi['feed_mm_min']:g}", a=f"{a:.3f}",
                sa=f"{sa:.3f}", b=f"{b:.3f}", sb=f"{sb:.3f}")
-    if abs(diff) > AGREE_SIGMA * sdiff:
+    if abs(diff) > max(AGREE_SIGMA * sdiff, AGREE_FRACTION * size):
         out["proposed"] = False
+        totals = dict(fmt, a=f"{a + lead:.3f}", b=f"{b + lead:.3f}")  # the lag itself
         out["reason"] = Msg(
             "The XY servo mismatch differs between F%(f1)s (%(a)s +- %(sa)s ms) and F%(f2)s "
             "(%(b)s +- %(sb)s ms): the lag is not proportional to speed, so leading each move "
-            "by v*T would be wrong at other speeds; servo pre-compensation is left off", **fmt)
+            "by v*T would be wrong at other speeds; servo pre-compensation is left off",
+            **totals)
+    elif current.servo_precomp:
+        # measured with the lead on: a and b are what it leaves
+        out["proposed"] = True
+        out["reason"] = Msg(
+            "With servo pre-compensation on (%(lag)s ms), the XY servo mismatch left is "
+            "%(a)s +- %(sa)s ms at F%(f1)s and %(b)s +- %(sb)s ms at F%(f2)s, within "
+            "%(share)s %% of the lag at both feeds: the pre-compensation works; it stays on",
+            lag=f"{lead:.3f}", share=f"{AGREE_FRACTION * 100:g}", **fmt)
     elif abs(mean) < max(3 * smean, 0.01):
         out["proposed"] = False
         out["reason"] = Msg(

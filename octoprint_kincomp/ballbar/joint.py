@@ -207,7 +207,7 @@ def joint_fit(traces: Sequence[TraceFit], mask_deg: float, calibrated: bool,
         t.model = Model(t.geom, t.runs, fit_servo, calibrated, cyclic_pitch,
                         "drift" in t.fit.values, None, t.fit.t_ref)
         t.keep = fit_mask(t.runs, mask_deg)
-        t.y = np.concatenate([r.dev for r in t.runs])
+        t.y = np.concatenate([r.fit_dev() for r in t.runs])
     lay = Layout(traces, calibrated)
     # start: the campaign vector that best reproduces the single-trace fits
     M = np.vstack(lay.maps)

@@ -56,6 +56,13 @@ class Run:
     vB: Optional[np.ndarray] = None
     capture: Optional[np.ndarray] = None  # bool per sample: inside the capture arc (None: all)
     start_theta: Optional[float] = None  # rad, where the arc started (a corner: masked)
+    # mm (+ = bar longer): the part of ``dev`` that the settings in force explain besides the
+    # fitted terms (analysis._lead_speed_error); the fit takes it off, the ISO metrics do not
+    known: Optional[np.ndarray] = None
+
+    def fit_dev(self) -> np.ndarray:
+        """mm: the deviation the fit models."""
+        return self.dev if self.known is None else self.dev - self.known
 
     @property
     def w(self) -> int:
@@ -68,7 +75,7 @@ class Run:
         k = self.capture
         pick = (lambda x: None if x is None else x[k])
         return Run(self.direction, self.theta[k], self.dev[k], pick(self.t), pick(self.vA),
-                   pick(self.vB), None, self.start_theta)
+                   pick(self.vB), None, self.start_theta, pick(self.known))
 
 
 @dataclass
@@ -258,7 +265,7 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
     if fit_drift is None:
         fit_drift = all(r.t is not None for r in runs)
     model = Model(geom, runs, fit_servo, calibrated, cyclic_pitch, fit_drift, fixed)
-    y = np.concatenate([r.dev for r in runs])
+    y = np.concatenate([r.fit_dev() for r in runs])
     keep = fit_mask(runs, mask_deg)
     if keep.sum() < len(model.names) * 5:
         raise TraceError(Msg("too few samples left after masking the reversal points"))

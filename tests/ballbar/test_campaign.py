@@ -267,3 +267,19 @@ def test_calibrated_bar_gives_absolute_scales(small):
         want = truth.errors.scale_ppm[axis]
         assert abs(v - want) < max(3 * c["uncertainty"]["scale_ppm"][axis], 1.0), (axis, v)
     assert out["parameters"]["scale_ppm"]["z"] == pytest.approx(150.0, abs=8)
+
+
+def test_servo_precomp_stays_on_at_the_re_test(small):
+    """The re-test measures with the proposed parameters in force: the servo mismatch left is
+    about zero at both feeds, which means the pre-compensation works, not that it is not
+    needed (the re-test once proposed switching it off, flipping at every round)."""
+    steps, truth, items = small
+    first = Params.from_dict(analyse_campaign(items)["parameters"])
+    assert first.servo_precomp is True
+    again = [(name, simulate(step.spec, truth, first)) for (name, _), step in zip(items, steps)]
+    out = analyse_campaign(again, current=first)
+    sp = out["diagnostics"]["campaign"]["servo_precomp"]
+    assert sp["proposed"] is True and out["parameters"]["servo_precomp"] is True, sp["reason"]
+    assert "pre-compensation works" in sp["reason"]
+    lag = out["parameters"]["servo_lag_ms"]["x"]
+    assert lag == pytest.approx(first.servo_lag_ms["x"], abs=0.05)
