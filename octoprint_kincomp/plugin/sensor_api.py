@@ -22,7 +22,9 @@ lock (opening or closing a port may wait up to a second, in request threads only
 capture reads its port in its own thread and its listener only queues; this piece's worker
 thread pushes the state to the UI (plugin messages ``sensor``, about twice a second while
 the port is open), ends the capture a grace time after the program's end, and hands a
-finished capture to :mod:`.sensor_runs` (analysis, run history, message ``sensor_run``).
+finished capture to :mod:`.sensor_runs` (analysis, run history, message ``sensor_run``, sent
+once the port is let go; its ``test_of`` names the campaign test the program is, also when the
+capture failed).
 """
 
 from __future__ import annotations
