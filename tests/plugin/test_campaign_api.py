@@ -78,6 +78,16 @@ def messages(plugin, kind):
             if c[0][1].get("type") == kind]
 
 
+def queue_lines(plugin, lines):
+    """``lines`` of a printed file through KinComp's queuing hook (comments stripped as
+    OctoPrint does)."""
+    for line in lines:
+        cmd = line.split(";")[0].strip()
+        if cmd:
+            plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
+                                tags={"source:file"})
+
+
 def print_in_demo_mode(plugin, path, live=True):
     """The program at ``path`` printed on the demo's virtual printer: its commands go out
     through KinComp's queuing hook (comments stripped as OctoPrint does; nothing pauses at
@@ -87,11 +97,7 @@ def print_in_demo_mode(plugin, path, live=True):
     captured = len(messages(plugin, "sensor_run"))
     plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": path}}
     plugin.on_event("PrintStarted", {"origin": "local", "path": path})
-    for line in text.splitlines():
-        cmd = line.split(";")[0].strip()
-        if cmd:
-            plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
-                                tags={"source:file"})
+    queue_lines(plugin, text.splitlines())
     plugin.on_event("PrintDone", {"origin": "local", "path": path})
     wait_for(lambda: plugin.demo.last_trace() is not None, 60)
     if not live:
@@ -254,14 +260,6 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
         assert rows["scale_mismatch_ppm"]["reduction_pct"] > 95, cmp["step"]
         # (a live capture times the bar's angle from its own data: a few um/m more)
         assert abs(rows["squareness_um_per_m"]["after"]) < (15 if live else 5), cmp["step"]
-
-
-def queue_lines(plugin, lines):
-    for line in lines:
-        cmd = line.split(";")[0].strip()
-        if cmd:
-            plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
-                                tags={"source:file"})
 
 
 @QUICKER
