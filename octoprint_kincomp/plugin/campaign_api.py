@@ -15,9 +15,11 @@ volume, printed test by test with the same parameters in force, fitted jointly
   OctoPrint's storage, ``"print": true`` prints it (it pauses (M0) to mount the bar and to
   unmount it).
 * ``POST /campaigns/<id>/steps/<n>/trace``  test n's measurement: a file (multipart field
-  ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace; it must be this test's
-  trace (campaign, test, program and parameters in its metadata); analysed on its own and
-  stored as a run of the campaign. (A live sensor's capture of a test needs no request.)
+  ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace of the printed commands
+  (the measurement without the live path, ``demo.live`` off, and a fallback with it); it
+  must be this test's trace (campaign, test, program and parameters in its metadata);
+  analysed on its own and stored as a run of the campaign. (A live sensor's capture of a
+  test needs no request: that is also the demo's virtual bar with ``demo.live`` on.)
 * ``POST /campaigns/<id>/analyze``  the joint fit over all tests, stored as a run (source
   ``campaign``): ONE parameter set; nothing applied. Refused (400 naming the file) for a
   missing or failed test or traces that are not one campaign.
@@ -162,11 +164,13 @@ class CampaignApi:
             text, f"{cid}_{n}_{safe_name(step['name'])}.gcode")
         step["path"] = path
         step["program_hash"] = prog_hash
-        # the test as its program states it: a live capture's trace names campaign and test.
-        # Demo mode measures the campaign with its simulated trace of the printed commands
-        # (its virtual bar is not captured live for a campaign yet: see the README)
+        # the test as its program states it: a live capture's trace names campaign and test
+        # and becomes its measurement by itself (CampaignMeasurements.take_capture). Demo
+        # mode: its virtual bar is that live sensor (demo.live); without the live path the
+        # demo's simulated trace of the printed commands is collected instead (trace route)
+        demo = self._demo
         printing, capture = self._calibration.print_program(
-            path, stated, prog_hash, arm=self._demo.ballbar is None) \
+            path, stated, prog_hash, arm=demo.ballbar is None or demo.live) \
             if do_print else (False, None)
         if printing:
             step["printed"] = now()

@@ -14,15 +14,21 @@ sensor piece asks for its port, stopped when it lets go). When the program's pri
 the program as the printer receives it (compensated with the queue's parameters if
 compensation is on) is played on it from that moment, DEMO_SPEEDUP times faster than the
 simulated printer moves (as OctoPrint's virtual printer runs its moves), so that the capture
-reads it through pyserial exactly as a USB bar. The recorded commands are still simulated
-after the print, for "Analyse the simulated trace" (the fallback), without a notice then.
+reads it through pyserial exactly as a USB bar. A program with a mount pause (a campaign's
+test: ``M0`` to mount the bar, ``M0`` to unmount it) is played from the moment the printer
+goes on after the mount pause (its first file line after the first ``M0`` is queued:
+OctoPrint queues nothing more of the file while paused), not while the printer waits there
+for the bar. The recorded commands are still simulated after the print, for "Analyse the
+simulated trace" and a campaign's "Use the simulated trace" (the fallbacks), without a
+notice then: the live capture tells (a campaign's test is measured by its capture).
 """
 
 from __future__ import annotations
 
+import re
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple
 
 from ..ballbar.demo import DemoBallbar
 from ..ballbar.formats import NativeTrace
@@ -30,9 +36,11 @@ from ..ballbar.program import ProgramError, TestSpec, generate
 from ..engines.select import make_compensator
 from ..sensor.virtual import VirtualSensor
 from .notify import N_, Notifier
+from .queue import FILE_TAG
 
 DEMO_SPEEDUP = 10.0  # OctoPrint's virtual printer runs its moves 10 times faster than feed
 DEMO_RANGE_MM = (-1.5, 2.5)  # the virtual bar's measuring range (mm, positive = longer)
+PAUSE = re.compile(r"M0*[01](?!\d)", re.IGNORECASE)  # M0 / M1: the printer waits for the user
 
 
 def lines_as_sent(queue, text: str) -> List[str]:
@@ -62,6 +70,9 @@ class DemoMode:
         self._sensor: Optional[VirtualSensor] = None
         self._played = False  # the current print is played on the live sensor
         self._simulating = False  # its stream is being simulated: its end is not known yet
+        # (sensor, spec, program hash) to play once the printer goes on after the mount pause
+        self._deferred: Optional[Tuple[VirtualSensor, TestSpec, str]] = None
+        self._mount_seen = False  # the program's mount pause (M0) was queued
         # the program's lines as the printer receives them (the plugin compensates them)
         self.lines_as_sent: Callable[[str], List[str]] = str.splitlines
 
@@ -100,7 +111,8 @@ class DemoMode:
     def stream_end(self) -> Optional[float]:
         """When (time.monotonic()) the program being played has been streamed; None if
         nothing is played; ``inf`` while its stream is still being simulated (a slow
-        vertical test takes seconds: its end is not known yet)."""
+        vertical test takes seconds: its end is not known yet; also while it waits for the
+        printer to go on after the mount pause)."""
         sensor = self._sensor
         if sensor is None or not self._played:
             return None
@@ -132,23 +144,50 @@ class DemoMode:
         if demo is None:
             return
         with self._lock:
+            self._deferred = None
             if payload.get("path") != self._program_path or self._program_spec is None:
                 self._played = False
                 return
-            demo.start(self._program_spec, self._program_hash)
+            spec = self._program_spec
+            demo.start(spec, self._program_hash)
             sensor = self._sensor if self.live else None
             self._played = sensor is not None
-            if sensor is not None:
-                self._simulating = True  # (until _play has the stream: its end unknown)
-                threading.Thread(target=self._play, name="kincomp-demo-ballbar", daemon=True,
-                                 args=(sensor, self._program_spec, self._program_hash,
-                                       time.monotonic())).start()
+            if sensor is None:
+                return
+            self._simulating = True  # (until _play has the stream: its end unknown)
+            if spec.mount_pause:  # played when the printer goes on after the mount pause
+                self._deferred, self._mount_seen = (sensor, spec, self._program_hash), False
+            else:
+                self._start_play(sensor, spec, self._program_hash)
 
-    def record(self, cmd: str, result: Optional[List[str]]) -> None:
-        """What the queuing hook sends for ``cmd``: ``result`` (None: ``cmd`` as it is).
-        Recorded once here: in the sent phase resends would repeat lines."""
+    def _start_play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str) -> None:
+        threading.Thread(target=self._play, name="kincomp-demo-ballbar", daemon=True,
+                         args=(sensor, spec, prog_hash, time.monotonic())).start()
+
+    def _file_line(self, cmd: str) -> None:
+        """A line of the printed file is queued: the first one after the mount pause starts
+        the deferred play (the printer goes on with the bar mounted)."""
+        with self._lock:
+            deferred = self._deferred
+            if deferred is None:
+                return
+            if not self._mount_seen:
+                self._mount_seen = PAUSE.match(cmd) is not None
+                return
+            self._deferred = None
+        self._start_play(*deferred)
+
+    def record(self, cmd: str, result: Optional[List[str]],
+               tags: Optional[Iterable[str]] = None) -> None:
+        """What the queuing hook sends for ``cmd`` (``tags``: OctoPrint's, a line of the
+        printed file has ``source:file``): ``result`` (None: ``cmd`` as it is). Recorded once
+        here: in the sent phase resends would repeat lines."""
         demo = self.ballbar
-        if demo is None or not demo.recording:
+        if demo is None:
+            return
+        if self._deferred is not None and tags and FILE_TAG in tags:
+            self._file_line(cmd)
+        if not demo.recording:
             return
         if result is None:
             demo.record(cmd)
@@ -158,13 +197,16 @@ class DemoMode:
 
     def print_ends(self, done: bool) -> None:
         """The print ended; ``done``: it completed (then the trace is simulated)."""
+        with self._lock:
+            if self._deferred is not None:  # ended before the printer went on: not played
+                self._deferred, self._simulating = None, False
         demo = self.ballbar
         if demo is None or not demo.recording:
             return
         if not done:
             demo.cancel()
             return
-        threading.Thread(target=self._simulate, args=(demo,), name="kincomp-demo",
+        threading.Thread(target=self._simulate, args=(demo, self._played), name="kincomp-demo",
                          daemon=True).start()
 
     def last_trace(self) -> Optional[NativeTrace]:
@@ -172,8 +214,9 @@ class DemoMode:
         demo = self.ballbar
         return None if demo is None else demo.last_trace
 
-    def _simulate(self, demo: DemoBallbar) -> None:
-        """Runs the simulator (seconds) on its own thread, not on OctoPrint's event thread."""
+    def _simulate(self, demo: DemoBallbar, played: bool) -> None:
+        """Runs the simulator (seconds) on its own thread, not on OctoPrint's event thread;
+        ``played``: the print was played on the live sensor (its capture tells the UI)."""
         try:
             trace = demo.finish()
         except Exception:  # noqa: BLE001 - a demo failure must not disturb anything else
@@ -181,11 +224,13 @@ class DemoMode:
             return
         if trace is None:
             return
+        if played:  # the live capture tells (a campaign's test: it is its measurement)
+            return
         meta = getattr(trace, "meta", None) or {}
         if meta.get("campaign"):  # a campaign's test: the campaign's wizard collects it
             self._notifier.message({"type": "demo_trace", "campaign": meta["campaign"],
                                     "campaign_step": meta.get("campaign_step")})
-        elif not self._played:  # else the live capture tells
+        else:
             self._notifier.notify("success", N_(
                 "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
             self._notifier.message({"type": "demo_trace"})

@@ -188,7 +188,7 @@ class KinCompPlugin(
             self.sensor.command(cmd)  # the program's end marker ends the live capture
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
-            self.demo.record(cmd, result)
+            self.demo.record(cmd, result, tags)
         return result
 
     def received_hook(self, comm_instance, line, *args, **kwargs):

@@ -22,7 +22,9 @@ lock (opening or closing a port may wait up to a second, in request threads only
 capture reads its port in its own thread and its listener only queues; this piece's worker
 thread pushes the state to the UI (plugin messages ``sensor``, about twice a second while
 the port is open), ends the capture a grace time after the program's end, and hands a
-finished capture to :mod:`.sensor_runs` (analysis, run history, message ``sensor_run``).
+finished capture to :mod:`.sensor_runs` (analysis, run history, message ``sensor_run``, sent
+once the port is let go; its ``test_of`` names the campaign test the program is, also when the
+capture failed).
 """
 
 from __future__ import annotations
@@ -292,7 +294,7 @@ class SensorApi:
             with self._lock:  # the stop came before the capture took the arm request
                 self._armed, self.waiting = None, False
             self._recorded(self._recorder.record_missing(
-                armed, Msg("the capture did not start before it was stopped")), cap)
+                armed, Msg("the capture did not start before it was stopped")), cap, armed)
 
     def _ended(self, cap: Optional[Capture]) -> None:
         with self._lock:
@@ -304,16 +306,24 @@ class SensorApi:
             self._armed, self.waiting = None, False
         if not self._preview:  # first: reading the port would slow the analysis down
             self._release()
-        self._recorded(self._recorder.record(result, armed, cap.config.port), cap)
+        self._recorded(self._recorder.record(result, armed, cap.config.port), cap, armed)
 
-    def _recorded(self, run: Dict[str, Any], cap: Capture) -> None:
+    def _recorded(self, run: Dict[str, Any], cap: Capture, armed: Armed) -> None:
+        """Tell the UI: the run, and ``test_of`` the campaign's test the program is (also
+        when the run is not that test's measurement: a failed capture, or one refused)."""
         self._last_run = {k: run.get(k) for k in ("id", "status", "message", "message_i18n",
                                                   "simulated", "campaign", "campaign_step")}
-        self._notifier.message({"type": "sensor_run", "run": self._last_run})
+        spec = armed.spec
+        self._last_run["test_of"] = {"campaign": spec.campaign,
+                                     "campaign_step": spec.campaign_step} \
+            if spec.campaign else None
         if not self._preview:
             self._release()
         self._push(self._cap)
         self._reconfigure()
+        # last: once told, the next test may be printed at once (a release after its arming
+        # would close its capture)
+        self._notifier.message({"type": "sensor_run", "run": self._last_run})
 
     def _reconfigure(self) -> None:
         """Close a capture whose sensor is no longer the one in use (not while armed)."""

@@ -1,7 +1,10 @@
 """A campaign over the real server's HTTP API with measured files uploaded (no demo mode): the
 plan on the printer profile's volume, every test's trace uploaded through OctoPrint's upload
 handling (a vertical test's trace is over a megabyte), wrong files refused naming the file,
-the permissions, the joint analysis and ONE apply (issue 12)."""
+the permissions, the joint analysis and ONE apply (issue 12). And a demo campaign measured by
+the live capture of the virtual bar, through the virtual printer's mount pauses (issue 15)."""
+
+import time
 
 import pytest
 
@@ -92,4 +95,59 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
         assert sorted(r["campaign_step"] or "joint" for r in mine) == ["joint", "xy", "xz",
                                                                         "yz"]
     finally:
+        _reset_params(server)
+
+
+def _wait(what, condition, timeout=180.0):
+    deadline = time.time() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        assert time.time() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.3)
+
+
+def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
+    """Demo mode's live path (the default) on the real server's virtual printer: each test's
+    print arms the capture of the virtual bar (a pseudo-terminal read through pyserial); the
+    bar plays nothing while the printer waits at the mount pause, the test once it goes on,
+    and the capture becomes the test's measurement by itself, once (SIMULATED)."""
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    try:
+        code, doc = server.request("POST", f"{BASE}/campaign/plan",
+                                   {"radius_xy": 50, "radius_vertical": 20})
+        assert code == 200, doc
+        cid = doc["id"]
+        for step in doc["steps"]:
+            n = step["n"]
+            code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/steps/{n}/program",
+                                        {"print": True})
+            assert code == 200 and resp["capture"]["armed"], resp
+            assert resp["capture"]["source"] == "demo"
+            server.wait_state("Paused", timeout=120)  # the M0 to mount the bar
+            time.sleep(1.0)
+            st = server.request("GET", f"{BASE}/sensor/status")[1]
+            assert st["state"] == "armed" and st["armed"]["plane"] == step["plane"], st
+            server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
+
+            def measured():
+                return server.request("GET", f"{BASE}/campaigns/{cid}")[1]["steps"][n - 1][
+                    "run"]
+            run_id = _wait(f"test {n} measured", measured)
+            server.wait_state("Paused", timeout=120)  # the M0 to unmount it
+            server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
+            server.wait_print_done()
+            code, run = server.request("GET", f"{BASE}/runs/{run_id}")
+            assert run["source"] == "live" and run["capture"]["source"] == "demo", run
+            assert run["simulated"] and run["campaign_step"] == step["name"]
+        code, runs = server.request("GET", f"{BASE}/runs")
+        mine = [r for r in runs["runs"] if r["campaign"] == cid]
+        assert sorted(r["campaign_step"] for r in mine) == ["xy", "xz", "yz"]  # once each
+        code, done = server.request("POST", f"{BASE}/campaigns/{cid}/analyze", {})
+        assert code == 200, done
+        assert done["analysis"]["proposed"]["squareness_um_per_m"] == pytest.approx(
+            {"xy": -3638.6, "xz": 800.0, "yz": -500.0}, abs=20)
+    finally:
+        settings(server, demo={"enabled": False})
         _reset_params(server)

@@ -1,10 +1,13 @@
 """The campaign endpoints (plugin/campaign_api.py) on the plugin with mocked OctoPrint objects
 (tests/support/mocked_plugin.py): planning on the profile's volume, printing test by test,
-the demo's SIMULATED traces collected per test, the joint analysis, ONE apply, the re-test
-compared with the campaign before it, and every way a campaign refuses to go on (issue 12)."""
+each test measured in demo mode by the live capture of the virtual bar (a real pseudo-terminal
+read through pyserial, as a USB sensor) or, with the live path off, by the demo's SIMULATED
+trace collected per test, the joint analysis, ONE apply, the re-test compared with the
+campaign before it, and every way a campaign refuses to go on (issues 12 and 15)."""
 
 import os
 import re
+import time
 from unittest import mock
 
 import pytest
@@ -20,6 +23,8 @@ PROFILE = {"id": "_default", "name": "Virtual P1",
            "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}}}
 PLAN = {"radius_xy": 50}
 SKEW = {"squareness_um_per_m": {"xy": 500.0, "xz": 0.0, "yz": 0.0}}
+# the demo's virtual bar streams at 20 times the feed (its 500 Hz: 10,000 lines/s)
+QUICKER = mock.patch("octoprint_kincomp.plugin.demo_mode.DEMO_SPEEDUP", 20.0)
 
 
 @pytest.fixture
@@ -27,7 +32,9 @@ def plugin(tmp_path):
     p = mocked_plugin(str(tmp_path))
     p._printer_profile_manager.get_current_or_default.return_value = PROFILE
     p._printer.is_printing.return_value = False
-    return p
+    yield p
+    p.sensor._preview = False
+    p.sensor._release()  # the demo's virtual bar stops
 
 
 @pytest.fixture
@@ -66,36 +73,66 @@ def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv"):
                 data={"file.path": str(path), "file.name": name})
 
 
-def print_in_demo_mode(plugin, path):
-    """The program at ``path`` printed on the demo's virtual printer: its commands go out
-    through KinComp's queuing hook (comments stripped as OctoPrint does), then the print is
-    done and the SIMULATED trace is made."""
-    text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
-    plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": path}}
-    plugin.on_event("PrintStarted", {"origin": "local", "path": path})
-    for line in text.splitlines():
+def messages(plugin, kind):
+    return [c[0][1] for c in plugin._plugin_manager.send_plugin_message.call_args_list
+            if c[0][1].get("type") == kind]
+
+
+def queue_lines(plugin, lines):
+    """``lines`` of a printed file through KinComp's queuing hook (comments stripped as
+    OctoPrint does)."""
+    for line in lines:
         cmd = line.split(";")[0].strip()
         if cmd:
             plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
                                 tags={"source:file"})
+
+
+def print_in_demo_mode(plugin, path, live=True):
+    """The program at ``path`` printed on the demo's virtual printer: its commands go out
+    through KinComp's queuing hook (comments stripped as OctoPrint does; nothing pauses at
+    its M0), then the print is done and the SIMULATED trace is made. ``live``: waits for
+    the live capture of the virtual bar to be recorded too, returns its UI message's run."""
+    text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
+    captured = len(messages(plugin, "sensor_run"))
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": path}}
+    plugin.on_event("PrintStarted", {"origin": "local", "path": path})
+    queue_lines(plugin, text.splitlines())
     plugin.on_event("PrintDone", {"origin": "local", "path": path})
     wait_for(lambda: plugin.demo.last_trace() is not None, 60)
+    if not live:
+        return None
+    wait_for(lambda: len(messages(plugin, "sensor_run")) > captured, 60)
+    return messages(plugin, "sensor_run")[-1]["run"]
 
 
-def run_campaign(app, plugin, doc):
-    """Every test printed and its demo trace collected; returns the campaign analysed."""
+def run_campaign(app, plugin, doc, live=True):
+    """Every test printed and measured: by the live capture of the demo's virtual bar
+    (``live``) or by collecting the demo's simulated trace; returns the campaign analysed."""
     for step in doc["steps"]:
         code, resp = call(app, plugin.api_campaign_program, doc["id"], step["n"],
                           json={"print": True})
         assert code == 200 and resp["printing"], resp
         assert resp["path"] == f"kincomp/{doc['id']}_{step['n']}_{step['name']}.gcode"
-        print_in_demo_mode(plugin, resp["path"])
-        code, resp = call(app, plugin.api_campaign_trace, doc["id"], step["n"],
-                          json={"demo": True})
-        assert code == 200, resp
-        run = resp["run"]
+        assert bool(resp["capture"]) == live and (not live or resp["capture"]["armed"])
+        told = print_in_demo_mode(plugin, resp["path"], live)
+        if live:  # the capture is the test's measurement by itself: no request
+            assert told["campaign"] == doc["id"], told
+            assert told["test_of"] == {"campaign": doc["id"], "campaign_step": step["name"]}
+            run = plugin.runs.get(told["id"])
+            assert run["source"] == "live" and run["capture"]["source"] == "demo"
+            assert plugin.campaign._campaigns.get(doc["id"])["steps"][step["n"] - 1][
+                "run"] == run["id"]
+        else:
+            code, resp = call(app, plugin.api_campaign_trace, doc["id"], step["n"],
+                              json={"demo": True})
+            assert code == 200, resp
+            run = resp["run"]
         assert run["campaign"] == doc["id"] and run["campaign_step"] == step["name"]
         assert run["simulated"] and run["diagnostics"]["plane"] == step["plane"]
+    if live:  # measured once: the UI is not told to collect the recorded trace too
+        assert not [m for m in messages(plugin, "demo_trace")
+                    if m.get("campaign") == doc["id"]]
     code, done = call(app, plugin.api_campaign_analyze, doc["id"])
     assert code == 200, done
     return done
@@ -160,11 +197,18 @@ def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
     assert os.listdir(plugin.campaign._campaigns.folder) == []
 
 
-def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
-    # demo mode measures a campaign with the simulated trace of the printed commands
-    plugin.on_settings_save({"demo": {"enabled": True}})
+@pytest.mark.parametrize("live", [pytest.param(True, marks=pytest.mark.slow), False],
+                         ids=["live", "recorded"])
+@QUICKER
+def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, live):
+    # demo mode measures each test by the live capture of its virtual bar, exactly as a real
+    # sensor's (the live path: on by default); with it off, by collecting the simulated
+    # trace of the printed commands
+    plugin.on_settings_save({"demo": {"enabled": True} if live else {"enabled": True,
+                                                                     "live": False}})
+    assert plugin.demo.live == live
     doc = plan(app, plugin)
-    done = run_campaign(app, plugin, doc)
+    done = run_campaign(app, plugin, doc, live)
     assert done["state"] == "analysed" and done["next_step"] is None
     a = done["analysis"]
     assert a["source"] == "campaign" and a["simulated"] and a["campaign"] == doc["id"]
@@ -208,13 +252,76 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
     assert code == 200 and again["retest_of"] == doc["id"]
     assert again["options"] == doc["options"]
     assert again["params_hash"] == applied["params_hash"]
-    after = run_campaign(app, plugin, again)["analysis"]
+    after = run_campaign(app, plugin, again, live)["analysis"]
     for cmp in after["comparison"]:
         rows = {r["key"]: r for r in cmp["rows"]}
         assert cmp["before_plot"] is not None and cmp["before_run"] == a["id"]
         assert rows["squareness_um_per_m"]["reduction_pct"] > 95, cmp["step"]
         assert rows["scale_mismatch_ppm"]["reduction_pct"] > 95, cmp["step"]
-        assert abs(rows["squareness_um_per_m"]["after"]) < 5, cmp["step"]
+        # (a live capture times the bar's angle from its own data: a few um/m more)
+        assert abs(rows["squareness_um_per_m"]["after"]) < (15 if live else 5), cmp["step"]
+
+
+@QUICKER
+def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open(app, plugin):
+    plugin.on_settings_save({"demo": {"enabled": True}})
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    code, resp = call(app, plugin.api_campaign_program, cid, 1, json={"print": True})
+    assert code == 200 and resp["capture"]["armed"] and resp["capture"]["source"] == "demo"
+    # the printer waits at the mount pause (M0): the virtual bar does not play the test yet
+    text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
+    lines = text.splitlines()
+    mount = next(i for i, ln in enumerate(lines) if ln.startswith("M0 "))
+    plugin.on_event("PrintStarted", {"origin": "local", "path": resp["path"]})
+    queue_lines(plugin, lines[:mount + 1])
+    time.sleep(1.0)
+    status = plugin.sensor._status(plugin.sensor._cap)
+    assert status["state"] == "armed" and status["reading_mm"] == pytest.approx(1.0, abs=0.01)
+    assert plugin.demo.stream_end() == float("inf")  # (its end not known yet)
+    # the user goes on: the test is played, captured and taken as its measurement
+    queue_lines(plugin, lines[mount + 1:])
+    plugin.on_event("PrintDone", {"origin": "local", "path": resp["path"]})
+    wait_for(lambda: messages(plugin, "sensor_run"), 60)
+    told = messages(plugin, "sensor_run")[-1]["run"]
+    assert told["campaign"] == cid and told["campaign_step"] == "xy", told
+    camp = plugin.campaign._campaigns.get(cid)
+    assert camp["steps"][0]["run"] == told["id"]
+    wait_for(lambda: plugin.demo.last_trace() is not None, 60)
+    time.sleep(0.2)
+    assert not messages(plugin, "demo_trace")  # not measured a second time
+    # the recorded trace stays an API fallback (it replaces the capture as the measurement)
+    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": True})
+    assert code == 200 and resp["campaign"]["steps"][0]["run"] == resp["run"]["id"] != \
+        told["id"]
+
+    # test 2: the virtual bar is unplugged mid-test: a failed run, the test left unmeasured
+    plugin._plugin_manager.send_plugin_message.reset_mock()
+    code, resp = call(app, plugin.api_campaign_program, cid, 2, json={"print": True})
+    assert resp["capture"]["armed"]
+    plugin.on_event("PrintStarted", {"origin": "local", "path": resp["path"]})
+    queue_lines(plugin, plugin._file_manager.add_file.call_args[0][2].stream().read()
+                .decode().splitlines())
+    wait_for(lambda: plugin.sensor._cap.state == "capturing", 30)
+    plugin.demo._sensor.unplug()
+    wait_for(lambda: messages(plugin, "sensor_run"), 30)
+    told = messages(plugin, "sensor_run")[-1]["run"]
+    assert told["status"] == "failed" and "disconnected" in told["message"]
+    assert told["campaign"] is None
+    assert told["test_of"] == {"campaign": cid, "campaign_step": "xz"}  # the UI says which
+    assert plugin.runs.get(told["id"])["status"] == "failed"  # kept in the history
+    note = [m for m in messages(plugin, "notify") if "capture failed" in m["text"]]
+    assert note and note[-1]["severity"] == "error"
+    plugin.on_event("PrintDone", {"origin": "local", "path": resp["path"]})
+    wait_for(lambda: plugin.demo.last_trace() is not None, 60)
+    camp = plugin.campaign._campaigns.get(cid)
+    assert camp["steps"][1]["run"] is None and camp["steps"][1]["printed"]
+    time.sleep(0.2)
+    assert not messages(plugin, "demo_trace")  # nor collected by itself: the user chooses
+    with app.test_request_context("/"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            view = plugin.api_campaign(cid).get_json()
+    assert view["measured"] == 1 and view["next_step"] == 2
 
 
 def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tmp_path):
@@ -382,7 +489,14 @@ def test_printing_a_test_needs_a_ready_printer(app, plugin):
     path, armed, prog_hash = plugin.calibration.on_print.call_args[0]
     assert path == resp["path"] and prog_hash == resp["program_hash"]
     assert (armed.campaign, armed.campaign_step) == (doc["id"], "xz")
+    # demo mode: its virtual bar is that live sensor; without the live path nothing is armed
+    # (the demo's simulated trace is collected instead)
     plugin.on_settings_save({"demo": {"enabled": True}})
+    plugin.calibration.on_print.reset_mock()
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
+    assert code == 200 and resp["capture"] == {"armed": True}
+    assert plugin.calibration.on_print.call_args[0][1].campaign_step == "yz"
+    plugin.on_settings_save({"demo": {"enabled": True, "live": False}})
     plugin.calibration.on_print.reset_mock()
     code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
     assert code == 200 and resp["capture"] is None and not plugin.calibration.on_print.called

@@ -38,6 +38,9 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None):
     p._printer.is_pausing.return_value = False
     p._printer.is_paused.return_value = False
     p._file_manager = mock.MagicMock()
+    # a path, not a MagicMock: open(MagicMock()) opens (and closes) file descriptor 1 (its
+    # __index__), which a later pseudo-terminal may then get and lose
+    p._file_manager.path_on_disk.return_value = os.path.join(basedir, "no-such-file.gcode")
     p._printer_profile_manager = mock.MagicMock()
     p._printer_profile_manager.get_current_or_default.return_value = {
         "volume": {"width": bed_mm, "depth": bed_mm, "height": bed_mm, "origin": "lowerleft"}}

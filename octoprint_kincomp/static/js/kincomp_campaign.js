@@ -6,8 +6,9 @@
  * printer profile's volume (a dry run) and drawn from three sides (top XY, front XZ, side
  * YZ; SVG y points down, so heights are drawn negated). Tests: one after another; each
  * program pauses (M0) to mount the bar and to unmount it, the wizard shows the test, its
- * print progress and the pause; the measurement is uploaded (or, in demo mode, the SIMULATED
- * trace is collected as soon as it is ready). Result: per test its polar plot and the
+ * print progress and the pause; the measurement is a live sensor's capture (in demo mode the
+ * virtual bar's, demo.live), taken by the server by itself, or uploaded (or, in demo mode
+ * without the live path, the SIMULATED trace is collected as soon as it is ready). Result: per test its polar plot and the
  * paper's Table 2 (before: the same test of the campaign it re-tests), the joint fit, ONE
  * proposed parameter set and ONE Apply. Units as on the server: um/m, ppm, um, ms, mm. The
  * drawings and the result's tables are made by kincomp_campaign_draw.js (KinComp.campaign).
@@ -518,8 +519,23 @@ $(function () {
         self.onEventSettingsUpdated = self.onEventPrintDone;
         self.onEventPluginKincompParamsApplied = self.onEventPrintDone;
 
-        // a test's trace arrives: the live sensor's capture, already taken by the campaign
-        // (sensor_run), or demo mode's simulated trace without the live path (demo_trace)
+        // a live capture of a test that is not its measurement (failed, or refused by the
+        // campaign): the test stays unmeasured, the campaign says why
+        self.captureMissed = function (c, run) {
+            var name = run.test_of.campaign_step;
+            var text = run.status !== "ok"
+                ? _.sprintf(gettext("The live capture of test %(name)s failed: %(reason)s. The test stays unmeasured: print it again, or give its trace. The data so far is kept in the History."), {
+                    name: name, reason: trMsg(run.message_i18n || run.message)})
+                : _.sprintf(gettext("The live capture of test %(name)s was not taken as its measurement (the notice says why); it is kept in the History as a single run."), {name: name});
+            OctoPrint.get(API("campaigns/" + c.id)).done(function (fresh) {
+                self.show(fresh);
+                self.error(text);
+            });
+        };
+
+        // a test's trace arrives: the live sensor's capture (the demo's virtual bar in demo
+        // mode), already taken by the campaign (sensor_run), or demo mode's simulated trace
+        // without the live path (demo_trace)
         self.onDataUpdaterPluginMessage = function (plugin, data) {
             if (plugin !== "kincomp" || !data) return;
             var c = self.campaign();
@@ -530,6 +546,8 @@ $(function () {
                     .done(function (fresh, run) {
                         self.measured({campaign: fresh[0], run: run[0]});
                     });
+            } else if (data.type === "sensor_run" && data.run && data.run.test_of) {
+                if (c && c.id === data.run.test_of.campaign) self.captureMissed(c, data.run);
             } else if (data.type === "demo_trace" && data.campaign) {
                 if (!c || c.id !== data.campaign || !self.canWrite()) return;
                 var step = _.findWhere(c.steps, {name: data.campaign_step});

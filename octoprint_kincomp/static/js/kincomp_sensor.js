@@ -306,7 +306,7 @@ $(function () {
 
         self.runDone = function (run) {
             self.tab.loadRuns();
-            if (run.campaign) return; // a campaign's test: campaign mode shows it
+            if (run.campaign || run.test_of) return; // a campaign's test: campaign mode shows it
             if (run.status !== "ok") {
                 self.runFailed(true);
                 self.runMessage(_.sprintf(gettext("The capture failed: %(reason)s. The data so far is kept in the History."),
