@@ -46,6 +46,12 @@ SAMPLES = (0.125, 0.25, 0.375, 0.625, 0.75, 0.875)  # where a piece is checked (
 SAMPLE_MARGIN = 1.1
 ROUNDING_ALLOWANCE = 1.5  # output resolutions: the written centre is rounded
 SLIVER = 0.1  # a piece whose sagitta is at most this many output resolutions is a G1
+EIGHTHS = tuple(j * 0.125 for j in range(9))
+# a spiral or helix can turn an axis round just before or after a piece's end (where the
+# circle's break angle is not): fractions that close in on both ends, to 2^-16 of the piece
+NEAR_ENDS = tuple(2.0 ** -e for e in range(16, 3, -1))
+DENSE = (0.0,) + NEAR_ENDS + EIGHTHS[1:-1] + tuple(1.0 - f for f in reversed(NEAR_ENDS)) \
+    + (1.0,)
 
 
 def model_gain(A) -> float:
@@ -79,6 +85,7 @@ class ArcWriter:
                MM_PER_INCH * 10.0 ** -(self.options.decimals + 2))
         self.budget = (tol - ROUNDING_ALLOWANCE * res[0], tol - ROUNDING_ALLOWANCE * res[1])
         self.sliver = (SLIVER * res[0], SLIVER * res[1])
+        self.overshoot = res  # mm: how far a written circle may carry a backlash axis back
 
     def usable(self) -> bool:
         """Whether arcs can be written as arcs here (see the module docstring)."""
@@ -110,30 +117,47 @@ class ArcWriter:
                     return False
         return True
 
+    def dense(self, arc: arcs.Arc) -> bool:
+        """Whether the arc may turn an axis round off its break angles by more than a
+        quarter of the deadband: a helix, or a spiral whose radius changes by ``r'`` (mm/rad)
+        with ``r'^2 / (2 r) > deadband / 4`` (the dip next to an end where the circle's
+        extreme would be); a slicer's arc (radii equal to its rounding) is not."""
+        if arc.dl != 0.0:
+            return True
+        r = min(arc.r0, arc.r1)
+        return arc.dr * arc.dr > arc.sweep * arc.sweep * r * 0.5 * self.backlash.deadband
+
     def monotone(self, arc: arcs.Arc, cuts: Sequence[float]) -> bool:
-        """Whether the command of every backlash axis moves one way along each piece
-        (checked at eighths of the piece): a spiral arc (end radius far from the start
-        radius) can reverse between the break angles of a circle; such arcs are linearised
-        (their chords take the reversals where they fall)."""
+        """Whether the command of every backlash axis moves one way along each piece (it
+        does not rise and fall by more than the deadband, checked at eighths of the piece,
+        and for :meth:`dense` arcs ever closer to both ends too): a spiral or a helix can
+        reverse between the break angles of a circle; such arcs are linearised (their
+        chords take the reversals where they fall)."""
         bl = self.backlash
         if not bl.any_active:
             return True
         db = bl.deadband
         carriage = self.w.carriage
+        fractions = DENSE if self.dense(arc) else EIGHTHS
         fa = 0.0
         for fb in cuts:
-            qs = [carriage(arc.point(fa + (fb - fa) * (j * 0.125))) for j in range(9)]
+            qs = [carriage(arc.point(fa + (fb - fa) * f)) for f in fractions]
             for k in range(3):
                 if not bl.active[k]:
                     continue
-                up = down = False
-                for j in range(8):
-                    d = qs[j + 1][k] - qs[j][k]
-                    if d > db:
-                        up = True
-                    elif d < -db:
-                        down = True
-                if up and down:
+                lo = hi = qs[0][k]
+                rise = fall = 0.0
+                for q in qs:
+                    v = q[k]
+                    if v - lo > rise:
+                        rise = v - lo
+                    if hi - v > fall:
+                        fall = hi - v
+                    if v < lo:
+                        lo = v
+                    if v > hi:
+                        hi = v
+                if rise > db and fall > db:
                     return False
             fa = fb
         return True
@@ -258,6 +282,41 @@ class _Job:
             out[k] = c + g[k]
         return out[0], out[1], out[2]
 
+    def overshoots(self, S, E, ka: float, kb: float, radius: float, sa: float,
+                   sb: float) -> bool:
+        """Whether the written circle (centre ka, kb; start S, end E, firmware mm; sa, sb:
+        centre -> start) turns a backlash axis of the plane round inside the piece by more
+        than the output resolution. The piece ends where the command of such an axis
+        reverses; a circle whose extreme in that axis lies before the end carries the axis
+        past it and back, and the play then holds the carriage on the wrong side (by that
+        amount) until the next reversal."""
+        aw, arc = self.aw, self.arc
+        ia, ib = arc.ia, arc.ib
+        allowed = aw.overshoot[aw.state.inches]
+        end = self.angle(E[ia] - ka, E[ib] - kb, sa, sb)
+        for k, centre, va, vb in ((ia, ka, radius, 0.0), (ia, ka, -radius, 0.0),
+                                  (ib, kb, 0.0, radius), (ib, kb, 0.0, -radius)):
+            if not aw.backlash.active[k]:
+                continue
+            ang = self.angle(va, vb, sa, sb)
+            if 0.0 < ang < end:  # the circle's extreme in axis k lies inside the piece
+                extreme = centre + (va if k == ia else vb)
+                lo, hi = min(S[k], E[k]), max(S[k], E[k])
+                over = extreme - hi if extreme > hi else lo - extreme
+                if over > allowed:
+                    return True
+        return False
+
+    def angle(self, va: float, vb: float, sa: float, sb: float) -> float:
+        """Angle (rad, 0..2 pi) from the start direction (sa, sb) to (va, vb), in the
+        direction the arc turns."""
+        ang = math.atan2(sa * vb - sb * va, sa * va + sb * vb)
+        if self.clockwise:
+            ang = -ang
+        if ang < 0.0:
+            ang += 2.0 * math.pi
+        return ang
+
     def fit(self, fa: float, fb: float, pb, qb):
         """The arc words ([I.., J..], deviation mm) of the piece fa..fb, False when its rounded
         end equals the start in the plane, None when no arc fits."""
@@ -324,6 +383,8 @@ class _Job:
                 dev = e
         dev *= aw.k_dev
         if dev > budget:
+            return None
+        if bl.any_active and self.overshoots(S, E, ka, kb, radius, sa, sb):
             return None
         la, lb = arcs.PLANES[arc.plane][3:]
         if st.ij_absolute:

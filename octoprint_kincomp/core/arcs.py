@@ -186,7 +186,7 @@ def centre_from_words(start: Sequence[float], end: Sequence[float], plane: int,
 
 # Arcs kept as arcs (core/arcpath.py) are cut into pieces of at most this sweep (rad) before
 # they are fitted, and at the break angles (where a carriage command reverses)
-MAX_PIECE_RAD = math.pi / 2
+MAX_PIECE_RAD = math.pi
 BREAK_EDGE = 1e-9  # break fractions closer than this to an end are not cut (no slivers)
 
 

@@ -117,10 +117,13 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
 
 
 def fmt(value: float, decimals: int) -> str:
-    """Fixed-point text with ``decimals`` places; never ``-0.000`` and never exponents."""
+    """Shortest text of ``value`` rounded to ``decimals`` places, as slicers write numbers:
+    no trailing zeros, no bare dot (``10.5``, ``10``), never ``-0`` and never exponents."""
     text = f"{value:.{decimals}f}"
-    if text[0] == "-" and not text.strip("-0."):
-        return text[1:]
+    if decimals > 0:
+        text = text.rstrip("0").rstrip(".")
+    if text == "-0":
+        return "0"
     return text
 
 

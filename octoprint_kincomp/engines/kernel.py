@@ -56,7 +56,7 @@ def build(comp: Compensator) -> Optional[object]:
     arcs = None
     if not comp.options.linearise_arcs:
         arcs = (comp.pure_translation, comp.options.chord_tol_mm, aw.k_dev, aw.budget,
-                aw.sliver, aw.max_offset, tuple(float(v) for v in aw.breaks[17]))
+                aw.sliver, aw.overshoot, aw.max_offset, tuple(float(v) for v in aw.breaks[17]))
     return _ext.Kernel(affine, tables, bl.half, bl.deadband, comp.options.limits,
                        comp.options.decimals, arcs)
 

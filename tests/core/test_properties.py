@@ -578,15 +578,28 @@ def test_compensated_program_lands_on_the_desired_points(lines, geo, tol):
 
 @cfg(40)
 @given(program(), geometry(), backlash(tables=True, fraction=False, smoothing=False))
+@example(  # a full-circle helix under XZ/YZ skew: the last piece's circle once carried X
+    # 21 um past its end (where X reverses) and back, leaving the play on the wrong side
+    ["G28", "G1 X0 Y0 Z26 F3000", "G2 X-0Y-0 Z+57 I-15.840f788"],
+    {"squareness_um_per_m": {"xy": 0.0, "xz": 2974.797, "yz": 4272.194},
+     "scale_ppm": {"x": 0.0, "y": 2377.635, "z": -242.385}},
+    {"x": 39.733, "z": 90.9998})
+@example(  # a spiral (radius 8 -> 6 mm over a turn): Y turns round 0.1 deg before its end,
+    # between the check points of the piece; the chords then carried Y back without take-up
+    ["G28", "G1 X0 Y0 Z1 F3000", "G2 Y2 J8 F300"], {}, {"y": 1.0})
 def test_with_backlash_the_printer_with_play_lands_too(lines, geo, bl):
     """The take-up moves are what make a printer with play land: replayed through the play,
     every compensated move ends on its point (2e-6: the 1e-6 output resolution plus the
     compensator's 1e-6 reversal deadband, a hysteresis, so sub-deadband steps cannot add
-    up). Partial homing included: the first move after it is judged from the home command."""
+    up; after an arc 1.5e-6 more: its written centre is rounded, so the firmware's circle may
+    turn an axis up to that much before the piece's end where the axis reverses, and the
+    play then stays on the other side). Partial homing included: the first move after it is
+    judged from the home command."""
     p = Params.from_dict(dict(geo, backlash=bl))
     opts = Options(decimals=6, chord_tol_mm=0.05)
     for line, got, want in replay(p, lines, opts, play=True):
-        assert dist(got, want) <= 2e-6, (line, got, want)
+        bound = 3.5e-6 if re.search(r"G0*[23]\b", line, re.I) else 2e-6
+        assert dist(got, want) <= bound, (line, got, want)
 
 
 @cfg(40)

@@ -216,3 +216,22 @@ def test_slow_vertical_test_with_short_dwells():
     assert [run.direction for run in det.runs] == ["ccw", "cw"]
     ccw, cw = det.runs
     assert ccw.i1 == cw.i0 and ccw.t_out < s.t[ccw.i1] < cw.t_in
+
+
+def test_fast_test_without_planner_settings_analyses_like_the_offline_trace():
+    """A live stream records no planner settings: the analysis estimates them from the
+    ramps. At 3700 mm/min the timing between the ramps fits only within 1 % of the true
+    acceleration; a grid over acceleration and junction deviation stepped over that valley
+    and mapped the run at constant speed (squareness 17 um/m and scale mismatch 29 ppm
+    off). The ramp shapes find it."""
+    from octoprint_kincomp.ballbar.simulator import volume_truth
+
+    from .conftest import SimStream
+
+    spec = TestSpec(radius_mm=50, feed_mm_min=3700, centre=(110, 110, 10))
+    s = SimStream(spec, volume_truth(noise_um=0.5))
+    trace, _ = trace_from_stream(device_stream(s.t, s.r), spec)
+    assert "accel_mm_s2" not in trace.meta  # nothing to go by but the data
+    d = same_result(trace, s.offline(), square=8.0, ppm=3.0, ms=0.02, um=1.0)
+    assert d["fit"]["motion"]["motion"] == "planner"
+    assert d["fit"]["motion"]["accel_mm_s2"] == pytest.approx(1500, rel=0.05)

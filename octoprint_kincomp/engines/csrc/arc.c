@@ -157,6 +157,48 @@ static int fw_after(const State *s, int dec, double u, int k, double c, double *
     return 0;
 }
 
+/* _Job.angle: from the start direction (sa, sb) to (va, vb) in the arc's turn, 0..2 pi */
+static double turn_angle(const Job *j, double va, double vb, double sa, double sb)
+{
+    double ang = atan2(sa * vb - sb * va, sa * va + sb * vb);
+    if (j->cw)
+        ang = -ang;
+    if (ang < 0.0)
+        ang += 2.0 * M_PI;
+    return ang;
+}
+
+/* _Job.overshoots: the written circle turns a backlash axis (X, Y) round inside the piece
+ * by more than the output resolution */
+static int overshoots(const Job *j, const double *S, const double *E, double ka, double kb,
+                      double radius, double sa, double sb)
+{
+    static const double VA[4] = {1.0, -1.0, 0.0, 0.0}, VB[4] = {0.0, 0.0, 1.0, -1.0};
+    double allowed = j->K->overshoot[j->s->inches];
+    double end = turn_angle(j, E[0] - ka, E[1] - kb, sa, sb);
+    int i;
+    for (i = 0; i < 4; i++) {
+        int k = i < 2 ? 0 : 1;
+        double va = VA[i] * radius, vb = VB[i] * radius, ang, extreme, lo, hi, over;
+        if (!j->K->active[k])
+            continue;
+        if (VA[i] == 0.0)
+            va = 0.0;
+        if (VB[i] == 0.0)
+            vb = 0.0;
+        ang = turn_angle(j, va, vb, sa, sb);
+        if (!(0.0 < ang && ang < end))
+            continue;
+        extreme = k == 0 ? ka + va : kb + vb;
+        lo = S[k] < E[k] ? S[k] : E[k];
+        hi = S[k] > E[k] ? S[k] : E[k];
+        over = extreme > hi ? extreme - hi : lo - extreme;
+        if (over > allowed)
+            return 1;
+    }
+    return 0;
+}
+
 /* _Job.fit: 1 fits (words in ij, deviation mm in dev), 0 no fit, 2 the rounded end is the
  * start, -1 Python decides */
 static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij_len,
@@ -228,6 +270,8 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
     }
     dev *= K->k_dev;
     if (dev > budget)
+        return 0;
+    if (K->any_active && overshoots(j, S, E, ka, kb, radius, sa, sb))
         return 0;
     *ij_len = 0;
     n = kk_format_num(ux / u, dec, text);

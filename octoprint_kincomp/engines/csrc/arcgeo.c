@@ -5,7 +5,7 @@
 #include "kernel.h"
 
 #define TWO_PI (2.0 * M_PI)
-#define MAX_PIECE_RAD (M_PI / 2.0)
+#define MAX_PIECE_RAD M_PI
 #define BREAK_EDGE 1e-9
 
 double kk_norm2(double a, double b)
@@ -133,30 +133,68 @@ int kk_inside_limits(const Kernel *K, const Geo *a)
 }
 
 /* ArcWriter.monotone */
+/* ArcWriter.dense */
+static int dense(const Kernel *K, const Geo *a)
+{
+    double r = a->r0 < a->r1 ? a->r0 : a->r1;
+    if (a->dl != 0.0)
+        return 1;
+    return a->dr * a->dr > a->sweep * a->sweep * r * 0.5 * K->deadband;
+}
+
+#define N_DENSE 35
+/* arcpath.DENSE: 0, 2^-16 .. 2^-4, 1/8 .. 7/8, 1 - 2^-4 .. 1 - 2^-16, 1 */
+static void dense_fractions(double *out)
+{
+    int i, n = 0, e;
+    out[n++] = 0.0;
+    for (e = 16; e > 3; e--)
+        out[n++] = ldexp(1.0, -e);
+    for (i = 1; i < 8; i++)
+        out[n++] = i * 0.125;
+    for (e = 4; e <= 16; e++)
+        out[n++] = 1.0 - ldexp(1.0, -e);
+    out[n] = 1.0;
+}
+
+/* ArcWriter.monotone: 1, or 0 (a backlash axis rises and falls by more than the deadband
+ * within a piece) */
 int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
 {
-    double fa = 0.0, p[3], qs[9][3];
-    int c, j, k;
+    static const double EIGHTHS[9] = {0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0};
+    double fa = 0.0, p[3], qs[N_DENSE][3], fr[N_DENSE];
+    const double *fractions = EIGHTHS;
+    int c, j, k, n = 9;
     if (!K->any_active)
         return 1;
+    if (dense(K, a)) {
+        dense_fractions(fr);
+        fractions = fr;
+        n = N_DENSE;
+    }
     for (c = 0; c < nc; c++) {
         double fb = cuts[c];
-        for (j = 0; j < 9; j++) {
-            kk_arc_point(a, fa + (fb - fa) * (j * 0.125), p);
+        for (j = 0; j < n; j++) {
+            kk_arc_point(a, fa + (fb - fa) * fractions[j], p);
             kk_inverse(K, p, qs[j]);
         }
         for (k = 0; k < 3; k++) {
-            int up = 0, down = 0;
+            double lo, hi, rise = 0.0, fall = 0.0;
             if (!K->active[k])
                 continue;
-            for (j = 0; j < 8; j++) {
-                double d = qs[j + 1][k] - qs[j][k];
-                if (d > K->deadband)
-                    up = 1;
-                else if (d < -K->deadband)
-                    down = 1;
+            lo = hi = qs[0][k];
+            for (j = 0; j < n; j++) {
+                double v = qs[j][k];
+                if (v - lo > rise)
+                    rise = v - lo;
+                if (hi - v > fall)
+                    fall = hi - v;
+                if (v < lo)
+                    lo = v;
+                if (v > hi)
+                    hi = v;
             }
-            if (up && down)
+            if (rise > K->deadband && fall > K->deadband)
                 return 0;
         }
         fa = fb;

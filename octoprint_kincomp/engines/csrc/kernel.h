@@ -61,6 +61,7 @@ typedef struct {
     double tol;                   /* chord_tol_mm */
     double k_dev;                 /* gain * sample margin */
     double budget[2], sliver[2];  /* mm, [mm output, inch output] */
+    double overshoot[2];          /* mm: a written circle may turn a backlash axis back */
     double max_offset;            /* largest take-up offset, mm */
     int nbreaks;
     double breaks[MAX_BREAKS];    /* G17: angles (rad) where a backlash axis reverses */

@@ -39,13 +39,15 @@ static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
                                      &arcs))
         return -1;
     /* arcs: None (left to Python), or (pure_translation, tol, k_dev, (budget mm, budget
-     * inch), (sliver mm, sliver inch), max_offset, G17 breaks) */
+     * inch), (sliver mm, sliver inch), (overshoot mm, overshoot inch), max_offset, G17
+     * breaks) */
     self->keep_arcs = arcs != Py_None;
     if (self->keep_arcs) {
         Py_ssize_t i;
-        if (!PyArg_ParseTuple(arcs, "pdd(dd)(dd)dO", &self->pure_translation, &self->tol,
+        if (!PyArg_ParseTuple(arcs, "pdd(dd)(dd)(dd)dO", &self->pure_translation, &self->tol,
                               &self->k_dev, &self->budget[0], &self->budget[1],
-                              &self->sliver[0], &self->sliver[1], &self->max_offset, &breaks))
+                              &self->sliver[0], &self->sliver[1], &self->overshoot[0],
+                              &self->overshoot[1], &self->max_offset, &breaks))
             return -1;
         if (!PyTuple_Check(breaks) || PyTuple_GET_SIZE(breaks) > MAX_BREAKS) {
             PyErr_SetString(PyExc_TypeError, "arcs: breaks must be a tuple of at most 3");

@@ -64,7 +64,25 @@ int kk_parse_num(const char *text, Py_ssize_t len, double *out)
     }
 }
 
-/* "%.{dec}f" % v without negative zero (gcode.fmt). Returns the length, -1: Python decides.
+/* Drops the trailing zeros of the decimals of text[0..len) and a bare dot; "-0" -> "0"
+ * (gcode.fmt). Returns the new length. */
+static int trim_zeros(char *text, int len, int dec)
+{
+    if (dec > 0) {
+        while (text[len - 1] == '0')
+            len--;
+        if (text[len - 1] == '.')
+            len--;
+    }
+    if (len == 2 && text[0] == '-' && text[1] == '0') {
+        text[0] = '0';
+        len = 1;
+    }
+    text[len] = 0;
+    return len;
+}
+
+/* "%.{dec}f" % v, trimmed as gcode.fmt. Returns the length, -1: Python decides.
  * Where |v| * 10**dec is at most 1e9 and not within 1e-6 of a half, rounding the scaled
  * value (off the exact one by less than 2.5e-7) gives the correctly rounded digits that
  * Python's formatter writes; elsewhere Python's formatter does it. */
@@ -95,8 +113,7 @@ int kk_format_num(double v, int dec, char *out)
                 }
                 len += dec;
             }
-            out[len] = 0;
-            return len;
+            return trim_zeros(out, len, dec);
         }
     }
     return format_slow(v, dec, out);
@@ -113,17 +130,12 @@ static int format_slow(double v, int dec, char *out)
     }
     len = strlen(s);
     p = s;
-    if (s[0] == '-' && strspn(s, "-0.") == len) {
-        p++;
-        len--;
-    }
     if (len > MAX_TEXT) {
         PyMem_Free(s);
         return -1;
     }
     memcpy(out, p, len);
-    out[len] = 0;
     PyMem_Free(s);
-    return (int)len;
+    return trim_zeros(out, (int)len, dec);
 }
 

@@ -168,7 +168,8 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray) -> Optional[Tuple[np.n
         old = comp.state.fw_text[k]
         if old is None:
             old = "%.*f" % (dec, comp.state.fw[k] / u)
-        on = int(old.lstrip("-").replace(".", ""))
+        whole, _, frac = old.lstrip("-").partition(".")  # trimmed: "10.5" is 10500
+        on = int(whole + frac.ljust(dec, "0"))
         prevN[0, k] = on
         prevNEG[0, k] = old.startswith("-") and on > 0
     prevN[1:] = N[:-1]

@@ -1,5 +1,6 @@
 """Fixed-point text of float arrays, as the reference path writes numbers (gcode.fmt:
-``"%.{dec}f" % v`` without negative zero), for the vectorised file engine."""
+``"%.{dec}f" % v`` without trailing zeros, bare dot or negative zero), for the vectorised file
+engine."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ _P10I = 10 ** np.arange(19, dtype=np.int64)
 
 
 class Formatter:
-    """Fixed-point text of floats, identical to ``"%.{dec}f" % v`` without negative zero."""
+    """Fixed-point text of floats, identical to ``gcode.fmt(v, dec)``."""
 
     def __init__(self, dec: int):
         self.dec = dec
@@ -32,8 +33,16 @@ class Formatter:
 
     def text(self, n: int, neg: bool) -> str:
         s = str(n).rjust(self.dec + 1, "0")
-        s = s[: -self.dec] + "." + s[-self.dec:] if self.dec else s
+        if self.dec:
+            s = (s[: -self.dec] + "." + s[-self.dec:]).rstrip("0").rstrip(".")
         return "-" + s if neg else s
+
+    def trailing_zeros(self, n: np.ndarray) -> np.ndarray:
+        """How many of the ``dec`` decimals of each number are trailing zeros (not written)."""
+        tz = np.zeros(len(n), np.int64)
+        for e in range(1, self.dec + 1):
+            tz += n % _P10I[e] == 0
+        return tz
 
     def fill(self, fullT: np.ndarray, maskT: np.ndarray, col: int, width: int, letter: int,
              n: np.ndarray, neg: np.ndarray, written: np.ndarray) -> np.ndarray:
@@ -41,10 +50,12 @@ class Formatter:
         ``fullT`` (one matrix row per output column, so every write is one long 1-D run).
 
         Layout of the block: space, letter, sign slot, integer digits (right-aligned), dot,
-        decimals; ``maskT`` selects what is really written. Returns each row's length (0 if
-        not written). Digits come three at a time from a table of "000".."999".
+        decimals; ``maskT`` selects what is really written (not the trailing zeros of the
+        decimals, nor the dot when all are). Returns each row's length (0 if not written).
+        Digits come three at a time from a table of "000".."999".
         """
         dec = self.dec
+        tz = self.trailing_zeros(n)
         n_int = width - 4 - dec
         ip = n // _P10I[dec]
         nint = np.ones(len(n), np.int64)
@@ -67,16 +78,16 @@ class Formatter:
                 pos = right - place if place < dec else right - place - 1
                 fullT[pos] = (cell >> (8 * j)) & 0xFF
                 if place < dec:
-                    maskT[pos] = written
+                    maskT[pos] = written & (tz <= place)
                 else:
                     maskT[pos] = written & (pos - col >= start)
                 place += 1
         fullT[right - dec] = 46
-        maskT[right - dec] = written
+        maskT[right - dec] = written & (tz < dec)
         sign_col = col + 2 + n_int - nint  # just before the first integer digit
         ng = np.flatnonzero(neg & written)
         if len(ng):
             fullT[sign_col[ng], ng] = 45
             maskT[sign_col[ng], ng] = True
-        return np.where(written, 2 + neg + nint + 1 + dec, 0)
+        return np.where(written, 2 + neg + nint + np.where(tz < dec, 1 + dec - tz, 0), 0)
 
