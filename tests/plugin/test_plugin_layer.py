@@ -70,7 +70,7 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     out = wrapped.stream().read().decode()
     lines = out.splitlines()
     assert lines[0].startswith("; kincomp: compensated params=")
-    assert lines[1] == "G28" and lines[2].startswith("G1 X9.950 Y50.000") and \
+    assert lines[1] == "G28" and lines[2].startswith("G1 X9.95 Y50 ") and \
         lines[2].endswith("; first")
     assert lines[3] == "M104 S200"
     # an already compensated upload goes through untouched
