@@ -51,7 +51,10 @@ def _measure_every_test(page, server, shot=None):
 
 def _analyse(page):
     page.click("#kincomp_campaign_analyse")
-    page.wait_for_selector("#kincomp_campaign_result", state="visible", timeout=300_000)
+    page.wait_for_selector("#kincomp_campaign_result:visible, #kincomp_campaign_error:visible",
+                           timeout=300_000)
+    assert page.is_visible("#kincomp_campaign_result"), \
+        page.inner_text("#kincomp_campaign_error")
     for i in range(4):
         page.wait_for_selector(f"#kincomp_campaign_plot_{i} canvas")
 
@@ -72,9 +75,10 @@ def _campaign(server, cid):
 
 def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
     # the recorded path (demo.live off: the page collects each test's simulated trace); the
-    # live path of a demo campaign is tests/e2e/test_campaign.py's. (Not here yet: the live
-    # capture of the XY test at 3700 mm/min reads squareness 16 um/m and scale 30 ppm off the
-    # simulated truth, sensor.stream.trace_from_stream, so the joint fit refuses it.)
+    # live path of a demo campaign is tests/e2e/test_campaign.py's and
+    # tests/plugin/test_campaign_api.py's. (Not here yet: run here on the live path, one of the
+    # two XY R50 tests came out with 8.5 um rms against 0.6 for the others and the joint fit
+    # refused it, in one of two runs; not reproduced on the simulated stream alone.)
     settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
     try:
         _open_campaign_mode(page)
