@@ -376,18 +376,25 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
     lj = math.log(base.junction_deviation_mm)
     _, a_best = min((cost(planner(math.log(a), lj), False), float(a)) for a in A_GRID)
     da, dj = math.log(A_GRID[1] / A_GRID[0]), math.log(JD_GRID[1] / JD_GRID[0])
-    la, _ = _minimise(lambda x: cost(planner(x, lj), False), math.log(a_best), da, da / 2,
-                      tol=0.005)
+    la, s_best = _minimise(lambda x: cost(planner(x, lj), False), math.log(a_best), da,
+                           da / 2, tol=0.005)
+    s_const = cost(base.with_(constant_speed=True), False)
     c_best = cost(planner(la, lj), True)
     lj2, _ = _minimise(lambda x: cost(planner(la, x), True), lj, 2 * dj, dj / 2, tol=0.02)
     la2, c2 = _minimise(lambda x: cost(planner(x, lj2), True), la, 0.05, 0.005, tol=0.001)
     if c2 < c_best:
         la, lj, c_best = la2, lj2, c2
     c_const = cost(base.with_(constant_speed=True), True)
-    # two more parameters: a likelihood-ratio margin of 10 noise variances; and a speed-up
-    # within two samples cannot be told from constant speed
+    # constant speed unless the ramp shapes or the timing show the speed-up clearly (two more
+    # parameters: a likelihood-ratio margin of 10 noise variances; the timing alone can miss
+    # it: with take-ups in a compensated program the valley in junction deviation is narrow
+    # too) and it lasts at least two samples
     dt = float(np.median(np.concatenate([np.diff(mr.t) for mr in measured])))
-    if c_const - c_best <= 10.0 * min(c_const, c_best) / max(n, 1) or \
+
+    def clearly(c_plan: float, c_flat: float) -> bool:
+        return c_flat - c_plan > 10.0 * min(c_flat, c_plan) / max(n, 1)
+
+    if not (clearly(s_best, s_const) or clearly(c_best, c_const)) or \
             test.spec.feed_mm_min / 60.0 / math.exp(la) < 2.0 * dt:
         s = base.with_(constant_speed=True, estimated=True)
     else:
