@@ -31,7 +31,7 @@ def _open_campaign_mode(page):
 
 
 def _measure_every_test(page, server, shot=None):
-    """Prints the campaign's tests in turn; the demo's traces are collected by the page."""
+    """Prints the campaign's tests in turn; each is measured by its live capture."""
     total = page.locator("#kincomp_campaign_table tbody tr").count()
     for n in range(1, total + 1):
         page.wait_for_selector(f"#kincomp_campaign_current >> text=Test {n} of {total}")
@@ -74,12 +74,10 @@ def _campaign(server, cid):
 
 
 def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
-    # the recorded path (demo.live off: the page collects each test's simulated trace); the
-    # live path of a demo campaign is tests/e2e/test_campaign.py's and
-    # tests/plugin/test_campaign_api.py's. (Not here yet: run here on the live path, one of the
-    # two XY R50 tests came out with 8.5 um rms against 0.6 for the others and the joint fit
-    # refused it, in one of two runs; not reproduced on the simulated stream alone.)
-    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
+    # the live path: each printed test is captured from the demo's virtual bar through a
+    # pseudo-terminal and becomes the test's measurement by itself (the recorded path, where
+    # the page collects each test's simulated trace, is tests/plugin/test_campaign_api.py's)
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": True})
     try:
         _open_campaign_mode(page)
         page.fill("#kincomp_campaign_rxy", "50")
