@@ -132,7 +132,6 @@ int kk_inside_limits(const Kernel *K, const Geo *a)
     return 1;
 }
 
-/* ArcWriter.monotone */
 /* ArcWriter.dense */
 static int dense(const Kernel *K, const Geo *a)
 {
