@@ -16,7 +16,7 @@ from octoprint_kincomp.ballbar.demo import demo_truth
 from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.ballbar.simulator import simulate_program
 from octoprint_kincomp.core.params import Params
-from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
+from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 PROFILE = {"id": "_default", "name": "Virtual P1",
            "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
@@ -76,16 +76,6 @@ def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv"):
 def messages(plugin, kind):
     return [c[0][1] for c in plugin._plugin_manager.send_plugin_message.call_args_list
             if c[0][1].get("type") == kind]
-
-
-def queue_lines(plugin, lines):
-    """``lines`` of a printed file through KinComp's queuing hook (comments stripped as
-    OctoPrint does)."""
-    for line in lines:
-        cmd = line.split(";")[0].strip()
-        if cmd:
-            plugin.queuing_hook(None, "queuing", cmd, None, cmd.split()[0],
-                                tags={"source:file"})
 
 
 def print_in_demo_mode(plugin, path, live=True):

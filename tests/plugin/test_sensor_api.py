@@ -16,7 +16,7 @@ from octoprint_kincomp.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
 from octoprint_kincomp.sensor.virtual import VirtualSensor
-from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
+from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 SPEEDUP = 20.0
 PROGRAM = {"plane": "XY", "centre": [100, 100, 5], "radius": 30, "feed": 3000, "print": True}
@@ -254,12 +254,7 @@ def print_program(plugin, call, program, spec):
     status, prog = call(plugin.api_program, "/program", "POST", program)
     assert status == 200, prog
     plugin.on_event("PrintStarted", {"origin": "local", "path": prog["path"]})
-    comm = plugin.prints.comm
-    for line in generate(spec).splitlines():
-        cmd = line.split(";")[0].strip()
-        if cmd:
-            plugin.queuing_hook(comm, "queuing", cmd, None, cmd.split()[0],
-                                tags={"source:file"})
+    queue_lines(plugin, generate(spec).splitlines(), plugin.prints.comm)
     return prog
 
 

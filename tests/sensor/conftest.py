@@ -6,16 +6,22 @@ import numpy as np
 import pytest
 
 from octoprint_kincomp.ballbar.analysis import analyse
+from octoprint_kincomp.ballbar.closedloop import compensate_text
 from octoprint_kincomp.ballbar.program import TestSpec, generate
 from octoprint_kincomp.ballbar.simulator import paper_truth, simulate_program
 
 
 class SimStream:
-    """The simulator's trace as one stream: ``t`` (s), ``r`` (mm), ``trace`` (offline)."""
+    """The simulator's trace as one stream: ``t`` (s), ``r`` (mm), ``trace`` (offline).
+    ``params``: the program goes out compensated with them (a re-test)."""
 
-    def __init__(self, spec, truth, pre_s=6.0, post_s=3.0, seed=5):
+    def __init__(self, spec, truth, pre_s=6.0, post_s=3.0, seed=5, params=None):
         self.spec = spec
-        self.trace = simulate_program(generate(spec), truth)
+        if params is None:
+            self.trace = simulate_program(generate(spec), truth)
+        else:
+            text = compensate_text(generate(spec, params_hash=params.hash()), params)
+            self.trace = simulate_program(text, truth, spec, "")
         rows = sorted(self.trace.rows, key=lambda row: row[1])
         t = np.array([row[1] for row in rows])
         r = np.array([row[2] for row in rows])

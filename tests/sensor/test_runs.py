@@ -5,8 +5,12 @@ All streams are SIMULATED (KinComp's printer + ballbar simulator)."""
 import numpy as np
 import pytest
 
+from octoprint_kincomp.ballbar.analysis import analyse
+from octoprint_kincomp.ballbar.demo import demo_truth
 from octoprint_kincomp.ballbar.formats import parse_csv_trace
 from octoprint_kincomp.ballbar.program import TestSpec
+from octoprint_kincomp.ballbar.simulator import volume_truth
+from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor.errors import SensorError
 from octoprint_kincomp.sensor.retime import retime
 from octoprint_kincomp.sensor.runs import detect_runs
@@ -16,7 +20,7 @@ from octoprint_kincomp.sensor.stream import (
     trace_from_stream,
 )
 
-from .conftest import same_result
+from .conftest import SimStream, same_result
 
 
 def device_stream(t, r, meta=None):
@@ -205,9 +209,6 @@ def test_slow_vertical_test_with_short_dwells():
     """At a slow feed (F200: a 1 mm feed-in takes 0.3 s, the step window L is 1.2 s) the
     default 1 s dwells are shorter than the windows around the steps: both runs are still
     found (the CW run was lost once, the gap between the runs seemed not still)."""
-    from octoprint_kincomp.ballbar.simulator import volume_truth
-
-    from .conftest import SimStream
 
     spec = TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=40, feed_mm_min=200)
     s = SimStream(spec, volume_truth(noise_um=0.5))
@@ -224,9 +225,6 @@ def test_fast_test_without_planner_settings_analyses_like_the_offline_trace():
     acceleration; a grid over acceleration and junction deviation stepped over that valley
     and mapped the run at constant speed (squareness 17 um/m and scale mismatch 29 ppm
     off). The ramp shapes find it."""
-    from octoprint_kincomp.ballbar.simulator import volume_truth
-
-    from .conftest import SimStream
 
     spec = TestSpec(radius_mm=50, feed_mm_min=3700, centre=(110, 110, 10))
     s = SimStream(spec, volume_truth(noise_um=0.5))
@@ -243,29 +241,14 @@ def test_fast_re_test_with_take_ups_is_not_mapped_at_constant_speed():
     The timing between the ramps then fits only in a narrow valley of junction deviation, and
     the estimate once fell back to constant speed: 9.6 um rms, the joint fit refused the test.
     The ramp shapes alone show the speed-up."""
-    from octoprint_kincomp.ballbar.closedloop import compensate_text
-    from octoprint_kincomp.ballbar.demo import demo_truth
-    from octoprint_kincomp.ballbar.analysis import analyse
-    from octoprint_kincomp.ballbar.program import generate
-    from octoprint_kincomp.ballbar.simulator import simulate_program
-    from octoprint_kincomp.core.params import Params
 
     truth = demo_truth()
     p = Params.from_dict(dict(truth.errors.to_dict(), servo_precomp=True,
                               servo_lag_ms={"x": 0.62, "y": 0.0, "z": 0.0}))
     spec = TestSpec(radius_mm=50, feed_mm_min=3700, centre=(100, 100, 10),
                     params_hash=p.hash())
-    rows = sorted(simulate_program(compensate_text(generate(spec, params_hash=p.hash()), p),
-                                   truth, spec, "").rows, key=lambda row: row[1])
-    t = np.array([row[1] for row in rows])
-    r = np.array([row[2] for row in rows])
-    fs = truth.sample_rate_hz
-    before = t[0] - np.arange(int(4 * fs), 0, -1) / fs  # the bar still, then the runs
-    after = t[-1] + np.arange(1, int(3 * fs)) / fs
-    tt = np.concatenate([before, t, after])
-    rr = np.concatenate([np.full(len(before), r[0]), r, np.full(len(after), r[-1])])
-    rr = rr + np.random.default_rng(1).normal(0, 5e-4, len(rr))
-    trace, _ = trace_from_stream(device_stream(tt, rr), spec)
+    s = SimStream(spec, truth, params=p)
+    trace, _ = trace_from_stream(device_stream(s.t, s.r), spec)
     d = analyse(trace, current=p)["diagnostics"]
     assert d["fit"]["motion"]["motion"] == "planner"
     assert d["fit"]["rms_um"] < 1.5

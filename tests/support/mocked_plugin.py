@@ -70,3 +70,13 @@ def wait_for(condition, timeout: float = 5.0) -> None:
     while not condition():
         assert time.monotonic() < deadline, "timed out"
         time.sleep(0.01)
+
+
+def queue_lines(plugin, lines, comm=None) -> None:
+    """``lines`` of a printed file through KinComp's queuing hook (comments stripped as
+    OctoPrint does)."""
+    for line in lines:
+        cmd = line.split(";")[0].strip()
+        if cmd:
+            plugin.queuing_hook(comm, "queuing", cmd, None, cmd.split()[0],
+                                tags={"source:file"})
