@@ -58,11 +58,19 @@ def reset_offsets(st: StreamState) -> None:
         st.frame_lost[k] = False  # the firmware frame is the native one again
 
 
-def homed_axes(body: str) -> List[int]:
-    """The axes a G28 with the words of ``body`` homes (all when it names none)."""
+def named_axes(body: str) -> List[int]:
+    """The axes (0 X, 1 Y, 2 Z) the words of ``body`` name, bare letters too; all three
+    when the words do not parse (such a line may move any of them)."""
     words = parse_words(body, allow_bare=True)
-    letters = {w.letter for w in words} if words is not None else set()
-    return [k for k, a in enumerate(AXIS_LETTERS) if a in letters] or [0, 1, 2]
+    if words is None:
+        return [0, 1, 2]
+    letters = {w.letter for w in words}
+    return [k for k, a in enumerate(AXIS_LETTERS) if a in letters]
+
+
+def homed_axes(body: str) -> List[int]:
+    """The axes a G28 (or G92) with the words of ``body`` acts on: all when it names none."""
+    return named_axes(body) or [0, 1, 2]
 
 
 def home(st: StreamState, backlash, axes: Sequence[int],

@@ -201,8 +201,10 @@ class KinCompPlugin(
                 self.queue.home_reported(position)
         return line
 
-    def sent_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None,
-                  *args, **kwargs):
+    def sending_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
+                     tags=None, *args, **kwargs):
+        # the "sending" phase runs before the write: in "sent" (after it) the firmware's
+        # answer can already have been read on the monitor thread, and would be missed
         if cmd == HOME_QUERY and tags and f"plugin:{self._identifier}" in tags:
             self.queue.home_query_sent()
 
@@ -384,7 +386,7 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         # run last in queuing so other plugins' rewrites get compensated too
         "octoprint.comm.protocol.gcode.queuing": (plugin.queuing_hook, 10000),
         "octoprint.comm.protocol.gcode.received": plugin.received_hook,
-        "octoprint.comm.protocol.gcode.sent": plugin.sent_hook,
+        "octoprint.comm.protocol.gcode.sending": plugin.sending_hook,
         "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
         "octoprint.access.permissions": plugin.permissions_hook,
         "octoprint.server.http.bodysize": plugin.bodysize_hook,

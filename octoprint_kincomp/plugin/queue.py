@@ -23,9 +23,11 @@ Resends never come back through the hook, so nothing is ever compensated twice o
   G28 then leaves the homed axes unknown and is followed by an ``M114``; the firmware's
   position report after it (``home_query_sent``, then ``home_reported`` from the received
   hook) makes them known where the printer really is. Until then a move that needs them
-  goes out as written, so no correction can move the head by more than itself. A line that
-  moves the head or changes its frame before the report arrives cancels the learning (the
-  report would be stale).
+  goes out as written, so no correction can move the head by more than itself. The M114 is
+  queued right behind the G28, so its report gives the homed position even when the file
+  reader queues more lines before the answer is read; a line queued meanwhile that moves or
+  re-frames a homed axis (G0/G1 or G92 naming it) takes that axis out of the learning (the
+  report is stale for it), a tool change, an arc or a probing move takes all of them out.
 * New parameters, and switching compensation on or off, apply at the next print start
   (``apply_changes = next_print``) or at once: turning it on or off in the middle of a print
   would shift every later move by the correction (a seam). Either way the new model takes
@@ -43,7 +45,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 from ..core.compensator import INVALIDATING_G, INVALIDATING_M, LimitError, Options
 from ..core.gcode import parse_command
-from ..core.modal import homed_axes
+from ..core.modal import homed_axes, named_axes
 from ..core.params import Params
 from ..engines.select import make_compensator
 
@@ -135,8 +137,9 @@ class QueueCompensator:
 
     # -- learning where the printer homes ----------------------------------------------------
     def _homing(self, cmd: str) -> Tuple[int, ...]:
-        """For a G28: the homed axes whose home position is not known (to be asked for).
-        Any other line that moves the head or changes its frame ends a pending question."""
+        """For a G28: the axes whose home position is to be asked for (those it homes
+        whose home is not known, and those still awaiting an earlier answer). Any other
+        line takes the axes it moves or re-frames out of a pending question."""
         if not self.awaiting_home and (
                 "28" not in cmd or None not in self.comp.options.home_mm):
             return ()  # (the common case, cheaply: this runs for every line)
@@ -146,11 +149,31 @@ class QueueCompensator:
         kind, num = parsed.kind, parsed.number
         if kind == "G" and num == 28 and parsed.sub is None:
             home_mm = self.comp.options.home_mm
-            return tuple(k for k in homed_axes(parsed.body) if home_mm[k] is None)
-        if self.awaiting_home and (
-                kind == "T" or (kind == "G" and (num <= 3 or num == 92 or num in INVALIDATING_G))
-                or (kind == "M" and num in INVALIDATING_M)):
-            self.awaiting_home, self.home_query_out = (), False
+            new = {k for k in homed_axes(parsed.body) if home_mm[k] is None}
+            # (an axis still awaiting an answer is asked for again: homing others may move
+            # it, e.g. Marlin's safe Z homing parks X and Y first)
+            return tuple(sorted(new | set(self.awaiting_home)))
+        if self.awaiting_home:
+            stale = self._moved_axes(parsed)
+            if stale:
+                self.awaiting_home = tuple(k for k in self.awaiting_home if k not in stale)
+                self.home_query_out = self.home_query_out and bool(self.awaiting_home)
+        return ()
+
+    @staticmethod
+    def _moved_axes(parsed) -> Tuple[int, ...]:
+        """The axes (0 X, 1 Y, 2 Z) whose position or frame a line changes as the printer
+        runs it: a position report read after it is stale for them. A move that names
+        none of them leaves their drives alone (it cannot be compensated while they are
+        unknown, so it goes out as written)."""
+        kind, num = parsed.kind, parsed.number
+        if kind == "T" or (kind == "M" and num in INVALIDATING_M) or (
+                kind == "G" and (num in (2, 3) or num in INVALIDATING_G)):
+            return (0, 1, 2)
+        if kind == "G" and num in (0, 1):
+            return tuple(named_axes(parsed.body))
+        if kind == "G" and num == 92:
+            return tuple(homed_axes(parsed.body))
         return ()
 
     def home_query_sent(self) -> None:

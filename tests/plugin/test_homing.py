@@ -50,14 +50,59 @@ def test_the_position_report_after_g28_makes_the_home_known_at_x_max():
     assert abs(got["X"] - 220.0) <= 0.0215 and abs(got.get("Y", 0.0)) < 0.002
 
 
-def test_a_move_before_the_report_cancels_the_learning():
+def test_a_move_before_the_report_takes_its_axes_out_of_the_learning():
     q = queue()
     q.handle("G28")
     q.handle("G91")
-    q.handle("G1 X-5")  # a jog queued before the report: the report would be stale
+    q.handle("G1 X-5")  # a jog queued before the report: the report is stale for X
     q.home_query_sent()
-    assert not q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
-    assert q.comp.known[0] is False
+    assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
+    assert q.comp.known == (False, True, True)
+    for stale_all in ("T1", "G2 X5 Y5 I1 J0", "G29"):  # all axes may have moved
+        q = queue()
+        q.handle("G28")
+        q.handle(stale_all)
+        known = q.comp.known  # (the arc's absolute end makes X and Y known by itself)
+        q.home_query_sent()
+        assert not q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0}), stale_all
+        assert q.comp.known == known and not known[2]
+    q = queue()
+    q.handle("G28")
+    q.handle("G92 Y10")  # re-frames Y only
+    q.home_query_sent()
+    assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
+    assert q.comp.known == (True, False, True)
+
+
+def test_lines_queued_ahead_of_the_report_that_leave_the_homed_axis_alone():
+    """Bambu Studio's start: G28 X, then a relative Z lift the file reader may queue before
+    the answer to the M114 is read (OctoPrint queues the next file line on the G28's "ok"
+    if the M114 has already left the queue). The report still gives X's home: the output
+    from there on is the one of a printer whose home was known all along."""
+    lines = ["G28 X", "G91", "G1 Z5 F1200", "G90", "G0 X128 F30000", "G0 Y254 F3000",
+             "G1 X20 Y200 Z3", "G1 X25", "G1 X-0.2 Y5"]
+    q = queue()
+    assert q.handle(lines[0], {"source:file"}) == ["G28 X", "M114"]
+    for line in lines[1:4]:
+        q.handle(line, {"source:file"})
+    q.home_query_sent()
+    assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
+    got = [q.handle(line, {"source:file"}) for line in lines[4:]]
+    ref = Compensator(SKEW, Options(home_mm=(0.0, None, None)))
+    want = [ref.process(line) for line in lines]
+    assert got == [None if w == line else w for w, line in zip(want[4:], lines[4:])]
+    assert got[2] is not None and got[3] is not None  # compensated
+
+
+def test_a_second_g28_before_the_answer_asks_again_for_every_axis_awaited():
+    q = queue()
+    assert q.handle("G28 X") == ["G28 X", "M114"]
+    q.home_query_sent()
+    assert q.handle("G28 Y") == ["G28 Y", "M114"] and q.awaiting_home == (0, 1)
+    assert not q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})  # the first answer: not ours
+    q.home_query_sent()
+    assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
+    assert q.comp.known == (True, True, False)
 
 
 def test_a_known_home_needs_no_question_and_a_partial_g28_asks_for_its_axes():

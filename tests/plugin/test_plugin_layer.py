@@ -91,6 +91,26 @@ def test_hook_registration_runs_last():
     assert ("POST", r"/trace", 16 * 1024 * 1024) in hooks["octoprint.server.http.bodysize"]([])
 
 
+def test_the_home_question_counts_from_before_its_write(plugin):
+    """The firmware may answer our M114 before OctoPrint's "sent" phase runs (the answer is
+    read on the monitor thread): the question is marked out in the "sending" phase."""
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin, plugin_hooks
+
+    hooks = plugin_hooks(KinCompPlugin())
+    assert "octoprint.comm.protocol.gcode.sending" in hooks
+    assert "octoprint.comm.protocol.gcode.sent" not in hooks
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})  # home unknown
+    comm = object()
+    out = plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags={"source:file"})
+    assert out == ["G28", "M114"]
+    tags = {"source:rewrite", "phase:queuing", f"plugin:{plugin._identifier}"}
+    plugin.received_hook(comm, "ok X:5.00 Y:6.00 Z:7.00 E:0.00 Count X:0 Y:0 Z:0")  # stale
+    plugin.sending_hook(comm, "sending", "M114", None, "M114", tags=tags)
+    plugin.received_hook(comm, "ok X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0")
+    assert plugin.queue.comp.known == (True, True, True)
+    assert plugin.queue.comp.state.m == [0.0, 0.0, 0.0]
+
+
 def test_print_events_drive_the_state(plugin, tmp_path):
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
     marked = tmp_path / "m.gcode"
