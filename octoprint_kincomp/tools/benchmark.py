@@ -64,6 +64,7 @@ def generate(path: str, n_lines: int, arc_fraction: float = 0.0, seed: int = 1) 
             r = rng.uniform(10, 40)
             n = rng.randint(60, 200)
             w(f"G0 X{cx + r:.3f} Y{cy:.3f} F9000\n")
+            x, y = float(f"{cx + r:.3f}"), float(f"{cy:.3f}")  # where the head is
             w(f"G1 E{e + 0.8:.5f} F2400\n")
             e += 0.8
             count += 2
@@ -105,6 +106,7 @@ def generate(path: str, n_lines: int, arc_fraction: float = 0.0, seed: int = 1) 
                     xa, xb = xb, xa
                 e += abs(xb - xa) * 0.0333
                 w(f"G1 X{xb:.3f} Y{yy:.3f} E{e:.5f} F4800\n")
+                x, y = float(f"{xb:.3f}"), float(f"{yy:.3f}")
                 count += 1
             w(f"G1 E{e - 0.8:.5f} F2400\n")
             e -= 0.8

@@ -107,6 +107,15 @@ def test_benchmark_style_file(tmp_path, engine):
         assert whole_file(text, params, Options()) == general(text, params, Options())
 
 
+def test_benchmark_style_file_with_arcs(tmp_path, engine):
+    path = tmp_path / "a.gcode"
+    generate(str(path), 20000, arc_fraction=0.2)
+    text = path.read_text()
+    assert text.count("\nG2 ") + text.count("\nG3 ") > 2000
+    for params in PARAMS:
+        assert whole_file(text, params, Options()) == general(text, params, Options())
+
+
 def test_trailing_space_on_the_last_line_of_a_block(engine):
     # review finding: the tokeniser's word sums indexed past the block's end
     for text in ("G28\nG1 X1 Y1 \n", "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
