@@ -133,14 +133,18 @@ static double with_offset(const Kernel *K, const State *s, int k, double q)
                     ? (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], q) : 0.0);
 }
 
-/* Firmware coordinates (mm) of the compensated point for desired p (_Job.target) */
-static void target(const Job *j, const double *p, double *out)
+/* Firmware coordinates (mm) of the compensated point for desired p (_Job.target); q: its
+ * command if already known (kept by kk_monotone), else NULL */
+static void target(const Job *j, const double *p, const double *q, double *out)
 {
     const Kernel *K = j->K;
     const State *s = j->s;
-    double q[3];
+    double qp[3];
     int k;
-    kk_inverse(K, p, q);
+    if (q == NULL) {
+        kk_inverse(K, p, qp);
+        q = qp;
+    }
     for (k = 0; k < 3; k++)
         out[k] = with_offset(K, s, k, q[k]) + s->g[k];
 }
@@ -201,9 +205,10 @@ static int overshoots(const Job *j, const double *S, const double *E, double ka,
 
 /* _Job.fit: 1 fits (words in ij, deviation mm in dev), 0 no fit, 2 the rounded end is the
  * start, -1 Python decides */
-static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij_len,
-               double *dev_out)
+static int fit(Job *j, double fa, double fb, const double *qb, const double (*eighths)[3],
+               char *ij, int *ij_len, double *dev_out)
 {
+    static const int EIGHTH_OF_SAMPLE[6] = {1, 2, 3, 5, 6, 7};
     const Kernel *K = j->K;
     const State *s = j->s;
     const Geo *a = j->a;
@@ -221,8 +226,9 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
         return 2;
     if (budget <= 0.0)
         return 0;
-    kk_arc_point(a, fa + (fb - fa) * 0.5, p);
-    target(j, p, M);
+    if (eighths == NULL)
+        kk_arc_point(a, fa + (fb - fa) * 0.5, p);
+    target(j, p, eighths == NULL ? NULL : eighths[4], M);
     bx = M[0] - S[0];
     by = M[1] - S[1];
     cx = E[0] - S[0];
@@ -251,8 +257,9 @@ static int fit(Job *j, double fa, double fb, const double *qb, char *ij, int *ij
     }
     for (i = 0; i < 6; i++) {
         double va, vb, dr, lin, dl, e;
-        kk_arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
-        target(j, p, T);
+        if (eighths == NULL)
+            kk_arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
+        target(j, p, eighths == NULL ? NULL : eighths[EIGHTH_OF_SAMPLE[i]], T);
         va = T[0] - ka;
         vb = T[1] - kb;
         dr = kk_norm2(va, vb) - radius;
@@ -331,8 +338,10 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
     return 0;
 }
 
-/* _Job.piece: 0, or -1 (Python decides: the chord fallback, or anything odd) */
-static int piece(Job *j, double fa, double fb, const double *pb, const double *qb, int depth)
+/* _Job.piece: 0, or -1 (Python decides: the chord fallback, or anything odd); eighths:
+ * the commands at the piece's eighths if kk_monotone kept them (a whole cut piece), or NULL */
+static int piece(Job *j, double fa, double fb, const double *pb, const double *qb,
+                 const double (*eighths)[3], int depth)
 {
     const Geo *a = j->a;
     double half = fabs(a->sweep) * (fb - fa) * 0.5, rmax = a->r0 > a->r1 ? a->r0 : a->r1;
@@ -341,7 +350,7 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
     int ij_len = 0, r;
     if (rmax * half * half * 0.5 <= j->K->sliver[j->s->inches])
         return write_line(j, "G1", pb, qb, fb, "", 0);
-    r = fit(j, fa, fb, qb, ij, &ij_len, &dev);
+    r = fit(j, fa, fb, qb, eighths, ij, &ij_len, &dev);
     if (r < 0)
         return -1;
     if (r == 2)
@@ -359,9 +368,9 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
         double fm = fa + (fb - fa) * 0.5, pm[3], qm[3];
         kk_arc_point(a, fm, pm);
         kk_inverse(j->K, pm, qm);
-        if (piece(j, fa, fm, pm, qm, depth + 1) < 0)
+        if (piece(j, fa, fm, pm, qm, NULL, depth + 1) < 0)
             return -1;
-        return piece(j, fm, fb, pb, qb, depth + 1);
+        return piece(j, fm, fb, pb, qb, NULL, depth + 1);
     }
     return -1;  /* no arc fits: chords, written by the reference path */
 }
@@ -372,7 +381,8 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
     /* slots: 0 X, 1 Y, 2 Z, 3 I, 4 J, 5 E, 6 F */
     static const char LETTERS[] = "XYZIJEF";
     Py_ssize_t ts[7], te[7], i = 3;
-    int present[7] = {0, 0, 0, 0, 0, 0, 0}, k, ntail = 0, nc, c;
+    int present[7] = {0, 0, 0, 0, 0, 0, 0}, k, ntail = 0, nc, c, is_kept;
+    Eighths kept[MAX_CUTS];
     double val[7], start[3], end[3], ca, cb, oa, ob, cuts[MAX_CUTS], fa, pa[3], qa[3];
     Geo a;
     Job j;
@@ -447,7 +457,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         if (!kk_inside_limits(K, &a))
             return LINE_PYTHON;
         nc = kk_arc_cuts(K, &a, cuts);
-        if (nc < 0 || !kk_monotone(K, &a, cuts, nc))
+        if (nc < 0 || !kk_monotone(K, &a, cuts, nc, kept, &is_kept))
             return LINE_PYTHON;
         j.K = K;
         j.s = &s;
@@ -499,7 +509,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
                     s.takeup++;
                 }
             }
-            if (piece(&j, fa, fb, pb, qb, 0) < 0)
+            if (piece(&j, fa, fb, pb, qb, is_kept ? (const double (*)[3])kept[c] : NULL, 0) < 0)
                 return LINE_PYTHON;
             fa = fb;
             memcpy(pa, pb, sizeof pa);

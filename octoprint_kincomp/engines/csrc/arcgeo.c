@@ -157,13 +157,17 @@ static void dense_fractions(double *out)
 }
 
 /* ArcWriter.monotone: 1, or 0 (a backlash axis rises and falls by more than the deadband
- * within a piece) */
-int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
+ * within a piece). Where it samples the eighths of the pieces (not dense), their commands
+ * are kept in kept[c] for the fit of the whole piece (*is_kept = 1): the same points by the
+ * same operations, so the fit's result is the one it would compute itself. */
+int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc, Eighths *kept,
+                int *is_kept)
 {
     static const double EIGHTHS[9] = {0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0};
-    double fa = 0.0, p[3], qs[N_DENSE][3], fr[N_DENSE];
+    double fa = 0.0, p[3], dense_qs[N_DENSE][3], fr[N_DENSE];
     const double *fractions = EIGHTHS;
     int c, j, k, n = 9;
+    *is_kept = 0;
     if (!K->any_active)
         return 1;
     if (dense(K, a)) {
@@ -173,6 +177,7 @@ int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
     }
     for (c = 0; c < nc; c++) {
         double fb = cuts[c];
+        double (*qs)[3] = n == 9 ? kept[c] : dense_qs;
         for (j = 0; j < n; j++) {
             kk_arc_point(a, fa + (fb - fa) * fractions[j], p);
             kk_inverse(K, p, qs[j]);
@@ -198,6 +203,7 @@ int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc)
         }
         fa = fb;
     }
+    *is_kept = n == 9;
     return 1;
 }
 

@@ -139,7 +139,10 @@ void kk_arc_point(const Geo *a, double f, double *p);
 double kk_length_to(const Geo *a, double f);
 int kk_arc_cuts(const Kernel *K, const Geo *a, double *cuts);
 int kk_inside_limits(const Kernel *K, const Geo *a);
-int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc);
+/* commands (mm) at the eighths 0, 1/8 .. 1 of each piece, kept by kk_monotone for the fit */
+typedef double Eighths[9][3];
+int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc, Eighths *kept,
+                int *is_kept);
 int kk_make_geo(const Kernel *K, Geo *a, const double *start, const double *end, double ca,
                 double cb, int cw);
 /* arc.c */
