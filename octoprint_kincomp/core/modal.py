@@ -7,7 +7,7 @@ it."""
 
 from __future__ import annotations
 
-from typing import List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 from .gcode import parse_words
 from .state import StreamState
@@ -15,16 +15,34 @@ from .state import StreamState
 AXIS_LETTERS = ("X", "Y", "Z")
 
 
-def set_position(st: StreamState, backlash, body: str, unit: float) -> Optional[bool]:
-    """G92 with the words of ``body`` (``unit``: mm per program unit). Returns None when
-    the words are malformed. An axis of unknown position loses its frame (module doc of
-    state.py): its new offset to the machine frame is unknown."""
+def _g92_words(body: str) -> Optional[Dict[str, float]]:
+    """The positions a G92 sets, by letter (program units); a G92 naming none of X, Y, Z, E
+    sets all four to 0. None when the words are malformed."""
     words = parse_words(body)
     if words is None:
         return None
     given = {w.letter: w.value for w in words}
     if not any(k in given for k in ("X", "Y", "Z", "E")):
         given = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+    return given
+
+
+def g92_axes(body: str) -> List[int]:
+    """The axes (0 X, 1 Y, 2 Z) whose frame a G92 with the words of ``body`` sets (all
+    three when the words are malformed: the firmware may take any of them)."""
+    given = _g92_words(body)
+    if given is None:
+        return [0, 1, 2]
+    return [k for k, a in enumerate(AXIS_LETTERS) if a in given]
+
+
+def set_position(st: StreamState, backlash, body: str, unit: float) -> Optional[bool]:
+    """G92 with the words of ``body`` (``unit``: mm per program unit). Returns None when
+    the words are malformed. An axis of unknown position loses its frame (module doc of
+    state.py): its new offset to the machine frame is unknown."""
+    given = _g92_words(body)
+    if given is None:
+        return None
     for k, letter in enumerate(AXIS_LETTERS):
         if letter not in given:
             continue
@@ -69,7 +87,7 @@ def named_axes(body: str) -> List[int]:
 
 
 def homed_axes(body: str) -> List[int]:
-    """The axes a G28 (or G92) with the words of ``body`` acts on: all when it names none."""
+    """The axes a G28 with the words of ``body`` homes: all when it names none."""
     return named_axes(body) or [0, 1, 2]
 
 

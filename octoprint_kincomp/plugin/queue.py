@@ -45,7 +45,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 from ..core.compensator import INVALIDATING_G, INVALIDATING_M, LimitError, Options
 from ..core.gcode import parse_command
-from ..core.modal import homed_axes, named_axes
+from ..core.modal import g92_axes, homed_axes, named_axes
 from ..core.params import Params
 from ..engines.select import make_compensator
 
@@ -87,7 +87,8 @@ class QueueCompensator:
         self.halted = False
         self.held_moves = 0
         self.awaiting_home: Tuple[int, ...] = ()  # homed axes whose position is asked for
-        self.home_query_out = False  # the M114 asking for it has been sent
+        self.home_query_out = False  # the last M114 asking for it has been sent
+        self.home_queries_queued = 0  # our M114s queued and not yet sent
 
     @property
     def params(self) -> Params:
@@ -120,6 +121,7 @@ class QueueCompensator:
                 return self._failed(cmd, exc)
             if home:
                 self.awaiting_home, self.home_query_out = home, False
+                self.home_queries_queued += 1
                 return [cmd if out is cmd else out[0], HOME_QUERY]
             why = None
             if rep.malformed != malformed and _MOTION.match(cmd):
@@ -164,8 +166,8 @@ class QueueCompensator:
     def _moved_axes(parsed) -> Tuple[int, ...]:
         """The axes (0 X, 1 Y, 2 Z) whose position or frame a line changes as the printer
         runs it: a position report read after it is stale for them. A move that names
-        none of them leaves their drives alone (it cannot be compensated while they are
-        unknown, so it goes out as written)."""
+        none of them leaves their drives alone (no line the compensator writes carries a
+        word for an axis whose position it does not know)."""
         kind, num = parsed.kind, parsed.number
         if kind == "T" or (kind == "M" and num in INVALIDATING_M) or (
                 kind == "G" and (num in (2, 3) or num in INVALIDATING_G)):
@@ -173,13 +175,16 @@ class QueueCompensator:
         if kind == "G" and num in (0, 1):
             return tuple(named_axes(parsed.body))
         if kind == "G" and num == 92:
-            return tuple(homed_axes(parsed.body))
+            return (0, 1, 2) if parsed.sub is not None else tuple(g92_axes(parsed.body))
         return ()
 
     def home_query_sent(self) -> None:
-        """Our M114 after a G28 went out: the next position report answers it."""
+        """One of our M114s is being sent (OctoPrint's "sending" phase, before the write).
+        When it is the last one queued, the next position report answers the question: an
+        earlier one (two G28s queued at once) is answered before the later homing."""
         with self._lock:
-            self.home_query_out = bool(self.awaiting_home)
+            self.home_queries_queued = max(0, self.home_queries_queued - 1)
+            self.home_query_out = bool(self.awaiting_home) and self.home_queries_queued == 0
 
     def home_reported(self, position: Dict[str, float]) -> bool:
         """The firmware's position report (x, y, z in mm) after our M114: the homed axes
@@ -222,12 +227,16 @@ class QueueCompensator:
             self.halted = False
 
     # -- life cycle ----------------------------------------------------------------------
-    def reset(self) -> None:
-        """Back to 'nothing known' (connect, disconnect, print start/cancel)."""
+    def reset(self, new_connection: bool = False) -> None:
+        """Back to 'nothing known' (connect, disconnect, print start/cancel). Our M114s
+        still queued are counted on (their answers must not answer a later G28) unless the
+        connection, and with it OctoPrint's send queue, is new."""
         with self._lock:
             self.comp.reset()
             self.halted = False
             self.awaiting_home, self.home_query_out = (), False
+            if new_connection:
+                self.home_queries_queued = 0
 
     def set_enabled(self, enabled: bool) -> None:
         with self._lock:

@@ -7,6 +7,7 @@ line, on real slicer files and on awkward generated programs. Tests that take th
 ``engine`` fixture run once per engine."""
 
 import io
+import math
 import os
 
 import pytest
@@ -112,6 +113,17 @@ def test_benchmark_style_file_with_arcs(tmp_path, engine):
     generate(str(path), 20000, arc_fraction=0.2)
     text = path.read_text()
     assert text.count("\nG2 ") + text.count("\nG3 ") > 2000
+    # each arc starts where the head is: its end lies on its circle (no spirals)
+    x = y = worst = 0.0
+    for line in text.splitlines():
+        w = {t[0]: float(t[1:]) for t in line.split()[1:] if t[0] in "XYIJ"}
+        if line.startswith(("G2 ", "G3 ")):
+            cx, cy = x + w["I"], y + w["J"]
+            worst = max(worst, abs(math.hypot(w["I"], w["J"])
+                                   - math.hypot(w["X"] - cx, w["Y"] - cy)))
+        if line.startswith("G"):
+            x, y = w.get("X", x), w.get("Y", y)
+    assert worst < 0.005
     for params in PARAMS:
         assert whole_file(text, params, Options()) == general(text, params, Options())
 

@@ -94,6 +94,38 @@ def test_lines_queued_ahead_of_the_report_that_leave_the_homed_axis_alone():
     assert got[2] is not None and got[3] is not None  # compensated
 
 
+def test_an_extruder_reset_before_the_answer_keeps_the_learning():
+    q = queue()
+    q.handle("G28", {"source:file"})
+    q.handle("G92 E0", {"source:file"})  # (the usual line right after G28)
+    assert q.awaiting_home == (0, 1, 2)
+    q.handle("G92", {"source:file"})  # no words: X, Y, Z and E are set to 0
+    assert q.awaiting_home == ()
+
+
+def test_two_homings_queued_at_once_take_only_the_last_answer():
+    """Outside a print OctoPrint queues a whole batch (a macro, a custom control) before it
+    sends anything: the answer to the first M114 comes before the second G28 homes."""
+    q = queue()
+    assert q.handle("G28 X") == ["G28 X", "M114"]
+    assert q.handle("G28 Z") == ["G28 Z", "M114"] and q.awaiting_home == (0, 2)
+    q.home_query_sent()  # the first M114
+    assert not q.home_reported({"x": 0.0, "y": 80.0, "z": 12.0})  # before Z was homed
+    q.home_query_sent()  # the second
+    assert q.home_reported({"x": 0.0, "y": 80.0, "z": 0.0})
+    assert q.comp.known == (True, False, True) and q.comp.state.m[2] == 0.0
+    # a print start (reset) does not forget an M114 still queued; a new connection does
+    q.handle("G28 X")
+    q.reset()
+    q.handle("G28 X")
+    q.home_query_sent()  # the one from before the reset: its answer predates this G28
+    assert not q.home_query_out
+    q.reset(new_connection=True)
+    q.handle("G28 X")
+    q.home_query_sent()
+    assert q.home_query_out
+
+
 def test_a_second_g28_before_the_answer_asks_again_for_every_axis_awaited():
     q = queue()
     assert q.handle("G28 X") == ["G28 X", "M114"]
