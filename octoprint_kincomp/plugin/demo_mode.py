@@ -193,7 +193,7 @@ class DemoMode:
             demo.record(cmd)
         else:
             for line in result:
-                demo.record(line)
+                demo.record(line if isinstance(line, str) else line[0])
 
     def print_ends(self, done: bool) -> None:
         """The print ended; ``done``: it completed (then the trace is simulated)."""

@@ -205,8 +205,8 @@ class KinCompPlugin(
                      tags=None, *args, **kwargs):
         # the "sending" phase runs before the write: in "sent" (after it) the firmware's
         # answer can already have been read on the monitor thread, and would be missed
-        if cmd == HOME_QUERY and tags and f"plugin:{self._identifier}" in tags:
-            self.queue.home_query_sent()
+        if cmd == HOME_QUERY and tags:
+            self.queue.home_query_sent(tags)
 
     def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
                           allow_overwrite=False, *args, **kwargs):

@@ -69,7 +69,7 @@ class PrintState:
         more. Called by the hooks, synchronously, as CONNECTED reaches ``on_event`` only
         after the first commands may have gone out."""
         self.comm = comm_instance
-        self._queue.reset(new_connection=True)
+        self._queue.reset()
         self._watch.reset()
 
     # ~~ from the queuing hook -----------------------------------------------------------------
@@ -103,7 +103,7 @@ class PrintState:
         with self.lock:  # against the queuing hook's view of the print
             if event == Events.DISCONNECTED:
                 self.comm = None
-                self._queue.reset(new_connection=True)
+                self._queue.reset()
                 self._watch.reset()
                 if self._queue.printing:
                     self._queue.print_ended()

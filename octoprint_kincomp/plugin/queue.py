@@ -4,7 +4,8 @@ OctoPrint calls the hook once per outgoing command, comments already stripped, f
 thread that queues it (an API request or the file reader), so calls are serialised here.
 Resends never come back through the hook, so nothing is ever compensated twice on resend.
 
-* ``handle(cmd, tags)`` returns None (send unchanged), or the list of replacement commands.
+* ``handle(cmd, tags)`` returns None (send unchanged), or the list of replacement commands
+  (strings; the M114 after a G28 as OctoPrint's ``(command, type, tags)`` with a numbered tag).
 * Lines of a print whose file was already compensated (it starts with KinComp's marker) are
   passed through untouched.
 * If compensation fails on a line, the line is not sent: ``on_error`` is called (the plugin
@@ -21,8 +22,8 @@ Resends never come back through the hook, so nothing is ever compensated twice o
   forgotten, so later moves are not computed from a wrong start).
 * Where the printer homes may be unknown (the setting ``home_mm``: None, the default): a
   G28 then leaves the homed axes unknown and is followed by an ``M114``; the firmware's
-  position report after it (``home_query_sent``, then ``home_reported`` from the received
-  hook) makes them known where the printer really is. Until then a move that needs them
+  position report after it (``home_query_sent`` with the tags of the M114 being sent, then
+  ``home_reported`` from the received hook) makes them known where the printer really is. Until then a move that needs them
   goes out as written, so no correction can move the head by more than itself. The M114 is
   queued right behind the G28, so its report gives the homed position even when the file
   reader queues more lines before the answer is read; a line queued meanwhile that moves or
@@ -53,6 +54,7 @@ FILE_TAG = "source:file"
 JOB_TAG = "source:job"
 _MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
 HOME_QUERY = "M114"  # sent after a G28 whose home position is not known
+HOME_QUERY_TAG = "kincomp:home_query:"  # + its number: which question is being sent
 
 
 _log = logging.getLogger(__name__)
@@ -65,6 +67,17 @@ def _call(callback, *args) -> None:
         callback(*args)
     except Exception:  # noqa: BLE001
         _log.exception("KinComp: notification callback failed")
+
+
+def home_query_number(tags) -> Optional[int]:
+    """The number of our M114 from its tags (None: not ours)."""
+    for tag in tags or ():
+        if tag.startswith(HOME_QUERY_TAG):
+            try:
+                return int(tag[len(HOME_QUERY_TAG):])
+            except ValueError:
+                return None
+    return None
 
 
 class QueueCompensator:
@@ -88,7 +101,7 @@ class QueueCompensator:
         self.held_moves = 0
         self.awaiting_home: Tuple[int, ...] = ()  # homed axes whose position is asked for
         self.home_query_out = False  # the last M114 asking for it has been sent
-        self.home_queries_queued = 0  # our M114s queued and not yet sent
+        self.home_query_number = 0  # of the last M114 asked (its tag)
 
     @property
     def params(self) -> Params:
@@ -121,8 +134,9 @@ class QueueCompensator:
                 return self._failed(cmd, exc)
             if home:
                 self.awaiting_home, self.home_query_out = home, False
-                self.home_queries_queued += 1
-                return [cmd if out is cmd else out[0], HOME_QUERY]
+                self.home_query_number += 1
+                tag = f"{HOME_QUERY_TAG}{self.home_query_number}"
+                return [cmd if out is cmd else out[0], (HOME_QUERY, None, {tag})]
             why = None
             if rep.malformed != malformed and _MOTION.match(cmd):
                 self.comp.invalidate()
@@ -178,13 +192,15 @@ class QueueCompensator:
             return (0, 1, 2) if parsed.sub is not None else tuple(g92_axes(parsed.body))
         return ()
 
-    def home_query_sent(self) -> None:
-        """One of our M114s is being sent (OctoPrint's "sending" phase, before the write).
-        When it is the last one queued, the next position report answers the question: an
-        earlier one (two G28s queued at once) is answered before the later homing."""
+    def home_query_sent(self, tags) -> None:
+        """One of our M114s is being sent (OctoPrint's "sending" phase, before the write;
+        ``tags``: its tags). When it is the last one asked, the next position report answers
+        the question: an earlier one (two G28s queued at once) is answered before the later
+        homing, and one OctoPrint dropped (a cancelled print clears its queue) is never sent."""
+        number = home_query_number(tags)
         with self._lock:
-            self.home_queries_queued = max(0, self.home_queries_queued - 1)
-            self.home_query_out = bool(self.awaiting_home) and self.home_queries_queued == 0
+            self.home_query_out = bool(self.awaiting_home) and \
+                number == self.home_query_number
 
     def home_reported(self, position: Dict[str, float]) -> bool:
         """The firmware's position report (x, y, z in mm) after our M114: the homed axes
@@ -227,16 +243,12 @@ class QueueCompensator:
             self.halted = False
 
     # -- life cycle ----------------------------------------------------------------------
-    def reset(self, new_connection: bool = False) -> None:
-        """Back to 'nothing known' (connect, disconnect, print start/cancel). Our M114s
-        still queued are counted on (their answers must not answer a later G28) unless the
-        connection, and with it OctoPrint's send queue, is new."""
+    def reset(self) -> None:
+        """Back to 'nothing known' (connect, disconnect, print start/cancel)."""
         with self._lock:
             self.comp.reset()
             self.halted = False
             self.awaiting_home, self.home_query_out = (), False
-            if new_connection:
-                self.home_queries_queued = 0
 
     def set_enabled(self, enabled: bool) -> None:
         with self._lock:

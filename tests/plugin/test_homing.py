@@ -23,9 +23,17 @@ def queue():
     return QueueCompensator(SKEW, options, enabled=True)
 
 
+def home(q, line, tags=None):
+    """A G28 through the hook: the lines it sends (the M114's command) and the M114's tags
+    (what OctoPrint hands to the sending hook)."""
+    out = q.handle(line, tags)
+    assert isinstance(out[-1], tuple) and out[-1][:2] == ("M114", None)
+    return [o if isinstance(o, str) else o[0] for o in out], out[-1][2]
+
+
 def test_prusaslicer_start_z_move_goes_out_as_written_until_the_home_is_known():
     q = queue()
-    assert q.handle("G28", {"source:file"}) == ["G28", "M114"]
+    assert home(q, "G28", {"source:file"})[0] == ["G28", "M114"]
     assert q.handle("G1 Z.35 F7800", {"source:file"}) is None  # as written: X, Y unknown
     assert q.comp.known == (False, False, True)
     out = q.handle("G1 X110 Y110 F9000", {"source:file"})
@@ -34,9 +42,11 @@ def test_prusaslicer_start_z_move_goes_out_as_written_until_the_home_is_known():
 
 def test_the_position_report_after_g28_makes_the_home_known_at_x_max():
     q = queue()
-    q.handle("G28")
+    _, asked = home(q, "G28")
     assert not q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})  # before our M114: stale
-    q.home_query_sent()
+    q.home_query_sent({"source:api"})  # somebody else's M114
+    assert not q.home_query_out
+    q.home_query_sent(asked)
     assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})  # homes at X max
     assert q.comp.known == (True, True, True)
     out = q.handle("G1 Z.35 F7800")
@@ -52,24 +62,24 @@ def test_the_position_report_after_g28_makes_the_home_known_at_x_max():
 
 def test_a_move_before_the_report_takes_its_axes_out_of_the_learning():
     q = queue()
-    q.handle("G28")
+    _, asked = home(q, "G28")
     q.handle("G91")
     q.handle("G1 X-5")  # a jog queued before the report: the report is stale for X
-    q.home_query_sent()
+    q.home_query_sent(asked)
     assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
     assert q.comp.known == (False, True, True)
     for stale_all in ("T1", "G2 X5 Y5 I1 J0", "G29"):  # all axes may have moved
         q = queue()
-        q.handle("G28")
+        _, asked = home(q, "G28")
         q.handle(stale_all)
         known = q.comp.known  # (the arc's absolute end makes X and Y known by itself)
-        q.home_query_sent()
+        q.home_query_sent(asked)
         assert not q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0}), stale_all
         assert q.comp.known == known and not known[2]
     q = queue()
-    q.handle("G28")
+    _, asked = home(q, "G28")
     q.handle("G92 Y10")  # re-frames Y only
-    q.home_query_sent()
+    q.home_query_sent(asked)
     assert q.home_reported({"x": 220.0, "y": 0.0, "z": 0.0})
     assert q.comp.known == (True, False, True)
 
@@ -82,10 +92,11 @@ def test_lines_queued_ahead_of_the_report_that_leave_the_homed_axis_alone():
     lines = ["G28 X", "G91", "G1 Z5 F1200", "G90", "G0 X128 F30000", "G0 Y254 F3000",
              "G1 X20 Y200 Z3", "G1 X25", "G1 X-0.2 Y5"]
     q = queue()
-    assert q.handle(lines[0], {"source:file"}) == ["G28 X", "M114"]
+    sent, asked = home(q, lines[0], {"source:file"})
+    assert sent == ["G28 X", "M114"]
     for line in lines[1:4]:
         q.handle(line, {"source:file"})
-    q.home_query_sent()
+    q.home_query_sent(asked)
     assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
     got = [q.handle(line, {"source:file"}) for line in lines[4:]]
     ref = Compensator(SKEW, Options(home_mm=(0.0, None, None)))
@@ -96,7 +107,7 @@ def test_lines_queued_ahead_of_the_report_that_leave_the_homed_axis_alone():
 
 def test_an_extruder_reset_before_the_answer_keeps_the_learning():
     q = queue()
-    q.handle("G28", {"source:file"})
+    home(q, "G28", {"source:file"})
     q.handle("G92 E0", {"source:file"})  # (the usual line right after G28)
     assert q.awaiting_home == (0, 1, 2)
     q.handle("G92", {"source:file"})  # no words: X, Y, Z and E are set to 0
@@ -107,32 +118,41 @@ def test_two_homings_queued_at_once_take_only_the_last_answer():
     """Outside a print OctoPrint queues a whole batch (a macro, a custom control) before it
     sends anything: the answer to the first M114 comes before the second G28 homes."""
     q = queue()
-    assert q.handle("G28 X") == ["G28 X", "M114"]
-    assert q.handle("G28 Z") == ["G28 Z", "M114"] and q.awaiting_home == (0, 2)
-    q.home_query_sent()  # the first M114
+    first, asked_first = home(q, "G28 X")
+    second, asked_second = home(q, "G28 Z")
+    assert first == ["G28 X", "M114"] and second == ["G28 Z", "M114"]
+    assert q.awaiting_home == (0, 2) and asked_first != asked_second
+    q.home_query_sent(asked_first)
     assert not q.home_reported({"x": 0.0, "y": 80.0, "z": 12.0})  # before Z was homed
-    q.home_query_sent()  # the second
+    q.home_query_sent(asked_second)
     assert q.home_reported({"x": 0.0, "y": 80.0, "z": 0.0})
     assert q.comp.known == (True, False, True) and q.comp.state.m[2] == 0.0
-    # a print start (reset) does not forget an M114 still queued; a new connection does
-    q.handle("G28 X")
-    q.reset()
-    q.handle("G28 X")
-    q.home_query_sent()  # the one from before the reset: its answer predates this G28
+
+
+def test_an_m114_octoprint_never_sends_does_not_block_the_next_learning():
+    """A cancelled print clears OctoPrint's send queue: an M114 queued by its G28 is never
+    sent. The next homing's question is answered all the same; the old one, were it sent
+    late, answers nothing."""
+    q = queue()
+    _, dropped = home(q, "G28 X")
+    q.reset()  # the print is cancelled
+    _, asked = home(q, "G28 X")
+    q.home_query_sent(dropped)
     assert not q.home_query_out
-    q.reset(new_connection=True)
-    q.handle("G28 X")
-    q.home_query_sent()
-    assert q.home_query_out
+    q.home_query_sent(asked)
+    assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
+    assert q.comp.known[0]
 
 
 def test_a_second_g28_before_the_answer_asks_again_for_every_axis_awaited():
     q = queue()
-    assert q.handle("G28 X") == ["G28 X", "M114"]
-    q.home_query_sent()
-    assert q.handle("G28 Y") == ["G28 Y", "M114"] and q.awaiting_home == (0, 1)
+    sent, asked = home(q, "G28 X")
+    assert sent == ["G28 X", "M114"]
+    q.home_query_sent(asked)
+    sent, asked = home(q, "G28 Y")
+    assert sent == ["G28 Y", "M114"] and q.awaiting_home == (0, 1)
     assert not q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})  # the first answer: not ours
-    q.home_query_sent()
+    q.home_query_sent(asked)
     assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
     assert q.comp.known == (True, True, False)
 
@@ -147,11 +167,11 @@ def test_a_known_home_needs_no_question_and_a_partial_g28_asks_for_its_axes():
     q.handle("G28")
     assert q.awaiting_home == (0,)
     q = queue()
-    q.handle("G28")
-    q.home_query_sent()
+    _, asked = home(q, "G28")
+    q.home_query_sent(asked)
     q.home_reported({"x": 220.0, "y": 200.0, "z": 0.0})
     q.handle("G1 X100 Y100 Z5")
-    assert q.handle("G28 Z") == ["G28 Z", "M114"] and q.awaiting_home == (2,)
+    assert home(q, "G28 Z")[0] == ["G28 Z", "M114"] and q.awaiting_home == (2,)
 
 
 def test_homing_with_an_unknown_home_keeps_q_drive_for_the_axes_it_did_not_home():
