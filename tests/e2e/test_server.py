@@ -11,6 +11,7 @@ from octoprint.util.comm import strip_comment
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
+    home_reports,
     marker,
     offline,
     sent,
@@ -103,7 +104,7 @@ def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
     start = _print_file(server, "hook.gcode", data)
     got = sent(server, after=start)
     cmds = _file_commands(src)
-    want = _visible(offline(server, cmds))
+    want = _visible(offline(server, cmds, home_reports(server, start)))
     assert len(want) > 20000
     # OctoPrint itself refuses tools the printer profile does not have (the slicer's
     # T1000), with a warning in serial.log: not KinComp's doing, accounted for here

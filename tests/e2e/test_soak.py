@@ -14,6 +14,7 @@ from octoprint.util.comm import strip_comment
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
+    home_reports,
     marker,
     offline,
     sent,
@@ -78,7 +79,8 @@ def test_soak_200k_lines(server):
     elapsed = time.time() - t0
 
     cmds = [c for c in (strip_comment(l).strip() for l in lines) if c]
-    want = [c for c in offline(server, cmds) if c.split(" ", 1)[0] not in AUTOMATIC]
+    want = [c for c in offline(server, cmds, home_reports(server, start))
+            if c.split(" ", 1)[0] not in AUTOMATIC]
     log = server.serial_log()
     refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start):])
     want = [c for c in want if c not in refused]

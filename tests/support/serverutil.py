@@ -7,7 +7,7 @@ import re
 import time
 import uuid
 
-from octoprint_kincomp.core.compensator import Compensator
+from octoprint_kincomp.plugin.queue import QueueCompensator
 from octoprint_kincomp.plugin.settings import engine_config
 from tests.support import DATA as DATA
 
@@ -31,21 +31,48 @@ def status(srv):
     return body
 
 
-def offline(srv, lines):
+_POSITION = re.compile(r"Recv: (?:ok )?X:(-?[\d.]+) Y:(-?[\d.]+) Z:(-?[\d.]+)")
+
+
+def home_reports(srv, after: str):
+    """The positions (x, y, z in mm) the printer answered to the ``M114`` lines sent after
+    the line ``after``, in order: where KinComp learned an unknown home. (The virtual
+    printer homes at once, without waiting for the moves it still simulates, so the answer
+    after a ``G28`` right behind a move can be that move's end, not 0.)"""
+    log = srv.serial_log()
+    lines = log[log.rindex("Send: " + after):].splitlines()
+    out = []
+    for i, line in enumerate(lines):
+        if _SEND.search(line) and _SEND.search(line).group(1) == "M114":
+            found = next((m for m in map(_POSITION.search, lines[i + 1:i + 40]) if m), None)
+            assert found is not None, line
+            out.append(tuple(float(v) for v in found.groups()))
+    return out
+
+
+def offline(srv, lines, reports=None):
     """What the plugin should send for ``lines`` (comment-stripped commands) from a fresh
-    compensator with the server's current settings: the reference for the Send: lines."""
+    compensator with the server's current settings: the reference for the Send: lines.
+    ``reports`` (from :func:`home_reports`): the printer's answers to the M114 KinComp
+    sends after a G28 whose home is not set, each taken right behind its G28 as the plugin
+    takes it; without them the home is taken where the virtual printer homes (0, 0, 0)."""
     st = status(srv)
     limits = tuple(st["limits"]) if st["limits"] else None
     params, options = engine_config(st["settings"], limits)
-    # the virtual printer homes at 0,0,0 and says so in its answer to the M114 the plugin
-    # sends after G28 (issue 17): the plugin learns that home for the axes it does not know
-    options = dataclasses.replace(options, home_mm=tuple(
-        0.0 if h is None else h for h in options.home_mm))
-    comp = Compensator(params, options)
+    if reports is None:
+        options = dataclasses.replace(options, home_mm=tuple(
+            0.0 if h is None else h for h in options.home_mm))
+    queue = QueueCompensator(params, options, enabled=True)
+    answers = iter(reports or ())
     out = []
     for line in lines:
-        res = comp.process(line)
-        out.extend([res] if isinstance(res, str) else res)
+        res = queue.handle(line)
+        for r in [line] if res is None else res:
+            if isinstance(r, tuple):  # KinComp's M114: answered now
+                queue.home_query_sent(r[2])
+                assert queue.home_reported(dict(zip("xyz", next(answers))))
+                r = r[0]
+            out.append(r)
     return out
 
 
