@@ -36,7 +36,7 @@ from ..ballbar.program import ProgramError, TestSpec, generate
 from ..engines.select import make_compensator
 from ..sensor.virtual import VirtualSensor
 from .notify import N_, Notifier
-from .queue import FILE_TAG
+from .queue import FILE_TAG, command_of
 
 DEMO_SPEEDUP = 10.0  # OctoPrint's virtual printer runs its moves 10 times faster than feed
 DEMO_RANGE_MM = (-1.5, 2.5)  # the virtual bar's measuring range (mm, positive = longer)
@@ -193,7 +193,7 @@ class DemoMode:
             demo.record(cmd)
         else:
             for line in result:
-                demo.record(line if isinstance(line, str) else line[0])
+                demo.record(command_of(line))
 
     def print_ends(self, done: bool) -> None:
         """The print ended; ``done``: it completed (then the trace is simulated)."""

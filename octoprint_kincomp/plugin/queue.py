@@ -23,8 +23,9 @@ Resends never come back through the hook, so nothing is ever compensated twice o
 * Where the printer homes may be unknown (the setting ``home_mm``: None, the default): a
   G28 then leaves the homed axes unknown and is followed by an ``M114``; the firmware's
   position report after it (``home_query_sent`` with the tags of the M114 being sent, then
-  ``home_reported`` from the received hook) makes them known where the printer really is. Until then a move that needs them
-  goes out as written, so no correction can move the head by more than itself. The M114 is
+  ``home_reported`` from the received hook) makes them known where the printer really is.
+  Until then a move that needs them goes out as written, so no correction can move the
+  head by more than itself. The M114 is
   queued right behind the G28, so its report gives the homed position even when the file
   reader queues more lines before the answer is read; a line queued meanwhile that moves or
   re-frames a homed axis (G0/G1 or G92 naming it) takes that axis out of the learning (the
@@ -67,6 +68,11 @@ def _call(callback, *args) -> None:
         callback(*args)
     except Exception:  # noqa: BLE001
         _log.exception("KinComp: notification callback failed")
+
+
+def command_of(entry) -> str:
+    """The command of an entry of ``handle``'s result (a string, or the tagged M114)."""
+    return entry if isinstance(entry, str) else entry[0]
 
 
 def home_query_number(tags) -> Optional[int]:
@@ -173,7 +179,6 @@ class QueueCompensator:
             stale = self._moved_axes(parsed)
             if stale:
                 self.awaiting_home = tuple(k for k in self.awaiting_home if k not in stale)
-                self.home_query_out = self.home_query_out and bool(self.awaiting_home)
         return ()
 
     @staticmethod

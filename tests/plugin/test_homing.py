@@ -7,7 +7,7 @@ correction itself)."""
 from octoprint_kincomp.core.compensator import Compensator, Options
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.select import make_compensator
-from octoprint_kincomp.plugin.queue import QueueCompensator
+from octoprint_kincomp.plugin.queue import QueueCompensator, command_of
 from octoprint_kincomp.plugin.settings import defaults, engine_config
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 800.0, "xz": 1500.0, "yz": -1200.0},
@@ -28,7 +28,7 @@ def home(q, line, tags=None):
     (what OctoPrint hands to the sending hook)."""
     out = q.handle(line, tags)
     assert isinstance(out[-1], tuple) and out[-1][:2] == ("M114", None)
-    return [o if isinstance(o, str) else o[0] for o in out], out[-1][2]
+    return [command_of(o) for o in out], out[-1][2]
 
 
 def test_prusaslicer_start_z_move_goes_out_as_written_until_the_home_is_known():

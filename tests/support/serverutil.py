@@ -7,7 +7,7 @@ import re
 import time
 import uuid
 
-from octoprint_kincomp.plugin.queue import QueueCompensator
+from octoprint_kincomp.plugin.queue import QueueCompensator, command_of
 from octoprint_kincomp.plugin.settings import engine_config
 from tests.support import DATA as DATA
 
@@ -43,7 +43,8 @@ def home_reports(srv, after: str):
     lines = log[log.rindex("Send: " + after):].splitlines()
     out = []
     for i, line in enumerate(lines):
-        if _SEND.search(line) and _SEND.search(line).group(1) == "M114":
+        send = _SEND.search(line)
+        if send and send.group(1) == "M114":
             found = next((m for m in map(_POSITION.search, lines[i + 1:i + 40]) if m), None)
             assert found is not None, line
             out.append(tuple(float(v) for v in found.groups()))
@@ -68,11 +69,10 @@ def offline(srv, lines, reports=None):
     for line in lines:
         res = queue.handle(line)
         for r in [line] if res is None else res:
-            if isinstance(r, tuple):  # KinComp's M114: answered now
+            if not isinstance(r, str):  # KinComp's M114: answered now
                 queue.home_query_sent(r[2])
                 assert queue.home_reported(dict(zip("xyz", next(answers))))
-                r = r[0]
-            out.append(r)
+            out.append(command_of(r))
     return out
 
 
