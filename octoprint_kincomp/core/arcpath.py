@@ -62,6 +62,34 @@ def model_gain(A) -> float:
     return math.sqrt(rows * cols)
 
 
+def strictly_between(va: float, vb: float, sa: float, sb: float, ea: float, eb: float,
+                     clockwise: bool) -> bool:
+    """Whether the direction (va, vb) lies strictly between the start direction (sa, sb) and
+    the end direction (ea, eb), turning clockwise or counter-clockwise from the start: its
+    angle from the start in (0, that of the end), both taken in [0, 2 pi). Decided by the
+    signs of cross products alone, without angles (what the compiled kernel does too, at no
+    trigonometric cost)."""
+    turn = -1.0 if clockwise else 1.0
+    hv = _half_turn(turn * (sa * vb - sb * va), sa * va + sb * vb)
+    he = _half_turn(turn * (sa * eb - sb * ea), sa * ea + sb * eb)
+    if hv < 0 or he < 0:  # along the start direction itself: angle 0
+        return False
+    if hv != he:
+        return hv < he
+    return turn * (va * eb - vb * ea) > 0.0
+
+
+def _half_turn(cross: float, dot: float) -> int:
+    """The half turn an angle from a start direction lies in, from its cross product (taken
+    positive in the turning sense) and its dot product with that direction: 0 for (0, pi],
+    1 for (pi, 2 pi), -1 for 0 itself."""
+    if cross > 0.0:
+        return 0
+    if cross < 0.0:
+        return 1
+    return 0 if dot < 0.0 else -1
+
+
 class ArcWriter:
     """Writes arcs for one compensator's path writer (shares its state, model, tracker)."""
 
@@ -293,29 +321,18 @@ class _Job:
         aw, arc = self.aw, self.arc
         ia, ib = arc.ia, arc.ib
         allowed = aw.overshoot[aw.state.inches]
-        end = self.angle(E[ia] - ka, E[ib] - kb, sa, sb)
+        ea, eb = E[ia] - ka, E[ib] - kb
         for k, centre, va, vb in ((ia, ka, radius, 0.0), (ia, ka, -radius, 0.0),
                                   (ib, kb, 0.0, radius), (ib, kb, 0.0, -radius)):
             if not aw.backlash.active[k]:
                 continue
-            ang = self.angle(va, vb, sa, sb)
-            if 0.0 < ang < end:  # the circle's extreme in axis k lies inside the piece
+            if strictly_between(va, vb, sa, sb, ea, eb, self.clockwise):  # its extreme in k
                 extreme = centre + (va if k == ia else vb)
                 lo, hi = min(S[k], E[k]), max(S[k], E[k])
                 over = extreme - hi if extreme > hi else lo - extreme
                 if over > allowed:
                     return True
         return False
-
-    def angle(self, va: float, vb: float, sa: float, sb: float) -> float:
-        """Angle (rad, 0..2 pi) from the start direction (sa, sb) to (va, vb), in the
-        direction the arc turns."""
-        ang = math.atan2(sa * vb - sb * va, sa * va + sb * vb)
-        if self.clockwise:
-            ang = -ang
-        if ang < 0.0:
-            ang += 2.0 * math.pi
-        return ang
 
     def fit(self, fa: float, fb: float, pb, qb):
         """The arc words ([I.., J..], deviation mm) of the piece fa..fb, False when its rounded

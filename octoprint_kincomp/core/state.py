@@ -1,11 +1,12 @@
 """The stream state: the one record that the reference compensator and every accelerated
 engine (the compiled kernel, the vectorised file engine) read and write.
 
-It is declared here, field by field, because it is a contract: the C kernel
-(``engines/csrc/state.c``) reads and writes these attributes by name, in place where the
-Python code changes a list in place. A new field, a renamed one or a list replaced by a
-tuple must be mirrored there (the kernel leaves any state it cannot read to the Python path,
-and its self-check against the reference path catches a mismatch at start-up).
+It is declared here, field by field, because it is a contract: the classes are slotted and
+the C kernel (``engines/csrc/state.c``) reads and writes the slots it needs (found by name
+once, ``layout``), in place where the Python code changes a list in place. A new field, a
+renamed one or a list replaced by a tuple must be mirrored there (the kernel leaves any
+state it cannot read to the Python path, and its self-check against the reference path
+catches a mismatch at start-up).
 
 Frames (mm): logical ``L`` is what the program writes (after G20 inch conversion); the
 desired machine position ``m = L - w`` (``w``: the program's G92 offset) is the homed frame
@@ -17,13 +18,11 @@ of ``m`` plus the backlash offset; the firmware coordinate written on the line i
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
 from .params import AXES
 
 
-@dataclass
 class Report:
     """What the compensator did (the dry-run report). Counts of lines; corrections in um.
 
@@ -33,25 +32,33 @@ class Report:
     ``arc_max_deviation_um``: the largest estimated deviation of a written arc from the
     compensated path (core/arcpath.py)."""
 
-    lines: int = 0
-    moves: int = 0
-    moves_compensated: int = 0
-    untouched_unknown: int = 0
-    malformed: int = 0
-    malformed_examples: List[Tuple[int, str]] = field(default_factory=list)
-    arcs_kept: int = 0
-    arcs_split: int = 0
-    arcs_linearised: int = 0
-    arc_segments: int = 0
-    arc_max_deviation_um: float = 0.0
-    takeup_moves: int = 0
-    lines_out: int = 0
-    max_correction_um: Dict[str, float] = field(
-        default_factory=lambda: {a: 0.0 for a in AXES}
-    )
-    limit_hits: int = 0
-    limit_examples: List[Tuple[int, str, float]] = field(default_factory=list)
-    source_outside: int = 0
+    # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
+    __slots__ = ("lines", "moves", "moves_compensated", "untouched_unknown", "malformed",
+                 "malformed_examples", "arcs_kept", "arcs_split", "arcs_linearised",
+                 "arc_segments", "arc_max_deviation_um", "takeup_moves", "lines_out",
+                 "max_correction_um", "limit_hits", "limit_examples", "source_outside")
+
+    def __init__(self) -> None:
+        self.lines = 0
+        self.moves = 0
+        self.moves_compensated = 0
+        self.untouched_unknown = 0
+        self.malformed = 0
+        self.malformed_examples: List[Tuple[int, str]] = []
+        self.arcs_kept = 0
+        self.arcs_split = 0
+        self.arcs_linearised = 0
+        self.arc_segments = 0
+        self.arc_max_deviation_um = 0.0
+        self.takeup_moves = 0
+        self.lines_out = 0
+        self.max_correction_um: Dict[str, float] = {a: 0.0 for a in AXES}
+        self.limit_hits = 0
+        self.limit_examples: List[Tuple[int, str, float]] = []
+        self.source_outside = 0
+
+    def __repr__(self) -> str:
+        return f"Report({self.to_dict()!r})"
 
     def to_dict(self) -> dict:
         return {
@@ -87,8 +94,8 @@ class BacklashState:
     the reversal): a take-up spread over ``smoothing_mm`` of path (see backlash.py).
     """
 
-    # plain instance attributes (no __slots__): the kernel reads the instance dictionary
     FIELDS = ("dir", "anchor", "ramping", "ramp_from", "ramp_done")
+    __slots__ = FIELDS  # (the compiled kernel reads and writes them in place)
 
     def __init__(self) -> None:
         self.dir: List[int] = [0, 0, 0]
@@ -137,7 +144,10 @@ class StreamState:
     ``backlash``: :class:`BacklashState`; ``report``: :class:`Report`.
     """
 
-    # plain instance attributes (no __slots__): the kernel reads the instance dictionary
+    # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
+    __slots__ = ("report", "lineno", "backlash", "m", "fw", "fw_text", "w", "g", "frame_lost",
+                 "absolute", "e_absolute_mode", "inches", "plane", "ij_absolute", "e_pos",
+                 "feed", "tool", "q_last", "limit_recheck", "q_drive")
 
     def __init__(self) -> None:
         self.report = Report()

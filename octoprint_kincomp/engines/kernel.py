@@ -25,11 +25,14 @@ from typing import Callable, List, Optional
 
 from ..core.compensator import Compensator, Options
 from ..core.params import Params
+from ..core.state import BacklashState, Report, StreamState
 
 try:  # built by setup.py when a C compiler is there
     from . import _kernel as _ext
 except ImportError:  # pragma: no cover - depends on the installation
     _ext = None
+else:  # where it finds the state's fields (slots)
+    _ext.layout(StreamState, BacklashState, Report)
 
 _log = logging.getLogger(__name__)
 

@@ -21,10 +21,11 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from octoprint_kincomp.core import arcs
+from octoprint_kincomp.core.arcpath import strictly_between
 from octoprint_kincomp.core.backlash import Play
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import KinematicModel
@@ -236,6 +237,42 @@ def test_slicer_arcs_are_kept_as_single_arcs():
     assert rep.arcs_kept + rep.arcs_split == 3951 and rep.arcs_split <= 255
     assert n_out <= 1.05 * len(lines)
     assert 0 < rep.arc_max_deviation_um < 10.0
+
+
+ANGLE = st.floats(0.0, 2 * math.pi)
+
+
+@given(ANGLE, ANGLE, ANGLE, st.booleans(), st.floats(0.1, 100.0))
+def test_strictly_between_is_the_comparison_of_angles(a_s, a_v, a_e, clockwise, r):
+    """The overshoot test's sign rule (no trigonometry) decides as angles would: the
+    direction v lies strictly between the start s and the end e, turning as the arc turns,
+    exactly when its angle from s in that sense is in (0, that of e)."""
+    sa, sb = r * math.cos(a_s), r * math.sin(a_s)
+    va, vb = math.cos(a_v), math.sin(a_v)
+    ea, eb = 2 * r * math.cos(a_e), 2 * r * math.sin(a_e)
+
+    def angle(x, y):
+        ang = math.atan2(sa * y - sb * x, sa * x + sb * y)
+        ang = -ang if clockwise else ang
+        return ang + 2 * math.pi if ang < 0 else ang
+
+    av, ae = angle(va, vb), angle(ea, eb)
+    assume(min(abs(av - ae), av, ae, 2 * math.pi - av, 2 * math.pi - ae) > 1e-9)  # no tie
+    assert strictly_between(va, vb, sa, sb, ea, eb, clockwise) == (0.0 < av < ae)
+
+
+def test_strictly_between_at_its_edges():
+    # counter-clockwise from +X: +Y lies within a half turn to -X, not within a quarter
+    # turn short of it, nor at the start or end themselves; clockwise the other way round
+    assert strictly_between(0.0, 1.0, 1.0, 0.0, -1.0, 0.0, False)
+    assert not strictly_between(0.0, 1.0, 1.0, 0.0, 1.0, 1e-3, False)
+    assert strictly_between(0.0, -1.0, 1.0, 0.0, -1.0, 0.0, True)
+    assert not strictly_between(0.0, 1.0, 1.0, 0.0, -1.0, 0.0, True)
+    assert not strictly_between(1.0, 0.0, 1.0, 0.0, -1.0, 0.0, False)  # the start itself
+    assert not strictly_between(-1.0, 0.0, 1.0, 0.0, -1.0, 0.0, False)  # the end itself
+    assert not strictly_between(0.0, 1.0, 1.0, 0.0, 2.0, 0.0, False)  # no turn at all
+    # past a half turn: -Y lies inside a three-quarter turn counter-clockwise
+    assert strictly_between(0.0, -1.0, 1.0, 0.0, 1.0, -1.0, False)
 
 
 def test_the_check_can_fail():

@@ -177,3 +177,36 @@ def test_negative_zero_anchor_is_written_like_python():
     got, ref = run(lines, y_only), run(lines, y_only, compiled=False)
     assert got == ref
     assert [str(a) for a in got[1][4]] == [str(a) for a in ref[1][4]]
+
+
+def test_the_kernel_reads_only_the_declared_state_classes():
+    # the kernel reads and writes the state's slots at offsets found once (layout): an
+    # object of another class - a subclass with a __dict__, say - is left to the reference
+    # path, unchanged; a class without those slots is refused when the layout is given
+    from octoprint_kincomp.core.state import BacklashState, Report, StreamState
+
+    class Annotated(StreamState):
+        pass
+
+    comp = make_compensator(SKEW)
+    for line in ("G28", "G1 X10 Y10 Z1"):
+        comp.process(line)
+    assert comp.fast.line(comp.state, "G1 X20 Y20") is not None  # the declared class: taken
+    other = Annotated()
+    other.take_over(comp.state)
+    before = (list(other.m), list(other.fw), other.lineno, other.report.to_dict())
+    assert comp.fast.line(other, "G1 X30 Y30") is None
+    assert (list(other.m), list(other.fw), other.lineno, other.report.to_dict()) == before
+
+    class Plain:
+        m = None
+
+    for classes in ((Plain, BacklashState, Report), (StreamState, BacklashState, Annotated),
+                    (StreamState, Report, BacklashState)):
+        with pytest.raises(TypeError):
+            kernel_mod._ext.layout(*classes)
+    # a refused layout leaves the one before in place
+    ref = Compensator(SKEW)
+    ref.state.take_over(comp.state, backlash_axes=(0, 1, 2))
+    ref.state.q_last = comp.state.q_last
+    assert comp.fast.line(comp.state, "G1 X40 Y45") == ref.process("G1 X40 Y45")

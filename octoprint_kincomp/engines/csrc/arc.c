@@ -149,27 +149,47 @@ static void target(const Job *j, const double *p, const double *q, double *out)
         out[k] = with_offset(K, s, k, q[k]) + s->g[k];
 }
 
-/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after) */
-static int fw_after(const State *s, int dec, double u, int k, double c, double *fw)
+/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after); its
+ * text kept in pre for the line that writes it */
+static int fw_after(const State *s, int dec, double u, int k, double c, double *fw,
+                    Formatted *pre)
 {
-    char text[MAX_TEXT + 1];
-    int len = kk_format_num((c + s->g[k]) / u, dec, text);
+    int len = kk_format_num((c + s->g[k]) / u, dec, pre->text[k]);
     double v;
-    if (len < 0 || kk_parse_num(text, len, &v) < 0)
+    if (len < 0 || kk_parse_num(pre->text[k], len, &v) < 0)
         return -1;
+    pre->valid[k] = 1;
+    pre->c[k] = c;
+    pre->len[k] = len;
+    pre->parsed[k] = v;
     *fw = v * u;
     return 0;
 }
 
-/* _Job.angle: from the start direction (sa, sb) to (va, vb) in the arc's turn, 0..2 pi */
-static double turn_angle(const Job *j, double va, double vb, double sa, double sb)
+/* _half_turn (core/arcpath.py): the half turn an angle from the start direction lies in, from
+ * its cross (positive in the turning sense) and dot products: 0 (0, pi], 1 (pi, 2 pi), -1 0 */
+static int half_turn(double cross, double dot)
 {
-    double ang = atan2(sa * vb - sb * va, sa * va + sb * vb);
-    if (j->cw)
-        ang = -ang;
-    if (ang < 0.0)
-        ang += 2.0 * M_PI;
-    return ang;
+    if (cross > 0.0)
+        return 0;
+    if (cross < 0.0)
+        return 1;
+    return dot < 0.0 ? 0 : -1;
+}
+
+/* strictly_between (core/arcpath.py): the direction (va, vb) strictly between the start
+ * (sa, sb) and the end (ea, eb) directions, turning as the arc turns */
+static int strictly_between(double va, double vb, double sa, double sb, double ea, double eb,
+                            int cw)
+{
+    double turn = cw ? -1.0 : 1.0;
+    int hv = half_turn(turn * (sa * vb - sb * va), sa * va + sb * vb);
+    int he = half_turn(turn * (sa * eb - sb * ea), sa * ea + sb * eb);
+    if (hv < 0 || he < 0)
+        return 0;
+    if (hv != he)
+        return hv < he;
+    return turn * (va * eb - vb * ea) > 0.0;
 }
 
 /* _Job.overshoots: the written circle turns a backlash axis (X, Y) round inside the piece
@@ -179,19 +199,18 @@ static int overshoots(const Job *j, const double *S, const double *E, double ka,
 {
     static const double VA[4] = {1.0, -1.0, 0.0, 0.0}, VB[4] = {0.0, 0.0, 1.0, -1.0};
     double allowed = j->K->overshoot[j->s->inches];
-    double end = turn_angle(j, E[0] - ka, E[1] - kb, sa, sb);
+    double ea = E[0] - ka, eb = E[1] - kb;
     int i;
     for (i = 0; i < 4; i++) {
         int k = i < 2 ? 0 : 1;
-        double va = VA[i] * radius, vb = VB[i] * radius, ang, extreme, lo, hi, over;
+        double va = VA[i] * radius, vb = VB[i] * radius, extreme, lo, hi, over;
         if (!j->K->active[k])
             continue;
         if (VA[i] == 0.0)
             va = 0.0;
         if (VB[i] == 0.0)
             vb = 0.0;
-        ang = turn_angle(j, va, vb, sa, sb);
-        if (!(0.0 < ang && ang < end))
+        if (!strictly_between(va, vb, sa, sb, ea, eb, j->cw))
             continue;
         extreme = k == 0 ? ka + va : kb + vb;
         lo = S[k] < E[k] ? S[k] : E[k];
@@ -206,7 +225,7 @@ static int overshoots(const Job *j, const double *S, const double *E, double ka,
 /* _Job.fit: 1 fits (words in ij, deviation mm in dev), 0 no fit, 2 the rounded end is the
  * start, -1 Python decides */
 static int fit(Job *j, double fa, double fb, const double *qb, const double (*eighths)[3],
-               char *ij, int *ij_len, double *dev_out)
+               char *ij, int *ij_len, double *dev_out, Formatted *pre)
 {
     static const int EIGHTH_OF_SAMPLE[6] = {1, 2, 3, 5, 6, 7};
     const Kernel *K = j->K;
@@ -220,7 +239,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
     char text[MAX_TEXT + 1];
     for (k = 0; k < 3; k++)
-        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
+        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k], pre) < 0)
             return -1;
     if (E[0] == S[0] && E[1] == S[1])
         return 2;
@@ -301,7 +320,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
 
 /* _Job.line: one output line ending at fraction f, desired point p, command q */
 static int write_line(Job *j, const char *code, const double *p, const double *q, double f,
-                      const char *extra, int extra_len)
+                      const Formatted *pre, const char *extra, int extra_len)
 {
     static const int NONE[3] = {0, 0, 0}, ALL[3] = {1, 1, 1};
     char *o = kk_line_begin(j->out);
@@ -311,7 +330,7 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
         return -1;
     o[0] = code[0];
     o[1] = code[1];
-    if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, o, &len) < 0)
+    if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, pre, o, &len) < 0)
         return -1;
     memcpy(s->m, p, 3 * sizeof(double));
     memcpy(o + len, extra, extra_len);
@@ -348,15 +367,17 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
     double dev = 0.0;
     char ij[2 * MAX_TEXT + 8];
     int ij_len = 0, r;
+    Formatted pre;
     if (rmax * half * half * 0.5 <= j->K->sliver[j->s->inches])
-        return write_line(j, "G1", pb, qb, fb, "", 0);
-    r = fit(j, fa, fb, qb, eighths, ij, &ij_len, &dev);
+        return write_line(j, "G1", pb, qb, fb, NULL, "", 0);
+    pre.valid[0] = pre.valid[1] = pre.valid[2] = 0;
+    r = fit(j, fa, fb, qb, eighths, ij, &ij_len, &dev, &pre);
     if (r < 0)
         return -1;
     if (r == 2)
-        return write_line(j, "G1", pb, qb, fb, "", 0);
+        return write_line(j, "G1", pb, qb, fb, &pre, "", 0);
     if (r == 1) {
-        if (write_line(j, j->code, pb, qb, fb, ij, ij_len) < 0)
+        if (write_line(j, j->code, pb, qb, fb, &pre, ij, ij_len) < 0)
             return -1;
         j->arcs++;
         dev *= 1000.0;
@@ -500,7 +521,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
                     return LINE_PYTHON;
                 o[0] = 'G';
                 o[1] = '1';
-                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, o, &tl);
+                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, NULL, o, &tl);
                 if (r < 0)
                     return LINE_PYTHON;
                 memcpy(s.m, pa, sizeof pa);

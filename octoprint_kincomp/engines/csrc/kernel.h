@@ -22,6 +22,13 @@
 #include <math.h>
 #include <string.h>
 
+#if PY_VERSION_HEX < 0x030A0000  /* (Python 3.8, 3.9) */
+static inline PyObject *Py_NewRef(PyObject *o) { Py_INCREF(o); return o; }
+#endif
+#ifndef Py_IS_TYPE
+#define Py_IS_TYPE(o, t) (Py_TYPE(o) == (t))
+#endif
+
 /* Doubles must round as Python's do: no excess precision (x87 on 32-bit x86). Where that is
  * not so the extension is not built and the pure-Python paths run (setup.py: optional). */
 #if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD != 0
@@ -104,30 +111,41 @@ typedef struct {
     int moved;                        /* a move committed: m, fw, backlash to write */
 } State;
 
-/* The instance dictionaries the state lives in: the stream state's, its backlash state's
- * and its report's (plain instance attributes, read and written without attribute lookup). */
+/* The state's three objects (strong references during a call): the stream state, its
+ * backlash state and its report, slotted classes read and written in their slots. */
 typedef struct {
     PyObject *st, *bl, *rep;
-} Dicts;
+} Objs;
 
 enum { LINE_OUT, LINE_SAME, LINE_PYTHON };
 
 /* state.c */
 int kk_intern_names(void);
-int kk_load(PyObject *state, State *s, Dicts *D);
-int kk_store(const Dicts *D, const State *s, const State *before);
-void kk_dicts_release(Dicts *d);
+PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs);
+int kk_load(PyObject *state, State *s, Objs *D);
+int kk_store(const Objs *D, const State *s, const State *before);
+void kk_objs_release(Objs *d);
 /* numbers.c */
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
 int kk_format_num(double v, int dec, char *out);
+/* A firmware coordinate already formatted for a command (the arc fit's end point): kk_point
+ * takes its text where its own command is the same double, bit for bit. */
+typedef struct {
+    int valid[3];
+    double c[3];                 /* command with its take-up offset, mm */
+    char text[3][MAX_TEXT + 1];  /* the text of (c + g) / u */
+    int len[3];
+    double parsed[3];            /* float(text) */
+} Formatted;
+
 /* transform.c */
 int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
 double kk_um_at(const Table *t, double q);
 int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from);
 void kk_inverse(const Kernel *K, const double *p, double *q);
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
-             const double *q_prev, const int *redo, const double *m_old, char *out,
-             int *out_len);
+             const double *q_prev, const int *redo, const double *m_old,
+             const Formatted *pre, char *out, int *out_len);
 /* arcgeo.c: one arc in G17 (core/arcs.py Arc), mm and rad */
 #define MAX_CUTS 64
 typedef struct {

@@ -97,9 +97,13 @@ static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out
     return kk_do_line(K, s, ln, n, out);
 }
 
+/* a str of ASCII text (every output line is: ASCII input, numbers, letters) */
 static PyObject *make_str(const char *c, int len)
 {
-    return PyUnicode_DecodeASCII(c, len, NULL);
+    PyObject *o = PyUnicode_New(len, 127);
+    if (o != NULL)
+        memcpy(PyUnicode_1BYTE_DATA(o), c, len);
+    return o;
 }
 
 /* Kernel.line(state, line) -> None (the Python path decides) | line | [str, ...] */
@@ -109,7 +113,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     const char *c;
     Py_ssize_t n;
     State s, before;
-    Dicts D;
+    Objs D;
     Lines out;
     int r, i;
 
@@ -130,7 +134,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     before = s;
     r = do_line(self, &s, c, n, &out);
     if (r == LINE_PYTHON) {
-        kk_dicts_release(&D);
+        kk_objs_release(&D);
         Py_RETURN_NONE;
     }
     if (r == LINE_SAME) {
@@ -139,14 +143,14 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     } else {
         res = PyList_New(out.n);
         if (res == NULL) {
-            kk_dicts_release(&D);
+            kk_objs_release(&D);
             return NULL;
         }
         for (i = 0; i < out.n; i++) {
             PyObject *o = make_str(out.buf + out.start[i], out.start[i + 1] - out.start[i]);
             if (o == NULL) {
                 Py_DECREF(res);
-                kk_dicts_release(&D);
+                kk_objs_release(&D);
                 return NULL;
             }
             PyList_SET_ITEM(res, i, o);
@@ -154,7 +158,7 @@ static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nar
     }
     if (kk_store(&D, &s, &before) < 0)
         Py_CLEAR(res);
-    kk_dicts_release(&D);
+    kk_objs_release(&D);
     return res;
 }
 
@@ -190,7 +194,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
     const char *buf;
     Py_ssize_t size, pos;
     State s, before;
-    Dicts D;
+    Objs D;
     Buf o = {NULL, 0, 0};
     Lines *lines = NULL;
     int r;
@@ -269,7 +273,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
         goto fail;
     res = Py_BuildValue("(Nn)", out, pos);
 fail:
-    kk_dicts_release(&D);
+    kk_objs_release(&D);
     PyMem_Free(o.data);
     PyMem_Free(lines);
     return res;
@@ -294,8 +298,15 @@ static PyTypeObject KernelType = {
     .tp_methods = Kernel_methods,
 };
 
+static PyMethodDef module_methods[] = {
+    {"layout", (PyCFunction)(void (*)(void))kk_layout, METH_FASTCALL,
+     "layout(StreamState, BacklashState, Report): the slotted classes of the state"},
+    {NULL}
+};
+
 static struct PyModuleDef kernel_module = {
-    PyModuleDef_HEAD_INIT, "_kernel", "Compiled kernel of the transform (see engines/kernel.py).", -1, NULL,
+    PyModuleDef_HEAD_INIT, "_kernel", "Compiled kernel of the transform (see engines/kernel.py).", -1,
+    module_methods,
 };
 
 PyMODINIT_FUNC PyInit__kernel(void)

@@ -1,60 +1,111 @@
 /* Reading and writing the stream state: the declared record of core/state.py
- * (StreamState, its BacklashState and its Report), by attribute name, in the instance
- * dictionaries. What the kernel cannot hold leaves the line to the Python path. */
+ * (StreamState, its BacklashState and its Report), slotted classes whose attributes the
+ * kernel reads and writes in their slots, at the offsets ``layout`` found (no attribute
+ * lookup, no dictionary). What the kernel cannot hold leaves the line to the Python path. */
 #include "kernel.h"
 
-static PyObject *s_q_drive, *s_m, *s_fw, *s_fw_text, *s_w, *s_g, *s_q_last, *s_limit_recheck, *s_backlash,
-    *s_dir, *s_anchor, *s_report, *s_lines, *s_moves, *s_moves_compensated, *s_lines_out,
-    *s_takeup_moves, *s_max_correction_um, *s_lineno, *s_inches, *s_e_absolute_mode,
-    *s_e_pos, *s_feed, *s_absolute, *s_axis_key[3], *s_plane, *s_ij_absolute, *s_arcs_kept,
-    *s_arcs_split, *s_arcs_linearised, *s_arc_segments, *s_arc_max_deviation_um;
+#include <structmember.h>
 
+/* The fields, by owner: names as in core/state.py, offsets found by kk_layout. */
+enum { ST_Q_DRIVE, ST_M, ST_FW, ST_FW_TEXT, ST_W, ST_G, ST_Q_LAST, ST_LIMIT_RECHECK,
+       ST_BACKLASH, ST_REPORT, ST_LINENO, ST_INCHES, ST_E_ABS_MODE, ST_E_POS, ST_FEED,
+       ST_ABSOLUTE, ST_PLANE, ST_IJ_ABSOLUTE, ST_N };
+static const char *const st_names[ST_N] = {
+    "q_drive", "m", "fw", "fw_text", "w", "g", "q_last", "limit_recheck", "backlash",
+    "report", "lineno", "inches", "e_absolute_mode", "e_pos", "feed", "absolute", "plane",
+    "ij_absolute"};
+enum { BL_DIR, BL_ANCHOR, BL_N };
+static const char *const bl_names[BL_N] = {"dir", "anchor"};
+enum { RP_LINES, RP_MOVES, RP_MOVES_COMP, RP_LINES_OUT, RP_TAKEUP, RP_ARCS_KEPT,
+       RP_ARCS_SPLIT, RP_ARCS_LIN, RP_ARC_SEGMENTS, RP_ARC_DEV, RP_MAXC, RP_N };
+static const char *const rp_names[RP_N] = {
+    "lines", "moves", "moves_compensated", "lines_out", "takeup_moves", "arcs_kept",
+    "arcs_split", "arcs_linearised", "arc_segments", "arc_max_deviation_um",
+    "max_correction_um"};
+
+static PyTypeObject *st_type, *bl_type, *rp_type;  /* NULL until kk_layout */
+static Py_ssize_t st_off[ST_N], bl_off[BL_N], rp_off[RP_N];
+static PyObject *s_axis_key[3];
 
 int kk_intern_names(void)
 {
-#define INTERN(var, text) if (!(var = PyUnicode_InternFromString(text))) return -1
-    INTERN(s_q_drive, "q_drive");
-    INTERN(s_m, "m");
-    INTERN(s_fw, "fw");
-    INTERN(s_fw_text, "fw_text");
-    INTERN(s_w, "w");
-    INTERN(s_g, "g");
-    INTERN(s_q_last, "q_last");
-    INTERN(s_limit_recheck, "limit_recheck");
-    INTERN(s_backlash, "backlash");
-    INTERN(s_dir, "dir");
-    INTERN(s_anchor, "anchor");
-    INTERN(s_report, "report");
-    INTERN(s_lines, "lines");
-    INTERN(s_moves, "moves");
-    INTERN(s_moves_compensated, "moves_compensated");
-    INTERN(s_lines_out, "lines_out");
-    INTERN(s_takeup_moves, "takeup_moves");
-    INTERN(s_max_correction_um, "max_correction_um");
-    INTERN(s_lineno, "lineno");
-    INTERN(s_inches, "inches");
-    INTERN(s_e_absolute_mode, "e_absolute_mode");
-    INTERN(s_e_pos, "e_pos");
-    INTERN(s_feed, "feed");
-    INTERN(s_absolute, "absolute");
-    INTERN(s_plane, "plane");
-    INTERN(s_ij_absolute, "ij_absolute");
-    INTERN(s_arcs_kept, "arcs_kept");
-    INTERN(s_arcs_split, "arcs_split");
-    INTERN(s_arcs_linearised, "arcs_linearised");
-    INTERN(s_arc_segments, "arc_segments");
-    INTERN(s_arc_max_deviation_um, "arc_max_deviation_um");
-    INTERN(s_axis_key[0], "x");
-    INTERN(s_axis_key[1], "y");
-    INTERN(s_axis_key[2], "z");
-#undef INTERN
+    static const char *const axes[3] = {"x", "y", "z"};
+    int k;
+    for (k = 0; k < 3; k++)
+        if (!(s_axis_key[k] = PyUnicode_InternFromString(axes[k])))
+            return -1;
     return 0;
+}
+
+/* The slot offsets of ``names`` in ``type`` (each a member descriptor of an object slot of
+ * that very class); -1 with TypeError if one is not. */
+static int find_slots(PyObject *type, const char *const *names, int n, Py_ssize_t *off)
+{
+    int i;
+    for (i = 0; i < n; i++) {
+        PyObject *d = PyObject_GetAttrString(type, names[i]);
+        int ok;
+        if (d == NULL)
+            PyErr_Clear();
+        ok = d != NULL && Py_IS_TYPE(d, &PyMemberDescr_Type) &&
+             ((PyMemberDescrObject *)d)->d_member->type == T_OBJECT_EX &&
+             ((PyMemberDescrObject *)d)->d_common.d_type == (PyTypeObject *)type;
+        if (ok)
+            off[i] = ((PyMemberDescrObject *)d)->d_member->offset;
+        Py_XDECREF(d);
+        if (!ok) {
+            PyErr_Format(PyExc_TypeError, "layout: %R.%s is not a slot", type, names[i]);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* layout(StreamState, BacklashState, Report): where the kernel finds the fields (all or
+ * nothing: a refused layout leaves the one before in place). */
+PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
+{
+    Py_ssize_t st[ST_N], bl[BL_N], rp[RP_N];
+    int k;
+    (void)mod;
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "layout(StreamState, BacklashState, Report)");
+        return NULL;
+    }
+    for (k = 0; k < 3; k++)
+        if (!PyType_Check(args[k])) {
+            PyErr_SetString(PyExc_TypeError, "layout: three classes");
+            return NULL;
+        }
+    if (find_slots(args[0], st_names, ST_N, st) < 0 ||
+        find_slots(args[1], bl_names, BL_N, bl) < 0 ||
+        find_slots(args[2], rp_names, RP_N, rp) < 0)
+        return NULL;
+    memcpy(st_off, st, sizeof st);
+    memcpy(bl_off, bl, sizeof bl);
+    memcpy(rp_off, rp, sizeof rp);
+    Py_XSETREF(st_type, (PyTypeObject *)Py_NewRef(args[0]));
+    Py_XSETREF(bl_type, (PyTypeObject *)Py_NewRef(args[1]));
+    Py_XSETREF(rp_type, (PyTypeObject *)Py_NewRef(args[2]));
+    Py_RETURN_NONE;
+}
+
+/* The object in a slot (borrowed; NULL: never set), and a new value for it (stolen). */
+#define SLOT(obj, off) (*(PyObject **)((char *)(obj) + (off)))
+
+static void put(PyObject *obj, Py_ssize_t off, PyObject *v)
+{
+    PyObject *old = SLOT(obj, off);
+    SLOT(obj, off) = v;
+    Py_XDECREF(old);
 }
 
 /* -- reading the state ------------------------------------------------------------------ */
 
 static int get_double(PyObject *o, double *v)
 {
+    if (o == NULL)
+        return -1;
     if (PyFloat_CheckExact(o)) {
         *v = PyFloat_AS_DOUBLE(o);
         return 0;
@@ -74,14 +125,13 @@ static int get_double(PyObject *o, double *v)
  * -1: not readable. Lists the kernel writes back in place must be lists. */
 static int get3(PyObject *seq, double *v, int *known, int tuple_ok)
 {
-    PyObject *fast = seq;
     Py_ssize_t k;
-    if (!PyList_CheckExact(seq) && !(tuple_ok && PyTuple_CheckExact(seq)))
+    if (seq == NULL || !(PyList_CheckExact(seq) || (tuple_ok && PyTuple_CheckExact(seq))))
         return -1;
-    if (PySequence_Fast_GET_SIZE(fast) != 3)
+    if (PySequence_Fast_GET_SIZE(seq) != 3)
         return -1;
     for (k = 0; k < 3; k++) {
-        PyObject *o = PySequence_Fast_GET_ITEM(fast, k);
+        PyObject *o = PySequence_Fast_GET_ITEM(seq, k);
         if (o == Py_None && known != NULL) {
             known[k] = 0;
             v[k] = 0.0;
@@ -95,40 +145,15 @@ static int get3(PyObject *seq, double *v, int *known, int tuple_ok)
     return 0;
 }
 
-void kk_dicts_release(Dicts *d)
+void kk_objs_release(Objs *d)
 {
     Py_CLEAR(d->st);
     Py_CLEAR(d->bl);
     Py_CLEAR(d->rep);
 }
 
-/* obj.__dict__ (new reference), NULL without an error if there is none. */
-static PyObject *instance_dict(PyObject *obj)
+static int get_ll(PyObject *o, long long *v)
 {
-    PyObject *d;
-    if (obj == NULL || Py_TYPE(obj)->tp_dictoffset == 0)
-        return NULL;
-    d = PyObject_GenericGetDict(obj, NULL);
-    if (d == NULL || !PyDict_CheckExact(d)) {
-        PyErr_Clear();
-        Py_XDECREF(d);
-        return NULL;
-    }
-    return d;
-}
-
-/* d[name], borrowed; NULL (no error set) if missing. */
-static PyObject *dget(PyObject *d, PyObject *name)
-{
-    PyObject *o = PyDict_GetItemWithError(d, name);
-    if (o == NULL)
-        PyErr_Clear();
-    return o;
-}
-
-static int get_ll(PyObject *d, PyObject *name, long long *v)
-{
-    PyObject *o = dget(d, name);
     if (o == NULL || !PyLong_CheckExact(o))
         return -1;
     *v = PyLong_AsLongLong(o);
@@ -139,11 +164,8 @@ static int get_ll(PyObject *d, PyObject *name, long long *v)
     return 0;
 }
 
-static int get_flag(PyObject *d, PyObject *name, int *v, int none_ok)
+static int get_flag(PyObject *o, int *v, int none_ok)
 {
-    PyObject *o = dget(d, name);
-    if (o == NULL)
-        return -1;
     if (o == Py_None && none_ok) {
         *v = -1;
         return 0;
@@ -155,47 +177,52 @@ static int get_flag(PyObject *d, PyObject *name, int *v, int none_ok)
 }
 
 /* Load the state. Returns 0, or 1 when the state is outside what the kernel holds (the
- * Python path decides; the dictionaries are then released). */
-int kk_load(PyObject *state, State *s, Dicts *D)
+ * Python path decides; the objects are then released). */
+int kk_load(PyObject *state, State *s, Objs *D)
 {
-    PyObject *o, *bl;
+    PyObject *o, *st, *bl, *rp;
     int k;
     double tmp[3];
     int known[3];
 
     memset(s, 0, sizeof(State));
     D->st = D->bl = D->rep = NULL;
-    if (!(D->st = instance_dict(state)))
-        goto python;
-    bl = dget(D->st, s_backlash);
-    if (!(D->bl = instance_dict(bl)) || !(D->rep = instance_dict(dget(D->st, s_report))))
-        goto python;
+    if (st_type == NULL || !Py_IS_TYPE(state, st_type))
+        return 1;
+    bl = SLOT(state, st_off[ST_BACKLASH]);
+    rp = SLOT(state, st_off[ST_REPORT]);
+    if (bl == NULL || !Py_IS_TYPE(bl, bl_type) || rp == NULL || !Py_IS_TYPE(rp, rp_type))
+        return 1;
+    D->st = st = Py_NewRef(state);
+    D->bl = Py_NewRef(bl);
+    D->rep = Py_NewRef(rp);
+#define F(i) SLOT(st, st_off[i])
     /* drives away from the command of the desired position (after a partial G28 under
      * skew): the reference path starts the next move from there */
-    if ((o = dget(D->st, s_q_drive)) == NULL || o != Py_None)
+    if (F(ST_Q_DRIVE) != Py_None)
         goto python;
-    if (get_flag(D->st, s_absolute, &s->absolute, 0) < 0 ||
-        get_flag(D->st, s_inches, &s->inches, 0) < 0 ||
-        get_flag(D->st, s_e_absolute_mode, &s->e_abs_mode, 1) < 0 ||
-        get_flag(D->st, s_ij_absolute, &s->ij_absolute, 0) < 0)
+    if (get_flag(F(ST_ABSOLUTE), &s->absolute, 0) < 0 ||
+        get_flag(F(ST_INCHES), &s->inches, 0) < 0 ||
+        get_flag(F(ST_E_ABS_MODE), &s->e_abs_mode, 1) < 0 ||
+        get_flag(F(ST_IJ_ABSOLUTE), &s->ij_absolute, 0) < 0)
         goto python;
     {
         long long plane;
-        if (get_ll(D->st, s_plane, &plane) < 0)
+        if (get_ll(F(ST_PLANE), &plane) < 0)
             goto python;
         s->plane = (int)plane;
     }
-    if (!(o = dget(D->st, s_e_pos)))
+    if (!(o = F(ST_E_POS)))
         goto python;
     s->e_known = o != Py_None;
     if (s->e_known && get_double(o, &s->e_pos) < 0)
         goto python;
-    if (!(o = dget(D->st, s_m)) || get3(o, s->m, known, 1) < 0)
+    if (get3(F(ST_M), s->m, known, 1) < 0)
         goto python;
     s->m_known = known[0] && known[1] && known[2];
-    if (!(o = dget(D->st, s_fw)) || get3(o, s->fw, s->fw_known, 0) < 0)
+    if (get3(F(ST_FW), s->fw, s->fw_known, 0) < 0)
         goto python;
-    if (!(o = dget(D->st, s_fw_text)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
+    if (!(o = F(ST_FW_TEXT)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
         goto python;
     for (k = 0; k < 3; k++) {
         PyObject *t = PyList_GET_ITEM(o, k);
@@ -213,16 +240,14 @@ int kk_load(PyObject *state, State *s, Dicts *D)
         s->fwt[k][len] = 0;
         s->fwt_len[k] = (int)len;
     }
-    if (!(o = dget(D->st, s_w)) || get3(o, s->w, NULL, 1) < 0)
+    if (get3(F(ST_W), s->w, NULL, 1) < 0 || get3(F(ST_G), s->g, NULL, 1) < 0)
         goto python;
-    if (!(o = dget(D->st, s_g)) || get3(o, s->g, NULL, 1) < 0)
-        goto python;
-    if (!(o = dget(D->st, s_q_last)))
+    if (!(o = F(ST_Q_LAST)))
         goto python;
     s->q_last_known = o != Py_None;
     if (s->q_last_known && get3(o, s->q_last, NULL, 1) < 0)
         goto python;
-    if (!(o = dget(D->st, s_limit_recheck)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
+    if (!(o = F(ST_LIMIT_RECHECK)) || !PyList_CheckExact(o) || PyList_GET_SIZE(o) != 3)
         goto python;
     for (k = 0; k < 3; k++) {
         PyObject *b = PyList_GET_ITEM(o, k);
@@ -230,41 +255,49 @@ int kk_load(PyObject *state, State *s, Dicts *D)
             goto python;
         s->recheck[k] = b == Py_True;
     }
-    if (!(o = dget(D->bl, s_dir)) || get3(o, tmp, NULL, 0) < 0)
+    if (get_ll(F(ST_LINENO), &s->lineno) < 0)
+        goto python;
+#undef F
+    if (get3(SLOT(bl, bl_off[BL_DIR]), tmp, NULL, 0) < 0)
         goto python;
     for (k = 0; k < 3; k++) {
         if (tmp[k] != 0.0 && tmp[k] != 1.0 && tmp[k] != -1.0)
             goto python;
         s->dir[k] = (long)tmp[k];
     }
-    if (!(o = dget(D->bl, s_anchor)) || get3(o, s->anchor, s->anchor_known, 0) < 0)
+    if (get3(SLOT(bl, bl_off[BL_ANCHOR]), s->anchor, s->anchor_known, 0) < 0)
         goto python;
-    if (get_ll(D->st, s_lineno, &s->lineno) < 0 || get_ll(D->rep, s_lines, &s->lines) < 0 ||
-        get_ll(D->rep, s_moves, &s->moves) < 0 ||
-        get_ll(D->rep, s_moves_compensated, &s->moves_comp) < 0 ||
-        get_ll(D->rep, s_lines_out, &s->lines_out) < 0 ||
-        get_ll(D->rep, s_takeup_moves, &s->takeup) < 0 ||
-        get_ll(D->rep, s_arcs_kept, &s->arcs_kept) < 0 ||
-        get_ll(D->rep, s_arcs_split, &s->arcs_split) < 0 ||
-        get_ll(D->rep, s_arcs_linearised, &s->arcs_lin) < 0 ||
-        get_ll(D->rep, s_arc_segments, &s->arc_segments) < 0)
+#define R(i) SLOT(rp, rp_off[i])
+    if (get_ll(R(RP_LINES), &s->lines) < 0 || get_ll(R(RP_MOVES), &s->moves) < 0 ||
+        get_ll(R(RP_MOVES_COMP), &s->moves_comp) < 0 ||
+        get_ll(R(RP_LINES_OUT), &s->lines_out) < 0 ||
+        get_ll(R(RP_TAKEUP), &s->takeup) < 0 ||
+        get_ll(R(RP_ARCS_KEPT), &s->arcs_kept) < 0 ||
+        get_ll(R(RP_ARCS_SPLIT), &s->arcs_split) < 0 ||
+        get_ll(R(RP_ARCS_LIN), &s->arcs_lin) < 0 ||
+        get_ll(R(RP_ARC_SEGMENTS), &s->arc_segments) < 0 ||
+        get_double(R(RP_ARC_DEV), &s->arc_dev) < 0)
         goto python;
-    if (!(o = dget(D->rep, s_arc_max_deviation_um)) || get_double(o, &s->arc_dev) < 0)
+    if (!(o = R(RP_MAXC)) || !PyDict_CheckExact(o))
         goto python;
-    if (!(o = dget(D->rep, s_max_correction_um)) || !PyDict_CheckExact(o))
-        goto python;
+#undef R
     for (k = 0; k < 3; k++) {
-        PyObject *v = dget(o, s_axis_key[k]);
-        if (v == NULL || get_double(v, &s->maxc[k]) < 0)
+        PyObject *v = PyDict_GetItemWithError(o, s_axis_key[k]);
+        if (v == NULL) {
+            PyErr_Clear();
+            goto python;
+        }
+        if (get_double(v, &s->maxc[k]) < 0)
             goto python;
     }
     return 0;
 python:
-    kk_dicts_release(D);
+    kk_objs_release(D);
     return 1;
 }
 
-/* d[name] = o, o a new reference (consumed; NULL: the error is passed on). */
+/* -- writing it back --------------------------------------------------------------------- */
+
 /* A fresh list (or tuple) of three floats. */
 static PyObject *seq3(const double *v, int tuple)
 {
@@ -286,24 +319,18 @@ static PyObject *seq3(const double *v, int tuple)
     return t;
 }
 
-static int set_owned(PyObject *d, PyObject *name, PyObject *o)
+/* obj's slot at ``off`` = o, a new reference (NULL: the error is passed on). */
+static int set_owned(PyObject *obj, Py_ssize_t off, PyObject *o)
 {
-    int r;
     if (o == NULL)
         return -1;
-    r = PyDict_SetItem(d, name, o);
-    Py_DECREF(o);
-    return r;
+    put(obj, off, o);
+    return 0;
 }
 
-static int set_ll(PyObject *d, PyObject *name, long long v, long long old)
+static int set_ll(PyObject *obj, Py_ssize_t off, long long v, long long old)
 {
-    return v == old ? 0 : set_owned(d, name, PyLong_FromLongLong(v));
-}
-
-static int set_double(PyObject *d, PyObject *name, double v)
-{
-    return set_owned(d, name, PyFloat_FromDouble(v));
+    return v == old ? 0 : set_owned(obj, off, PyLong_FromLongLong(v));
 }
 
 static int set_item_double(PyObject *list, int k, double v)
@@ -317,79 +344,78 @@ static int set_item_double(PyObject *list, int k, double v)
 /* Write back what the lines committed since ``before`` changed (lists that the Python
  * path changes in place are changed in place). Only an allocation failure can stop it
  * half-way: the caller then raises, and the queue forgets the positions (queue.py). */
-int kk_store(const Dicts *D, const State *s, const State *before)
+int kk_store(const Objs *D, const State *s, const State *before)
 {
-    PyObject *o;
+    PyObject *o, *st = D->st, *bl = D->bl, *rp = D->rep;
     int k;
 
     if (s->lines == before->lines)
         return 0;  /* nothing committed */
-    if (set_ll(D->st, s_lineno, s->lineno, before->lineno) < 0 ||
-        set_ll(D->rep, s_lines, s->lines, before->lines) < 0 ||
-        set_ll(D->rep, s_moves, s->moves, before->moves) < 0 ||
-        set_ll(D->rep, s_moves_compensated, s->moves_comp, before->moves_comp) < 0 ||
-        set_ll(D->rep, s_lines_out, s->lines_out, before->lines_out) < 0 ||
-        set_ll(D->rep, s_takeup_moves, s->takeup, before->takeup) < 0 ||
-        set_ll(D->rep, s_arcs_kept, s->arcs_kept, before->arcs_kept) < 0 ||
-        set_ll(D->rep, s_arcs_split, s->arcs_split, before->arcs_split) < 0 ||
-        set_ll(D->rep, s_arcs_linearised, s->arcs_lin, before->arcs_lin) < 0 ||
-        set_ll(D->rep, s_arc_segments, s->arc_segments, before->arc_segments) < 0)
+#define R(i) rp_off[i]
+    if (set_ll(st, st_off[ST_LINENO], s->lineno, before->lineno) < 0 ||
+        set_ll(rp, R(RP_LINES), s->lines, before->lines) < 0 ||
+        set_ll(rp, R(RP_MOVES), s->moves, before->moves) < 0 ||
+        set_ll(rp, R(RP_MOVES_COMP), s->moves_comp, before->moves_comp) < 0 ||
+        set_ll(rp, R(RP_LINES_OUT), s->lines_out, before->lines_out) < 0 ||
+        set_ll(rp, R(RP_TAKEUP), s->takeup, before->takeup) < 0 ||
+        set_ll(rp, R(RP_ARCS_KEPT), s->arcs_kept, before->arcs_kept) < 0 ||
+        set_ll(rp, R(RP_ARCS_SPLIT), s->arcs_split, before->arcs_split) < 0 ||
+        set_ll(rp, R(RP_ARCS_LIN), s->arcs_lin, before->arcs_lin) < 0 ||
+        set_ll(rp, R(RP_ARC_SEGMENTS), s->arc_segments, before->arc_segments) < 0)
         return -1;
-    if (s->arc_dev != before->arc_dev && set_double(D->rep, s_arc_max_deviation_um, s->arc_dev) < 0)
+    if (s->arc_dev != before->arc_dev &&
+        set_owned(rp, R(RP_ARC_DEV), PyFloat_FromDouble(s->arc_dev)) < 0)
         return -1;
-    if (s->e_set) {
-        if (s->e_none ? PyDict_SetItem(D->st, s_e_pos, Py_None) < 0
-                      : set_double(D->st, s_e_pos, s->e_pos) < 0)
-            return -1;
-    }
-    if (s->f_set && set_double(D->st, s_feed, s->feed) < 0)
+#undef R
+    if (s->e_set && set_owned(st, st_off[ST_E_POS], s->e_none ? Py_NewRef(Py_None)
+                                                               : PyFloat_FromDouble(s->e_pos)) < 0)
+        return -1;
+    if (s->f_set && set_owned(st, st_off[ST_FEED], PyFloat_FromDouble(s->feed)) < 0)
         return -1;
     /* the previous command and the axes to re-evaluate (inert lines reset them) */
-    if (s->q_last_known) {
-        if (set_owned(D->st, s_q_last, seq3(s->q_last, 1)) < 0)
-            return -1;
-    } else if (PyDict_SetItem(D->st, s_q_last, Py_None) < 0) {
+    if (set_owned(st, st_off[ST_Q_LAST], s->q_last_known ? seq3(s->q_last, 1)
+                                                           : Py_NewRef(Py_None)) < 0)
         return -1;
-    }
     if (memcmp(s->recheck, before->recheck, sizeof s->recheck) != 0) {
         if (!(o = PyList_New(3)))
             return -1;
-        for (k = 0; k < 3; k++) {
-            PyObject *b = s->recheck[k] ? Py_True : Py_False;
-            Py_INCREF(b);
-            PyList_SET_ITEM(o, k, b);
-        }
-        if (set_owned(D->st, s_limit_recheck, o) < 0)
-            return -1;
+        for (k = 0; k < 3; k++)
+            PyList_SET_ITEM(o, k, Py_NewRef(s->recheck[k] ? Py_True : Py_False));
+        put(st, st_off[ST_LIMIT_RECHECK], o);
     }
     if (!s->moved)
         return 0;
-    if (set_owned(D->st, s_m, seq3(s->m, 0)) < 0)
+    if (set_owned(st, st_off[ST_M], seq3(s->m, 0)) < 0)
         return -1;
     for (k = 0; k < 3; k++) {
         if (!s->fwt_dirty[k])
             continue;
-        PyObject *t = PyUnicode_FromStringAndSize(s->fwt[k], s->fwt_len[k]);
-        if (t == NULL || PyList_SetItem(dget(D->st, s_fw_text), k, t) < 0)
+        PyObject *t = PyUnicode_New(s->fwt_len[k], 127);  /* (ASCII: a number's text) */
+        if (t != NULL)
+            memcpy(PyUnicode_1BYTE_DATA(t), s->fwt[k], s->fwt_len[k]);
+        if (t == NULL || PyList_SetItem(SLOT(st, st_off[ST_FW_TEXT]), k, t) < 0)
             return -1;
-        if (set_item_double(dget(D->st, s_fw), k, s->fw[k]) < 0)
+        if (set_item_double(SLOT(st, st_off[ST_FW]), k, s->fw[k]) < 0)
             return -1;
     }
     for (k = 0; k < 3; k++) {
         if (s->dir[k] != before->dir[k]) {
             PyObject *v = PyLong_FromLong(s->dir[k]);
-            if (v == NULL || PyList_SetItem(dget(D->bl, s_dir), k, v) < 0)
+            if (v == NULL || PyList_SetItem(SLOT(bl, bl_off[BL_DIR]), k, v) < 0)
                 return -1;
         }
         if (s->anchor_known[k] && (!before->anchor_known[k] ||
                                    memcmp(&s->anchor[k], &before->anchor[k],
                                           sizeof(double)) != 0) &&  /* (-0.0 vs 0.0) */
-            set_item_double(dget(D->bl, s_anchor), k, s->anchor[k]) < 0)
+            set_item_double(SLOT(bl, bl_off[BL_ANCHOR]), k, s->anchor[k]) < 0)
             return -1;
-        if (s->maxc[k] != before->maxc[k] &&
-            set_double(dget(D->rep, s_max_correction_um), s_axis_key[k], s->maxc[k]) < 0)
-            return -1;
+        if (s->maxc[k] != before->maxc[k]) {
+            PyObject *v = PyFloat_FromDouble(s->maxc[k]);
+            int r = v == NULL ? -1 : PyDict_SetItem(SLOT(rp, rp_off[RP_MAXC]), s_axis_key[k], v);
+            Py_XDECREF(v);
+            if (r < 0)
+                return -1;
+        }
     }
     return 0;
 }
-
