@@ -95,7 +95,7 @@ def _check_program() -> List[str]:
             lines += ["G20", "G1 X1.23456 Y2.34567", "G1 X0.5 Y3.25",
                       "G3 X1.5 Y3.25 I0.5 J0 Z0.1", "G21", "M83", "G2 X120 Y100 I10 J0 E0.5",
                       "G1 X100 Y100 E0.1", "M82"]
-    return lines + ["G21", "G1 X1 Y1"]
+    return lines + ["G21", "G1 X1 Y1", "G1 X-0.75 Y-0.25"]  # (ends below zero: the sign of fw)
 
 
 def self_check(make: Optional[Callable] = None) -> bool:
@@ -120,5 +120,5 @@ def self_check(make: Optional[Callable] = None) -> bool:
         _log.exception("KinComp: the compiled kernel failed its self-check")
         return False
     a, b = ref.state, got.state
-    return (a.report.to_dict() == b.report.to_dict() and a.m == b.m
+    return (a.report.to_dict() == b.report.to_dict() and a.m == b.m and a.fw == b.fw
             and a.fw_text == b.fw_text and a.backlash.dir == b.backlash.dir)

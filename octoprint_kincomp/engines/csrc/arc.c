@@ -149,19 +149,13 @@ static void target(const Job *j, const double *p, const double *q, double *out)
         out[k] = with_offset(K, s, k, q[k]) + s->g[k];
 }
 
-/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after); its
- * text kept in pre for the line that writes it */
-static int fw_after(const State *s, int dec, double u, int k, double c, double *fw,
-                    Formatted *pre)
+/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after) */
+static int fw_after(const State *s, int dec, double u, int k, double c, double *fw)
 {
-    int len = kk_format_num((c + s->g[k]) / u, dec, pre->text[k]);
+    char text[MAX_TEXT + 1];
     double v;
-    if (len < 0 || kk_parse_num(pre->text[k], len, &v) < 0)
+    if (kk_format_value((c + s->g[k]) / u, dec, text, &v) < 0)
         return -1;
-    pre->valid[k] = 1;
-    pre->c[k] = c;
-    pre->len[k] = len;
-    pre->parsed[k] = v;
     *fw = v * u;
     return 0;
 }
@@ -225,7 +219,7 @@ static int overshoots(const Job *j, const double *S, const double *E, double ka,
 /* _Job.fit: 1 fits (words in ij, deviation mm in dev), 0 no fit, 2 the rounded end is the
  * start, -1 Python decides */
 static int fit(Job *j, double fa, double fb, const double *qb, const double (*eighths)[3],
-               char *ij, int *ij_len, double *dev_out, Formatted *pre)
+               char *ij, int *ij_len, double *dev_out)
 {
     static const int EIGHTH_OF_SAMPLE[6] = {1, 2, 3, 5, 6, 7};
     const Kernel *K = j->K;
@@ -239,7 +233,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
     char text[MAX_TEXT + 1];
     for (k = 0; k < 3; k++)
-        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k], pre) < 0)
+        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
             return -1;
     if (E[0] == S[0] && E[1] == S[1])
         return 2;
@@ -320,7 +314,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
 
 /* _Job.line: one output line ending at fraction f, desired point p, command q */
 static int write_line(Job *j, const char *code, const double *p, const double *q, double f,
-                      const Formatted *pre, const char *extra, int extra_len)
+                      const char *extra, int extra_len)
 {
     static const int NONE[3] = {0, 0, 0}, ALL[3] = {1, 1, 1};
     char *o = kk_line_begin(j->out);
@@ -330,7 +324,7 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
         return -1;
     o[0] = code[0];
     o[1] = code[1];
-    if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, pre, o, &len) < 0)
+    if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, o, &len) < 0)
         return -1;
     memcpy(s->m, p, 3 * sizeof(double));
     memcpy(o + len, extra, extra_len);
@@ -367,17 +361,15 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
     double dev = 0.0;
     char ij[2 * MAX_TEXT + 8];
     int ij_len = 0, r;
-    Formatted pre;
     if (rmax * half * half * 0.5 <= j->K->sliver[j->s->inches])
-        return write_line(j, "G1", pb, qb, fb, NULL, "", 0);
-    pre.valid[0] = pre.valid[1] = pre.valid[2] = 0;
-    r = fit(j, fa, fb, qb, eighths, ij, &ij_len, &dev, &pre);
+        return write_line(j, "G1", pb, qb, fb, "", 0);
+    r = fit(j, fa, fb, qb, eighths, ij, &ij_len, &dev);
     if (r < 0)
         return -1;
     if (r == 2)
-        return write_line(j, "G1", pb, qb, fb, &pre, "", 0);
+        return write_line(j, "G1", pb, qb, fb, "", 0);
     if (r == 1) {
-        if (write_line(j, j->code, pb, qb, fb, &pre, ij, ij_len) < 0)
+        if (write_line(j, j->code, pb, qb, fb, ij, ij_len) < 0)
             return -1;
         j->arcs++;
         dev *= 1000.0;
@@ -521,7 +513,7 @@ int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
                     return LINE_PYTHON;
                 o[0] = 'G';
                 o[1] = '1';
-                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, NULL, o, &tl);
+                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, o, &tl);
                 if (r < 0)
                     return LINE_PYTHON;
                 memcpy(s.m, pa, sizeof pa);

@@ -128,24 +128,15 @@ void kk_objs_release(Objs *d);
 /* numbers.c */
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
 int kk_format_num(double v, int dec, char *out);
-/* A firmware coordinate already formatted for a command (the arc fit's end point): kk_point
- * takes its text where its own command is the same double, bit for bit. */
-typedef struct {
-    int valid[3];
-    double c[3];                 /* command with its take-up offset, mm */
-    char text[3][MAX_TEXT + 1];  /* the text of (c + g) / u */
-    int len[3];
-    double parsed[3];            /* float(text) */
-} Formatted;
-
+int kk_format_value(double v, int dec, char *out, double *value);
 /* transform.c */
 int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
 double kk_um_at(const Table *t, double q);
 int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from);
 void kk_inverse(const Kernel *K, const double *p, double *q);
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
-             const double *q_prev, const int *redo, const double *m_old,
-             const Formatted *pre, char *out, int *out_len);
+             const double *q_prev, const int *redo, const double *m_old, char *out,
+             int *out_len);
 /* arcgeo.c: one arc in G17 (core/arcs.py Arc), mm and rad */
 #define MAX_CUTS 64
 typedef struct {

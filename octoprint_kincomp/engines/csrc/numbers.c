@@ -88,7 +88,16 @@ static int trim_zeros(char *text, int len, int dec)
  * Python's formatter writes; elsewhere Python's formatter does it. */
 int kk_format_num(double v, int dec, char *out)
 {
+    return kk_format_value(v, dec, out, NULL);
+}
+
+/* kk_format_num, and (value != NULL) float() of the text written: from the fast path's
+ * digits, as an integer below 2**53 divided by a power of ten, one correctly rounded IEEE
+ * division, as kk_parse_num would compute it from the text; else by parsing the text. */
+int kk_format_value(double v, int dec, char *out, double *value)
+{
     double r = fabs(v) * P10[dec];
+    int len;
     if (r <= 1e9) {
         double fl = floor(r), frac = r - fl;
         if (fabs(frac - 0.5) >= 1e-6) {
@@ -96,7 +105,8 @@ int kk_format_num(double v, int dec, char *out)
             unsigned long long ip = n / (unsigned long long)P10[dec];
             unsigned long long fp = n % (unsigned long long)P10[dec];
             char tmp[32];
-            int len = 0, t = 0, k;
+            int t = 0, k;
+            len = 0;
             if (v < 0 && n > 0)
                 out[len++] = '-';
             do {
@@ -113,10 +123,17 @@ int kk_format_num(double v, int dec, char *out)
                 }
                 len += dec;
             }
+            if (value != NULL) {
+                double x = (double)n / P10[dec];
+                *value = v < 0 && n > 0 ? -x : x;
+            }
             return trim_zeros(out, len, dec);
         }
     }
-    return format_slow(v, dec, out);
+    len = format_slow(v, dec, out);
+    if (len >= 0 && value != NULL && kk_parse_num(out, len, value) < 0)
+        return -1;
+    return len;
 }
 
 static int format_slow(double v, int dec, char *out)

@@ -52,12 +52,11 @@ int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from)
 }
 
 /* PathWriter.emit for one point: append " <axis><text>" for each axis written to out (after the
- * code); ``pre`` (or NULL): texts already formatted for some commands. Returns the number of
- * axes written, -1: Python decides (nothing to undo: the caller drops the whole tentative
- * state). */
+ * code). Returns the number of axes written, -1: Python decides (nothing to undo: the
+ * caller drops the whole tentative state). */
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
-             const double *q_prev, const int *redo, const double *m_old,
-             const Formatted *pre, char *out, int *out_len)
+             const double *q_prev, const int *redo, const double *m_old, char *out,
+             int *out_len)
 {
     static const char LETTER[3] = {'X', 'Y', 'Z'};
     double u = s->inches ? MM_PER_INCH : 1.0;
@@ -66,7 +65,7 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
     char text[MAX_TEXT + 1], oldfmt[MAX_TEXT + 1];
     for (k = 0; k < 3; k++) {
         double c = q[k], corr, parsed;
-        int len, append, known;  /* known: its text is in pre */
+        int len, append;
         if (!given[k] && c == q_prev[k] && !redo[k])
             continue;
         if (s->dir[k] && K->active[k])
@@ -84,15 +83,9 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
         corr = fabs(c - p[k]) * 1000.0;
         if (corr > s->maxc[k])
             s->maxc[k] = corr;
-        known = pre != NULL && pre->valid[k] && memcmp(&pre->c[k], &c, sizeof c) == 0;
-        if (known) {
-            len = pre->len[k];
-            memcpy(text, pre->text[k], len + 1);
-        } else {
-            len = kk_format_num((c + s->g[k]) / u, dec, text);
-            if (len < 0)
-                return -1;
-        }
+        len = kk_format_value((c + s->g[k]) / u, dec, text, &parsed);
+        if (len < 0)
+            return -1;
         if (s->fwt_len[k] == len && memcmp(text, s->fwt[k], len) == 0) {
             append = given[k];
         } else {
@@ -107,10 +100,6 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
                     return -1;
                 append = !(ol == len && memcmp(text, oldfmt, len) == 0);
             }
-            if (known)
-                parsed = pre->parsed[k];
-            else if (kk_parse_num(text, len, &parsed) < 0)
-                return -1;
             s->fw[k] = parsed * u;
             s->fw_known[k] = 1;
             memcpy(s->fwt[k], text, len + 1);
@@ -269,7 +258,7 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             take = kk_line_begin(out);
             take[0] = 'G';
             take[1] = '1';
-            r = kk_point(K, &s, s.m, q0, none, q0, redo, s0->m, NULL, take, &tl);
+            r = kk_point(K, &s, s.m, q0, none, q0, redo, s0->m, take, &tl);
             if (r < 0)
                 return LINE_PYTHON;
             if (r > 0) {
@@ -282,7 +271,7 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         main_out[0] = 'G';
         main_out[1] = ln[1];
         main_len = 2;
-        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, NULL, main_out, &main_len) < 0)
+        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, main_out, &main_len) < 0)
             return LINE_PYTHON;
         /* the E/F words after X/Y/Z as written; a leading F word goes after them */
         if (present[4])
