@@ -195,6 +195,13 @@ class Compensator:
         return not st.absolute if self.options.g90_influences_extruder else False
 
     # -- entry point ---------------------------------------------------------------------
+    def first_offer(self):
+        """The accelerated engine's line function, ``f(state, line)``, where ``process``
+        offers it every line first (not under the limits policy "error"), else None. A
+        line it takes (result not None) is what ``process`` would return, and leaves the
+        report's malformed and unknown-position counts as they were."""
+        return None if self.fast is None or self._guarded else self.fast.line
+
     def process(self, line: str) -> Union[str, List[str]]:
         if self._guarded:
             return self._process_guarded(line)

@@ -96,7 +96,7 @@ class QueueCompensator:
         self.pass_through_on_error = pass_through_on_error
         self.on_error = on_error
         self.on_untouched = on_untouched
-        self.comp = make_compensator(params, options)
+        self._use(make_compensator(params, options))
         self.pending: Optional[Tuple[Params, Options, bool]] = None  # waits for a print end
         self.skip_file = False
         self.printing = False
@@ -108,6 +108,12 @@ class QueueCompensator:
         self.awaiting_home: Tuple[int, ...] = ()  # homed axes whose position is asked for
         self.home_query_out = False  # the last M114 asking for it has been sent
         self.home_query_number = 0  # of the last M114 asked (its tag)
+
+    def _use(self, comp) -> None:
+        """Compensate with ``comp`` from now on (and offer its kernel each line first)."""
+        self.comp = comp
+        self._kernel = comp.first_offer()
+        self._state = comp.state
 
     @property
     def params(self) -> Params:
@@ -124,18 +130,31 @@ class QueueCompensator:
     def handle(self, cmd: str, tags=None) -> Optional[List[str]]:
         if not self.enabled or not cmd:
             return None
-        if self.skip_file and tags and FILE_TAG in tags:
-            return None
-        if self.halted and tags and (FILE_TAG in tags or JOB_TAG in tags) and \
-                _MOTION.match(cmd):
-            self.held_moves += 1
-            return []
-        with self._lock:
-            rep = self.comp.report
+        if tags and (self.skip_file or self.halted):
+            if self.skip_file and FILE_TAG in tags:
+                return None
+            if self.halted and (FILE_TAG in tags or JOB_TAG in tags) and _MOTION.match(cmd):
+                self.held_moves += 1
+                return []
+        lock = self._lock
+        lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
+        try:
+            kernel = self._kernel
+            if kernel is not None and not self.awaiting_home and "28" not in cmd:
+                # most moves: the compiled kernel, as Compensator.process would offer them
+                try:
+                    out = kernel(self._state, cmd)
+                except Exception as exc:  # noqa: BLE001 - the move must not be sent raw
+                    return self._failed(cmd, exc)
+                if out is not None:
+                    return None if out is cmd else out
+            comp = self.comp
+            rep = comp.state.report
             unknown, malformed = rep.untouched_unknown, rep.malformed
-            home = self._homing(cmd)
+            # (the common case cheaply, inline: this runs for every line)
+            home = self._homing(cmd) if self.awaiting_home or "28" in cmd else ()
             try:
-                out = self.comp.process(cmd)
+                out = comp.process(cmd)
             except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
                 return self._failed(cmd, exc)
             if home:
@@ -145,10 +164,12 @@ class QueueCompensator:
                 return [cmd if out is cmd else out[0], (HOME_QUERY, None, {tag})]
             why = None
             if rep.malformed != malformed and _MOTION.match(cmd):
-                self.comp.invalidate()
+                comp.invalidate()
                 why = "malformed"
             elif rep.untouched_unknown != unknown:
                 why = "unknown"
+        finally:
+            lock.release()
         if why is not None and self.on_untouched is not None:
             _call(self.on_untouched, cmd, why)
         if out is cmd:
@@ -164,7 +185,7 @@ class QueueCompensator:
         line takes the axes it moves or re-frames out of a pending question."""
         if not self.awaiting_home and (
                 "28" not in cmd or None not in self.comp.options.home_mm):
-            return ()  # (the common case, cheaply: this runs for every line)
+            return ()
         parsed = parse_command(cmd) if cmd.lstrip()[:1] in "GgTtMm" else None
         if parsed is None:
             return ()
@@ -282,7 +303,7 @@ class QueueCompensator:
     def _swap(self, params: Params, options: Options) -> None:
         new = make_compensator(params, options)
         new.adopt_state(self.comp)
-        self.comp = new
+        self._use(new)
         self.pending = None
 
     def _apply_pending(self) -> None:

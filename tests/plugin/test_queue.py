@@ -4,6 +4,8 @@ resumed, or sent as written), parameters that wait for the next print (issue 3).
 
 from unittest import mock
 
+import pytest
+
 from octoprint_kincomp.core.compensator import LimitError, Options
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.plugin.queue import QueueCompensator
@@ -137,11 +139,17 @@ def test_failure_pass_through_when_chosen():
     assert q.status()["passed_on_error"] == 1
 
 
-def test_internal_exception_never_sends_the_move_raw():
-    q = QueueCompensator(SKEW, Options(), enabled=True, on_error=lambda c, e: None)
+@pytest.mark.parametrize("failing", ["compensator", "kernel offered first"])
+def test_internal_exception_never_sends_the_move_raw(failing):
+    errors = []
+    q = QueueCompensator(SKEW, Options(), enabled=True, on_error=lambda c, e: errors.append(e))
     q.handle("G28")
-    with mock.patch.object(q.comp, "process", side_effect=RuntimeError("boom")):
+    boom = mock.Mock(side_effect=RuntimeError("boom"))
+    kernel = boom if failing == "kernel offered first" else None  # (None: none offered)
+    with mock.patch.object(q.comp, "process", boom), mock.patch.object(q, "_kernel", kernel):
         assert q.handle("G1 X10 Y10") == []
+    assert boom.called and len(errors) == 1 and q.status()["errors"] == 1
+    assert q.comp.known == (False, False, False)  # nothing builds on a half-updated state
 
 
 def test_new_params_wait_for_the_next_print_unless_forced():
@@ -219,3 +227,27 @@ def test_a_line_sent_as_written_after_an_error_forgets_the_position():
     assert q.comp.known == (False, False, False)
     assert q.handle("G1 Y160", {"source:file"}) is None  # no X move the program never made
 
+
+
+@pytest.mark.parametrize("home_mm", [(0.0, 0.0, 0.0), (None, None, 0.0)])
+def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
+    # the hook offers most moves to the compiled kernel without Compensator.process (one
+    # call less per line): the same lines, the same report, whichever takes each line
+    from octoprint_kincomp.engines.select import make_compensator
+    from octoprint_kincomp.plugin.queue import FILE_TAG, command_of
+
+    lines = ["G28", "G1 X10 Y10 Z1 F3000", "G1 X20 Y5 E1", "G2 X30 Y15 I10 J0 E2",
+             "G1 X5 Y5 E3", "M400", "G1 X-0 Y0", "G91", "G1 X2", "G90", "G1 X8 Y3",
+             "G1 X10 Y10 Z1 ; comment", "G0 X12"]
+    options = Options(home_mm=home_mm)
+    q = QueueCompensator(SKEW, options, enabled=True)
+    comp = make_compensator(SKEW, options)
+    for line in lines:
+        got = q.handle(line, {FILE_TAG})
+        want = comp.process(line)
+        got = [line] if got is None else [command_of(e) for e in got]
+        want = [line] if want is line else list(want)
+        if line == "G28" and None in home_mm:
+            want.append("M114")  # (the question where it homed)
+        assert got == want, line
+    assert q.comp.report.to_dict() == comp.report.to_dict()
