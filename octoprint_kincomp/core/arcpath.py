@@ -42,7 +42,7 @@ from .gcode import fmt
 from .path import MM_PER_INCH, EDistribution
 
 MAX_DEPTH = 3  # a piece that does not fit is halved at most this often
-SAMPLES = (0.125, 0.25, 0.375, 0.625, 0.75, 0.875)  # where a piece is checked (its middle fits)
+SAMPLES = (1, 2, 3, 5, 6, 7)  # the eighths where a piece is checked (its middle, 4, fits)
 SAMPLE_MARGIN = 1.1
 ROUNDING_ALLOWANCE = 1.5  # output resolutions: the written centre is rounded
 SLIVER = 0.1  # a piece whose sagitta is at most this many output resolutions is a G1
@@ -166,10 +166,13 @@ class ArcWriter:
             return True
         db = bl.deadband
         carriage = self.w.carriage
-        fractions = DENSE if self.dense(arc) else EIGHTHS
+        dense = self.dense(arc)
         fa = 0.0
         for fb in cuts:
-            qs = [carriage(arc.point(fa + (fb - fa) * f)) for f in fractions]
+            if dense:
+                qs = [carriage(arc.point(fa + (fb - fa) * f)) for f in DENSE]
+            else:
+                qs = [carriage(p) for p in arc.points(fa, fb, 8)]
             for k in range(3):
                 if not bl.active[k]:
                     continue
@@ -356,7 +359,8 @@ class _Job:
         budget = aw.budget[st.inches]
         if budget <= 0.0:
             return None
-        M = self.target(arc.point(fa + (fb - fa) * 0.5))
+        eighths = arc.points(fa, fb, 8)
+        M = self.target(eighths[4])
         bx = M[ia] - S[ia]
         by = M[ib] - S[ib]
         cx = E[ia] - S[ia]
@@ -383,8 +387,8 @@ class _Job:
             if not sweep > 0.0:
                 return None
         dev = 0.0
-        for s in SAMPLES:
-            T = self.target(arc.point(fa + (fb - fa) * s))
+        for j in SAMPLES:
+            T = self.target(eighths[j])
             va = T[ia] - ka
             vb = T[ib] - kb
             dr = arcs.norm2(va, vb) - radius

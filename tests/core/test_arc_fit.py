@@ -242,6 +242,27 @@ def test_slicer_arcs_are_kept_as_single_arcs():
 ANGLE = st.floats(0.0, 2 * math.pi)
 
 
+@given(ANGLE, st.floats(0.01, 2 * math.pi - 0.01), st.floats(0.5, 300.0),
+       st.floats(-0.5, 0.5), st.sampled_from([17, 18, 19]), st.booleans(),
+       st.floats(0.0, 0.9), st.floats(0.05, 1.0))
+def test_points_by_rotation_are_the_points_by_angle(a0, sweep, r, dr, plane, cw, fa, width):
+    """Arc.points (the angle stepped by a rotation: two sine/cosine pairs for a piece's
+    eighths) gives Arc.point's points within 1e-12 of the radius, and exactly its start and
+    end points at fractions 0 and 1."""
+    ia, ib, il, _, _ = arcs.PLANES[plane]
+    a1 = a0 - sweep if cw else a0 + sweep
+    start, end = [0.0, 0.0, 0.0], [0.0, 0.0, 3.0]
+    start[ia], start[ib] = 50 + r * math.cos(a0), 60 + r * math.sin(a0)
+    end[ia], end[ib] = 50 + (r + dr) * math.cos(a1), 60 + (r + dr) * math.sin(a1)
+    start[il] = 1.0
+    arc = arcs.Arc(start, end, plane, 50.0, 60.0, cw)
+    for fa_, fb_ in ((fa, min(1.0, fa + width)), (0.0, 1.0)):
+        got = arc.points(fa_, fb_, 8)
+        want = [arc.point(fa_ + (fb_ - fa_) * (j / 8)) for j in range(9)]
+        assert max(math.dist(g, w) for g, w in zip(got, want)) < 1e-12 * (r + 1)
+    assert got[0] == arc.start and got[-1] == arc.end
+
+
 @given(ANGLE, ANGLE, ANGLE, st.booleans(), st.floats(0.1, 100.0))
 def test_strictly_between_is_the_comparison_of_angles(a_s, a_v, a_e, clockwise, r):
     """The overshoot test's sign rule (no trigonometry) decides as angles would: the

@@ -7,7 +7,7 @@
 
 #define MAX_DEPTH 3
 
-static const double SAMPLES[6] = {0.125, 0.25, 0.375, 0.625, 0.75, 0.875};
+static const int SAMPLES[6] = {1, 2, 3, 5, 6, 7};  /* the eighths checked (4: the middle) */
 static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
                                1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
                                1e22};
@@ -221,14 +221,13 @@ static int overshoots(const Job *j, const double *S, const double *E, double ka,
 static int fit(Job *j, double fa, double fb, const double *qb, const double (*eighths)[3],
                char *ij, int *ij_len, double *dev_out)
 {
-    static const int EIGHTH_OF_SAMPLE[6] = {1, 2, 3, 5, 6, 7};
     const Kernel *K = j->K;
     const State *s = j->s;
     const Geo *a = j->a;
     double u = s->inches ? MM_PER_INCH : 1.0;
     int dec = K->dec + (s->inches ? 2 : 0), k, i, n;
     const double *S = s->fw;
-    double E[3], M[3], p[3], T[3];
+    double E[3], M[3], T[3], ps[9][3];
     double bx, by, cx, cy, d, b2, c2, ux, uy, radius, ka, kb, sa, sb, lin0, dlin;
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
     char text[MAX_TEXT + 1];
@@ -239,9 +238,9 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
         return 2;
     if (budget <= 0.0)
         return 0;
-    if (eighths == NULL)
-        kk_arc_point(a, fa + (fb - fa) * 0.5, p);
-    target(j, p, eighths == NULL ? NULL : eighths[4], M);
+    if (eighths == NULL)  /* (else their commands are kept: the points are not needed) */
+        kk_arc_points(a, fa, fb, 8, ps);
+    target(j, ps[4], eighths == NULL ? NULL : eighths[4], M);
     bx = M[0] - S[0];
     by = M[1] - S[1];
     cx = E[0] - S[0];
@@ -270,9 +269,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     }
     for (i = 0; i < 6; i++) {
         double va, vb, dr, lin, dl, e;
-        if (eighths == NULL)
-            kk_arc_point(a, fa + (fb - fa) * SAMPLES[i], p);
-        target(j, p, eighths == NULL ? NULL : eighths[EIGHTH_OF_SAMPLE[i]], T);
+        target(j, ps[SAMPLES[i]], eighths == NULL ? NULL : eighths[SAMPLES[i]], T);
         va = T[0] - ka;
         vb = T[1] - kb;
         dr = kk_norm2(va, vb) - radius;

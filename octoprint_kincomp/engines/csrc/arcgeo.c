@@ -43,6 +43,31 @@ void kk_arc_point(const Geo *a, double f, double *p)
     p[2] = a->l0 + a->dl * f;
 }
 
+/* Arc.points: the points at fa + (fb - fa) * j / n, j = 0..n, the angle stepped by a
+ * rotation (the reference's operations in its order) */
+void kk_arc_points(const Geo *a, double fa, double fb, int n, double (*out)[3])
+{
+    double t = a->t0 + a->sweep * fa, step = a->sweep * (fb - fa) / n;
+    double c = cos(t), s = sin(t), cs = cos(step), ss = sin(step), c1;
+    int j;
+    for (j = 0; j <= n; j++) {
+        double f = fa + (fb - fa) * ((double)j / n), r;
+        if (f == 0.0) {
+            memcpy(out[j], a->start, sizeof a->start);
+        } else if (f == 1.0) {
+            memcpy(out[j], a->end, sizeof a->end);
+        } else {
+            r = a->r0 + a->dr * f;
+            out[j][0] = a->ca + r * c;
+            out[j][1] = a->cb + r * s;
+            out[j][2] = a->l0 + a->dl * f;
+        }
+        c1 = c * cs - s * ss;
+        s = s * cs + c * ss;
+        c = c1;
+    }
+}
+
 double kk_length_to(const Geo *a, double f)
 {
     double planar = fabs(a->sweep) * f * (a->r0 + 0.5 * a->dr * f);
@@ -178,9 +203,16 @@ int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc, Eight
     for (c = 0; c < nc; c++) {
         double fb = cuts[c];
         double (*qs)[3] = n == 9 ? kept[c] : dense_qs;
-        for (j = 0; j < n; j++) {
-            kk_arc_point(a, fa + (fb - fa) * fractions[j], p);
-            kk_inverse(K, p, qs[j]);
+        if (n == 9) {
+            double ps[9][3];
+            kk_arc_points(a, fa, fb, 8, ps);
+            for (j = 0; j < 9; j++)
+                kk_inverse(K, ps[j], qs[j]);
+        } else {
+            for (j = 0; j < n; j++) {
+                kk_arc_point(a, fa + (fb - fa) * fractions[j], p);
+                kk_inverse(K, p, qs[j]);
+            }
         }
         for (k = 0; k < 3; k++) {
             double lo, hi, rise = 0.0, fall = 0.0;

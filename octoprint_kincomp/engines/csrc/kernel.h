@@ -145,6 +145,7 @@ typedef struct {
 } Geo;
 double kk_norm2(double a, double b);
 void kk_arc_point(const Geo *a, double f, double *p);
+void kk_arc_points(const Geo *a, double fa, double fb, int n, double (*out)[3]);
 double kk_length_to(const Geo *a, double f);
 int kk_arc_cuts(const Kernel *K, const Geo *a, double *cuts);
 int kk_inside_limits(const Kernel *K, const Geo *a);
