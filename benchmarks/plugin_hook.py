@@ -6,7 +6,8 @@ function itself, as OctoPrint's comm layer calls it for the lines of a print (ta
 ``source:file`` and ``fileline:N``), on a plugin instance with a real OctoPrint settings
 object and mocks for the printer, event bus and file manager (tests/support/mocked_plugin.py), compensation on with the
 benchmark's parameters (squareness + scale + position-dependent backlash) and the bed as
-limits. Prints p50/p99 in us over the G1 X/Y lines of a 200,000-line slicer-like stream.
+limits. Prints p50/p99 in us over the G1 X/Y lines and the G2/G3 lines of a 200,000-line
+slicer-like stream with 20 % arcs (the benchmark's arc file).
 
     .venv/bin/python benchmarks/plugin_hook.py [--lines N] [--python]
 
@@ -39,26 +40,30 @@ def main() -> int:
     p.on_settings_save({"enabled": True, "params": BENCH_PARAMS})
 
     src = os.path.join(tmp, "stream.gcode")
-    generate(src, args.lines)
+    generate(src, args.lines, arc_fraction=0.2)
     with open(src) as f:
         lines = [line.rstrip("\n") for line in f]
     tags = [{FILE_TAG, "fileline:%d" % (i + 1)} for i in range(len(lines))]
     comm = object()
     hook = p.queuing_hook
     clock = time.perf_counter_ns
-    samples = []
+    samples = {"G1": [], "G2": []}
     for line, t in zip(lines, tags):
         t0 = clock()
         hook(comm, "queuing", line, None, None, None, t)
         dt = clock() - t0
         if line.startswith("G1 X"):
-            samples.append(dt)
-    samples.sort()
+            samples["G1"].append(dt)
+        elif line.startswith(("G2 ", "G3 ")):
+            samples["G2"].append(dt)
     rep = p.queue.comp.report
     print(f"engine: {select.engine()}; "
-          f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups")
-    print(f"KinCompPlugin.queuing_hook, G1 line: p50 {samples[len(samples) // 2] / 1000:.2f} us"
-          f"  p99 {samples[int(len(samples) * 0.99)] / 1000:.2f} us ({len(samples)} lines)")
+          f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups, "
+          f"{rep.arcs_kept} arcs kept, {rep.arcs_split} split")
+    for kind, got in samples.items():
+        got.sort()
+        print(f"KinCompPlugin.queuing_hook, {kind} line: p50 {got[len(got) // 2] / 1000:.2f} us"
+              f"  p99 {got[int(len(got) * 0.99)] / 1000:.2f} us ({len(got)} lines)")
     return 0
 
 
