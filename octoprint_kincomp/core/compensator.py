@@ -196,21 +196,28 @@ class Compensator:
 
     # -- entry point ---------------------------------------------------------------------
     def first_offer(self):
-        """The accelerated engine's line function, ``f(state, line)``, where ``process``
-        offers it every line first (not under the limits policy "error"), else None. A
-        line it takes (result not None) is what ``process`` would return, and leaves the
+        """The accelerated engine's line function, ``f(state, line)``, for a caller that
+        offers it a line itself and, where it declines (None), hands the line to
+        :meth:`process_declined`; None where there is no such engine, or under the limits
+        policy "error" (there ``process`` runs the engine inside its snapshot: use
+        ``process``). A line it takes is what ``process`` would return, and leaves the
         report's malformed and unknown-position counts as they were."""
         return None if self.fast is None or self._guarded else self.fast.line
 
     def process(self, line: str) -> Union[str, List[str]]:
         if self._guarded:
             return self._process_guarded(line)
-        st = self.state
         fast = self.fast
         if fast is not None:
-            out = fast.line(st, line)
+            out = fast.line(self.state, line)
             if out is not None:
                 return out
+        return self.process_declined(line)
+
+    def process_declined(self, line: str) -> Union[str, List[str]]:
+        """``process`` for a line the accelerated engine declined (see :meth:`first_offer`):
+        the reference path alone."""
+        st = self.state
         st.q_last = None
         st.limit_recheck = [True, True, True]
         st.lineno += 1

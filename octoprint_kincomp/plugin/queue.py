@@ -140,8 +140,10 @@ class QueueCompensator:
         lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
         try:
             kernel = self._kernel
-            if kernel is not None and not self.awaiting_home and "28" not in cmd:
+            offered = kernel is not None and not self.awaiting_home and "28" not in cmd
+            if offered:
                 # most moves: the compiled kernel, as Compensator.process would offer them
+                # (not a line that may home, nor while the home question is open)
                 try:
                     out = kernel(self._state, cmd)
                 except Exception as exc:  # noqa: BLE001 - the move must not be sent raw
@@ -154,7 +156,8 @@ class QueueCompensator:
             # (the common case cheaply, inline: this runs for every line)
             home = self._homing(cmd) if self.awaiting_home or "28" in cmd else ()
             try:
-                out = comp.process(cmd)
+                # (a line the kernel declined is not offered to it twice)
+                out = comp.process_declined(cmd) if offered else comp.process(cmd)
             except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
                 return self._failed(cmd, exc)
             if home:

@@ -159,6 +159,13 @@ def test_the_self_check_passes_here_and_catches_a_kernel_that_rounds_otherwise()
 
     assert not kernel_mod.self_check(make=shifted)
 
+    class Declining:  # writes nothing wrong, but leaves every line to the Python paths
+        @staticmethod
+        def line(state, line):
+            return None
+
+    assert not kernel_mod.self_check(make=lambda comp: Declining())
+
 
 def test_state_the_kernel_cannot_write_back_is_left_to_python():
     # review finding: a tuple where the kernel writes in place (it never is one in practice)
@@ -201,8 +208,13 @@ def test_the_kernel_reads_only_the_declared_state_classes():
     class Plain:
         m = None
 
+    # classes that have every slot but in another order, and a report without its last one:
+    # a layout taken in part would leave the real classes' slots read at the wrong places
+    Shuffled = type("Shuffled", (), {"__slots__": tuple(reversed(StreamState.__slots__))})
+    Partial = type("Partial", (), {"__slots__": tuple(
+        n for n in Report.__slots__ if n != "max_correction_um")})
     for classes in ((Plain, BacklashState, Report), (StreamState, BacklashState, Annotated),
-                    (StreamState, Report, BacklashState)):
+                    (StreamState, Report, BacklashState), (Shuffled, BacklashState, Partial)):
         with pytest.raises(TypeError):
             kernel_mod._ext.layout(*classes)
     # a refused layout leaves the one before in place

@@ -238,16 +238,28 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
 
     lines = ["G28", "G1 X10 Y10 Z1 F3000", "G1 X20 Y5 E1", "G2 X30 Y15 I10 J0 E2",
              "G1 X5 Y5 E3", "M400", "G1 X-0 Y0", "G91", "G1 X2", "G90", "G1 X8 Y3",
-             "G1 X10 Y10 Z1 ; comment", "G0 X12"]
+             "G1 X10 Y10 Z1 ; comment", "G0 X12", "G1 X128 Y28", "G1 X12 Y8"]
     options = Options(home_mm=home_mm)
     q = QueueCompensator(SKEW, options, enabled=True)
     comp = make_compensator(SKEW, options)
+    kernel = q._kernel
+    if comp.fast is not None:  # the compiled engine: count what the kernel is offered
+        assert kernel is not None
+        kernel = q._kernel = mock.Mock(wraps=kernel)
     for line in lines:
-        got = q.handle(line, {FILE_TAG})
+        raw = q.handle(line, {FILE_TAG})
         want = comp.process(line)
-        got = [line] if got is None else [command_of(e) for e in got]
+        got = [line] if raw is None else [command_of(e) for e in raw]
         want = [line] if want is line else list(want)
         if line == "G28" and None in home_mm:
-            want.append("M114")  # (the question where it homed)
+            # the question where it homed, and the firmware's answer: X0 Y0 (known to the
+            # reference at once)
+            want.append("M114")
+            q.home_query_sent(raw[-1][2])
+            assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
+            comp.homed_at((0, 1), (0.0, 0.0, None))
         assert got == want, line
     assert q.comp.report.to_dict() == comp.report.to_dict()
+    assert q.comp.report.moves_compensated >= 10
+    if comp.fast is not None:  # every line but the G28s and "X128 Y28" was offered
+        assert kernel.call_count == len(lines) - 2

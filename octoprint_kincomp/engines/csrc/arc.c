@@ -134,7 +134,7 @@ static double with_offset(const Kernel *K, const State *s, int k, double q)
 }
 
 /* Firmware coordinates (mm) of the compensated point for desired p (_Job.target); q: its
- * command if already known (kept by kk_monotone), else NULL */
+ * command if already known (kept by kk_monotone; p is then NULL), else NULL */
 static void target(const Job *j, const double *p, const double *q, double *out)
 {
     const Kernel *K = j->K;
@@ -240,7 +240,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
         return 0;
     if (eighths == NULL)  /* (else their commands are kept: the points are not needed) */
         kk_arc_points(a, fa, fb, 8, ps);
-    target(j, ps[4], eighths == NULL ? NULL : eighths[4], M);
+    target(j, eighths == NULL ? ps[4] : NULL, eighths == NULL ? NULL : eighths[4], M);
     bx = M[0] - S[0];
     by = M[1] - S[1];
     cx = E[0] - S[0];
@@ -269,7 +269,8 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     }
     for (i = 0; i < 6; i++) {
         double va, vb, dr, lin, dl, e;
-        target(j, ps[SAMPLES[i]], eighths == NULL ? NULL : eighths[SAMPLES[i]], T);
+        target(j, eighths == NULL ? ps[SAMPLES[i]] : NULL,
+               eighths == NULL ? NULL : eighths[SAMPLES[i]], T);
         va = T[0] - ka;
         vb = T[1] - kb;
         dr = kk_norm2(va, vb) - radius;
