@@ -16,6 +16,15 @@ import pytest
 from octoprint_kincomp.engines.select import ENGINES, use
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Each phase's report on its test item (``item.rep_call``...): a fixture's teardown can
+    see whether the test failed (the browser page then leaves its picture)."""
+    outcome = yield
+    rep = outcome.get_result()
+    setattr(item, "rep_" + rep.when, rep)
+
+
 @pytest.fixture(params=ENGINES)
 def engine(request):
     with use(request.param):

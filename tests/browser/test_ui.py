@@ -38,7 +38,7 @@ def browser():
 
 
 @pytest.fixture
-def page(browser, server):
+def page(browser, server, request):
     os.makedirs(SHOTS, exist_ok=True)
     context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
     pg = context.new_page()
@@ -50,6 +50,9 @@ def page(browser, server):
     login(pg, server)
     pg.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
     yield pg
+    rep = getattr(request.node, "rep_call", None)
+    if rep is not None and rep.failed:
+        _failure_picture(pg, request.node.name)
     context.close()
     kincomp_errors = [e for e in errors if "kincomp" in e.lower()]
     assert not kincomp_errors, kincomp_errors
@@ -67,6 +70,24 @@ def login(pg, server):
 def _no_popups(page):
     """Close OctoPrint's notification pop-ups so that they do not cover a screenshot."""
     page.evaluate("document.querySelectorAll('.ui-pnotify').forEach(e => e.remove())")
+
+
+def _failure_picture(pg, name: str) -> None:
+    """What the page showed when a test failed: a screenshot in SHOTS and, in the test's
+    output, its address, the tab shown and any dialog open (a failed click on a hidden
+    element says little more than that it was hidden)."""
+    try:
+        pg.screenshot(path=os.path.join(SHOTS, f"failed-{name}.png"), full_page=True)
+        shown = pg.evaluate("""() => ({
+            url: location.href,
+            tab: (document.querySelector('#tabs li.active a') || {getAttribute: () => null})
+                .getAttribute('href'),
+            kincompTabVisible: !!(document.querySelector('#kincomp_tab') || {}).offsetParent,
+            modals: [...document.querySelectorAll('.modal.in')].map(m => m.id),
+            offline: !!(document.querySelector('#offline_overlay') || {}).offsetParent})""")
+        print(f"page at the failure of {name}: {shown}")
+    except Exception as exc:  # noqa: BLE001 - the picture must not hide the failure
+        print(f"no picture of the page at the failure of {name}: {exc}")
 
 
 def _open_tab(page):
