@@ -74,14 +74,13 @@ def _no_popups(page):
 
 def _failure_picture(pg, name: str) -> None:
     """What the page showed when a test failed: a screenshot in SHOTS and, in the test's
-    output, its address, the tab shown and any dialog open (a failed click on a hidden
-    element says little more than that it was hidden)."""
+    output, its address (with the tab shown), whether the Calibration tab is visible, any
+    dialog open and the offline overlay (a failed click on a hidden element says little
+    more than that it was hidden)."""
     try:
         pg.screenshot(path=os.path.join(SHOTS, f"failed-{name}.png"), full_page=True)
         shown = pg.evaluate("""() => ({
             url: location.href,
-            tab: (document.querySelector('#tabs li.active a') || {getAttribute: () => null})
-                .getAttribute('href'),
             kincompTabVisible: !!(document.querySelector('#kincomp_tab') || {}).offsetParent,
             modals: [...document.querySelectorAll('.modal.in')].map(m => m.id),
             offline: !!(document.querySelector('#offline_overlay') || {}).offsetParent})""")
