@@ -11,7 +11,8 @@ import time
 import pytest
 
 from octoprint_kincomp.core.params import Params
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, browser, page  # noqa: F401
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step
+from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -21,7 +22,7 @@ API = "/plugin/kincomp"
 
 def _open_campaign_mode(page):
     _open_tab(page)
-    page.click("#kincomp_step_campaign")
+    _step(page, "campaign")
     # the newest campaign is shown where it was left (e.g. by another test): plan a new one
     page.wait_for_selector("#kincomp_campaign", state="visible")
     for button in ("#kincomp_campaign_new", "#kincomp_campaign_restart"):
@@ -154,7 +155,7 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
             path=os.path.join(SHOTS, "campaign.png"))
 
         # the history groups each campaign's runs
-        page.click("#kincomp_step_history")
+        _step(page, "history")
         for c in (cid, again["id"]):
             group = page.locator(f"#kincomp_campaign_group_{c}")
             group.wait_for()

@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_settings, _open_tab
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_settings, _open_tab, _step
 from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 
@@ -57,11 +57,11 @@ def test_live_capture_from_the_calibration_tab(page, server):  # noqa: F811
         assert page.is_enabled("#kincomp_apply")  # applying stays the user's click
         assert status(server)["settings"]["enabled"] is False
         server.wait_print_done()
-        page.click("#kincomp_step_program")
+        _step(page, "program")
         page.wait_for_selector("#kincomp_sensor_run >> text=Test captured and analysed")
         page.click("#kincomp_sensor_close")
         page.wait_for_selector("#kincomp_sensor_state >> text=Closed")
-        page.click("#kincomp_step_history")
+        _step(page, "history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
         assert page.locator("#kincomp_history a.kincomp-raw-link").first.is_visible()
     finally:
