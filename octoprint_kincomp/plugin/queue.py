@@ -153,8 +153,7 @@ class QueueCompensator:
             comp = self.comp
             rep = comp.state.report
             unknown, malformed = rep.untouched_unknown, rep.malformed
-            # (the common case cheaply, inline: this runs for every line)
-            home = self._homing(cmd) if self.awaiting_home or "28" in cmd else ()
+            home = self._homing(cmd)
             try:
                 # (a line the kernel declined is not offered to it twice)
                 out = comp.process_declined(cmd) if offered else comp.process(cmd)
@@ -188,7 +187,7 @@ class QueueCompensator:
         line takes the axes it moves or re-frames out of a pending question."""
         if not self.awaiting_home and (
                 "28" not in cmd or None not in self.comp.options.home_mm):
-            return ()
+            return ()  # (the common case, cheaply)
         parsed = parse_command(cmd) if cmd.lstrip()[:1] in "GgTtMm" else None
         if parsed is None:
             return ()

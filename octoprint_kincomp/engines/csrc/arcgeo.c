@@ -188,31 +188,28 @@ static void dense_fractions(double *out)
 int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc, Eighths *kept,
                 int *is_kept)
 {
-    static const double EIGHTHS[9] = {0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0};
     double fa = 0.0, p[3], dense_qs[N_DENSE][3], fr[N_DENSE];
-    const double *fractions = EIGHTHS;
-    int c, j, k, n = 9;
+    int c, j, k, is_dense, n;
     *is_kept = 0;
     if (!K->any_active)
         return 1;
-    if (dense(K, a)) {
+    is_dense = dense(K, a);
+    if (is_dense)
         dense_fractions(fr);
-        fractions = fr;
-        n = N_DENSE;
-    }
+    n = is_dense ? N_DENSE : 9;
     for (c = 0; c < nc; c++) {
         double fb = cuts[c];
-        double (*qs)[3] = n == 9 ? kept[c] : dense_qs;
-        if (n == 9) {
+        double (*qs)[3] = is_dense ? dense_qs : kept[c];
+        if (is_dense) {
+            for (j = 0; j < n; j++) {
+                kk_arc_point(a, fa + (fb - fa) * fr[j], p);
+                kk_inverse(K, p, qs[j]);
+            }
+        } else {  /* the eighths, by rotation (Arc.points) */
             double ps[9][3];
             kk_arc_points(a, fa, fb, 8, ps);
             for (j = 0; j < 9; j++)
                 kk_inverse(K, ps[j], qs[j]);
-        } else {
-            for (j = 0; j < n; j++) {
-                kk_arc_point(a, fa + (fb - fa) * fractions[j], p);
-                kk_inverse(K, p, qs[j]);
-            }
         }
         for (k = 0; k < 3; k++) {
             double lo, hi, rise = 0.0, fall = 0.0;
@@ -235,7 +232,7 @@ int kk_monotone(const Kernel *K, const Geo *a, const double *cuts, int nc, Eight
         }
         fa = fb;
     }
-    *is_kept = n == 9;
+    *is_kept = !is_dense;
     return 1;
 }
 
