@@ -177,15 +177,16 @@ class KinCompPlugin(
         prints = self.prints
         if comm_instance is not prints.comm:
             prints.connection_changed(comm_instance)
-        if tags and FILE_TAG in tags:
-            prints.file_line(tags)
+        if tags and FILE_TAG in tags and (not prints.file_lines_seen or "fileline:1" in tags):
+            prints.file_line(tags)  # (a print's first line: the other lines change nothing)
         queue = self.queue
         if queue.halted:
             prints.follow_pause(comm_instance)
-        if cmd[:1] in "MmSs" and FirmwareWatcher.relevant(cmd[:8]):
-            self.firmware.sent(cmd)
-        if self.sensor.waiting and cmd[:4] == "M117":
-            self.sensor.command(cmd)  # the program's end marker ends the live capture
+        if cmd[:1] in "MmSs":
+            if FirmwareWatcher.relevant(cmd[:8]):
+                self.firmware.sent(cmd)
+            if self.sensor.waiting and cmd[:4] == "M117":
+                self.sensor.command(cmd)  # the program's end marker ends the live capture
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)

@@ -58,7 +58,9 @@ class PrintState:
         self.lock = threading.RLock()
         self.begun = 0  # prints whose first line (or start event) was handled
         self.start_events = 0  # PRINT_STARTED events received
-        self.file_lines_seen = False  # a line of the current print went through the hook
+        # a line of the current print went through the hook (never while the queue is not
+        # printing: cleared where a print ends)
+        self.file_lines_seen = False
         self.comm = None  # the MachineCom of the current connection
         self.pause_seen = False
         self.warned_unknown_at = 0.0  # time.monotonic() of the last such notification
@@ -75,7 +77,7 @@ class PrintState:
     # ~~ from the queuing hook -----------------------------------------------------------------
     def file_line(self, tags) -> None:
         """A line of a printed file (tags hold ``source:file``) is about to be handled."""
-        if self._queue.printing and self.file_lines_seen and "fileline:1" not in tags:
+        if self.file_lines_seen and "fileline:1" not in tags:
             return  # a line of a print under way: under the lock it changes nothing either
         with self.lock:
             if not self._queue.printing or ("fileline:1" in tags and self.file_lines_seen):
@@ -107,6 +109,7 @@ class PrintState:
                 self._watch.reset()
                 if self._queue.printing:
                     self._queue.print_ended()
+                self.file_lines_seen = False
             elif event == Events.PRINT_STARTED:
                 self.start_events += 1
                 if payload.get("origin") == FileDestinations.SDCARD and self._queue.enabled:
@@ -121,6 +124,7 @@ class PrintState:
                 # (if the counts ever drifted apart, an end with nothing printing resyncs them)
                 self.start_events = self.begun
                 self._queue.print_ended()
+                self.file_lines_seen = False
                 self._on_end(event == Events.PRINT_DONE)
 
     def transfer_started(self) -> None:

@@ -86,34 +86,58 @@ def home_query_number(tags) -> Optional[int]:
     return None
 
 
+class _Gated:
+    """A QueueCompensator attribute whose every change re-decides the kernel route. Reads
+    find the value in the instance (no ``__get__``: as fast as a plain attribute)."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __set__(self, obj: "QueueCompensator", value) -> None:
+        obj.__dict__[self.name] = value
+        obj._reroute()
+
+
 class QueueCompensator:
     def __init__(self, params: Params, options: Options, enabled: bool = False,
                  pass_through_on_error: bool = False,
                  on_error: Optional[Callable[[str, Exception], None]] = None,
                  on_untouched: Optional[Callable[[str, str], None]] = None):
         self._lock = threading.RLock()
-        self.enabled = enabled
+        # (the gated attributes, set before the route is first decided in _use)
+        vars(self).update(enabled=enabled, skip_file=False, halted=False, awaiting_home=())
         self.pass_through_on_error = pass_through_on_error
         self.on_error = on_error
         self.on_untouched = on_untouched
         self._use(make_compensator(params, options))
         self.pending: Optional[Tuple[Params, Options, bool]] = None  # waits for a print end
-        self.skip_file = False
         self.printing = False
         self.errors = 0
         self.last_error: Optional[Dict[str, object]] = None
         self.passed_on_error = 0
-        self.halted = False
         self.held_moves = 0
-        self.awaiting_home: Tuple[int, ...] = ()  # homed axes whose position is asked for
         self.home_query_out = False  # the last M114 asking for it has been sent
         self.home_query_number = 0  # of the last M114 asked (its tag)
+
+    enabled = _Gated()  # compensation is on
+    skip_file = _Gated()  # the print's file was compensated already: its lines pass through
+    halted = _Gated()  # after a failure in a print: its moves are held back
+    awaiting_home = _Gated()  # homed axes (0 X, 1 Y, 2 Z) whose position is asked for
 
     def _use(self, comp) -> None:
         """Compensate with ``comp`` from now on (and offer its kernel each line first)."""
         self.comp = comp
         self._kernel = comp.first_offer()
         self._state = comp.state
+        self._reroute()
+
+    def _reroute(self) -> None:
+        """``_route``: the kernel's line function while any line but a G28 goes to it first
+        (compensation on, no file passed through, not halted, no home question open), else
+        None; the hook then tests this one attribute for most lines."""
+        self._route = self._kernel if (
+            self.enabled and not self.skip_file and not self.halted
+            and not self.awaiting_home) else None
 
     @property
     def params(self) -> Params:
@@ -128,48 +152,21 @@ class QueueCompensator:
 
     # -- the hook ------------------------------------------------------------------------
     def handle(self, cmd: str, tags=None) -> Optional[List[str]]:
-        if not self.enabled or not cmd:
-            return None
-        if tags and (self.skip_file or self.halted):
-            if self.skip_file and FILE_TAG in tags:
-                return None
-            if self.halted and (FILE_TAG in tags or JOB_TAG in tags) and _MOTION.match(cmd):
-                self.held_moves += 1
-                return []
         lock = self._lock
         lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
         try:
-            kernel = self._kernel
-            offered = kernel is not None and not self.awaiting_home and "28" not in cmd
+            route = self._route
+            offered = route is not None and "28" not in cmd
             if offered:
                 # most moves: the compiled kernel, as Compensator.process would offer them
                 # (not a line that may home, nor while the home question is open)
                 try:
-                    out = kernel(self._state, cmd)
+                    out = route(self._state, cmd)
                 except Exception as exc:  # noqa: BLE001 - the move must not be sent raw
                     return self._failed(cmd, exc)
                 if out is not None:
                     return None if out is cmd else out
-            comp = self.comp
-            rep = comp.state.report
-            unknown, malformed = rep.untouched_unknown, rep.malformed
-            home = self._homing(cmd)
-            try:
-                # (a line the kernel declined is not offered to it twice)
-                out = comp.process_declined(cmd) if offered else comp.process(cmd)
-            except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
-                return self._failed(cmd, exc)
-            if home:
-                self.awaiting_home, self.home_query_out = home, False
-                self.home_query_number += 1
-                tag = f"{HOME_QUERY_TAG}{self.home_query_number}"
-                return [cmd if out is cmd else out[0], (HOME_QUERY, None, {tag})]
-            why = None
-            if rep.malformed != malformed and _MOTION.match(cmd):
-                comp.invalidate()
-                why = "malformed"
-            elif rep.untouched_unknown != unknown:
-                why = "unknown"
+            out, why = self._reference(cmd, tags, offered)
         finally:
             lock.release()
         if why is not None and self.on_untouched is not None:
@@ -179,6 +176,39 @@ class QueueCompensator:
         # the replacement lines as a list of strings (fresh from the compensator): OctoPrint
         # normalises each string exactly as a 1-tuple (same command type and tags)
         return out
+
+    def _reference(self, cmd: str, tags, offered: bool):
+        """``handle`` for a line the kernel did not take (under the lock): ``(out, why)``,
+        out the line itself (send it), a list of lines, or None (send it unchanged);
+        why: "malformed" or "unknown" for a move sent as written, else None."""
+        if not self.enabled or not cmd:
+            return None, None
+        if tags and (self.skip_file or self.halted):
+            if self.skip_file and FILE_TAG in tags:
+                return None, None
+            if self.halted and (FILE_TAG in tags or JOB_TAG in tags) and _MOTION.match(cmd):
+                self.held_moves += 1
+                return [], None
+        comp = self.comp
+        rep = comp.state.report
+        unknown, malformed = rep.untouched_unknown, rep.malformed
+        home = self._homing(cmd)
+        try:
+            # (a line the kernel declined is not offered to it twice)
+            out = comp.process_declined(cmd) if offered else comp.process(cmd)
+        except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
+            return self._failed(cmd, exc), None
+        if home:
+            self.awaiting_home, self.home_query_out = home, False
+            self.home_query_number += 1
+            tag = f"{HOME_QUERY_TAG}{self.home_query_number}"
+            return [cmd if out is cmd else out[0], (HOME_QUERY, None, {tag})], None
+        if rep.malformed != malformed and _MOTION.match(cmd):
+            comp.invalidate()
+            return out, "malformed"
+        if rep.untouched_unknown != unknown:
+            return out, "unknown"
+        return out, None
 
     # -- learning where the printer homes ----------------------------------------------------
     def _homing(self, cmd: str) -> Tuple[int, ...]:

@@ -331,6 +331,28 @@ def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
     assert body["settings_problem"].startswith("limits_policy: must be one of")
 
 
+@pytest.mark.parametrize("end", ["PrintDone", "Disconnected"])
+def test_a_print_resumed_from_a_file_position_begins_at_its_first_line(plugin, tmp_path, end):
+    """A print started from a later line (OctoPrint's "print from here", no ``fileline:1``)
+    after an earlier print ended (or the printer was disconnected): its first line through the hook begins it, before its
+    PRINT_STARTED; the lines after that change nothing."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
+                             "home_mm": [0.0, 0.0, 0.0]})
+    _printing_plain_file(plugin, tmp_path)
+    comm = object()
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28",
+                        tags={"source:file", "fileline:1"})
+    plugin.on_event(end, {"origin": "local", "path": "p.gcode"})
+    assert plugin.prints.begun == 1 and not plugin.queue.printing
+    for n in (40, 41):
+        plugin.queuing_hook(comm, "queuing", "G1 X10 Y10", None, "G1",
+                            tags={"source:file", "fileline:%d" % n})
+        assert plugin.prints.begun == 2 and plugin.queue.printing
+    plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
+    assert plugin.prints.begun == 2 and plugin.prints.start_events == 2
+
+
 def test_a_late_end_event_does_not_end_a_paused_next_print(plugin, tmp_path):
     _printing_plain_file(plugin, tmp_path)
     comm = object()

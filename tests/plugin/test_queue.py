@@ -146,7 +146,7 @@ def test_internal_exception_never_sends_the_move_raw(failing):
     q.handle("G28")
     boom = mock.Mock(side_effect=RuntimeError("boom"))
     kernel = boom if failing == "kernel offered first" else None  # (None: none offered)
-    with mock.patch.object(q.comp, "process", boom), mock.patch.object(q, "_kernel", kernel):
+    with mock.patch.object(q.comp, "process", boom), mock.patch.object(q, "_route", kernel):
         assert q.handle("G1 X10 Y10") == []
     assert boom.called and len(errors) == 1 and q.status()["errors"] == 1
     assert q.comp.known == (False, False, False)  # nothing builds on a half-updated state
@@ -246,6 +246,7 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
     if comp.fast is not None:  # the compiled engine: count what the kernel is offered
         assert kernel is not None
         kernel = q._kernel = mock.Mock(wraps=kernel)
+        q._reroute()
     for line in lines:
         raw = q.handle(line, {FILE_TAG})
         want = comp.process(line)
@@ -263,3 +264,52 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
     assert q.comp.report.moves_compensated >= 10
     if comp.fast is not None:  # every line but the G28s and "X128 Y28" was offered
         assert kernel.call_count == len(lines) - 2
+
+
+@pytest.mark.parametrize("gate", ["off", "precompensated file", "halted", "home asked"])
+def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
+    # the hook offers lines to the kernel only while compensation is on, the file is not
+    # passed through, the print is not halted and no home question is open: otherwise the
+    # reference path decides (held back, untouched, ...), and the route opens again after
+    from octoprint_kincomp.plugin.queue import FILE_TAG, command_of
+
+    def queue():
+        home = (None, None, 0.0) if gate == "home asked" else (0.0, 0.0, 0.0)
+        q = QueueCompensator(SKEW, Options(home_mm=home), enabled=gate != "off")
+        q.print_started(precompensated=gate == "precompensated file")
+        asked = q.handle("G28", {"source:api"})
+        if gate != "home asked":
+            q.handle("G1 X10 Y10 Z1", {"source:api"})
+        if gate == "halted":
+            q.halted = True  # (as after a failure in the print)
+        return q, asked
+
+    (q, asked), (ref, _) = queue(), queue()
+    if q._kernel is None:
+        pytest.skip("no compiled kernel here")
+    ref._kernel = None  # the reference path alone
+    ref._reroute()
+    q._kernel = mock.Mock(wraps=q._kernel)
+    q._reroute()
+    lines = ["G1 X20 Y15 Z2 E1", "G2 X30 Y25 I10 J0 E2", "G1 Z3 F600"]
+    if gate == "home asked":  # (lines that leave the question open: X and Y stay put)
+        lines = ["G1 Z2 F600", "G1 E1", "G1 Z3"]
+    for line in lines:
+        got, want = q.handle(line, {FILE_TAG}), ref.handle(line, {FILE_TAG})
+        assert got == want, line
+        if gate in ("off", "precompensated file"):
+            assert got is None  # sent as written
+        elif gate == "halted":
+            assert got == []  # held back
+    assert q._kernel.call_count == 0
+    if gate == "off":
+        q.set_enabled(True)
+    elif gate == "precompensated file":
+        q.print_ended()
+    elif gate == "halted":
+        q.resume()
+    else:
+        q.home_query_sent(asked[-1][2])
+        assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
+    assert command_of(q.handle("G1 X20 Y15", {FILE_TAG}) or ["-"])
+    assert q._kernel.call_count == 1
