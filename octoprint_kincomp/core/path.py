@@ -19,7 +19,6 @@ from typing import List, Optional, Tuple
 
 from .errors import CompensationError, LimitError
 from .gcode import Word, decimals_of, fmt
-from .params import AXES
 
 AXIS_LETTERS = ("X", "Y", "Z")
 MM_PER_INCH = 25.4
@@ -247,8 +246,8 @@ class PathWriter:
             if lim is not None:
                 c = self.limit(k, p[k], c)
             corr = abs(c - p[k]) * 1000.0
-            if corr > rep.max_correction_um[AXES[k]]:
-                rep.max_correction_um[AXES[k]] = corr
+            if corr > rep.max_correction_um[k]:
+                rep.max_correction_um[k] = corr
             word, changed, st.fw[k], st.fw_text[k] = self.fw_after(k, c, u, dec)
             if k in write_axes or changed:
                 axes_text.append(AXIS_LETTERS[k] + word)

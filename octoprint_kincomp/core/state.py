@@ -18,7 +18,7 @@ of ``m`` plus the backlash offset; the firmware coordinate written on the line i
 from __future__ import annotations
 
 import copy
-from typing import Dict, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 from .params import AXES
 
@@ -30,7 +30,8 @@ class Report:
     backlash axis reverses, or where one circle does not fit), ``arcs_linearised`` as G1
     chords only; ``arc_segments``: the lines written for arcs (take-ups not counted);
     ``arc_max_deviation_um``: the largest estimated deviation of a written arc from the
-    compensated path (core/arcpath.py)."""
+    compensated path (core/arcpath.py). ``max_correction_um``: the largest correction per
+    axis, [X, Y, Z] in um (a dict by axis name in :meth:`to_dict`)."""
 
     # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
     __slots__ = ("lines", "moves", "moves_compensated", "untouched_unknown", "malformed",
@@ -52,7 +53,7 @@ class Report:
         self.arc_max_deviation_um = 0.0
         self.takeup_moves = 0
         self.lines_out = 0
-        self.max_correction_um: Dict[str, float] = {a: 0.0 for a in AXES}
+        self.max_correction_um: List[float] = [0.0, 0.0, 0.0]  # um, per axis (0 X, 1 Y, 2 Z)
         self.limit_hits = 0
         self.limit_examples: List[Tuple[int, str, float]] = []
         self.source_outside = 0
@@ -75,7 +76,7 @@ class Report:
             "arc_segments": self.arc_segments,
             "arc_max_deviation_um": round(self.arc_max_deviation_um, 3),
             "backlash_takeup_moves": self.takeup_moves,
-            "max_correction_um": {a: round(v, 3) for a, v in self.max_correction_um.items()},
+            "max_correction_um": {a: round(v, 3) for a, v in zip(AXES, self.max_correction_um)},
             "limit_hits": self.limit_hits,
             "limit_examples": [list(x) for x in self.limit_examples],
             "source_outside_limits": self.source_outside,

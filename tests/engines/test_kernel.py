@@ -222,3 +222,65 @@ def test_the_kernel_reads_only_the_declared_state_classes():
     ref.state.take_over(comp.state, backlash_axes=(0, 1, 2))
     ref.state.q_last = comp.state.q_last
     assert comp.fast.line(comp.state, "G1 X40 Y45") == ref.process("G1 X40 Y45")
+
+
+def _flip_x_direction(st):
+    st.backlash.dir[0] = -st.backlash.dir[0] or 1
+
+
+IN_PLACE_CHANGES = {
+    "forget X": lambda st: st.forget_position([0]),
+    "work offset": lambda st: st.w.__setitem__(0, 5.0),
+    "backlash direction": _flip_x_direction,
+    "largest correction": lambda st: st.report.max_correction_um.__setitem__(0, 0.0),
+    "limit recheck": lambda st: st.limit_recheck.__setitem__(1, False),
+    "firmware text": lambda st: st.fw_text.__setitem__(1, "12.000"),
+}
+
+
+@pytest.mark.parametrize("change", sorted(IN_PLACE_CHANGES))
+def test_the_kernel_sees_what_python_changed_in_place_between_its_calls(change):
+    # the kernel keeps the state its last call left (csrc/kept.c) and takes it again only
+    # if every object of the state is the very same one: a change the Python side makes in
+    # place (an item of one of its lists, the report's dict) between two kernel calls must
+    # be seen (the recall check of conftest.py compares too)
+    before = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X20 Y12 E0.5"]
+    after = ["G1 X30 Y14 E1", "G1 X5 Y20 E1.5", "G2 X15 Y30 I10 J0 E2", "G1 X40 Y5"]
+
+    def go(compiled):
+        comp = Compensator(SKEW)
+        if compiled:
+            comp.fast = kernel_mod.build(comp)
+        for line in before:
+            comp.process(line)
+        IN_PLACE_CHANGES[change](comp.state)
+        out = [comp.process(line) for line in after]
+        return [o if isinstance(o, str) else tuple(o) for o in out], state(comp, caches=False)
+
+    assert go(True) == go(False)
+
+
+def test_the_kernel_changes_in_place_only_what_nobody_else_holds():
+    # writing back, the kernel changes a number or string in place where its slot (or
+    # list) is its only holder (csrc/state.c): whoever holds one of them, or a list or
+    # tuple of them, still sees the old value after the next line
+    comp = make_compensator(SKEW)
+    for line in ("G28", "G1 X10 Y10 Z1 F3000", "G1 X20 Y15 E1", "G1 X30 Y20 E2"):
+        comp.process(line)
+    for n in range(300):  # (counters past CPython's shared small ints)
+        comp.process("G1 X%d Y20 E%d" % (30 + n % 2, 3 + n))
+    st = comp.state
+    rep, bl = st.report, st.backlash
+    held = {"m": st.m, "m[0]": st.m[0], "q_last": st.q_last, "q_last[0]": st.q_last[0],
+            "fw[0]": st.fw[0], "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos,
+            "feed": st.feed, "lines": rep.lines, "lineno": st.lineno,
+            "max_correction_um[0]": rep.max_correction_um[0], "anchor[0]": bl.anchor[0]}
+    values = {k: repr(v) for k, v in held.items()}
+    out = comp.fast.line(st, "G1 X37.123 Y40.5 E400 F1200")
+    assert out is not None and out != "G1 X37.123 Y40.5 E400 F1200"
+    for k, v in held.items():
+        assert repr(v) == values[k], k
+    assert st.m == [37.123, 40.5, 1.0] and st.lineno == held["lineno"] + 1
+    assert st.e_pos == 400.0 and st.feed == 1200.0
+    # (a new X text of the old one's length: the string could have been written over)
+    assert st.fw_text[0] != held["fw_text[0]"] and len(st.fw_text[0]) == len(held["fw_text[0]"])

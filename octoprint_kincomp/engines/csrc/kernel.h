@@ -120,7 +120,6 @@ typedef struct {
 enum { LINE_OUT, LINE_SAME, LINE_PYTHON };
 
 /* state.c */
-int kk_intern_names(void);
 PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs);
 int kk_load(PyObject *state, State *s, Objs *D);
 int kk_store(const Objs *D, const State *s, const State *before);

@@ -312,8 +312,6 @@ static struct PyModuleDef kernel_module = {
 PyMODINIT_FUNC PyInit__kernel(void)
 {
     PyObject *mod;
-    if (kk_intern_names() < 0)
-        return NULL;
     if (PyType_Ready(&KernelType) < 0)
         return NULL;
     mod = PyModule_Create(&kernel_module);

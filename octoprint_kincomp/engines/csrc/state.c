@@ -1,7 +1,12 @@
 /* Reading and writing the stream state: the declared record of core/state.py
  * (StreamState, its BacklashState and its Report), slotted classes whose attributes the
  * kernel reads and writes in their slots, at the offsets ``layout`` found (no attribute
- * lookup, no dictionary). What the kernel cannot hold leaves the line to the Python path. */
+ * lookup, no dictionary). What the kernel cannot hold leaves the line to the Python path.
+ *
+ * Writing back, a number or string that only its slot (or its list) holds - reference
+ * count 1 - is changed in place instead of replaced, as CPython itself grows a sole-owned
+ * string in place: nobody else holds it, so nobody can see it change, and the queuing hook
+ * saves a dozen allocations a line. Anything shared is replaced as before. */
 #include "kernel.h"
 
 #include <structmember.h>
@@ -25,17 +30,6 @@ static const char *const rp_names[RP_N] = {
 
 static PyTypeObject *st_type, *bl_type, *rp_type;  /* NULL until kk_layout */
 static Py_ssize_t st_off[ST_N], bl_off[BL_N], rp_off[RP_N];
-static PyObject *s_axis_key[3];
-
-int kk_intern_names(void)
-{
-    static const char *const axes[3] = {"x", "y", "z"};
-    int k;
-    for (k = 0; k < 3; k++)
-        if (!(s_axis_key[k] = PyUnicode_InternFromString(axes[k])))
-            return -1;
-    return 0;
-}
 
 /* The slot offsets of ``names`` in ``type`` (each a member descriptor of an object slot of
  * that very class); -1 with TypeError if one is not. */
@@ -156,6 +150,12 @@ static int get_ll(PyObject *o, long long *v)
 {
     if (o == NULL || !PyLong_CheckExact(o))
         return -1;
+#if PY_VERSION_HEX < 0x030C0000
+    if (Py_SIZE(o) == 0 || Py_SIZE(o) == 1) {  /* (a counter: one digit at most) */
+        *v = Py_SIZE(o) ? (long long)((PyLongObject *)o)->ob_digit[0] : 0;
+        return 0;
+    }
+#endif
     *v = PyLong_AsLongLong(o);
     if (*v == -1 && PyErr_Occurred()) {
         PyErr_Clear();
@@ -278,18 +278,9 @@ int kk_load(PyObject *state, State *s, Objs *D)
         get_ll(R(RP_ARC_SEGMENTS), &s->arc_segments) < 0 ||
         get_double(R(RP_ARC_DEV), &s->arc_dev) < 0)
         goto python;
-    if (!(o = R(RP_MAXC)) || !PyDict_CheckExact(o))
+    if (get3(R(RP_MAXC), s->maxc, NULL, 0) < 0)
         goto python;
 #undef R
-    for (k = 0; k < 3; k++) {
-        PyObject *v = PyDict_GetItemWithError(o, s_axis_key[k]);
-        if (v == NULL) {
-            PyErr_Clear();
-            goto python;
-        }
-        if (get_double(v, &s->maxc[k]) < 0)
-            goto python;
-    }
     return 0;
 python:
     kk_objs_release(D);
@@ -298,25 +289,58 @@ python:
 
 /* -- writing it back --------------------------------------------------------------------- */
 
-/* A fresh list (or tuple) of three floats. */
-static PyObject *seq3(const double *v, int tuple)
+/* The float *at (a slot or a list or tuple item) becomes v: written in place where that
+ * float is this reference's alone (reference count 1: nobody else can see it change, as
+ * CPython itself reuses a sole-owned tuple or string), else a new float replaces it. */
+static int put_float(PyObject **at, double v)
 {
-    PyObject *t = tuple ? PyTuple_New(3) : PyList_New(3);
-    int k;
-    if (t == NULL)
-        return NULL;
-    for (k = 0; k < 3; k++) {
-        PyObject *o = PyFloat_FromDouble(v[k]);
-        if (o == NULL) {
-            Py_DECREF(t);
-            return NULL;
-        }
-        if (tuple)
-            PyTuple_SET_ITEM(t, k, o);
-        else
-            PyList_SET_ITEM(t, k, o);
+    PyObject *o = *at, *f;
+    if (o != NULL && PyFloat_CheckExact(o) && Py_REFCNT(o) == 1) {
+        ((PyFloatObject *)o)->ob_fval = v;
+        return 0;
     }
-    return t;
+    if (!(f = PyFloat_FromDouble(v)))
+        return -1;
+    *at = f;
+    Py_XDECREF(o);
+    return 0;
+}
+
+/* The items of a sole-owned list or tuple of three (NULL: not one, or shared). */
+static PyObject **own3(PyObject *seq)
+{
+    if (seq == NULL || Py_REFCNT(seq) != 1)
+        return NULL;
+    if (PyList_CheckExact(seq) && PyList_GET_SIZE(seq) == 3)
+        return ((PyListObject *)seq)->ob_item;
+    if (PyTuple_CheckExact(seq) && PyTuple_GET_SIZE(seq) == 3)
+        return ((PyTupleObject *)seq)->ob_item;
+    return NULL;
+}
+
+/* obj's slot at ``off`` = three floats v, a list (or a tuple): the one there now, changed
+ * in place, where it is the slot's alone and of that kind; else a new one (the Python path
+ * replaces these, so a holder of the old one must not see it change). */
+static int set_seq3(PyObject *obj, Py_ssize_t off, const double *v, int tuple)
+{
+    PyObject *seq = SLOT(obj, off), **items = own3(seq);
+    int k;
+    if (items != NULL && (tuple ? PyTuple_CheckExact(seq) : PyList_CheckExact(seq))) {
+        for (k = 0; k < 3; k++)
+            if (put_float(&items[k], v[k]) < 0)
+                return -1;
+        return 0;
+    }
+    if (!(seq = tuple ? PyTuple_New(3) : PyList_New(3)))
+        return -1;
+    items = tuple ? ((PyTupleObject *)seq)->ob_item : ((PyListObject *)seq)->ob_item;
+    for (k = 0; k < 3; k++)  /* (fresh: NULL items) */
+        if (put_float(&items[k], v[k]) < 0) {
+            Py_DECREF(seq);
+            return -1;
+        }
+    put(obj, off, seq);
+    return 0;
 }
 
 /* obj's slot at ``off`` = o, a new reference (NULL: the error is passed on). */
@@ -328,17 +352,54 @@ static int set_owned(PyObject *obj, Py_ssize_t off, PyObject *o)
     return 0;
 }
 
+/* obj's slot at ``off`` = the int v (``old``: the value there). In place where that int is
+ * the slot's alone and v, like it, is one digit above CPython's shared small ints (the
+ * counters, from the 257th line on; the layout of CPython 3.8 to 3.11), else a new int. */
 static int set_ll(PyObject *obj, Py_ssize_t off, long long v, long long old)
 {
-    return v == old ? 0 : set_owned(obj, off, PyLong_FromLongLong(v));
+    if (v == old)
+        return 0;
+#if PY_VERSION_HEX < 0x030C0000
+    {
+        PyObject *o = SLOT(obj, off);
+        if (v > 256 && v < ((long long)1 << PyLong_SHIFT) && o != NULL &&
+            PyLong_CheckExact(o) && Py_REFCNT(o) == 1 && Py_SIZE(o) == 1) {
+            ((PyLongObject *)o)->ob_digit[0] = (digit)v;
+            return 0;
+        }
+    }
+#endif
+    return set_owned(obj, off, PyLong_FromLongLong(v));
 }
 
+/* Item k of ``list`` = the ASCII text t (len characters). In place where the string there
+ * is the list's alone, of that length, never hashed nor interned (CPython's own rule for
+ * growing a string in place), else a new string. */
+static int set_item_text(PyObject *list, int k, const char *t, int len)
+{
+    PyObject **at = &((PyListObject *)list)->ob_item[k], *o = *at, *n;
+    if (o != NULL && PyUnicode_CheckExact(o) && Py_REFCNT(o) == 1 &&
+        PyUnicode_IS_COMPACT_ASCII(o) && PyUnicode_GET_LENGTH(o) == len &&
+        ((PyASCIIObject *)o)->hash == -1 && !PyUnicode_CHECK_INTERNED(o)
+#if PY_VERSION_HEX < 0x030C0000
+        && ((PyASCIIObject *)o)->wstr == NULL
+#endif
+    ) {
+        memcpy(PyUnicode_1BYTE_DATA(o), t, len);
+        return 0;
+    }
+    if (!(n = PyUnicode_New(len, 127)))  /* (ASCII: a number's text) */
+        return -1;
+    memcpy(PyUnicode_1BYTE_DATA(n), t, len);
+    *at = n;
+    Py_XDECREF(o);
+    return 0;
+}
+
+/* item k of a list the Python path changes in place = v */
 static int set_item_double(PyObject *list, int k, double v)
 {
-    PyObject *o = PyFloat_FromDouble(v);
-    if (o == NULL)
-        return -1;
-    return PyList_SetItem(list, k, o);  /* steals o */
+    return put_float(&((PyListObject *)list)->ob_item[k], v);
 }
 
 /* Write back what the lines committed since ``before`` changed (lists that the Python
@@ -363,18 +424,17 @@ int kk_store(const Objs *D, const State *s, const State *before)
         set_ll(rp, R(RP_ARCS_LIN), s->arcs_lin, before->arcs_lin) < 0 ||
         set_ll(rp, R(RP_ARC_SEGMENTS), s->arc_segments, before->arc_segments) < 0)
         return -1;
-    if (s->arc_dev != before->arc_dev &&
-        set_owned(rp, R(RP_ARC_DEV), PyFloat_FromDouble(s->arc_dev)) < 0)
+    if (s->arc_dev != before->arc_dev && put_float(&SLOT(rp, R(RP_ARC_DEV)), s->arc_dev) < 0)
         return -1;
 #undef R
-    if (s->e_set && set_owned(st, st_off[ST_E_POS], s->e_none ? Py_NewRef(Py_None)
-                                                               : PyFloat_FromDouble(s->e_pos)) < 0)
+    if (s->e_set && (s->e_none ? (put(st, st_off[ST_E_POS], Py_NewRef(Py_None)), 0)
+                               : put_float(&SLOT(st, st_off[ST_E_POS]), s->e_pos)) < 0)
         return -1;
-    if (s->f_set && set_owned(st, st_off[ST_FEED], PyFloat_FromDouble(s->feed)) < 0)
+    if (s->f_set && put_float(&SLOT(st, st_off[ST_FEED]), s->feed) < 0)
         return -1;
     /* the previous command and the axes to re-evaluate (inert lines reset them) */
-    if (set_owned(st, st_off[ST_Q_LAST], s->q_last_known ? seq3(s->q_last, 1)
-                                                           : Py_NewRef(Py_None)) < 0)
+    if (s->q_last_known ? set_seq3(st, st_off[ST_Q_LAST], s->q_last, 1) < 0
+                        : (put(st, st_off[ST_Q_LAST], Py_NewRef(Py_None)), 0))
         return -1;
     if (memcmp(s->recheck, before->recheck, sizeof s->recheck) != 0) {
         if (!(o = PyList_New(3)))
@@ -385,15 +445,12 @@ int kk_store(const Objs *D, const State *s, const State *before)
     }
     if (!s->moved)
         return 0;
-    if (set_owned(st, st_off[ST_M], seq3(s->m, 0)) < 0)
+    if (set_seq3(st, st_off[ST_M], s->m, 0) < 0)
         return -1;
     for (k = 0; k < 3; k++) {
         if (!s->fwt_dirty[k])
             continue;
-        PyObject *t = PyUnicode_New(s->fwt_len[k], 127);  /* (ASCII: a number's text) */
-        if (t != NULL)
-            memcpy(PyUnicode_1BYTE_DATA(t), s->fwt[k], s->fwt_len[k]);
-        if (t == NULL || PyList_SetItem(SLOT(st, st_off[ST_FW_TEXT]), k, t) < 0)
+        if (set_item_text(SLOT(st, st_off[ST_FW_TEXT]), k, s->fwt[k], s->fwt_len[k]) < 0)
             return -1;
         if (set_item_double(SLOT(st, st_off[ST_FW]), k, s->fw[k]) < 0)
             return -1;
@@ -409,13 +466,9 @@ int kk_store(const Objs *D, const State *s, const State *before)
                                           sizeof(double)) != 0) &&  /* (-0.0 vs 0.0) */
             set_item_double(SLOT(bl, bl_off[BL_ANCHOR]), k, s->anchor[k]) < 0)
             return -1;
-        if (s->maxc[k] != before->maxc[k]) {
-            PyObject *v = PyFloat_FromDouble(s->maxc[k]);
-            int r = v == NULL ? -1 : PyDict_SetItem(SLOT(rp, rp_off[RP_MAXC]), s_axis_key[k], v);
-            Py_XDECREF(v);
-            if (r < 0)
-                return -1;
-        }
+        if (s->maxc[k] != before->maxc[k] &&
+            set_item_double(SLOT(rp, rp_off[RP_MAXC]), k, s->maxc[k]) < 0)
+            return -1;
     }
     return 0;
 }

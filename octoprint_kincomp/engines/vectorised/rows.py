@@ -144,12 +144,12 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray) -> Optional[Tuple[np.n
         if not ok:
             return None
     # max correction per axis (um)
-    for k, a in enumerate("xyz"):
+    for k in range(3):
         cm = float(np.max(np.abs(C[:, k] - P[:, k]))) * 1000.0
         if len(tups):
             cm = max(cm, float(np.max(np.abs(Ct[:, k] - Pt[:, k]))) * 1000.0)
-        if cm > rep.max_correction_um[a]:
-            rep.max_correction_um[a] = cm
+        if cm > rep.max_correction_um[k]:
+            rep.max_correction_um[k] = cm
     # text (as scaled integers) of every evaluated point, in emission order
     ntot = nm + len(tups)
     N = np.empty((ntot, 3), np.int64)
