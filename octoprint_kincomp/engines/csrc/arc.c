@@ -149,13 +149,17 @@ static void target(const Job *j, const double *p, const double *q, double *out)
         out[k] = with_offset(K, s, k, q[k]) + s->g[k];
 }
 
-/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after) */
-static int fw_after(const State *s, int dec, double u, int k, double c, double *fw)
+/* the rounded firmware coordinate (mm) axis k gets for command c (PathWriter.fw_after);
+ * its text is kept for kk_point (K->memo: the piece's end is written next) */
+static int fw_after(Kernel *K, const State *s, int dec, double u, int k, double c, double *fw)
 {
-    char text[MAX_TEXT + 1];
-    double v;
-    if (kk_format_value((c + s->g[k]) / u, dec, text, &v) < 0)
+    double x = (c + s->g[k]) / u, v;
+    int len = kk_format_value(x, dec, K->memo.text[k], &v);
+    K->memo.len[k] = len > 0 ? len : 0;
+    if (len < 0)
         return -1;
+    K->memo.arg[k] = x;
+    K->memo.value[k] = v;
     *fw = v * u;
     return 0;
 }
@@ -232,7 +236,7 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
     char text[MAX_TEXT + 1];
     for (k = 0; k < 3; k++)
-        if (fw_after(s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
+        if (fw_after(j->K, s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
             return -1;
     if (E[0] == S[0] && E[1] == S[1])
         return 2;
@@ -387,7 +391,19 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
 }
 
 /* One G2/G3 line (ln[0..2] = "G2 " or "G3 "); as kk_do_line */
+static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
+
 int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
+{
+    int r;
+    memset(K->memo.len, 0, sizeof K->memo.len);
+    K->memo.on = 1;
+    r = do_arc(K, s0, ln, n, out);
+    K->memo.on = 0;
+    return r;
+}
+
+static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
 {
     /* slots: 0 X, 1 Y, 2 Z, 3 I, 4 J, 5 E, 6 F */
     static const char LETTERS[] = "XYZIJEF";

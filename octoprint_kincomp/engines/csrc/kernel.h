@@ -72,6 +72,14 @@ typedef struct {
     double max_offset;            /* largest take-up offset, mm */
     int nbreaks;
     double breaks[MAX_BREAKS];    /* G17: angles (rad) where a backlash axis reverses */
+    /* while an arc is written (arc.c): the firmware coordinates its fit formatted, by axis,
+     * which kk_point takes instead of formatting the very same number again */
+    struct {
+        int on;
+        int len[3];                /* 0: none */
+        double arg[3], value[3];   /* kk_format_value's argument and value */
+        char text[3][MAX_TEXT + 1];
+    } memo;
 } Kernel;
 
 /* The lines written for one input line, without endings. */

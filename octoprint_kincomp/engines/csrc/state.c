@@ -29,6 +29,7 @@ static const char *const rp_names[RP_N] = {
     "max_correction_um"};
 
 static PyTypeObject *st_type, *bl_type, *rp_type;  /* NULL until kk_layout */
+static PyObject *small_int[3];  /* -1, 0, 1 (CPython's shared ones, where it shares them) */
 static Py_ssize_t st_off[ST_N], bl_off[BL_N], rp_off[RP_N];
 
 /* The slot offsets of ``names`` in ``type`` (each a member descriptor of an object slot of
@@ -78,6 +79,9 @@ PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
     memcpy(st_off, st, sizeof st);
     memcpy(bl_off, bl, sizeof bl);
     memcpy(rp_off, rp, sizeof rp);
+    for (k = 0; k < 3; k++)
+        if (small_int[k] == NULL && !(small_int[k] = PyLong_FromLong(k - 1)))
+            return NULL;
     Py_XSETREF(st_type, (PyTypeObject *)Py_NewRef(args[0]));
     Py_XSETREF(bl_type, (PyTypeObject *)Py_NewRef(args[1]));
     Py_XSETREF(rp_type, (PyTypeObject *)Py_NewRef(args[2]));
@@ -115,26 +119,57 @@ static int get_double(PyObject *o, double *v)
     return -1;
 }
 
+/* The items of a list of three (or a tuple, if ``tuple_ok``); NULL: not one. */
+static PyObject **items_of3(PyObject *seq, int tuple_ok)
+{
+    if (seq == NULL)
+        return NULL;
+    if (PyList_CheckExact(seq))
+        return PyList_GET_SIZE(seq) == 3 ? ((PyListObject *)seq)->ob_item : NULL;
+    if (tuple_ok && PyTuple_CheckExact(seq))
+        return PyTuple_GET_SIZE(seq) == 3 ? ((PyTupleObject *)seq)->ob_item : NULL;
+    return NULL;
+}
+
 /* Three numbers from a list (or a tuple if ``tuple_ok``; None allowed where known != NULL).
  * -1: not readable. Lists the kernel writes back in place must be lists. */
 static int get3(PyObject *seq, double *v, int *known, int tuple_ok)
 {
-    Py_ssize_t k;
-    if (seq == NULL || !(PyList_CheckExact(seq) || (tuple_ok && PyTuple_CheckExact(seq))))
-        return -1;
-    if (PySequence_Fast_GET_SIZE(seq) != 3)
+    PyObject **it = items_of3(seq, tuple_ok);
+    int k;
+    if (it == NULL)
         return -1;
     for (k = 0; k < 3; k++) {
-        PyObject *o = PySequence_Fast_GET_ITEM(seq, k);
-        if (o == Py_None && known != NULL) {
-            known[k] = 0;
+        PyObject *o = it[k];
+        if (PyFloat_CheckExact(o))  /* (the common case first) */
+            v[k] = PyFloat_AS_DOUBLE(o);
+        else if (o == Py_None && known != NULL)
             v[k] = 0.0;
-            continue;
-        }
-        if (get_double(o, &v[k]) < 0)
+        else if (get_double(o, &v[k]) < 0)
             return -1;
         if (known != NULL)
-            known[k] = 1;
+            known[k] = o != Py_None;
+    }
+    return 0;
+}
+
+/* The backlash directions: a list of three of -1, 0, +1 (ints, or floats). -1: not. */
+static int get_dirs(PyObject *seq, long *dir)
+{
+    PyObject **it = items_of3(seq, 0);
+    int k;
+    if (it == NULL)
+        return -1;
+    for (k = 0; k < 3; k++) {
+        PyObject *o = it[k];
+        double d;
+        if (o == small_int[0] || o == small_int[1] || o == small_int[2]) {
+            dir[k] = (o == small_int[2]) - (o == small_int[0]);
+            continue;
+        }
+        if (get_double(o, &d) < 0 || (d != 0.0 && d != 1.0 && d != -1.0))
+            return -1;
+        dir[k] = (long)d;
     }
     return 0;
 }
@@ -182,7 +217,6 @@ int kk_load(PyObject *state, State *s, Objs *D)
 {
     PyObject *o, *st, *bl, *rp;
     int k;
-    double tmp[3];
     int known[3];
 
     memset(s, 0, sizeof(State));
@@ -258,13 +292,8 @@ int kk_load(PyObject *state, State *s, Objs *D)
     if (get_ll(F(ST_LINENO), &s->lineno) < 0)
         goto python;
 #undef F
-    if (get3(SLOT(bl, bl_off[BL_DIR]), tmp, NULL, 0) < 0)
+    if (get_dirs(SLOT(bl, bl_off[BL_DIR]), s->dir) < 0)
         goto python;
-    for (k = 0; k < 3; k++) {
-        if (tmp[k] != 0.0 && tmp[k] != 1.0 && tmp[k] != -1.0)
-            goto python;
-        s->dir[k] = (long)tmp[k];
-    }
     if (get3(SLOT(bl, bl_off[BL_ANCHOR]), s->anchor, s->anchor_known, 0) < 0)
         goto python;
 #define R(i) SLOT(rp, rp_off[i])

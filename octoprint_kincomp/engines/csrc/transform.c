@@ -54,6 +54,17 @@ int kk_reversal(const Kernel *K, State *s, int k, double q, double q_from)
 /* PathWriter.emit for one point: append " <axis><text>" for each axis written to out (after the
  * code). Returns the number of axes written, -1: Python decides (nothing to undo: the
  * caller drops the whole tentative state). */
+/* kk_format_value of x, or the arc fit's text of the very same x (K->memo) */
+static int format_fw(const Kernel *K, int k, double x, int dec, char *text, double *value)
+{
+    if (K->memo.on && K->memo.len[k] > 0 && memcmp(&x, &K->memo.arg[k], sizeof x) == 0) {
+        memcpy(text, K->memo.text[k], K->memo.len[k] + 1);
+        *value = K->memo.value[k];
+        return K->memo.len[k];
+    }
+    return kk_format_value(x, dec, text, value);
+}
+
 int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *given,
              const double *q_prev, const int *redo, const double *m_old, char *out,
              int *out_len)
@@ -83,7 +94,7 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
         corr = fabs(c - p[k]) * 1000.0;
         if (corr > s->maxc[k])
             s->maxc[k] = corr;
-        len = kk_format_value((c + s->g[k]) / u, dec, text, &parsed);
+        len = format_fw(K, k, (c + s->g[k]) / u, dec, text, &parsed);
         if (len < 0)
             return -1;
         if (s->fwt_len[k] == len && memcmp(text, s->fwt[k], len) == 0) {
