@@ -107,9 +107,9 @@ class PrintState:
                 self.comm = None
                 self._queue.reset()
                 self._watch.reset()
+                self.file_lines_seen = False  # (first: the hook reads it without the lock)
                 if self._queue.printing:
                     self._queue.print_ended()
-                self.file_lines_seen = False
             elif event == Events.PRINT_STARTED:
                 self.start_events += 1
                 if payload.get("origin") == FileDestinations.SDCARD and self._queue.enabled:
@@ -123,8 +123,8 @@ class PrintState:
                     return  # late: the next print's first line was already handled
                 # (if the counts ever drifted apart, an end with nothing printing resyncs them)
                 self.start_events = self.begun
+                self.file_lines_seen = False  # (first: the hook reads it without the lock)
                 self._queue.print_ended()
-                self.file_lines_seen = False
                 self._on_end(event == Events.PRINT_DONE)
 
     def transfer_started(self) -> None:

@@ -87,8 +87,8 @@ def home_query_number(tags) -> Optional[int]:
 
 
 class _Gated:
-    """A QueueCompensator attribute whose every change re-decides the kernel route. Reads
-    find the value in the instance (no ``__get__``: as fast as a plain attribute)."""
+    """A QueueCompensator attribute whose every change re-decides the kernel route (reads
+    find the value in the instance: no ``__get__``)."""
 
     def __set_name__(self, owner, name: str) -> None:
         self.name = name
@@ -152,6 +152,8 @@ class QueueCompensator:
 
     # -- the hook ------------------------------------------------------------------------
     def handle(self, cmd: str, tags=None) -> Optional[List[str]]:
+        if not self.enabled:
+            return None  # (without waiting for the lock, which a settings change may hold)
         lock = self._lock
         lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
         try:

@@ -3,6 +3,7 @@ should, and writing what the reference path writes, digit for digit, including t
 where rounding is decided by the exact binary value (ties and near-ties)."""
 
 import io
+import sys
 from unittest import mock
 
 import pytest
@@ -240,10 +241,9 @@ IN_PLACE_CHANGES = {
 
 @pytest.mark.parametrize("change", sorted(IN_PLACE_CHANGES))
 def test_the_kernel_sees_what_python_changed_in_place_between_its_calls(change):
-    # the kernel keeps the state its last call left (csrc/kept.c) and takes it again only
-    # if every object of the state is the very same one: a change the Python side makes in
-    # place (an item of one of its lists, the report's dict) between two kernel calls must
-    # be seen (the recall check of conftest.py compares too)
+    # a change the Python side makes in place between two kernel lines (an item of one of
+    # the state's lists, some of which the kernel itself writes in place) is seen by the
+    # next one: the kernel reads the state afresh on every call
     before = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X20 Y12 E0.5"]
     after = ["G1 X30 Y14 E1", "G1 X5 Y20 E1.5", "G2 X15 Y30 I10 J0 E2", "G1 X40 Y5"]
 
@@ -260,27 +260,58 @@ def test_the_kernel_sees_what_python_changed_in_place_between_its_calls(change):
     assert go(True) == go(False)
 
 
-def test_the_kernel_changes_in_place_only_what_nobody_else_holds():
-    # writing back, the kernel changes a number or string in place where its slot (or
-    # list) is its only holder (csrc/state.c): whoever holds one of them, or a list or
-    # tuple of them, still sees the old value after the next line
+def _primed():
+    """A compensator after some 300 moves (counters past CPython's shared small ints)."""
     comp = make_compensator(SKEW)
     for line in ("G28", "G1 X10 Y10 Z1 F3000", "G1 X20 Y15 E1", "G1 X30 Y20 E2"):
         comp.process(line)
-    for n in range(300):  # (counters past CPython's shared small ints)
+    for n in range(300):
         comp.process("G1 X%d Y20 E%d" % (30 + n % 2, 3 + n))
+    return comp
+
+
+# (X37.123 gives an X text of the length of the last one: the string could be written over)
+NEXT = "G1 X37.123 Y40.5 E400 F1200"
+
+
+@pytest.mark.parametrize("hold", ["containers", "items"])
+def test_the_kernel_changes_in_place_only_what_nobody_else_holds(hold):
+    # writing back, the kernel changes a number or string in place where its slot (or
+    # list) is its only holder (csrc/state.c): whoever holds one of them, or a list or
+    # tuple of them, still sees the old value after the next line
+    comp = _primed()
     st = comp.state
     rep, bl = st.report, st.backlash
-    held = {"m": st.m, "m[0]": st.m[0], "q_last": st.q_last, "q_last[0]": st.q_last[0],
-            "fw[0]": st.fw[0], "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos,
-            "feed": st.feed, "lines": rep.lines, "lineno": st.lineno,
-            "max_correction_um[0]": rep.max_correction_um[0], "anchor[0]": bl.anchor[0]}
+    if hold == "containers":
+        held = {"m": st.m, "q_last": st.q_last}
+    else:  # (the lists and tuples themselves not held: they may be reused)
+        held = {"m[0]": st.m[0], "q_last[0]": st.q_last[0], "fw[0]": st.fw[0],
+                "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos, "feed": st.feed,
+                "lines": rep.lines, "lineno": st.lineno,
+                "max_correction_um[0]": rep.max_correction_um[0], "anchor[0]": bl.anchor[0]}
     values = {k: repr(v) for k, v in held.items()}
-    out = comp.fast.line(st, "G1 X37.123 Y40.5 E400 F1200")
-    assert out is not None and out != "G1 X37.123 Y40.5 E400 F1200"
+    out = comp.fast.line(st, NEXT)
+    assert out is not None and out != NEXT
     for k, v in held.items():
         assert repr(v) == values[k], k
-    assert st.m == [37.123, 40.5, 1.0] and st.lineno == held["lineno"] + 1
-    assert st.e_pos == 400.0 and st.feed == 1200.0
-    # (a new X text of the old one's length: the string could have been written over)
-    assert st.fw_text[0] != held["fw_text[0]"] and len(st.fw_text[0]) == len(held["fw_text[0]"])
+    now = {"m": st.m, "q_last": st.q_last, "m[0]": st.m[0], "q_last[0]": st.q_last[0],
+           "fw[0]": st.fw[0], "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos,
+           "feed": st.feed, "lines": rep.lines, "lineno": st.lineno}
+    for k in set(held) & set(now):  # (the line did change them: written, not left)
+        assert repr(now[k]) != values[k], k
+    assert len(st.fw_text[0]) == len(held.get("fw_text[0]", st.fw_text[0]))
+
+
+def test_a_number_text_python_has_hashed_is_not_written_over():
+    # a string whose hash CPython has cached (a dict lookup, an interning) must not get new
+    # characters under the old hash: the kernel writes a new string then
+    comp = _primed()
+    st = comp.state
+    old = "".join(st.fw_text[0])  # (an equal string of our own: the state's stays unshared)
+    hash(st.fw_text[0])
+    sys.intern(st.fw_text[1])
+    comp.fast.line(st, NEXT)
+    for k in (0, 1):
+        text = st.fw_text[k]
+        assert hash(text) == hash("".join(text)), k
+    assert len(st.fw_text[0]) == len(old) and st.fw_text[0] != old

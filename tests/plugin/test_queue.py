@@ -271,7 +271,7 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
     # the hook offers lines to the kernel only while compensation is on, the file is not
     # passed through, the print is not halted and no home question is open: otherwise the
     # reference path decides (held back, untouched, ...), and the route opens again after
-    from octoprint_kincomp.plugin.queue import FILE_TAG, command_of
+    from octoprint_kincomp.plugin.queue import FILE_TAG
 
     def queue():
         home = (None, None, 0.0) if gate == "home asked" else (0.0, 0.0, 0.0)
@@ -311,5 +311,5 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
     else:
         q.home_query_sent(asked[-1][2])
         assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
-    assert command_of(q.handle("G1 X20 Y15", {FILE_TAG}) or ["-"])
-    assert q._kernel.call_count == 1
+    q.handle("G1 X20 Y15", {FILE_TAG})
+    assert q._kernel.call_count == 1  # offered again

@@ -5,8 +5,9 @@
  *
  * Writing back, a number or string that only its slot (or its list) holds - reference
  * count 1 - is changed in place instead of replaced, as CPython itself grows a sole-owned
- * string in place: nobody else holds it, so nobody can see it change, and the queuing hook
- * saves a dozen allocations a line. Anything shared is replaced as before. */
+ * string in place: nobody else holds it, so nobody can see it change (nor a hash cached in
+ * it: a string whose hash was taken is replaced), and the queuing hook saves a dozen
+ * allocations a line. Anything shared is replaced as before. */
 #include "kernel.h"
 
 #include <structmember.h>
@@ -76,12 +77,12 @@ PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
         find_slots(args[1], bl_names, BL_N, bl) < 0 ||
         find_slots(args[2], rp_names, RP_N, rp) < 0)
         return NULL;
-    memcpy(st_off, st, sizeof st);
-    memcpy(bl_off, bl, sizeof bl);
-    memcpy(rp_off, rp, sizeof rp);
     for (k = 0; k < 3; k++)
         if (small_int[k] == NULL && !(small_int[k] = PyLong_FromLong(k - 1)))
             return NULL;
+    memcpy(st_off, st, sizeof st);
+    memcpy(bl_off, bl, sizeof bl);
+    memcpy(rp_off, rp, sizeof rp);
     Py_XSETREF(st_type, (PyTypeObject *)Py_NewRef(args[0]));
     Py_XSETREF(bl_type, (PyTypeObject *)Py_NewRef(args[1]));
     Py_XSETREF(rp_type, (PyTypeObject *)Py_NewRef(args[2]));
@@ -335,16 +336,31 @@ static int put_float(PyObject **at, double v)
     return 0;
 }
 
-/* The items of a sole-owned list or tuple of three (NULL: not one, or shared). */
+/* The items of a sole-owned list or tuple of three (NULL: not one, or shared; a tuple
+ * from CPython 3.14 on, which keeps its hash once computed). */
 static PyObject **own3(PyObject *seq)
 {
     if (seq == NULL || Py_REFCNT(seq) != 1)
         return NULL;
     if (PyList_CheckExact(seq) && PyList_GET_SIZE(seq) == 3)
         return ((PyListObject *)seq)->ob_item;
+#if PY_VERSION_HEX < 0x030E0000
     if (PyTuple_CheckExact(seq) && PyTuple_GET_SIZE(seq) == 3)
         return ((PyTupleObject *)seq)->ob_item;
+#endif
     return NULL;
+}
+
+/* &item k of a list of three, checked again where it is written (Python code run by a
+ * garbage collection between the load and the store could have replaced it): NULL with
+ * RuntimeError if it is not one any more */
+static PyObject **item_of3(PyObject *list, int k)
+{
+    if (list == NULL || !PyList_CheckExact(list) || PyList_GET_SIZE(list) != 3) {
+        PyErr_SetString(PyExc_RuntimeError, "the stream state changed during a kernel call");
+        return NULL;
+    }
+    return &((PyListObject *)list)->ob_item[k];
 }
 
 /* obj's slot at ``off`` = three floats v, a list (or a tuple): the one there now, changed
@@ -406,7 +422,10 @@ static int set_ll(PyObject *obj, Py_ssize_t off, long long v, long long old)
  * growing a string in place), else a new string. */
 static int set_item_text(PyObject *list, int k, const char *t, int len)
 {
-    PyObject **at = &((PyListObject *)list)->ob_item[k], *o = *at, *n;
+    PyObject **at = item_of3(list, k), *o, *n;
+    if (at == NULL)
+        return -1;
+    o = *at;
     if (o != NULL && PyUnicode_CheckExact(o) && Py_REFCNT(o) == 1 &&
         PyUnicode_IS_COMPACT_ASCII(o) && PyUnicode_GET_LENGTH(o) == len &&
         ((PyASCIIObject *)o)->hash == -1 && !PyUnicode_CHECK_INTERNED(o)
@@ -428,7 +447,8 @@ static int set_item_text(PyObject *list, int k, const char *t, int len)
 /* item k of a list the Python path changes in place = v */
 static int set_item_double(PyObject *list, int k, double v)
 {
-    return put_float(&((PyListObject *)list)->ob_item[k], v);
+    PyObject **at = item_of3(list, k);
+    return at == NULL ? -1 : put_float(at, v);
 }
 
 /* Write back what the lines committed since ``before`` changed (lists that the Python
