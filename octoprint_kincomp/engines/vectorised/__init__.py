@@ -141,8 +141,6 @@ class FileEngine:
             if b < n:
                 pieces.append(self._lines(buf, int(tk.ls[b]), int(tk.le[b]) + 1))
             i = b + 1
-        if len(pieces) == 1 and not isinstance(pieces[0], bytes):
-            return pieces[0]
         return b"".join(pieces)
 
     def _vectorised(self, buf: bytes) -> bool:
@@ -194,36 +192,40 @@ class FileEngine:
         j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
         result = None
         if not (i1 - i0 < MIN_VECTOR_LINES or not comp.state.absolute or None in comp.state.m
-                or comp.state.q_drive is not None or tk.move_bad_number[j0:j1].any()):
+                or comp.state.q_drive is not None or tk.nul
+                or tk.move_bad_number[j0:j1].any()):
             result = self._vector(tk, i0, i1, cand, j0, j1)
         # short runs, or a limit error (the line path raises at its line)
-        pieces.append(result if result is not None else self._lines(buf, start, end))
+        if result is not None:
+            pieces.extend(result)
+        else:
+            pieces.append(self._lines(buf, start, end))
 
     # -- runs of plain moves ---------------------------------------------------------------
     def _vector(self, tk: "Tokens", i0: int, i1: int, cand: np.ndarray, j0: int,
-                j1: int) -> Optional[bytes]:
-        """Lines [i0, i1) with no state-changing line among them, vectorised."""
+                j1: int) -> Optional[List[bytes]]:
+        """Lines [i0, i1) with no state-changing line among them, vectorised: the output
+        in pieces (buffers), or None where the line path has to write them."""
         comp = self.comp
         moves = tk.move_lines[j0:j1]
         nm = len(moves)
         if nm == 0:
-            return self._finish_inert(tk, i0, i1, cand)
+            return [self._finish_inert(tk, i0, i1, cand)]
         u = MM_PER_INCH if comp.state.inches else 1.0
-        v3 = tk.move_vals[j0:j1]  # (nm, 3), NaN where the axis is not given
+        v3 = tk.move_vals[:, j0:j1]  # (3, nm), NaN where the axis is not given
         g3 = ~np.isnan(v3)
-        P = np.empty((nm, 3))
+        P = np.empty((3, nm))
         for k in range(3):
-            P[:, k] = _ffill(v3[:, k] * u - comp.state.w[k], g3[:, k], comp.state.m[k])
+            P[k] = _ffill(v3[k] * u - comp.state.w[k], g3[k], comp.state.m[k])
         seg_start, seg_end = int(tk.ls[i0]), int(tk.le[i1 - 1]) + 1
         ls = tk.ls[moves] - seg_start
         xyz_end = tk.xyz_end[j0:j1] - seg_start
         pre_s = np.empty(nm, np.int64)
         pre_s[0] = 0
         pre_s[1:] = xyz_end[:-1]
-        zero = np.zeros(nm, np.int64)
         rows = Rows(P, g3, moves, tk.crlf[moves], pre_s, ls - pre_s, ls,
-                     tk.fpre_start[j0:j1] - seg_start, tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1],
-                     zero, zero, int(xyz_end[-1]))
+                    tk.fpre_start[j0:j1] - seg_start, tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1],
+                    int(xyz_end[-1]))
         res = emit_rows(self.comp, i0, rows, tk.a[seg_start:seg_end])
         if res is None:
             return None

@@ -6,9 +6,10 @@ offset ``dir * fraction * b(q) / 2`` mm, the limits policy, ``gcode.fmt`` text).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Optional, Tuple
+from typing import List, NamedTuple, Optional, Tuple
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from ...core.backlash import hysteresis
 from ...core.compensator import MM_PER_INCH
@@ -45,97 +46,96 @@ def _interp(table, q: np.ndarray) -> np.ndarray:
 
 class Rows(NamedTuple):
     """Output rows of a vectorised run (its move lines) and where their bytes come from:
-    spans of the segment's input; ``resume`` is where the input continues after the last
-    row."""
+    spans (start, length) of the segment's input; ``resume`` is where the input continues
+    after the last row."""
 
-    P: np.ndarray  # (n, 3) desired machine points, mm
-    given: np.ndarray  # (n, 3) axes written whatever their text
+    P: np.ndarray  # (3, n) desired machine points, mm
+    given: np.ndarray  # (3, n) axes written whatever their text
     line: np.ndarray  # line index in the block (limit reports, endings)
     crlf: np.ndarray  # the line ends with CRLF (take-up rows copy it)
-    pre_s: np.ndarray
-    pre_l: np.ndarray
+    pre_s: np.ndarray  # the input before the row: the rest of the last move line and any
+    pre_l: np.ndarray  # lines in between
     code_s: np.ndarray  # 2 bytes: "G0"/"G1"
-    fpre_s: np.ndarray
+    fpre_s: np.ndarray  # a leading F word (" F1200"), written after X/Y/Z
     fpre_l: np.ndarray
-    post_s: np.ndarray
-    post_l: np.ndarray
     resume: int
 
 
-def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray) -> Optional[Tuple[np.ndarray, int]]:
+def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
+              ) -> Optional[Tuple[List[np.ndarray], int]]:
     """Compensate and render ``rows`` (desired machine points, in order); the output
-    bytes and the number of take-up moves, or None when the line path has to decide
-    (a limit error under the policy 'error'). Nothing is changed in the compensator
-    then. ``seg``: the input bytes the rows' spans point into; ``i0``: the block's line
-    index of the segment's first line (limit reports)."""
+    (pieces, buffers) and the number of take-up moves, or None when the line path has to
+    decide (a limit error under the policy 'error', a coordinate the tables do not write).
+    Nothing is changed in the compensator then. ``seg``: the input bytes the rows' spans
+    point into; ``i0``: the block's line index of the segment's first line (limit
+    reports). Arrays are per axis: (3, n)."""
     rep = comp.report
     opts = comp.options
-    u = MM_PER_INCH if comp.state.inches else 1.0
-    dec = opts.decimals + (2 if comp.state.inches else 0)
+    st = comp.state
+    u = MM_PER_INCH if st.inches else 1.0
+    dec = opts.decimals + (2 if st.inches else 0)
     fmtr = Formatter(dec)
     P, g3, moves = rows.P, rows.given, rows.line
-    nm = len(P)
-    m0 = comp.state.m
+    nm = P.shape[1]
+    m0 = st.m
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = comp.model.inverse_rows
     b0, b1, b2 = comp.model.offset_mm
-    x, y, z = P[:, 0] - b0, P[:, 1] - b1, P[:, 2] - b2
-    Q = np.empty((nm, 3))
-    Q[:, 0] = a00 * x + a01 * y + a02 * z
-    Q[:, 1] = a10 * x + a11 * y + a12 * z
-    Q[:, 2] = a20 * x + a21 * y + a22 * z
-    q0 = comp.state.q_last
+    x, y, z = P[0] - b0, P[1] - b1, P[2] - b2
+    Q = np.empty((3, nm))
+    Q[0] = a00 * x + a01 * y + a02 * z
+    Q[1] = a10 * x + a11 * y + a12 * z
+    Q[2] = a20 * x + a21 * y + a22 * z
+    q0 = st.q_last
     if q0 is None:
         q0 = comp.model.inverse(m0)
     Qp = np.empty_like(Q)
-    Qp[0] = q0
-    Qp[1:] = Q[:-1]
+    Qp[:, 0] = q0
+    Qp[:, 1:] = Q[:, :-1]
     Pp = np.empty_like(P)
-    Pp[0] = m0
-    Pp[1:] = P[:-1]
+    Pp[:, 0] = m0
+    Pp[:, 1:] = P[:, :-1]
     bl = comp.backlash
-    dirs_after = np.zeros((nm, 3), np.int64)
+    dirs_after = np.empty((3, nm), np.int64)
     rev_any = np.zeros(nm, bool)
     anchors = list(bl.s.anchor)
     for k in range(3):
-        if bl.active[k]:
-            # the tracker's own comparisons (q against anchor -/+ deadband: rounding at
-            # the deadband's edge must not differ from it)
-            up = Q[:, k] > Qp[:, k] + bl.deadband
-            down = Q[:, k] < Qp[:, k] - bl.deadband
-            a = bl.s.anchor[k]
-            if (a is not None and a != q0[k]) or np.any(
-                    ~up & ~down & (Q[:, k] != Qp[:, k])):
-                # the anchor is not the current command somewhere: the tracker's
-                # hysteresis, point by point (arcs put chord ends next to reversals)
-                dk, rk, anchors[k] = hysteresis(Q[:, k].tolist(), bl.s.dir[k], a, q0[k],
-                                                bl.deadband)
-                dirs_after[:, k] = dk
-                rev_any |= np.asarray(rk, bool)
-                continue
-            # anchored at the start and no sub-deadband step: the anchor is always the
-            # current command, so a reversal is a step beyond the deadband against dir
-            s = np.where(up, 1, np.where(down, -1, 0))
-            after = _ffill_int(s, bl.s.dir[k])
-            before = np.empty_like(after)
-            before[0] = bl.s.dir[k]
-            before[1:] = after[:-1]
-            rev_any |= (s != 0) & (s != before)
-            dirs_after[:, k] = after
-            anchors[k] = float(Q[-1, k])
-        else:
-            dirs_after[:, k] = bl.s.dir[k]
+        if not bl.active[k]:
+            dirs_after[k] = bl.s.dir[k]
+            continue
+        qk, qp = Q[k], Qp[k]
+        # the tracker's own comparisons (q against anchor -/+ deadband: rounding at the
+        # deadband's edge must not differ from it)
+        up = qk > qp + bl.deadband
+        down = qk < qp - bl.deadband
+        a = bl.s.anchor[k]
+        if (a is not None and a != q0[k]) or np.any(~up & ~down & (qk != qp)):
+            # the anchor is not the current command somewhere: the tracker's hysteresis,
+            # point by point (arcs put chord ends next to reversals)
+            dk, rk, anchors[k] = hysteresis(qk.tolist(), bl.s.dir[k], a, q0[k], bl.deadband)
+            dirs_after[k] = dk
+            rev_any |= np.asarray(rk, bool)
+            continue
+        # anchored at the start and no sub-deadband step: the anchor is always the current
+        # command, so a reversal is a step beyond the deadband against dir
+        s = up.astype(np.int64) - down
+        after = _ffill_int(s, bl.s.dir[k])
+        before = np.empty_like(after)
+        before[0] = bl.s.dir[k]
+        before[1:] = after[:-1]
+        rev_any |= (s != 0) & (s != before)
+        dirs_after[k] = after
+        anchors[k] = float(qk[-1])
     half = comp.backlash.half
     C = Q.copy()
     tups = np.flatnonzero(rev_any)
-    Ct = Qp[tups].copy()
-    Pt = Pp[tups]
+    Ct = Qp[:, tups]
+    Pt = Pp[:, tups]
     for k in range(3):
         if bl.active[k]:
             # rows with no direction get + 0.0: the same number (and the same text)
-            d = dirs_after[:, k]
-            C[:, k] += d * half * _interp(bl.tables[k], Q[:, k])
-            dt = d[tups]
-            Ct[:, k] += dt * half * _interp(bl.tables[k], Ct[:, k])
+            d = dirs_after[k]
+            C[k] += d * half * _interp(bl.tables[k], Q[k])
+            Ct[k] += d[tups] * half * _interp(bl.tables[k], Ct[k])
     # where each point is emitted: take-ups right before their rows
     order_pos = np.arange(nm) + np.cumsum(rev_any)
     tpos = tups + np.arange(len(tups))
@@ -143,118 +143,133 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray) -> Optional[Tuple[np.n
         ok = check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0)
         if not ok:
             return None
-    # max correction per axis (um)
-    for k in range(3):
-        cm = float(np.max(np.abs(C[:, k] - P[:, k]))) * 1000.0
-        if len(tups):
-            cm = max(cm, float(np.max(np.abs(Ct[:, k] - Pt[:, k]))) * 1000.0)
-        if cm > rep.max_correction_um[k]:
-            rep.max_correction_um[k] = cm
     # text (as scaled integers) of every evaluated point, in emission order
     ntot = nm + len(tups)
-    N = np.empty((ntot, 3), np.int64)
-    NEG = np.empty((ntot, 3), bool)
-    G = np.empty((ntot, 3), np.float64)
+    N = np.empty((3, ntot), np.int64)
+    NEG = np.empty((3, ntot), bool)
     for k in range(3):
-        G[order_pos, k] = C[:, k]
         if len(tups):
-            G[tpos, k] = Ct[:, k]
-        fw = (G[:, k] + comp.state.g[k]) / u
-        N[:, k], NEG[:, k] = fmtr.ints(fw)
-    # written: given axes of moves, or text changed since the previous point
-    prevN = np.empty_like(N)
-    prevNEG = np.empty_like(NEG)
+            G = np.empty(ntot)
+            G[order_pos] = C[k]
+            G[tpos] = Ct[k]
+        else:
+            G = C[k]
+        N[k], NEG[k] = fmtr.ints((G + st.g[k]) / u)
+    if not fmtr.fits(N):
+        return None  # (a coordinate of 10,000 output units or more: the line path writes it)
+    # max correction per axis (um)
     for k in range(3):
-        old = comp.state.fw_text[k]
+        cm = float(np.max(np.abs(C[k] - P[k]))) * 1000.0
+        if len(tups):
+            cm = max(cm, float(np.max(np.abs(Ct[k] - Pt[k]))) * 1000.0)
+        if cm > rep.max_correction_um[k]:
+            rep.max_correction_um[k] = cm
+    # written: given axes of moves, or text changed since the previous point
+    W = np.empty((3, ntot), bool)
+    for k in range(3):
+        old = st.fw_text[k]
         if old is None:
-            old = "%.*f" % (dec, comp.state.fw[k] / u)
+            old = "%.*f" % (dec, st.fw[k] / u)
         whole, _, frac = old.lstrip("-").partition(".")  # trimmed: "10.5" is 10500
         on = int(whole + frac.ljust(dec, "0"))
-        prevN[0, k] = on
-        prevNEG[0, k] = old.startswith("-") and on > 0
-    prevN[1:] = N[:-1]
-    prevNEG[1:] = NEG[:-1]
-    changed = (N != prevN) | (NEG != prevNEG)
-    is_move = np.zeros(ntot, bool)
-    is_move[order_pos] = True
-    W = np.zeros((ntot, 3), bool)
-    W[order_pos] = g3
-    W |= changed
-    take_emit = W[tpos].any(axis=1) if len(tups) else np.zeros(0, bool)
-    # render the generated parts: move rows " X.. Y.." and take-up rows "G1 X..\n"
-    big = int(N.max()) if ntot else 0
-    block = 2 + 1 + max(1, len(str(big // 10 ** dec))) + 1 + dec
-    total_w = 2 + 3 * block + 2
-    fullT = np.empty((total_w, ntot), np.uint8)  # transposed: see _Formatter.fill
-    maskT = np.zeros((total_w, ntot), bool)
-    row_len = np.zeros(ntot, np.int64)
-    col = 2
-    for k in range(3):
-        row_len += fmtr.fill(fullT, maskT, col, block, ord("XYZ"[k]), N[:, k], NEG[:, k],
-                             W[:, k])
-        col += block
-    if len(tups):
-        # take-up rows: "G1" first and the line ending of their move's line last
-        crlf = rows.crlf[tups]
-        fullT[0, tpos], fullT[1, tpos] = 71, 49
-        fullT[total_w - 2, tpos] = np.where(crlf, 13, 10)
-        fullT[total_w - 1, tpos] = 10
-        te_rows = tpos[take_emit]
-        maskT[0, te_rows] = True
-        maskT[1, te_rows] = True
-        maskT[total_w - 2, te_rows] = True
-        maskT[total_w - 1, te_rows] = crlf[take_emit]
-        row_len[te_rows] += 3 + crlf[take_emit]
-        dropped = tpos[~take_emit]
-        maskT[:, dropped] = False
-        row_len[dropped] = 0
-    gen = fullT.T[maskT.T]
-    row_off = np.cumsum(row_len) - row_len
-    # assemble from a pool: this segment's input, then the generated rows. Per row: input
-    # up to its line, its take-up row, its "G0"/"G1", its generated X/Y/Z, a leading F
-    # word; the input then resumes after the row (the last piece runs to the end).
-    gbase = len(seg)
-    take_row = np.zeros(nm, np.int64)
-    has_t = np.zeros(nm, bool)
-    if len(tups):
-        take_row[tups] = tpos
-        has_t[tups] = True
-    S = np.empty(6 * nm + 1, np.int64)
-    L = np.empty(6 * nm + 1, np.int64)
-    S[0:-1:6] = rows.pre_s
-    L[0:-1:6] = rows.pre_l
-    S[1::6] = gbase + row_off[take_row]
-    L[1::6] = np.where(has_t, row_len[take_row], 0)
-    S[2::6] = rows.code_s
-    L[2::6] = 2
-    S[3::6] = gbase + row_off[order_pos]
-    L[3::6] = row_len[order_pos]
-    S[4::6] = rows.fpre_s
-    L[4::6] = rows.fpre_l
-    S[5::6] = rows.post_s
-    L[5::6] = rows.post_l
-    S[-1] = rows.resume
-    L[-1] = len(seg) - rows.resume
-    total = int(L.sum())
-    dst = np.cumsum(L) - L
-    idx = np.repeat((S - dst).astype(np.int32), L)
-    idx += np.arange(total, dtype=np.int32)
-    pool = np.concatenate([seg, gen])
-    out = np.take(pool, idx)  # a buffer; joined/written without another copy
+        nk, negk = N[k], NEG[k]
+        W[k, 0] = nk[0] != on or negk[0] != (old.startswith("-") and on > 0)
+        np.not_equal(nk[1:], nk[:-1], out=W[k, 1:])
+        W[k, 1:] |= negk[1:] != negk[:-1]
+        if len(tups):
+            W[k, order_pos] |= g3[k]
+        else:
+            W[k] |= g3[k]
+    take_emit = (W[0, tpos] | W[1, tpos] | W[2, tpos]) if len(tups) else np.zeros(0, bool)
+    # (a move's input before it comes before its take-up)
+    out = _assemble(seg, rows, fmtr, N, NEG, W, order_pos, order_pos - rev_any,
+                    tpos[take_emit], rows.crlf[tups[take_emit]])
     # state handover
-    last = ntot - 1
     for k in range(3):
-        text = fmtr.text(int(N[last, k]), bool(NEG[last, k]))
-        comp.state.fw_text[k] = text
-        comp.state.fw[k] = float(text) * u
-    comp.state.m = [float(P[-1, 0]), float(P[-1, 1]), float(P[-1, 2])]
-    comp.state.q_last = (float(Q[-1, 0]), float(Q[-1, 1]), float(Q[-1, 2]))
-    comp.state.limit_recheck = [True, True, True]
+        text = fmtr.text(int(N[k, -1]), bool(NEG[k, -1]))
+        st.fw_text[k] = text
+        st.fw[k] = float(text) * u
+    st.m = [float(P[0, -1]), float(P[1, -1]), float(P[2, -1])]
+    st.q_last = (float(Q[0, -1]), float(Q[1, -1]), float(Q[2, -1]))
+    st.limit_recheck = [True, True, True]
     for k in range(3):
-        bl.s.dir[k] = int(dirs_after[-1, k])
+        bl.s.dir[k] = int(dirs_after[k, -1])
         if bl.active[k]:
             bl.s.anchor[k] = anchors[k]
     return out, int(take_emit.sum())
+
+
+LONG_SPAN = 128  # most input bytes before a row that are copied into it
+_COLS8 = np.arange(LONG_SPAN, dtype=np.uint8)
+SPLICE_COST = 24000  # a spliced span costs about as much as this many bytes of row width
+
+
+def _span_width(pre_l: np.ndarray, n_rows: int) -> int:
+    """How many input bytes before a row are copied into it (a longer span is spliced in
+    after): the width of least cost, each byte of width costing every row, each splice
+    SPLICE_COST of them."""
+    if len(pre_l) == 0:
+        return 0
+    counts = np.bincount(np.minimum(pre_l, LONG_SPAN + 1), minlength=LONG_SPAN + 2)
+    longer = len(pre_l) - np.cumsum(counts)[: LONG_SPAN + 1]  # spans longer than 0..LONG_SPAN
+    cost = np.arange(LONG_SPAN + 1) * n_rows + SPLICE_COST * longer
+    return int(np.argmin(cost))
+
+
+def _assemble(seg: np.ndarray, rows: Rows, fmtr: Formatter, N: np.ndarray, NEG: np.ndarray,
+              W: np.ndarray, order_pos: np.ndarray, pre_rows: np.ndarray, takeups: np.ndarray,
+              take_crlf: np.ndarray) -> List[np.ndarray]:
+    """The output of a run: one byte row per emitted line (moves at ``order_pos``, written
+    take-ups at ``takeups``), each laid out in fixed places, with 0 where nothing is written:
+    the input before a move (up to LONG_SPAN bytes, in row ``pre_rows``: its take-up's, if
+    it has one), the code, the X/Y/Z words (``N``, ``NEG`` where ``W``), a leading F word or
+    a take-up's line ending. Dropping the 0 bytes gives the text; a longer input span is put
+    in between afterwards, and the input after the last row follows. Returns the pieces in
+    order (buffers)."""
+    ntot = N.shape[1]
+    pre_l = rows.pre_l
+    K = _span_width(pre_l, ntot)
+    spliced = np.flatnonzero(pre_l > K)
+    copied = np.where(pre_l > K, 0, pre_l)
+    F = int(rows.fpre_l.max()) if len(copied) else 0
+    code = (K + 2 + 7) // 8 * 8 - 2  # (the words start at a multiple of eight)
+    words = code + 2
+    tail = words + 3 * fmtr.width
+    width = tail + (max(F, 2) + 7) // 8 * 8
+    R = np.zeros((ntot, width), np.uint8)
+    src = np.concatenate([seg, np.zeros(max(K, F), np.uint8)])
+    moves = order_pos if ntot != len(order_pos) else slice(None)
+    if K:
+        span = sliding_window_view(src, K)[rows.pre_s]
+        span *= _COLS8[:K] < copied.astype(np.uint8)[:, None]
+        R[pre_rows if ntot != len(order_pos) else slice(None), :K] = span
+    R[moves, code] = seg[rows.code_s]
+    R[moves, code + 1] = seg[rows.code_s + 1]
+    R[takeups, code] = 71  # G1
+    R[takeups, code + 1] = 49
+    for k in range(3):
+        fmtr.put(R, words + k * fmtr.width, ord("XYZ"[k]), N[k], NEG[k], W[k])
+    if F:
+        lead = np.flatnonzero(rows.fpre_l)
+        span = sliding_window_view(src, F)[rows.fpre_s[lead]]
+        span *= np.arange(F) < rows.fpre_l[lead][:, None]  # (rare: not made faster)
+        R[order_pos[lead], tail:tail + F] = span
+    R[takeups, tail] = np.where(take_crlf, 13, 10)
+    R[takeups[take_crlf], tail + 1] = 10
+    # the text: the rows without their 0 bytes, a spliced span before its row
+    flat = R.ravel()
+    written = flat != 0
+    pieces = []
+    prev = 0
+    for row, start, n in zip(pre_rows[spliced].tolist(), rows.pre_s[spliced].tolist(),
+                             pre_l[spliced].tolist()):
+        cut, end = prev * width, row * width
+        pieces.append(np.compress(written[cut:end], flat[cut:end]))
+        pieces.append(seg[start:start + n])
+        prev = row
+    pieces.append(np.compress(written[prev * width:], flat[prev * width:]))
+    pieces.append(seg[rows.resume:])
+    return pieces
 
 
 def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bool:
@@ -268,22 +283,22 @@ def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bo
     for k in range(3):
         lo, hi = lim[2 * k], lim[2 * k + 1]
         for arr_c, arr_p, rows, pos in ((Ct, Pt, tups, tpos), (C, P, None, order_pos)):
-            if len(arr_c) == 0:
+            if arr_c.shape[1] == 0:
                 continue
-            inside = (arr_p[:, k] >= lo) & (arr_p[:, k] <= hi)
-            hit = inside & ((arr_c[:, k] < lo) | (arr_c[:, k] > hi))
+            inside = (arr_p[k] >= lo) & (arr_p[k] <= hi)
+            hit = inside & ((arr_c[k] < lo) | (arr_c[k] > hi))
             if hit.any():
                 if comp.options.policy == "error":
                     return False
                 idx = np.flatnonzero(hit)
                 line_rows = moves[rows[idx]] if rows is not None else moves[idx]
                 for p, li, v in zip(pos[idx].tolist(), line_rows.tolist(),
-                                    arr_c[idx, k].tolist()):
+                                    arr_c[k, idx].tolist()):
                     events.append((p, k, li, v))
                 if comp.options.policy == "clamp":
-                    arr_c[idx, k] = np.clip(arr_c[idx, k], lo, hi)
+                    arr_c[k, idx] = np.clip(arr_c[k, idx], lo, hi)
             if rows is None:
-                outside += int((~inside & (arr_p[:, k] != Pp[:, k])).sum())
+                outside += int((~inside & (arr_p[k] != Pp[k])).sum())
     rep.source_outside += outside
     if events:
         events.sort()

@@ -1,13 +1,58 @@
 """Fixed-point text of float arrays, as the reference path writes numbers (gcode.fmt:
 ``"%.{dec}f" % v`` without trailing zeros, bare dot or negative zero), for the vectorised file
-engine."""
+engine.
+
+A number is written into a row of a byte matrix by table look-ups: its axis word with sign
+and integer part (" X-12", one 8-byte entry of a table per letter) and its decimals in
+groups of three (".5", ".125", "001", each a 4-byte entry). What is not written is the byte
+0, which the row assembly (rows.py) drops, so no entry needs to know where the next one
+starts.
+"""
 
 from __future__ import annotations
 
+from typing import Dict, Tuple
+
 import numpy as np
 
-_LUT4 = np.frombuffer(b"".join(b"%03d\0" % i for i in range(1000)), np.uint32)
-_P10I = 10 ** np.arange(19, dtype=np.int64)
+INT_LIMIT = 10000  # integer parts written by the tables: 0..9999 (in output units)
+_BLANK_INT = 2 * INT_LIMIT  # the entry of an axis that is not written
+
+
+def _texts_to_table(texts, width: int, dtype) -> np.ndarray:
+    """Byte strings (at most ``width`` bytes each, padded with 0) as one integer each whose
+    memory is the text (a copy of an entry copies the text, on any byte order)."""
+    return np.frombuffer(b"".join(t.ljust(width, b"\0") for t in texts), dtype)
+
+
+_INT_TABLES: Dict[int, np.ndarray] = {}
+_FRAC_TABLES: Tuple[np.ndarray, np.ndarray] = ()  # type: ignore[assignment]
+
+
+def _int_table(letter: int) -> np.ndarray:
+    """" <letter>[-]<integer part>" for 0..9999 (index + INT_LIMIT: negative); the last
+    entry is blank."""
+    table = _INT_TABLES.get(letter)
+    if table is None:
+        head = b" " + bytes([letter])
+        texts = [head + b"%d" % i for i in range(INT_LIMIT)]
+        texts += [head + b"-%d" % i for i in range(INT_LIMIT)]
+        table = _INT_TABLES[letter] = _texts_to_table(texts + [b""], 8, np.uint64)
+    return table
+
+
+def _frac_tables() -> Tuple[np.ndarray, np.ndarray]:
+    """Three decimals, for the first group (with the dot) and a later one: index v for the
+    last group written (trailing zeros dropped, nothing for 0), v + 1000 for one that more
+    digits follow (all three)."""
+    global _FRAC_TABLES
+    if not _FRAC_TABLES:
+        full = [b"%03d" % v for v in range(1000)]
+        last = [t.rstrip(b"0") for t in full]
+        first = [b"." + t if t else b"" for t in last] + [b"." + t for t in full]
+        _FRAC_TABLES = (_texts_to_table(first, 4, np.uint32),
+                        _texts_to_table(last + full, 4, np.uint32))
+    return _FRAC_TABLES
 
 
 class Formatter:
@@ -16,6 +61,8 @@ class Formatter:
     def __init__(self, dec: int):
         self.dec = dec
         self.scale = 10.0 ** dec
+        self.groups = (dec + 2) // 3  # groups of three decimals
+        self.width = (8 + 4 * self.groups + 7) // 8 * 8  # bytes of one axis word in a row
 
     def ints(self, v: np.ndarray):
         """(magnitude in units of 10**-dec as int64, negative flag)."""
@@ -37,57 +84,26 @@ class Formatter:
             s = (s[: -self.dec] + "." + s[-self.dec:]).rstrip("0").rstrip(".")
         return "-" + s if neg else s
 
-    def trailing_zeros(self, n: np.ndarray) -> np.ndarray:
-        """How many of the ``dec`` decimals of each number are trailing zeros (not written)."""
-        tz = np.zeros(len(n), np.int64)
-        for e in range(1, self.dec + 1):
-            tz += n % _P10I[e] == 0
-        return tz
+    def fits(self, n: np.ndarray) -> bool:
+        """Whether every magnitude has an integer part the tables write."""
+        return len(n) == 0 or int(n.max()) < INT_LIMIT * 10 ** self.dec
 
-    def fill(self, fullT: np.ndarray, maskT: np.ndarray, col: int, width: int, letter: int,
-             n: np.ndarray, neg: np.ndarray, written: np.ndarray) -> np.ndarray:
-        """Write " <letter><number>" into rows col..col+width of the transposed row matrix
-        ``fullT`` (one matrix row per output column, so every write is one long 1-D run).
-
-        Layout of the block: space, letter, sign slot, integer digits (right-aligned), dot,
-        decimals; ``maskT`` selects what is really written (not the trailing zeros of the
-        decimals, nor the dot when all are). Returns each row's length (0 if not written).
-        Digits come three at a time from a table of "000".."999".
-        """
-        dec = self.dec
-        tz = self.trailing_zeros(n)
-        n_int = width - 4 - dec
-        ip = n // _P10I[dec]
-        nint = np.ones(len(n), np.int64)
-        for e in range(1, n_int):
-            nint += ip >= _P10I[e]
-        start = 3 + n_int - nint - neg  # first written column after " X"
-        fullT[col] = 32
-        fullT[col + 1] = letter
-        maskT[col] = written
-        maskT[col + 1] = written
-        right = col + width - 1
-        rest = n
-        place = 0
-        while place < dec + n_int:
-            cell = _LUT4[rest % 1000]
-            rest = rest // 1000
-            for j in (2, 1, 0):  # "ddd": byte 2 is the least significant digit
-                if place >= dec + n_int:
-                    break
-                pos = right - place if place < dec else right - place - 1
-                fullT[pos] = (cell >> (8 * j)) & 0xFF
-                if place < dec:
-                    maskT[pos] = written & (tz <= place)
-                else:
-                    maskT[pos] = written & (pos - col >= start)
-                place += 1
-        fullT[right - dec] = 46
-        maskT[right - dec] = written & (tz < dec)
-        sign_col = col + 2 + n_int - nint  # just before the first integer digit
-        ng = np.flatnonzero(neg & written)
-        if len(ng):
-            fullT[sign_col[ng], ng] = 45
-            maskT[sign_col[ng], ng] = True
-        return np.where(written, 2 + neg + nint + np.where(tz < dec, 1 + dec - tz, 0), 0)
-
+    def put(self, rows: np.ndarray, col: int, letter: int, n: np.ndarray, neg: np.ndarray,
+            written: np.ndarray) -> None:
+        """Write " <letter><number>" where ``written`` into ``rows`` (a byte matrix whose
+        width is a multiple of 8), ``width`` bytes from byte ``col`` (a multiple of 8);
+        0 bytes elsewhere."""
+        unit = 10 ** self.dec
+        whole, frac = np.divmod(n, unit)
+        idx = np.where(written, whole + INT_LIMIT * neg, _BLANK_INT)
+        rows.view(np.uint64)[:, col // 8] = _int_table(letter)[idx]
+        rows32 = rows.view(np.uint32)
+        col = col // 4
+        first, later = _frac_tables()
+        digits = frac * (10 ** (3 * self.groups - self.dec))  # 3 decimals a group
+        digits *= written
+        for g in range(self.groups):
+            below = 1000 ** (self.groups - 1 - g)
+            value = (digits // below) % 1000
+            more = (digits % below) != 0 if below > 1 else False
+            rows32[:, col + 2 + g] = (first if g == 0 else later)[value + 1000 * more]

@@ -2,7 +2,14 @@
 engine: where each line starts and ends, which lines are plain ``G0``/``G1`` moves with
 single-spaced X/Y/Z/E/F words (the candidates), which may change the modal state (they take
 the reference path), and the exact values of the move lines' X/Y/Z numbers (mm or inches as
-written)."""
+written).
+
+Every word of a candidate line is looked at through a window of the ``WORD_WIDTH`` bytes
+that end where the word ends (one row of a byte matrix per word): its number is checked and,
+for X/Y/Z, parsed there with whole-matrix operations, so the cost is a few passes over the
+block and over that matrix, whatever the words' lengths. A word whose number is longer than
+the window sends its line to the reference path.
+"""
 
 from __future__ import annotations
 
@@ -11,32 +18,13 @@ from typing import Optional, Tuple
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-NUM_WIDTH = 10  # longest number token parsed here (longer ones take the line-by-line path)
-
-# byte classes: numbers weigh digit 1, '.' 32, anything else 128 (a sign is checked apart);
-# separators are >= 250
-_CLS = bytearray([128] * 256)
-for _c in b"0123456789":
-    _CLS[_c] = 1
-_CLS[ord(".")] = 32
-_SP, _SEMI, _CR, _NL, _TAB = 250, 251, 252, 253, 254
-_CLS[ord(" ")] = _SP
-_CLS[ord(";")] = _SEMI
-_CLS[ord("\r")] = _CR
-_CLS[ord("\n")] = _NL
-_CLS[ord("\t")] = _TAB
-_CLS = bytes(_CLS)
+NUM_WIDTH = 10  # longest X/Y/Z number parsed here (longer ones take the line-by-line path)
+WORD_WIDTH = 16  # longest number of any word checked here (its line takes the line path)
 
 _LETTER = np.zeros(256, np.int8)  # X=1 Y=2 Z=3 E=4 F=5
 for _i, _c in enumerate(b"XYZEF"):
     _LETTER[_c] = _i + 1
-_DIGIT = np.zeros(256, np.float64)
-_DIGIT[48:58] = np.arange(10)
 _P10F = 10.0 ** np.arange(24)
-_DIGIT32 = _DIGIT.astype(np.float32)
-_P10F32 = (10.0 ** np.arange(8)).astype(np.float32)
-_PLACE32 = np.arange(32, dtype=np.float32)
-_P10I = 10 ** np.arange(19, dtype=np.int64)
 _BREAK_FIRST = np.zeros(256, bool)  # first byte of a line that may change the state
 for _c in b"GgTtNnm\t \x0b\x0c":
     _BREAK_FIRST[_c] = True
@@ -46,6 +34,82 @@ for _c in b"GgTtNnm\t \x0b\x0c":
 _BREAK_FIRST[0x1C:0x20] = True
 _BREAK_FIRST[0x80:] = True
 
+# -- eight bytes at a time ---------------------------------------------------------------
+# A word's number is read as the 16 bytes that end where it ends: two little-endian uint64
+# (``lo``: the first 8 bytes, ``hi``: the last 8; byte k of a half is its k-th character),
+# so a test of every byte is one integer operation per half (SWAR).
+_U = np.uint64
+_LE64 = np.dtype("<u8")  # (read as little-endian on any machine)
+_ONES = _U(0x0101010101010101)
+_HIGH = _U(0x8080808080808080)
+_LOW7 = _U(0x7F7F7F7F7F7F7F7F)
+_ZEROS = _U(0x3030303030303030)  # "00000000"
+_ALL = _U(0xFFFFFFFFFFFFFFFF)
+
+
+def _half_masks(first_byte: int):
+    """Per number length 0..16: the byte mask of the number within each half, and of its
+    first character (a sign may stand there)."""
+    tok_lo, tok_hi, first_lo, first_hi = ([0] * 17 for _ in range(4))
+    for n in range(1, 17):
+        start = 16 - n  # column of the first character
+        for col in range(start, 16):
+            if col < 8:
+                tok_lo[n] |= 0xFF << (8 * col)
+            else:
+                tok_hi[n] |= 0xFF << (8 * (col - 8))
+        if start < 8:
+            first_lo[n] = first_byte << (8 * start)
+        else:
+            first_hi[n] = first_byte << (8 * (start - 8))
+    return tuple(np.array(t, np.uint64) for t in (tok_lo, tok_hi, first_lo, first_hi))
+
+
+_TOK_LO, _TOK_HI, _FIRST_LO, _FIRST_HI = _half_masks(0xFF)
+
+
+def _digits(x: np.ndarray) -> np.ndarray:
+    """0x80 in each byte of ``x`` that is an ASCII digit, 0 elsewhere (no carry crosses a
+    byte: each sum stays below 0x100, each difference above 0)."""
+    at_least_0 = (x | _HIGH) - _ZEROS  # high bit: (byte & 0x7F) >= '0'
+    above_9 = (x & _LOW7) + _U(0x4646464646464646)  # high bit: (byte & 0x7F) >= ':'
+    return at_least_0 & ~above_9 & ~x & _HIGH
+
+
+def _bytes_equal(x: np.ndarray, c: int) -> np.ndarray:
+    """0x80 in each byte of ``x`` equal to ``c``, 0 elsewhere."""
+    y = x ^ (_ONES * _U(c))
+    nonzero = (((y & _LOW7) + _LOW7) | y) & _HIGH
+    return nonzero ^ _HIGH
+
+
+def _at_most_one(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether at most one byte flag is set in the two halves together."""
+    return ((lo & (lo - _U(1))) == 0) & ((hi & (hi - _U(1))) == 0) & ((lo == 0) | (hi == 0))
+
+
+def _eight_digits(v: np.ndarray) -> np.ndarray:
+    """The value of eight ASCII digits (the first the most significant)."""
+    v = v - _ZEROS
+    v = ((v * _U(10)) + (v >> _U(8))) & _U(0x00FF00FF00FF00FF)
+    v = ((v * _U(100)) + (v >> _U(16))) & _U(0x0000FFFF0000FFFF)
+    return ((v * _U(10000)) + (v >> _U(32))) & _U(0x00000000FFFFFFFF)
+
+
+def _flag_byte(flag: np.ndarray) -> np.ndarray:
+    """The byte index (0..7) of the single flag (0x80 in one byte) of each element."""
+    return (np.frexp(flag.astype(np.float64))[1] // 8 - 1).astype(np.int64)
+
+
+def _firsts(positions: np.ndarray, ends: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """For sorted byte ``positions`` (of some character) and the lines ending at ``ends``:
+    per line, whether it holds one and the first one's index into ``positions``."""
+    upto = np.searchsorted(positions, ends)
+    before = np.empty_like(upto)
+    before[0] = 0
+    before[1:] = upto[:-1]
+    return upto > before, before
+
 
 class Tokens:
     """Byte-level tokenisation of a block of complete lines (each ending with b'\\n')."""
@@ -54,11 +118,8 @@ class Tokens:
         self.buf = buf
         a = np.frombuffer(buf, np.uint8)
         self.a = a
-        cls = np.frombuffer(buf.translate(_CLS), np.uint8)
-        sep = np.flatnonzero(cls >= _SP)
-        sk = cls[sep]
-        isnl = sk == _NL
-        nl = sep[isnl]
+        self.nul = b"\x00" in buf  # (the row assembly pads with NUL: such a block goes by line)
+        nl = np.flatnonzero(a == 10)
         n = len(nl)
         self.n_lines = n
         ls = np.empty(n, np.int64)
@@ -66,76 +127,63 @@ class Tokens:
         ls[1:] = nl[:-1] + 1
         self.ls, self.le = ls, nl
         self.crlf = (nl > 0) & (a[np.maximum(nl - 1, 0)] == 13)
-        last = len(a) - 1
         # a CR that does not end a line is a line end of its own for the reference reader
-        crs = sep[sk == _CR]
-        self.lone_cr = bool(len(crs)) and bool(np.any(a[np.minimum(crs + 1, last)] != 10))
+        self.lone_cr = int(np.count_nonzero(a == 13)) != int(np.count_nonzero(self.crlf))
+        last = len(a) - 1
         c0 = a[ls]
         c1 = a[np.minimum(ls + 1, last)]
         c2 = a[np.minimum(ls + 2, last)]
-        length = nl - ls
-        cand = (length >= 3) & (c0 == 71) & ((c1 == 48) | (c1 == 49)) & (c2 == 32)
+        cand = (nl - ls >= 3) & (c0 == 71) & ((c1 == 48) | (c1 == 49)) & (c2 == 32)
         # lines that may change the modal state go through the compensator one by one
         brk = _BREAK_FIRST[c0] & ~cand
         mline = (c0 == 77) & ~((c1 >= 48) & (c1 <= 57))
         m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51)))
                                 | ((c1 == 52) & (c2 == 56)))
         brk |= mline | m_state
-        # tokens: after each space separator of a candidate line, up to the next separator
-        lid = np.cumsum(isnl) - isnl
-        in_cand = cand[lid]
-        is_sp = (sk == _SP) & in_cand
-        is_semi = (sk == _SEMI) & in_cand
-        # first ';' of each candidate line ends its command part
-        semi_pos = np.full(n, -1, np.int64)
-        si = np.flatnonzero(is_semi)
-        if len(si):
-            first_lines, first_idx = np.unique(lid[si], return_index=True)
-            semi_pos[first_lines] = sep[si[first_idx]]
-        has_semi = semi_pos >= 0
-        cmd_end = np.where(has_semi, semi_pos - 1, np.where(self.crlf, nl - 1, nl))
         bad = np.zeros(n, bool)
-        # " ;" : one space before the comment, and a word (not a space) before that space
-        hs = np.flatnonzero(has_semi & cand)
-        if len(hs):
-            p = semi_pos[hs]
-            bad[hs] |= (a[p - 1] != 32) | (a[np.maximum(p - 2, 0)] == 32) | (p - 2 < ls[hs] + 1)
-        # tabs or stray CR inside the command part
-        odd = np.flatnonzero(((sk == _TAB) | (sk == _CR)) & in_cand)
-        if len(odd):
-            oline = lid[odd]
-            inside = sep[odd] < cmd_end[oline]
-            bad[oline[inside]] = True
-        ti = np.flatnonzero(is_sp)
-        tpos = sep[ti]
-        tline = lid[ti]
-        keep = tpos < cmd_end[tline]
-        ti, tpos, tline = ti[keep], tpos[keep], tline[keep]
+        # the command part of a candidate ends before " ;" (one space, a word before it) or
+        # at the line ending
+        cmd_end = np.where(self.crlf, nl - 1, nl)
+        semis = np.flatnonzero(a == 59)
+        if len(semis):
+            has_semi, first = _firsts(semis, nl)
+            hs = np.flatnonzero(has_semi & cand)
+            if len(hs):
+                p = semis[first[hs]]
+                cmd_end[hs] = p - 1
+                bad[hs] |= (a[p - 1] != 32) | (a[p - 2] == 32) | (p - 2 < ls[hs] + 1)
+        # words: after each space of a candidate's command part, up to the next space or
+        # the end of the command part
+        sp = np.flatnonzero(a == 32)
+        upto = np.searchsorted(sp, nl)
+        per_line = np.diff(upto, prepend=0)
+        sline = np.repeat(np.arange(n), per_line)
+        keep = cand[sline]
+        keep &= sp < cmd_end[sline]
+        wi = np.flatnonzero(keep)
+        tpos, tline = sp[wi], sline[wi]
+        nxt = np.append(sp, len(a))[wi + 1]
         ts = tpos + 1
-        te = sep[ti + 1]
-        tl = te - ts
-        bad[tline[tl < 2]] = True
-        # words: a letter of XYZEF and a number [-+]?(\d+\.?\d*|\.\d+)
+        te = np.minimum(nxt, cmd_end[tline])
+        num_len = te - ts - 1  # the number after the letter
         letter = _LETTER[a[np.minimum(ts, last)]]
-        bounds = np.empty(2 * len(ts) + 1, np.int64)
-        bounds[0:-1:2] = ts + 1
-        bounds[1:-1:2] = np.maximum(te, ts + 1)
-        bounds[-1] = len(a)
-        if len(ts):
-            # (a word that would start past the end - a trailing space before the block's
-            # last newline - is empty, its line already bad: its sum does not matter, but
-            # reduceat wants every index inside the array)
-            sums = np.add.reduceat(cls, np.minimum(bounds[:-1], len(a) - 1),
-                                   dtype=np.uint32)[0::2][: len(ts)]
-        else:
-            sums = np.zeros(0, np.uint32)
-        digits = sums & 31
-        dots = (sums >> 5) & 3
-        others = sums >> 7
-        first_num = a[np.minimum(ts + 1, last)]
-        signed = (first_num == 45) | (first_num == 43)
-        ok = (letter > 0) & (digits >= 1) & (digits <= 24) & (dots <= 1) & (
-            (others == 0) | ((others == 1) & signed))
+        bad[tline[num_len < 1]] = True
+        # each word's number, checked in the 16 bytes that end with it: digits, at most one
+        # dot, a sign only first, at least one digit
+        padded = np.concatenate([np.zeros(WORD_WIDTH, np.uint8), a])
+        u64 = np.ndarray((len(a) + 9,), _LE64, padded, strides=(1,))  # (unaligned)
+        lo, hi = u64[te], u64[te + 8]  # (padded[te + 16] is a[te])
+        size = np.clip(num_len, 0, WORD_WIDTH)
+        tok_lo, tok_hi = _TOK_LO[size], _TOK_HI[size]
+        sign = (a[np.minimum(ts + 1, last)] == 45) | (a[np.minimum(ts + 1, last)] == 43)
+        sign_lo = np.where(sign, _FIRST_LO[size], _U(0))
+        sign_hi = np.where(sign, _FIRST_HI[size], _U(0))
+        dig_lo, dig_hi = _digits(lo) & tok_lo, _digits(hi) & tok_hi
+        dot_lo, dot_hi = _bytes_equal(lo, 46) & tok_lo, _bytes_equal(hi, 46) & tok_hi
+        other = (tok_lo & ~(dig_lo | dot_lo | sign_lo)) | (tok_hi & ~(dig_hi | dot_hi | sign_hi))
+        other &= _HIGH
+        ok = (letter > 0) & (num_len >= 1) & (num_len <= WORD_WIDTH) & (other == 0) & \
+            ((dig_lo | dig_hi) != 0) & _at_most_one(dot_lo, dot_hi)
         bad[tline[~ok]] = True
         # one word per letter per line; X/Y/Z words together, before E/F words except an F
         # that may come first
@@ -159,34 +207,35 @@ class Tokens:
         self.cand = cand & ~bad
         self.breaking = brk | (cand & bad)
         # the move lines (candidates with X/Y/Z words) of this block, in order
-        xi = np.flatnonzero(is_xyz & ok & self.cand[tline])
+        xi = np.flatnonzero(is_xyz & self.cand[tline])
         xl = tline[xi]
         newline = np.ones(len(xi), bool)
         newline[1:] = xl[1:] != xl[:-1]
         self.move_lines = xl[newline]
         move_of = np.cumsum(newline) - 1
         nm = len(self.move_lines)
-        self.move_vals = np.full((nm, 3), np.nan)
+        self.move_vals = np.full((3, nm), np.nan)  # per axis
         self.move_bad_number = np.zeros(nm, bool)
         self.xyz_end = np.zeros(nm, np.int64)
         if len(xi):
-            s0 = ts[xi] + 1
-            e0 = te[xi]
-            too_long = (e0 - s0) > NUM_WIDTH
+            too_long = num_len[xi] > NUM_WIDTH
             self.move_bad_number[move_of[too_long]] = True
-            vals = np.full(len(xi), np.nan)  # (a long one is not parsed: its line breaks)
-            fit = ~too_long
-            vals[fit] = _parse_numbers(a, s0[fit], e0[fit], dots[xi][fit])
-            self.move_vals[move_of, letter[xi] - 1] = vals
-            self.xyz_end[move_of] = e0  # X/Y/Z words are contiguous: the last one ends them
+            vals = _parse_numbers(lo[xi], hi[xi], tok_lo[xi] & ~sign_lo[xi],
+                                  tok_hi[xi] & ~sign_hi[xi], dot_lo[xi], dot_hi[xi],
+                                  a[ts[xi] + 1] == 45)
+            vals[too_long] = np.nan  # (not parsed here: its segment takes the line path)
+            self.move_vals[letter[xi] - 1, move_of] = vals
+            # X/Y/Z words are contiguous: the last one of a line ends them
+            last_of_line = np.ones(len(xi), bool)
+            last_of_line[:-1] = newline[1:]
+            self.xyz_end[move_of[last_of_line]] = te[xi[last_of_line]]
         # a leading F word of a move line (the output moves it after X/Y/Z)
         self.fpre_start = np.zeros(nm, np.int64)
         self.fpre_end = np.zeros(nm, np.int64)
         lf = np.flatnonzero(lead_f)
-        if len(lf):
-            k = np.searchsorted(self.move_lines, tline[lf])
-            k = np.minimum(k, max(nm - 1, 0))
-            hit = (nm > 0) & (self.move_lines[k] == tline[lf]) if nm else np.zeros(0, bool)
+        if len(lf) and nm:
+            k = np.minimum(np.searchsorted(self.move_lines, tline[lf]), nm - 1)
+            hit = self.move_lines[k] == tline[lf]
             self.fpre_start[k[hit]] = tpos[lf[hit]]
             self.fpre_end[k[hit]] = te[lf[hit]]
         # E and F words: the last one of a run sets the engine's e_pos / feed
@@ -204,33 +253,29 @@ class Tokens:
         return int(self._tline[j]), float(self.buf[int(self._ts[j]) + 1: int(self._te[j])])
 
 
-def _parse_numbers(a: np.ndarray, s0: np.ndarray, e0: np.ndarray,
-                   dots: np.ndarray) -> np.ndarray:
-    """Exact float values of validated number tokens a[s0:e0] (``dots`` = 0 or 1 each).
+def _parse_numbers(lo, hi, keep_lo, keep_hi, dot_lo, dot_hi, negative) -> np.ndarray:
+    """Exact float values of checked numbers of at most NUM_WIDTH characters, each in the
+    halves ``lo``/``hi`` of its 16 bytes: ``keep_*`` the byte masks of its digits and dot,
+    ``dot_*`` its dot's flag (0x80), if any.
 
-    Tokens are grouped by length so each group is a plain (n x len) byte matrix: the digits
-    make an integer by one matrix-vector product (float32 while exact, below 10**7), the
-    dot's place by another; int / 10**decimals is then exactly Python's float(text).
+    Everything but the digits and the dot becomes "0"; the digits left of the dot move one
+    place right, over it; the 16 digits then make one integer (two times eight digits), and
+    that integer (below 10**10) over 10**decimals is one correctly rounded division: exactly
+    Python's ``float(text)``.
     """
-    L = e0 - s0
-    out = np.empty(len(L))
-    order = np.argsort(L.astype(np.int8), kind="stable")
-    counts = np.bincount(L)
-    pos = 0
-    for n in np.flatnonzero(counts).tolist():
-        c = int(counts[n])
-        rows = order[pos:pos + c]
-        pos += c
-        M = sliding_window_view(a, n)[s0[rows]]
-        if n <= 7:
-            full = (_DIGIT32[M] @ _P10F32[n - 1::-1]).astype(np.float64)
-        else:
-            full = _DIGIT[M] @ _P10F[n - 1::-1]
-        dot_place = ((M == 46) @ _PLACE32[n - 1::-1]).astype(np.int64)
-        fi = full.astype(np.int64)
-        has_dot = dots[rows] > 0
-        intall = np.where(has_dot, (fi // _P10I[dot_place + 1]) * _P10I[dot_place]
-                          + fi % _P10I[dot_place], fi)
-        v = intall / _P10F[np.where(has_dot, dot_place, 0)]
-        out[rows] = np.where(M[:, 0] == 45, -v, v)
-    return out
+    lo = (lo & keep_lo) | (_ZEROS & ~keep_lo)
+    hi = (hi & keep_hi) | (_ZEROS & ~keep_hi)
+    in_hi = dot_hi != 0
+    in_lo = dot_lo != 0
+    # bytes up to the dot: ((the dot's lowest bit) << 8) - 1 in its half, all of lo if the
+    # dot is in hi (a dot in the last byte of a half gives 0 - 1: the whole half)
+    upto_hi = np.where(in_hi, ((dot_hi >> _U(7)) << _U(8)) - _U(1), _U(0))
+    upto_lo = np.where(in_hi, _ALL, np.where(in_lo, ((dot_lo >> _U(7)) << _U(8)) - _U(1),
+                                              _U(0)))
+    hi = ((((hi << _U(8)) | (lo >> _U(56))) & upto_hi) | (hi & ~upto_hi))
+    lo = ((lo << _U(8)) & upto_lo) | (lo & ~upto_lo) | _U(0x30)  # (byte 0 shifted in: "0")
+    digits = (_eight_digits(lo) * _U(100000000) + _eight_digits(hi)).astype(np.float64)
+    dot_col = np.where(in_hi, 8 + _flag_byte(dot_hi), np.where(in_lo, _flag_byte(dot_lo),
+                                                                WORD_WIDTH - 1))
+    v = digits / _P10F[WORD_WIDTH - 1 - dot_col]
+    return np.where(negative, -v, v)
