@@ -199,21 +199,26 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
     return out, int(take_emit.sum())
 
 
-LONG_SPAN = 128  # most input bytes before a row that are copied into it
-_COLS8 = np.arange(LONG_SPAN, dtype=np.uint8)
-SPLICE_COST = 24000  # a spliced span costs about as much as this many bytes of row width
+MAX_SPAN = 126  # most input bytes before a row's code that are copied into the row
+_COLS8 = np.arange(256, dtype=np.uint8)
+SPLICE_COST = 10000  # a spliced span costs about as much as this many bytes of rows
 
 
-def _span_width(pre_l: np.ndarray, n_rows: int) -> int:
-    """How many input bytes before a row are copied into it (a longer span is spliced in
-    after): the width of least cost, each byte of width costing every row, each splice
-    SPLICE_COST of them."""
-    if len(pre_l) == 0:
-        return 0
-    counts = np.bincount(np.minimum(pre_l, LONG_SPAN + 1), minlength=LONG_SPAN + 2)
-    longer = len(pre_l) - np.cumsum(counts)[: LONG_SPAN + 1]  # spans longer than 0..LONG_SPAN
-    cost = np.arange(LONG_SPAN + 1) * n_rows + SPLICE_COST * longer
-    return int(np.argmin(cost))
+def _layout(pre_l: np.ndarray, n_rows: int, rest: int) -> Tuple[int, int]:
+    """(K, width): a row copies up to K input bytes before its code (K + 2 a multiple of 8),
+    then has ``rest`` bytes for its words and tail; a longer span before a move gets a row
+    of its own (up to ``width`` bytes), a longer one still is spliced in. K is the one of
+    least cost: the bytes of all rows, and SPLICE_COST for each splice."""
+    counts = np.cumsum(np.bincount(np.minimum(pre_l, 511), minlength=512))
+    best = None
+    for k in range(6, MAX_SPAN + 1, 8):
+        width = k + 2 + rest
+        own = counts[min(width, 511)] - counts[k]  # K < length <= width
+        spliced = len(pre_l) - counts[min(width, 511)]
+        cost = width * (n_rows + own) + SPLICE_COST * spliced
+        if best is None or cost < best[0]:
+            best = (cost, k, width)
+    return best[1], best[2]
 
 
 def _assemble(seg: np.ndarray, rows: Rows, fmtr: Formatter, N: np.ndarray, NEG: np.ndarray,
@@ -221,47 +226,72 @@ def _assemble(seg: np.ndarray, rows: Rows, fmtr: Formatter, N: np.ndarray, NEG: 
               take_crlf: np.ndarray) -> List[np.ndarray]:
     """The output of a run: one byte row per emitted line (moves at ``order_pos``, written
     take-ups at ``takeups``), each laid out in fixed places, with 0 where nothing is written:
-    the input before a move (up to LONG_SPAN bytes, in row ``pre_rows``: its take-up's, if
-    it has one), the code, the X/Y/Z words (``N``, ``NEG`` where ``W``), a leading F word or
-    a take-up's line ending. Dropping the 0 bytes gives the text; a longer input span is put
-    in between afterwards, and the input after the last row follows. Returns the pieces in
-    order (buffers)."""
+    the input before a move (in row ``pre_rows``: its take-up's, if it has one), the code,
+    the X/Y/Z words (``N``, ``NEG`` where ``W``), a leading F word or a take-up's line
+    ending. A longer input span before a move takes a row of its own before it; one longer
+    than a row is put in between afterwards. Dropping the 0 bytes gives the text; the input
+    after the last row follows. Returns the pieces in order (buffers)."""
     ntot = N.shape[1]
     pre_l = rows.pre_l
-    K = _span_width(pre_l, ntot)
-    spliced = np.flatnonzero(pre_l > K)
-    copied = np.where(pre_l > K, 0, pre_l)
-    F = int(rows.fpre_l.max()) if len(copied) else 0
-    code = (K + 2 + 7) // 8 * 8 - 2  # (the words start at a multiple of eight)
-    words = code + 2
+    F = int(rows.fpre_l.max()) if len(pre_l) else 0
+    tail_w = (max(F, 2) + 7) // 8 * 8
+    K, width = _layout(pre_l, ntot, 3 * fmtr.width + tail_w)
+    code, words = K, K + 2
     tail = words + 3 * fmtr.width
-    width = tail + (max(F, 2) + 7) // 8 * 8
-    R = np.zeros((ntot, width), np.uint8)
-    src = np.concatenate([seg, np.zeros(max(K, F), np.uint8)])
-    moves = order_pos if ntot != len(order_pos) else slice(None)
-    if K:
-        span = sliding_window_view(src, K)[rows.pre_s]
-        span *= _COLS8[:K] < copied.astype(np.uint8)[:, None]
-        R[pre_rows if ntot != len(order_pos) else slice(None), :K] = span
-    R[moves, code] = seg[rows.code_s]
-    R[moves, code + 1] = seg[rows.code_s + 1]
-    R[takeups, code] = 71  # G1
-    R[takeups, code + 1] = 49
+    short = pre_l <= K
+    own = np.flatnonzero(~short & (pre_l <= width))
+    spliced = np.flatnonzero(pre_l > width)
+    # each emitted line's copy of the input: a move its input before it and its code, a
+    # take-up the input before its move (its move then only its code)
+    has_t = pre_rows != order_pos
+    pre = np.where(short, pre_l, 0)
+    span_s = np.where(has_t, rows.code_s, rows.code_s - pre)
+    span_l = np.where(has_t, 2, pre + 2)
+    if ntot != len(order_pos):
+        s, n = np.zeros(ntot, np.int64), np.zeros(ntot, np.int64)
+        s[order_pos], n[order_pos] = span_s, span_l
+        s[pre_rows[has_t]], n[pre_rows[has_t]] = rows.pre_s[has_t], pre[has_t]
+        span_s, span_l = s, n
+    # the rows: the emitted lines, a row of its own before a move whose span is long
+    at = slice(None)  # (where each emitted line's row is)
+    if len(own):
+        marks = np.zeros(ntot, np.int64)
+        marks[pre_rows[own]] = 1
+        at = np.arange(ntot) + np.cumsum(marks)
+        own_rows = at[pre_rows[own]] - 1
+        s, n = np.zeros(ntot + len(own), np.int64), np.zeros(ntot + len(own), np.int64)
+        s[at], n[at] = span_s, span_l
+        span_s, span_l = s, n
+    R = np.empty((len(span_s), width), np.uint8)
+    src = np.concatenate([seg, np.zeros(width, np.uint8)])
+    copy = sliding_window_view(src, words)[span_s]
+    copy *= _COLS8[:words] < span_l.astype(np.uint8)[:, None]
+    R[:, :words] = copy
+    R[:, words:] = 0
+    if len(own):
+        copy = sliding_window_view(src, width)[rows.pre_s[own]]
+        copy *= _COLS8[:width] < pre_l[own].astype(np.uint8)[:, None]
+        R[own_rows] = copy
+    lines = R if len(own) == 0 else None
+    t_rows = takeups if lines is not None else at[takeups]
+    R[t_rows, code] = 71  # G1
+    R[t_rows, code + 1] = 49
     for k in range(3):
-        fmtr.put(R, words + k * fmtr.width, ord("XYZ"[k]), N[k], NEG[k], W[k])
+        fmtr.put(R, words + k * fmtr.width, ord("XYZ"[k]), N[k], NEG[k], W[k], at)
     if F:
         lead = np.flatnonzero(rows.fpre_l)
-        span = sliding_window_view(src, F)[rows.fpre_s[lead]]
-        span *= np.arange(F) < rows.fpre_l[lead][:, None]  # (rare: not made faster)
-        R[order_pos[lead], tail:tail + F] = span
-    R[takeups, tail] = np.where(take_crlf, 13, 10)
-    R[takeups[take_crlf], tail + 1] = 10
-    # the text: the rows without their 0 bytes, a spliced span before its row
+        copy = sliding_window_view(src, F)[rows.fpre_s[lead]]
+        copy *= np.arange(F) < rows.fpre_l[lead][:, None]  # (rare: not made faster)
+        R[order_pos[lead] if lines is not None else at[order_pos[lead]], tail:tail + F] = copy
+    R[t_rows, tail] = np.where(take_crlf, 13, 10)
+    R[t_rows[take_crlf], tail + 1] = 10
+    # the text: the rows without their 0 bytes, a spliced span before its move's rows
     flat = R.ravel()
     written = flat != 0
     pieces = []
     prev = 0
-    for row, start, n in zip(pre_rows[spliced].tolist(), rows.pre_s[spliced].tolist(),
+    first = pre_rows[spliced] if lines is not None else at[pre_rows[spliced]]
+    for row, start, n in zip(first.tolist(), rows.pre_s[spliced].tolist(),
                              pre_l[spliced].tolist()):
         cut, end = prev * width, row * width
         pieces.append(np.compress(written[cut:end], flat[cut:end]))

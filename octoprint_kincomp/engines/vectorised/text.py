@@ -89,14 +89,14 @@ class Formatter:
         return len(n) == 0 or int(n.max()) < INT_LIMIT * 10 ** self.dec
 
     def put(self, rows: np.ndarray, col: int, letter: int, n: np.ndarray, neg: np.ndarray,
-            written: np.ndarray) -> None:
-        """Write " <letter><number>" where ``written`` into ``rows`` (a byte matrix whose
-        width is a multiple of 8), ``width`` bytes from byte ``col`` (a multiple of 8);
-        0 bytes elsewhere."""
+            written: np.ndarray, at=slice(None)) -> None:
+        """Write " <letter><number>" where ``written`` into rows ``at`` of ``rows`` (a byte
+        matrix whose width is a multiple of 8), ``width`` bytes from byte ``col`` (a
+        multiple of 8); 0 bytes elsewhere."""
         unit = 10 ** self.dec
         whole, frac = np.divmod(n, unit)
         idx = np.where(written, whole + INT_LIMIT * neg, _BLANK_INT)
-        rows.view(np.uint64)[:, col // 8] = _int_table(letter)[idx]
+        rows.view(np.uint64)[at, col // 8] = _int_table(letter)[idx]
         rows32 = rows.view(np.uint32)
         col = col // 4
         first, later = _frac_tables()
@@ -106,4 +106,4 @@ class Formatter:
             below = 1000 ** (self.groups - 1 - g)
             value = (digits // below) % 1000
             more = (digits % below) != 0 if below > 1 else False
-            rows32[:, col + 2 + g] = (first if g == 0 else later)[value + 1000 * more]
+            rows32[at, col + 2 + g] = (first if g == 0 else later)[value + 1000 * more]
