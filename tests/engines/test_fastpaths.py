@@ -9,6 +9,7 @@ line, on real slicer files and on awkward generated programs. Tests that take th
 import io
 import math
 import os
+import random
 
 import pytest
 
@@ -183,6 +184,67 @@ def test_odd_line_shapes_agree_with_the_reference_path(params, engine):
         ref = general(text, params, Options())
         assert per_line(text, params, Options()) == ref, line
         assert whole_file(text, params, Options()) == ref, line
+
+
+@pytest.mark.parametrize("params", PARAMS[:2], ids=["bench", "skew"])
+def test_odd_lines_inside_long_runs_of_moves(params, engine):
+    """The vectorised engine classifies a whole block at once: each odd spelling, in the
+    middle of runs of plain moves long enough to be vectorised, is read as the reference
+    path reads it."""
+    lines = ["G28", "G1 X10 Y10 Z1 E0"]
+    for i, odd in enumerate(TRICKY_FAST_LINES):
+        lines += [f"G1 X{10 + (i + j) % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i}.{j}"
+                  for j in range(30)]
+        lines.append(odd)
+    for ending in ("\n", "\r\n"):
+        check(ending.join(lines) + ending, params, Options())
+
+
+def rows_program(seed: int) -> list:
+    """Runs of plain moves in the shapes the vectorised engine's rows take: input of every
+    length before a move (comment lines up to 300 bytes: copied into its row, a row of its
+    own, spliced in), leading F words, reversals (take-up moves), coordinates from negative
+    to beyond its number tables (10,000 mm), and a part in inches."""
+    rng = random.Random(seed)
+    lines = ["G28", "G1 X10 Y10 Z1 F3000"]
+    x, y = 10.0, 10.0
+    for i in range(2500):
+        if i == 2000:
+            lines += ["G20", "G1 X1 Y1 Z0.1"]
+            x, y = 1.0, 1.0
+        r = rng.random()
+        if r < 0.12:
+            lines.append(";" + "c" * rng.choice([0, 3, 20, 40, 60, 100, 200, 300]))
+        if r < 0.02:
+            lines.append("M106 S255")  # (inert)
+        x += rng.choice([-1, 1]) * rng.uniform(0, 40 if i < 2000 else 1.5)
+        y += rng.uniform(-3, 3) * (1 if i < 2000 else 0.05)
+        if 1500 < i < 1510:
+            x = 12000.0 + i  # (beyond the number tables)
+        dec = rng.choice([3, 3, 2, 5, 0])
+        f = f"F{rng.choice([600, 1200, 9000])} " if rng.random() < 0.15 else ""
+        tail = rng.choice(["", f" E{i * 0.0123:.5f}", f" E{i}.5 F4800", " ; note"])
+        lines.append(f"G1 {f}X{x:.{dec}f} Y{y:.{dec}f}{tail}")
+    return lines
+
+
+# backlash that changes along the axis in three pieces (a table of four points)
+TABLE_PARAMS = Params.from_dict({
+    "squareness_um_per_m": {"xy": -900.0}, "scale_ppm": {"x": 200.0},
+    "backlash": {"x": [{"at_mm": 10, "um": 30}, {"at_mm": 60, "um": 12},
+                       {"at_mm": 110, "um": 25}, {"at_mm": 200, "um": 5}], "y": 8.0}})
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rows_of_every_shape(seed, engine):
+    lines = rows_program(seed)
+    options = [Options(), Options(decimals=4), Options(decimals=8)][seed]
+    for ending in ("\n", "\r\n"):
+        check(ending.join(lines) + ending, PARAMS[0], options)
+    check("\n".join(lines) + "\n", TABLE_PARAMS, options)
+    # a NUL byte (the row assembly's filler) in a comment: that block goes line by line
+    lines[1000] = "; a \x00 in a comment"
+    check("\n".join(lines) + "\n", PARAMS[0], Options())
 
 
 def arc_program(seed: int, n: int = 500, e_mode: str = "absolute", crlf=False) -> str:

@@ -16,19 +16,26 @@ from ...core.compensator import MM_PER_INCH
 from .text import Formatter
 
 
-def _ffill(values: np.ndarray, given: np.ndarray, start: float) -> np.ndarray:
-    """Forward-fill ``values`` where ``given`` is False, ``start`` before the first given."""
-    idx = np.where(given, np.arange(len(values)), -1)
-    np.maximum.accumulate(idx, out=idx)
-    out = np.where(idx >= 0, values[np.maximum(idx, 0)], start)
+def _ffill(values: np.ndarray, given: np.ndarray, start) -> np.ndarray:
+    """Forward-fill ``values`` where ``given`` is False, ``start`` before the first given
+    (``values`` may be changed in place)."""
+    n = len(values)
+    gaps = np.flatnonzero(~given)
+    if len(gaps) == 0:
+        return values
+    if len(gaps) <= n - n // 4:  # mostly given (X and Y): each run of gaps takes the
+        # value before it
+        run = np.diff(gaps, prepend=-2) != 1
+        before = (gaps[run] - 1)[np.cumsum(run) - 1]
+        values[gaps] = np.where(before >= 0, values[np.maximum(before, 0)], start)
+        return values
+    # mostly not given (Z): each given value is repeated up to the next
+    at = np.flatnonzero(given)
+    out = np.empty(n, values.dtype)
+    out[:at[0] if len(at) else n] = start
+    if len(at):
+        out[at[0]:] = np.repeat(values[at], np.diff(at, append=n))
     return out
-
-
-def _ffill_int(values: np.ndarray, start: int) -> np.ndarray:
-    """Forward-fill the non-zero entries of ``values``; ``start`` before the first."""
-    idx = np.where(values != 0, np.arange(len(values)), -1)
-    np.maximum.accumulate(idx, out=idx)
-    return np.where(idx >= 0, values[np.maximum(idx, 0)], start)
 
 
 def _interp(table, q: np.ndarray) -> np.ndarray:
@@ -36,6 +43,10 @@ def _interp(table, q: np.ndarray) -> np.ndarray:
     pts = table.points
     if len(pts) == 1:
         return np.full(len(q), pts[0][1])
+    if len(pts) == 2:  # (the common table: the same operations in fewer passes)
+        (p0, v0), (p1, v1) = pts
+        val = (v1 - v0) / (p1 - p0) * (q - p0) + v0
+        return np.where(q <= p0, v0, np.where(q >= p1, v1, val))
     out = np.full(len(q), pts[0][1])
     for (p0, v0), (p1, v1) in zip(pts, pts[1:]):
         val = (v1 - v0) / (p1 - p0) * (q - p0) + v0
@@ -117,12 +128,12 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
             continue
         # anchored at the start and no sub-deadband step: the anchor is always the current
         # command, so a reversal is a step beyond the deadband against dir
-        s = up.astype(np.int64) - down
-        after = _ffill_int(s, bl.s.dir[k])
+        moved = up | down
+        after = _ffill(up.astype(np.int64) - down, moved, bl.s.dir[k])
         before = np.empty_like(after)
         before[0] = bl.s.dir[k]
         before[1:] = after[:-1]
-        rev_any |= (s != 0) & (s != before)
+        rev_any |= moved & (after != before)
         dirs_after[k] = after
         anchors[k] = float(qk[-1])
     half = comp.backlash.half

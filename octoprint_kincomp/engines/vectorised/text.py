@@ -69,13 +69,14 @@ class Formatter:
         r = np.abs(v) * self.scale
         n = np.floor(r + 0.5)
         frac = r - np.floor(r)
-        risky = (np.abs(frac - 0.5) < 1e-6) | (r > 1e12) | ~np.isfinite(r)
+        risky = (np.abs(frac - 0.5) < 1e-6) | ~(r <= 1e12)  # (and NaN)
         if risky.any():  # exact decimal rounding of the binary value: let Python decide
             fmt = "%." + str(self.dec) + "f"
             for i in np.flatnonzero(risky).tolist():
                 text = fmt % float(v[i])
                 n[i] = float(int(text.lstrip("-").replace(".", "")))
-        n = n.astype(np.int64)
+        # (beyond the tables, or NaN: fits() then refuses them, and the cast stays defined)
+        n = np.where(n <= 2.0 ** 62, n, -1.0).astype(np.int64)
         return n, (v < 0) & (n > 0)
 
     def text(self, n: int, neg: bool) -> str:
@@ -86,7 +87,7 @@ class Formatter:
 
     def fits(self, n: np.ndarray) -> bool:
         """Whether every magnitude has an integer part the tables write."""
-        return len(n) == 0 or int(n.max()) < INT_LIMIT * 10 ** self.dec
+        return n.size == 0 or (int(n.min()) >= 0 and int(n.max()) < INT_LIMIT * 10 ** self.dec)
 
     def put(self, rows: np.ndarray, col: int, letter: int, n: np.ndarray, neg: np.ndarray,
             written: np.ndarray, at=slice(None)) -> None:
@@ -102,6 +103,9 @@ class Formatter:
         first, later = _frac_tables()
         digits = frac * (10 ** (3 * self.groups - self.dec))  # 3 decimals a group
         digits *= written
+        if self.groups == 1:  # (millimetres to three decimals)
+            rows32[at, col + 2] = first[digits]
+            return
         for g in range(self.groups):
             below = 1000 ** (self.groups - 1 - g)
             value = (digits // below) % 1000

@@ -47,25 +47,29 @@ _ZEROS = _U(0x3030303030303030)  # "00000000"
 _ALL = _U(0xFFFFFFFFFFFFFFFF)
 
 
-def _half_masks(first_byte: int):
-    """Per number length 0..16: the byte mask of the number within each half, and of its
-    first character (a sign may stand there)."""
-    tok_lo, tok_hi, first_lo, first_hi = ([0] * 17 for _ in range(4))
+def _half_masks():
+    """Per number length n (0..16) and sign (index n + 17 if its first character is a sign):
+    the byte masks within each half of the number, of its sign, and of what is kept of it
+    to be parsed (all but the sign)."""
+    tables = [[0] * 34 for _ in range(6)]  # tok_lo, tok_hi, sign_lo, sign_hi, keep_lo, keep_hi
     for n in range(1, 17):
         start = 16 - n  # column of the first character
+        tok = [0, 0]
         for col in range(start, 16):
-            if col < 8:
-                tok_lo[n] |= 0xFF << (8 * col)
-            else:
-                tok_hi[n] |= 0xFF << (8 * (col - 8))
-        if start < 8:
-            first_lo[n] = first_byte << (8 * start)
-        else:
-            first_hi[n] = first_byte << (8 * (start - 8))
-    return tuple(np.array(t, np.uint64) for t in (tok_lo, tok_hi, first_lo, first_hi))
+            tok[col // 8] |= 0xFF << (8 * (col % 8))
+        first = [0, 0]
+        first[start // 8] = 0xFF << (8 * (start % 8))
+        for signed in (0, 1):
+            i = n + 17 * signed
+            for half in (0, 1):
+                tables[half][i] = tok[half]
+                tables[2 + half][i] = first[half] if signed else 0
+                tables[4 + half][i] = tok[half] & ~tables[2 + half][i]
+    return tuple(np.array(t, np.uint64) for t in tables)
 
 
-_TOK_LO, _TOK_HI, _FIRST_LO, _FIRST_HI = _half_masks(0xFF)
+_TOK_LO, _TOK_HI, _SIGN_LO, _SIGN_HI, _KEEP_LO, _KEEP_HI = _half_masks()
+_V16 = np.dtype("V16")
 
 
 def _digits(x: np.ndarray) -> np.ndarray:
@@ -171,13 +175,14 @@ class Tokens:
         # each word's number, checked in the 16 bytes that end with it: digits, at most one
         # dot, a sign only first, at least one digit
         padded = np.concatenate([np.zeros(WORD_WIDTH, np.uint8), a])
-        u64 = np.ndarray((len(a) + 9,), _LE64, padded, strides=(1,))  # (unaligned)
-        lo, hi = u64[te], u64[te + 8]  # (padded[te + 16] is a[te])
-        size = np.clip(num_len, 0, WORD_WIDTH)
-        tok_lo, tok_hi = _TOK_LO[size], _TOK_HI[size]
-        sign = (a[np.minimum(ts + 1, last)] == 45) | (a[np.minimum(ts + 1, last)] == 43)
-        sign_lo = np.where(sign, _FIRST_LO[size], _U(0))
-        sign_hi = np.where(sign, _FIRST_HI[size], _U(0))
+        windows = np.ndarray((len(a) + 1,), _V16, padded, strides=(1,))  # (unaligned)
+        both = windows[te].view(_LE64).reshape(-1, 2)  # (padded[te + 16] is a[te])
+        lo, hi = both[:, 0].copy(), both[:, 1].copy()
+        first_char = a[np.minimum(ts + 1, last)]
+        sign = (first_char == 45) | (first_char == 43)
+        kind = np.clip(num_len, 0, WORD_WIDTH) + 17 * sign  # (the tables' index)
+        tok_lo, tok_hi = _TOK_LO[kind], _TOK_HI[kind]
+        sign_lo, sign_hi = _SIGN_LO[kind], _SIGN_HI[kind]
         dig_lo, dig_hi = _digits(lo) & tok_lo, _digits(hi) & tok_hi
         dot_lo, dot_hi = _bytes_equal(lo, 46) & tok_lo, _bytes_equal(hi, 46) & tok_hi
         other = (tok_lo & ~(dig_lo | dot_lo | sign_lo)) | (tok_hi & ~(dig_hi | dot_hi | sign_hi))
@@ -220,9 +225,9 @@ class Tokens:
         if len(xi):
             too_long = num_len[xi] > NUM_WIDTH
             self.move_bad_number[move_of[too_long]] = True
-            vals = _parse_numbers(lo[xi], hi[xi], tok_lo[xi] & ~sign_lo[xi],
-                                  tok_hi[xi] & ~sign_hi[xi], dot_lo[xi], dot_hi[xi],
-                                  a[ts[xi] + 1] == 45)
+            kx = kind[xi]
+            vals = _parse_numbers(lo[xi], hi[xi], _KEEP_LO[kx], _KEEP_HI[kx], dot_lo[xi],
+                                  dot_hi[xi], first_char[xi] == 45)
             vals[too_long] = np.nan  # (not parsed here: its segment takes the line path)
             self.move_vals[letter[xi] - 1, move_of] = vals
             # X/Y/Z words are contiguous: the last one of a line ends them
