@@ -4,15 +4,17 @@ for a file read a block (512 KB of complete lines) at a time.
 Each block goes, where the model allows an accelerated engine, through the compiled kernel
 (``Kernel.feed``: plain moves and arcs in C, engines/csrc) or, without the kernel, through the
 vectorised numpy engine: the block is tokenised with byte-level numpy operations
-(``tokens.py``) on a second thread while the previous block is compensated; runs of plain
-``G0``/``G1`` lines with single-spaced X/Y/Z/E/F words are compensated, checked against the
-limits and formatted as whole arrays (``rows.py``, ``text.py``), and the bytes assembled in
-one gather. Every other line (state changes, arcs, M-codes, odd spellings) goes through the
-reference path, ``Compensator.process``, in order; the state is handed over exactly, so the
-result is the same text and report as feeding every line to ``Compensator.process`` (the
-tests and the benchmark check that on whole files). Where the model allows no accelerated
-engine (smoothed take-ups, servo lead, non-affine models), every line takes the reference
-path.
+(``tokens.py``, its numbers eight bytes at a time in ``numbers.py``) on a second thread while
+the previous block is compensated; runs of plain ``G0``/``G1`` lines with single-spaced
+X/Y/Z/E/F words are compensated and checked against the limits as whole arrays
+(``rows.py``), and written as the rows of a byte matrix, numbers by table look-ups
+(``text.py``), input spans copied, that is then read without its filler bytes in one pass
+(``assembly.py``). Every other line (state changes, arcs, M-codes, odd spellings) goes
+through the reference path, ``Compensator.process``, in order; the state is handed over
+exactly, so the result is the same text and report as feeding every line to
+``Compensator.process`` (the tests and the benchmark check that on whole files). Where the
+model allows no accelerated engine (smoothed take-ups, servo lead, non-affine models), every
+line takes the reference path.
 """
 
 from __future__ import annotations
