@@ -200,6 +200,36 @@ def test_odd_lines_inside_long_runs_of_moves(params, engine):
         check(ending.join(lines) + ending, params, Options())
 
 
+def test_m_codes_with_leading_zeros_inside_long_runs(engine):
+    # review finding: the vectorised engine read M codes by their first three bytes, so
+    # M048 (positions unknown) and M082/M083 (extruder mode), as int() reads them, passed
+    # as inert lines
+    def run(i):
+        return [f"G1 X{10 + j % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i + j * 0.01:.2f}"
+                for j in range(30)]
+    for code in ("M048", "M082", "M083", "M0083", "M083 ; relative", "M00", "M0106 S1"):
+        lines = ["G28", "G1 X10 Y10 Z1 E0"] + run(0) + [code] + run(1)
+        lines += ["G2 X30 Y25 I5 J0 E3.5", "G1 X5 Y20", "G28"] + run(2)
+        for options in (Options(), Options(linearise_arcs=True)):
+            check("\n".join(lines) + "\n", PARAMS[0], options)
+
+
+@pytest.mark.parametrize("policy", ["warn", "clamp"])
+def test_limits_counted_once_when_a_run_leaves_the_number_tables(policy, engine):
+    # review finding: a run with a coordinate beyond the number tables goes to the line
+    # path, which counted its limit hits and points outside a second time
+    lines = ["G28", "G1 X10 Y10 Z1"]
+    lines += [f"G1 X{20 + j % 9} Y{30 + j % 5}" for j in range(30)]
+    lines += ["G1 X12000 Y10", "G1 X0 Y190", "G1 X199.99 Y0"]
+    lines += [f"G1 X{20 + j % 9} Y{30 + j % 5}" for j in range(30)]
+    text = "\n".join(lines) + "\n"
+    options = Options(limits=(0, 200, 0, 200, 0, 250), policy=policy)
+    for params in (PARAMS[0], Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})):
+        check(text, params, options)
+    rep = general(text, PARAMS[0], options)[1]
+    assert rep["source_outside_limits"] == 1 and rep["limit_hits"] >= 1
+
+
 def rows_program(seed: int) -> list:
     """Runs of plain moves in the shapes the vectorised engine's rows take: input of every
     length before a move (comment lines up to 300 bytes: copied into its row, a row of its

@@ -8,13 +8,13 @@ vectorised numpy engine: the block is tokenised with byte-level numpy operations
 the previous block is compensated; runs of plain ``G0``/``G1`` lines with single-spaced
 X/Y/Z/E/F words are compensated and checked against the limits as whole arrays
 (``rows.py``), and written as the rows of a byte matrix, numbers by table look-ups
-(``text.py``), input spans copied, that is then read without its filler bytes in one pass
-(``assembly.py``). Every other line (state changes, arcs, M-codes, odd spellings) goes
-through the reference path, ``Compensator.process``, in order; the state is handed over
-exactly, so the result is the same text and report as feeding every line to
-``Compensator.process`` (the tests and the benchmark check that on whole files). Where the
-model allows no accelerated engine (smoothed take-ups, servo lead, non-affine models), every
-line takes the reference path.
+(``text.py``), input spans copied, that is then read without its filler bytes
+(``assembly.py``: one pass, cut only where a long input span is put in between). Every
+other line (state changes, arcs, M-codes, odd spellings) goes through the reference path,
+``Compensator.process``, in order; the state is handed over exactly, so the result is the
+same text and report as feeding every line to ``Compensator.process`` (the tests and the
+benchmark check that on whole files). Where the model allows no accelerated engine
+(smoothed take-ups, servo lead, non-affine models), every line takes the reference path.
 """
 
 from __future__ import annotations
@@ -84,8 +84,8 @@ class FileEngine:
 
     @staticmethod
     def _blocks(read: Callable[[int], bytes]):
-        """Blocks of complete lines; the last one is completed with a virtual newline and
-        marked by a trailing ``None`` sentinel handled in _finish_block."""
+        """Blocks of complete lines; a last line without its newline is completed with a
+        virtual one, in a block marked as ``_Unterminated`` (_finish_block drops it again)."""
         rest = b""
         while True:
             data = read(CHUNK_BYTES)
@@ -108,7 +108,7 @@ class FileEngine:
             # into would be joined with CRLF. The line path on the real bytes keeps the CR.
             return self._lines(block, 0, len(block) - 1)
         out = self.chunk(block, tokens.result() if tokens is not None else None)
-        if isinstance(block, _Unterminated) and len(out) and out[-1] in (10, b"\n"[0]):
+        if isinstance(block, _Unterminated) and out.endswith(b"\n"):
             out = out[:-1]
         return out
 
@@ -235,7 +235,7 @@ class FileEngine:
         self._finish_counts(tk, i0, i1, cand, nm, n_take)
         return out
 
-    # -- runs with slicer-style arcs ------------------------------------------------------
+    # -- counts ----------------------------------------------------------------------------
     def _finish_counts(self, tk, i0, i1, cand, n_moves, n_take) -> None:
         """Report counts, feed and E position after lines [i0, i1)."""
         comp = self.comp

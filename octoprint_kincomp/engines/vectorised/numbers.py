@@ -5,7 +5,7 @@ A word's number is read as the 16 bytes that end where the word ends: two little
 uint64 (``lo``: the first eight bytes, ``hi``: the last eight; byte k of a half is its k-th
 character), so that a test of every byte is one integer operation per half (SWAR) on arrays
 of all the words of a block at once. A number is what the reference path reads as one
-(``[-+]?(digits[.digits]|.digits)``, at most WORD_WIDTH characters); an X/Y/Z value is
+(``[-+]?(digits[.[digits]]|.digits)``, at most WORD_WIDTH characters); an X/Y/Z value is
 parsed exactly as Python's ``float(text)``.
 """
 

@@ -77,9 +77,9 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
     """Compensate and render ``rows`` (desired machine points, in order); the output
     (pieces, buffers) and the number of take-up moves, or None when the line path has to
     decide (a limit error under the policy 'error', a coordinate the tables do not write).
-    Nothing is changed in the compensator then. ``seg``: the input bytes the rows' spans
-    point into; ``i0``: the block's line index of the segment's first line (limit
-    reports). Arrays are per axis: (3, n)."""
+    Nothing is changed in the compensator or its report then. ``seg``: the input bytes
+    the rows' spans point into; ``i0``: the block's line index of the segment's first
+    line (limit reports). Arrays are per axis: (3, n)."""
     rep = comp.report
     opts = comp.options
     st = comp.state
@@ -150,9 +150,10 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
     # where each point is emitted: take-ups right before their rows
     order_pos = np.arange(nm) + np.cumsum(rev_any)
     tpos = tups + np.arange(len(tups))
+    limits = None
     if opts.limits is not None:
-        ok = check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0)
-        if not ok:
+        limits = check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves)
+        if limits is None:
             return None
     # text (as scaled integers) of every evaluated point, in emission order
     ntot = nm + len(tups)
@@ -168,6 +169,8 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
         N[k], NEG[k] = fmtr.ints((G + st.g[k]) / u)
     if not fmtr.fits(N):
         return None  # (a coordinate of 10,000 output units or more: the line path writes it)
+    if limits is not None:
+        count_limits(comp, *limits, i0)
     # max correction per axis (um)
     for k in range(3):
         cm = float(np.max(np.abs(C[k] - P[k]))) * 1000.0
@@ -210,11 +213,12 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
     return out, int(take_emit.sum())
 
 
-def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bool:
-    """Limits policy on all points, reported in emission order (take-up before its row,
-    axes in order, as the line path meets them); False means 'policy error hit', and
-    then nothing is counted (the line path raises at its line)."""
-    rep = comp.report
+def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves):
+    """The limits policy on all points (``C``, ``Ct``: clamped in place under "clamp"):
+    (the hits in emission order - take-up before its row, axes in order, as the line path
+    meets them - and the count of desired points outside), for count_limits, or None
+    where the policy "error" is hit (the line path raises at its line). The report is not
+    touched: the run may still go to the line path."""
     lim = comp.options.limits
     events = []  # (emission position, axis, line index in block, value)
     outside = 0
@@ -227,7 +231,7 @@ def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bo
             hit = inside & ((arr_c[k] < lo) | (arr_c[k] > hi))
             if hit.any():
                 if comp.options.policy == "error":
-                    return False
+                    return None
                 idx = np.flatnonzero(hit)
                 line_rows = moves[rows[idx]] if rows is not None else moves[idx]
                 for p, li, v in zip(pos[idx].tolist(), line_rows.tolist(),
@@ -237,12 +241,17 @@ def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves, i0) -> bo
                     arr_c[k, idx] = np.clip(arr_c[k, idx], lo, hi)
             if rows is None:
                 outside += int((~inside & (arr_p[k] != Pp[k])).sum())
+    events.sort()
+    return events, outside
+
+
+def count_limits(comp, events, outside: int, i0: int) -> None:
+    """Report what check_limits found (``i0``: the block's line index of the segment's
+    first line)."""
+    rep = comp.report
     rep.source_outside += outside
-    if events:
-        events.sort()
-        base_line = comp.state.lineno - i0
-        for _p, k, li, v in events:
-            rep.limit_hits += 1
-            if len(rep.limit_examples) < 20:
-                rep.limit_examples.append((base_line + li + 1, "XYZ"[k], round(v, 6)))
-    return True
+    base_line = comp.state.lineno - i0
+    for _p, k, li, v in events:
+        rep.limit_hits += 1
+        if len(rep.limit_examples) < 20:
+            rep.limit_examples.append((base_line + li + 1, "XYZ"[k], round(v, 6)))

@@ -5,8 +5,8 @@ engine.
 A number is written into a row of a byte matrix by table look-ups: its axis word with sign
 and integer part (" X-12", one 8-byte entry of a table per letter) and its decimals in
 groups of three (".5", ".125", "001", each a 4-byte entry). What is not written is the byte
-0, which the row assembly (rows.py) drops, so no entry needs to know where the next one
-starts.
+0, which the row assembly (assembly.py) drops, so no entry needs to know where the next
+one starts.
 """
 
 from __future__ import annotations

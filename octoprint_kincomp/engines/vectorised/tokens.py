@@ -85,9 +85,11 @@ class Tokens:
         c1 = a[np.minimum(ls + 1, last)]
         c2 = a[np.minimum(ls + 2, last)]
         cand = (self.le - ls >= 3) & (c0 == 71) & ((c1 == 48) | (c1 == 49)) & (c2 == 32)
-        # lines that may change the modal state go through the compensator one by one
+        # lines that may change the modal state go through the compensator one by one: an
+        # M code not spelled with a digit first, M82/M83 (extruder mode), M48 (probing), and
+        # any with a leading zero (M082 is M82 to the reference path's int())
         brk = _BREAK_FIRST[c0] & ~cand
-        mline = (c0 == 77) & ~((c1 >= 48) & (c1 <= 57))
+        mline = (c0 == 77) & ~((c1 >= 49) & (c1 <= 57))
         m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51)))
                                 | ((c1 == 52) & (c2 == 56)))
         return cand, brk | mline | m_state
