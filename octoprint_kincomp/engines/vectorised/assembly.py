@@ -29,11 +29,15 @@ def _layout(pre_l: np.ndarray, n_rows: int, rest: int) -> Tuple[int, int]:
     """(K, width): a row copies up to K input bytes before its code (K + 2 a multiple of 8),
     then has ``rest`` bytes for its words and tail; a longer span before a move gets a row
     of its own (up to ``width`` bytes), a longer one still is spliced in. K is the one of
-    least cost: the bytes of all rows, and SPLICE_COST for each splice."""
+    least cost: the bytes of all rows, and SPLICE_COST for each splice. A row is at most 255
+    bytes (copies' lengths are compared as bytes): ``rest`` is at most 96 (3 words of 24
+    bytes for 8 decimals in inches, a tail of 24), so a row at most 224."""
     counts = np.cumsum(np.bincount(np.minimum(pre_l, 511), minlength=512))
     best = None
     for k in range(6, MAX_SPAN + 1, 8):
         width = k + 2 + rest
+        if width > 255:
+            break
         own = counts[min(width, 511)] - counts[k]  # K < length <= width
         spliced = len(pre_l) - counts[min(width, 511)]
         cost = width * (n_rows + own) + SPLICE_COST * spliced
