@@ -132,7 +132,7 @@ class FileEngine:
             return self._lines(buf, 0, None)
         if tk is None:
             tk = Tokens(buf)
-        if tk.lone_cr:
+        if tk.lone_cr or tk.nul:  # (a NUL byte: the row assembly's filler, assembly.py)
             return self._lines(buf, 0, None)
         pieces: list = []  # bytes and uint8 arrays (both are buffers)
         n = tk.n_lines
@@ -194,8 +194,7 @@ class FileEngine:
         j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
         result = None
         if not (i1 - i0 < MIN_VECTOR_LINES or not comp.state.absolute or None in comp.state.m
-                or comp.state.q_drive is not None or tk.nul
-                or tk.move_bad_number[j0:j1].any()):
+                or comp.state.q_drive is not None or tk.move_bad_number[j0:j1].any()):
             result = self._vector(tk, i0, i1, cand, j0, j1)
         # short runs, or a limit error (the line path raises at its line)
         if result is not None:

@@ -23,13 +23,13 @@ def _ffill(values: np.ndarray, given: np.ndarray, start) -> np.ndarray:
     gaps = np.flatnonzero(~given)
     if len(gaps) == 0:
         return values
-    if len(gaps) <= n - n // 4:  # mostly given (X and Y): each run of gaps takes the
-        # value before it
+    if len(gaps) <= n - n // 4:  # a quarter or more given (X and Y, say): each run of gaps
+        # takes the value before it
         run = np.diff(gaps, prepend=-2) != 1
         before = (gaps[run] - 1)[np.cumsum(run) - 1]
         values[gaps] = np.where(before >= 0, values[np.maximum(before, 0)], start)
         return values
-    # mostly not given (Z): each given value is repeated up to the next
+    # less than a quarter given (Z, say): each given value is repeated up to the next
     at = np.flatnonzero(given)
     out = np.empty(n, values.dtype)
     out[:at[0] if len(at) else n] = start
