@@ -24,17 +24,17 @@ import datetime as _dt
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from ..core.messages import Msg, joined
 from .formats import AngleTrace, NativeTrace, TraceError, meta_float, meta_plane
+from .limits import LimitsError, MotionLimits, circle_feed, describe, require_known
 from .program import (
     DEFAULT_FEED,
     ProgramError,
     TestSpec,
     body_hash,
-    cap_feed,
     check_bounds,
     generate,
     run_angles,
@@ -53,6 +53,7 @@ class Step:
     name: str  # "xy", "xz", "yz", "xy-z<height>", "xy-f<feed>"
     spec: TestSpec
     file: str
+    feed_notes: List[str] = field(default_factory=list)  # how its feed was chosen
 
 
 def _centre_height(spec: TestSpec, z0: float, margin: float) -> float:
@@ -71,9 +72,14 @@ def plan_campaign(volume: Sequence[float], radius_xy: float = 100.0,
                   xy_height: float = 10.0, second_height: Optional[float] = None,
                   second_feed: Optional[float] = None,
                   max_feed: Optional[Dict[str, float]] = None, printer: Optional[str] = None,
-                  campaign_id: Optional[str] = None, margin_mm: float = 5.0) -> List[Step]:
+                  campaign_id: Optional[str] = None, margin_mm: float = 5.0,
+                  limits: Optional[MotionLimits] = None,
+                  require_limits: bool = False) -> List[Step]:
     """The campaign's tests on ``volume`` (x0,x1,y0,y1,z0,z1 mm); raises ProgramError naming
-    the test that does not fit."""
+    the test that does not fit or cannot run within the printer's motion ``limits`` (with
+    ``max_feed``, axis max feeds in mm/min, the lower of each applies; see
+    :func:`.limits.circle_feed`); ``require_limits``: refuse vertical tests whose Z max feed
+    is not known."""
     if volume is None or len(volume) != 6:
         raise ProgramError(Msg("a campaign needs the machine volume X0,X1,Y0,Y1,Z0,Z1 (mm)"))
     x0, x1, y0, y1, z0, z1 = (float(v) for v in volume)
@@ -95,18 +101,23 @@ def plan_campaign(volume: Sequence[float], radius_xy: float = 100.0,
                                                   radius_mm=radius_xy,
                                                   feed_mm_min=second_feed)))
     names = ",".join(n for n, _ in plan)
+    known = MotionLimits.from_feeds(max_feed, "max feed").combined(limits)
     steps = []
     for i, (name, kw) in enumerate(plan, 1):
         requested = kw["feed_mm_min"]
-        kw["feed_mm_min"] = cap_feed(requested, kw["plane"], max_feed)
-        spec = TestSpec(requested_feed_mm_min=requested, mount_pause=True, printer=printer,
-                        campaign=cid, campaign_step=name, campaign_tests=names, **kw)
         try:
+            choice = circle_feed(kw["plane"], kw["radius_mm"], requested, known)
+            if require_limits:
+                require_known(choice, kw["plane"])
+            kw["feed_mm_min"] = choice.feed_mm_min
+            spec = TestSpec(requested_feed_mm_min=requested, mount_pause=True,
+                            printer=printer, campaign=cid, campaign_step=name,
+                            campaign_tests=names, **kw)
             check_bounds(spec, volume)
-        except ProgramError as exc:
+        except (ProgramError, LimitsError) as exc:
             raise ProgramError(Msg("campaign test %(name)s: %(error)s", name=name,
                                    error=exc.args[0] if exc.args else str(exc))) from None
-        steps.append(Step(name, spec, f"ballbar_{i}_{name}.gcode"))
+        steps.append(Step(name, spec, f"ballbar_{i}_{name}.gcode", describe(choice)))
     if second_feed is not None and steps[-1].spec.feed_mm_min == steps[0].spec.feed_mm_min:
         raise ProgramError(Msg("the second XY feed is capped to the first one (%(feed)s "
                                "mm/min) by the axis limits: it cannot test speed dependence",
@@ -131,7 +142,7 @@ def write_campaign(steps: Sequence[Step], outdir: str, volume: Sequence[float],
                "python -m octoprint_kincomp analyze T1 T2 ... --manifest campaign.json",
     }
     for step in steps:
-        text = generate(step.spec, params_hash=params_hash)
+        text = generate(step.spec, params_hash=params_hash, feed_notes=step.feed_notes)
         with open(os.path.join(outdir, step.file), "w", encoding="utf-8") as f:
             f.write(text)
         s = step.spec

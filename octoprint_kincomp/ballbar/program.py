@@ -210,8 +210,13 @@ def _fmt(v: float) -> str:
 
 
 def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
-             params_hash: str = "none", date: Optional[str] = None) -> str:
-    """The G-code program (text) for ``spec``; raises ProgramError if it does not fit."""
+             params_hash: str = "none", date: Optional[str] = None,
+             feed_notes: Sequence[str] = ()) -> str:
+    """The G-code program (text) for ``spec``; raises ProgramError if it does not fit.
+    ``feed_notes``: header comment lines saying how the feed was chosen (limits.describe).
+
+    The program pins the speed factor to 100 % (``M220 S100``): the test's timing and the
+    analysis assume the feeds as written."""
     check_bounds(spec, volume)
     date = date or _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     a, b = spec.axes
@@ -223,6 +228,7 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
     start = spec.point(first_angle, r_out)
     w("G21 ; mm")
     w("G90 ; absolute")
+    w("M220 S100 ; speed factor 100 %: the test runs at the feeds as written")
     w("M400")
     w("G91")
     w(f"G1 Z{spec.lift_mm:g} F600 ; lift before travel")
@@ -269,7 +275,9 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
         f"{','.join(f'{v:g}' for v in spec.centre)}",
         f"; params hash {params_hash}",
     ]
-    if spec.requested_feed_mm_min and spec.requested_feed_mm_min != spec.feed_mm_min:
+    if feed_notes:
+        header += [f"; {n}" for n in feed_notes]
+    elif spec.requested_feed_mm_min and spec.requested_feed_mm_min != spec.feed_mm_min:
         header.append(f"; feed capped from {spec.requested_feed_mm_min:g} mm/min "
                       "to the slowest axis' max feed")
     header += [f"; ballbar {k}: {v}" for k, v in meta.items()]

@@ -9,31 +9,65 @@ from ..core.params import Params, ParamsError
 from .common import CliError, floats, load_params, read_text, write_text
 
 
-def _max_feed(args):
-    if not args.max_feed:
-        return None
-    return dict(zip("xyz", floats(args.max_feed, 3, "--max-feed")))
+def _limits(args):
+    """The printer's motion limits from ``--limits FILE`` (M503 answer, printer.cfg),
+    ``--max-feed`` and ``--max-accel`` (the lower of each applies); None when none given."""
+    from ..ballbar.limits import LimitsError, limits_from_sequence, parse_limits
+
+    known = None
+    if args.limits:
+        try:
+            known = parse_limits(read_text(args.limits), args.firmware)
+        except LimitsError as exc:
+            raise CliError(f"{args.limits}: {exc}") from None
+    if args.max_feed or args.max_accel:
+        given = limits_from_sequence(
+            floats(args.max_feed, 3, "--max-feed") if args.max_feed else None,
+            floats(args.max_accel, 3, "--max-accel") if args.max_accel else None,
+            "command line")
+        known = given.combined(known)
+    return known
+
+
+def _feed(args, plane: str, radius: float, overshoot: float, limits):
+    """The feed (mm/min) the test runs at and the header lines saying why; refuses (CliError)
+    a feed no axis can reach or a vertical test without a known Z max feed."""
+    import sys
+
+    from ..ballbar.limits import LimitsError, circle_feed, describe, require_known
+
+    try:
+        choice = circle_feed(plane, radius, args.feed, limits, overshoot_deg=overshoot)
+        require_known(choice, plane)
+    except LimitsError as exc:
+        raise CliError(str(exc)) from None
+    notes = describe(choice)
+    if choice.lowered:  # said where it is seen; unknown X/Y limits only in the header
+        print(f"note: {notes[0]}", file=sys.stderr)
+    return choice.feed_mm_min, notes
 
 
 def cmd_program(args) -> int:
-    from ..ballbar.program import ProgramError, TestSpec, cap_feed, generate
+    from ..ballbar.program import ProgramError, TestSpec, check_bounds, generate
 
     if args.campaign:
         return _program_campaign(args)
     if not args.centre:
         raise CliError("--centre is required (or --campaign with --volume)")
     centre = floats(args.centre, 3, "--centre")
-    max_feed = _max_feed(args)
+    limits = _limits(args)
     params_hash = load_params(args.params).hash() if args.params else "none"
     try:
-        feed = cap_feed(args.feed, args.plane, max_feed)
         spec = TestSpec(plane=args.plane, centre=tuple(centre), radius_mm=args.radius,
-                        feed_mm_min=feed, requested_feed_mm_min=args.feed,
+                        feed_mm_min=args.feed, requested_feed_mm_min=args.feed,
                         feed_in_mm=args.feed_in, overshoot_deg=args.overshoot,
                         capture_deg=args.capture, start_deg=args.start,
                         mount_pause=args.mount_pause, printer=args.printer)
         volume = floats(args.volume, 6, "--volume") if args.volume else None
-        text = generate(spec, volume=volume, params_hash=params_hash)
+        check_bounds(spec, volume)
+        spec.feed_mm_min, notes = _feed(args, spec.plane, spec.radius_mm, spec.overshoot_deg,
+                                        limits)
+        text = generate(spec, volume=volume, params_hash=params_hash, feed_notes=notes)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
     write_text(args.output, text)
@@ -56,7 +90,8 @@ def _program_campaign(args) -> int:
         steps = plan_campaign(volume, radius_xy=args.radius,
                               radius_vertical=args.radius_vertical, feed=args.feed,
                               second_height=args.second_height, second_feed=args.second_feed,
-                              max_feed=_max_feed(args), printer=args.printer)
+                              limits=_limits(args), require_limits=True,
+                              printer=args.printer)
         write_campaign(steps, args.output, volume, params_hash=params_hash)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
@@ -261,6 +296,16 @@ def add_ballbar_commands(sub) -> None:
     p.add_argument("--feed", type=float, default=1850.0, help="mm/min (default 1850)")
     p.add_argument("--max-feed", metavar="FX,FY,FZ",
                    help="axis max feeds in mm/min: the feed is capped at the slowest")
+    p.add_argument("--max-accel", metavar="AX,AY,AZ",
+                   help="axis max accelerations in mm/s^2: the feed is lowered so that the "
+                        "circle's acceleration stays within them")
+    p.add_argument("--limits", metavar="FILE",
+                   help="the printer's motion limits: its answer to M503 (M201/M203/M204/"
+                        "M205 lines) or Klipper's printer.cfg; needed for XZ/YZ tests unless "
+                        "--max-feed gives Z")
+    p.add_argument("--firmware", metavar="NAME",
+                   help="with --limits: the firmware (Marlin, RepRapFirmware, ...), which "
+                        "decides M203's unit when the text does not state it")
     p.add_argument("--feed-in", type=float, default=1.0, help="radial feed-in, mm")
     p.add_argument("--overshoot", type=float, default=20.0, help="overshoot arcs, deg")
     p.add_argument("--capture", type=float, help="capture arc, deg (360 XY, 220 vertical)")

@@ -49,7 +49,8 @@ def small():
 
 def test_program_campaign_writes_programs_and_manifest(tmp_path, capsys):
     out = tmp_path / "camp"
-    assert main(["program", "--campaign", "--volume", "0,220,0,220,0,250",
+    assert main(["program", "--campaign", "--volume", "0,220,0,220,0,250", "--max-feed",
+                 "18000,18000,2400",
                  "--second-feed", "3700", "--second-height", "100", "--printer", "P1",
                  "-o", str(out)]) == 0
     m = load_manifest(str(out / MANIFEST_NAME))

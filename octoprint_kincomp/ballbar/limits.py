@@ -1,0 +1,385 @@
+"""The printer's motion limits, read from what the firmware says, and the feed a ballbar test
+can really run at.
+
+Units: feeds in mm/min (as G-code ``F``), speeds in mm/s, accelerations in mm/s^2, junction
+deviation in mm. Axes are ``x``, ``y``, ``z``.
+
+Sources (:func:`parse_limits` reads any mix of them from one text):
+
+* the firmware's answer to ``M503`` (Marlin, Prusa, RepRapFirmware; ``echo:`` and ``Recv:``
+  prefixes and comments are fine): ``M201`` axis max accelerations (mm/s^2), ``M203`` axis max
+  feeds, ``M204`` accelerations (``P`` print, ``T`` travel, ``S`` both), ``M205`` ``J``
+  junction deviation (mm) and ``X``/``Y``/``Z`` jerk (mm/s). ``M203`` is in mm/s on Marlin
+  and Prusa but in mm/min on RepRapFirmware: the unit is taken from the line's own comment or
+  the header above it ("Maximum feedrates (units/s)", "mm/min"), else from the firmware's
+  name, else mm/s is assumed and said (``notes``);
+* Klipper's ``printer.cfg`` ``[printer]`` section: ``max_velocity``, ``max_accel``,
+  ``max_z_velocity``, ``max_z_accel``, ``square_corner_velocity`` (mm/s, mm/s^2), and
+  ``SET_VELOCITY_LIMIT VELOCITY= ACCEL= SQUARE_CORNER_VELOCITY=`` lines;
+* OctoPrint's printer profile (axis speeds in mm/min): :meth:`MotionLimits.from_feeds`.
+
+Several sources combine to the lower value of each limit (:meth:`MotionLimits.combined`):
+a test must run on the printer as it is, whichever source is right.
+
+Feasibility (:func:`circle_feed`): on a circle the peak speed of each axis equals the feed
+(at the points where the path runs along that axis), so the feed may not exceed either
+plane axis' max feed. The centripetal acceleration is ``v^2 / R``; Marlin's and Klipper's
+planners limit a chord junction on a circle to ``v^2 <= a R`` with the move's acceleration,
+which the slower of the two axes bounds where the path runs along it. And the feed must be
+reached within the overshoot arc before the capture starts: ``v^2 <= 2 a R * overshoot``
+(radians; from standstill at the feed-in corner, conservative). With ``a`` the lowest known
+of the plane axes' max accelerations and the print acceleration.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Sequence
+
+from ..core.messages import Msg, joined
+
+AXES = ("x", "y", "z")
+PLANE_AXES = {"XY": ("x", "y"), "XZ": ("x", "z"), "YZ": ("y", "z")}
+# below this feed (1 mm/s) a test is refused rather than run: a 50 mm vertical circle would
+# take over four minutes per direction, long enough for the bar and frame to drift
+MIN_TEST_FEED = 60.0  # mm/min
+MAX_TEXT = 20000  # characters of limits text stored with the settings
+
+
+class LimitsError(ValueError):
+    """A limits text that says nothing usable (names what was wrong)."""
+
+
+@dataclass
+class MotionLimits:
+    """What one printer can do; a limit that is not known is absent (not zero)."""
+
+    max_feed_mm_min: Dict[str, float] = field(default_factory=dict)
+    max_accel_mm_s2: Dict[str, float] = field(default_factory=dict)
+    print_accel_mm_s2: Optional[float] = None
+    travel_accel_mm_s2: Optional[float] = None
+    junction_deviation_mm: Optional[float] = None
+    jerk_mm_s: Dict[str, float] = field(default_factory=dict)
+    square_corner_velocity_mm_s: Optional[float] = None
+    # where each limit came from, by key ("max_feed_mm_min.z": "M203")
+    sources: Dict[str, str] = field(default_factory=dict)
+    notes: List[Msg] = field(default_factory=list)  # what was assumed while reading
+
+    def empty(self) -> bool:
+        return not (self.max_feed_mm_min or self.max_accel_mm_s2 or self.print_accel_mm_s2
+                    or self.travel_accel_mm_s2 or self.junction_deviation_mm is not None
+                    or self.jerk_mm_s or self.square_corner_velocity_mm_s is not None)
+
+    @staticmethod
+    def from_feeds(feeds: Optional[Dict[str, float]], source: str) -> "MotionLimits":
+        """Axis max feeds (mm/min), e.g. OctoPrint's printer profile's axis speeds."""
+        out = MotionLimits()
+        for a, v in (feeds or {}).items():
+            a = str(a).lower()
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                continue
+            if a in AXES and math.isfinite(v) and v > 0:
+                out.max_feed_mm_min[a] = v
+                out.sources[f"max_feed_mm_min.{a}"] = source
+        return out
+
+    def combined(self, other: Optional["MotionLimits"]) -> "MotionLimits":
+        """The lower of each limit of ``self`` and ``other`` (with its source)."""
+        if other is None:
+            return self
+        out = MotionLimits(notes=list(self.notes) + list(other.notes))
+        for key in ("max_feed_mm_min", "max_accel_mm_s2", "jerk_mm_s"):
+            mine, theirs = getattr(self, key), getattr(other, key)
+            for a in AXES:
+                pick = _lower(mine.get(a), theirs.get(a))
+                if pick is not None:
+                    getattr(out, key)[a] = pick
+                    src = self if pick == mine.get(a) else other
+                    out.sources[f"{key}.{a}"] = src.sources.get(f"{key}.{a}", "")
+        for key in ("print_accel_mm_s2", "travel_accel_mm_s2", "junction_deviation_mm",
+                    "square_corner_velocity_mm_s"):
+            pick = _lower(getattr(self, key), getattr(other, key))
+            if pick is not None:
+                setattr(out, key, pick)
+                src = self if pick == getattr(self, key) else other
+                out.sources[key] = src.sources.get(key, "")
+        return out
+
+    def to_dict(self) -> Dict[str, Any]:
+        """JSON form (notes as English text)."""
+        return {"max_feed_mm_min": dict(self.max_feed_mm_min),
+                "max_accel_mm_s2": dict(self.max_accel_mm_s2),
+                "print_accel_mm_s2": self.print_accel_mm_s2,
+                "travel_accel_mm_s2": self.travel_accel_mm_s2,
+                "junction_deviation_mm": self.junction_deviation_mm,
+                "jerk_mm_s": dict(self.jerk_mm_s),
+                "square_corner_velocity_mm_s": self.square_corner_velocity_mm_s,
+                "sources": dict(self.sources),
+                "notes": [str(n) for n in self.notes]}
+
+
+def _lower(a: Optional[float], b: Optional[float]) -> Optional[float]:
+    vals = [v for v in (a, b) if v is not None]
+    return min(vals) if vals else None
+
+
+# ~~ reading ----------------------------------------------------------------------------------
+_GCODE = re.compile(r"(?:^|[\s:])(M20[1345])((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
+                    r"[^;]*(?:;(.*))?$")
+_WORD = re.compile(r"([A-Za-z])(-?\d*\.?\d+)")
+_KLIPPER_KEYS = ("max_velocity", "max_accel", "max_z_velocity", "max_z_accel",
+                 "square_corner_velocity")
+_CFG = re.compile(r"^\s*(" + "|".join(_KLIPPER_KEYS) + r")\s*[:=]\s*([-+0-9.eE]+)\s*$")
+_SECTION = re.compile(r"^\s*\[([^\]]+)\]")
+_SVL = re.compile(r"SET_VELOCITY_LIMIT\b(.*)$", re.IGNORECASE)
+_MM_MIN = re.compile(r"mm\s*/\s*min|units\s*/\s*min|mm per min", re.IGNORECASE)
+_MM_S = re.compile(r"(?:mm|units)\s*/\s*(?:s\b|sec)", re.IGNORECASE)
+
+
+def firmware_feed_unit(firmware: Optional[str]) -> Optional[str]:
+    """"mm/min" for RepRapFirmware (its M203 takes mm/min), "mm/s" for Marlin, Prusa,
+    Klipper and Smoothieware; None when the name says nothing."""
+    name = (firmware or "").lower()
+    if "reprapfirmware" in name or "rrf" in name or "duet" in name:
+        return "mm/min"
+    if any(k in name for k in ("marlin", "prusa", "klipper", "smoothie", "buddy")):
+        return "mm/s"
+    return None
+
+
+def _number(text: str) -> Optional[float]:
+    try:
+        v = float(text)
+    except ValueError:
+        return None
+    return v if math.isfinite(v) else None
+
+
+def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
+    """The limits stated in ``text`` (see the module docstring); ``firmware`` is the
+    firmware's name (M115), which decides M203's unit when the text does not. Raises
+    LimitsError when the text states none of them."""
+    if not isinstance(text, str):
+        raise LimitsError(Msg("the motion limits must be a text"))
+    out = MotionLimits()
+    fw_unit = firmware_feed_unit(firmware) or (
+        "mm/min" if re.search(r"reprapfirmware", text, re.IGNORECASE) else None)
+    header_unit: Optional[str] = None
+    section: Optional[str] = None
+    klipper: Dict[str, float] = {}
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line:
+            continue
+        m = _SECTION.match(line)
+        if m:
+            section = m.group(1).strip().lower()
+            continue
+        m = _CFG.match(line.split("#")[0])
+        if m and section in (None, "printer"):
+            v = _number(m.group(2))
+            if v is not None and v > 0:
+                klipper[m.group(1)] = v
+            continue
+        m = _SVL.search(line)
+        if m:
+            for key, val in re.findall(r"(\w+)\s*=\s*([-+0-9.eE]+)", m.group(1)):
+                v = _number(val)
+                name = {"velocity": "max_velocity", "accel": "max_accel",
+                        "square_corner_velocity": "square_corner_velocity"}.get(key.lower())
+                if name and v is not None and v > 0:
+                    klipper[name] = v
+            continue
+        m = _GCODE.search(line)
+        if not m:
+            # a header such as "echo:; Maximum feedrates (units/s):" sets the next M203's unit
+            if "feedrate" in line.lower() or "maximum speed" in line.lower():
+                header_unit = "mm/min" if _MM_MIN.search(line) else \
+                    "mm/s" if _MM_S.search(line) else header_unit
+            continue
+        code, words, comment = m.group(1), m.group(2), m.group(3) or ""
+        vals = {k.upper(): _number(v) for k, v in _WORD.findall(words)}
+        if code == "M203":
+            unit = "mm/min" if _MM_MIN.search(comment) else "mm/s" if _MM_S.search(comment) \
+                else header_unit or fw_unit
+            if unit is None:
+                unit = "mm/s"
+                out.notes.append(Msg("M203 has no stated unit: read as mm/s (Marlin's); "
+                                     "RepRapFirmware states mm/min"))
+            factor = 1.0 if unit == "mm/min" else 60.0
+            for a in AXES:
+                v = vals.get(a.upper())
+                if v is not None and v > 0:
+                    out.max_feed_mm_min[a] = v * factor
+                    out.sources[f"max_feed_mm_min.{a}"] = f"M203 ({unit})"
+            header_unit = None
+        elif code == "M201":
+            for a in AXES:
+                v = vals.get(a.upper())
+                if v is not None and v > 0:
+                    out.max_accel_mm_s2[a] = v
+                    out.sources[f"max_accel_mm_s2.{a}"] = "M201"
+        elif code == "M204":
+            if vals.get("S") and vals["S"] > 0:
+                out.print_accel_mm_s2 = out.travel_accel_mm_s2 = vals["S"]
+                out.sources["print_accel_mm_s2"] = out.sources["travel_accel_mm_s2"] = "M204 S"
+            if vals.get("P") and vals["P"] > 0:
+                out.print_accel_mm_s2 = vals["P"]
+                out.sources["print_accel_mm_s2"] = "M204 P"
+            if vals.get("T") and vals["T"] > 0:
+                out.travel_accel_mm_s2 = vals["T"]
+                out.sources["travel_accel_mm_s2"] = "M204 T"
+        elif code == "M205":
+            if vals.get("J") is not None and vals["J"] > 0:
+                out.junction_deviation_mm = vals["J"]
+                out.sources["junction_deviation_mm"] = "M205 J"
+            for a in AXES:
+                v = vals.get(a.upper())
+                if v is not None and v >= 0:
+                    out.jerk_mm_s[a] = v
+                    out.sources[f"jerk_mm_s.{a}"] = "M205"
+    if klipper:
+        _apply_klipper(out, klipper)
+    if out.empty():
+        raise LimitsError(Msg(
+            "no motion limits found: paste the printer's answer to M503 (M201, M203, M204, "
+            "M205 lines) or Klipper's [printer] section (max_velocity, max_accel, "
+            "max_z_velocity, max_z_accel)"))
+    return out
+
+
+def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:
+    """Klipper's limits: ``max_velocity`` bounds the toolhead's speed (so each axis too),
+    ``max_z_velocity`` the Z component (default: max_velocity); the same for accel."""
+    v, a = cfg.get("max_velocity"), cfg.get("max_accel")
+    vz, az = cfg.get("max_z_velocity", v), cfg.get("max_z_accel", a)
+    for axis, vel, src in (("x", v, "max_velocity"), ("y", v, "max_velocity"),
+                           ("z", vz, "max_z_velocity" if "max_z_velocity" in cfg
+                            else "max_velocity")):
+        if vel is not None:
+            out.max_feed_mm_min[axis] = vel * 60.0
+            out.sources[f"max_feed_mm_min.{axis}"] = f"Klipper {src}"
+    for axis, acc, src in (("x", a, "max_accel"), ("y", a, "max_accel"),
+                           ("z", az, "max_z_accel" if "max_z_accel" in cfg else "max_accel")):
+        if acc is not None:
+            out.max_accel_mm_s2[axis] = acc
+            out.sources[f"max_accel_mm_s2.{axis}"] = f"Klipper {src}"
+    if a is not None:
+        out.print_accel_mm_s2 = a
+        out.sources["print_accel_mm_s2"] = "Klipper max_accel"
+    if "square_corner_velocity" in cfg:
+        out.square_corner_velocity_mm_s = cfg["square_corner_velocity"]
+        out.sources["square_corner_velocity_mm_s"] = "Klipper square_corner_velocity"
+
+
+# ~~ feasibility ------------------------------------------------------------------------------
+@dataclass
+class FeedChoice:
+    """The feed a circle runs at and why it is lower than asked (``reasons``, empty when it
+    is not); ``unknown``: plane axes whose max feed nobody stated."""
+
+    feed_mm_min: float
+    requested_mm_min: float
+    reasons: List[Msg] = field(default_factory=list)
+    unknown: List[str] = field(default_factory=list)
+
+    @property
+    def lowered(self) -> bool:
+        return self.feed_mm_min < self.requested_mm_min
+
+
+def circle_feed(plane: str, radius_mm: float, feed_mm_min: float,
+                limits: Optional[MotionLimits], overshoot_deg: float = 20.0) -> FeedChoice:
+    """The highest feed (mm/min, at most ``feed_mm_min``, whole mm/min) at which every axis
+    of ``plane`` can follow a circle of ``radius_mm`` (see the module docstring). Raises
+    LimitsError naming the binding limit when that is below MIN_TEST_FEED."""
+    axes = PLANE_AXES[str(plane).upper()]
+    limits = limits or MotionLimits()
+    feed = float(feed_mm_min)
+    best = feed
+    reasons: List[Msg] = []
+    candidates = []
+    for a in axes:
+        cap = limits.max_feed_mm_min.get(a)
+        if cap is not None:
+            candidates.append((cap, Msg(
+                "the %(axis)s axis' max feed is %(cap)s mm/min (%(source)s)", axis=a.upper(),
+                cap=f"{cap:g}", source=limits.sources.get(f"max_feed_mm_min.{a}", "-"))))
+    accels = [(limits.max_accel_mm_s2[a], f"max_accel_mm_s2.{a}", a.upper())
+              for a in axes if a in limits.max_accel_mm_s2]
+    if limits.print_accel_mm_s2:
+        accels.append((limits.print_accel_mm_s2, "print_accel_mm_s2", None))
+    if accels:
+        acc, key, axis = min(accels)
+        r = float(radius_mm)
+        ramp = 2.0 * r * math.radians(max(overshoot_deg, 0.0))
+        v = math.sqrt(acc * min(r, ramp) if ramp > 0 else acc * r) * 60.0
+        what = Msg("the %(axis)s axis' max acceleration", axis=axis) if axis else \
+            Msg("the print acceleration")
+        candidates.append((v, Msg(
+            "%(what)s of %(acc)s mm/s^2 (%(source)s) allows at most %(cap)s mm/min on a "
+            "%(radius)s mm circle (reached within the %(overshoot)s deg overshoot)",
+            what=what, acc=f"{acc:g}", source=limits.sources.get(key, "-"),
+            cap=f"{math.floor(v):g}", radius=f"{r:g}", overshoot=f"{overshoot_deg:g}")))
+    for cap, why in candidates:
+        if cap < best - 1e-9:
+            best = cap
+    for cap, why in candidates:
+        if cap < feed - 1e-9 and abs(cap - best) <= 1e-9:
+            reasons.append(why)
+    if best < feed - 1e-9:
+        best = float(math.floor(best)) if best >= 1 else best
+    if best < MIN_TEST_FEED:
+        raise LimitsError(Msg(
+            "a %(radius)s mm circle in %(plane)s cannot run at a usable feed: %(why)s, below "
+            "the %(min)s mm/min a test needs. Check the printer's limits (M203, M201, "
+            "M204)", radius=f"{float(radius_mm):g}", plane=str(plane).upper(),
+            why=joined(reasons) if reasons else Msg("the feed asked is too low"),
+            min=f"{MIN_TEST_FEED:g}"))
+    unknown = [a for a in axes if a not in limits.max_feed_mm_min]
+    return FeedChoice(best, feed, reasons, unknown)
+
+
+def require_known(choice: FeedChoice, plane: str) -> None:
+    """Refuse (LimitsError) a vertical-plane test whose Z max feed nobody stated: Z is the
+    slow axis of most printers (5-12 mm/s), far below a typical circle feed, and a capped
+    axis distorts the circle's timing. (XY feeds of ~30 mm/s are within every printer's
+    reach; unknown X/Y limits are only said in the program's header.)"""
+    if "z" in choice.unknown:
+        raise LimitsError(Msg(
+            "the Z axis' max feed is not known, and a %(plane)s circle at %(feed)s mm/min "
+            "needs Z to reach %(feed)s mm/min: give the printer's limits (its answer to "
+            "M503, or Klipper's printer.cfg) or the axes' max feeds", plane=str(plane).upper(),
+            feed=f"{choice.feed_mm_min:g}"))
+
+
+def describe(choice: FeedChoice) -> List[str]:
+    """G-code comment lines (without ';') saying how the feed was chosen."""
+    out = []
+    if choice.lowered:
+        out.append(f"feed lowered from {choice.requested_mm_min:g} to "
+                   f"{choice.feed_mm_min:g} mm/min: " + "; ".join(str(r) for r in choice.reasons))
+    if choice.unknown:
+        out.append("max feed not known for axis " + ", ".join(a.upper() for a in choice.unknown)
+                   + f": assumed it reaches {choice.feed_mm_min:g} mm/min")
+    return out
+
+
+def axes_text(values: Dict[str, float]) -> str:
+    return ", ".join(f"{a.upper()} {values[a]:g}" for a in AXES if a in values)
+
+
+def limits_from_sequence(feeds: Optional[Sequence[float]], accels: Optional[Sequence[float]],
+                         source: str) -> MotionLimits:
+    """Limits given as X,Y,Z triples (feeds mm/min, accelerations mm/s^2), e.g. the CLI's
+    ``--max-feed`` and ``--max-accel``."""
+    out = MotionLimits.from_feeds(dict(zip(AXES, feeds or ())), source)
+    for a, v in zip(AXES, accels or ()):
+        if v and v > 0:
+            out.max_accel_mm_s2[a] = float(v)
+            out.sources[f"max_accel_mm_s2.{a}"] = source
+    return out
