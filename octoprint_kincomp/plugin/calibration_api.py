@@ -1,19 +1,23 @@
 """The calibration endpoints: ballbar program, measurement upload and analysis, applying a
 proposal, the run history, comparing two runs, and demo mode's simulated trace.
 
-* ``POST /program``  writes a ballbar test program (radius mm, feed mm/min capped to the
-  axes' max feeds, centre mm) into OctoPrint's storage, optionally prints it (a live
+* ``POST /program``  writes a ballbar test program (radius mm, feed mm/min lowered to what
+  the printer's motion limits allow, :mod:`.motion_limits`; ``feed_lowered`` says why; 400
+  when no usable feed is left; centre mm) into OctoPrint's storage, optionally prints it (a live
   sensor, if one is set, is armed first through ``on_print``).
 * ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
   MAX_TRACE_UPLOAD bytes): analysed in the worker process (a background job: the run comes
   in the response if it is ready within TRACE_WAIT_S, else 202 with the job, whose result
   is the run id) and stored as a run; nothing is applied.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
-* ``POST /apply``    a run's proposed parameters, or given ones, into the settings.
+* ``POST /apply``    a run's proposed parameters, or given ones, into the settings; an
+  untrusted run (an error finding) only with ``"force": true`` (409 naming the error
+  without it).
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
   ``/demo/trace``.
 
-Each method here is one route's body (the plugin class holds the routes); errors are JSON
+Every stored run carries ``findings`` (worst first; message and advice translatable) and
+``trusted`` (:mod:`.findings_view`). Each method here is one route's body (the plugin class holds the routes); errors are JSON
 ``{"error": ...}`` responses in the user's language, 400 naming the field for bad input.
 A run whose numbers are not all finite is never stored.
 """
@@ -37,11 +41,12 @@ from ..ballbar.analysis import Geometry, analyse, propose_params
 from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
 from ..ballbar.closedloop import table
 from ..ballbar.formats import TraceError, load_any
+from ..ballbar.limits import LimitsError, circle_feed, describe
 from ..ballbar.program import (
     PLANES,
     ProgramError,
     TestSpec,
-    cap_feed,
+    check_bounds,
     generate,
     spec_dict,
     spec_from_program,
@@ -51,7 +56,9 @@ from ..core.messages import as_dict
 from ..core.params import Params, ParamsError
 from . import http
 from .demo_mode import DemoMode
+from .findings_view import findings_of, refusal
 from .job_api import JobApi
+from .motion_limits import effective_limits
 from .notify import Notifier
 from .queue import QueueCompensator
 from .runs import RunNotFound, RunNotStorable, RunStore
@@ -113,15 +120,21 @@ class CalibrationApi:
                 plane=plane,
                 centre=tuple(http.numbers(data, "centre", 3, (110.0, 110.0, 10.0))),
                 radius_mm=http.number(data, "radius", 100.0),
-                feed_mm_min=cap_feed(feed, plane, self._store.max_feeds()),
+                feed_mm_min=feed,
                 requested_feed_mm_min=feed,
                 mount_pause=mount_pause,
             )
+            volume = self._store.limits()
+            check_bounds(spec, volume)
+            choice = circle_feed(spec.plane, spec.radius_mm, feed, self.motion_limits(),
+                                 overshoot_deg=spec.overshoot_deg)
+            spec.feed_mm_min = choice.feed_mm_min
             params = self._queue.in_force
-            text = generate(spec, volume=self._store.limits(), params_hash=params.hash())
+            text = generate(spec, volume=volume, params_hash=params.hash(),
+                            feed_notes=describe(choice))
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
-        except (ProgramError, TypeError, ValueError) as exc:
+        except (ProgramError, LimitsError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
         name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
                f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
@@ -131,7 +144,12 @@ class CalibrationApi:
         if do_print and not printing:
             return http.error(gettext("The printer is not ready to print"), 409)
         return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash, capture=capture)
+                             printing=printing, program_hash=prog_hash, capture=capture,
+                             feed_lowered=[as_dict(r) for r in choice.reasons])
+
+    def motion_limits(self):
+        """The limits a test must respect now (stated limits and the printer profile)."""
+        return effective_limits(self._store.current(), self._store.max_feeds())
 
     def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
         """Writes the ballbar program ``text`` as ``kincomp/<name>`` into OctoPrint's storage
@@ -295,6 +313,7 @@ class CalibrationApi:
         no request: the worker and the live capture's thread store their runs here too."""
         run_id = self._runs.new_id()
         current = self._queue.in_force
+        findings, trusted = findings_of(result)
         run = {
             "id": run_id,
             "date": _dt.datetime.now().isoformat(timespec="seconds"),
@@ -308,6 +327,8 @@ class CalibrationApi:
             "firmware": http.with_i18n(result["firmware"]),
             "notes": [str(n) for n in result["notes"]],
             "notes_i18n": [as_dict(n) for n in result["notes"]],
+            "findings": findings,
+            "trusted": trusted,
             "plot": plot,
             "applied": None,
         }
@@ -323,7 +344,7 @@ class CalibrationApi:
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         data = http.json_object() or {}
         try:
-            apply_now = http.flag(data, "apply_now")
+            apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         run = None
@@ -336,6 +357,9 @@ class CalibrationApi:
             if params_doc is None:
                 return http.error(gettext("This run has no proposed parameters (its capture "
                                           "failed)"), 400)
+            refused = self.untrusted(run, force)
+            if refused is not None:
+                return refused
         elif "params" in data:
             if not isinstance(data["params"], dict):
                 return http.error(gettext("'%(key)s' must be an object", key="params"), 400)
@@ -344,6 +368,15 @@ class CalibrationApi:
             return http.error(gettext("Give 'run' or 'params'"), 400)
         return self.apply_params(params_doc, apply_now, run,
                                  {"enabled": data["enabled"]} if "enabled" in data else None)
+
+    @staticmethod
+    def untrusted(run: Dict[str, Any], force: bool):
+        """409 naming the first error finding when ``run`` is not trusted and the request
+        does not say ``"force": true`` (apply anyway); None to go on."""
+        reason = refusal(run)
+        if reason is None or force:
+            return None
+        return http.error(http.tr(reason), 409)
 
     def apply_params(self, params_doc, apply_now: bool, run: Optional[Dict[str, Any]] = None,
                      settings: Optional[Dict[str, Any]] = None):

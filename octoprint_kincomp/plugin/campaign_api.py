@@ -24,7 +24,8 @@ volume, printed test by test with the same parameters in force, fitted jointly
   ``campaign``): ONE parameter set; nothing applied. Refused (400 naming the file) for a
   missing or failed test or traces that are not one campaign.
 * ``POST /campaigns/<id>/apply``  that parameter set into the settings (``enabled``,
-  ``apply_now`` as for ``/apply``).
+  ``apply_now`` and, for an untrusted result, ``force`` as for ``/apply``). The joint
+  result, as every run, carries ``findings`` and ``trusted``.
 
 What is in force, when a campaign may go on (409 when the parameters in force or the
 printer profile changed since it began) and how a trace becomes a test's measurement (also a
@@ -119,8 +120,8 @@ class CampaignApi:
                 volume, radius_xy=options["radius_xy"],
                 radius_vertical=options["radius_vertical"], feed=options["feed"],
                 xy_height=options["xy_height"], second_height=options["second_height"],
-                second_feed=options["second_feed"], max_feed=self._store.max_feeds(),
-                printer=printer, campaign_id=cid)
+                second_feed=options["second_feed"],
+                limits=self._calibration.motion_limits(), printer=printer, campaign_id=cid)
         except (ProgramError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
         doc = new_campaign(cid, steps, volume, printer, self.measure.in_force().hash(),
@@ -264,7 +265,7 @@ class CampaignApi:
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         data = http.json_object() or {}
         try:
-            apply_now = http.flag(data, "apply_now")
+            apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
             doc = self._campaigns.get(cid)
             run = self._runs.get(doc.get("result") or "")
         except http.BadRequest as exc:
@@ -274,6 +275,9 @@ class CampaignApi:
         except RunNotFound:
             return http.error(gettext("Campaign %(id)s has no joint analysis to apply: "
                                       "analyse it first", id=cid), 409)
+        refused = self._calibration.untrusted(run, force)
+        if refused is not None:
+            return refused
         resp = self._calibration.apply_params(
             run["proposed"], apply_now, run,
             {"enabled": data["enabled"]} if "enabled" in data else None)

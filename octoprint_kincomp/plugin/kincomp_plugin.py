@@ -44,6 +44,7 @@ from .demo_mode import DemoMode, lines_as_sent
 from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
+from .motion_limits import LimitsCapture
 from .notify import CUSTOM_EVENTS, Notifier
 from .print_state import PRINT_EVENTS, PrintState
 from .queue import FILE_TAG, HOME_QUERY, QueueCompensator
@@ -75,6 +76,7 @@ class KinCompPlugin(
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
         self.settings_api = self.calibration = self.sensor = self.campaign = None
+        self.limits = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -97,6 +99,7 @@ class KinCompPlugin(
         queue.on_error = self.prints.compensation_failed
         queue.on_untouched = self.prints.sent_as_written
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
+        self.limits = LimitsCapture(self.store, printer, notifier, log)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files, self.files.job_api)
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
@@ -196,6 +199,7 @@ class KinCompPlugin(
         if comm_instance is not self.prints.comm:
             self.prints.connection_changed(comm_instance)
         self.firmware.received(line)
+        self.limits.received(line)
         if self.queue.home_query_out:  # the firmware's answer to our M114 after G28
             position = parse_position_line(line)
             if position is not None:
@@ -237,6 +241,7 @@ class KinCompPlugin(
             self.prints.on_event(event, payload)
         elif event == Events.FIRMWARE_DATA:
             self.firmware.query(payload)
+            self.limits.firmware_data(payload)
         elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
             # the bed volume (limits) and axis feeds come from the printer profile, which
             # a connection may switch and the user may edit
@@ -264,6 +269,10 @@ class KinCompPlugin(
     @route("/settings", methods=["POST"])
     def api_settings(self):
         return self.settings_api.save()
+
+    @route("/limits/read", methods=["POST"])
+    def api_limits_read(self):
+        return self.limits.read_request()
 
     @route("/program", methods=["POST"])
     def api_program(self):

@@ -99,6 +99,11 @@ class CaptureRecorder:
             "params_before_hash": current.hash(),
             "diagnostics": {"plane": plane} if plane else {},
             "proposed": None, "firmware": None, "notes": [], "notes_i18n": [],
+            # the failure as the run's one finding: nothing here can be trusted
+            "findings": [{"code": "capture.failed", "severity": "error",
+                          "message": as_dict(message), "advice": {"text": ""},
+                          "evidence": {}}],
+            "trusted": False,
             "plot": None, "applied": None,
             "capture": capture,
         }

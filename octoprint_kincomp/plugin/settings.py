@@ -14,6 +14,7 @@ import math
 import re
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
+from ..ballbar.limits import MAX_TEXT, LimitsError, parse_limits
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
 from ..core.params import Params, ParamsError
@@ -61,13 +62,26 @@ def defaults() -> Dict[str, Any]:
         "demo": {"enabled": False, "live": True},
         "sensor": sensor_defaults(),
         "software_update": software_update.default_settings(),
+        "motion_limits": motion_limits_defaults(),
     }
+
+
+# the printer's motion limits as stated (ballbar/limits.py reads them): the firmware's
+# answer to M503 (source "m503", captured by the plugin) or text the user pasted (source
+# "pasted": M503 lines or Klipper's printer.cfg); firmware: its name (M203's unit)
+MOTION_LIMIT_KEYS = ("text", "source", "firmware", "captured")
+MOTION_LIMIT_SOURCES = ("", "m503", "pasted")
+
+
+def motion_limits_defaults() -> Dict[str, Any]:
+    return {"text": "", "source": "", "firmware": "", "captured": None}
 
 
 # the sensor settings the plugin stores (SensorConfig's others keep their defaults)
 SENSOR_KEYS = ("enabled", "port", "baudrate", "protocol", "units", "positive", "pattern",
                "scale", "range", "sample_rate_hz")
-MERGED = ("demo", "sensor")  # objects updated key by key (a form may send only some keys)
+# objects updated key by key (a form may send only some keys)
+MERGED = ("demo", "sensor", "motion_limits")
 
 
 def sensor_defaults() -> Dict[str, Any]:
@@ -180,6 +194,7 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
     demo["live"] = _bool(demo.get("live", True), "demo.live")
     out["sensor"] = validate_sensor(out["sensor"])
+    out["motion_limits"] = validate_motion_limits(out["motion_limits"])
     try:
         out["software_update"] = software_update.validate(out["software_update"])
     except software_update.UpdateSettingsError as exc:
@@ -189,6 +204,36 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     except ParamsError as exc:
         raise SettingsError(f"params.{exc.field}" if exc.field else "params",
                             exc.message) from None
+    return out
+
+
+def validate_motion_limits(value: Any) -> Dict[str, Any]:
+    """The stated motion limits, checked: a text that states none is refused (naming
+    ``motion_limits.text``), an empty text means "not known"."""
+    if not isinstance(value, dict):
+        raise SettingsError("motion_limits", Msg("must be an object"))
+    for key in value:
+        if key not in MOTION_LIMIT_KEYS:
+            raise SettingsError(f"motion_limits.{key}", Msg("unknown setting"))
+    out = dict(motion_limits_defaults(), **value)
+    for key in ("text", "firmware"):
+        if not isinstance(out[key], str):
+            raise SettingsError(f"motion_limits.{key}", Msg("must be a text"))
+    if len(out["text"]) > MAX_TEXT:
+        raise SettingsError("motion_limits.text", Msg("is longer than %(n)s characters",
+                                                      n=MAX_TEXT))
+    out["source"] = _choice(out["source"], "motion_limits.source", MOTION_LIMIT_SOURCES)
+    if out["captured"] is not None and not isinstance(out["captured"], str):
+        raise SettingsError("motion_limits.captured", Msg("must be a date text or null"))
+    if out["text"].strip():
+        try:
+            parse_limits(out["text"], out["firmware"])
+        except LimitsError as exc:
+            raise SettingsError("motion_limits.text", exc.args[0]) from None
+        if not out["source"]:
+            out["source"] = "pasted"
+    else:
+        out.update(text="", source="", captured=None)
     return out
 
 

@@ -3,7 +3,9 @@
 * ``GET /status``: everything the UI shows at once: the settings, the parameter hash, which
   engine runs, the queue's compensation state, what the firmware compensates itself (and
   conflicts), the firmware equivalents of the parameters, demo mode, the bed limits (mm)
-  and axis max feeds (mm/min) of the printer profile, the background jobs, and what is wrong
+  and axis max feeds (mm/min) of the printer profile, the printer's motion limits
+  (``motion_limits``: stated, read, combined with the profile; :mod:`.motion_limits`),
+  the background jobs, and what is wrong
   with the stored settings, if anything (``settings_problem``, its ``settings_problem_field``;
   compensation is off then, ``settings`` shows the invalid value as its default).
 * ``POST /settings``: a partial settings document, validated whole (400 naming the field,
@@ -26,6 +28,7 @@ from . import http
 from .demo_mode import DemoMode
 from .firmware_watch import FirmwareWatcher
 from .jobs import JobQueue
+from .motion_limits import status as limits_status
 from .queue import QueueCompensator
 from .settings import SettingsError, validate_settings
 from .settings_store import SettingsStore
@@ -58,6 +61,7 @@ class SettingsApi:
             demo=self._demo.ballbar is not None,
             limits=store.limits(),
             max_feeds=store.max_feeds(),
+            motion_limits=limits_status(s, store.max_feeds()),
             jobs=[j.to_dict() for j in self._jobs.jobs.values()],
             settings_problem=(http.tr(store.problem) if store.problem is not None else None),
             settings_problem_field=(store.problem.field if store.problem is not None

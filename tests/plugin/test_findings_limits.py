@@ -1,0 +1,183 @@
+"""Issue 23 on the plugin (mocked OctoPrint objects, tests/support/mocked_plugin.py): every
+stored result carries findings and trusted, an untrusted one is applied only with "force";
+the printer's motion limits are read from its answer to M503 (or pasted), validated as a
+setting, shown in /status and respected by the test program and the campaign plan."""
+
+from unittest import mock
+
+import pytest
+
+from octoprint_kincomp.ballbar import findings as F
+from octoprint_kincomp.ballbar.analysis import analyse
+from octoprint_kincomp.core.messages import Msg
+from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
+
+PROFILE = {"id": "_default", "name": "Virtual P1",
+           "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"},
+           "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}}}
+SUMMARY = {"summary": {"plane": "XY", "squareness_um_per_m": 400.0}}
+MARLIN_M503 = [
+    "echo:; Maximum feedrates (units/s):",
+    "echo:  M203 X500.00 Y500.00 Z10.00 E25.00",
+    "echo:; Maximum Acceleration (units/s2):",
+    "echo:  M201 X500.00 Y500.00 Z100.00 E5000.00",
+    "echo:  M204 P500.00 R500.00 T1000.00",
+    "echo:  M205 B20000.00 S0.00 T0.00 J0.08",
+    "ok",
+]
+
+
+@pytest.fixture
+def plugin(tmp_path):
+    p = mocked_plugin(str(tmp_path))
+    p._printer_profile_manager.get_current_or_default.return_value = PROFILE
+    p._printer.is_printing.return_value = False
+    p._printer.is_operational.return_value = True
+    return p
+
+
+@pytest.fixture
+def app():
+    return api_app()
+
+
+def call(app, view, *args, json=None, method="POST"):
+    with app.test_request_context("/", method=method, json=json):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            resp = view(*args)
+    return resp.status_code, resp.get_json()
+
+
+def _with_error(trace, current=None, **kw):
+    """The real analysis, with an error finding as issue 23's motion check gives one."""
+    result = analyse(trace, current=current, **kw)
+    result["findings"] = [F.info("note", "said for the record"), F.error(
+        "motion.feed_capped", Msg("the run took %(s)s s longer than planned", s="19.1"),
+        Msg("lower the feed to what the Z axis reaches"), sync_mismatch_ms=19074.0)]
+    result["trusted"] = F.trusted(result["findings"])
+    return result
+
+
+# ~~ findings ------------------------------------------------------------------------------------
+def test_notes_become_info_findings_and_the_run_is_trusted(app, plugin):
+    code, run = call(app, plugin.api_analyze, json=SUMMARY)
+    assert code == 200 and run["trusted"] is True
+    assert [f["severity"] for f in run["findings"]] == ["info"] * len(run["notes"])
+    assert [f["message"]["text"] for f in run["findings"]] == run["notes"]
+    code, stored = call(app, plugin.api_run, run["id"], method="GET")
+    assert stored["findings"] == run["findings"]
+    code, _ = call(app, plugin.api_apply, json={"run": run["id"]})
+    assert code == 200  # trusted: no confirmation needed
+
+
+def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
+    before = plugin.store.current()["params"]
+    with mock.patch("octoprint_kincomp.plugin.calibration_api.analyse", _with_error):
+        code, run = call(app, plugin.api_analyze, json=SUMMARY)
+    assert code == 200 and run["trusted"] is False
+    # worst first, message and advice translatable, evidence kept
+    first = run["findings"][0]
+    assert first["severity"] == "error" and first["code"] == "motion.feed_capped"
+    assert first["message"]["template"] == "the run took %(s)s s longer than planned"
+    assert first["advice"]["text"] == "lower the feed to what the Z axis reaches"
+    assert first["evidence"] == {"sync_mismatch_ms": 19074.0}
+    code, body = call(app, plugin.api_apply, json={"run": run["id"]})
+    assert code == 409 and "not trusted" in body["error"]
+    assert "19.1 s longer than planned" in body["error"] and '"force": true' in body["error"]
+    assert plugin.store.current()["params"] == before  # nothing applied
+    code, body = call(app, plugin.api_apply, json={"run": run["id"], "force": "yes"})
+    assert code == 400  # a flag is a boolean
+    code, body = call(app, plugin.api_apply, json={"run": run["id"], "force": True})
+    assert code == 200
+    assert plugin.store.current()["params"]["squareness_um_per_m"]["xy"] != \
+        before.get("squareness_um_per_m", {}).get("xy")
+    code, stored = call(app, plugin.api_run, run["id"], method="GET")
+    assert stored["applied"]
+
+
+def test_a_campaign_result_that_is_not_trusted_needs_force(app, plugin):
+    with mock.patch("octoprint_kincomp.plugin.calibration_api.analyse", _with_error):
+        code, run = call(app, plugin.api_analyze, json=SUMMARY)
+    doc = call(app, plugin.api_campaign_plan, json={"radius_xy": 50})[1]
+    stored = plugin.campaign._campaigns.get(doc["id"])
+    stored["result"] = run["id"]  # as if its joint analysis gave this result
+    plugin.campaign._campaigns.save(stored)
+    code, view = call(app, plugin.api_campaign, doc["id"], method="GET")
+    assert view["analysis"]["trusted"] is False and view["analysis"]["findings"]
+    code, body = call(app, plugin.api_campaign_apply, doc["id"], json={})
+    assert code == 409 and "not trusted" in body["error"]
+    assert not plugin.campaign._campaigns.get(doc["id"]).get("applied")
+    code, _ = call(app, plugin.api_campaign_apply, doc["id"], json={"force": True})
+    assert code == 200 and plugin.campaign._campaigns.get(doc["id"]).get("applied")
+
+
+# ~~ motion limits ---------------------------------------------------------------------------------
+def _read_m503(plugin, lines=MARLIN_M503):
+    for line in lines:
+        plugin.received_hook(None, line)
+
+
+def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
+    plugin.on_event("FirmwareData", {"name": "Marlin 2.1.2", "data": {}})
+    plugin.received_hook(None, "ok T:20.0 /0.0")  # other traffic changes nothing
+    _read_m503(plugin)
+    wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
+    stated = plugin.store.current()["motion_limits"]
+    assert "M203 X500.00 Y500.00 Z10.00" in stated["text"] and stated["firmware"] == \
+        "Marlin 2.1.2" and stated["captured"]
+    with app.test_request_context("/"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            status = plugin.api_status().get_json()["motion_limits"]
+    assert status["read"]["max_feed_mm_min"]["z"] == 600.0  # 10 mm/s
+    assert status["effective"]["max_feed_mm_min"] == {"x": 6000.0, "y": 6000.0, "z": 600.0}
+    assert status["effective"]["sources"]["max_feed_mm_min.x"] == "printer profile"
+    # the program keeps within them and says why
+    code, prog = call(app, plugin.api_program, json={"plane": "XZ", "radius": 50,
+                                                     "centre": [110, 110, 70]})
+    assert code == 200 and prog["spec"]["feed_mm_min"] == 600.0
+    assert "Z axis' max feed is 600 mm/min" in prog["feed_lowered"][0]["text"]
+    (args, _), = [c for c in plugin._file_manager.add_file.call_args_list]
+    text = args[2].stream().read().decode() if hasattr(args[2], "stream") else ""
+    assert "M220 S100" in text and "F1850" not in text
+    # and so does a campaign plan
+    code, doc = call(app, plugin.api_campaign_plan, json={"dry_run": True})
+    feeds = {s["name"]: s["spec"]["feed_mm_min"] for s in doc["steps"]}
+    assert feeds == {"xy": 1850.0, "xz": 600.0, "yz": 600.0}
+
+
+def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
+    code, body = call(app, plugin.api_settings, json={"motion_limits": {
+        "text": "[printer]\nmax_velocity: 300\nmax_accel: 3000\nmax_z_velocity: 8"}})
+    assert code == 200 and body["settings"]["motion_limits"]["source"] == "pasted"
+    _read_m503(plugin)  # e.g. the firmware check's M503 on connecting
+    assert plugin.limits.store("\n".join(MARLIN_M503[:2]), replace=False) is False
+    assert plugin.store.current()["motion_limits"]["source"] == "pasted"
+    # asked explicitly: the printer's answer replaces them
+    code, body = call(app, plugin.api_limits_read)
+    assert code == 202
+    (args, kwargs) = plugin._printer.commands.call_args
+    assert args[0] == ["M503"] and "kincomp:motion-limits" in kwargs["tags"]
+    _read_m503(plugin)
+    wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
+    plugin._printer.is_printing.return_value = True
+    assert call(app, plugin.api_limits_read)[0] == 409
+
+
+@pytest.mark.parametrize("value, field", [
+    ({"text": "hello"}, "motion_limits.text"),
+    ({"text": 5}, "motion_limits.text"),
+    ({"source": "guess"}, "motion_limits.source"),
+    ({"speed": 1}, "motion_limits.speed"),
+])
+def test_bad_limits_are_refused_naming_the_field(app, plugin, value, field):
+    code, body = call(app, plugin.api_settings, json={"motion_limits": value})
+    assert code == 400 and field in body["error"]
+    assert plugin.store.current()["motion_limits"]["text"] == ""
+
+
+def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
+    call(app, plugin.api_settings, json={"motion_limits": {"text": "M203 X200 Y200 Z0.5 ; mm/s"}})
+    code, body = call(app, plugin.api_program, json={"plane": "YZ", "radius": 50,
+                                                     "centre": [110, 110, 70]})
+    assert code == 400 and "Z axis' max feed is 30 mm/min" in body["error"]
+    assert not plugin._file_manager.add_file.called
