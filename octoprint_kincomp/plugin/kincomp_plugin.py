@@ -169,9 +169,9 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
-                       "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
-                       "js/kincomp_settings.js", "js/kincomp_tab.js"],
+        return {"js": ["js/kincomp_common.js", "js/kincomp_findings.js", "js/kincomp_plot.js",
+                       "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
+                       "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------

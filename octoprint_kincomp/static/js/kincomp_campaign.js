@@ -379,10 +379,14 @@ $(function () {
                     .fail(self.fail));
         };
 
+        // an untrusted joint result is applied only after "apply anyway" (kincomp_findings.js)
         self.apply = function () {
+            self.findingsBox.apply();
+        };
+        self.applyConfirmed = function (force) {
             var c = self.campaign();
             self.working(gettext("Applying…"),
-                OctoPrint.postJson(API("campaigns/" + c.id + "/apply"), {enabled: true})
+                OctoPrint.postJson(API("campaigns/" + c.id + "/apply"), {enabled: true, force: !!force})
                     .done(function (resp) {
                         self.tab.paramsHash(resp.params_hash);
                         self.tab.enabled(true);
@@ -404,6 +408,10 @@ $(function () {
             var c = self.campaign();
             return c && c.analysis ? c.analysis : null;
         });
+
+        self.findingsBox = new K.FindingsBox(self.analysis, function (force) {
+            self.applyConfirmed(force);
+        }, true);
 
         self.planes = ko.pureComputed(function () {
             return self.analysis() ? K.campaign.planes(self.analysis()) : [];

@@ -136,6 +136,9 @@ $(function () {
         self.plotCaption = ko.observable("");
 
         self.fmt = fmt;
+        self.findingsBox = new K.FindingsBox(self.run, function (force) {
+            self.applyConfirmed(force);
+        });
 
         self.tableRows = ko.pureComputed(function () {
             var run = self.run();
@@ -243,9 +246,13 @@ $(function () {
                     self.programPath(resp.path);
                     self.printing(resp.printing);
                     if (resp.spec && resp.spec.feed_mm_min !== num(self.feed())) {
+                        // why: the printer's motion limits (settings page)
                         notify({
                             title: gettext("KinComp"),
-                            text: _.sprintf(gettext("Feed capped at %(feed)s mm/min (the slowest axis of the plane)."), {feed: resp.spec.feed_mm_min}),
+                            text: _.sprintf(gettext("Feed lowered to %(feed)s mm/min: %(why)s."), {
+                                feed: resp.spec.feed_mm_min,
+                                why: _.map(resp.feed_lowered || [], trMsg).join("; ")
+                            }),
                             type: "info"
                         });
                     }
@@ -359,10 +366,14 @@ $(function () {
                 .fail(self.fail);
         };
 
+        // an untrusted run is applied only after the "apply anyway" step (kincomp_findings.js)
         self.applyRun = function () {
+            self.findingsBox.apply();
+        };
+        self.applyConfirmed = function (force) {
             var run = self.run();
             if (!run) return;
-            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true})
+            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
                 .done(function (resp) {
                     self.paramsHash(resp.params_hash);
                     self.enabled(true);

@@ -1,0 +1,124 @@
+"""Issue 23 in the browser: a result that is not trusted shows its findings (worst first, with
+the advice) above the result, and its Apply needs the explicit "Apply anyway" step; the
+settings page shows the printer's motion limits and takes pasted Klipper limits.
+
+The error finding is written into the stored run (the analysis checks that give such
+findings are issue 23's other half); what is tested here is the UI and the API around it."""
+
+import json
+import os
+
+import pytest
+
+from octoprint_kincomp.tools.devserver import DevServer
+from tests.browser.test_ui import (  # noqa: F401 (browser: the fixture)
+    SHOTS,
+    _no_popups,
+    _open_settings,
+    _open_tab,
+    _step,
+    browser,
+    login,
+)
+from tests.support.serverutil import status
+
+pytestmark = pytest.mark.slow
+
+ERROR = {"code": "motion.feed_capped", "severity": "error",
+         "message": {"text": "the run took 19.1 s longer than planned",
+                     "template": "the run took %(s)s s longer than planned",
+                     "params": {"s": "19.1"}},
+         "advice": {"text": "lower the feed to what the Z axis reaches"},
+         "evidence": {"sync_mismatch_ms": 19074.0}}
+WARNING = {"code": "model.residual", "severity": "warning",
+           "message": {"text": "the fit leaves 3 um periodic at 2 mm"},
+           "advice": {"text": "fit the cyclic term"}, "evidence": {}}
+
+
+def _untrusted_run(srv):
+    code, run = srv.request("POST", "/plugin/kincomp/analyze",
+                            {"summary": {"plane": "XY", "squareness_um_per_m": 400.0}})
+    assert code == 200, run
+    path = os.path.join(srv.basedir, "data", "kincomp", "runs", run["id"] + ".json")
+    with open(path, encoding="utf-8") as f:
+        stored = json.load(f)
+    stored["findings"] = [run["findings"][0], WARNING, ERROR] if run["findings"] else \
+        [WARNING, ERROR]  # stored in any order: the page shows the worst first
+    stored["trusted"] = False
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(stored, f)
+    return run
+
+
+def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(browser, tmp_path):  # noqa: F811
+    srv = DevServer(str(tmp_path / "op"))
+    srv.start()
+    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
+    try:
+        os.makedirs(SHOTS, exist_ok=True)
+        run = _untrusted_run(srv)
+        before = status(srv)["params_hash"]
+        page = context.new_page()
+        page.set_default_timeout(60_000)
+        login(page, srv)
+        _open_tab(page)
+        _step(page, "history")
+        page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
+        page.locator("#kincomp_history tbody tr", has_text=run["filename"]).first \
+            .locator("button").click()
+        page.wait_for_selector("#kincomp_result", state="visible")
+        items = page.locator("#kincomp_findings li.kincomp-finding")
+        items.first.wait_for()
+        severities = [items.nth(i).get_attribute("data-severity") for i in range(items.count())]
+        assert severities[:2] == ["error", "warning"] and set(severities[2:]) <= {"info"}
+        first = items.first.inner_text()
+        assert "19.1 s longer than planned" in first
+        assert "What to do: lower the feed to what the Z axis reaches" in first
+        assert page.is_visible("#kincomp_findings .kincomp-untrusted")
+        # Apply asks first; cancelling applies nothing
+        page.click("#kincomp_apply")
+        page.wait_for_selector("#kincomp_apply_confirm .kincomp-apply-confirm", state="visible")
+        _no_popups(page)
+        page.screenshot(path=os.path.join(SHOTS, "untrusted-result.png"), full_page=True)
+        page.click("#kincomp_apply_confirm .kincomp-apply-cancel")
+        page.wait_for_selector("#kincomp_apply_confirm .kincomp-apply-confirm", state="hidden")
+        assert status(srv)["params_hash"] == before
+        page.click("#kincomp_apply")
+        page.click("#kincomp_apply_confirm .kincomp-apply-anyway")
+        page.wait_for_selector("#kincomp_result >> text=Applied on")
+        st = status(srv)
+        assert st["params_hash"] != before
+        assert st["settings"]["params"]["squareness_um_per_m"]["xy"] != 0.0
+    finally:
+        context.close()
+        srv.stop()
+
+
+def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):  # noqa: F811
+    srv = DevServer(str(tmp_path / "op"))
+    srv.start()
+    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
+    try:
+        page = context.new_page()
+        page.set_default_timeout(60_000)
+        login(page, srv)
+        _open_settings(page)
+        page.wait_for_selector("#kincomp_limits_table", state="visible")
+        page.fill("#kincomp_limits_text", "nothing useful")
+        page.click("#kincomp_limits_save")
+        page.wait_for_selector("#kincomp_limits_error >> text=no motion limits found")
+        page.fill("#kincomp_limits_text", "[printer]\nmax_velocity: 300\nmax_accel: 3000\n"
+                                          "max_z_velocity: 2\nmax_z_accel: 100")
+        page.click("#kincomp_limits_save")
+        page.wait_for_selector("#kincomp_limits_z >> text=Klipper max_z_velocity")
+        assert "120" in page.inner_text("#kincomp_limits_z")  # 2 mm/s
+        assert "Entered by hand" in page.inner_text("#kincomp_limits_source")
+        ml = status(srv)["motion_limits"]
+        assert ml["stated"]["source"] == "pasted"
+        assert ml["effective"]["max_feed_mm_min"]["z"] == 120.0
+        page.evaluate("document.querySelector('#kincomp_motion_limits').scrollIntoView()")
+        _no_popups(page)
+        page.screenshot(path=os.path.join(SHOTS, "settings-motion-limits.png"))
+    finally:
+        context.close()
+        srv.stop()
