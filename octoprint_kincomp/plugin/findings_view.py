@@ -47,14 +47,22 @@ def findings_of(result: Dict[str, Any]) -> Tuple[List[Dict[str, Any]], bool]:
     return wire, trusted
 
 
+def _msg(d: Any) -> Any:
+    """A message from its wire form (``as_dict``), nested parameters too."""
+    if not isinstance(d, dict):
+        return d
+    template = d.get("template")
+    if not template:
+        return d.get("text", "")
+    return Msg(template, **{k: _msg(v) for k, v in (d.get("params") or {}).items()})
+
+
 def refusal(run: Dict[str, Any]) -> Any:
     """Why applying ``run`` needs an explicit "apply anyway" (a core message naming its
     first error), or None when the run is trusted (runs stored before findings were are)."""
     if run.get("trusted", True) is not False:
         return None
     errors = [f for f in run.get("findings") or [] if f.get("severity") == "error"]
-    first = errors[0]["message"] if errors else {"text": ""}
-    reason = Msg(first["template"], **first.get("params", {})) if first.get("template") \
-        else first.get("text", "")
+    reason = _msg(errors[0]["message"]) if errors else ""
     return Msg("This result is not trusted (%(reason)s): read its findings first. To apply "
                "it anyway, confirm with \"force\": true.", reason=reason or "-")
