@@ -147,6 +147,17 @@ class CalibrationApi:
                              printing=printing, program_hash=prog_hash, capture=capture,
                              feed_lowered=[as_dict(r) for r in choice.reasons])
 
+    def test_printing(self) -> bool:
+        """Whether one of KinComp's test programs (its program folder) is printing."""
+        try:
+            if not self._printer.is_printing():
+                return False
+            job = self._printer.get_current_job() or {}
+            path = str((job.get("file") or {}).get("path") or "")
+        except Exception:  # noqa: BLE001 - no job: no test
+            return False
+        return path.startswith(PROGRAM_FOLDER + "/")
+
     def motion_limits(self):
         """The limits a test must respect now (stated limits and the printer profile)."""
         return effective_limits(self._store.current(), self._store.max_feeds())

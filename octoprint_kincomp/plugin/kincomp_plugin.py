@@ -45,7 +45,7 @@ from .files_api import FilesApi
 from .firmware_check import FirmwareCheck
 from .firmware_watch import FirmwareWatcher
 from .motion_limits import LimitsCapture
-from .notify import CUSTOM_EVENTS, Notifier
+from .notify import CUSTOM_EVENTS, N_, Notifier
 from .print_state import PRINT_EVENTS, PrintState
 from .queue import FILE_TAG, HOME_QUERY, QueueCompensator
 from .runs import RunStore
@@ -55,6 +55,7 @@ from .settings import SETTINGS_VERSION, defaults
 from .settings_api import SettingsApi
 from .settings_store import SettingsStore
 from .software_update import check_config
+from .speed_factor import held_back
 
 route = octoprint.plugin.BlueprintPlugin.route
 
@@ -190,6 +191,12 @@ class KinCompPlugin(
                 self.firmware.sent(cmd)
             if self.sensor.waiting and cmd[:4] == "M117":
                 self.sensor.command(cmd)  # the program's end marker ends the live capture
+            if cmd[:4].upper() == "M220" and held_back(cmd, tags, self.calibration.test_printing()):
+                self.notifier.notify("warning", N_(
+                    "A ballbar test is printing: the speed factor stays at 100 %% (%(command)s "
+                    "was not sent). A test at another speed would not match its plan."),
+                    command=cmd)
+                return (None,)
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)

@@ -181,3 +181,24 @@ def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
                                                      "centre": [110, 110, 70]})
     assert code == 400 and "Z axis' max feed is 30 mm/min" in body["error"]
     assert not plugin._file_manager.add_file.called
+
+
+# ~~ the speed factor -------------------------------------------------------------------------------
+def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
+    from octoprint_kincomp.plugin.speed_factor import changes_factor
+
+    assert changes_factor("M220 S80") == 80.0 and changes_factor("M220") is None
+    assert changes_factor("M221 S80") is None and changes_factor("m220 r") != 100.0
+    ui = {"source:api", "api:printer.command"}
+    plugin._printer.is_printing.return_value = True
+    plugin._printer.get_current_job.return_value = {"file": {"path": "kincomp/ballbar_XZ.gcode"}}
+    assert plugin.queuing_hook(None, "queuing", "M220 S80", None, "M220", tags=ui) == (None,)
+    (_, msg), _ = plugin._plugin_manager.send_plugin_message.call_args
+    assert msg["severity"] == "warning" and msg["params"]["command"] == "M220 S80"
+    # the program's own line, a query and S100 pass
+    for cmd, tags in (("M220 S100", {"source:file", "fileline:3"}), ("M220", ui),
+                      ("M220 S100", ui)):
+        assert plugin.queuing_hook(None, "queuing", cmd, None, "M220", tags=tags) != (None,)
+    # any other print: the user's speed factor is theirs
+    plugin._printer.get_current_job.return_value = {"file": {"path": "benchy.gcode"}}
+    assert plugin.queuing_hook(None, "queuing", "M220 S80", None, "M220", tags=ui) != (None,)
