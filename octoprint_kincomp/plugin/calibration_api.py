@@ -17,8 +17,9 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
   ``/demo/trace``.
 
 Every stored run carries ``findings`` (worst first; message and advice translatable) and
-``trusted`` (:mod:`.findings_view`). Each method here is one route's body (the plugin class holds the routes); errors are JSON
-``{"error": ...}`` responses in the user's language, 400 naming the field for bad input.
+``trusted`` (:mod:`.findings_view`). Each method here is one route's body (the plugin
+class holds the routes); errors are JSON ``{"error": ...}`` responses in the user's
+language, 400 naming the field for bad input.
 A run whose numbers are not all finite is never stored.
 """
 

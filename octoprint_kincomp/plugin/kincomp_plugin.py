@@ -100,7 +100,7 @@ class KinCompPlugin(
         queue.on_error = self.prints.compensation_failed
         queue.on_untouched = self.prints.sent_as_written
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
-        self.limits = LimitsCapture(self.store, printer, notifier, log)
+        self.limits = LimitsCapture(self.store, self._settings, printer, notifier, log)
         self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
                                           printer, files, self.files.job_api)
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
@@ -171,7 +171,8 @@ class KinCompPlugin(
 
     def get_assets(self):
         return {"js": ["js/kincomp_common.js", "js/kincomp_findings.js", "js/kincomp_plot.js",
-                       "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
+                       "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js",
+                       "js/kincomp_campaign.js",
                        "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 

@@ -8,8 +8,8 @@ Marlin firmware after its ``M115`` reply; a RepRapFirmware one is asked here; th
 type it in the terminal; ``POST /limits/read`` asks on request). Lines stating M201, M203,
 M204 or M205 (and the unit headers above them) are collected until the firmware's ``ok``;
 then, off the serial thread, they are stored unless the user pasted limits of their own
-(an explicit request replaces those too). A Klipper printer does not answer M503 with
-limits: its users paste their ``printer.cfg`` ``[printer]`` section on the settings page.
+(an explicit request replaces those too); only the key ``motion_limits`` is written. A
+Klipper printer does not answer M503 with limits: its users paste their ``printer.cfg`` ``[printer]`` section on the settings page.
 
 The limits a test must respect (:func:`effective_limits`) are the lower of the stated
 limits and the printer profile's axis speeds (mm/min).
@@ -25,6 +25,7 @@ from typing import Any, Dict, List, Optional
 from ..ballbar.limits import LimitsError, MotionLimits, parse_limits
 from ..core.messages import as_dict
 from .notify import N_
+from .settings import SettingsError, validate_motion_limits
 
 _LIMIT_LINE = re.compile(r"(?:^|[\s:])M20[1345]\s+[A-Za-z]")
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
@@ -67,8 +68,9 @@ def status(settings: Dict[str, Any], profile_feeds: Optional[Dict[str, float]]
 class LimitsCapture:
     """Listens to the printer for M503's limit lines and stores them (see the module)."""
 
-    def __init__(self, store, printer, notifier, logger):
+    def __init__(self, store, settings, printer, notifier, logger):
         self._store = store
+        self._settings = settings  # OctoPrint's PluginSettings of KinComp
         self._printer = printer
         self._notifier = notifier
         self._logger = logger
@@ -120,10 +122,7 @@ class LimitsCapture:
             parse_limits(text, self.firmware or None)
         except LimitsError:
             return False
-        from .settings import SettingsError, validate_settings
-
-        stored = self._store.stored()
-        old = stored.get("motion_limits") or {}
+        old = self._store.stored().get("motion_limits") or {}
         if old.get("source") == "pasted" and not replace:
             return False
         if old.get("text") == text and old.get("firmware") == self.firmware and not replace:
@@ -131,12 +130,14 @@ class LimitsCapture:
         doc = {"text": text, "source": "m503", "firmware": self.firmware,
                "captured": _dt.datetime.now().isoformat(timespec="seconds")}
         try:
-            new = validate_settings({"motion_limits": doc}, stored)
-        except SettingsError as exc:  # the stored settings are invalid: leave them alone
+            doc = validate_motion_limits(doc)
+        except SettingsError as exc:
             self._logger.warning("KinComp: motion limits read but not stored: %s", exc)
             return False
-        self._store.save(new)
-        self._store.write()
+        # only this key is written (nothing else is applied: the limits are read when a
+        # program is made), so a settings save at the same moment loses nothing
+        self._settings.set(["motion_limits"], doc)
+        self._settings.save()
         self._logger.info("KinComp: the printer's motion limits read from M503")
         self._notifier.message({"type": "motion_limits"})
         self._notifier.notify("info", N_("KinComp read the printer's motion limits (M503); "

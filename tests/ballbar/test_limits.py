@@ -1,4 +1,5 @@
-"""The printer's motion limits (M503, printer.cfg, profile) and the feasible test feed (issue 23)."""
+"""The printer's motion limits (M503, printer.cfg, profile) and the feasible test feed
+(issue 23)."""
 
 import math
 

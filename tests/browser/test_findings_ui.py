@@ -50,7 +50,8 @@ def _untrusted_run(srv):
     return run
 
 
-def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(browser, tmp_path):  # noqa: F811
+def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(browser,  # noqa: F811
+                                                                        tmp_path):
     srv = DevServer(str(tmp_path / "op"))
     srv.start()
     context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")

@@ -183,7 +183,7 @@ def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
     assert not plugin._file_manager.add_file.called
 
 
-# ~~ the speed factor -------------------------------------------------------------------------------
+# ~~ the speed factor ------------------------------------------------------------------------------
 def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
     from octoprint_kincomp.plugin.speed_factor import changes_factor
 
