@@ -121,6 +121,7 @@ class RunStore:
             "squareness_um_per_m": d.get("squareness_um_per_m"),
             "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
             "applied": run.get("applied"),
+            "trusted": run.get("trusted") is not False,  # runs from before findings: True
             "params_before_hash": run.get("params_before_hash"),
             "has_trace": self.trace_path(run_id) is not None,
             "has_raw": self.raw_path(run_id) is not None,

@@ -65,8 +65,9 @@ def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(browser, 
         _open_tab(page)
         _step(page, "history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
-        page.locator("#kincomp_history tbody tr", has_text=run["filename"]).first \
-            .locator("button").click()
+        row = page.locator("#kincomp_history tbody tr", has_text=run["filename"]).first
+        assert row.locator(".kincomp-untrusted-label").is_visible()
+        row.locator("button").click()
         page.wait_for_selector("#kincomp_result", state="visible")
         items = page.locator("#kincomp_findings li.kincomp-finding")
         items.first.wait_for()

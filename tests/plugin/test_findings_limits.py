@@ -81,6 +81,8 @@ def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
     assert first["message"]["template"] == "the run took %(s)s s longer than planned"
     assert first["advice"]["text"] == "lower the feed to what the Z axis reaches"
     assert first["evidence"] == {"sync_mismatch_ms": 19074.0}
+    code, listed = call(app, plugin.api_runs, method="GET")
+    assert [r["trusted"] for r in listed["runs"] if r["id"] == run["id"]] == [False]
     code, body = call(app, plugin.api_apply, json={"run": run["id"]})
     assert code == 409 and "not trusted" in body["error"]
     assert "19.1 s longer than planned" in body["error"] and '"force": true' in body["error"]
