@@ -13,7 +13,7 @@ volume, printed test by test with the same parameters in force, fitted jointly
   campaign it re-tests (the paper's Table 2 per plane).
 * ``POST /campaigns/<id>/steps/<n>/program``  writes test n's program (n from 1) into
   OctoPrint's storage, ``"print": true`` prints it (it pauses (M0) to mount the bar and to
-  unmount it).
+  unmount it); 409 when the printer's motion limits no longer allow its planned feed.
 * ``POST /campaigns/<id>/steps/<n>/trace``  test n's measurement: a file (multipart field
   ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace of the printed commands
   (the measurement without the live path, ``demo.live`` off, and a fallback with it); it
@@ -46,8 +46,9 @@ from octoprint.access.permissions import Permissions
 from ..ballbar.campaign import plan_campaign
 from ..ballbar.campaign_analysis import analyse_campaign
 from ..ballbar.formats import TraceError, load_any
+from ..ballbar.limits import LimitsError, circle_feed
 from ..ballbar.program import ProgramError, TestSpec, generate
-from ..core.messages import Msg, as_dict
+from ..core.messages import Msg, as_dict, joined
 from . import http
 from .calibration_api import CalibrationApi, UploadRefused, safe_name
 from .campaign_measure import CampaignMeasurements, Refused, campaign_keys
@@ -155,8 +156,9 @@ class CampaignApi:
             http.require(Permissions.PRINT)
         try:
             doc, step = self.measure.open_step(cid, n)
-            text = generate(TestSpec(**step["spec"]), volume=self._store.limits(),
-                            params_hash=doc["params_hash"])
+            spec = TestSpec(**step["spec"])
+            self._within_limits(spec, n)
+            text = generate(spec, volume=self._store.limits(), params_hash=doc["params_hash"])
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
         except (ProgramError, TypeError, ValueError) as exc:
@@ -180,6 +182,22 @@ class CampaignApi:
             return http.error(gettext("The printer is not ready to print"), 409)
         return flask.jsonify(campaign=self._view(doc), path=path, printing=printing,
                              program_hash=prog_hash, capture=capture)
+
+    def _within_limits(self, spec: TestSpec, n: int) -> None:
+        """Refused (409) when the printer's motion limits, as they are now, no longer allow
+        test ``n``'s planned feed (they were read or changed after the plan)."""
+        try:
+            choice = circle_feed(spec.plane, spec.radius_mm, spec.feed_mm_min,
+                                 self._calibration.motion_limits(),
+                                 overshoot_deg=spec.overshoot_deg)
+        except LimitsError as exc:
+            raise Refused(exc.args[0], 409) from None
+        if choice.lowered:
+            raise Refused(Msg(
+                "Test %(n)s was planned at %(feed)s mm/min, but the printer's motion limits "
+                "allow %(allowed)s mm/min now (%(why)s): plan the campaign again",
+                n=n, feed=f"{spec.feed_mm_min:g}", allowed=f"{choice.feed_mm_min:g}",
+                why=joined(choice.reasons)), 409)
 
     def trace(self, cid: str, n: int):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)

@@ -204,3 +204,16 @@ def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
     # any other print: the user's speed factor is theirs
     plugin._printer.get_current_job.return_value = {"file": {"path": "benchy.gcode"}}
     assert plugin.queuing_hook(None, "queuing", "M220 S80", None, "M220", tags=ui) != (None,)
+
+
+def test_a_campaign_test_is_refused_when_the_limits_changed_since_the_plan(app, plugin):
+    code, doc = call(app, plugin.api_campaign_plan, json={"radius_xy": 50})
+    assert code == 200 and doc["steps"][1]["spec"]["feed_mm_min"] == 1850.0  # profile Z 3000
+    _read_m503(plugin)  # the printer answers M503 after the plan: Z 10 mm/s
+    wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
+    code, body = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    assert code == 409 and "planned at 1850 mm/min" in body["error"]
+    assert "allow 600 mm/min now" in body["error"] and "plan the campaign again" in body["error"]
+    assert not plugin._file_manager.add_file.called
+    code, _ = call(app, plugin.api_campaign_program, doc["id"], 1, json={})  # XY: still fine
+    assert code == 200
