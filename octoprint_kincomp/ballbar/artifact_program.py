@@ -8,7 +8,7 @@ one wall thickness), so the printed line width cancels in the analysis
 (:mod:`.artifact_fit`).
 
 * **XY part** (flat, 5 mm tall walls spread over the bed): two spans along X, two along Y and
-  four diagonals each way at 45 deg (``A``: towards +X+Y, ``B``: towards +X-Y). The diagonals
+  five diagonals each way at 45 deg (``A``: towards +X+Y, ``B``: towards +X-Y). The diagonals
   carry the XY squareness (a positive ``xy`` makes the ``A`` diagonals long, the ``B`` ones
   short), the X and Y spans the X-Y scale mismatch.
 * **XZ and YZ towers** (in lanes at the back and at the right of the bed): two walls leaning at
@@ -70,7 +70,7 @@ class ArtifactSpec:
     max_span_mm: float = 150.0  # the caliper's range: an outside reading must fit in it
     tower_span_mm: float = 100.0  # longest span of the XZ/YZ towers (sets their height)
     margin_mm: float = 10.0  # kept free along the bed's edges
-    fin_length_mm: float = 12.0  # length of each wall across the measuring direction
+    fin_length_mm: float = 10.0  # length of each wall across the measuring direction
     xy_height_mm: float = 5.0  # height of the XY walls
     print_feed: float = 2400.0
     first_layer_feed: float = 1200.0
@@ -270,7 +270,8 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0) -> List[Feature]:
     zm = z0 + spec.xy_height_mm / 2  # the walls' mid height: where the jaws go
     half = span / 2
     off = min(12.0, span / 10)  # the two X (Y) spans lie this far either side of the centre
-    shifts = (-27.0, -9.0, 9.0, 27.0)  # the four diagonals of each way, across their walls
+    pitch = spec.fin_length_mm + 3.5 + 3 * w  # walls side by side keep the clearance
+    shifts = tuple(k * pitch for k in (-2, -1, 0, 1, 2))  # five diagonals each way
     r = 1 / math.sqrt(2)
     # diagonal: as long as the caliper takes and the shifted ends stay within the spans
     diag = min(spec.max_span_mm - 3.0, 2 * math.sqrt(2) * (half - max(shifts) * r))

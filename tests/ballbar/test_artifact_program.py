@@ -70,7 +70,7 @@ def test_contract_header():
                                  first_layer_mm=0.3))
     meas = read_measurements(text)
     ids = [m.id for m in meas]
-    assert len(ids) == len(set(ids)) == 32
+    assert len(ids) == len(set(ids)) == 36
     assert {m.kind for m in meas} == {"outside", "inside"}
     assert {m.plane for m in meas} == {"X", "Y", "XY", "XZ", "YZ"}
     for m in meas:
