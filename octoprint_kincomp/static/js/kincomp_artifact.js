@@ -14,10 +14,10 @@ $(function () {
     var fmt = K.fmt;
     var trMsg = K.trMsg;
 
-    var SEVERITY = {
-        error: gettext("error"),
-        warning: gettext("warning"),
-        info: gettext("info")
+    // (gettext is defined once the view models are made, not when this file runs)
+    var severityText = function (severity) {
+        return {error: gettext("error"), warning: gettext("warning"),
+                info: gettext("info")}[severity] || severity;
     };
 
     function KinCompArtifactViewModel(parameters) {
@@ -231,7 +231,7 @@ $(function () {
         self.findings = ko.pureComputed(function () {
             var run = self.run();
             return _.map((run && run.findings) || [], function (f) {
-                return {severity: f.severity, severityText: SEVERITY[f.severity] || f.severity,
+                return {severity: f.severity, severityText: severityText(f.severity),
                         message: trMsg(f.message), advice: trMsg(f.advice)};
             });
         });
