@@ -12,7 +12,7 @@ import pytest
 from octoprint_kincomp.ballbar.artifact_program import read_measurements
 from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
 from octoprint_kincomp.core.params import Params
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step
 from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 
@@ -79,6 +79,21 @@ def test_measuring_form_result_and_apply(page, server):
     assert st["settings"]["enabled"] is True
     assert abs(st["settings"]["params"]["squareness_um_per_m"]["xy"] - value) < 0.5
     settings(server, enabled=False, params=ZERO)
+    # the history has the run; opened (after a reload), it comes back with its drawing and
+    # readings
+    page.reload()
+    page.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
+    _open_tab(page)
+    _step(page, "history")
+    page.wait_for_selector("#kincomp_history tbody tr")
+    first_row = page.locator("#kincomp_history tbody tr").first
+    assert path.rsplit("/", 1)[-1] in first_row.inner_text()
+    first_row.locator("button").click()
+    page.wait_for_selector("#kincomp_artifact_result", state="visible")
+    page.wait_for_selector("#kincomp_artifact_result >> text=Applied on")
+    page.click("#kincomp_artifact_step_measure")
+    assert page.input_value("#kincomp_artifact_r_A1-out_1") == f"{readings['A1-out'][0]:g}"
+    assert "35/36" in page.locator("#kincomp_artifact_drawing svg text").all_text_contents()
 
 
 def test_measuring_form_in_german(page, server):

@@ -25,6 +25,7 @@ $(function () {
         self.loginState = parameters[0];
         self.access = parameters[1];
         self.printerState = parameters[2];
+        self.tab = parameters[3];
 
         self.fmt = fmt;
         self.open = ko.observable(false);
@@ -236,6 +237,35 @@ $(function () {
             });
         });
 
+        // a printed-artifact run opened in the tab's history: shown here with its program's
+        // drawing and its readings in the form (the tab's own result table is the ballbar's)
+        self.openFromHistory = function (run) {
+            if (!run || run.source !== "artifact" || (self.run() && self.run().id === run.id)) return;
+            self.open(true);
+            var path = (run.diagnostics || {}).program;
+            var fill = function () {
+                OctoPrint.get(API("runs/" + encodeURIComponent(run.id) + "/trace"))
+                    .done(function (readings) {
+                        if (typeof readings === "string") readings = JSON.parse(readings);
+                        _.each(self.rows(), function (row) {
+                            var vals = readings[row.id] || [];
+                            row.r1(vals.length > 0 ? String(vals[0]) : "");
+                            row.r2(vals.length > 1 ? String(vals[1]) : "");
+                            row.r3(vals.length > 2 ? String(vals[2]) : "");
+                        });
+                    })
+                    .always(function () { self.showRun(run); });
+            };
+            if (path && path !== self.path()) {
+                OctoPrint.get(API("artifact/sheet?path=" + encodeURIComponent(path)))
+                    .done(function (sheet) { self.showSheet(sheet); fill(); })
+                    .fail(function () { self.rows([]); self.showRun(run); });
+            } else {
+                fill();
+            }
+        };
+        if (self.tab && self.tab.run) self.tab.run.subscribe(self.openFromHistory);
+
         self.apply = function () {
             var run = self.run();
             if (!run) return;
@@ -255,7 +285,7 @@ $(function () {
 
     OCTOPRINT_VIEWMODELS.push({
         construct: KinCompArtifactViewModel,
-        dependencies: ["loginStateViewModel", "accessViewModel", "printerStateViewModel"],
+        dependencies: ["loginStateViewModel", "accessViewModel", "printerStateViewModel", "kinCompTabViewModel"],
         elements: ["#kincomp_artifact"]
     });
 });
