@@ -51,6 +51,7 @@ OUTLIER_T = 6.0  # externally studentized residual beyond which a measurement is
 MAX_LEVERAGE = 0.95  # above this a measurement has no redundancy: it cannot be checked
 POOR_SQUARENESS_UM_PER_M = 100.0
 POOR_MISMATCH_PPM = 300.0
+ILL_CONDITIONED = 100.0  # condition number of the column-scaled design matrix
 
 
 class ArtifactFitError(ValueError):
@@ -378,6 +379,14 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
                 "larger scatter.", rms=f"{s_res * 1e3:.0f}",
                 ratio=f"{s_res / repeat_sd:.0f}", rep=f"{repeat_sd * 1e3:.0f}"),
             rms_um=round(s_res * 1e3, 2), repeat_um=round(repeat_sd * 1e3, 2)))
+    if fit.condition is not None and fit.condition > ILL_CONDITIONED:
+        found.append(fnd.warning(
+            "artifact.ill_conditioned",
+            Msg("The measurements barely separate the unknowns (condition number %(cond)s): "
+                "spans nearly parallel, or too few directions. Small reading errors move the "
+                "result a lot; the uncertainties say how much.", cond=f"{fit.condition:.0f}"),
+            Msg("Measure the spans of every direction the artifact has."),
+            condition=round(fit.condition, 1)))
     if dof < 3:
         found.append(fnd.warning(
             "artifact.little_redundancy",

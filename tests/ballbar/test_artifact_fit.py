@@ -3,6 +3,7 @@ nominal points go through KinComp's kinematic error model, shrink, get a line wi
 0.01 mm rounding (ballbar/artifact_sim.py)."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -249,3 +250,32 @@ def test_bad_readings_are_refused(program):
     assert parse_readings('{"X1-out": 146.5}') == {"X1-out": [146.5]}
     with pytest.raises(ArtifactFitError, match="too few"):
         analyse_artifact(meas, {"X1-out": [146.6]}, info=info)
+
+
+def test_nearly_parallel_spans_are_ill_conditioned():
+    """Hand-made contracts. Diagonals 0.5 deg off X: XY squareness is barely measured (its
+    sigma says so, poorly determined). Two spans 20 and 20.5 deg off X beside X: Y scale and XY
+    squareness move together (ill-conditioned)."""
+    from octoprint_kincomp.ballbar.artifact_program import Measurement
+
+    def contract(spans):
+        meas = []
+        for name, deg in spans:
+            t = math.radians(deg)
+            for kind in ("outside", "inside"):
+                meas.append(Measurement(f"{name}-{kind}", kind, (40.0, 80.0, 2.5),
+                                        (40.0 + 140 * math.cos(t), 80.0 + 140 * math.sin(t),
+                                         2.5)))
+        return meas
+
+    info = {"planes": "XY", "nozzle_mm": "0.4"}
+    meas = contract((("X", 0.0), ("Y", 90.0), ("P", 0.5), ("N", -0.5)))
+    res = analyse_artifact(meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(14)),
+                           info=info)
+    assert "artifact.poorly_determined" in {f["code"] for f in res["findings"]}
+    assert res["diagnostics"]["uncertainty"]["squareness_um_per_m"]["xy"] > 1000
+    meas = contract((("X", 0.0), ("P", 20.0), ("Q", 20.5)))
+    res = analyse_artifact(meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(15)),
+                           info=info)
+    cond = [f for f in res["findings"] if f["code"] == "artifact.ill_conditioned"]
+    assert cond and cond[0]["evidence"]["condition"] > 100

@@ -126,3 +126,19 @@ def test_bad_contract_lines(line, word):
     dup = "; kincomp measure: id=a kind=outside from=0,0,0 to=10,0,0 hint=x\n"
     with pytest.raises(ArtifactProgramError, match="twice"):
         read_measurements(dup + dup)
+
+
+def test_drawing_numbers_every_measurement():
+    from octoprint_kincomp.ballbar.artifact_drawing import legend, svg
+
+    text = generate(ArtifactSpec(volume=VOLUME))
+    meas = read_measurements(text)
+    drawing = svg(meas, VOLUME)
+    assert drawing.startswith("<svg") and drawing.rstrip().endswith("</svg>")
+    labels = [f">{2 * k + 1}/{2 * k + 2}</text>" for k in range(len(meas) // 2)]
+    assert all(lab in drawing for lab in labels)  # outside/inside of each pair of walls
+    assert drawing.count("<text") == len(meas) // 2 + 1  # + the bed's caption
+    rows = legend(meas)
+    assert [r["n"] for r in rows] == list(range(1, len(meas) + 1))
+    assert rows[0]["id"] == meas[0].id and rows[0]["nominal_mm"] == pytest.approx(
+        meas[0].length, abs=1e-3)
