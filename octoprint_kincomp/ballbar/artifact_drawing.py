@@ -1,8 +1,8 @@
 """The artifact seen from above, as SVG: every pair of walls, each measurement numbered.
 
 Numbers follow the order of the program's header (1 = its first ``; kincomp measure:`` line);
-the outside and inside measurement of a pair share its walls and are written ``n/m`` at the
-pair's first wall. The bed is drawn from the volume (mm; +Y up, as seen from above the bed).
+the outside and inside measurement of a pair share its walls and are written ``n/m`` near one
+of the pair's walls. The bed is drawn from the volume (mm; +Y up, as seen from above the bed).
 Only numbers and the ids of the header (letters, digits, ``._-``) go into the SVG text.
 """
 
@@ -63,8 +63,12 @@ def svg(measurements: Sequence[Measurement],
             b = (p[0] + tx * WALL_MM / 2, p[1] + ty * WALL_MM / 2)
             parts.append(f'<line x1="{X(a[0]):.1f}" y1="{Y(a[1]):.1f}" x2="{X(b[0]):.1f}" '
                          f'y2="{Y(b[1]):.1f}" stroke="{colour}" stroke-width="1.6"/>')
-        lx = m.start[0] + ux * 9 + tx * 6
-        ly = m.start[1] + uy * 9 + ty * 6
+        # spans along an axis are labelled at their second wall, the rest at their first: the
+        # labels of the flat part then do not fall on each other
+        if max(abs(ux), abs(uy)) > 0.99:
+            lx, ly = m.end[0] - ux * 9 + tx * 6, m.end[1] - uy * 9 + ty * 6
+        else:
+            lx, ly = m.start[0] + ux * 9 + tx * 6, m.start[1] + uy * 9 + ty * 6
         label = "/".join(str(k) for k in numbers)
         parts.append(f'<text x="{X(lx):.1f}" y="{Y(ly):.1f}" font-size="5.5" fill="{colour}" '
                      f'text-anchor="middle" dominant-baseline="middle">{label}</text>')
