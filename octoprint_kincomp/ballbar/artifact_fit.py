@@ -44,7 +44,8 @@ from .proposal import alignment_matrix, checked_params, proposal_meta, split_ali
 NAMES = ("u_x", "u_y", "u_z", "xy", "xz", "yz", "w_vertical", "w_slanted")
 PAIRS = ("x-y", "x-z", "y-z")
 RESOLUTION_MM = 0.01
-GROSS_MM = 2.0  # a reading this far (or 1.5 % of the span) from nominal is a typo
+GROSS_MM = 3.0  # a reading this far (or 3 % of the span) from nominal is a typo
+GROSS_FRACTION = 0.03  # (ABS shrinks up to ~1.6 %: that must pass)
 REPEAT_SIGMAS = 8.0  # a repeat further than this many repeat-sigmas from its median is out
 REPEAT_FLOOR_MM = 0.1
 OUTLIER_T = 6.0  # externally studentized residual beyond which a measurement is out
@@ -201,7 +202,7 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
     repeat standard deviation (mm; 0 without repeats)."""
     for o in obs:
         L = o.meas.length
-        limit = max(GROSS_MM, 0.015 * L)
+        limit = max(GROSS_MM, GROSS_FRACTION * L)
         keep = []
         for i, v in enumerate(o.values):
             if abs(v - L) > limit:

@@ -162,6 +162,16 @@ def test_a_measurement_off_in_every_repeat_is_named(program, repeats):
         assert abs(err) <= 3.5 * sigma, key
 
 
+def test_strong_shrinkage_is_no_typo(program):
+    """ABS shrinks up to about 1.6 %: 2 % still fits, nothing is left out."""
+    meas, info = program
+    readings = simulate_readings(meas, PAPER, shrinkage=0.02, rng=np.random.default_rng(16))
+    res = analyse_artifact(meas, readings, info=info)
+    assert not [f for f in res["findings"] if f["severity"] != "info"]
+    for key, (err, sigma) in errors_of(res, PAPER).items():
+        assert abs(err) <= 3 * sigma, key
+
+
 def test_gross_typo_and_two_disagreeing_repeats(program):
     meas, info = program
     readings = simulate_readings(meas, PAPER, rng=np.random.default_rng(10))
