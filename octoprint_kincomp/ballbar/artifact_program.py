@@ -204,20 +204,31 @@ def layout(spec: ArtifactSpec) -> List[Feature]:
     # the XY part keeps clear of the tower lanes (two at the back for XZ, two at the right)
     rx1 = bx1 - (2 * lane if has_yz else 0.0)
     ry1 = by1 - (2 * lane if has_xz else 0.0)
-    feats: List[Feature] = []
     if "XY" in spec.planes:
-        feats += _xy_features(spec, bx0, rx1, by0, ry1, z0)
+        _xy_features(spec, bx0, rx1, by0, ry1, z0)  # a bed too small for it says so first
+    towers: List[Feature] = []
     if has_xz:
-        feats += _tower_features(spec, "XZ", (bx0, rx1), (by1 - lane / 2, by1 - 1.5 * lane), z0,
-                                 z1)
+        towers += _tower_features(spec, "XZ", (bx0, rx1), (by1 - lane / 2, by1 - 1.5 * lane),
+                                  z0, z1)
     if has_yz:
-        feats += _tower_features(spec, "YZ", (by0, ry1), (bx1 - lane / 2, bx1 - 1.5 * lane), z0,
-                                 z1)
-    for f in feats:
-        f.fins = [Fin(f.start, f.n, f.tops[0], spec.fin_length_mm),
-                  Fin(f.end, f.n, f.tops[1], spec.fin_length_mm)]
-    _check_clearance(feats, spec)
-    return feats
+        towers += _tower_features(spec, "YZ", (by0, ry1), (bx1 - lane / 2, bx1 - 1.5 * lane),
+                                  z0, z1)
+    # on small beds the diagonals' ends come near the axis spans' walls: shorten the
+    # diagonals (2 mm at a time) until every wall keeps its clearance
+    cut = 0.0
+    while True:
+        feats = (_xy_features(spec, bx0, rx1, by0, ry1, z0, cut) if "XY" in spec.planes
+                 else []) + towers
+        for f in feats:
+            f.fins = [Fin(f.start, f.n, f.tops[0], spec.fin_length_mm),
+                      Fin(f.end, f.n, f.tops[1], spec.fin_length_mm)]
+        try:
+            _check_clearance(feats, spec)
+            return feats
+        except ArtifactProgramError:
+            if "XY" not in spec.planes or feats[4].length - 2.0 < 60.0:
+                raise
+            cut += 2.0
 
 
 def _seg_dist(p, q, a, b) -> float:
@@ -256,8 +267,10 @@ def _check_clearance(feats: Sequence[Feature], spec: ArtifactSpec, need: float =
                         d=f"{d:.1f}"))
 
 
-def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0) -> List[Feature]:
-    """Spans along X and Y and 45 deg diagonals, symmetric about the region's centre."""
+def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0
+                 ) -> List[Feature]:
+    """Spans along X and Y and 45 deg diagonals (``cut`` mm shorter than they could be),
+    symmetric about the region's centre."""
     w = spec.width
     reach = spec.fin_length_mm / 2 + 2 * w  # a wall's half length plus its foot
     side = min(ax1 - ax0, ay1 - ay0) - 2 * reach
@@ -274,7 +287,7 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0) -> List[Feature]:
     shifts = tuple(k * pitch for k in (-2, -1, 0, 1, 2))  # five diagonals each way
     r = 1 / math.sqrt(2)
     # diagonal: as long as the caliper takes and the shifted ends stay within the spans
-    diag = min(spec.max_span_mm - 3.0, 2 * math.sqrt(2) * (half - max(shifts) * r))
+    diag = min(spec.max_span_mm - 3.0, 2 * math.sqrt(2) * (half - max(shifts) * r)) - cut
     h = diag / (2 * math.sqrt(2))
     feats = []
     top = (z0 + spec.xy_height_mm,) * 2

@@ -98,6 +98,21 @@ def test_planes_subset_and_features():
     assert all(abs(abs(f.n[2]) - math.sqrt(0.5)) < 1e-12 for f in towers)
 
 
+@pytest.mark.parametrize("volume, planes", [((0, 180, 0, 180, 0, 180), ("XY", "XZ", "YZ")),
+                                            ((0, 150, 0, 150, 0, 150), ("XY",))])
+def test_small_beds_get_shorter_diagonals(volume, planes):
+    """A 180 mm bed (all parts) or 150 mm (XY alone): the diagonals are shortened until every
+    wall keeps its clearance; the program still parses and stays in the volume."""
+    feats = layout(ArtifactSpec(volume=volume, planes=planes))
+    diag = [f for f in feats if f.name.startswith("A")]
+    assert len(diag) == 5 and 60.0 <= diag[0].length < 147.0
+    text = generate(ArtifactSpec(volume=volume, planes=planes))
+    fw, events = run(text)
+    assert fw.malformed == 0
+    for m in (e for e in events if isinstance(e, Move)):
+        assert all(volume[2 * k] <= m.end[k] <= volume[2 * k + 1] for k in range(3))
+
+
 @pytest.mark.parametrize("kwargs, word", [
     (dict(volume=(0, 60, 0, 60, 0, 100)), "too small"),
     (dict(volume=(0, 220, 0, 220, 0, 30), planes=("XZ",)), "no room"),
