@@ -490,6 +490,10 @@ def _separability(values, sigmas, planes_made, found) -> None:
                 quantity="scale_mismatch." + pair, sigma_ppm=round(s, 1)))
 
 
+FAMILY_NAMES = {"vertical_walls": Msg("walls of the flat part"),
+                "slanted_walls": Msg("45 deg walls")}
+
+
 def _line_width_check(values, info, found) -> None:
     try:
         nozzle = float(info.get("nozzle_mm", ""))
@@ -501,7 +505,7 @@ def _line_width_check(values, info, found) -> None:
                 "artifact.line_width_implausible",
                 Msg("The fitted line width of the %(family)s is %(width)s mm with a %(nozzle)s "
                     "mm nozzle: outside and inside readings swapped or typed in the wrong "
-                    "fields?", family=fam.replace("_", " "), width=f"{w:.3f}",
+                    "fields?", family=FAMILY_NAMES[fam], width=f"{w:.3f}",
                     nozzle=f"{nozzle:g}"),
                 Msg("Outside readings are the larger ones of each span; check the fields."),
                 family=fam, line_width_mm=round(w, 4), nozzle_mm=nozzle))
