@@ -13,7 +13,7 @@ if [ "${1:-}" != "compile" ]; then
     $BABEL extract -F babel.cfg -k N_ -k gettext -k Msg -o translations/messages.pot \
         --project KinComp --version "$($PY -c 'import octoprint_kincomp; print(octoprint_kincomp.__version__)')" \
         --msgid-bugs-address "" --no-location --omit-header --sort-output . >/dev/null
-    $BABEL update -i translations/messages.pot -d translations --no-fuzzy-matching --ignore-obsolete >/dev/null
+    $BABEL update -i translations/messages.pot -d translations --no-fuzzy-matching --ignore-obsolete --width 100 >/dev/null
 fi
 $BABEL compile -d translations --statistics
 for po in translations/*/LC_MESSAGES/messages.po; do

@@ -261,6 +261,13 @@ def cmd_artifact(args) -> int:
     from ..ballbar.analysis import Geometry, propose_params
     from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
 
+    if getattr(args, "artifact_command", None) == "program":
+        return cmd_artifact_program(args)
+    if getattr(args, "artifact_command", None) == "analyze":
+        return cmd_artifact_analyze(args)
+    if not args.diagonals:
+        raise CliError("artifact: give --diagonals AC,BD,AD (a printed square), or use "
+                       "'artifact program' / 'artifact analyze' (KinComp's own artifact)")
     current = load_params(args.current) if args.current else Params()
     ac, bd, ad = floats(args.diagonals, 3, "--diagonals")
     lengths = {}
@@ -279,6 +286,80 @@ def cmd_artifact(args) -> int:
     print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(), "notes": notes},
                      indent=2))
     return 0
+
+
+def cmd_artifact_program(args) -> int:
+    from ..ballbar.artifact_program import ArtifactProgramError, ArtifactSpec, generate
+
+    volume = tuple(floats(args.volume, 6, "--volume"))
+    planes = tuple(p.strip().upper() for p in args.planes.split(",") if p.strip())
+    hotend, bed = floats(args.temps, 2, "--temps")
+    try:
+        spec = ArtifactSpec(volume=volume, planes=planes, nozzle_mm=args.nozzle,
+                            hotend_c=hotend, bed_c=bed, first_layer_mm=args.first_layer,
+                            layer_mm=args.layer, line_width_mm=args.line_width,
+                            max_span_mm=args.caliper, tower_span_mm=args.tower_span)
+        text = generate(spec)
+    except ArtifactProgramError as exc:
+        raise CliError(str(exc)) from None
+    write_text(args.output, text)
+    return 0
+
+
+def cmd_artifact_analyze(args) -> int:
+    from ..ballbar.artifact_fit import ArtifactFitError, analyse_artifact, parse_readings
+    from ..ballbar.artifact_program import (ArtifactProgramError, read_measurements,
+                                            read_program_info)
+    from ..ballbar.formats import TraceError
+
+    current = load_params(args.artifact_current) if args.artifact_current else Params()
+    program = read_text(args.program)
+    try:
+        measurements = read_measurements(program)
+    except ArtifactProgramError as exc:
+        raise CliError(f"{args.program}: {exc}") from None
+    try:
+        readings = parse_readings(read_text(args.measurements))
+        result = analyse_artifact(measurements, readings, current=current,
+                                  info=read_program_info(program))
+    except ArtifactFitError as exc:
+        raise CliError(f"{args.measurements}: {exc}") from None
+    except TraceError as exc:  # the proposal is out of range
+        raise CliError(str(exc)) from None
+    if args.params_out:
+        write_text(args.params_out, json.dumps(result["parameters"], indent=2))
+    if args.json:
+        print(json.dumps(result, indent=2, default=float))
+    else:
+        print(format_artifact(result))
+    return 0
+
+
+def format_artifact(result) -> str:
+    """Text of an artifact analysis: values +- 1 sigma, then the findings."""
+    d = result["diagnostics"]
+    u = d["uncertainty"]
+    lines = []
+    if d.get("simulated"):
+        lines.append("SIMULATED data")
+    for key, unit, n in (("squareness_um_per_m", "um/m", 1), ("scale_mismatch_ppm", "ppm", 1),
+                         ("line_width_mm", "mm", 3)):
+        parts = [f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" if v is not None else f"{k} -"
+                 for k, v in d[key].items()]
+        lines.append(f"{key:22s} " + "  ".join(parts) + f" {unit}")
+    f = d["fit"]
+    lines.append(f"fit: {f['readings_used']} of {f['readings']} readings, rms {f['rms_um']:.1f} "
+                 f"um, sigma per reading {f['sigma_reading_um']:.1f} um (from "
+                 f"{f['sigma_from']}); +- : 1 sigma")
+    lines.append("trusted" if result["trusted"] else "NOT trusted (see the errors below)")
+    for item in result["findings"]:
+        lines.append(f"{item['severity']}: {item['message']}"
+                     + (f" {item['advice']}" if item["advice"] else ""))
+    lines.append("")
+    lines.append("firmware equivalents:")
+    for fam in ("marlin", "klipper", "reprapfirmware"):
+        lines += ["  " + x for x in result["firmware"][fam]]
+    return "\n".join(lines)
 
 
 def cmd_closed_loop(args) -> int:
@@ -362,10 +443,37 @@ def add_ballbar_commands(sub) -> None:
                    help="one campaign over the whole volume, a table per plane")
     c.set_defaults(func=cmd_closed_loop)
 
-    t = sub.add_parser("artifact", help="parameters from a printed square (and lengths)")
+    t = sub.add_parser("artifact", help="parameters from a printed square (and lengths), or "
+                                        "KinComp's own artifact: 'artifact program', "
+                                        "'artifact analyze'")
     t.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
-    t.add_argument("--diagonals", required=True, metavar="AC,BD,AD", help="mm")
+    t.add_argument("--diagonals", metavar="AC,BD,AD", help="mm")
     t.add_argument("--length", action="append", metavar="AXIS:NOMINAL:MEASURED",
                    help="a measured length along an axis, mm (repeatable)")
     t.add_argument("--current", help="params active when the artifact was printed")
-    t.set_defaults(func=cmd_artifact)
+    t.set_defaults(func=cmd_artifact, artifact_command=None)
+    ts = t.add_subparsers(dest="artifact_command", metavar="{program,analyze}")
+    tp = ts.add_parser("program", help="write KinComp's caliper artifact as G-code")
+    tp.add_argument("--volume", default="0,220,0,220,0,250", metavar="X0,X1,Y0,Y1,Z0,Z1",
+                    help="the printer's volume, mm (default 0,220,0,220,0,250)")
+    tp.add_argument("--planes", default="XY,XZ,YZ", help="parts to print (default XY,XZ,YZ)")
+    tp.add_argument("--nozzle", type=float, default=0.4, help="nozzle diameter, mm")
+    tp.add_argument("--temps", default="210,60", metavar="NOZZLE,BED",
+                    help="temperatures, deg C (default 210,60)")
+    tp.add_argument("--first-layer", type=float, default=0.2, help="first layer height, mm")
+    tp.add_argument("--layer", type=float, help="layer height, mm (default min(0.2, nozzle/2))")
+    tp.add_argument("--line-width", type=float, help="mm (default 1.125 x nozzle)")
+    tp.add_argument("--caliper", type=float, default=150.0,
+                    help="the caliper's range, mm: no span is longer (default 150)")
+    tp.add_argument("--tower-span", type=float, default=100.0,
+                    help="longest XZ/YZ tower span, mm (sets their height; default 100)")
+    tp.add_argument("-o", "--output", help="output file (default: standard output)")
+    tp.set_defaults(func=cmd_artifact)
+    ta = ts.add_parser("analyze", help="fit the caliper readings of KinComp's artifact")
+    ta.add_argument("measurements", help='JSON {"<id>": [reading_mm, ...], ...}')
+    ta.add_argument("--program", required=True, help="the artifact's G-code (its header)")
+    ta.add_argument("--current", dest="artifact_current",
+                    help="params active when the artifact was printed (residual fit)")
+    ta.add_argument("--json", action="store_true", help="print one JSON object")
+    ta.add_argument("--params-out", help="write the proposed params file here")
+    ta.set_defaults(func=cmd_artifact)

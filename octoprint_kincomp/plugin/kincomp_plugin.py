@@ -36,6 +36,7 @@ from ..core.compensator import Options
 from ..core.params import Params
 from ..engines.select import engine
 from . import http
+from .artifact_api import ArtifactApi
 from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
 from .campaign_api import CampaignApi
 from .campaign_measure import CampaignMeasurements
@@ -77,7 +78,7 @@ class KinCompPlugin(
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
         self.settings_api = self.calibration = self.sensor = self.campaign = None
-        self.limits = None
+        self.limits = self.artifact = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
@@ -115,6 +116,8 @@ class KinCompPlugin(
         recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
         self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
                                     self.demo, measurements)
+        self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files, printer,
+                                    files)
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -173,7 +176,8 @@ class KinCompPlugin(
         return {"js": ["js/kincomp_common.js", "js/kincomp_findings.js", "js/kincomp_plot.js",
                        "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js",
                        "js/kincomp_campaign.js",
-                       "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js"],
+                       "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js",
+                       "js/kincomp_artifact.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
@@ -301,6 +305,18 @@ class KinCompPlugin(
     @route("/apply", methods=["POST"])
     def api_apply(self):
         return self.calibration.apply()
+
+    @route("/artifact/program", methods=["POST"])
+    def api_artifact_program(self):
+        return self.artifact.program()
+
+    @route("/artifact/sheet", methods=["GET"])
+    def api_artifact_sheet(self):
+        return self.artifact.sheet()
+
+    @route("/artifact/analyze", methods=["POST"])
+    def api_artifact_analyze(self):
+        return self.artifact.analyze()
 
     @route("/runs", methods=["GET"])
     def api_runs(self):

@@ -1,0 +1,78 @@
+"""Statistics of the printed-artifact fit (issue 27; not a speed benchmark): the figures of
+docs/artifact.md. Per error size (the paper's, and small: 100 um/m, 50 ppm), N random
+SIMULATED printers on a 220 mm bed: 10 um noise, 0.01 mm rounding, three repeats, line width
+0.40-0.50 mm, shrinkage 0-0.5 %. Prints how often each value lies within its reported 2 sigma,
+the sigmas, false alarms, and whether a 1 mm typo (one reading; all repeats of one id) is named
+by its id alone.
+
+    .venv/bin/python benchmarks/artifact_trials.py [--trials 500]
+"""
+
+import argparse
+
+import numpy as np
+
+
+def main() -> int:
+    from octoprint_kincomp.ballbar.artifact_fit import analyse_artifact
+    from octoprint_kincomp.ballbar.artifact_program import (ArtifactSpec, generate,
+                                                            read_measurements,
+                                                            read_program_info)
+    from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
+    from octoprint_kincomp.core.params import Params
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=500)
+    n = ap.parse_args().trials
+    text = generate(ArtifactSpec(volume=(0, 220, 0, 220, 0, 250)))
+    meas, info = read_measurements(text), read_program_info(text)
+
+    def named_alone(readings, mid):
+        bad = [f for f in analyse_artifact(meas, readings, info=info)["findings"]
+               if f["severity"] != "info"]
+        return [f["evidence"].get("id") for f in bad] == [mid]
+
+    for size, seed in (("paper", 99), ("small", 98)):
+        rng = np.random.default_rng(seed)
+        hits, sig = {}, {}
+        flagged = typo_one = typo_all = 0
+        for _ in range(n):
+            if size == "paper":
+                sq = {"xy": -3638.6 * rng.uniform(0.5, 1.2) * float(rng.choice([-1, 1])),
+                      "xz": rng.uniform(-1500, 1500), "yz": rng.uniform(-1500, 1500)}
+                sc = {a: rng.uniform(-500, 500) for a in "xyz"}
+            else:
+                sq = {p: 100 * float(rng.choice([-1, 1])) for p in ("xy", "xz", "yz")}
+                sc = {"x": 50 * float(rng.choice([-1, 1])), "y": 0.0,
+                      "z": -50 * float(rng.choice([-1, 1]))}
+            truth = Params.from_dict({"squareness_um_per_m": sq, "scale_ppm": sc})
+            r = simulate_readings(meas, truth, shrinkage=rng.uniform(0, 0.005),
+                                  line_width_mm=rng.uniform(0.4, 0.5), rng=rng)
+            res = analyse_artifact(meas, r, info=info)
+            d, u = res["diagnostics"], res["diagnostics"]["uncertainty"]
+            want = {("squareness_um_per_m", p): sq[p] for p in sq}
+            want.update({("scale_mismatch_ppm", f"{a}-{b}"): sc[a] - sc[b]
+                         for a, b in (("x", "y"), ("x", "z"), ("y", "z"))})
+            for (key, sub), v in want.items():
+                hits.setdefault(sub, []).append(abs(d[key][sub] - v) <= 2 * u[key][sub])
+                sig.setdefault(sub, []).append(u[key][sub])
+            flagged += any(f["severity"] != "info" for f in res["findings"])
+            mid = meas[rng.integers(len(meas))].id
+            j = int(rng.integers(3))
+            one = {a: list(b) for a, b in r.items()}
+            one[mid][j] += float(rng.choice([-1, 1]))
+            typo_one += named_alone(one, mid)
+            every = {a: list(b) for a, b in r.items()}
+            every[mid] = [v + 1.0 for v in every[mid]]
+            typo_all += named_alone(every, mid)
+        print(f"## {size}: {n} trials")
+        for sub in hits:
+            print(f"{sub}: within 2 sigma {100 * np.mean(hits[sub]):.1f} %, sigma mean "
+                  f"{np.mean(sig[sub]):.1f}, max {np.max(sig[sub]):.1f}")
+        print(f"clean trials with a warning/error: {flagged}; one reading +-1 mm named alone: "
+              f"{typo_one}/{n}; all repeats of one id +1 mm named alone: {typo_all}/{n}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
