@@ -7,6 +7,7 @@ permission KinComp adds to OctoPrint (``PLUGIN_KINCOMP_ADMIN``).
 
 from __future__ import annotations
 
+import errno
 import math
 from typing import Any, Dict, List, Optional
 
@@ -53,6 +54,32 @@ MAX_JSON_DEPTH = 32  # nesting levels of a request body (ours need fewer than 10
 
 class BadRequest(ValueError):
     """A request field of the wrong type (answered 400 with this message)."""
+
+
+class Refused(Exception):
+    """A change refused with ``response`` (e.g. a 403) before anything was stored."""
+
+    def __init__(self, response):
+        super().__init__("refused")
+        self.response = response
+
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the disk (or the user's quota) is full."""
+    return isinstance(exc, OSError) and exc.errno in DISK_FULL
+
+
+def os_error(exc: OSError):
+    """The blueprint's handler of an OSError that reached it: 507 with a message when the
+    disk is full (whatever was being written was not kept: every write is atomic), else
+    re-raised (a 500: a fault of KinComp's own)."""
+    if disk_full(exc):
+        return error(gettext("The disk is full: KinComp could not store this (nothing was "
+                             "changed). Free some space and try again."), 507)
+    raise exc
 
 
 def abort(status: int, message: str):

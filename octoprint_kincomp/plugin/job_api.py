@@ -52,6 +52,8 @@ class JobApi:
         if job.state == "done":
             return flask.jsonify(body(job))
         if job.state == "failed":
+            if job.exception is not None and http.disk_full(job.exception):
+                return http.os_error(job.exception)  # 507: nothing was kept
             if failed is not None:
                 return http.error(failed(job), 400)
             return http.error(http.tr(job.exception) if job.exception is not None
