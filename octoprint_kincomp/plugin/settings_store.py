@@ -76,6 +76,12 @@ class SettingsStore:
         self._logger = logger
         self._on_applied = on_applied
         self.lock = threading.RLock()
+        # OctoPrint's own settings lock, held from reading the stored document to writing
+        # config.yaml: OctoPrint's own saves (``/api/settings``) and its reloads of a
+        # changed config.yaml then never fall in between (they take it too). Always taken
+        # after ``lock``, never before; nothing of OctoPrint's holding it calls KinComp.
+        self._config_lock = getattr(getattr(settings, "settings", None), "_lock", None) \
+            or threading.RLock()
         # what is wrong with the stored settings (a SettingsError), None when they are valid
         self.problem: Optional[SettingsError] = None
 
@@ -220,46 +226,55 @@ class SettingsStore:
         OSError: the stored document is put back, nothing changed). Returns (the new
         settings, the diff stored)."""
         with self.lock:
-            stored = self.stored()
-            new = validate_settings(data, stored, replace_params=replace_params)
-            if vet is not None:
-                vet(stored, new)
-            return new, self.save(new, immediately=immediately, write=write)
+            old = self.current()
+            with self._config_lock:
+                stored = self.stored()
+                new = validate_settings(data, stored, replace_params=replace_params)
+                if vet is not None:
+                    vet(stored, new)
+                diff = self._store(new, write)
+            self._applied(old, new, immediately)
+            return new, diff
 
     def save(self, new: Dict[str, Any], immediately: Optional[bool] = None,
              write: bool = False):
         """Stores the validated settings ``new`` (complete: made by ``validate_settings``
-        over ``stored()``) in one step, replacing KinComp's stored document whole; writes
-        config.yaml if ``write`` (on failure the previous document is stored again and the
-        OSError raised); applies them and fires ``params_applied`` if the parameters
-        changed. Returns the diff stored (what differs from the defaults)."""
+        over ``stored()``) as :meth:`update` does, without merging or checking. Returns the
+        diff stored (what differs from the defaults)."""
         with self.lock:
             old = self.current()
-            previous = self._settings.get_all_data(merged=False)
-            previous = copy.deepcopy(previous) if isinstance(previous, dict) else {}
-            diff = self._replace(new)
-            if write:
-                try:
-                    self.write()
-                except OSError:
-                    self._settings.set([], previous, force=True)
-                    raise
-            self.apply(new, immediately=immediately)
-            if new["params"] != old["params"]:
-                params = Params.from_dict(new["params"])
-                self._notifier.event("params_applied", {
-                    "params_hash": params.hash(),
-                    "previous_hash": Params.from_dict(old["params"]).hash(),
-                    "pending_until_next_print": self._queue.pending is not None})
+            with self._config_lock:
+                diff = self._store(new, write)
+            self._applied(old, new, immediately)
             return diff
 
-    def _replace(self, new: Dict[str, Any]) -> Dict[str, Any]:
+    def _store(self, new: Dict[str, Any], write: bool) -> Dict[str, Any]:
         """KinComp's stored document replaced by what ``new`` differs in from the defaults
-        (and the settings version), in one ``set`` of the whole subtree (OctoPrint swaps it
-        under its own lock): no moment without the parameters."""
+        (and the settings version), in one ``set`` of the whole subtree: no moment without
+        the parameters; then config.yaml written if ``write`` (on failure the previous
+        document is stored again and the OSError raised)."""
+        previous = self._settings.get_all_data(merged=False)
+        previous = copy.deepcopy(previous) if isinstance(previous, dict) else {}
         diff = dict_minimal_mergediff(defaults(), new)
         self._settings.set([], dict(diff, _config_version=SETTINGS_VERSION), force=True)
+        if write:
+            try:
+                self.write()
+            except OSError:
+                self._settings.set([], previous, force=True)
+                raise
         return diff
+
+    def _applied(self, old: Dict[str, Any], new: Dict[str, Any],
+                 immediately: Optional[bool]) -> None:
+        """``new`` (just stored) to the queue; ``params_applied`` if the parameters changed."""
+        self.apply(new, immediately=immediately)
+        if new["params"] != old["params"]:
+            params = Params.from_dict(new["params"])
+            self._notifier.event("params_applied", {
+                "params_hash": params.hash(),
+                "previous_hash": Params.from_dict(old["params"]).hash(),
+                "pending_until_next_print": self._queue.pending is not None})
 
     def write(self) -> None:
         """Writes the stored settings to OctoPrint's config file (atomically: a temporary
