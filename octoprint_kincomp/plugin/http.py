@@ -174,13 +174,21 @@ def require(permission) -> None:
 def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
     """403 if the request changes where KinComp's updates come from (the archive pip will
     install as OctoPrint's admin) without OctoPrint's own permission to configure software
-    updates (an administrator's, not KinComp's); None otherwise."""
+    updates (an administrator's, not KinComp's); 409 while OctoPrint's software update
+    plugin is disabled (its permission is unknown then); None otherwise."""
     if old.get("software_update") == new.get("software_update"):
         return None
     from octoprint.access.permissions import Permissions
 
+    from octoprint.access.permissions import UnknownPermission
+
     needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None) or Permissions.ADMIN
-    if needed.can():
+    try:
+        allowed = needed.can()
+    except UnknownPermission:  # the software update plugin is disabled: nothing to check by
+        return error(gettext("OctoPrint's software update plugin is disabled: enable it to "
+                             "change where KinComp's updates come from"), 409)
+    if allowed:
         return None
     return error(gettext("Changing where KinComp's updates come from needs OctoPrint's "
                          "permission to configure software updates"), 403)
