@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import errno
 import math
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -163,6 +163,25 @@ def choice(data: Dict[str, Any], key: str, choices, default: str) -> str:
         raise BadRequest(gettext("'%(key)s' must be one of %(choices)s", key=key,
                                  choices=", ".join(choices)))
     return value.upper()
+
+
+def current_user() -> Tuple[Optional[str], bool]:
+    """(name, has KinComp's admin permission) of the requesting user; (None, False) where
+    there is none (no login, no request)."""
+    from octoprint.access.permissions import Permissions
+
+    try:
+        import flask_login
+
+        user = flask_login.current_user
+        name = user.get_name() if user is not None and not user.is_anonymous else None
+    except Exception:  # noqa: BLE001 - no request, no login manager: nobody
+        name = None
+    try:
+        admin = bool(Permissions.PLUGIN_KINCOMP_ADMIN.can())
+    except Exception:  # noqa: BLE001 - no identity (outside OctoPrint's request handling)
+        admin = False
+    return name, admin
 
 
 def require(permission) -> None:

@@ -378,6 +378,10 @@ class KinCompPlugin(
     def api_job(self, job_id):
         return self.files.job_api.job(job_id)
 
+    @route("/jobs/<job_id>/cancel", methods=["POST"])
+    def api_job_cancel(self, job_id):
+        return self.files.job_api.cancel(job_id)
+
     @octoprint.plugin.BlueprintPlugin.errorhandler(http.BadRequest)
     def api_bad_request(self, exc):
         return http.bad_request(exc)
