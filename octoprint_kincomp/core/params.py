@@ -10,7 +10,7 @@ Units and signs are the contract of this module (and of every params file):
   ``actual = (1 + s*1e-6) * commanded`` about the machine origin.
 * ``backlash`` (um of lost motion on a reversal, >= 0) per axis ``x``/``y``/``z``: either one
   number, or a list of at most 64 ``{"at_mm": position, "um": value}`` points, linearly
-  interpolated along the axis and held constant outside. ``fraction`` (0, or 0.001..1) scales what is applied,
+  interpolated along the axis and held constant outside. ``fraction`` (0..1) scales what is applied,
   ``smoothing_mm`` spreads each take-up over that much following path length (0 = immediate
   take-up move).
 * ``axis_errors`` (optional full HTM terms): per axis, the translation errors ``tx_um``,
@@ -26,9 +26,10 @@ Units and signs are the contract of this module (and of every params file):
 * ``servo_lag_ms`` (optional, ms): per-axis following lag ``T`` of a first-order servo
   (actual lags commanded by ``v*T``); used only when ``servo_precomp`` is true.
 
-Every number is a JSON number (not true, not "1"), finite, within the sanity limit below
-for its field, and either 0 or at least ``MIN_MAGNITUDE`` (1e-200) in size: so every
-quantity derived from it (firmware equivalents, ratios, the compensation) stays finite.
+Every number is a JSON number (not true, not "1"), finite and within the sanity limit below
+for its field; any such value, down to the smallest subnormal (5e-324), gives finite
+derived quantities (firmware equivalents, ratios, the compensation: tests/core/
+test_params_ranges.py checks the ends of every range).
 """
 
 from __future__ import annotations
@@ -59,10 +60,6 @@ MAX_NOZZLE_OFFSET_MM = 500.0
 MAX_POSITION_MM = 10000.0
 MAX_SERVO_LAG_MS = 100.0
 MAX_POLY_DEGREE = 5
-# Smallest size of a value that is not 0 (a subnormal such as 1e-310 is no measurement and
-# overflows whatever divides by it), and of a backlash fraction that is not 0.
-MIN_MAGNITUDE = 1e-200
-MIN_BACKLASH_FRACTION = 0.001
 # Backlash points per axis: every move walks the table, and the compiled kernel takes at most
 # this many (engines/kernel.py MAX_POINTS; a test keeps the two equal).
 MAX_BACKLASH_POINTS = 64
@@ -235,9 +232,6 @@ def _number(value: Any, field: str, limit: Optional[float] = None, lo: Optional[
     v = float(value)
     if not math.isfinite(v):
         raise ParamsError(field, Msg("must be a finite number (NaN/Infinity are not allowed)"))
-    if v != 0.0 and abs(v) < MIN_MAGNITUDE:
-        raise ParamsError(field, Msg("%(value)s is too small to mean anything (0, or at least "
-                                     "%(min)s in size)", value=f"{v:g}", min=f"{MIN_MAGNITUDE:g}"))
     if limit is not None and abs(v) > limit:
         raise ParamsError(field, Msg("%(value)s is out of range (|value| <= %(limit)s)",
                                      value=f"{v:g}", limit=f"{limit:g}"))
@@ -335,10 +329,6 @@ def _parse(data: Any) -> Params:
     bl = _object(obj.get("backlash", {}), "backlash", AXES + ("fraction", "smoothing_mm"))
     backlash = {a: _backlash_axis(bl.get(a, 0.0), f"backlash.{a}") for a in AXES}
     fraction = _number(bl.get("fraction", 1.0), "backlash.fraction", lo=0.0, hi=1.0)
-    if 0.0 < fraction < MIN_BACKLASH_FRACTION:
-        raise ParamsError("backlash.fraction", Msg(
-            "%(value)s is out of range (0, or %(lo)s..1)", value=f"{fraction:g}",
-            lo=f"{MIN_BACKLASH_FRACTION:g}"))
     smoothing = _number(bl.get("smoothing_mm", 0.0), "backlash.smoothing_mm", lo=0.0,
                         hi=MAX_SMOOTHING_MM)
 

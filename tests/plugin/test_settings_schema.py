@@ -82,7 +82,7 @@ def test_any_value_anywhere_is_checked_or_refused_naming_its_field():
     ({"sensor": {"scale": 1e308}}, "sensor.scale"),
     ({"sensor": {"baudrate": "9600"}}, "sensor.baudrate"),
     ({"params": "garbage"}, "params"),
-    ({"params": {"backlash": {"fraction": 1e-310}}}, "params.backlash.fraction"),
+    ({"params": {"backlash": {"fraction": 1.5}}}, "params.backlash.fraction"),
     ({"demo": []}, "demo"),
 ])
 def test_wrong_types_are_refused_naming_the_field(body, field):
@@ -108,7 +108,7 @@ GETS = ["/status", "/runs", "/files", "/sensor/status", "/sensor/ports", "/campa
 @pytest.mark.parametrize("bad, field", [
     ({"sensor": {"units": ["mm"]}}, "sensor.units"),
     ({"params": "garbage"}, "params"),
-    ({"params": {"backlash": {"x": 45.0, "fraction": 1e-310, "smoothing_mm": 2.0}}},
+    ({"params": {"backlash": {"x": 45.0, "fraction": "1", "smoothing_mm": 2.0}}},
      "params.backlash.fraction"),
     ({"sensor": {"scale": True}}, "sensor.scale"),
     ({"decimals": [4]}, "decimals"),
@@ -166,5 +166,21 @@ def test_the_api_repairs_a_wrong_stored_value(tmp_path):
         assert s["sensor"]["units"] == "um" and s["sensor"]["port"] == "/dev/ttyX"
         assert s["params"]["scale_ppm"]["x"] == 350.0 and s["enabled"] is True
         assert ns.plugin.queue.enabled
+    finally:
+        ns.stop()
+
+
+def test_a_tiny_stored_value_breaks_nothing(tmp_path):
+    """``backlash.fraction: 1e-310`` (accepted: finite, within 0..1) made every /status a
+    500 (OverflowError in the firmware equivalents), restart included."""
+    stored = {"enabled": True, "params": {"backlash": {"x": 45.0, "fraction": 1e-310,
+                                                       "smoothing_mm": 2.0}}}
+    ns = blueprint_client(str(tmp_path), stored=stored)
+    try:
+        for path in GETS:
+            assert ns.client.get(PREFIX + path).status_code < 500, path
+        st = ns.client.get(PREFIX + "/status").get_json()
+        assert st["settings_problem"] is None and st["compensation"]["enabled"] is True
+        assert "M425" in " ".join(st["equivalents"]["reprapfirmware"])
     finally:
         ns.stop()
