@@ -88,22 +88,39 @@ def abort(status: int, message: str):
 
 
 def check_json(data: Any) -> None:
-    """:class:`BadRequest` for a body nested deeper than MAX_JSON_DEPTH or holding a number
-    that is not finite (NaN, Infinity, 1e400), naming the field."""
+    """:class:`BadRequest` for a body nested deeper than MAX_JSON_DEPTH, holding a number
+    that is not finite (NaN, Infinity, 1e400) or a text that is not valid Unicode (a lone
+    surrogate), naming the field."""
     stack = [(data, "", 1)]
     while stack:
         value, where, depth = stack.pop()
         if isinstance(value, float) and not math.isfinite(value):
             raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
+        if isinstance(value, str) and not _encodable(value):
+            raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
+                                     key=where or "body"))
         if isinstance(value, (dict, list)):
             if depth > MAX_JSON_DEPTH:
                 raise BadRequest(gettext("The request body is nested too deeply (at most "
                                          "%(n)s levels)", n=MAX_JSON_DEPTH))
             items = value.items() if isinstance(value, dict) else enumerate(value)
             for key, item in items:
+                if isinstance(key, str) and not _encodable(key):
+                    raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
+                                             key=where or "body"))
                 name = f"{where}[{key}]" if isinstance(key, int) else \
                     (f"{where}.{key}" if where else str(key))
                 stack.append((item, name, depth + 1))
+
+
+def _encodable(text: str) -> bool:
+    """Whether ``text`` is valid Unicode (JSON's \\ud800 escapes can make one that is not,
+    and it could then be stored nowhere: config.yaml's writer fails on it)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def json_body() -> Any:

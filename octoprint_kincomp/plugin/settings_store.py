@@ -252,7 +252,7 @@ class SettingsStore:
         """KinComp's stored document replaced by what ``new`` differs in from the defaults
         (and the settings version), in one ``set`` of the whole subtree: no moment without
         the parameters; then config.yaml written if ``write`` (on failure the previous
-        document is stored again and the OSError raised)."""
+        document is stored again and the error raised)."""
         previous = self._settings.get_all_data(merged=False)
         previous = copy.deepcopy(previous) if isinstance(previous, dict) else {}
         diff = dict_minimal_mergediff(defaults(), new)
@@ -260,7 +260,7 @@ class SettingsStore:
         if write:
             try:
                 self.write()
-            except OSError:
+            except Exception:  # disk full, or a value the writer cannot write
                 self._settings.set([], previous, force=True)
                 raise
         return diff

@@ -184,3 +184,22 @@ def test_a_tiny_stored_value_breaks_nothing(tmp_path):
         assert "M425" in " ".join(st["equivalents"]["reprapfirmware"])
     finally:
         ns.stop()
+
+
+def test_a_lone_surrogate_is_refused_and_the_next_save_still_works(tmp_path):
+    """JSON's "\\ud800" makes a text no config.yaml can hold: its write failed (500) and
+    left the value in memory, so every later save failed too."""
+    ns = blueprint_client(str(tmp_path), stored=CALIBRATED)
+    config = os.path.join(str(tmp_path), "base", "config.yaml")
+    try:
+        before = _stored(config)
+        for body in ('{"sensor": {"port": "\\ud800"}}', '{"sensor": {"\\ud800": 1}}'):
+            resp = ns.client.post(PREFIX + "/settings", data=body,
+                                  content_type="application/json")
+            assert resp.status_code == 400 and "surrogate" in resp.get_json()["error"]
+        assert _stored(config) == before
+        resp = ns.client.post(PREFIX + "/settings", data=json.dumps({"decimals": 5}),
+                              content_type="application/json")
+        assert resp.status_code == 200 and _stored(config)["decimals"] == 5
+    finally:
+        ns.stop()
