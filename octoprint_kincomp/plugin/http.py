@@ -218,9 +218,9 @@ def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
 
     from octoprint.access.permissions import UnknownPermission
 
-    needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None) or Permissions.ADMIN
-    try:
-        allowed = needed.can()
+    try:  # (even the truth of an unknown plugin permission raises: no "or" here)
+        needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None)
+        allowed = (Permissions.ADMIN if needed is None else needed).can()
     except UnknownPermission:  # the software update plugin is disabled: nothing to check by
         return error(gettext("OctoPrint's software update plugin is disabled: enable it to "
                              "change where KinComp's updates come from"), 409)

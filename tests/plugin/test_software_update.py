@@ -120,12 +120,22 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
             assert getattr(plugin.api_settings(), "status_code", 200) == 200
 
 
+class _UnknownPermission:
+    """What OctoPrint hands for a permission of a disabled plugin: asking it anything, even
+    its truth, raises UnknownPermission."""
+
+    def __bool__(self):
+        from octoprint.access.permissions import UnknownPermission
+
+        raise UnknownPermission("PLUGIN_SOFTWAREUPDATE_CONFIGURE")
+
+    can = __bool__
+
+
 def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp_path):
     """Issue 26: OctoPrint's software update plugin disabled, its permission is unknown
     (UnknownPermission was a 500): 409 on both ways in, nothing stored."""
     from unittest import mock
-
-    from octoprint.access.permissions import UnknownPermission
 
     from tests.support.mocked_plugin import api_app
 
@@ -135,7 +145,7 @@ def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"), \
             mock.patch("octoprint.access.permissions.Permissions") as perms:
-        perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.side_effect = UnknownPermission("x")
+        perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE = _UnknownPermission()
         with app.test_request_context("/settings", method="POST", json=body):
             resp = plugin.api_settings()
         assert resp.status_code == 409 and "disabled" in resp.get_json()["error"]
