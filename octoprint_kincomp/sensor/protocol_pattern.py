@@ -50,12 +50,16 @@ MAX_SCALE = 1e9  # |scale| within 1/MAX_SCALE .. MAX_SCALE: a factor, never a ty
 
 
 def check_scale(scale) -> float:
-    """The pattern protocol's value factor: a number (not true, not "1"), finite, with
-    1e-9 <= |scale| <= 1e9 (so a reading times it stays finite)."""
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)):
+    """The pattern protocol's value factor: a number (a numeric text from a command line or
+    config file too, never true/false), finite, with 1e-9 <= |scale| <= 1e9 (so a reading
+    times it stays finite). KinComp's settings take JSON numbers only (plugin/settings)."""
+    try:
+        if isinstance(scale, bool):
+            raise TypeError(scale)
+        value = float(scale)
+    except (TypeError, ValueError):
         raise SensorError(Msg("scale must be a number, got %(got)s", got=repr(scale)[:30]),
-                          "scale")
-    value = float(scale)
+                          "scale") from None
     if not math.isfinite(value) or not 1.0 / MAX_SCALE <= abs(value) <= MAX_SCALE:
         raise SensorError(Msg("scale must be finite, not zero, and within %(lo)s..%(hi)s "
                               "(either sign)", lo=f"{1.0 / MAX_SCALE:g}",
