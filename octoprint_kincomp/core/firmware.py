@@ -334,7 +334,10 @@ def _reprapfirmware(params: Params) -> Export:
         bl = {a: frac * _mean_backlash_mm(params, a) for a in AXES}
         largest = max(bl.values())
         spread = params.backlash_smoothing_mm
-        factor = 1 if spread <= 0.0 or largest <= 0.0 else min(100, max(1, round(spread / largest)))
+        # S: the spread in multiples of the backlash, 1..100 (the ratio bounded before
+        # rounding: a tiny backlash must not make it overflow)
+        factor = 1 if spread <= 0.0 or largest <= 0.0 else \
+            int(round(min(100.0, max(1.0, spread / largest))))
         lines.append("M425 " + " ".join(f"{a.upper()}{_n(bl[a], 4)}" for a in AXES)
                      + f" S{factor} ; backlash mm, taken up over S * the backlash")
         notes.append(Msg("M425 needs RepRapFirmware 3.5 or later. It spreads each take-up over "

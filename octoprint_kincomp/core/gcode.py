@@ -10,11 +10,15 @@ from __future__ import annotations
 import re
 from typing import List, NamedTuple, Optional, Tuple
 
-_LINENO = re.compile(r"\s*[Nn]\s*\d+\s*")
-_CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?")
-_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
-_BARE_LETTER = re.compile(r"\s*([A-Za-z])(?=\s|$)")
-_CHECKSUM = re.compile(r"\*\s*\d*\s*$")
+# ASCII only (re.ASCII): a firmware reads bytes, and "X١٢٣" (Arabic-Indic digits) or a
+# no-break space is no number or separator to it, though Python's \d, \s and float() take
+# them. Such a line is malformed and passes as written, as in the compiled and vectorised
+# engines, which work on the bytes.
+_LINENO = re.compile(r"\s*[Nn]\s*\d+\s*", re.ASCII)
+_CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?", re.ASCII)
+_WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))", re.ASCII)
+_BARE_LETTER = re.compile(r"\s*([A-Za-z])(?=\s|$)", re.ASCII)
+_CHECKSUM = re.compile(r"\*\s*\d*\s*$", re.ASCII)
 # Larger numbers are no coordinate: a 309-digit one is inf, and from ~1e154 on the squares of
 # path lengths overflow (float ** raises OverflowError). The compensator's fast path accepts at
 # most 99 integer digits, which stays below this.
@@ -133,7 +137,7 @@ def decimals_of(text: str) -> int:
     if dot < 0:
         return 0
     end = dot + 1
-    while end < len(text) and text[end].isdigit():
+    while end < len(text) and "0" <= text[end] <= "9":
         end += 1
     return end - dot - 1
 

@@ -25,6 +25,11 @@ Units and signs are the contract of this module (and of every params file):
   errors expressed in Cartesian space).
 * ``servo_lag_ms`` (optional, ms): per-axis following lag ``T`` of a first-order servo
   (actual lags commanded by ``v*T``); used only when ``servo_precomp`` is true.
+
+Every number is a JSON number (not true, not "1"), finite and within the sanity limit below
+for its field; any such value, down to the smallest subnormal (5e-324), gives finite
+derived quantities (firmware equivalents, ratios, the compensation: tests/core/
+test_params_ranges.py checks the ends of every range).
 """
 
 from __future__ import annotations

@@ -63,7 +63,7 @@ from .motion_limits import effective_limits
 from .notify import Notifier
 from .queue import QueueCompensator
 from .runs import RunNotFound, RunNotStorable, RunStore
-from .settings import SettingsError, validate_settings
+from .settings import SettingsError
 from .settings_store import SettingsStore
 
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
@@ -397,11 +397,9 @@ class CalibrationApi:
         new = {"params": params_doc}
         new.update(settings or {})
         try:
-            new = validate_settings(new, self._store.stored(), replace_params=True)
+            new, _ = self._store.update(new, replace_params=True, immediately=apply_now or None)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
-        self._store.save(new, immediately=apply_now or None)
-        self._store.write()
         if run is not None:
             run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
             self._runs.save(run)

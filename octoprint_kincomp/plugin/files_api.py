@@ -7,7 +7,9 @@
 * Dry runs and compensations are jobs (:mod:`.jobs`) whose work runs in the low-priority
   worker process (:mod:`.worker`), never in a request thread: a dry run answers 200 with
   its report if that is ready within a few seconds, else 202 with the job (poll
-  ``/jobs/<id>``, see :mod:`.job_api`); 429 when too many jobs wait. A compensation answers
+  ``/jobs/<id>``, cancel ``POST /jobs/<id>/cancel``, see :mod:`.job_api`); 429 when too
+  many jobs wait, or too many of the user's own (:mod:`.jobs`). A job's path is the file's
+  canonical one (below the uploads folder), whatever spelling the request used. A compensation answers
   202 with its job.
 * Background mode (setting ``mode = background``): every G-code file added is queued for a
   job, unless it already carries KinComp's marker. Job changes go to the UI as plugin
@@ -91,11 +93,11 @@ class FilesApi:
     def dryrun(self):
         http.require(Permissions.STATUS)
         http.require(Permissions.FILES_LIST)
-        path = flask.request.args.get("path", "")
+        disk = self._local_file(flask.request.args.get("path", ""))
+        path = self._canonical(disk)
         running = self.jobs.under_way("dryrun", path)
         if running is not None:  # asked again: the answer costs nothing more
             return self.job_api.answer(running, lambda j: j.report)
-        disk = self._local_file(path)
         try:
             s = self._store.require_usable()
         except SettingsInvalid as exc:
@@ -114,8 +116,8 @@ class FilesApi:
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         http.require(Permissions.FILES_UPLOAD)
         data = http.json_object() or {}
-        path = data.get("path", "")
-        disk = self._local_file(path)
+        disk = self._local_file(data.get("path", ""))
+        path = self._canonical(disk)
         try:
             self._store.require_usable()
         except SettingsInvalid as exc:
@@ -223,13 +225,23 @@ class FilesApi:
         """Where the stored file ``path`` is on disk; :class:`LinkOutside` if it is a link
         that leads out of the uploads folder (never followed)."""
         disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
-        root = os.path.dirname(self._file_manager.path_on_disk(
-            FileDestinations.LOCAL, "kincomp-root-probe.gcode"))
+        root = self._uploads_root()
         real, base = os.path.realpath(disk), os.path.realpath(root)
         if os.path.commonpath([real, base]) != base:
             raise LinkOutside(gettext("%(path)s is a link out of the uploads folder; KinComp "
                                       "does not follow it", path=path))
         return disk
+
+    def _uploads_root(self) -> str:
+        return os.path.dirname(self._file_manager.path_on_disk(
+            FileDestinations.LOCAL, "kincomp-root-probe.gcode"))
+
+    def _canonical(self, disk: str) -> str:
+        """The one spelling of the stored file at ``disk``: its path below the uploads
+        folder, "/"-separated (``x/../a.gcode`` and ``/a.gcode`` are ``a.gcode``), so one
+        file has one job of a kind whatever the request wrote."""
+        rel = os.path.relpath(os.path.normpath(disk), os.path.normpath(self._uploads_root()))
+        return rel.replace(os.sep, "/")
 
     def _local_file(self, path: Any) -> str:
         """The disk path of the stored G-code file ``path`` (a request field): aborts with

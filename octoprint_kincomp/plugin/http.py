@@ -7,8 +7,9 @@ permission KinComp adds to OctoPrint (``PLUGIN_KINCOMP_ADMIN``).
 
 from __future__ import annotations
 
+import errno
 import math
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -55,28 +56,71 @@ class BadRequest(ValueError):
     """A request field of the wrong type (answered 400 with this message)."""
 
 
+class Refused(Exception):
+    """A change refused with ``response`` (e.g. a 403) before anything was stored."""
+
+    def __init__(self, response):
+        super().__init__("refused")
+        self.response = response
+
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def disk_full(exc: BaseException) -> bool:
+    """Whether ``exc`` says the disk (or the user's quota) is full."""
+    return isinstance(exc, OSError) and exc.errno in DISK_FULL
+
+
+def os_error(exc: OSError):
+    """The blueprint's handler of an OSError that reached it: 507 with a message when the
+    disk is full (whatever was being written was not kept: every write is atomic), else
+    re-raised (a 500: a fault of KinComp's own)."""
+    if disk_full(exc):
+        return error(gettext("The disk is full: KinComp could not store this (nothing was "
+                             "changed). Free some space and try again."), 507)
+    raise exc
+
+
 def abort(status: int, message: str):
     """Ends the request with the JSON error response ``message`` (``status``)."""
     flask.abort(error(message, status))
 
 
 def check_json(data: Any) -> None:
-    """:class:`BadRequest` for a body nested deeper than MAX_JSON_DEPTH or holding a number
-    that is not finite (NaN, Infinity, 1e400), naming the field."""
+    """:class:`BadRequest` for a body nested deeper than MAX_JSON_DEPTH, holding a number
+    that is not finite (NaN, Infinity, 1e400) or a text that is not valid Unicode (a lone
+    surrogate), naming the field."""
     stack = [(data, "", 1)]
     while stack:
         value, where, depth = stack.pop()
         if isinstance(value, float) and not math.isfinite(value):
             raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
+        if isinstance(value, str) and not _encodable(value):
+            raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
+                                     key=where or "body"))
         if isinstance(value, (dict, list)):
             if depth > MAX_JSON_DEPTH:
                 raise BadRequest(gettext("The request body is nested too deeply (at most "
                                          "%(n)s levels)", n=MAX_JSON_DEPTH))
             items = value.items() if isinstance(value, dict) else enumerate(value)
             for key, item in items:
+                if isinstance(key, str) and not _encodable(key):
+                    raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
+                                             key=where or "body"))
                 name = f"{where}[{key}]" if isinstance(key, int) else \
                     (f"{where}.{key}" if where else str(key))
                 stack.append((item, name, depth + 1))
+
+
+def _encodable(text: str) -> bool:
+    """Whether ``text`` is valid Unicode (JSON's \\ud800 escapes can make one that is not,
+    and it could then be stored nowhere: config.yaml's writer fails on it)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def json_body() -> Any:
@@ -138,6 +182,25 @@ def choice(data: Dict[str, Any], key: str, choices, default: str) -> str:
     return value.upper()
 
 
+def current_user() -> Tuple[Optional[str], bool]:
+    """(name, has KinComp's admin permission) of the requesting user; (None, False) where
+    there is none (no login, no request)."""
+    from octoprint.access.permissions import Permissions
+
+    try:
+        import flask_login
+
+        user = flask_login.current_user
+        name = user.get_name() if user is not None and not user.is_anonymous else None
+    except Exception:  # noqa: BLE001 - no request, no login manager: nobody
+        name = None
+    try:
+        admin = bool(Permissions.PLUGIN_KINCOMP_ADMIN.can())
+    except Exception:  # noqa: BLE001 - no identity (outside OctoPrint's request handling)
+        admin = False
+    return name, admin
+
+
 def require(permission) -> None:
     """Aborts the request with 403 unless the user has ``permission``."""
     if not permission.can():
@@ -147,13 +210,21 @@ def require(permission) -> None:
 def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
     """403 if the request changes where KinComp's updates come from (the archive pip will
     install as OctoPrint's admin) without OctoPrint's own permission to configure software
-    updates (an administrator's, not KinComp's); None otherwise."""
+    updates (an administrator's, not KinComp's); 409 while OctoPrint's software update
+    plugin is disabled (its permission is unknown then); None otherwise."""
     if old.get("software_update") == new.get("software_update"):
         return None
     from octoprint.access.permissions import Permissions
 
-    needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None) or Permissions.ADMIN
-    if needed.can():
+    from octoprint.access.permissions import UnknownPermission
+
+    try:  # (even the truth of an unknown plugin permission raises: no "or" here)
+        needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None)
+        allowed = (Permissions.ADMIN if needed is None else needed).can()
+    except UnknownPermission:  # the software update plugin is disabled: nothing to check by
+        return error(gettext("OctoPrint's software update plugin is disabled: enable it to "
+                             "change where KinComp's updates come from"), 409)
+    if allowed:
         return None
     return error(gettext("Changing where KinComp's updates come from needs OctoPrint's "
                          "permission to configure software updates"), 403)

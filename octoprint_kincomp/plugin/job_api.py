@@ -5,6 +5,10 @@ if it is ready within a few seconds, else 202 with the job to poll) and ``GET /j
 A request thread only ever waits for a job, never does its work, and at most
 ``MAX_WAITERS`` requests wait at once (OctoPrint serves requests from a small thread pool:
 the others get their 202 at once).
+
+A job is submitted in the requesting user's name (the per-user quota and the places kept
+for admins, see :mod:`.jobs`); ``POST /jobs/<id>/cancel`` cancels it (its owner or a KinComp
+admin; 409 once it has finished).
 """
 
 from __future__ import annotations
@@ -31,11 +35,16 @@ class JobApi:
 
     def submit(self, kind: str, path: Optional[str], run: Callable,
                held_while_printing: bool = False) -> Job:
-        """``jobs.submit``; ends the request with 429 when too many jobs wait."""
+        """``jobs.submit`` in the requesting user's name; ends the request with 429 when too
+        many jobs wait (or too many of this user's)."""
+        owner, admin = http.current_user()
         try:
-            return self.jobs.submit(kind, path, run, held_while_printing=held_while_printing)
-        except QueueFull:
-            resp = http.error(gettext("Too many KinComp jobs are waiting; try again later"),
+            return self.jobs.submit(kind, path, run, held_while_printing=held_while_printing,
+                                    owner=owner, admin=admin)
+        except QueueFull as exc:
+            resp = http.error(gettext("You have too many KinComp jobs waiting; wait for them "
+                                      "or cancel one") if exc.mine else
+                              gettext("Too many KinComp jobs are waiting; try again later"),
                               429)
             resp.headers["Retry-After"] = str(RETRY_AFTER_S * 2)
             flask.abort(resp)
@@ -52,6 +61,8 @@ class JobApi:
         if job.state == "done":
             return flask.jsonify(body(job))
         if job.state == "failed":
+            if job.exception is not None and http.disk_full(job.exception):
+                return http.os_error(job.exception)  # 507: nothing was kept
             if failed is not None:
                 return http.error(failed(job), 400)
             return http.error(http.tr(job.exception) if job.exception is not None
@@ -66,4 +77,18 @@ class JobApi:
         job = self.jobs.get(job_id)
         if job is None:
             return http.error(gettext("No such job"), 404)
+        return flask.jsonify(job=job.to_dict())
+
+    def cancel(self, job_id: str):
+        """POST /jobs/<id>/cancel: cancels the job (its owner or a KinComp admin)."""
+        http.require(Permissions.STATUS)
+        job = self.jobs.get(job_id)
+        if job is None:
+            return http.error(gettext("No such job"), 404)
+        user, admin = http.current_user()
+        if not admin and (user is None or job.owner != user):
+            return http.error(gettext("Only the user who started a job or a KinComp admin "
+                                      "can cancel it"), 403)
+        if not self.jobs.cancel(job):
+            return http.error(gettext("The job has already finished"), 409)
         return flask.jsonify(job=job.to_dict())

@@ -6,7 +6,15 @@ plugin supplies each job's work and hears of every change).
   interpreter does it while a print runs.
 * At most ``limit`` jobs queued or running (:class:`QueueFull` beyond: the endpoints answer
   429); at most one job of a kind per file at a time (submitting it again returns the job
-  under way, and the endpoints answer 202 with its id).
+  under way, and the endpoints answer 202 with its id; the endpoints canonicalise the path
+  first, so ``x/../a.gcode`` and ``/a.gcode`` are ``a.gcode``).
+* Fair shares: a user without KinComp's admin permission has at most ``per_user`` jobs
+  queued or running, and such users together at most ``limit - reserved``: the last
+  ``reserved`` places are kept for admins (and KinComp's own background jobs), whose jobs
+  also run before theirs. So read-only users never starve an admin's compensation.
+* A job can be cancelled (:meth:`JobQueue.cancel`): a queued one never runs; a running one
+  in the worker process ends at once (the process is ended: its partial file is removed),
+  other work at its next progress step; it is failed with ``CANCELLED``.
 * A job's progress runs 0..1; its state goes queued -> running -> done or failed (with the
   error). Jobs marked ``held_while_printing`` (writing a compensated copy) wait while a
   print runs; dry runs and analyses go on at low priority.
@@ -29,20 +37,35 @@ from ..core.atomic import write_atomic
 MAX_HISTORY = 50  # finished jobs kept in the list
 IDLE_STOP_S = 300.0  # the worker process ends after this long without a job
 INTERRUPTED = "interrupted: the server stopped before the job finished"
+CANCELLED = "cancelled"
+PER_USER = 2  # jobs queued or running per user without the admin permission
+RESERVED = 3  # places of the limit kept for admins' jobs
 
 _log = logging.getLogger(__name__)
 
 
 class QueueFull(RuntimeError):
-    """Too many jobs are queued or running."""
+    """Too many jobs are queued or running (``mine``: too many of this user's own)."""
+
+    def __init__(self, kind: str, mine: bool = False):
+        super().__init__(kind)
+        self.mine = mine
+
+
+class JobCancelled(RuntimeError):
+    """The job was cancelled while it ran."""
 
 
 class Job:
     """One background job (progress 0..1, result or error)."""
 
     def __init__(self, kind: str, path: Optional[str], run=None,
-                 held_while_printing: bool = False):
+                 held_while_printing: bool = False, owner: Optional[str] = None,
+                 admin: bool = True):
         self.id = secrets.token_hex(6)
+        self.owner = owner  # the user who submitted it (None: KinComp itself)
+        self.admin = admin  # submitted with the admin permission (or by KinComp itself)
+        self.cancelled = False
         self.kind = kind  # compensate, dryrun, analyse
         self.path = path  # the file it works on (None: no file, e.g. an uploaded trace)
         self.progress = 0.0
@@ -62,7 +85,7 @@ class Job:
         return self.state in ("queued", "running")
 
     def to_dict(self) -> Dict:
-        return {"id": self.id, "kind": self.kind, "path": self.path,
+        return {"id": self.id, "kind": self.kind, "path": self.path, "owner": self.owner,
                 "progress": round(self.progress, 3), "state": self.state,
                 "result": self.result, "error": self.error, "report": self.report,
                 "started": self.started, "finished": self.finished}
@@ -71,7 +94,8 @@ class Job:
     def from_dict(d: Dict) -> "Job":
         job = Job(str(d.get("kind") or "compensate"), d.get("path"))
         job.id = str(d.get("id") or job.id)
-        for key in ("progress", "state", "result", "error", "report", "started", "finished"):
+        for key in ("owner", "progress", "state", "result", "error", "report", "started",
+                    "finished"):
             if key in d:
                 setattr(job, key, d[key])
         job.done.set()
@@ -86,9 +110,12 @@ class JobQueue:
     None) is the process the jobs' work runs in, stopped when idle."""
 
     def __init__(self, notify: Callable[[Job], None], limit: int = 8,
-                 history: Optional[str] = None, worker=None):
+                 history: Optional[str] = None, worker=None, per_user: int = PER_USER,
+                 reserved: int = RESERVED):
         self._notify = notify
         self.limit = limit
+        self.per_user = per_user
+        self.reserved = min(reserved, limit - 1)
         self._history = history
         self.worker = worker
         self._cond = threading.Condition()
@@ -108,22 +135,52 @@ class JobQueue:
                          if j.active and j.kind == kind and j.path == path), None)
 
     def submit(self, kind: str, path: Optional[str], run: Callable,
-               held_while_printing: bool = False) -> Job:
+               held_while_printing: bool = False, owner: Optional[str] = None,
+               admin: bool = True) -> Job:
         """A new job, or the one of this kind on ``path`` already under way. Raises
-        :class:`QueueFull` when ``limit`` jobs are queued or running."""
+        :class:`QueueFull` when ``limit`` jobs are queued or running, or (``admin`` false)
+        when ``owner`` has ``per_user`` of them or such users hold all places but the
+        ``reserved`` ones."""
         with self._cond:
             job = self.under_way(kind, path) if path is not None else None
             if job is not None:
                 return job
-            if sum(1 for j in self.jobs.values() if j.active) >= self.limit:
+            active = [j for j in self.jobs.values() if j.active]
+            if len(active) >= self.limit:
                 raise QueueFull(kind)
-            job = Job(kind, path, run, held_while_printing)
+            if not admin:
+                if sum(1 for j in active if j.owner == owner) >= self.per_user:
+                    raise QueueFull(kind, mine=True)
+                if sum(1 for j in active if not j.admin) >= self.limit - self.reserved:
+                    raise QueueFull(kind)
+            job = Job(kind, path, run, held_while_printing, owner=owner, admin=admin)
             self.jobs[job.id] = job
             self._queue.append(job)
             self._trim()
             self._cond.notify_all()
         self._changed(job)
         return job
+
+    def cancel(self, job: Job) -> bool:
+        """Cancels ``job``: a queued one is failed at once, a running one stops at its next
+        progress step. False if it had already finished."""
+        with self._cond:
+            if not job.active:
+                return False
+            job.cancelled = True
+            queued = job in self._queue
+            if queued:
+                self._queue.remove(job)
+                job.state = "failed"
+                job.error = CANCELLED
+                job.finished = time.time()
+                job.run = None
+        if queued:
+            self._changed(job)
+            job.done.set()
+        elif self.worker is not None and hasattr(self.worker, "abort"):
+            self.worker.abort(job.id)  # its work in the worker process ends now
+        return True
 
     def get(self, job_id: str) -> Optional[Job]:
         return self.jobs.get(job_id) if isinstance(job_id, str) else None
@@ -141,11 +198,12 @@ class JobQueue:
 
     # ~~ inside ----------------------------------------------------------------------------------
     def _next(self) -> Optional[Job]:
-        for job in self._queue:
-            if not (self.paused and job.held_while_printing):
-                self._queue.remove(job)
-                return job
-        return None
+        """The next job to run: admins' (and KinComp's own) first, then in order."""
+        ready = [j for j in self._queue if not (self.paused and j.held_while_printing)]
+        job = next((j for j in ready if j.admin), ready[0] if ready else None)
+        if job is not None:
+            self._queue.remove(job)
+        return job
 
     def _loop(self) -> None:
         while True:
@@ -165,19 +223,24 @@ class JobQueue:
         last = [0.0]
 
         def progress(frac: float) -> None:
+            if job.cancelled:
+                raise JobCancelled(CANCELLED)
             job.progress = max(0.0, min(1.0, float(frac)))
             if job.progress - last[0] >= 0.05:
                 last[0] = job.progress
                 self._notify_safely(job)
 
         try:
+            if job.cancelled:
+                raise JobCancelled(CANCELLED)
             job.run(job, progress)
             job.state = "done"
             job.progress = 1.0
         except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
             job.state = "failed"
             job.exception = exc
-            job.error = INTERRUPTED if self.stopping else (str(exc) or type(exc).__name__)
+            job.error = CANCELLED if job.cancelled else INTERRUPTED if self.stopping else \
+                (str(exc) or type(exc).__name__)
         job.finished = time.time()
         job.run = None
         self._changed(job)

@@ -24,6 +24,7 @@ is done by the pieces, which import neither this module nor each other in a circ
 from __future__ import annotations
 
 import functools
+import os
 from typing import Any, Dict
 
 import octoprint.plugin
@@ -79,22 +80,21 @@ class KinCompPlugin(
         self.firmware = self.prints = self.files = self.jobs = None
         self.settings_api = self.calibration = self.sensor = self.campaign = None
         self.limits = self.artifact = None
+        self._data_root = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
         log, printer, files = self._logger, self._printer, self._file_manager
         self.notifier = notifier = Notifier(self._plugin_manager, self._event_bus,
                                             self._identifier)
-        self.runs = RunStore(self.get_plugin_data_folder())
+        self.runs = RunStore(self.data_folder())
         self.queue = queue = QueueCompensator(Params(), Options())
         self.demo = DemoMode(notifier, log)
         self.firmware = FirmwareCheck(self.watch, queue, printer, notifier, log)
         self.store = SettingsStore(
             self._settings, self._identifier, self._printer_profile_manager, queue, notifier,
-            log, base_save=functools.partial(octoprint.plugin.SettingsPlugin.on_settings_save,
-                                             self),
-            on_applied=self._settings_applied)
-        self.files = FilesApi(self.store, queue, files, notifier, self.get_plugin_data_folder)
+            log, on_applied=self._settings_applied)
+        self.files = FilesApi(self.store, queue, files, notifier, self.data_folder)
         self.jobs = self.files.jobs
         self.prints = PrintState(queue, self.watch, printer, files, notifier, log,
                                  on_begin=self._print_began, on_end=self._print_ended)
@@ -110,7 +110,7 @@ class KinCompPlugin(
                                 self._settings.global_get)
         self.calibration.on_print = self.sensor.program_printing
         self.settings_api.check = self.sensor.check_settings
-        campaigns = CampaignStore(self.get_plugin_data_folder())
+        campaigns = CampaignStore(self.data_folder())
         measurements = CampaignMeasurements(queue, self.runs, campaigns, self.calibration,
                                             notifier, self._printer_profile_manager)
         recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
@@ -118,6 +118,15 @@ class KinCompPlugin(
                                     self.demo, measurements)
         self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files, printer,
                                     files)
+
+    def data_folder(self) -> str:
+        """The plugin's data folder (made if missing), absolute: OctoPrint's basedir may be
+        relative (``./run.sh``), and it is resolved against the working directory once,
+        here, not by each later reader against its own."""
+        if self._data_root is None:
+            self._data_root = os.path.abspath(self.get_plugin_data_folder())
+        os.makedirs(self._data_root, exist_ok=True)
+        return self._data_root
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
@@ -402,9 +411,17 @@ class KinCompPlugin(
     def api_job(self, job_id):
         return self.files.job_api.job(job_id)
 
+    @route("/jobs/<job_id>/cancel", methods=["POST"])
+    def api_job_cancel(self, job_id):
+        return self.files.job_api.cancel(job_id)
+
     @octoprint.plugin.BlueprintPlugin.errorhandler(http.BadRequest)
     def api_bad_request(self, exc):
         return http.bad_request(exc)
+
+    @octoprint.plugin.BlueprintPlugin.errorhandler(OSError)
+    def api_os_error(self, exc):
+        return http.os_error(exc)  # disk full: 507
 
     @route("/compensate", methods=["POST"])
     def api_compensate(self):

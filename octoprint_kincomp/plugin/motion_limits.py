@@ -8,7 +8,7 @@ Marlin firmware after its ``M115`` reply; a RepRapFirmware one is asked here; th
 type it in the terminal; ``POST /limits/read`` asks on request). Lines stating M201, M203,
 M204 or M205 (and the unit headers above them) are collected until the firmware's ``ok``;
 then, off the serial thread, they are stored unless the user pasted limits of their own
-(an explicit request replaces those too); only the key ``motion_limits`` is written. A
+(an explicit request replaces those too), through the settings store's one save. A
 Klipper printer does not answer M503 with limits: its users paste their ``printer.cfg`` ``[printer]`` section on the settings page.
 
 The limits a test must respect (:func:`effective_limits`) are the lower of the stated
@@ -25,7 +25,7 @@ from typing import Any, Dict, List, Optional
 from ..ballbar.limits import LimitsError, MotionLimits, parse_limits
 from ..core.messages import as_dict
 from .notify import N_
-from .settings import SettingsError, validate_motion_limits
+from .settings import SettingsError
 
 _LIMIT_LINE = re.compile(r"(?:^|[\s:])M20[1345]\s+[A-Za-z]")
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
@@ -63,6 +63,10 @@ def status(settings: Dict[str, Any], profile_feeds: Optional[Dict[str, float]]
             out["error"] = as_dict(exc.args[0])
     out["effective"] = effective_limits(settings, profile_feeds).to_dict()
     return out
+
+
+class _Kept(Exception):
+    """The stored limits stay (pasted by the user, or the same answer again)."""
 
 
 class LimitsCapture:
@@ -122,22 +126,29 @@ class LimitsCapture:
             parse_limits(text, self.firmware or None)
         except LimitsError:
             return False
-        old = self._store.stored().get("motion_limits") or {}
-        if old.get("source") == "pasted" and not replace:
-            return False
-        if old.get("text") == text and old.get("firmware") == self.firmware and not replace:
-            return False  # the same answer as last time: nothing to write
         doc = {"text": text, "source": "m503", "firmware": self.firmware,
                "captured": _dt.datetime.now().isoformat(timespec="seconds")}
+
+        def vet(stored, new):  # under the settings lock: the stored limits as they are now
+            old = stored.get("motion_limits") or {}
+            if old.get("source") == "pasted" and not replace:
+                raise _Kept()
+            if (old.get("text") == text and old.get("firmware") == self.firmware
+                    and not replace):
+                raise _Kept()  # the same answer as last time: nothing to write
+
+        # through the settings store's one save (read, merge, validate, write under its
+        # lock), so a settings save at the same moment loses nothing
         try:
-            doc = validate_motion_limits(doc)
+            self._store.update({"motion_limits": doc}, vet=vet)
+        except _Kept:
+            return False
         except SettingsError as exc:
             self._logger.warning("KinComp: motion limits read but not stored: %s", exc)
             return False
-        # only this key is written (nothing else is applied: the limits are read when a
-        # program is made), so a settings save at the same moment loses nothing
-        self._settings.set(["motion_limits"], doc)
-        self._settings.save()
+        except OSError as exc:
+            self._logger.warning("KinComp: motion limits read but not written: %s", exc)
+            return False
         self._logger.info("KinComp: the printer's motion limits read from M503")
         self._notifier.message({"type": "motion_limits"})
         self._notifier.notify("info", N_("KinComp read the printer's motion limits (M503); "

@@ -43,7 +43,9 @@ class RunStore:
     NotFound = RunNotFound
 
     def __init__(self, data_folder: str):
-        self.folder = os.path.join(data_folder, self.FOLDER)
+        # absolute, resolved once: a relative basedir (./run.sh) must not be taken against
+        # whatever folder a later reader (Flask's send_file: the app's) starts from
+        self.folder = os.path.abspath(os.path.join(data_folder, self.FOLDER))
         os.makedirs(self.folder, exist_ok=True)
 
     def _path(self, run_id: str, suffix: str = ".json") -> str:
@@ -57,15 +59,25 @@ class RunStore:
 
     def save(self, run: Dict[str, Any], trace: Optional[bytes] = None) -> None:
         """Stores ``run`` (and its measurement file ``trace``); :class:`RunNotStorable`
-        (nothing stored) if it is not plain JSON."""
+        (nothing stored) if it is not plain JSON. A failed write (disk full: OSError) keeps
+        nothing of a new run: not its trace without it."""
         path = self._path(run["id"])
         try:
             text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
         except (TypeError, ValueError) as exc:
             raise RunNotStorable(str(exc)) from None
-        if trace is not None:
-            self.save_trace(run["id"], trace)
-        write_atomic(path, text.encode())
+        new = not os.path.exists(path)
+        try:
+            if trace is not None:
+                self.save_trace(run["id"], trace)
+            write_atomic(path, text.encode())
+        except OSError:
+            if new and trace is not None:
+                try:
+                    os.unlink(self._path(run["id"], ".trace"))
+                except OSError:
+                    pass
+            raise
 
     def save_trace(self, run_id: str, data: bytes, suffix: str = ".trace") -> str:
         path = self._path(run_id, suffix)

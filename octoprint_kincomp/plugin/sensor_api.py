@@ -419,7 +419,11 @@ class SensorApi:
         if not isinstance(path, str) or not path:
             return http.error(gettext("Give 'path': a ballbar program in OctoPrint's local "
                                       "storage"), 400)
-        if not self._file_manager.file_exists(FileDestinations.LOCAL, path):
+        try:
+            exists = self._file_manager.file_exists(FileDestinations.LOCAL, path)
+        except ValueError:  # OctoPrint's storage refuses the name (a lone "\\", ..)
+            exists = False
+        if not exists:
             return http.error(gettext("No such file: %(path)s", path=path), 404)
         try:
             disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, path)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 import math
 import re
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from ..ballbar.limits import MAX_TEXT, LimitsError, parse_limits
 from ..core.compensator import POLICIES, Options
@@ -80,6 +80,9 @@ def motion_limits_defaults() -> Dict[str, Any]:
 # the sensor settings the plugin stores (SensorConfig's others keep their defaults)
 SENSOR_KEYS = ("enabled", "port", "baudrate", "protocol", "units", "positive", "pattern",
                "scale", "range", "sample_rate_hz")
+# the JSON types of the sensor settings (SensorConfig checks ranges and choices)
+SENSOR_TEXTS = ("port", "protocol", "units", "positive", "pattern", "range")
+SENSOR_NUMBERS = ("baudrate", "scale", "sample_rate_hz")
 # objects updated key by key (a form may send only some keys)
 MERGED = ("demo", "sensor", "motion_limits")
 
@@ -156,7 +159,13 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
     A ``params`` object is merged into the current parameters (:func:`merge_params`), so a
     partial update never resets the terms it does not mention; ``replace_params`` takes it
     as the complete document instead (applying a calibration's proposal). Unknown keys are
-    refused (a typo must not be silently dropped)."""
+    refused (a typo must not be silently dropped).
+
+    The one schema for every way in: API bodies, OctoPrint's settings dialog and what
+    config.yaml holds (read at start-up and on every use). Each key is checked by its entry
+    in :data:`CHECKS`; whatever a value is (a list where a text belongs, nesting, 1e-310)
+    the answer is the checked settings or a :class:`SettingsError` naming the field, never
+    another exception: a check failing in an unforeseen way is reported against its key."""
     if not isinstance(data, dict):
         raise SettingsError("", Msg("settings must be an object"))
     out = copy.deepcopy(base) if base is not None else defaults()
@@ -171,40 +180,54 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
         if isinstance(data.get(key), dict) and isinstance(out.get(key), dict):
             data[key] = dict(out[key], **data[key])
     out.update(data)
-    out["enabled"] = _bool(out["enabled"], "enabled")
-    out["mode"] = _choice(out["mode"], "mode", MODES)
-    out["limits_policy"] = _choice(out["limits_policy"], "limits_policy", POLICIES)
-    out["chord_tol_mm"] = _number(out["chord_tol_mm"], "chord_tol_mm", 0.0005, 1.0)
-    out["linearise_arcs"] = _bool(out["linearise_arcs"], "linearise_arcs")
-    dec = out["decimals"]
+    for key, check in CHECKS.items():
+        try:
+            out[key] = check(out[key], key)
+        except SettingsError:
+            raise
+        except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError,
+                RecursionError) as exc:
+            raise SettingsError(key, Msg("invalid value (%(error)s)",
+                                         error=str(exc)[:80] or type(exc).__name__)) from None
+    return out
+
+
+def _decimals(dec: Any, field: str) -> int:
     if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
-        raise SettingsError("decimals", Msg("must be an integer within 3..6"))
-    home = out["home_mm"]
-    if home is not None:
-        if not isinstance(home, list) or len(home) != 3:
-            raise SettingsError("home_mm", Msg("must be a list of three numbers (mm) or "
-                                               "null (learned from the printer)"))
-        out["home_mm"] = [None if v is None else _number(v, f"home_mm[{i}]", -10000, 10000)
-                          for i, v in enumerate(home)]
-    out["pass_through_on_error"] = _bool(out["pass_through_on_error"], "pass_through_on_error")
-    out["apply_changes"] = _choice(out["apply_changes"], "apply_changes", APPLY_CHANGES)
-    demo = out["demo"]
+        raise SettingsError(field, Msg("must be an integer within 3..6"))
+    return dec
+
+
+def _home(home: Any, field: str) -> Optional[List[Optional[float]]]:
+    if home is None:
+        return None
+    if not isinstance(home, list) or len(home) != 3:
+        raise SettingsError(field, Msg("must be a list of three numbers (mm) or "
+                                       "null (learned from the printer)"))
+    return [None if v is None else _number(v, f"{field}[{i}]", -10000, 10000)
+            for i, v in enumerate(home)]
+
+
+def _demo(demo: Any, field: str) -> Dict[str, bool]:
     if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
-        raise SettingsError("demo", Msg("must be an object with 'enabled' and 'live'"))
-    demo["enabled"] = _bool(demo.get("enabled", False), "demo.enabled")
-    demo["live"] = _bool(demo.get("live", True), "demo.live")
-    out["sensor"] = validate_sensor(out["sensor"])
-    out["motion_limits"] = validate_motion_limits(out["motion_limits"])
+        raise SettingsError(field, Msg("must be an object with 'enabled' and 'live'"))
+    return {"enabled": _bool(demo.get("enabled", False), f"{field}.enabled"),
+            "live": _bool(demo.get("live", True), f"{field}.live")}
+
+
+def _software_update(value: Any, field: str) -> Dict[str, Any]:
     try:
-        out["software_update"] = software_update.validate(out["software_update"])
+        return software_update.validate(value)
     except software_update.UpdateSettingsError as exc:
         raise SettingsError(exc.field, exc.message) from None
+
+
+def _params(value: Any, field: str) -> Dict[str, Any]:
     try:
-        out["params"] = Params.from_dict(out["params"]).to_dict()
+        return Params.from_dict(value).to_dict()
     except ParamsError as exc:
-        raise SettingsError(f"params.{exc.field}" if exc.field else "params",
+        raise SettingsError(f"{field}.{exc.field}" if exc.field else field,
                             exc.message) from None
-    return out
 
 
 def validate_motion_limits(value: Any) -> Dict[str, Any]:
@@ -247,9 +270,12 @@ def validate_sensor(value: Any) -> Dict[str, Any]:
             raise SettingsError(f"sensor.{key}", Msg("unknown setting"))
     out = dict(sensor_defaults(), **value)
     enabled = _bool(out.pop("enabled"), "sensor.enabled")
-    for key in ("port", "range", "pattern"):
+    for key in SENSOR_TEXTS:
         if not isinstance(out[key], str):
             raise SettingsError(f"sensor.{key}", Msg("must be a text"))
+    for key in SENSOR_NUMBERS:
+        if isinstance(out[key], bool) or not isinstance(out[key], (int, float)):
+            raise SettingsError(f"sensor.{key}", Msg("must be a number"))
     out["port"] = out["port"].strip()
     try:
         cfg = SensorConfig.from_dict(out)
@@ -263,6 +289,26 @@ def validate_sensor(value: Any) -> Dict[str, Any]:
         raise SettingsError("sensor.port", Msg("choose the sensor's port (or switch live "
                                                "capture off)"))
     return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
+
+
+# key -> check(value, field): the checked value, or SettingsError naming the field. Every
+# key of the defaults has one (a test keeps them equal); the order is the order of checking.
+CHECKS: Dict[str, Callable[[Any, str], Any]] = {
+    "enabled": _bool,
+    "mode": lambda v, f: _choice(v, f, MODES),
+    "limits_policy": lambda v, f: _choice(v, f, POLICIES),
+    "chord_tol_mm": lambda v, f: _number(v, f, 0.0005, 1.0),
+    "linearise_arcs": _bool,
+    "decimals": _decimals,
+    "home_mm": _home,
+    "pass_through_on_error": _bool,
+    "apply_changes": lambda v, f: _choice(v, f, APPLY_CHANGES),
+    "demo": _demo,
+    "sensor": lambda v, f: validate_sensor(v),
+    "motion_limits": lambda v, f: validate_motion_limits(v),
+    "software_update": _software_update,
+    "params": _params,
+}
 
 
 def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]

@@ -8,8 +8,9 @@
   the background jobs, and what is wrong
   with the stored settings, if anything (``settings_problem``, its ``settings_problem_field``;
   compensation is off then, ``settings`` shows the invalid value as its default).
-* ``POST /settings``: a partial settings document, validated whole (400 naming the field,
-  nothing stored), saved and applied; ``"apply_now": true`` applies it mid-print. ``check``
+* ``POST /settings``: a partial settings document, merged into the stored one and validated
+  whole (400 naming the field, nothing stored), saved and applied in one step under the
+  store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed); ``"apply_now": true`` applies it mid-print. ``check``
   (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
   printer's own).
 """
@@ -30,7 +31,7 @@ from .firmware_watch import FirmwareWatcher
 from .jobs import JobQueue
 from .motion_limits import status as limits_status
 from .queue import QueueCompensator
-from .settings import SettingsError, validate_settings
+from .settings import SettingsError
 from .settings_store import SettingsStore
 
 
@@ -78,17 +79,18 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
-        stored = self._store.stored()
-        try:
-            new = validate_settings(data, stored)
+        def vet(stored, new):
             if self.check is not None:
                 self.check(new)
+            refused = http.update_source_refused(stored, new)
+            if refused is not None:
+                raise http.Refused(refused)
+
+        try:
+            new, _ = self._store.update(data, immediately=immediately or None, vet=vet)
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
-        refused = http.update_source_refused(stored, new)
-        if refused is not None:
-            return refused
-        self._store.save(new, immediately=immediately or None)
-        self._store.write()
+        except http.Refused as exc:
+            return exc.response
         return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
                              compensation=self._queue.status())

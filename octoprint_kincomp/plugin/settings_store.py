@@ -13,6 +13,14 @@ it does not name; while the stored document is invalid a save that does not fix 
 value is refused (400 naming it). The machine limits (mm) and axis feeds (mm/min) come from the
 current printer profile.
 
+Every change goes through :meth:`SettingsStore.update` (or ``dialog_save``, OctoPrint's own
+settings endpoint): under one lock it reads the stored document, merges the change in,
+validates the result whole, replaces KinComp's stored settings by it in one step (never
+removing a part first: a config.yaml written meanwhile holds the old document or the new
+one, never one without parameters), writes config.yaml and applies it. So two saves at the
+same time never lose each other's keys or the calibration. A write that fails (disk full)
+puts the document back as it was: what is in effect is what is on disk.
+
 It also guards OctoPrint's own settings endpoint (``POST /api/settings``) for KinComp's
 part: 403 without KinComp's admin permission, 400 for invalid values; nothing is stored
 then.
@@ -20,11 +28,14 @@ then.
 
 from __future__ import annotations
 
+import copy
+import threading
 from typing import Any, Callable, Dict, Optional, Tuple
 
 import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
+from octoprint.util import dict_minimal_mergediff
 
 from ..core.compensator import Options
 from ..core.messages import error_message
@@ -33,6 +44,7 @@ from . import http
 from .notify import N_, Notifier
 from .queue import QueueCompensator
 from .settings import (
+    SETTINGS_VERSION,
     SettingsError,
     SettingsInvalid,
     defaults,
@@ -48,15 +60,13 @@ from .settings import (
 class SettingsStore:
     """The stored settings of the plugin ``identifier``.
 
-    ``base_save(data)`` is OctoPrint's ``SettingsPlugin.on_settings_save`` bound to the
-    plugin (it stores what differs from the defaults and returns that diff);
     ``on_applied(settings)`` runs after every application to the queue (the plugin turns
-    demo mode on or off and checks for firmware conflicts there).
+    demo mode on or off and checks for firmware conflicts there). ``lock`` (reentrant)
+    serialises every read-merge-validate-write of the stored document.
     """
 
     def __init__(self, settings, identifier: str, profiles, queue: QueueCompensator,
                  notifier: Notifier, logger,
-                 base_save: Callable[[Dict[str, Any]], Any],
                  on_applied: Callable[[Dict[str, Any]], None]):
         self._settings = settings
         self._identifier = identifier
@@ -64,32 +74,44 @@ class SettingsStore:
         self._queue = queue
         self._notifier = notifier
         self._logger = logger
-        self._base_save = base_save
         self._on_applied = on_applied
+        self.lock = threading.RLock()
+        # OctoPrint's own settings lock, held from reading the stored document to writing
+        # config.yaml: OctoPrint's own saves (``/api/settings``) and its reloads of a
+        # changed config.yaml then never fall in between (they take it too). Always taken
+        # after ``lock``, never before; nothing of OctoPrint's holding it calls KinComp.
+        self._config_lock = getattr(getattr(settings, "settings", None), "_lock", None) \
+            or threading.RLock()
         # what is wrong with the stored settings (a SettingsError), None when they are valid
         self.problem: Optional[SettingsError] = None
 
     # ~~ reading ------------------------------------------------------------------------------
     def stored(self) -> Dict[str, Any]:
         """The stored settings over the defaults, as they are (not validated): what a
-        partial save is merged into."""
-        return {k: self._settings.get([k], merged=True) for k in defaults()}
+        partial save is merged into. Read from what config.yaml holds itself, so a stored
+        value of the wrong type (``params: garbage``) is seen as it is, not hidden behind
+        its default."""
+        with self.lock:
+            raw = self._settings.get_all_data(merged=False)
+            raw = copy.deepcopy(raw) if isinstance(raw, dict) else {}
+        return {k: _overlay(v, raw[k]) if k in raw else v for k, v in defaults().items()}
 
     def current(self) -> Dict[str, Any]:
         """The settings in effect: the stored ones, validated; while they are invalid the
         defaults with compensation off (the stored ones stay untouched, ``problem`` says
         what is wrong)."""
-        try:
-            s = validate_settings(self.stored(), defaults())
-        except SettingsError as exc:
-            self._set_problem(exc)
-            s = defaults()
-            s["enabled"] = False
+        with self.lock:
+            try:
+                s = validate_settings(self.stored(), defaults())
+            except SettingsError as exc:
+                self._set_problem(exc)
+                s = defaults()
+                s["enabled"] = False
+                return s
+            if self.problem is not None:
+                self._logger.info("KinComp: the stored settings are valid again")
+                self.problem = None
             return s
-        if self.problem is not None:
-            self._logger.info("KinComp: the stored settings are valid again")
-            self.problem = None
-        return s
 
     def editable(self) -> Dict[str, Any]:
         """The settings to show and edit: the stored ones, with any invalid value shown as
@@ -152,6 +174,10 @@ class SettingsStore:
         ``target``: moved keys moved, unknown keys removed; every value kept as it is (an
         invalid one is reported by ``current``, never replaced; nothing but the moved keys
         is touched then)."""
+        with self.lock:
+            self._migrate(target, current)
+
+    def _migrate(self, target: int, current: Optional[int]) -> None:
         if current is None or current < target:
             raw = self._settings.get_all_data(merged=False) or {}
             if not raw:
@@ -171,33 +197,77 @@ class SettingsStore:
 
     # ~~ saving and applying -----------------------------------------------------------------
     def dialog_save(self, data: Dict[str, Any]):
-        """The standard settings dialog path. Invalid values never get here through the UI
-        (the before_request hook answers 400 first); anything else invalid is refused
-        whole, logged and reported, and the stored settings stay as they were. Without the
-        KinComp admin permission nothing is changed (the request hook answers 403 first)."""
+        """The standard settings dialog path (OctoPrint writes config.yaml after it). Invalid
+        values never get here through the UI (the before_request hook answers 400 first);
+        anything else invalid is refused whole, logged and reported, and the stored settings
+        stay as they were. Without the KinComp admin permission nothing is changed (the
+        request hook answers 403 first)."""
         if flask.has_request_context() and not Permissions.PLUGIN_KINCOMP_ADMIN.can():
             self._logger.warning("KinComp settings refused: the user lacks the KinComp "
                                  "admin permission")
             return {}
         try:
-            new = validate_settings(data, self.stored())
+            _, diff = self.update(data, write=False)
         except SettingsError as exc:
             self._logger.warning("KinComp settings refused: %s", exc)
             self._notifier.notify("error", N_("KinComp settings not saved: %(reason)s"),
                                   reason=error_message(exc))
             return {}
-        return self.save(new)
+        return diff
 
-    def save(self, new: Dict[str, Any], immediately: Optional[bool] = None):
+    def update(self, data: Dict[str, Any], replace_params: bool = False,
+               immediately: Optional[bool] = None, vet: Optional[Callable] = None,
+               write: bool = True) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+        """The one way a change is saved: under ``lock``, the stored document with ``data``
+        merged in (``replace_params``: its ``params`` replace the stored ones whole),
+        validated whole, ``vet(stored, new)`` (may raise, e.g. a permission refused),
+        stored in one step, written to config.yaml (``write``) and applied. Raises
+        :class:`SettingsError` (nothing changed) or what ``vet`` or the write raise (an
+        OSError: the stored document is put back, nothing changed). Returns (the new
+        settings, the diff stored)."""
+        with self.lock:
+            old = self.current()
+            with self._config_lock:
+                stored = self.stored()
+                new = validate_settings(data, stored, replace_params=replace_params)
+                if vet is not None:
+                    vet(stored, new)
+                diff = self._store(new, write)
+            self._applied(old, new, immediately)
+            return new, diff
+
+    def save(self, new: Dict[str, Any], immediately: Optional[bool] = None,
+             write: bool = False):
         """Stores the validated settings ``new`` (complete: made by ``validate_settings``
-        over ``stored()``; not yet written to disk: see ``write``),
-        applies them and fires ``params_applied`` if the parameters changed. Returns the
-        diff OctoPrint stored."""
-        old = self.current()
-        # the base class merges into what is stored: optional params terms that the new
-        # document leaves out (servo_lag_ms, axis_errors, ...) would survive. Replace them.
-        self._settings.remove(["params"])
-        diff = self._base_save(new)
+        over ``stored()``) as :meth:`update` does, without merging or checking. Returns the
+        diff stored (what differs from the defaults)."""
+        with self.lock:
+            old = self.current()
+            with self._config_lock:
+                diff = self._store(new, write)
+            self._applied(old, new, immediately)
+            return diff
+
+    def _store(self, new: Dict[str, Any], write: bool) -> Dict[str, Any]:
+        """KinComp's stored document replaced by what ``new`` differs in from the defaults
+        (and the settings version), in one ``set`` of the whole subtree: no moment without
+        the parameters; then config.yaml written if ``write`` (on failure the previous
+        document is stored again and the error raised)."""
+        previous = self._settings.get_all_data(merged=False)
+        previous = copy.deepcopy(previous) if isinstance(previous, dict) else {}
+        diff = dict_minimal_mergediff(defaults(), new)
+        self._settings.set([], dict(diff, _config_version=SETTINGS_VERSION), force=True)
+        if write:
+            try:
+                self.write()
+            except Exception:  # disk full, or a value the writer cannot write
+                self._settings.set([], previous, force=True)
+                raise
+        return diff
+
+    def _applied(self, old: Dict[str, Any], new: Dict[str, Any],
+                 immediately: Optional[bool]) -> None:
+        """``new`` (just stored) to the queue; ``params_applied`` if the parameters changed."""
         self.apply(new, immediately=immediately)
         if new["params"] != old["params"]:
             params = Params.from_dict(new["params"])
@@ -205,10 +275,10 @@ class SettingsStore:
                 "params_hash": params.hash(),
                 "previous_hash": Params.from_dict(old["params"]).hash(),
                 "pending_until_next_print": self._queue.pending is not None})
-        return diff
 
     def write(self) -> None:
-        """Writes the stored settings to OctoPrint's config file."""
+        """Writes the stored settings to OctoPrint's config file (atomically: a temporary
+        file renamed over it)."""
         self._settings.save()
 
     def apply(self, s: Dict[str, Any], immediately: Optional[bool] = None) -> None:
@@ -257,3 +327,14 @@ class SettingsStore:
         except SettingsError as exc:
             return http.error(gettext("KinComp: %(reason)s", reason=http.tr(exc)), 400)
         return http.update_source_refused(stored, new)
+
+
+def _overlay(default: Any, stored: Any) -> Any:
+    """``stored`` over ``default``: objects merged key by key (config.yaml holds only what
+    differs from the defaults), anything else as stored, whatever its type."""
+    if isinstance(default, dict) and isinstance(stored, dict):
+        out = dict(default)
+        for key, value in stored.items():
+            out[key] = _overlay(default[key], value) if key in default else value
+        return out
+    return stored

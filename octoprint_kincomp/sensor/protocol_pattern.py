@@ -46,14 +46,24 @@ def compile_pattern(pattern: str) -> Pattern:
     return rx
 
 
+MAX_SCALE = 1e9  # |scale| within 1/MAX_SCALE .. MAX_SCALE: a factor, never a typo's 1e308
+
+
 def check_scale(scale) -> float:
+    """The pattern protocol's value factor: a number (a numeric text from a command line or
+    config file too, never true/false), finite, with 1e-9 <= |scale| <= 1e9 (so a reading
+    times it stays finite). KinComp's settings take JSON numbers only (plugin/settings)."""
     try:
+        if isinstance(scale, bool):
+            raise TypeError(scale)
         value = float(scale)
     except (TypeError, ValueError):
-        raise SensorError(Msg("scale must be a number, got %(got)s", got=repr(scale)),
+        raise SensorError(Msg("scale must be a number, got %(got)s", got=repr(scale)[:30]),
                           "scale") from None
-    if not math.isfinite(value) or value == 0.0:
-        raise SensorError(Msg("scale must be finite and not zero"), "scale")
+    if not math.isfinite(value) or not 1.0 / MAX_SCALE <= abs(value) <= MAX_SCALE:
+        raise SensorError(Msg("scale must be finite, not zero, and within %(lo)s..%(hi)s "
+                              "(either sign)", lo=f"{1.0 / MAX_SCALE:g}",
+                              hi=f"{MAX_SCALE:g}"), "scale")
     return value
 
 

@@ -3,12 +3,10 @@ migration of old stored settings, saving (the params document replaced whole, th
 params_applied event), applying now or from the next print on, and the printer profile's
 limits."""
 
-import functools
 import os
 from types import SimpleNamespace
 from unittest import mock
 
-import octoprint.plugin
 import yaml
 from octoprint.plugin import PluginSettings
 from octoprint.settings import Settings
@@ -28,16 +26,6 @@ BED = {"volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerlef
        "axes": {"x": {"speed": 6000}, "y": {"speed": 5000}, "z": {"speed": 200}}}
 
 
-class _SettingsHost(octoprint.plugin.SettingsPlugin):
-    """What OctoPrint's own on_settings_save needs of a plugin."""
-
-    def get_settings_defaults(self):
-        return defaults()
-
-    def get_settings_version(self):
-        return SETTINGS_VERSION
-
-
 def make_store(tmp_path, stored=None):
     """A store whose config.yaml holds ``stored`` for KinComp (as written by an older
     version, say); the current profile is a 200 mm bed."""
@@ -47,16 +35,12 @@ def make_store(tmp_path, stored=None):
         with open(os.path.join(basedir, "config.yaml"), "w") as f:
             yaml.safe_dump({"plugins": {"kincomp": stored}}, f)
     settings = PluginSettings(Settings(basedir=basedir), "kincomp", defaults=defaults())
-    host = _SettingsHost()
-    host._settings = settings
     queue = QueueCompensator(Params(), Options())
     plugin_manager, event_bus, profiles = mock.MagicMock(), mock.MagicMock(), mock.MagicMock()
     profiles.get_current_or_default.return_value = BED
     applied = []
     store = SettingsStore(settings, "kincomp", profiles, queue,
                           Notifier(plugin_manager, event_bus, "kincomp"), mock.MagicMock(),
-                          base_save=functools.partial(
-                              octoprint.plugin.SettingsPlugin.on_settings_save, host),
                           on_applied=applied.append)
     return SimpleNamespace(store=store, settings=settings, queue=queue, profiles=profiles,
                            plugin_manager=plugin_manager, event_bus=event_bus, applied=applied)

@@ -118,3 +118,40 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = False
         with app.test_request_context("/settings", method="POST", json={"enabled": True}):
             assert getattr(plugin.api_settings(), "status_code", 200) == 200
+
+
+class _UnknownPermission:
+    """What OctoPrint hands for a permission of a disabled plugin: asking it anything, even
+    its truth, raises UnknownPermission."""
+
+    def __bool__(self):
+        from octoprint.access.permissions import UnknownPermission
+
+        raise UnknownPermission("PLUGIN_SOFTWAREUPDATE_CONFIGURE")
+
+    can = __bool__
+
+
+def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp_path):
+    """Issue 26: OctoPrint's software update plugin disabled, its permission is unknown
+    (UnknownPermission was a 500): 409 on both ways in, nothing stored."""
+    from unittest import mock
+
+    from tests.support.mocked_plugin import api_app
+
+    plugin = mocked_plugin(str(tmp_path))
+    body = {"software_update": {"type": "jsondata", "version_url": "https://e.org/v.json",
+                                "archive_url": "https://e.org/k-{target_version}.zip"}}
+    app = api_app()
+    with mock.patch("octoprint_kincomp.plugin.http.require"), \
+            mock.patch("octoprint.access.permissions.Permissions") as perms:
+        perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE = _UnknownPermission()
+        with app.test_request_context("/settings", method="POST", json=body):
+            resp = plugin.api_settings()
+        assert resp.status_code == 409 and "disabled" in resp.get_json()["error"]
+        with app.test_request_context("/api/settings", method="POST",
+                                      json={"plugins": {"kincomp": body}}), \
+                mock.patch("octoprint_kincomp.plugin.settings_store.Permissions"):
+            resp = plugin.store.check_settings_request()
+        assert resp.status_code == 409
+    assert plugin.store.current()["software_update"]["type"] == "github_release"
