@@ -128,6 +128,10 @@ class KinCompPlugin(
 
     def _print_began(self, payload: Dict[str, Any]) -> None:
         self.jobs.set_paused(True)  # file work must not starve the print
+        if self.prints.test_program:  # what OctoPrint pauses at and blocks (its settings)
+            get = self._settings.global_get
+            self.prints.pausing_commands = frozenset(get(["serial", "pausingCommands"]) or ())
+            self.prints.blocked_commands = frozenset(get(["serial", "blockedCommands"]) or ())
         self.demo.print_begins(payload)
 
     def _print_ended(self, done: bool) -> None:
@@ -190,6 +194,9 @@ class KinCompPlugin(
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)
+        if prints.test_program and gcode in ("M0", "M1") and \
+                prints.program_pause(comm_instance, gcode, tags):
+            return []  # paused here: OctoPrint would block it and warn (nothing is lost)
         return result
 
     def received_hook(self, comm_instance, line, *args, **kwargs):
