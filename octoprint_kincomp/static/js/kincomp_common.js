@@ -28,6 +28,15 @@
         return Number(value).toFixed(digits === undefined ? 2 : digits);
     };
 
+    var reductionText = function (row) {
+        // a compared row's reduction: "at noise level" when the before value is within the
+        // noise floor (the server decides: ballbar/closedloop.py), else the per cent
+        if (!row) return "";
+        if (row.at_noise) return gettext("at noise level");
+        return row.reduction_pct !== null && row.reduction_pct !== undefined
+            ? fmt(row.reduction_pct, 1) + " %" : "";
+    };
+
     var errorText = function (jqXHR) {
         // the server's {"error": ...} message, or the HTTP status
         var response = jqXHR && (jqXHR.responseJSON || jqXHR.response || jqXHR.responseText);
@@ -213,6 +222,7 @@
         API: API,
         num: num,
         fmt: fmt,
+        reductionText: reductionText,
         errorText: errorText,
         notify: notify,
         copyText: copyText,

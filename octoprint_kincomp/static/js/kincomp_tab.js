@@ -148,7 +148,7 @@ $(function () {
                     unit: row[2],
                     value: fmt(pick(run.diagnostics, row[0])),
                     before: c ? fmt(c.before) : "",
-                    reduction: c && c.reduction_pct !== null ? fmt(c.reduction_pct, 1) + " %" : ""
+                    reduction: K.reductionText(c)
                 };
             });
         });
