@@ -165,14 +165,16 @@ class KinCompPlugin(
     def get_template_configs(self):
         return [
             {"type": "settings", "name": "KinComp", "custom_bindings": True},
-            {"type": "tab", "name": gettext("Calibration"), "custom_bindings": True},
+            {"type": "tab", "name": gettext("KinComp calibration"), "custom_bindings": True},
             {"type": "wizard", "name": "KinComp", "custom_bindings": True},
+            # one click to the tab from the top bar, however narrow the window
+            {"type": "navbar", "custom_bindings": True},
         ]
 
     def get_assets(self):
         return {"js": ["js/kincomp_common.js", "js/kincomp_plot.js", "js/kincomp_sensor.js",
                        "js/kincomp_campaign_draw.js", "js/kincomp_campaign.js",
-                       "js/kincomp_settings.js", "js/kincomp_tab.js"],
+                       "js/kincomp_settings.js", "js/kincomp_tab.js", "js/kincomp_navbar.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
