@@ -226,3 +226,19 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
     # printing over: Apply is offered
     page.wait_for_selector("#kincomp_apply:enabled")
     assert not page.is_visible("#kincomp_apply_why")
+
+
+def test_a_live_capture_source_is_translated(browser, server):  # noqa: F811
+    # the History's source "live capture (XZ)" is stored in English: shown in German
+    context = browser.new_context(viewport={"width": 1400, "height": 900}, locale="de-DE",
+                                  extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"})
+    try:
+        pg = context.new_page()
+        pg.set_default_timeout(60_000)
+        login(pg, server)
+        pg.wait_for_selector("#navbar_plugin_kincomp", state="attached")
+        assert pg.evaluate("KinComp.sourceText('live capture (XZ)')") == "Live-Erfassung (XZ)"
+        assert pg.evaluate("KinComp.reductionText({at_noise: true})") == "im Rauschen"
+        assert "KinComp" in pg.inner_text("#kincomp_navbar_link")
+    finally:
+        context.close()

@@ -347,8 +347,10 @@ $(function () {
             }
         });
         self.jobEnded = function (done) {
-            var ended = lastJob;
+            // (a print so short that the printer state never showed it: the one requested)
+            var ended = lastJob || self.requested();
             lastJob = null;
+            self.requested(null);
             if (!ended) return;
             self.awaiting(done && self.captureArmed ? ended : null);
             self.reload();
