@@ -132,18 +132,20 @@ def test_the_history_is_readable_and_never_run_campaigns_say_so(page, server, si
 
 
 def test_a_reduction_within_the_noise_floor_says_at_noise_level(page, server, size):
-    before = _summary_run(server, squareness_um_per_m=800.0, backlash_a_plus=0.0142)
-    after = _summary_run(server, squareness_um_per_m=8.0, backlash_a_plus=-0.16)
+    # squareness from 0.3 to -2.5 um/m (within the 1 um/m floor: once "-733.3 %"), backlash
+    # from 20 to 0.2 um (a real error, reduced)
+    before = _summary_run(server, squareness_um_per_m=0.3, backlash_a_plus=20.0)
+    after = _summary_run(server, squareness_um_per_m=-2.5, backlash_a_plus=0.2)
     page.click("#kincomp_navbar_link")
     _step(page, "history")
     page.check(f"#kincomp_history input[name=kincomp_before][value='{before['id']}']")
     page.check(f"#kincomp_history input[name=kincomp_after][value='{after['id']}']")
     page.click("#kincomp_compare")
     page.wait_for_selector("#kincomp_result_table >> text=Reduction", state="visible")
-    row = page.locator("#kincomp_result_table tr", has_text="Backlash +A").inner_text()
-    assert "at noise level" in row and "%" not in row, row
     square = page.locator("#kincomp_result_table tr", has_text="Squareness").inner_text()
-    assert "99.0 %" in square, square  # a real error is still reduced in per cent
+    assert "at noise level" in square and "%" not in square, square
+    row = page.locator("#kincomp_result_table tr", has_text="Backlash +A").inner_text()
+    assert "99.0 %" in row, row  # a real error is still reduced in per cent
 
 
 def test_settings_decimals_ports_and_one_save(page, server, size):
