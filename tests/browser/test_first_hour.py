@@ -194,16 +194,33 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
     try:
         page.click("#kincomp_navbar_link")
         page.click("#kincomp_sensor_open")  # the live view, as a user watching the test
-        code, resp = server.request("POST", f"{API}/program", {
-            "plane": "XY", "centre": [100, 100, 5], "radius": 25, "feed": 1850,
-            "mount_pause": True, "print": True})
-        assert code == 200 and resp["printing"], resp
+        # what reaches the page: KinComp's notices, OctoPrint's events (pop-ups hide)
+        page.evaluate("""() => { window.kcSeen = {notes: [], events: []};
+            OctoPrint.socket.onMessage("plugin", m => {
+                const d = m.data || {};
+                if (d.plugin === "kincomp" && d.data && d.data.type === "notify")
+                    window.kcSeen.notes.push(d.data.text); });
+            OctoPrint.socket.onMessage("event", m => {
+                window.kcSeen.events.push((m.data || {}).type); }); }""")
+        # the test printed as a user prints it, with the pause to mount the bar
+        page.fill("#kincomp_cx", "100")
+        page.fill("#kincomp_cy", "100")
+        page.fill("#kincomp_cz", "5")
+        page.fill("#kincomp_radius", "25")
+        for box in page.query_selector_all("input.kincomp-check"):
+            box.check()
+        page.locator("label.checkbox", has_text="Pause at the start").locator("input").check()
+        page.click("#kincomp_print_program")
         server.wait_state("Paused", timeout=120)
         page.wait_for_selector("#kincomp_sensor_live", state="visible")
         time.sleep(2)  # (the notices of the pause would have arrived)
-        notes = page.evaluate(
+        seen = page.evaluate("window.kcSeen")
+        popups = page.evaluate(
             "[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
-        assert not any("Suppressed command" in n for n in notes), notes
+        assert "PrintPaused" in seen["events"], seen
+        assert "CommandSuppressed" not in seen["events"], seen  # OctoPrint blocked no M0
+        assert not any("Suppressed command" in n for n in popups), popups
+        notes = seen["notes"]
         assert not any("Home the printer" in n or "G28" in n for n in notes), notes
         assert any("Do not home the printer" in n for n in notes), notes
         _no_popups(page)
