@@ -57,11 +57,13 @@ def _measure_every_test(page, server, shot=None):
         while not page.is_visible(done):
             assert time.time() < deadline, "the test's measurement did not come"
             if page.is_visible("#kincomp_campaign_print") and not page.is_visible(done):
-                state = page.evaluate("""() => ({
-                    enabled: !document.querySelector('#kincomp_campaign_print').disabled,
-                    why: document.querySelector('#kincomp_campaign_print_why').innerText,
-                    progress: document.querySelector('#kincomp_campaign_progress').innerText})""")
-                if str(n) + " of" not in state["progress"]:
+                state = page.evaluate("""() => {
+                    const b = document.querySelector('#kincomp_campaign_print');
+                    const why = document.querySelector('#kincomp_campaign_print_why');
+                    return b && why ? {enabled: !b.disabled, why: why.innerText,
+                        progress: document.querySelector('#kincomp_campaign_progress').innerText}
+                        : null; }""")  # (gone meanwhile: the last test was measured)
+                if state and str(n) + " of" not in state["progress"]:
                     assert not state["enabled"] and state["why"].strip(), state
             time.sleep(0.1)
     server.wait_print_done()

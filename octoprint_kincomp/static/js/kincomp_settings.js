@@ -268,9 +268,14 @@ $(function () {
         // the page's one Save: the settings and, if it was changed, the live sensor's part
         // (each shows its own errors next to its fields)
         self.saveAll = function () {
+            // one after the other: two saves at once could each store the other's old part
             var sensor = self.sensorSettings;
-            if (sensor && sensor.changed()) sensor.save();
-            return self.save();
+            var first = sensor && sensor.changed() ? sensor.save() : $.Deferred().resolve().promise();
+            var all = $.Deferred();
+            first.always(function () {
+                self.save().done(all.resolve).fail(all.reject);
+            });
+            return all.promise();
         };
         self.reloadAll = function () {
             if (self.sensorSettings) self.sensorSettings.load();
