@@ -40,7 +40,8 @@ PRINT_EVENTS = frozenset({Events.DISCONNECTED, Events.PRINT_STARTED, Events.PRIN
                           Events.PRINT_FAILED, Events.PRINT_CANCELLED})
 UNTOUCHED_NOTICE_S = 60.0  # at most one "sent as written" notification per this many s
 PROGRAM_HEAD_LINES = 60  # a test program's ``; ballbar key: value`` header is within these
-PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp", "trigger:kincomp.program_pause"})
+PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp",
+                                "trigger:kincomp.program_pause"})
 
 
 class PrintState:

@@ -87,8 +87,8 @@ def _program():
 
 
 def _notices(plugin):
-    return [c[0][1].get("text", "") for c in plugin._plugin_manager.send_plugin_message.call_args_list
-            if isinstance(c[0][1], dict)]
+    calls = plugin._plugin_manager.send_plugin_message.call_args_list
+    return [c[0][1].get("text", "") for c in calls if isinstance(c[0][1], dict)]
 
 
 def test_a_test_programs_pauses_pause_the_print_without_the_blocked_warning(plugin, tmp_path):

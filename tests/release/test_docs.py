@@ -37,7 +37,8 @@ def _anchors(text):
 def test_the_readme_is_short_and_has_what_a_new_user_needs():
     text = _read(os.path.join(ROOT, "README.md"))
     assert len(text.splitlines()) <= 250
-    assert "./run.sh      # the main job" in text and "./test.sh     # the whole test suite" in text
+    assert "./run.sh      # the main job" in text
+    assert "./test.sh     # the whole test suite" in text
     steps = re.findall(r"^(\d+)\. ", text.split("## Your first calibration in 5 minutes")[1]
                        .split("\n## ")[0], re.M)
     assert steps == [str(n) for n in range(1, len(steps) + 1)] and len(steps) >= 4
