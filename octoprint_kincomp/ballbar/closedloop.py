@@ -141,18 +141,39 @@ def _get(d: dict, path: str):
     return d
 
 
+# The smallest value a ballbar tells from zero, per unit (a 0.1 um resolution; over a
+# 100 mm radius that is 1 um/m of squareness and 1 ppm of scale; 0.01 ms of servo lag)
+RESOLUTION = {"um": 0.1, "um/m": 1.0, "ppm": 1.0, "ms": 0.01}
+NOISE_SIGMAS = 3.0  # a before value within this many 1-sigma uncertainties is noise
+
+
 def reduction(before: float, after: float) -> Optional[float]:
+    """How much smaller ``after`` is than ``before`` (%, positive: smaller)."""
     if before is None or after is None or before == 0:
         return None
     return (1.0 - abs(after) / abs(before)) * 100.0
 
 
+def noise_floor(before: dict, after: dict, key: str, unit: str) -> float:
+    """The value (in ``unit``) below which the error at ``key`` cannot be told from noise:
+    NOISE_SIGMAS times the two runs' combined 1-sigma uncertainty (their diagnostics'
+    ``uncertainty``, where the fit gives one), at least RESOLUTION."""
+    sig = [_get(d.get("uncertainty") or {}, key) for d in (before or {}, after or {})]
+    combined = sum(float(s) ** 2 for s in sig if isinstance(s, (int, float))) ** 0.5
+    return max(NOISE_SIGMAS * combined, RESOLUTION.get(unit, 0.0))
+
+
 def table(before: dict, after: dict) -> List[Dict[str, object]]:
+    """Per error of ROWS: before, after and the reduction (%); ``at_noise``: the before value
+    is within the noise floor, where a reduction means nothing (``reduction_pct`` None)."""
     rows = []
     for label, key, unit in ROWS:
         b, a = _get(before, key), _get(after, key)
+        floor = noise_floor(before, after, key, unit)
+        at_noise = b is not None and a is not None and abs(b) <= floor
         rows.append({"error": label, "key": key, "unit": unit, "before": b, "after": a,
-                     "reduction_pct": reduction(b, a)})
+                     "noise_floor": floor, "at_noise": at_noise,
+                     "reduction_pct": None if at_noise else reduction(b, a)})
     return rows
 
 
@@ -160,7 +181,8 @@ def format_table(rows, title: str) -> str:
     out = [title, "",
            "| error | unit | before | after | reduction |", "|---|---|---:|---:|---:|"]
     for r in rows:
-        red = "" if r["reduction_pct"] is None else f"{r['reduction_pct']:.1f} %"
+        red = "at noise level" if r.get("at_noise") else (
+            "" if r["reduction_pct"] is None else f"{r['reduction_pct']:.1f} %")
         b = "" if r["before"] is None else f"{r['before']:.2f}"
         a = "" if r["after"] is None else f"{r['after']:.2f}"
         out.append(f"| {r['error']} | {r['unit']} | {b} | {a} | {red} |")

@@ -49,9 +49,10 @@ def _home(text):
 def cmd_compensate(args) -> int:
     params = load_params(args.params)
     options = _options(args)
+    target = os.path.realpath(args.output or args.input)
+    new_output = bool(args.output) and not os.path.exists(target)
     if not args.dry_run:
         # leftovers of a run that was killed outright (only our own temp-file pattern)
-        target = os.path.realpath(args.output or args.input)
         clean_stale(os.path.dirname(target) or ".")
     try:
         with signals_raise():
@@ -68,11 +69,39 @@ def cmd_compensate(args) -> int:
         raise CliError(f"{args.input}: {exc} (nothing was written)") from None
     except OSError as exc:
         raise CliError(f"{exc.filename or args.input}: {exc.strerror}") from None
+    if new_output and not args.dry_run:
+        _same_mode(args.input, target)
     if args.report or args.dry_run:
         rep = report.to_dict()
         rep["params_hash"] = params.hash()
         print(json.dumps(rep, indent=2))
+    else:
+        print(summary(args.output or args.input, report, params.hash()))
     return EXIT_OK
+
+
+def _same_mode(source: str, target: str) -> None:
+    """A new output file gets the input's permission bits (the temporary file it was
+    written as is private, 0600); an existing output keeps its own."""
+    try:
+        os.chmod(target, os.stat(source).st_mode & 0o777)
+    except OSError as exc:
+        raise CliError(f"{target}: written, but its mode could not be set: "
+                       f"{exc.strerror}") from None
+
+
+def summary(path: str, report, params_hash: str) -> str:
+    """One line on what ``compensate`` wrote (``report``: its Report)."""
+    line = (f"kincomp: wrote {path}: {report.moves_compensated} of {report.moves} moves "
+            f"compensated (params {params_hash}), {report.lines_out} lines")
+    notes = []
+    if report.untouched_unknown:
+        notes.append(f"{report.untouched_unknown} sent as written (position unknown)")
+    if report.malformed:
+        notes.append(f"{report.malformed} malformed kept as written")
+    if report.limit_hits:
+        notes.append(f"{report.limit_hits} outside the limits")
+    return line + ("; " + ", ".join(notes) if notes else "")
 
 
 def cmd_params(args) -> int:

@@ -32,8 +32,8 @@ KLIPPER_PROFILE = "kincomp"  # the SKEW_PROFILE the export creates and loads
 FIRMWARES = ("klipper", "marlin", "reprapfirmware")
 FIRMWARE_NAMES = {"klipper": "Klipper", "marlin": "Marlin", "reprapfirmware": "RepRapFirmware"}
 COMMENT = {"klipper": "#", "marlin": ";", "reprapfirmware": ";"}  # comment mark of each
-# where the README explains the export (the settings page links it)
-FIRMWARE_HELP_URL = __plugin_url__ + "#firmware-export"
+# where the documentation explains the export (the settings page links it)
+FIRMWARE_HELP_URL = __plugin_url__ + "/blob/main/docs/firmware-export.md"
 
 
 def klipper_skew_lengths(factor: float):

@@ -144,6 +144,10 @@ class KinCompPlugin(
 
     def _print_began(self, payload: Dict[str, Any]) -> None:
         self.jobs.set_paused(True)  # file work must not starve the print
+        if self.prints.test_program:  # what OctoPrint pauses at and blocks (its settings)
+            get = self._settings.global_get
+            self.prints.pausing_commands = frozenset(get(["serial", "pausingCommands"]) or ())
+            self.prints.blocked_commands = frozenset(get(["serial", "blockedCommands"]) or ())
         self.demo.print_begins(payload)
 
     def _print_ended(self, done: bool) -> None:
@@ -177,8 +181,10 @@ class KinCompPlugin(
     def get_template_configs(self):
         return [
             {"type": "settings", "name": "KinComp", "custom_bindings": True},
-            {"type": "tab", "name": gettext("Calibration"), "custom_bindings": True},
+            {"type": "tab", "name": gettext("KinComp calibration"), "custom_bindings": True},
             {"type": "wizard", "name": "KinComp", "custom_bindings": True},
+            # one click to the tab from the top bar, however narrow the window
+            {"type": "navbar", "custom_bindings": True},
         ]
 
     def get_assets(self):
@@ -186,7 +192,7 @@ class KinCompPlugin(
                        "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js",
                        "js/kincomp_campaign.js",
                        "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js",
-                       "js/kincomp_artifact.js"],
+                       "js/kincomp_artifact.js", "js/kincomp_navbar.js"],
                 "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
 
     # ~~ hooks -------------------------------------------------------------------------------
@@ -214,6 +220,9 @@ class KinCompPlugin(
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)
+        if prints.test_program and gcode in ("M0", "M1") and \
+                prints.program_pause(comm_instance, gcode, tags):
+            return []  # paused here: OctoPrint would block it and warn (nothing is lost)
         return result
 
     def received_hook(self, comm_instance, line, *args, **kwargs):

@@ -12,7 +12,12 @@
   follows the printer state (paused once, then printing again means resumed).
 * Moves sent as written (position unknown, malformed) are always logged and notified at
   most once a minute; so are prints from, and transfers to, the printer's SD card (KinComp
-  never sees their lines).
+  never sees their lines). During a KinComp test program (its ``; ballbar plane:`` header)
+  the advice never says to home: the ballbar is mounted.
+* A test program's pauses (M0/M1, to mount and unmount the bar): when OctoPrint would pause
+  at them and not send them anyway (its serial settings ``pausingCommands`` and
+  ``blockedCommands``), KinComp pauses the print itself and drops the line, so that
+  OctoPrint raises no "Suppressed command" warning for each of them.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from typing import Any, Callable, Dict
 from octoprint.events import Events
 from octoprint.filemanager import FileDestinations
 
+from ..ballbar.program import ProgramError, spec_from_program
 from ..core.marker import file_marker
 from .firmware_watch import FirmwareWatcher
 from .notify import N_, Notifier
@@ -33,6 +39,9 @@ from .queue import QueueCompensator
 PRINT_EVENTS = frozenset({Events.DISCONNECTED, Events.PRINT_STARTED, Events.PRINT_DONE,
                           Events.PRINT_FAILED, Events.PRINT_CANCELLED})
 UNTOUCHED_NOTICE_S = 60.0  # at most one "sent as written" notification per this many s
+PROGRAM_HEAD_LINES = 60  # a test program's ``; ballbar key: value`` header is within these
+PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp",
+                                "trigger:kincomp.program_pause"})
 
 
 class PrintState:
@@ -64,6 +73,10 @@ class PrintState:
         self.comm = None  # the MachineCom of the current connection
         self.pause_seen = False
         self.warned_unknown_at = 0.0  # time.monotonic() of the last such notification
+        self.test_program = False  # the current print is a KinComp ballbar test program
+        # OctoPrint's serial settings: the commands it pauses at and does not send
+        self.pausing_commands: frozenset = frozenset()
+        self.blocked_commands: frozenset = frozenset()
 
     # ~~ the connection ------------------------------------------------------------------------
     def connection_changed(self, comm_instance) -> None:
@@ -98,6 +111,26 @@ class PrintState:
                 self.resumed()
         except AttributeError:  # not a MachineCom (tests): the event does it
             pass
+
+    def program_pause(self, comm_instance, gcode, tags) -> bool:
+        """A line of the print (``gcode`` as OctoPrint parsed it, ``tags``) is a test
+        program's pause that OctoPrint would pause at and block anyway: the print is paused
+        here (as OctoPrint would) and True says to drop the line, without OctoPrint's
+        "Suppressed command" warning. False: leave the line to OctoPrint."""
+        if not (self.test_program and tags and "source:file" in tags):
+            return False
+        if gcode not in self.pausing_commands or gcode not in self.blocked_commands:
+            return False  # the user lets the firmware pause (or OctoPrint ignores it)
+        if "trigger:cancel" in tags or "trigger:pause" in tags:
+            return False
+        try:
+            if comm_instance.isPrinting():
+                comm_instance.setPause(True, tags=set(PROGRAM_PAUSE_TAGS))
+        except AttributeError:  # not a MachineCom: leave it to OctoPrint
+            return False
+        self._logger.info("KinComp: the test program pauses at %s (the line is not sent)",
+                          gcode)
+        return True
 
     # ~~ from OctoPrint's events ---------------------------------------------------------------
     def on_event(self, event, payload: Dict[str, Any]) -> None:
@@ -193,6 +226,12 @@ class PrintState:
                 "KinComp could not read the move '%(cmd)s' and sent it as written; moves are "
                 "compensated again once the position is known (G28 or an absolute move)."),
                 cmd=cmd)
+        elif self.test_program:  # the ballbar is mounted: homing now would break it
+            self._notifier.notify("warning", N_(
+                "KinComp sent the test program's '%(cmd)s' as written because the printer's "
+                "position was not known yet; the program's moves to absolute positions that "
+                "follow are compensated. Do not home the printer while the ballbar is "
+                "mounted."), cmd=cmd)
         else:
             self._notifier.notify("warning", N_(
                 "KinComp sent '%(cmd)s' uncompensated because the printer's position is "
@@ -205,6 +244,7 @@ class PrintState:
         self.begun += 1
         self.file_lines_seen = False
         marked = self._is_precompensated(payload)
+        self.test_program = self._is_test_program(payload)
         self._queue.print_started(marked)
         self.warned_unknown_at = 0.0
         self.pause_seen = False
@@ -224,6 +264,19 @@ class PrintState:
             return bool(p.is_printing() or p.is_pausing() or p.is_paused())
         except Exception:  # noqa: BLE001 - no printer state: trust the counts
             return True
+
+    def _is_test_program(self, payload: Dict[str, Any]) -> bool:
+        """The printed file is a KinComp ballbar test program (its header says so)."""
+        if payload.get("origin") != FileDestinations.LOCAL or not payload.get("path"):
+            return False
+        try:
+            disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, payload["path"])
+            with open(disk, encoding="utf-8", errors="replace") as f:
+                head = "".join(line for _, line in zip(range(PROGRAM_HEAD_LINES), f))
+            spec_from_program(head)
+        except (OSError, TypeError, ValueError, KeyError, ProgramError):
+            return False
+        return True
 
     def _is_precompensated(self, payload: Dict[str, Any]) -> bool:
         if payload.get("origin") != FileDestinations.LOCAL or not payload.get("path"):

@@ -11,7 +11,8 @@ comments, layer changes; optionally 20 % G2/G3 arcs), then measures in the same 
 Each is measured with the compiled kernel (kernel.py), where it was built, and with the
 pure-Python paths (what an installation without a C compiler runs). Before timing, every
 engine is checked line for line against the reference path. Figures are printed; nothing
-here asserts a time (targets live in the README).
+here asserts a time (targets live in docs/performance.md, whose table ``--table``
+writes).
 """
 
 from __future__ import annotations
@@ -378,6 +379,75 @@ def run(n_lines: int = 1_500_000, workdir: Optional[str] = None, quick: bool = F
     return res
 
 
+TABLE_BEGIN = "<!-- bench:table (written by: python -m octoprint_kincomp bench --table) -->"
+TABLE_END = "<!-- /bench:table -->"
+TABLE_FILE = os.path.join(os.path.dirname(__file__), "..", "..", "docs", "performance.md")
+# what issue 13 asked of each figure (the targets; a benchmark asserts nothing)
+TARGETS = {"file": "at most 2.5x compiled, 6x Python", "arcs": "at most 5x compiled",
+           "rss": "under 50 MB", "hook": "p50 at most 3 us", "a1_200": "at most 1.05x"}
+
+
+def markdown_table(res: dict, date: str) -> str:
+    """The figures of one ``run`` as the Markdown table of docs/performance.md."""
+    eng = res["engines"]
+    names = [n for n in ("compiled", "python") if n in eng]
+    head = ["measure", "target"] + [{"compiled": "compiled kernel",
+                                     "python": "pure Python"}[n] for n in names]
+    rows = [[f"every engine == reference path ({res['verify']['verified_lines']:,} output "
+             "lines)", "identical"] + ["identical" for _ in names]]
+
+    def per(label, target, cell):
+        rows.append([label, target] + [cell(eng[n]) for n in names])
+
+    per(f"{res['file_mb']:.1f} MB file, {res['lines']:,} lines: compensate vs plain copy",
+        TARGETS["file"], lambda e: f"{e['compensate_s']:.2f} s vs {e['copy_s']:.2f} s = "
+                                   f"**{e['ratio']:.1f}x**")
+    per("the same with 20 % arcs", TARGETS["arcs"],
+        lambda e: f"{e['arc_compensate_s']:.2f} s vs {e['arc_copy_s']:.2f} s = "
+                  f"**{e['arc_ratio']:.1f}x**")
+    per("peak RSS growth", TARGETS["rss"], lambda e: f"**{e['rss']['growth_mb']:.1f} MB**")
+    for key, kind, label in (("process", "G1", "Compensator.process"),
+                             ("process_arc", "G2", "Compensator.process"),
+                             ("handle", "G1", "QueueCompensator.handle"),
+                             ("handle_arc", "G2", "QueueCompensator.handle")):
+        per(f"hook, `{kind}` line: `{label}`", TARGETS["hook"],
+            lambda e, key=key: f"p50 **{e['hook'][key]['p50_us']:.2f} us**, "
+                               f"p99 {e['hook'][key]['p99_us']:.2f} us")
+    a1 = res.get("a1")
+    if a1:
+        for key, g in a1["growth"].items():
+            um, _, how = key.partition(" ")
+            rows.append([f"A1 file at {um} um/m XY squareness, {how}: output growth",
+                         TARGETS["a1_200"] if key == "200 arcs kept" else "reported",
+                         f"lines {g['lines']:.3f}x, bytes {g['bytes']:.3f}x; arcs kept "
+                         f"{g['arcs_kept']:,}, split {g['arcs_split']}, linearised "
+                         f"{g['arcs_linearised']}, worst {g['max_dev_um']:.2f} um"]
+                        + [""] * (len(names) - 1))
+        for key, sr in a1["serial"].items():
+            cap = ", ".join(f"{c:.0f} at {b} baud" for b, c in sr["capacity"].items())
+            rows.append([f"serial link, A1 {key}: lines/s needed vs carried", "reported",
+                         f"{sr['needed_mean']:.0f} mean, {sr['needed_p99']} p99 second, "
+                         f"{sr['needed_peak']} busiest; carried {cap}"]
+                        + [""] * (len(names) - 1))
+    out = [f"Measured {date}, {res['lines']:,}-line files (`bench`); the A1 rows: the "
+           "compiled kernel (the pure-Python output is the same).", "",
+           "| " + " | ".join(head) + " |", "|---|---|" + "---:|" * len(names)]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def replace_table(path: str, table: str) -> None:
+    """Put ``table`` between the bench markers of the page at ``path``."""
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    if TABLE_BEGIN not in text or TABLE_END not in text:
+        raise ValueError(f"{path} has no bench table markers")
+    head, rest = text.split(TABLE_BEGIN, 1)
+    tail = rest.split(TABLE_END, 1)[1]
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(head + TABLE_BEGIN + "\n" + table + "\n" + TABLE_END + tail)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m octoprint_kincomp bench")
     ap.add_argument("--lines", type=int, default=1_500_000)
@@ -385,8 +455,14 @@ def main(argv=None) -> int:
     ap.add_argument("--verify-lines", type=int,
                     help="verify only this many lines against the reference (default: all)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--table", nargs="?", const=TABLE_FILE, metavar="PAGE",
+                    help="also write the figures as the table of docs/performance.md "
+                         "(or of PAGE), between its bench markers")
     args = ap.parse_args(argv)
     res = run(args.lines, quick=args.quick, verify_lines=args.verify_lines)
+    if args.table:
+        replace_table(args.table, markdown_table(res, time.strftime("%Y-%m-%d")))
+        print(f"table written to {args.table}")
     if args.json:
         print(json.dumps(res, indent=2))
         return 0

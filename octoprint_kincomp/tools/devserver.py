@@ -37,6 +37,7 @@ READER = "reader"
 USER_FLAGS = {ADMIN: ["--admin"], VIEWER: [],
               SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"],
               READER: ["-g", "readonly"]}
+SERVER_OUT = "server.out"  # OctoPrint's own output (stdout and stderr), in the basedir
 
 
 def free_port() -> int:
@@ -167,7 +168,7 @@ class DevServer:
                       "--port", str(self.port)]
         if hasattr(os, "geteuid") and os.geteuid() == 0:
             args.insert(len(cmd) + 1, "--iknowwhatimdoing")
-        log = stdout or open(os.path.join(self.basedir, "server.out"), "wb")
+        log = stdout or open(os.path.join(self.basedir, SERVER_OUT), "wb")
         self.proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env,
                                      start_new_session=True)
         deadline = time.time() + timeout
@@ -304,21 +305,48 @@ def main(argv=None) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)  # stop OctoPrint with us, not orphan it
-    admin = srv.logins[ADMIN]
-    print("=" * 72)
-    print(f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)")
-    print(f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}")
-    if demo_on:
-        print("demo mode: the virtual printer has hidden SIMULATED errors and a virtual "
-              "ballbar")
-    print("stop with Ctrl-C")
-    print("=" * 72, flush=True)
+    log_path = os.path.abspath(os.path.join(args.basedir, SERVER_OUT))
+    print(f"starting OctoPrint + KinComp on {srv.url} (its output goes to {log_path}) ...",
+          flush=True)
     try:
-        srv.start(stdout=sys.stdout.buffer if hasattr(sys.stdout, "buffer") else None)
+        try:
+            srv.start()  # OctoPrint's output: into log_path, not over the login
+        except RuntimeError as exc:
+            print(f"kincomp: {exc}. The end of {log_path}:\n{_tail(log_path)}",
+                  file=sys.stderr)
+            return 1
+        print(banner(srv, demo_on, log_path), flush=True)  # the last thing printed
         while srv.proc is not None and srv.proc.poll() is None:
             time.sleep(0.5)
+        if srv.proc is not None:
+            print(f"kincomp: OctoPrint stopped (exit status {srv.proc.returncode}); see "
+                  f"{log_path}", file=sys.stderr)
     except KeyboardInterrupt:
         pass
     finally:
         srv.stop()
     return 0
+
+
+def banner(srv: "DevServer", demo_on: bool, log_path: str) -> str:
+    """What ``run.sh`` shows once the server answers: where it is, the login, the logs."""
+    admin = srv.logins[ADMIN]
+    lines = ["=" * 72,
+             f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)",
+             f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}"]
+    if demo_on:
+        lines.append("demo mode: the virtual printer has hidden SIMULATED errors and a "
+                     "virtual ballbar")
+    lines += [f"OctoPrint's output: {log_path}",
+              f"its logs: {os.path.abspath(os.path.join(srv.basedir, 'logs'))}",
+              "open the URL, log in, then click 'KinComp' in the top bar; stop with Ctrl-C",
+              "=" * 72]
+    return "\n".join(lines)
+
+
+def _tail(path: str, lines: int = 30) -> str:
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return "".join(f.readlines()[-lines:])
+    except OSError as exc:
+        return f"(unreadable: {exc.strerror})"

@@ -85,3 +85,23 @@ def test_one_campaign_over_the_whole_volume():
     assert kin["circularity_um.bidirectional"]["reduction_pct"] >= 94.0
     assert pre["circularity_um.bidirectional"]["reduction_pct"] >= 98.0
     assert abs(pre["servo_mismatch_ms"]["after"]) < 0.02
+
+
+def test_a_reduction_from_a_value_within_the_noise_floor_says_at_noise_level(rounds):
+    # issue 25: re-testing an already corrected printer gave "-1026.3 %" when a backlash
+    # moved from 0.014 to -0.16 um: below the noise floor a reduction means nothing
+    corrected = rounds[True]["after"]["diagnostics"]
+    again = dict(corrected, backlash_um=dict(corrected["backlash_um"], a_plus=-0.16))
+    before = dict(corrected, backlash_um=dict(corrected["backlash_um"], a_plus=0.0142))
+    rows = {r["key"]: r for r in table(before, again)}
+    row = rows["backlash_um.a_plus"]
+    assert row["at_noise"] and row["reduction_pct"] is None
+    assert row["noise_floor"] >= 0.1  # the bar's resolution at least
+    # the floor follows the fit's uncertainty where it is larger than the resolution
+    sig = corrected["uncertainty"]["squareness_um_per_m"]
+    assert rows["squareness_um_per_m"]["noise_floor"] >= min(3 * sig * 2 ** 0.5, 1.0) - 1e-12
+    assert "at noise level" in format_table(list(rows.values()), "T")
+    # a real error before is still reduced in per cent (the first round's rows)
+    first = rows_by_key(rounds[True])
+    assert not first["squareness_um_per_m"]["at_noise"]
+    assert first["squareness_um_per_m"]["reduction_pct"] >= 99.0

@@ -69,3 +69,30 @@ def test_cli_firmware_equivalents(tmp_path, capsys):
     assert main(["firmware", "--params", p]) == 0
     out = capsys.readouterr().out
     assert "M852 I-0.003639" in out and "M556 S100 X0.36386" in out and "M425 X0.0200" in out
+
+
+def test_cli_compensate_to_a_new_output_keeps_the_inputs_mode_and_says_what_it_wrote(
+        tmp_path, capsys):
+    # issue 25: the output was left 0600 (its temporary file's mode) and nothing was said
+    import os
+    import stat
+
+    p = write(tmp_path, "in.gcode", "\n".join(edge_program()) + "\n")
+    os.chmod(p, 0o644)
+    params = write(tmp_path, "p.json", json.dumps(SKEW))
+    out = str(tmp_path / "out.gcode")
+    assert main(["compensate", p, "-o", out, "--params", params]) == 0
+    assert stat.S_IMODE(os.stat(out).st_mode) == 0o644
+    said = capsys.readouterr().out.strip().splitlines()
+    assert len(said) == 1, said
+    h = Params.from_dict(SKEW).hash()
+    assert said[0].startswith(f"kincomp: wrote {out}: ") and h in said[0]
+    assert " moves compensated" in said[0] and " lines" in said[0]
+    # another mode: followed too; an existing output keeps its own mode
+    os.chmod(p, 0o640)
+    out2 = str(tmp_path / "out2.gcode")
+    assert main(["compensate", p, "-o", out2, "--params", params]) == 0
+    assert stat.S_IMODE(os.stat(out2).st_mode) == 0o640
+    os.chmod(out, 0o664)
+    assert main(["compensate", p, "-o", out, "--params", params]) == 0
+    assert stat.S_IMODE(os.stat(out).st_mode) == 0o664

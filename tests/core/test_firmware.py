@@ -210,7 +210,7 @@ def test_export_is_deterministic_json_and_translatable():
     eq = equivalents(p)
     assert json.loads(json.dumps(eq))["export"] == export_json(p)
     assert eq["about"] == {"version": __version__, "homepage": __plugin_url__,
-                           "firmware_help": __plugin_url__ + "#firmware-export"}
+                           "firmware_help": __plugin_url__ + "/blob/main/docs/firmware-export.md"}
     fw = eq["export"]["marlin"]
     assert fw["name"] == "Marlin" and fw["comment"] == ";"
     assert fw["sections"][0]["title"]["template"].startswith("Send to the printer")

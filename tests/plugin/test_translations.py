@@ -66,7 +66,7 @@ def test_jinja_renders_german():
     from babel.support import Translations
 
     t = Translations.load(os.path.join(ROOT, "octoprint_kincomp", "translations"), ["de"])
-    assert t.gettext("Calibration") != "Calibration"
+    assert t.gettext("KinComp calibration") != "KinComp calibration"
     assert t.gettext("Save KinComp settings") != "Save KinComp settings"
 
 

@@ -276,22 +276,86 @@ $(function () {
                 : gettext("Paused: the test is done; unmount the bar, then continue.");
         };
 
-        self.canPrint = ko.pureComputed(function () {
+        /* One state machine decides what the current test's buttons offer (phase) and,
+         * whenever printing it is not offered, why (printBlock):
+         *   ready      -> printing   ("Print this test": its program is printing or paused)
+         *   printing   -> measuring  (the print ended done; its capture is awaited)
+         *              -> ready      (the print failed or was cancelled: print it again)
+         *   measuring  -> (next test) when its measurement arrives
+         *              -> missed     (the capture failed or was refused: print it again)
+         * printed-before (a print was started earlier, e.g. before a reload of the page,
+         * with nothing awaited now) may print again. */
+        self.awaiting = ko.observable(null); // {n, id}: the test whose capture is awaited
+        self.missed = ko.observable(null); // {n, id}: its capture failed or was refused
+        self.requested = ko.observable(null); // {n, id}: "Print" clicked, no answer yet
+        var mark = function (step) {
             var c = self.campaign();
-            return (
-                c && !c.params_changed && self.canWrite() && self.checked() &&
-                self.printerState.isOperational() && !self.printerState.isPrinting() &&
-                !self.printerState.isPaused() && !self.busy()
-            );
+            return step && c ? {n: step.n, id: c.id} : null;
+        };
+        var marks = function (m, step) {
+            var c = self.campaign();
+            return !!(m && step && c && m.n === step.n && m.id === c.id);
+        };
+
+        self.phase = ko.pureComputed(function () {
+            var step = self.current();
+            if (!step) return "none";
+            var job = self.jobStep();
+            if (job && job.n === step.n) return self.printerState.isPaused() ? "paused" : "printing";
+            if (marks(self.requested(), step)) return "starting";
+            if (marks(self.awaiting(), step)) return "measuring";
+            if (marks(self.missed(), step)) return "missed";
+            return step.printed ? "printed" : "ready";
         });
 
-        self.printHint = ko.pureComputed(function () {
-            var c = self.campaign();
-            if (c && c.params_changed) return "";
-            if (!self.printerState.isOperational()) return gettext("Connect the printer first.");
+        // null: printing is offered; else the reason it is not (always said)
+        self.printBlock = ko.pureComputed(function () {
+            var c = self.campaign(), ps = self.printerState, phase = self.phase();
+            if (!c || phase === "none") return gettext("All tests of this campaign are measured.");
+            if (c.params_changed) return gettext("The parameters in force changed since this campaign began: start a new campaign (the button below).");
+            if (!self.canWrite()) return gettext("You may not print tests: that needs KinComp's admin permission.");
+            if (phase === "starting") return gettext("Starting the print…");
+            if (phase === "printing" || phase === "paused") return gettext("This test is printing now.");
+            if (phase === "measuring") return gettext("The test is printed; its measurement (the live capture) is being taken. The next test follows as soon as it is in.");
+            if (self.busy()) return self.busyText();
+            if (!ps.isOperational()) return gettext("Connect the printer first.");
+            if (ps.isPrinting() || ps.isPaused() || (ps.isBusy && ps.isBusy()))
+                return gettext("The printer is busy with another job: wait until it has finished (or cancel it).");
             if (!self.checked()) return gettext("Tick the box to print.");
-            return "";
+            return null;
         });
+
+        self.canPrint = ko.pureComputed(function () {
+            return self.printBlock() === null;
+        });
+        self.printHint = ko.pureComputed(function () {
+            return self.printBlock() || "";
+        });
+        self.printLabel = ko.pureComputed(function () {
+            var phase = self.phase();
+            return phase === "printed" || phase === "missed"
+                ? gettext("Print this test again") : gettext("Print this test");
+        });
+
+        // the job of the current test ends: done -> its capture is awaited (when one was
+        // armed), else the test may be printed again
+        var lastJob = null;
+        self.jobStep.subscribe(function (job) {
+            if (job) {
+                lastJob = mark(job);
+                self.requested(null);
+            }
+        });
+        self.jobEnded = function (done) {
+            // (a print so short that the printer state never showed it: the one requested)
+            var ended = lastJob || self.requested();
+            lastJob = null;
+            self.requested(null);
+            if (!ended) return;
+            self.awaiting(done && self.captureArmed ? ended : null);
+            self.reload();
+        };
+        self.captureArmed = false;
 
         self.stepState = function (step) {
             if (step.run) {
@@ -305,13 +369,25 @@ $(function () {
 
         self.printStep = function (step) {
             var c = self.campaign();
+            if (!self.canPrint()) return; // (one click: the button is disabled from here on)
+            self.requested(mark(step));
+            self.missed(null);
+            self.awaiting(null);
             self.working(gettext("Writing the program…"),
                 OctoPrint.postJson(API("campaigns/" + c.id + "/steps/" + step.n + "/program"), {print: true})
                     .done(function (resp) {
+                        // a live capture is armed (the demo's virtual bar, a sensor), or
+                        // demo mode collects its simulated trace: the measurement comes
+                        // by itself after the print
+                        self.captureArmed = !!resp.capture || !!self.tab.demo();
                         self.campaign(resp.campaign);
                         self.checked(false);
+                        if (!resp.printing) self.requested(null);
                     })
-                    .fail(self.fail));
+                    .fail(function (jqXHR) {
+                        self.requested(null);
+                        self.fail(jqXHR);
+                    }));
         };
 
         self.resume = function () {
@@ -319,6 +395,8 @@ $(function () {
         };
 
         self.measured = function (resp) {
+            self.awaiting(null);
+            self.missed(null);
             self.show(resp.campaign);
             var d = resp.run && resp.run.diagnostics;
             if (d) {
@@ -378,6 +456,23 @@ $(function () {
                     })
                     .fail(self.fail));
         };
+
+        // Apply is offered once nothing prints (a print under way would keep the old
+        // parameters until its end); a disabled Apply says why
+        self.applyWhy = ko.pureComputed(function () {
+            var c = self.campaign(), ps = self.printerState;
+            if (!c || !c.analysis) return "";
+            if (c.applied) return "";
+            if (!self.canWrite()) return gettext("Applying needs KinComp's admin permission.");
+            if (ps.isPrinting() || ps.isPaused() || (ps.isPausing && ps.isPausing()))
+                return gettext("A print is running: apply once it has finished.");
+            if (self.busy()) return self.busyText();
+            return "";
+        });
+        self.canApply = ko.pureComputed(function () {
+            var c = self.campaign();
+            return !!(c && c.analysis && !c.applied && !self.applyWhy());
+        });
 
         // an untrusted joint result is applied only after "apply anyway" (kincomp_findings.js)
         self.apply = function () {
@@ -458,6 +553,11 @@ $(function () {
 
         /* ------------------------------------------------------------------ the history */
         self.stateText = function (c) {
+            var started = _.some(c.steps || [], function (s) {
+                return s.printed || s.run;
+            });
+            if (c.state === "measuring" && !c.measured && !started)
+                return gettext("not run (no test printed)");
             return {
                 measuring: _.sprintf(gettext("measuring (%(done)s of %(n)s)"), {done: c.measured, n: c.steps.length}),
                 measured: gettext("measured, not analysed"),
@@ -522,10 +622,17 @@ $(function () {
         self.onUserLoggedIn = self.onStartupComplete;
 
         self.onEventPrintDone = function () {
+            self.jobEnded(true);
             self.reload();
         };
-        self.onEventSettingsUpdated = self.onEventPrintDone;
-        self.onEventPluginKincompParamsApplied = self.onEventPrintDone;
+        self.onEventPrintFailed = function () {
+            self.jobEnded(false);
+        };
+        self.onEventPrintCancelled = self.onEventPrintFailed;
+        self.onEventSettingsUpdated = function () {
+            self.reload();
+        };
+        self.onEventPluginKincompParamsApplied = self.onEventSettingsUpdated;
 
         // a live capture of a test that is not its measurement (failed, or refused by the
         // campaign): the test stays unmeasured, the campaign says why
@@ -535,6 +642,9 @@ $(function () {
                 ? _.sprintf(gettext("The live capture of test %(name)s failed: %(reason)s. The test stays unmeasured: print it again, or give its trace. The data so far is kept in the History."), {
                     name: name, reason: trMsg(run.message_i18n || run.message)})
                 : _.sprintf(gettext("The live capture of test %(name)s was not taken as its measurement (the notice says why); it is kept in the History as a single run."), {name: name});
+            var step = _.findWhere(c.steps, {name: name});
+            self.awaiting(null);
+            if (step) self.missed({n: step.n, id: c.id});
             OctoPrint.get(API("campaigns/" + c.id)).done(function (fresh) {
                 self.show(fresh);
                 self.error(text);

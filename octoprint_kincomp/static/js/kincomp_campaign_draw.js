@@ -103,7 +103,7 @@
                     unit: l ? l[2] : r.unit,
                     before: fmt(r.before),
                     after: compared ? fmt(r.after) : withSigma(r.after, K.pick(sig, r.key), 2),
-                    reduction: r.reduction_pct !== null ? fmt(r.reduction_pct, 1) + " %" : ""
+                    reduction: K.reductionText(r)
                 };
             });
             var other = {XY: ["Z", 2], XZ: ["Y", 1], YZ: ["X", 0]}[t.plane] || ["Z", 2];

@@ -28,6 +28,28 @@
         return Number(value).toFixed(digits === undefined ? 2 : digits);
     };
 
+    var reductionText = function (row) {
+        // a compared row's reduction: "at noise level" when the before value is within the
+        // noise floor (the server decides: ballbar/closedloop.py), else the per cent
+        if (!row) return "";
+        if (row.at_noise) return gettext("at noise level");
+        return row.reduction_pct !== null && row.reduction_pct !== undefined
+            ? fmt(row.reduction_pct, 1) + " %" : "";
+    };
+
+    // a stored ISO date as "2026-11-27 16:38" (one line in a table)
+    var dateText = function (iso) {
+        return iso ? String(iso).replace("T", " ").slice(0, 16) : "–";
+    };
+
+    // a run's source as stored (English, e.g. "live capture (XZ)"), in the user's language
+    var sourceText = function (name) {
+        var m = /^live capture \((.*)\)$/.exec(name || "");
+        if (m) return _.sprintf(gettext("live capture (%(plane)s)"), {plane: m[1]});
+        if (name === "typed summary") return gettext("typed summary");
+        return name || "";
+    };
+
     var errorText = function (jqXHR) {
         // the server's {"error": ...} message, or the HTTP status
         var response = jqXHR && (jqXHR.responseJSON || jqXHR.response || jqXHR.responseText);
@@ -79,6 +101,27 @@
         var eq = status.equivalents || {};
         return {version: status.version || "", homepage: (eq.about && eq.about.homepage) || "",
                 firmwareHelp: (eq.about && eq.about.firmware_help) || ""};
+    };
+
+    // the manual's pages in docs/ (the settings page links them); the page names are the
+    // files' names in docs/, the links go to the repository at the project's homepage
+    // (titles translated when asked for: gettext is not there yet while this file loads)
+    var DOCS = function () {
+        return [
+            ["user-guide", gettext("User guide")],
+            ["calibration", gettext("Calibration and campaigns")],
+            ["live-capture", gettext("Live capture and sensors")],
+            ["command-line", gettext("Command line")],
+            ["http-api", gettext("HTTP API")],
+            ["firmware-export", gettext("Firmware export")],
+            ["how-compensation-works", gettext("How compensation works")]
+        ];
+    };
+    var docs = function (homepage) {
+        if (!homepage) return [];
+        return _.map(DOCS(), function (d) {
+            return {title: d[1], href: homepage + "/blob/main/docs/" + d[0] + ".md"};
+        });
     };
 
     // a Flot point symbol (Flot itself draws only circles without its symbol plugin)
@@ -213,10 +256,14 @@
         API: API,
         num: num,
         fmt: fmt,
+        reductionText: reductionText,
+        dateText: dateText,
+        sourceText: sourceText,
         errorText: errorText,
         notify: notify,
         copyText: copyText,
         about: about,
+        docs: docs,
         drawCross: drawCross,
         trMsg: trMsg,
         translateNotice: translateNotice,

@@ -97,7 +97,7 @@ $(function () {
                 self.ports(_.map(resp.ports, function (p) {
                     return {device: p.device, label: p.description ? p.device + " – " + p.description : p.device};
                 }));
-                self.printerPorts(resp.printer_ports);
+                self.printerPorts(_.uniq(resp.printer_ports || []));  // (OctoPrint may list one twice)
             });
         };
 

@@ -16,6 +16,8 @@ $(function () {
         var self = this;
         self.access = parameters[0];
         self.loginState = parameters[1];
+        self.sensorSettings = parameters[2];  // the live sensor's part of this page
+        self.docs = ko.observableArray([]);
 
         self.enabled = ko.observable(false);
         self.mode = ko.observable("on_the_fly");
@@ -44,6 +46,17 @@ $(function () {
         self.settingsProblem = ko.observable("");
         self.saving = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
+
+        // a stored value as the form shows it (at most 3 decimals: 30.8903127 -> "30.89");
+        // a field still showing that text stands for the stored value itself, so that
+        // saving an untouched form changes nothing
+        var shown = function (v) {
+            return String(Number(Number(v).toFixed(3)));
+        };
+        var kept = function (text, stored) {
+            return stored !== undefined && stored !== null && text === shown(stored) ? stored : text;
+        };
+        self.shown = shown;
 
         var field = function (id, path, label, hint) {
             return {id: id, path: path, label: label, hint: hint, value: ko.observable("0")};
@@ -102,28 +115,28 @@ $(function () {
             self.demo(!!(s.demo && s.demo.enabled));
             var p = s.params;
             _.each(self.squareness, function (f) {
-                f.value(String(p.squareness_um_per_m[f.id.slice(3)]));
+                f.value(shown(p.squareness_um_per_m[f.id.slice(3)]));
             });
             _.each(self.scale, function (f) {
-                f.value(String(p.scale_ppm[f.id.slice(3)]));
+                f.value(shown(p.scale_ppm[f.id.slice(3)]));
             });
             _.each(self.backlash, function (b) {
                 var v = p.backlash[b.axis];
                 b.table = _.isArray(v) ? v : null; // as stored (may have more than 2 points)
                 if (_.isArray(v)) {
                     b.varies(true);
-                    b.at0(String(v[0].at_mm));
-                    b.um0(String(v[0].um));
-                    b.at1(String(v[v.length - 1].at_mm));
-                    b.um1(String(v[v.length - 1].um));
-                    b.single(String(v[0].um));
+                    b.at0(shown(v[0].at_mm));
+                    b.um0(shown(v[0].um));
+                    b.at1(shown(v[v.length - 1].at_mm));
+                    b.um1(shown(v[v.length - 1].um));
+                    b.single(shown(v[0].um));
                 } else {
                     b.varies(false);
-                    b.single(String(v));
+                    b.single(shown(v));
                 }
             });
-            self.blFraction(String(p.backlash.fraction));
-            self.blSmoothing(String(p.backlash.smoothing_mm));
+            self.blFraction(shown(p.backlash.fraction));
+            self.blSmoothing(shown(p.backlash.smoothing_mm));
             self.limits(status.limits);
             self.paramsHash(status.params_hash);
             self.engine(status.engine || "");
@@ -131,6 +144,7 @@ $(function () {
             self.version(a.version);
             self.homepage(a.homepage);
             self.firmwareHelp(a.firmwareHelp);
+            self.docs(K.docs(a.homepage));
             self.showFirmware(status.equivalents);
             self.conflicts(
                 _.map(status.firmware.conflicts || {}, function (where, kind) {
@@ -189,30 +203,39 @@ $(function () {
                 return v;
             };
             var params = JSON.parse(JSON.stringify(self.loaded.params));
+            var stored = self.loaded.params;
             _.each(self.squareness, function (f) {
-                params.squareness_um_per_m[f.id.slice(3)] = number(f.path, f.value());
+                var k = f.id.slice(3);
+                params.squareness_um_per_m[k] = number(f.path, kept(f.value(), stored.squareness_um_per_m[k]));
             });
             _.each(self.scale, function (f) {
-                params.scale_ppm[f.id.slice(3)] = number(f.path, f.value());
+                var k = f.id.slice(3);
+                params.scale_ppm[k] = number(f.path, kept(f.value(), stored.scale_ppm[k]));
             });
             _.each(self.backlash, function (b) {
                 var t = b.table;
+                var sv = stored.backlash[b.axis];
+                var first = t ? t[0] : {}, last = t ? t[t.length - 1] : {};
+                var ends = {
+                    at0: kept(b.at0(), first.at_mm), um0: kept(b.um0(), first.um),
+                    at1: kept(b.at1(), last.at_mm), um1: kept(b.um1(), last.um)
+                };
                 var untouched = t && t.length > 2 &&
-                    num(b.at0()) === t[0].at_mm && num(b.um0()) === t[0].um &&
-                    num(b.at1()) === t[t.length - 1].at_mm && num(b.um1()) === t[t.length - 1].um;
+                    num(ends.at0) === t[0].at_mm && num(ends.um0) === t[0].um &&
+                    num(ends.at1) === t[t.length - 1].at_mm && num(ends.um1) === t[t.length - 1].um;
                 if (b.varies() && untouched) {
                     params.backlash[b.axis] = t; // the form shows the ends; keep the inner points
                 } else if (b.varies()) {
                     params.backlash[b.axis] = [
-                        {at_mm: number(b.path, b.at0()), um: number(b.path, b.um0())},
-                        {at_mm: number(b.path, b.at1()), um: number(b.path, b.um1())}
+                        {at_mm: number(b.path, ends.at0), um: number(b.path, ends.um0)},
+                        {at_mm: number(b.path, ends.at1), um: number(b.path, ends.um1)}
                     ];
                 } else {
-                    params.backlash[b.axis] = number(b.path, b.single());
+                    params.backlash[b.axis] = number(b.path, kept(b.single(), _.isArray(sv) ? sv[0].um : sv));
                 }
             });
-            params.backlash.fraction = number("params.backlash.fraction", self.blFraction());
-            params.backlash.smoothing_mm = number("params.backlash.smoothing_mm", self.blSmoothing());
+            params.backlash.fraction = number("params.backlash.fraction", kept(self.blFraction(), stored.backlash.fraction));
+            params.backlash.smoothing_mm = number("params.backlash.smoothing_mm", kept(self.blSmoothing(), stored.backlash.smoothing_mm));
             return {
                 errors: errs,
                 data: {
@@ -240,6 +263,23 @@ $(function () {
             }).done(function () {
                 self.load();
             });
+        };
+
+        // the page's one Save: the settings and, if it was changed, the live sensor's part
+        // (each shows its own errors next to its fields)
+        self.saveAll = function () {
+            // one after the other: two saves at once could each store the other's old part
+            var sensor = self.sensorSettings;
+            var first = sensor && sensor.changed() ? sensor.save() : $.Deferred().resolve().promise();
+            var all = $.Deferred();
+            first.always(function () {
+                self.save().done(all.resolve).fail(all.reject);
+            });
+            return all.promise();
+        };
+        self.reloadAll = function () {
+            if (self.sensorSettings) self.sensorSettings.load();
+            return self.load();
         };
 
         self.allPaths = function () {
@@ -282,7 +322,7 @@ $(function () {
 
     OCTOPRINT_VIEWMODELS.push({
         construct: KinCompSettingsViewModel,
-        dependencies: ["accessViewModel", "loginStateViewModel"],
+        dependencies: ["accessViewModel", "loginStateViewModel", "kinCompSensorSettingsViewModel"],
         elements: ["#settings_plugin_kincomp"]
     });
 });

@@ -97,11 +97,22 @@ $(function () {
             );
         });
 
+        // why "Print test program" is not offered (empty when it is)
         self.printHint = ko.pureComputed(function () {
-            if (!self.printerState.isOperational()) return gettext("Connect the printer first.");
+            var ps = self.printerState;
+            if (!self.canWrite()) return gettext("Printing tests needs KinComp's admin permission.");
+            if (!ps.isOperational()) return gettext("Connect the printer first.");
+            if (ps.isPrinting() || ps.isPaused()) return gettext("A print is running: wait until it has finished.");
+            if (!self.bed().fits) return gettext("The circle does not fit the bed: move the centre or use a smaller radius.");
             if (!(self.checkMounted() && self.checkHeight() && self.checkClear()))
                 return gettext("Tick the checklist to print.");
+            if (self.busy()) return gettext("Working…");
             return "";
+        });
+
+        // while a print runs the live ballbar is shown above the form (in view at 1400x900)
+        self.liveFirst = ko.pureComputed(function () {
+            return self.printerState.isPrinting() || self.printerState.isPaused();
         });
 
         self.progressPct = ko.pureComputed(function () {
@@ -139,6 +150,7 @@ $(function () {
         self.findingsBox = new K.FindingsBox(self.run, function (force) {
             self.applyConfirmed(force);
         });
+        self.K = K;  // (dateText, sourceText for the templates)
 
         self.tableRows = ko.pureComputed(function () {
             var run = self.run();
@@ -151,7 +163,7 @@ $(function () {
                     unit: row[2],
                     value: fmt(pick(run.diagnostics, row[0])),
                     before: c ? fmt(c.before) : "",
-                    reduction: c && c.reduction_pct !== null ? fmt(c.reduction_pct, 1) + " %" : ""
+                    reduction: K.reductionText(c)
                 };
             });
         });
@@ -366,13 +378,28 @@ $(function () {
                 .fail(self.fail);
         };
 
+        // Apply is offered for a proposal not applied yet, once nothing prints (the test
+        // that is still printing would go on with the old parameters); disabled: says why
+        self.applyWhy = ko.pureComputed(function () {
+            var run = self.run(), ps = self.printerState;
+            if (!run || !run.proposed || run.applied) return "";
+            if (!self.canWrite()) return gettext("Applying needs KinComp's admin permission.");
+            if (ps.isPrinting() || ps.isPaused() || (ps.isPausing && ps.isPausing()))
+                return gettext("A print is running: apply once it has finished.");
+            return "";
+        });
+        self.canApply = ko.pureComputed(function () {
+            var run = self.run();
+            return !!(run && run.proposed && !run.applied && !self.applyWhy());
+        });
+
         // an untrusted run is applied only after the "apply anyway" step (kincomp_findings.js)
         self.applyRun = function () {
             self.findingsBox.apply();
         };
         self.applyConfirmed = function (force) {
             var run = self.run();
-            if (!run) return;
+            if (!run || !self.canApply()) return;
             OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
                 .done(function (resp) {
                     self.paramsHash(resp.params_hash);
