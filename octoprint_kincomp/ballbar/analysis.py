@@ -163,6 +163,17 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
                                             else None, label)
     found += adequacy
     out.checks["adequacy"] = ev
+    wider = mask_deg + checks.STABILITY_EXTRA_DEG
+    try:
+        f_wide = fit(geom, runs, wider, calibrated, out.cyclic_pitch, fixed=fixed)
+    except TraceError:
+        f_wide = None
+    if f_wide is not None:
+        found += checks.stability_findings(
+            diagnostic_values(f.values, geom.radius), diagnostic_values(f_wide.values,
+                                                                        geom.radius),
+            uncertainty_values(f.sigma, geom.radius), mask_deg, wider, label,
+            checks.reached_sides(runs))
     out.fit = f
     out.runs = runs
     out.findings = found

@@ -126,8 +126,8 @@ def _timing_error(geom: Geometry, direction: str, mismatch_ms: float, planned_s:
               "the start of the feed-out; the program plans %(planned)s s (%(diff)s ms, "
               "tolerance %(tol)s ms): the printer did not run this program as planned, so "
               "time was mapped to the wrong angles. This is %(likely)s. Had the trace come "
-              "from another program, a radius of %(radius)s mm or a feed of %(feed)s mm/min "
-              "would explain the time.", pre=pre, direction=direction.upper(),
+              "from another program (another plane's arc, radius or feed), a radius of "
+              "%(radius)s mm or a feed of %(feed)s mm/min would explain the time.", pre=pre, direction=direction.upper(),
               actual=_fmt(actual, 2), planned=_fmt(planned_s, 2), diff=f"{mismatch_ms:+.0f}",
               tol=_fmt(tol_ms, 0), likely=likely, radius=_fmt(radius, 1), feed=_fmt(feed, 0))
     advice = Msg("Do not apply this result. Check that the trace belongs to this program "
@@ -431,6 +431,79 @@ def drift_finding(diag: Dict[str, object], duration_s: float, label: str = ""
                     "test), fitted as a linear drift: let the printer and the bar warm up "
                     "before testing.", pre=pre, rate=f"{rate:+.2f}", total=_fmt(total, 1)),
                 bar_drift_um_per_min=round(rate, 3), over_test_um=round(total, 2))
+
+
+# -- stability against the reversal mask ------------------------------------------------
+# The fit is repeated with STABILITY_EXTRA_DEG more left out after each reversal. A value
+# that moves by more than half its tolerance (issue 23: squareness max(2 %, 5 um/m), scale
+# mismatch 5 ppm, servo 0.05 ms, backlash 1.5 um) and more than STABILITY_SIGMA of its own
+# uncertainty depends on what happens near the reversals: flagged with the size of the shift.
+# Clean simulated cases move by at most 0.3 sigma (docs/trust-checks.md).
+STABILITY_EXTRA_DEG = 10.0
+STABILITY_SIGMA = 2.0
+HALF_TOLERANCE = {"squareness_um_per_m": 2.5, "scale_mismatch_ppm": 2.5,
+                  "servo_mismatch_ms": 0.025, "backlash_um": 0.75}
+
+
+def _flat(d: Dict[str, object]) -> Dict[str, float]:
+    out = {}
+    for k in HALF_TOLERANCE:
+        v = d.get(k)
+        if isinstance(v, dict):
+            out.update({f"{k}.{s}": float(x) for s, x in v.items() if x is not None})
+        elif v is not None:
+            out[k] = float(v)
+    return out
+
+
+REVERSAL_SIDE_DEG = {"a_plus": 0.0, "b_plus": 90.0, "a_minus": 180.0, "b_minus": 270.0}
+
+
+def reached_sides(runs: Sequence[Run]) -> List[str]:
+    """The backlash sides whose reversal point the runs pass (a 220 deg arc misses one: its
+    value is the line through the others, not a measurement)."""
+    out = []
+    for side, rev in REVERSAL_SIDE_DEG.items():
+        for r in runs:
+            deg = np.degrees(r.theta)
+            if len(deg) and any(deg.min() <= rev + 360.0 * m <= deg.max() for m in (-1, 0, 1)):
+                out.append(side)
+                break
+    return out
+
+
+def stability_findings(a: Dict[str, object], b: Dict[str, object], sig: Dict[str, object],
+                       mask_a: float, mask_b: float, label: str = "",
+                       sides: Optional[Sequence[str]] = None) -> List[Finding]:
+    """Compare the diagnostics of two fits (reversal masks ``mask_a``, ``mask_b`` deg);
+    ``sides``: the backlash sides measured (the others are not compared)."""
+    fa, fb, fs = _flat(a), _flat(b), _flat(sig)
+    moved = {}
+    for k, va in fa.items():
+        if k not in fb:
+            continue
+        if k.startswith("backlash_um.") and sides is not None and k.split(".")[1] not in sides:
+            continue
+        base = k.split(".")[0]
+        tol = HALF_TOLERANCE[base]
+        if base == "squareness_um_per_m":
+            tol = max(tol, 0.01 * abs(va))
+        shift = fb[k] - va
+        if abs(shift) > max(tol, STABILITY_SIGMA * fs.get(k, 0.0)):
+            moved[k] = (va, fb[k], shift)
+    if not moved:
+        return []
+    pre = (label + ": ") if label else ""
+    what = joined([Msg("%(key)s %(a)s -> %(b)s", key=k, a=f"{va:.3g}", b=f"{vb:.3g}")
+                   for k, (va, vb, _) in moved.items()])
+    return [warning("model.unstable", Msg(
+        "%(pre)sThe result depends on how much is left out around the reversal points "
+        "(%(m1)s deg -> %(m2)s deg): %(what)s. Something near the reversals that the model "
+        "does not describe pulls the fit; the values may be off by about these shifts.",
+        pre=pre, m1=f"{mask_a:g}", m2=f"{mask_b:g}", what=what), Msg(
+        "Repeat the test; if the shift stays, analyse with a wider mask (--mask-deg) and "
+        "compare."), shifts={k: round(s, 4) for k, (_, _, s) in moved.items()},
+        mask_deg=[mask_a, mask_b])]
 
 
 def keep_mask(runs: Sequence[Run], mask_deg: float) -> np.ndarray:

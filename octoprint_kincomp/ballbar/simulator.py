@@ -73,6 +73,7 @@ class Truth:
     hidden_max_accel_mm_s2: Dict[str, float] = field(default_factory=dict)
     glitches: Tuple[int, float] = (0, 0.0)  # (count, amplitude_um)
     corexy_motor_backlash_um: Dict[str, float] = field(default_factory=dict)  # "a", "b"
+    corexy_motor_scale_ppm: Dict[str, float] = field(default_factory=dict)  # "a", "b"
 
     def printer_motion(self) -> MotionSettings:
         """The motion the printer really has: the recorded settings with the hidden caps."""
@@ -97,7 +98,7 @@ class Truth:
                    "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed",
                    "steps_per_mm", "bar_drift_um_per_min", "speed_factor_pct",
                    "hidden_max_feed_mm_min", "hidden_max_accel_mm_s2", "glitches",
-                   "corexy_motor_backlash_um"} | set(MOTION_KEYS)
+                   "corexy_motor_backlash_um", "corexy_motor_scale_ppm"} | set(MOTION_KEYS)
         for k in d:
             if k not in allowed:
                 raise ParamsError(k, Msg("unknown key (allowed: %(allowed)s)",
@@ -144,6 +145,10 @@ class Truth:
             if m not in ("a", "b"):
                 raise ParamsError(f"corexy_motor_backlash_um.{m}", Msg("a motor: a or b"))
             t.corexy_motor_backlash_um[m] = float(v)
+        for m, v in (d.get("corexy_motor_scale_ppm") or {}).items():
+            if m not in ("a", "b"):
+                raise ParamsError(f"corexy_motor_scale_ppm.{m}", Msg("a motor: a or b"))
+            t.corexy_motor_scale_ppm[m] = float(v)
         return t
 
     @staticmethod
@@ -171,6 +176,18 @@ def paper_truth(**overrides) -> Truth:
         }),
         servo_lag_ms={"x": 0.62, "y": 0.0, "z": 0.0},
     )
+    for k, v in overrides.items():
+        setattr(t, k, v)
+    return t
+
+
+def tuned_truth(**overrides) -> Truth:
+    """A well-tuned printer: squareness 40 um/m, scale X +30, Y -20 ppm, backlash 3/2 um
+    (X/Y), servo lag X 0.1 ms."""
+    t = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 40.0},
+                                       "scale_ppm": {"x": 30.0, "y": -20.0},
+                                       "backlash": {"x": 3.0, "y": 2.0}}),
+              servo_lag_ms={"x": 0.1, "y": 0.0, "z": 0.0})
     for k, v in overrides.items():
         setattr(t, k, v)
     return t
@@ -208,12 +225,17 @@ def _lagging(q: np.ndarray, play_mm: float) -> np.ndarray:
     return out
 
 
-def _corexy_motor_play(drive: np.ndarray, play_um: Dict[str, float]) -> np.ndarray:
-    """X and Y after the play of CoreXY motors A (X+Y) and B (X-Y), um of each motor's travel."""
-    ma = drive[:, 0] + drive[:, 1]
-    mb = drive[:, 0] - drive[:, 1]
-    ma = _lagging(ma, play_um.get("a", 0.0) * 1e-3)
-    mb = _lagging(mb, play_um.get("b", 0.0) * 1e-3)
+def _corexy_motors(drive: np.ndarray, play_um: Dict[str, float], scale_ppm: Dict[str, float]
+                   ) -> np.ndarray:
+    """X and Y after CoreXY motors A (X+Y) and B (X-Y): each motor's belt scale (ppm, a
+    belt stretched or tensioned differently: its travel is ``1 + s`` times the command) and
+    play (um of the motor's travel)."""
+    ma = (drive[:, 0] + drive[:, 1]) * (1 + scale_ppm.get("a", 0.0) * 1e-6)
+    mb = (drive[:, 0] - drive[:, 1]) * (1 + scale_ppm.get("b", 0.0) * 1e-6)
+    if play_um.get("a"):
+        ma = _lagging(ma, play_um["a"] * 1e-3)
+    if play_um.get("b"):
+        mb = _lagging(mb, play_um["b"] * 1e-3)
     out = drive.copy()
     out[:, 0] = (ma + mb) / 2
     out[:, 1] = (ma - mb) / 2
@@ -272,8 +294,9 @@ class Simulator:
         drive = np.stack(
             [_servo(u[:, k], dt, tr.servo_lag_ms.get(AXES[k], 0.0) * 1e-3) for k in range(3)],
             axis=1)
-        if tr.corexy_motor_backlash_um:
-            drive = _corexy_motor_play(drive, tr.corexy_motor_backlash_um)
+        if tr.corexy_motor_backlash_um or tr.corexy_motor_scale_ppm:
+            drive = _corexy_motors(drive, tr.corexy_motor_backlash_um,
+                                   tr.corexy_motor_scale_ppm)
         play = Play(tr.errors)
         carriage = drive.copy()
         for k in range(3):
