@@ -172,7 +172,8 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
         found += checks.stability_findings(
             diagnostic_values(f.values, geom.radius), diagnostic_values(f_wide.values,
                                                                         geom.radius),
-            uncertainty_values(f.sigma, geom.radius), mask_deg, wider, label,
+            uncertainty_values(f.sigma, geom.radius),
+            uncertainty_values(f_wide.sigma, geom.radius), mask_deg, wider, label,
             checks.reached_sides(runs))
     out.fit = f
     out.runs = runs

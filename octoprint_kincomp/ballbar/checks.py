@@ -212,7 +212,8 @@ def without(runs: Sequence[Run], drop: Dict[str, np.ndarray]) -> List[Run]:
         k = ~drop.get(run.direction, np.zeros(len(run.theta), dtype=bool))
         pick = (lambda x: None if x is None else x[k])
         out.append(Run(run.direction, run.theta[k], run.dev[k], pick(run.t), pick(run.vA),
-                       pick(run.vB), pick(run.capture), run.start_theta, pick(run.known)))
+                       pick(run.vB), pick(run.capture), run.start_theta, pick(run.known),
+                       pick(run.qA), pick(run.qB)))
     return out
 
 
@@ -234,8 +235,12 @@ def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndar
         return None
     a, b = geom.axes
     R = geom.radius
-    qa = geom.centre[a] + R * np.cos(theta)
-    qb = geom.centre[b] + R * np.sin(theta)
+    if all(r.qA is not None for r in runs):  # commanded positions of a compensated program
+        qa = np.concatenate([r.qA for r in runs])[keep]
+        qb = np.concatenate([r.qB for r in runs])[keep]
+    else:
+        qa = geom.centre[a] + R * np.cos(theta)
+        qb = geom.centre[b] + R * np.sin(theta)
     ca, sb = np.cos(theta), np.sin(theta)
     na, nb = 0.5 * float(ca @ ca), 0.5 * float(sb @ sb)
     # the weighted residual summed into position bins of 1/40 of the shortest pitch (a phase
@@ -436,11 +441,12 @@ def drift_finding(diag: Dict[str, object], duration_s: float, label: str = ""
 # -- stability against the reversal mask ------------------------------------------------
 # The fit is repeated with STABILITY_EXTRA_DEG more left out after each reversal. A value
 # that moves by more than half its tolerance (issue 23: squareness max(2 %, 5 um/m), scale
-# mismatch 5 ppm, servo 0.05 ms, backlash 1.5 um) and more than STABILITY_SIGMA of its own
-# uncertainty depends on what happens near the reversals: flagged with the size of the shift.
-# Clean simulated cases move by at most 0.3 sigma (docs/trust-checks.md).
+# mismatch 5 ppm, servo 0.05 ms, backlash 1.5 um) and more than STABILITY_SIGMA times the
+# uncertainty of the shift depends on what happens near the reversals: flagged with the size
+# of the shift. The shift between nested fits (the wider mask's samples are a subset) has the
+# variance sigma_wide^2 - sigma_narrow^2 when the model is right.
 STABILITY_EXTRA_DEG = 10.0
-STABILITY_SIGMA = 2.0
+STABILITY_SIGMA = 3.0
 HALF_TOLERANCE = {"squareness_um_per_m": 2.5, "scale_mismatch_ppm": 2.5,
                   "servo_mismatch_ms": 0.025, "backlash_um": 0.75}
 
@@ -472,12 +478,15 @@ def reached_sides(runs: Sequence[Run]) -> List[str]:
     return out
 
 
-def stability_findings(a: Dict[str, object], b: Dict[str, object], sig: Dict[str, object],
-                       mask_a: float, mask_b: float, label: str = "",
-                       sides: Optional[Sequence[str]] = None) -> List[Finding]:
-    """Compare the diagnostics of two fits (reversal masks ``mask_a``, ``mask_b`` deg);
-    ``sides``: the backlash sides measured (the others are not compared)."""
-    fa, fb, fs = _flat(a), _flat(b), _flat(sig)
+def stability_findings(a: Dict[str, object], b: Dict[str, object], sig_a: Dict[str, object],
+                       sig_b: Dict[str, object], mask_a: float, mask_b: float,
+                       label: str = "", sides: Optional[Sequence[str]] = None
+                       ) -> List[Finding]:
+    """Compare the diagnostics of two fits (reversal masks ``mask_a`` < ``mask_b`` deg, with
+    their 1-sigma ``sig_a``, ``sig_b``); ``sides``: the backlash sides measured (the others
+    are not compared)."""
+    fa, fb, sa, sb = _flat(a), _flat(b), _flat(sig_a), _flat(sig_b)
+    fs = {k: math.sqrt(max(sb.get(k, 0.0) ** 2 - sa.get(k, 0.0) ** 2, 0.0)) for k in fa}
     moved = {}
     for k, va in fa.items():
         if k not in fb:

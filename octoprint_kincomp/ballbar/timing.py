@@ -568,8 +568,12 @@ def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarra
     at_speed = speed >= AT_SPEED * test.plan.vn[test.plan.block_at(tp)]
     keep = on_arc & (capture | at_speed)
     start = math.radians(run_angles(test.spec, direction)[0])
+    qa = qb = None
+    if test.current is not None:  # compensated: the axes went where the program said
+        cmd = test.plan.sample(tp[keep])[0]
+        qa, qb = cmd[:, a], cmd[:, b]
     return Run(direction, theta[keep], dev[keep], t[keep], vel[keep, a], vel[keep, b],
-               capture[keep], start)
+               capture[keep], start, None, qa, qb)
 
 
 def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
