@@ -242,7 +242,8 @@ def format_campaign(d) -> list:
 
 def cmd_artifact(args) -> int:
     from ..ballbar.analysis import Geometry, propose_params
-    from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
+    from ..ballbar.artifacts import ArtifactError, artifact_findings, diagnostics_from_artifact
+    from ..ballbar.findings import info, trusted
 
     current = load_params(args.current) if args.current else Params()
     ac, bd, ad = floats(args.diagonals, 3, "--diagonals")
@@ -259,8 +260,10 @@ def cmd_artifact(args) -> int:
         raise CliError(str(exc)) from None
     notes = []
     params = propose_params(diag, Geometry(args.plane.upper(), 0.0, None, None), current, notes)
-    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(), "notes": notes},
-                     indent=2))
+    found = artifact_findings(diag) + [info("proposal.note", n) for n in notes]
+    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(),
+                      "findings": [f.to_dict() for f in found], "trusted": trusted(found),
+                      "notes": notes}, indent=2))
     return 0
 
 

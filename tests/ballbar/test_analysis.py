@@ -251,6 +251,8 @@ def test_artifact_route(capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["parameters"]["scale_ppm"]["x"] == pytest.approx(500.0)
     assert out["parameters"]["meta"]["source"] == "printed artifact"
+    assert out["trusted"] is True
+    assert [f["code"] for f in out["findings"]][0] == "artifact.hand_measured"
 
 
 def test_optional_cyclic_error():
