@@ -314,6 +314,7 @@ def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.n
                    ) -> Dict[str, float]:
     """Share (0..1) of the residual's excess over the noise (sum of squares) that each
     look-alike explains: ``motor_backlash`` (steps where a CoreXY/H-bot motor reverses, XY),
+    ``reversal_spikes`` (a tail decaying over 8 deg after each reversal point),
     ``odd_harmonics`` (3, 5, 7, 9 theta, lateral play), ``time_trend`` (a non-linear drift),
     ``periodic`` (the strongest cyclic term), ``high_frequency`` (the residual's sample-to-
     sample level above the still floor: vibration)."""
@@ -334,6 +335,12 @@ def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.n
                              for r in runs])[keep]
         cols = [np.sign(vA + vB) * (c + s), np.sign(vA - vB) * (c - s)]
         out["motor_backlash"] = _explained(res, cols) / excess
+    deg = np.degrees(theta)
+    cols = []
+    for rev in (0.0, 90.0, 180.0, 270.0):  # a decaying tail after each reversal point
+        phi = np.mod(w * (deg - rev), 360.0)
+        cols.append(np.where(phi < 90.0, np.exp(-phi / 8.0), 0.0))
+    out["reversal_spikes"] = _explained(res, cols) / excess
     cols = []
     for k in (3, 5, 7, 9):
         for base in (np.cos(k * theta), np.sin(k * theta)):
@@ -364,6 +371,8 @@ LOOK_MESSAGES = {
     "motor_backlash": Msg("steps where a motor of a CoreXY/H-bot reverses (45, 135, 225, 315 "
                           "deg), not where an axis does: backlash in the motors or belts, "
                           "which the per-axis backlash model cannot describe"),
+    "reversal_spikes": Msg("tails that decay after the reversal points, beyond the part "
+                           "left out of the fit: reversal spikes or stick-slip"),
     "odd_harmonics": Msg("odd harmonics of the angle (3, 5, 7, 9 per turn): lateral play or "
                          "steps the model does not describe"),
     "time_trend": Msg("a slow change in time that is not linear: the bar or the printer "

@@ -223,6 +223,21 @@ def test_glitches_dominating_the_circularity_are_flagged():
     assert d["circularity_robust_um"]["bidirectional"] < 20.0
 
 
+def test_reversal_spikes_reaching_past_the_mask_are_flagged():
+    """Spikes of 15 um decaying over 15 mm reach past the 15 deg mask and pull the backlash
+    (2.3 um off): the stability check flags it with the shifts. Spikes decaying over 3 mm
+    are masked: no warning, values within tolerance."""
+    long = paper_truth(noise_um=0.5, spike_um=15.0, spike_decay_mm=15.0)
+    f = finding(analysed(XY, long), "model.unstable")
+    assert f["severity"] == "warning"
+    assert any(k.startswith("backlash_um.") and abs(v) > 0.75 for k, v in
+               f["evidence"]["shifts"].items())
+    short = paper_truth(noise_um=0.5, spike_um=15.0, spike_decay_mm=3.0)
+    out = analysed(XY, short)
+    within(out["diagnostics"], expected_xy(short))
+    no_warning(out)
+
+
 def test_bar_drift_is_fitted_and_said():
     t = paper_truth(noise_um=0.5, bar_drift_um_per_min=3.0)
     out = analysed(XY, t)
