@@ -142,7 +142,7 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
         out.robust_runs = runs
         f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
         if source == "residual":
-            floor = checks.residual_floor(f, runs) * 1e3
+            floor = max(checks.residual_floor(f, runs) * 1e3, checks.FLOOR_MIN_UM)
     keep = checks.keep_mask(runs, mask_deg)
     scan = checks.scan_cyclic(geom, runs, f, keep)
     if scan is not None:

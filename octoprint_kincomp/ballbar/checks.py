@@ -169,13 +169,19 @@ def residual_floor(f: FitResult, runs: Sequence[Run]) -> float:
     return _robust_sigma(np.concatenate(parts)) / math.sqrt(6.0)
 
 
+# um: the least noise floor assumed (a noiseless simulation, a sensor's 0.1 um resolution):
+# below it a residual is not called a misfit
+FLOOR_MIN_UM = 0.1
+
+
 def noise_floor(f: FitResult, runs: Sequence[Run], mapping) -> Tuple[float, str]:
     """(um, source): the sensor's noise floor: the readings' scatter while the head stood
-    still (native traces), else the residuals' second-difference level."""
+    still (native traces), else the residuals' second-difference level; at least
+    FLOOR_MIN_UM."""
     still = list((getattr(mapping, "still_noise_um", None) or {}).values())
     if still:
-        return float(np.median(still)), "still"
-    return residual_floor(f, runs) * 1e3, "residual"
+        return max(float(np.median(still)), FLOOR_MIN_UM), "still"
+    return max(residual_floor(f, runs) * 1e3, FLOOR_MIN_UM), "residual"
 
 
 # -- outliers --------------------------------------------------------------------------

@@ -496,7 +496,9 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
 
 def _still_noise(test: PlannedTest, mr: MeasuredRun, sync: Sync) -> Optional[float]:
     """um: the robust scatter of the readings while the head stands still before the run's
-    feed-in (the dwell), a straight line taken off; None with fewer than 20 such samples."""
+    feed-in (the dwell), a straight line taken off, at least the rounding noise of the
+    reading's smallest step (step / sqrt 12); None with fewer than 20 such samples or a
+    reading that does not change at all."""
     k0 = test.runs[mr.direction].feed_in[0]
     t_ramp = test.plan.block_span(k0)[0] + sync.tau_in
     # the dwell block just before the feed-in (a wait: feed 0)
@@ -509,9 +511,15 @@ def _still_noise(test: PlannedTest, mr: MeasuredRun, sync: Sync) -> Optional[flo
     if sel.sum() < 20:
         return None
     t, r = mr.t[sel], mr.r[sel]
+    steps = np.abs(np.diff(r))
+    steps = steps[steps > 1e-9]
+    if not len(steps):  # a constant reading: its resolution is not known here
+        return None
     coef = np.polyfit(t - t.mean(), r, 1)
     e = r - np.polyval(coef, t - t.mean())
-    return float(1.4826 * np.median(np.abs(e - np.median(e)))) * 1e3
+    mad = float(1.4826 * np.median(np.abs(e - np.median(e))))
+    # a coarse reading (a 1 um dial) that hardly changes still has its rounding noise
+    return max(mad, float(steps.min()) / math.sqrt(12.0)) * 1e3
 
 
 def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:

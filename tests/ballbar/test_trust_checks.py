@@ -256,6 +256,22 @@ def test_noise_floor_is_the_still_reading():
     no_warning(out)
 
 
+def test_noiseless_and_coarse_readings_are_no_misfit():
+    """A noiseless simulation (the floor is at least 0.1 um) and a 1 um dial (the still
+    reading hardly changes: its rounding noise, 1/sqrt(12) um, is the floor)."""
+    out = analysed(XY, paper_truth())
+    assert out["diagnostics"]["checks"]["adequacy"]["noise_floor_um"] == pytest.approx(0.1)
+    no_warning(out)
+
+    def dial(trace):
+        trace.rows = [(d, t, round(r * 1000) / 1000) for d, t, r in trace.rows]
+    out = analysed(XY, paper_truth(noise_um=0.2), edit=dial)
+    ad = out["diagnostics"]["checks"]["adequacy"]
+    assert ad["noise_floor_source"] == "still"
+    assert ad["noise_floor_um"] >= 1 / 12 ** 0.5 - 1e-6
+    no_warning(out)
+
+
 # ---------------------------------------------------------------------------------------
 # clean cases: no warning, within tolerance, default options
 
