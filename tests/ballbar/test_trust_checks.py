@@ -118,11 +118,12 @@ def test_a_program_that_pins_the_speed_factor_runs_as_planned():
     assert "motion.timing" not in codes(out)
 
 
-def test_a_z_axis_capped_below_the_feed_is_an_error():
-    """The issue's first case: XZ at F1850, the printer's Z capped at 10 mm/s, which the
-    trace's metadata does not record."""
-    t = volume_truth(noise_um=0.5)
-    t.hidden_max_feed_mm_min = {"z": 600.0}
+@pytest.mark.parametrize("cap", [{"hidden_max_feed_mm_min": {"z": 600.0}},
+                                 {"hidden_max_accel_mm_s2": {"z": 200.0}}])
+def test_a_z_axis_capped_below_the_feed_is_an_error(cap):
+    """The issue's first case: XZ at F1850, the printer's Z capped at 10 mm/s (or its
+    acceleration at 200 mm/s^2), which the trace's metadata does not record."""
+    t = volume_truth(noise_um=0.5, **cap)
     out = analysed(XZ, t)
     f = finding(out, "motion.timing")
     assert f["severity"] == "error" and f["evidence"]["likely_cause"] == "axis_cap"
