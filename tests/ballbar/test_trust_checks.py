@@ -413,3 +413,26 @@ def test_campaign_findings_clean_and_capped():
     errs = [f for f in out["findings"] if f["code"] == "motion.timing"]
     assert errs and all(f["message"].split(":")[0].endswith(".csv") for f in errs)
     assert {f["evidence"]["likely_cause"] for f in errs} == {"axis_cap"}
+
+
+@pytest.mark.slow
+def test_campaign_fits_belt_teeth_by_default():
+    """A whole-volume campaign of a printer with 3 um of 2 mm belt-tooth error on X and Y:
+    the traces that show it make the joint model fit the cyclic term; no warning, and the
+    joint values hold."""
+    from octoprint_kincomp.ballbar.campaign import plan_campaign
+    from octoprint_kincomp.ballbar.campaign_analysis import analyse_campaign
+    from octoprint_kincomp.ballbar.closedloop import VOLUME, _campaign_traces
+    from octoprint_kincomp.core.params import Params
+
+    t = volume_truth(noise_um=0.5, cyclic={"x": (3.0, 2.0, 0.0), "y": (3.0, 2.0, 70.0)})
+    steps = plan_campaign(VOLUME, campaign_id="belt")
+    out = analyse_campaign(_campaign_traces(steps, t, Params()))
+    no_warning(out)
+    assert "model.cyclic_fitted" in codes(out, "info")
+    c = out["diagnostics"]["campaign"]
+    assert c["squareness_um_per_m"]["xy"] == pytest.approx(-3638.6, rel=0.02)
+    assert c["squareness_um_per_m"]["xz"] == pytest.approx(800.0, abs=16.0)
+    assert c["squareness_um_per_m"]["yz"] == pytest.approx(-500.0, abs=10.0)
+    assert c["scale_mismatch_ppm"]["x-y"] == pytest.approx(-451.7 - 287.0, abs=5.0)
+    assert c["servo_mismatch_ms"]["x-y"] == pytest.approx(0.62, abs=0.05)
