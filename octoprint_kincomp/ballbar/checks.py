@@ -35,9 +35,10 @@ from .model import FitResult, Geometry, Run, fit_mask
 # -- motion ------------------------------------------------------------------------------
 # A clean run's feed-out comes within 1 ms of the plan (measured: 108 simulated runs, 54
 # traces of the three planes at 500/1500/3000 mm/s^2, four noise seeds, planner settings
-# given or estimated, 0.5 um noise: |sync mismatch| <= 0.82 ms); the faults the check must see are seconds (a Z cap 19 s,
-# M220 S80 5.7 s on a 20 s run). 10 ms is 12x the largest clean value and a tenth of a
-# percent of a 20 s run; a logger clock off by up to 0.5 % is allowed by the share.
+# given or estimated, 0.5 um noise: |sync mismatch| <= 0.82 ms); the faults the check must
+# see are seconds (the Z cap 19 s; here a Z cap 9.6 s, M220 S80 5.7 s on a 22.7 s
+# arc). 10 ms is 12x the largest clean value and 0.05 % of a 20 s arc; a logger clock off
+# by up to 0.5 % is allowed by the share.
 SYNC_TOLERANCE_MS = 10.0
 SYNC_TOLERANCE_SHARE = 0.005  # of the planned arc time
 
@@ -127,7 +128,8 @@ def _timing_error(geom: Geometry, direction: str, mismatch_ms: float, planned_s:
               "tolerance %(tol)s ms): the printer did not run this program as planned, so "
               "time was mapped to the wrong angles. This is %(likely)s. Had the trace come "
               "from another program (another plane's arc, radius or feed), a radius of "
-              "%(radius)s mm or a feed of %(feed)s mm/min would explain the time.", pre=pre, direction=direction.upper(),
+              "%(radius)s mm or a feed of %(feed)s mm/min would explain the time.", pre=pre,
+              direction=direction.upper(),
               actual=_fmt(actual, 2), planned=_fmt(planned_s, 2), diff=f"{mismatch_ms:+.0f}",
               tol=_fmt(tol_ms, 0), likely=likely, radius=_fmt(radius, 1), feed=_fmt(feed, 0))
     advice = Msg("Do not apply this result. Check that the trace belongs to this program "

@@ -6,8 +6,8 @@ common centre removed), radial deviation F only for a calibrated bar. G and G(b)
 (max - min) of the raw samples, so the sensor's noise adds to them (about 8 sigma for 36,000
 samples); ``circularity_filtered_um`` is the same after a moving average over
 :data:`FILTER_DEG` of arc (a step such as backlash keeps its height, white noise shrinks by
-the square root of the samples averaged), for before/after comparisons near the noise. Units: um in the output,
-mm inside; angles in radians inside, degrees in the plot.
+the square root of the samples averaged), for before/after comparisons near the noise.
+Units: um in the output, mm inside; angles in radians inside, degrees in the plot.
 """
 
 from __future__ import annotations
