@@ -191,8 +191,9 @@ def noise_floor(f: FitResult, runs: Sequence[Run], mapping) -> Tuple[float, str]
 
 def find_outliers(f: FitResult, runs: Sequence[Run], floor_um: float) -> Dict[str, np.ndarray]:
     """Per direction, True for isolated samples: a residual further than OUTLIER_SIGMA noise
-    sigmas (at least OUTLIER_MIN_UM) from the median of its 7 neighbours in time order (a
-    reversal spike or a step moves its neighbours too and is not one)."""
+    sigmas (at least OUTLIER_MIN_UM) from the median of its 7 neighbours in time order and
+    as far from both of its two neighbours, on the same side (a reversal spike, a backlash
+    step or its take-up moves a neighbour too and is not one)."""
     lim = max(OUTLIER_SIGMA * floor_um, OUTLIER_MIN_UM) * 1e-3
     out = {}
     for run in runs:
@@ -206,7 +207,9 @@ def find_outliers(f: FitResult, runs: Sequence[Run], floor_um: float) -> Dict[st
         pad = np.concatenate([np.full(3, r[0]), r, np.full(3, r[-1])])
         win = np.lib.stride_tricks.sliding_window_view(pad, 7)
         med = np.median(win, axis=1)
-        bad_sorted = np.abs(r - med) > lim
+        lo = np.minimum(pad[2:-4], pad[4:-2])  # the neighbours before and after
+        hi = np.maximum(pad[2:-4], pad[4:-2])
+        bad_sorted = (np.abs(r - med) > lim) & ((r < lo - lim) | (r > hi + lim))
         bad = np.zeros(n, dtype=bool)
         bad[order] = bad_sorted
         out[run.direction] = bad
