@@ -298,11 +298,13 @@ def _duration_s(runs: Sequence[Run]) -> float:
 
 
 def outlier_findings(geom: Geometry, runs: Sequence[Run], cf: CheckedFit, calibrated: bool,
-                     diag: Dict[str, object]) -> List[Finding]:
+                     diag: Dict[str, object], label: str = "") -> List[Finding]:
     """The circularity without the outliers the checks left out of the fit, and a finding
-    saying how much they weigh (a warning when they dominate G(b))."""
+    saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
+    message (a campaign's file name)."""
     if not cf.robust_runs:
         return []
+    pre = (label + ": ") if label else ""
     robust = iso_metrics(geom, cf.robust_runs, calibrated)["circularity_um"]
     diag["circularity_robust_um"] = robust
     g, gr = diag["circularity_um"]["bidirectional"], robust["bidirectional"]
@@ -310,15 +312,15 @@ def outlier_findings(geom: Geometry, runs: Sequence[Run], cf: CheckedFit, calibr
     ev = dict(outliers=n, g_b_um=round(g, 2), g_b_without_um=round(gr, 2))
     if g > checks.OUTLIER_DOMINATE * gr:
         return [warning("data.outliers", Msg(
-            "%(n)s isolated samples lie far from their neighbours (a sensor glitch, a knock): "
-            "the circularity G(b) is %(g)s um with them and %(gr)s um without. They dominate "
-            "G(b) and any before/after comparison of it; the fit left them out.", n=n,
-            g=f"{g:.1f}", gr=f"{gr:.1f}"), Msg(
+            "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor glitch, a "
+            "knock): the circularity G(b) is %(g)s um with them and %(gr)s um without. They "
+            "dominate G(b) and any before/after comparison of it; the fit left them out.",
+            pre=pre, n=n, g=f"{g:.1f}", gr=f"{gr:.1f}"), Msg(
             "Compare circularity without the outliers (circularity_robust_um), or repeat the "
             "test with the sensor's cable and mount secured."), **ev)]
     return [info("data.outliers", Msg(
-        "%(n)s isolated samples far from their neighbours were left out of the fit "
-        "(G(b) %(g)s um with them, %(gr)s um without).", n=n, g=f"{g:.1f}",
+        "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
+        "(G(b) %(g)s um with them, %(gr)s um without).", pre=pre, n=n, g=f"{g:.1f}",
         gr=f"{gr:.1f}"), **ev)]
 
 

@@ -23,7 +23,8 @@ import numpy as np
 from ..core.kinematics import changes_nothing
 from ..core.messages import Msg
 from ..core.params import AXES, Params
-from .analysis import analyse_runs, checked_fit, load_runs_mapped, mapping_notes
+from .analysis import (analyse_runs, checked_fit, load_runs_mapped, mapping_notes,
+                       outlier_findings)
 from .findings import Finding, info, trusted, worst_first
 from .campaign import CampaignError, check_traces
 from .formats import TraceError
@@ -70,7 +71,7 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
         if cf.cyclic_pitch and cyclic_pitch is None:
             pitches.append(cf.cyclic_pitch)
         fits.append(TraceFit(name, geom, cf.runs, cf.fit))
-        maps.append((trace.meta, mapping, cf.checks))
+        maps.append((trace.meta, mapping, cf, runs))
         for n in mapping_notes(mapping):
             n = Msg("%(file)s: %(note)s", file=name, note=n)
             notes.append(n)
@@ -82,20 +83,21 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
         fits = [TraceFit(t.name, t.geom, t.runs, fit(t.geom, t.runs, mask_deg, calibrated,
                                                        cyclic_pitch)) for t in fits]
     res = joint_fit(fits, mask_deg, calibrated, cyclic_pitch)
-    for i, (t, (meta, mapping, checked)) in enumerate(zip(fits, maps)):
+    for i, (t, (meta, mapping, cf, raw)) in enumerate(zip(fits, maps)):
         # each test on its own, with the out-of-plane motion the other planes' squareness
         # causes (from the joint fit) taken into account
         fixed = res.layout.out_of_plane(t.geom.plane, res.values)
         f = fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed) \
             if any(fixed.values()) else t.fit
-        diag = analyse_runs(t.geom, t.runs, meta, mask_deg, calibrated, cyclic_pitch, f,
-                            mapping)
+        # the ISO metrics and the plot of all samples, outliers included (as for one trace)
+        diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
+        found += outlier_findings(t.geom, raw, cf, calibrated, diag, t.name)
         if f is not t.fit:
             diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
         diag["joint"] = joint_values(res, i)
-        diag["checks"] = checked
+        diag["checks"] = cf.checks
         per_trace.append(dict({"file": t.name}, **diag))
-        plots.append(plot_data(t.geom, t.runs, f, diag))
+        plots.append(plot_data(t.geom, raw, f, diag))
     camp = summary(res)
     camp["planes"] = list(res.layout.planes)
     camp["traces"] = len(fits)
