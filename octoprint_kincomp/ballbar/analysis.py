@@ -41,7 +41,7 @@ from .formats import (
 )
 from . import checks
 from .findings import Finding, info, trusted, warning, worst_first
-from .metrics import iso_metrics, plot_data
+from .metrics import circularity, iso_metrics, plot_data
 from .model import DEFAULT_MASK_DEG, FitResult, Geometry, Model, Run, fit, reversal_mask
 from .model import diagnostic_values, uncertainty_values
 from .proposal import propose_params
@@ -245,7 +245,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f,
                             mapping)
         found += cf.findings
-        found += outlier_findings(geom, runs, cf, calibrated, diag)
+        found += outlier_findings(cf, diag)
         diag["checks"] = cf.checks
         drift = checks.drift_finding(diag, _duration_s(runs))
         if drift is not None:
@@ -297,15 +297,15 @@ def _duration_s(runs: Sequence[Run]) -> float:
     return float(max(t.max() for t in ts) - min(t.min() for t in ts))
 
 
-def outlier_findings(geom: Geometry, runs: Sequence[Run], cf: CheckedFit, calibrated: bool,
-                     diag: Dict[str, object], label: str = "") -> List[Finding]:
+def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = ""
+                     ) -> List[Finding]:
     """The circularity without the outliers the checks left out of the fit, and a finding
     saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
     message (a campaign's file name)."""
     if not cf.robust_runs:
         return []
     pre = (label + ": ") if label else ""
-    robust = iso_metrics(geom, cf.robust_runs, calibrated)["circularity_um"]
+    robust = circularity([r.captured() for r in cf.robust_runs])
     diag["circularity_robust_um"] = robust
     g, gr = diag["circularity_um"]["bidirectional"], robust["bidirectional"]
     n = cf.checks.get("outliers", 0)

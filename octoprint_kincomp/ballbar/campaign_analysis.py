@@ -91,7 +91,7 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
             if any(fixed.values()) else t.fit
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
-        found += outlier_findings(t.geom, raw, cf, calibrated, diag, t.name)
+        found += outlier_findings(cf, diag, t.name)
         if f is not t.fit:
             diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
         diag["joint"] = joint_values(res, i)

@@ -74,8 +74,9 @@ def _mzc_range(theta, dev, iters: int = 300) -> float:
     return best
 
 
-def _circularity(runs: Sequence[Run]) -> Dict[str, float]:
-    """G per direction and G(b) (um, LSC)."""
+def circularity(runs: Sequence[Run]) -> Dict[str, float]:
+    """G per direction and G(b) (um, LSC) of the samples given (captured ones: see
+    :meth:`.Run.captured`)."""
     out = {}
     for r in runs:
         e, _ = _lsc(r.theta, r.dev)
@@ -99,8 +100,8 @@ def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[s
     circ["bidirectional"] = float(e.max() - e.min()) * 1e3
     mzc["bidirectional"] = _mzc_range(theta, dev) * 1e3
     out: Dict[str, object] = {"circularity_um": circ, "circularity_mzc_um": mzc,
-                              "circularity_filtered_um": _circularity([_smoothed(r)
-                                                                        for r in runs]),
+                              "circularity_filtered_um": circularity([_smoothed(r)
+                                                                       for r in runs]),
                               "filter_deg": FILTER_DEG}
     if len(by) == 2:
         # hysteresis: CW vs CCW at the same angle, common centre removed
