@@ -23,6 +23,8 @@ from octoprint_kincomp.ballbar.simulator import (
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.params import ParamsError
 
+from tests.ballbar.test_identification import within  # the tolerances
+
 XY = TestSpec()
 XZ = TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=50)
 
@@ -36,15 +38,6 @@ def expected_xy(t, extra_squareness=0.0):
                             "a_minus": e.backlash["x"].um_at(10.0),
                             "b_plus": e.backlash["y"].um_at(210.0),
                             "b_minus": e.backlash["y"].um_at(10.0)}}
-
-
-def within(d, exp):
-    sq = exp["squareness_um_per_m"]
-    assert abs(d["squareness_um_per_m"] - sq) <= max(0.02 * abs(sq), 5.0), d
-    assert abs(d["scale_mismatch_ppm"] - exp["scale_mismatch_ppm"]) <= 5.0
-    assert abs(d["servo_mismatch_ms"] - exp["servo_mismatch_ms"]) <= 0.05
-    for k, v in exp["backlash_um"].items():
-        assert abs(d["backlash_um"][k] - v) <= 1.5, (k, d["backlash_um"])
 
 
 def analysed(spec, truth, angle=False, edit=None, **kw):
