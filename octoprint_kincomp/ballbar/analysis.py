@@ -247,7 +247,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         found += cf.findings
         found += outlier_findings(cf, diag)
         diag["checks"] = cf.checks
-        drift = checks.drift_finding(diag, _duration_s(runs))
+        drift = checks.drift_finding(diag, runs)
         if drift is not None:
             found.append(drift)
         plot = plot_data(geom, runs, f, diag)
@@ -288,13 +288,6 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         "notes": notes,
         "plot": plot,
     }
-
-
-def _duration_s(runs: Sequence[Run]) -> float:
-    ts = [r.t for r in runs if r.t is not None and len(r.t)]
-    if not ts:
-        return 0.0
-    return float(max(t.max() for t in ts) - min(t.min() for t in ts))
 
 
 def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = ""

@@ -26,6 +26,7 @@ from ..core.params import AXES, Params
 from .analysis import (analyse_runs, checked_fit, load_runs_mapped, mapping_notes,
                        outlier_findings)
 from .findings import Finding, info, trusted, worst_first
+from . import checks
 from .campaign import CampaignError, check_traces
 from .formats import TraceError
 from .joint import TraceFit, check_coverage, joint_fit, joint_values, summary
@@ -92,6 +93,9 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
         found += outlier_findings(cf, diag, t.name)
+        drift = checks.drift_finding(diag, raw, t.name)
+        if drift is not None:
+            found.append(drift)
         if f is not t.fit:
             diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
         diag["joint"] = joint_values(res, i)

@@ -441,12 +441,15 @@ def cyclic_finding(scan: Dict[str, float], label: str = "") -> Finding:
                 amplitude_um={k: round(v, 3) for k, v in amp.items()})
 
 
-def drift_finding(diag: Dict[str, object], duration_s: float, label: str = ""
+def drift_finding(diag: Dict[str, object], runs: Sequence[Run], label: str = ""
                   ) -> Optional[Finding]:
-    """Info when the fitted bar drift moved the reading by more than 1 um over the test."""
+    """Info when the fitted bar drift moved the reading by more than 1 um over the test
+    (the runs' first to last sample)."""
     rate = diag.get("bar_drift_um_per_min")
-    if rate is None:
+    ts = [r.t for r in runs if r.t is not None and len(r.t)]
+    if rate is None or not ts:
         return None
+    duration_s = float(max(t.max() for t in ts) - min(t.min() for t in ts))
     total = abs(rate) * duration_s / 60.0
     if total <= 1.0:
         return None
