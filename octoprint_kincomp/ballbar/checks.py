@@ -193,8 +193,12 @@ def find_outliers(f: FitResult, runs: Sequence[Run], floor_um: float) -> Dict[st
     """Per direction, True for isolated samples: a residual further than OUTLIER_SIGMA noise
     sigmas (at least OUTLIER_MIN_UM) from the median of its 7 neighbours in time order and
     as far from both of its two neighbours, on the same side (a reversal spike, a backlash
-    step or its take-up moves a neighbour too and is not one)."""
-    lim = max(OUTLIER_SIGMA * floor_um, OUTLIER_MIN_UM) * 1e-3
+    step or its take-up moves a neighbour too and is not one). The noise is the larger of
+    ``floor_um`` (still) and the residual's own sample-to-sample level (:func:`residual_floor`,
+    robust to a few glitches): a printer that vibrates while moving has no outliers in its
+    noise."""
+    sigma_um = max(floor_um, residual_floor(f, runs) * 1e3)
+    lim = max(OUTLIER_SIGMA * sigma_um, OUTLIER_MIN_UM) * 1e-3
     out = {}
     for run in runs:
         _, res = f.residuals[run.direction]

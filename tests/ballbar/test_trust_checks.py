@@ -231,6 +231,25 @@ def test_a_backlash_step_is_not_an_outlier(spec):
     assert "circularity_robust_um" not in out["diagnostics"]
 
 
+def test_noise_while_moving_is_not_taken_for_outliers(monkeypatch):
+    """A printer that vibrates: the reading scatters 2 um while moving, 0.5 um standing still.
+    The misfit check names it; the largest noise samples are no glitches and stay in."""
+    from octoprint_kincomp.ballbar import analysis
+
+    native = analysis.runs_from_native
+
+    def still_quieter(*a, **kw):
+        geom, runs, mapping = native(*a, **kw)
+        mapping.still_noise_um = {d: 0.5 for d in mapping.still_noise_um}
+        return geom, runs, mapping
+
+    monkeypatch.setattr(analysis, "runs_from_native", still_quieter)
+    out = analysed(XY, tuned_truth(noise_um=2.0))
+    assert "model.misfit" in codes(out, "warning")
+    assert out["diagnostics"]["checks"]["outliers"] == 0
+    assert "data.outliers" not in codes(out)
+
+
 def test_reversal_spikes_reaching_past_the_mask_are_flagged():
     """Spikes of 15 um decaying over 15 mm reach past the 15 deg mask and pull the backlash
     (2.3 um off): the stability check flags it with the shifts. Spikes decaying over 3 mm
