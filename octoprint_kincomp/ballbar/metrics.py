@@ -22,8 +22,9 @@ FILTER_DEG = 1.0  # deg of arc averaged for circularity_filtered_um
 
 
 def _smoothed(run: Run, width_deg: float = FILTER_DEG) -> Run:
-    """The run with its deviations averaged over ``width_deg`` of arc (in sample order,
-    a centred window; shorter at the ends and across gaps it does not bridge)."""
+    """The run with its deviations averaged over about ``width_deg`` of arc: a centred
+    window, in angle order, of as many samples as ``width_deg`` takes at the median sample
+    spacing (shorter at the ends; it does not stop at a gap in the trace)."""
     n = len(run.theta)
     if n < 3:
         return run
