@@ -279,7 +279,6 @@ def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndar
         amps[:, col] = np.abs(z) / norm
     inside = (ks >= 2 * math.pi / CYCLIC_PITCH_MM[1]) & (ks <= 2 * math.pi / CYCLIC_PITCH_MM[0])
     power = np.where(inside, power, -1.0)
-    step = 1
     j = int(np.argmax(power))
     k = ks[j]
     if 0 < j < len(ks) - 1:
@@ -289,7 +288,7 @@ def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndar
             k = ks[j] + 0.5 * (y0 - y2) / den * dk
     return {"pitch_mm": float(2 * math.pi / k),
             "amplitude_um": {"a": float(amps[j, 0]) * 1e3, "b": float(amps[j, 1]) * 1e3},
-            "dsse_mm2": float(power[j]) * step}
+            "dsse_mm2": float(power[j])}
 
 
 def cyclic_detected(scan: Optional[Dict[str, float]], floor_um: float,
