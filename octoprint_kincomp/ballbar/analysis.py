@@ -1,14 +1,19 @@
 """Ballbar trace analysis: from readings to errors, ISO 230-4 metrics and KinComp parameters.
 
 One trace (native time series, angle domain, ``.b5r`` or typed summary) -> :func:`analyse`,
-which returns ``{"diagnostics", "parameters", "firmware", "notes", "plot"}``. The pieces:
+which returns ``{"diagnostics", "parameters", "firmware", "findings", "trusted", "notes",
+"plot"}``. The pieces:
 
 * :mod:`.timing`: native samples -> nominal angle with the planned motion of the program
   (acceleration, junction speeds, stops; settings from the metadata or the trace itself);
 * :mod:`.model`: the exact radial-deviation model, its joint CW+CCW least-squares fit and the
   1-sigma uncertainty of every fitted value (signs and units documented there);
 * :mod:`.metrics`: ISO 230-4 circularity (LSC and MZC), hysteresis and the plot data;
-* :mod:`.proposal`: residual errors + the parameters active during the test -> a params file.
+* :mod:`.proposal`: residual errors + the parameters active during the test -> a params file;
+* :mod:`.checks`: what is checked before the result is trusted (timing against the plan,
+  the residual against the noise floor, cyclic error, outliers) -> ``findings`` (see
+  :mod:`.findings`); ``trusted`` is False when a finding is an error. ``notes`` (the info
+  findings' messages) stays for older readers.
 
 Several traces of one campaign are fitted jointly by :mod:`.joint`.
 """
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -33,7 +39,9 @@ from .formats import (
     meta_float,
     meta_plane,
 )
-from .metrics import iso_metrics, plot_data
+from . import checks
+from .findings import Finding, info, trusted, warning, worst_first
+from .metrics import circularity, iso_metrics, plot_data
 from .model import DEFAULT_MASK_DEG, FitResult, Geometry, Model, Run, fit, reversal_mask
 from .model import diagnostic_values, uncertainty_values
 from .proposal import propose_params
@@ -101,6 +109,78 @@ def _check_both_directions(runs: Sequence[Run]) -> None:
                 direction=d.upper()))
 
 
+@dataclass
+class CheckedFit:
+    """A fit after the trust checks: the fit the values come from (outliers left out, the
+    cyclic term added when the residual showed one), its findings and diagnostics."""
+
+    fit: FitResult
+    runs: List[Run]  # the runs the fit used (outliers left out)
+    cyclic_pitch: Optional[float]
+    findings: List[Finding] = field(default_factory=list)
+    checks: Dict[str, object] = field(default_factory=dict)  # diag["checks"]
+    robust_runs: Optional[List[Run]] = None  # for the circularity without outliers
+
+
+def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
+                mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
+                cyclic_pitch: Optional[float] = None, label: str = "",
+                fixed: Optional[Dict[str, float]] = None) -> CheckedFit:
+    """Fit, then check the evidence (see :mod:`.checks`): outliers are left out and the fit
+    repeated; a clear cyclic error in the residual is fitted (when ``cyclic_pitch`` is not
+    given); the timing and the residual against the noise floor become findings."""
+    runs = list(runs)
+    found: List[Finding] = list(checks.motion_findings(geom, mapping, label))
+    f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+    floor, source = checks.noise_floor(f, runs, mapping)
+    out = CheckedFit(f, runs, cyclic_pitch)
+    drop = checks.find_outliers(f, runs, floor)
+    n_out = int(sum(int(m.sum()) for m in drop.values()))
+    out.checks["outliers"] = n_out
+    if n_out:
+        runs = checks.without(runs, drop)
+        out.robust_runs = runs
+        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+        if source == "residual":
+            floor = max(checks.residual_floor(f, runs) * 1e3, checks.FLOOR_MIN_UM)
+    keep = checks.keep_mask(runs, mask_deg)
+    scan = checks.scan_cyclic(geom, runs, f, keep)
+    if scan is not None:
+        out.checks["cyclic_scan"] = {"pitch_mm": round(scan["pitch_mm"], 4),
+                                     "amplitude_um": {k: round(v, 3) for k, v in
+                                                      scan["amplitude_um"].items()}}
+    if cyclic_pitch is None and checks.cyclic_detected(
+            scan, floor, checks.excess_mm2(runs, f, keep, floor)):
+        cyclic_pitch = float(scan["pitch_mm"])
+        f2 = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+        if f2.rms_um < f.rms_um:
+            f = f2
+            out.cyclic_pitch = cyclic_pitch
+            found.append(checks.cyclic_finding(scan, label))
+            scan = checks.scan_cyclic(geom, runs, f, keep)
+    adequacy, ev = checks.adequacy_findings(geom, runs, f, keep, floor, source,
+                                            scan if checks.cyclic_detected(scan, floor)
+                                            else None, label)
+    found += adequacy
+    out.checks["adequacy"] = ev
+    wider = mask_deg + checks.STABILITY_EXTRA_DEG
+    try:
+        f_wide = fit(geom, runs, wider, calibrated, out.cyclic_pitch, fixed=fixed)
+    except TraceError:
+        f_wide = None
+    if f_wide is not None:
+        found += checks.stability_findings(
+            diagnostic_values(f.values, geom.radius), diagnostic_values(f_wide.values,
+                                                                        geom.radius),
+            uncertainty_values(f.sigma, geom.radius),
+            uncertainty_values(f_wide.sigma, geom.radius), mask_deg, wider, label,
+            checks.reached_sides(runs))
+    out.fit = f
+    out.runs = runs
+    out.findings = found
+    return out
+
+
 def analyse_runs(geom: Geometry, runs: Sequence[Run], meta: Dict[str, str],
                  mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
                  cyclic_pitch: Optional[float] = None, f: Optional[FitResult] = None,
@@ -143,6 +223,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
 
     current = current or Params()
     notes: List[str] = []
+    found: List[Finding] = []
     plot = None
     if isinstance(trace, Summary):
         diag = dict(trace.diagnostics)
@@ -153,35 +234,87 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
         diag.setdefault("plane", geom.plane)
         diag["source"] = trace.meta.get("source", "summary")
         notes += trace.notes
+        found.append(info("source.summary", Msg(
+            "These values come from another program's summary, not from a trace: KinComp "
+            "could not check the motion, the fit or the noise behind them.")))
     else:
         geom, runs, mapping = load_runs_mapped(trace, current)
         _check_both_directions(runs)
-        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
-        diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cyclic_pitch, f,
+        cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch)
+        f = cf.fit
+        diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f,
                             mapping)
+        found += cf.findings
+        found += outlier_findings(cf, diag)
+        diag["checks"] = cf.checks
+        drift = checks.drift_finding(diag, runs)
+        if drift is not None:
+            found.append(drift)
         plot = plot_data(geom, runs, f, diag)
-        notes += mapping_notes(mapping)
+        for n in mapping_notes(mapping):
+            notes.append(n)
+            found.append(info("motion.estimated", n))
         measured_with = trace.meta.get("params_hash", "").strip()
         if measured_with not in ("", "none", "-") and measured_with != current.hash():
-            notes.append(Msg("The trace was measured with parameters %(hash)s, but the "
-                             "analysis assumes %(current)s were in force: give the parameters "
-                             "that were active during the test, or the residuals are wrong.",
-                             hash=measured_with, current=current.hash()))
+            n = Msg("The trace was measured with parameters %(hash)s, but the "
+                    "analysis assumes %(current)s were in force: give the parameters "
+                    "that were active during the test, or the residuals are wrong.",
+                    hash=measured_with, current=current.hash())
+            notes.append(n)
+            found.append(warning("params.mismatch", n, evidence_hash=measured_with,
+                                 current_hash=current.hash()))
         if not calibrated:
-            notes.append(Msg("The bar is not calibrated: the mean radius mixes the bar's own "
-                             "length error with the mean axis scale, so only the scale "
-                             "mismatch is used."))
+            n = Msg("The bar is not calibrated: the mean radius mixes the bar's own "
+                    "length error with the mean axis scale, so only the scale "
+                    "mismatch is used.")
+            notes.append(n)
+            found.append(info("bar.uncalibrated", n))
     if current is not None and not changes_nothing(current):
-        notes.append(Msg("The test ran with compensation active: the fitted errors are "
-                         "residuals and the proposed parameters are current + residual."))
+        n = Msg("The test ran with compensation active: the fitted errors are "
+                "residuals and the proposed parameters are current + residual.")
+        notes.append(n)
+        found.append(info("params.residual", n))
+    before = len(notes)
     params = propose_params(diag, geom, current, notes)
+    found += [info("proposal.note", n) for n in notes[before:]]
+    found = worst_first(found)
     return {
         "diagnostics": diag,
         "parameters": params.to_dict(),
         "firmware": equivalents(params),
+        "findings": [x.to_dict() for x in found],
+        "findings_i18n": [x.to_wire() for x in found],
+        "trusted": trusted(found),
         "notes": notes,
         "plot": plot,
     }
+
+
+def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = ""
+                     ) -> List[Finding]:
+    """The circularity without the outliers the checks left out of the fit, and a finding
+    saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
+    message (a campaign's file name)."""
+    if not cf.robust_runs:
+        return []
+    pre = (label + ": ") if label else ""
+    robust = circularity([r.captured() for r in cf.robust_runs])
+    diag["circularity_robust_um"] = robust
+    g, gr = diag["circularity_um"]["bidirectional"], robust["bidirectional"]
+    n = cf.checks.get("outliers", 0)
+    ev = dict(outliers=n, g_b_um=round(g, 2), g_b_without_um=round(gr, 2))
+    if g > checks.OUTLIER_DOMINATE * gr:
+        return [warning("data.outliers", Msg(
+            "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor glitch, a "
+            "knock): the circularity G(b) is %(g)s um with them and %(gr)s um without. They "
+            "dominate G(b) and any before/after comparison of it; the fit left them out.",
+            pre=pre, n=n, g=f"{g:.1f}", gr=f"{gr:.1f}"), Msg(
+            "Compare circularity without the outliers (circularity_robust_um), or repeat the "
+            "test with the sensor's cable and mount secured."), **ev)]
+    return [info("data.outliers", Msg(
+        "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
+        "(G(b) %(g)s um with them, %(gr)s um without).", pre=pre, n=n, g=f"{g:.1f}",
+        gr=f"{gr:.1f}"), **ev)]
 
 
 def mapping_notes(mapping: Mapping) -> List[str]:

@@ -78,3 +78,16 @@ def diagnostics_from_artifact(plane: str, ac: float, bd: float, ad: float,
         diag["scale_ppm"] = {ax.lower(): scale_from_lengths(p)["scale_ppm"]
                              for ax, p in lengths.items()}
     return diag
+
+
+def artifact_findings(diag: Dict[str, object]) -> list:
+    """What a printed-artifact result checked: nothing of the motion, and its precision is
+    the caliper's (a 100 mm square resolves about 100-200 um/m of squareness)."""
+    from .findings import info
+
+    return [info("artifact.hand_measured", Msg(
+        "Measured by hand on a printed part: KinComp cannot check the motion or the noise "
+        "behind these lengths; the print's shrinkage and the caliper's error (10-20 um on a "
+        "100 mm square: 100-200 um/m of squareness) are in the result."),
+        Msg("Measure each length three times and use the mean; print the largest square the "
+            "bed allows."))]

@@ -2,7 +2,8 @@
 
 :func:`analyse_campaign` takes the traces of a campaign (file name and parsed trace each) and
 the parameters that were in force while they were measured; it returns the same kind of dict
-as :func:`.analysis.analyse` (``diagnostics``, ``parameters``, ``firmware``, ``notes``), where
+as :func:`.analysis.analyse` (``diagnostics``, ``parameters``, ``firmware``, ``findings``,
+``trusted``, ``notes``), where
 ``diagnostics`` holds ``traces`` (per trace: ``file``, ``plane`` and the single-trace keys) and
 ``campaign`` (the joint values with their 1-sigma uncertainties, see :mod:`.joint`).
 
@@ -22,7 +23,10 @@ import numpy as np
 from ..core.kinematics import changes_nothing
 from ..core.messages import Msg
 from ..core.params import AXES, Params
-from .analysis import analyse_runs, load_runs_mapped, mapping_notes
+from .analysis import (analyse_runs, checked_fit, load_runs_mapped, mapping_notes,
+                       outlier_findings)
+from .findings import Finding, info, trusted, worst_first
+from . import checks
 from .campaign import CampaignError, check_traces
 from .formats import TraceError
 from .joint import TraceFit, check_coverage, joint_fit, joint_values, summary
@@ -49,37 +53,55 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
     current = current or Params()
     check_traces(items, current.hash(), manifest)
     notes: List[str] = []
+    found: List[Finding] = []
     fits: List[TraceFit] = []
     maps = []
+    pitches = []
     per_trace: List[Dict[str, object]] = []
     plots = []
     for name, trace in items:
         try:
             geom, runs, mapping = load_runs_mapped(trace, current)
             check_coverage(name, geom, runs)
-            f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
+            cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, name)
         except CampaignError:
             raise
         except TraceError as exc:
             raise CampaignError(Msg("%(file)s: %(error)s", file=name, error=str(exc))) from None
-        fits.append(TraceFit(name, geom, runs, f))
-        maps.append((trace.meta, mapping))
-        notes += [Msg("%(file)s: %(note)s", file=name, note=n) for n in mapping_notes(mapping)]
+        found += cf.findings
+        if cf.cyclic_pitch and cyclic_pitch is None:
+            pitches.append(cf.cyclic_pitch)
+        fits.append(TraceFit(name, geom, cf.runs, cf.fit))
+        maps.append((trace.meta, mapping, cf, runs))
+        for n in mapping_notes(mapping):
+            n = Msg("%(file)s: %(note)s", file=name, note=n)
+            notes.append(n)
+            found.append(info("motion.estimated", n))
     _check_outliers(fits)
+    if pitches and cyclic_pitch is None:
+        # one cyclic term for the joint model: the pitch the traces showed (their median)
+        cyclic_pitch = float(np.median(pitches))
+        fits = [TraceFit(t.name, t.geom, t.runs, fit(t.geom, t.runs, mask_deg, calibrated,
+                                                       cyclic_pitch)) for t in fits]
     res = joint_fit(fits, mask_deg, calibrated, cyclic_pitch)
-    for i, (t, (meta, mapping)) in enumerate(zip(fits, maps)):
+    for i, (t, (meta, mapping, cf, raw)) in enumerate(zip(fits, maps)):
         # each test on its own, with the out-of-plane motion the other planes' squareness
         # causes (from the joint fit) taken into account
         fixed = res.layout.out_of_plane(t.geom.plane, res.values)
         f = fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed) \
             if any(fixed.values()) else t.fit
-        diag = analyse_runs(t.geom, t.runs, meta, mask_deg, calibrated, cyclic_pitch, f,
-                            mapping)
+        # the ISO metrics and the plot of all samples, outliers included (as for one trace)
+        diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
+        found += outlier_findings(cf, diag, t.name)
+        drift = checks.drift_finding(diag, raw, t.name)
+        if drift is not None:
+            found.append(drift)
         if f is not t.fit:
             diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
         diag["joint"] = joint_values(res, i)
+        diag["checks"] = cf.checks
         per_trace.append(dict({"file": t.name}, **diag))
-        plots.append(plot_data(t.geom, t.runs, f, diag))
+        plots.append(plot_data(t.geom, raw, f, diag))
     camp = summary(res)
     camp["planes"] = list(res.layout.planes)
     camp["traces"] = len(fits)
@@ -112,10 +134,16 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
     if camp["residual"]:
         notes.append(Msg("The campaign ran with compensation active: the fitted errors are "
                          "residuals and the proposed parameters are current + residual."))
+    shown = {str(x.message) for x in found}
+    found += [info("campaign.note", n) for n in notes if str(n) not in shown]
+    found = worst_first(found)
     return {
         "diagnostics": {"traces": per_trace, "campaign": camp, "simulated": simulated},
         "parameters": params.to_dict(),
         "firmware": equivalents(params),
+        "findings": [x.to_dict() for x in found],
+        "findings_i18n": [x.to_wire() for x in found],
+        "trusted": trusted(found),
         "notes": notes,
         "plot": None,
         "plots": plots,

@@ -46,6 +46,8 @@ def run_round(truth: Truth, spec: Optional[TestSpec] = None, servo_precomp: bool
     proposed = Params.from_dict(before["parameters"])
     if servo_precomp:
         proposed = proposed.replace(servo_precomp=True)
+    # the re-test's program records the parameters it runs with (as the plugin's does)
+    program = generate(spec, date="simulated", params_hash=proposed.hash())
     run1 = compensate_text(program, proposed)
     after = analyse(parse_csv_trace(simulate_program(run1, truth).to_text()), current=proposed)
     return {"before": before, "after": after, "params": proposed}
@@ -129,6 +131,7 @@ ROWS: List[Tuple[str, str, str]] = [
     ("Circularity CCW", "circularity_um.ccw", "um"),
     ("Circularity CW", "circularity_um.cw", "um"),
     ("Circularity bidirectional G(b)", "circularity_um.bidirectional", "um"),
+    ("G(b) filtered (1 deg)", "circularity_filtered_um.bidirectional", "um"),
     ("Hysteresis H", "hysteresis_um", "um"),
 ]
 

@@ -2,8 +2,12 @@
 
 Circular deviation G per direction and bidirectional G(b) with least-squares centres (LSC),
 minimum-zone values (MZC, by an L-infinity fit), hysteresis H (CW vs CCW at the same angle,
-common centre removed), radial deviation F only for a calibrated bar. Units: um in the output,
-mm inside; angles in radians inside, degrees in the plot.
+common centre removed), radial deviation F only for a calibrated bar. G and G(b) are ranges
+(max - min) of the raw samples, so the sensor's noise adds to them (about 8 sigma for 36,000
+samples); ``circularity_filtered_um`` is the same after a moving average over
+:data:`FILTER_DEG` of arc (a step such as backlash keeps its height, white noise shrinks by
+the square root of the samples averaged), for before/after comparisons near the noise.
+Units: um in the output, mm inside; angles in radians inside, degrees in the plot.
 """
 
 from __future__ import annotations
@@ -13,6 +17,29 @@ from typing import Dict, Sequence
 import numpy as np
 
 from .model import FitResult, Geometry, Model, Run
+
+FILTER_DEG = 1.0  # deg of arc averaged for circularity_filtered_um
+
+
+def _smoothed(run: Run, width_deg: float = FILTER_DEG) -> Run:
+    """The run with its deviations averaged over about ``width_deg`` of arc: a centred
+    window, in angle order, of as many samples as ``width_deg`` takes at the median sample
+    spacing (shorter at the ends; it does not stop at a gap in the trace)."""
+    n = len(run.theta)
+    if n < 3:
+        return run
+    order = np.argsort(run.w * run.theta, kind="stable")
+    th, dv = run.theta[order], run.dev[order]
+    step = float(np.median(np.abs(np.diff(th))))
+    k = int(round(np.radians(width_deg) / step)) if step > 0 else 1
+    if k < 2:
+        return run
+    half = k // 2
+    c = np.concatenate([[0.0], np.cumsum(dv)])
+    lo = np.clip(np.arange(n) - half, 0, n)
+    hi = np.clip(np.arange(n) + half + 1, 0, n)
+    avg = (c[hi] - c[lo]) / (hi - lo)
+    return Run(run.direction, th, avg)
 
 
 def _lsc(theta, dev, fit_radius=True):
@@ -48,6 +75,18 @@ def _mzc_range(theta, dev, iters: int = 300) -> float:
     return best
 
 
+def circularity(runs: Sequence[Run]) -> Dict[str, float]:
+    """G per direction and G(b) (um, LSC) of the samples given (captured ones: see
+    :meth:`.Run.captured`)."""
+    out = {}
+    for r in runs:
+        e, _ = _lsc(r.theta, r.dev)
+        out[r.direction] = float(e.max() - e.min()) * 1e3
+    e, _ = _lsc(np.concatenate([r.theta for r in runs]), np.concatenate([r.dev for r in runs]))
+    out["bidirectional"] = float(e.max() - e.min()) * 1e3
+    return out
+
+
 def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[str, object]:
     runs = [r.captured() for r in runs]
     by = {r.direction: r for r in runs}
@@ -61,7 +100,10 @@ def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[s
     e, coef = _lsc(theta, dev)
     circ["bidirectional"] = float(e.max() - e.min()) * 1e3
     mzc["bidirectional"] = _mzc_range(theta, dev) * 1e3
-    out: Dict[str, object] = {"circularity_um": circ, "circularity_mzc_um": mzc}
+    out: Dict[str, object] = {"circularity_um": circ, "circularity_mzc_um": mzc,
+                              "circularity_filtered_um": circularity([_smoothed(r)
+                                                                       for r in runs]),
+                              "filter_deg": FILTER_DEG}
     if len(by) == 2:
         # hysteresis: CW vs CCW at the same angle, common centre removed
         centred = {d: r.dev - coef[1] * np.cos(r.theta) - coef[2] * np.sin(r.theta)

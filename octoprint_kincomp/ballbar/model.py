@@ -59,6 +59,10 @@ class Run:
     # mm (+ = bar longer): the part of ``dev`` that the settings in force explain besides the
     # fitted terms (analysis._lead_speed_error); the fit takes it off, the ISO metrics do not
     known: Optional[np.ndarray] = None
+    # mm: the commanded positions of axes A and B where they differ from the nominal circle
+    # (a program compensated with the parameters in force); a cyclic error follows them
+    qA: Optional[np.ndarray] = None
+    qB: Optional[np.ndarray] = None
 
     def fit_dev(self) -> np.ndarray:
         """mm: the deviation the fit models."""
@@ -75,7 +79,8 @@ class Run:
         k = self.capture
         pick = (lambda x: None if x is None else x[k])
         return Run(self.direction, self.theta[k], self.dev[k], pick(self.t), pick(self.vA),
-                   pick(self.vB), None, self.start_theta, pick(self.known))
+                   pick(self.vB), None, self.start_theta, pick(self.known), pick(self.qA),
+                   pick(self.qB))
 
 
 @dataclass
@@ -143,6 +148,10 @@ class Model:
         self.t_ref = float(t_ref)
         self.t = t - self.t_ref
         self._c, self._s = np.cos(self.theta), np.sin(self.theta)
+        self.qA = self.qB = None  # commanded positions (mm) for the cyclic phase
+        if cyclic_pitch and all(r.qA is not None for r in runs):
+            self.qA = np.concatenate([r.qA for r in runs])
+            self.qB = np.concatenate([r.qB for r in runs])
 
     def predict(self, p: np.ndarray) -> np.ndarray:
         P = dict(self.fixed)
@@ -158,8 +167,10 @@ class Model:
         if self.cyclic_pitch:
             ca, cb = self.geom.centre[self.geom.axes[0]], self.geom.centre[self.geom.axes[1]]
             k = 2 * math.pi / self.cyclic_pitch
-            Ac = Ac + P["cAs"] * np.sin(k * (ca + A)) + P["cAc"] * np.cos(k * (ca + A))
-            Bc = Bc + P["cBs"] * np.sin(k * (cb + B)) + P["cBc"] * np.cos(k * (cb + B))
+            qa = ca + A if self.qA is None else self.qA
+            qb = cb + B if self.qB is None else self.qB
+            Ac = Ac + P["cAs"] * np.sin(k * qa) + P["cAc"] * np.cos(k * qa)
+            Bc = Bc + P["cBs"] * np.sin(k * qb) + P["cBc"] * np.cos(k * qb)
         sm = P.get("sm", 0.0)
         sA, sB = sm + P["ds"] / 2, sm - P["ds"] / 2
         X = (1 + sA) * Ac + P["alpha"] * (1 + sB) * Bc - P["dA"]

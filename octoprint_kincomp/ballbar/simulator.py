@@ -17,6 +17,14 @@ set-up offset) and samples ``reading = |nozzle - pivot| - L`` (mm, positive = lo
 positive = the bar grows, linear in time from the program's start). ``L`` is the nominal
 radius plus the bar's own length error (unknown to an uncalibrated bar).
 
+Faults for the trust checks (issue 23), all off by default: the printer's own limits that the
+trace's metadata does not record (``hidden_max_feed_mm_min``, ``hidden_max_accel_mm_s2``: an
+axis capped below what the program's plan assumes), a speed factor (``speed_factor_pct``, as
+``M220 S``; an ``M220 S`` line in the program sets it from there on), glitches (``glitches``:
+isolated samples off by ``amplitude_um``), and play in the motors of a CoreXY
+(``corexy_motor_backlash_um``: motor A drives X+Y, motor B X-Y; the carriage lags half the play
+of each motor along that motor's direction).
+
 Units: mm, s; lags in ms, play and noise in um, drift in um/min, steps per mm.
 """
 
@@ -34,7 +42,7 @@ from ..core.kinematics import KinematicModel
 from ..core.messages import Msg
 from ..core.params import AXES, Params, ParamsError
 from .formats import AngleTrace, NativeTrace
-from .motion import MotionSettings, Plan, plan_program
+from .motion import MotionSettings, Plan, plan_program, program_blocks_of
 from .program import END_MARKER, RUN_MARKER, ProgramError, run_angles, spec_from_program
 from .timing import nominal_positions
 
@@ -60,6 +68,25 @@ class Truth:
     motion: MotionSettings = field(default_factory=MotionSettings)
     steps_per_mm: Dict[str, float] = field(default_factory=dict)  # empty: no quantisation
     bar_drift_um_per_min: float = 0.0
+    speed_factor_pct: float = 100.0
+    hidden_max_feed_mm_min: Dict[str, float] = field(default_factory=dict)
+    hidden_max_accel_mm_s2: Dict[str, float] = field(default_factory=dict)
+    glitches: Tuple[int, float] = (0, 0.0)  # (count, amplitude_um)
+    corexy_motor_backlash_um: Dict[str, float] = field(default_factory=dict)  # "a", "b"
+    corexy_motor_scale_ppm: Dict[str, float] = field(default_factory=dict)  # "a", "b"
+
+    def printer_motion(self) -> MotionSettings:
+        """The motion the printer really has: the recorded settings with the hidden caps."""
+        m = self.motion
+        if not (self.hidden_max_feed_mm_min or self.hidden_max_accel_mm_s2):
+            return m
+        feed = dict(m.max_feed_mm_min)
+        for a, v in self.hidden_max_feed_mm_min.items():
+            feed[a] = min(float(v), feed.get(a, math.inf))
+        acc = dict(m.max_accel_mm_s2 or {})
+        for a, v in self.hidden_max_accel_mm_s2.items():
+            acc[a] = min(float(v), acc.get(a, math.inf))
+        return m.with_(max_feed_mm_min=feed, max_accel_mm_s2=acc or None)
 
     @staticmethod
     def from_dict(d: dict) -> "Truth":
@@ -69,7 +96,9 @@ class Truth:
             return Truth(errors=Params.from_dict(d))
         allowed = {"errors", "servo_lag_ms", "cyclic", "reversal_spikes", "noise_um",
                    "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed",
-                   "steps_per_mm", "bar_drift_um_per_min"} | set(MOTION_KEYS)
+                   "steps_per_mm", "bar_drift_um_per_min", "speed_factor_pct",
+                   "hidden_max_feed_mm_min", "hidden_max_accel_mm_s2", "glitches",
+                   "corexy_motor_backlash_um", "corexy_motor_scale_ppm"} | set(MOTION_KEYS)
         for k in d:
             if k not in allowed:
                 raise ParamsError(k, Msg("unknown key (allowed: %(allowed)s)",
@@ -101,6 +130,25 @@ class Truth:
         t.bar_drift_um_per_min = float(d.get("bar_drift_um_per_min", 0.0))
         if not (abs(t.bar_drift_um_per_min) <= 1000.0):
             raise ParamsError("bar_drift_um_per_min", Msg("must be within -1000..1000"))
+        t.speed_factor_pct = float(d.get("speed_factor_pct", 100.0))
+        if not (10.0 <= t.speed_factor_pct <= 999.0):
+            raise ParamsError("speed_factor_pct", Msg("must be within 10..999"))
+        for key in ("hidden_max_feed_mm_min", "hidden_max_accel_mm_s2"):
+            for a, v in (d.get(key) or {}).items():
+                if a not in AXES or not float(v) > 0:
+                    raise ParamsError(f"{key}.{a}", Msg("an axis (x, y, z) and a positive "
+                                                        "number"))
+                getattr(t, key)[a] = float(v)
+        g = d.get("glitches") or {}
+        t.glitches = (int(g.get("count", 0)), float(g.get("amplitude_um", 0.0)))
+        for m, v in (d.get("corexy_motor_backlash_um") or {}).items():
+            if m not in ("a", "b"):
+                raise ParamsError(f"corexy_motor_backlash_um.{m}", Msg("a motor: a or b"))
+            t.corexy_motor_backlash_um[m] = float(v)
+        for m, v in (d.get("corexy_motor_scale_ppm") or {}).items():
+            if m not in ("a", "b"):
+                raise ParamsError(f"corexy_motor_scale_ppm.{m}", Msg("a motor: a or b"))
+            t.corexy_motor_scale_ppm[m] = float(v)
         return t
 
     @staticmethod
@@ -133,6 +181,18 @@ def paper_truth(**overrides) -> Truth:
     return t
 
 
+def tuned_truth(**overrides) -> Truth:
+    """A well-tuned printer: squareness 40 um/m, scale X +30, Y -20 ppm, backlash 3/2 um
+    (X/Y), servo lag X 0.1 ms."""
+    t = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 40.0},
+                                       "scale_ppm": {"x": 30.0, "y": -20.0},
+                                       "backlash": {"x": 3.0, "y": 2.0}}),
+              servo_lag_ms={"x": 0.1, "y": 0.0, "z": 0.0})
+    for k, v in overrides.items():
+        setattr(t, k, v)
+    return t
+
+
 def volume_truth(**overrides) -> Truth:
     """The paper's machine extended to the whole volume (issue 12): squareness xy -3638.6,
     xz +800, yz -500 um/m; scale X -451.7, Y +287, Z +150 ppm; backlash X 37.4/4.4 um at the
@@ -149,6 +209,56 @@ def volume_truth(**overrides) -> Truth:
     for k, v in overrides.items():
         setattr(t, k, v)
     return t
+
+
+def _lagging(q: np.ndarray, play_mm: float) -> np.ndarray:
+    """A position that follows ``q`` through a dead band of ``play_mm`` (starting centred)."""
+    out = np.empty_like(q)
+    c = float(q[0]) if len(q) else 0.0
+    half = play_mm / 2
+    for i, x in enumerate(q.tolist()):
+        if x - c > half:
+            c = x - half
+        elif c - x > half:
+            c = x + half
+        out[i] = c
+    return out
+
+
+def _corexy_motors(drive: np.ndarray, play_um: Dict[str, float], scale_ppm: Dict[str, float]
+                   ) -> np.ndarray:
+    """X and Y after CoreXY motors A (X+Y) and B (X-Y): each motor's belt scale (ppm, a
+    belt stretched or tensioned differently: its travel is ``1 + s`` times the command) and
+    play (um of the motor's travel)."""
+    ma = (drive[:, 0] + drive[:, 1]) * (1 + scale_ppm.get("a", 0.0) * 1e-6)
+    mb = (drive[:, 0] - drive[:, 1]) * (1 + scale_ppm.get("b", 0.0) * 1e-6)
+    if play_um.get("a"):
+        ma = _lagging(ma, play_um["a"] * 1e-3)
+    if play_um.get("b"):
+        mb = _lagging(mb, play_um["b"] * 1e-3)
+    out = drive.copy()
+    out[:, 0] = (ma + mb) / 2
+    out[:, 1] = (ma - mb) / 2
+    return out
+
+
+def _speed_factors(lines: List[str], blocks, initial_pct: float) -> np.ndarray:
+    """Per block the speed factor (fraction) in force: ``initial_pct``, then the last
+    ``M220 S<pct>`` line before the block (a program may pin it)."""
+    sets = []
+    for i, ln in enumerate(lines, 1):
+        body = ln.split(";", 1)[0].strip().upper()
+        if body.startswith("M220"):
+            for word in body.split()[1:]:
+                if word.startswith("S"):
+                    try:
+                        sets.append((i, float(word[1:])))
+                    except ValueError:
+                        pass
+    out = np.full(len(blocks.line), initial_pct / 100.0)
+    for lineno, pct in sets:
+        out[blocks.line > lineno] = pct / 100.0
+    return out
 
 
 def _servo(u: np.ndarray, dt: float, lag_s: float) -> np.ndarray:
@@ -184,6 +294,9 @@ class Simulator:
         drive = np.stack(
             [_servo(u[:, k], dt, tr.servo_lag_ms.get(AXES[k], 0.0) * 1e-3) for k in range(3)],
             axis=1)
+        if tr.corexy_motor_backlash_um or tr.corexy_motor_scale_ppm:
+            drive = _corexy_motors(drive, tr.corexy_motor_backlash_um,
+                                   tr.corexy_motor_scale_ppm)
         play = Play(tr.errors)
         carriage = drive.copy()
         for k in range(3):
@@ -243,7 +356,11 @@ class Simulator:
         if not run_starts:
             raise ProgramError(Msg("no ballbar runs found (no 'M117 Ballbar run' markers)"))
         tr = self.truth
-        plan = plan_program(lines, spec.centre, tr.motion)
+        blocks = program_blocks_of(lines, spec.centre)
+        factor = _speed_factors(lines, blocks, tr.speed_factor_pct)
+        if np.any(factor != 1.0):
+            blocks.feed = np.where(blocks.feed > 0, blocks.feed * factor, blocks.feed)
+        plan = blocks.plan(tr.printer_motion())
         fs = tr.sample_rate_hz
         ts = np.arange(0.0, plan.duration + 1e-9, 1.0 / fs)
         u, vel = plan.sample(ts)
@@ -256,6 +373,12 @@ class Simulator:
         rng = np.random.default_rng(tr.seed)
         if tr.noise_um:
             reading = reading + rng.normal(0.0, tr.noise_um * 1e-3, size=reading.shape)
+        count, amp = tr.glitches
+        if count and amp:
+            # isolated wrong samples, spread over the middle of the program (both runs)
+            at = np.linspace(0.15, 0.85, count) * len(reading)
+            idx = (at + rng.integers(-50, 50, size=count)).astype(int)
+            reading[idx] += amp * 1e-3 * np.where(np.arange(count) % 2 == 0, 1.0, -1.0)
         line_of = plan.line_at(ts)
         runs = []
         for idx, (ln, direction) in enumerate(run_starts):

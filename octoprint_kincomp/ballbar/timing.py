@@ -414,11 +414,21 @@ class Mapping:
 
     settings: Optional[MotionSettings]
     sync_ms: Dict[str, float] = field(default_factory=dict)  # tau_out - tau_in per run
+    # s per run: the planned time from the end of the feed-in to the start of the feed-out
+    planned_s: Dict[str, float] = field(default_factory=dict)
+    timed: bool = True  # False: an angle-domain trace (its samples carry no time)
+    planned: bool = True  # False: no program plan (angles at a constant feed, or none)
+    # um per run: the reading's scatter while the head stands still before the feed-in (the
+    # sensor's own noise floor; None when the trace has no such samples)
+    still_noise_um: Dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> Dict[str, object]:
         d: Dict[str, object] = {"motion": self.settings.as_dict() if self.settings else None}
         if self.sync_ms:
             d["sync_mismatch_ms"] = dict(self.sync_ms)
+            d["planned_arc_s"] = dict(self.planned_s)
+        if self.still_noise_um:
+            d["still_noise_um"] = dict(self.still_noise_um)
         return d
 
 
@@ -474,9 +484,42 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
     for mr in mruns:
         sync = sync_run(test, mr, common=False)
         mapping.sync_ms[mr.direction] = float(sync.tau_out - sync.tau_in) * 1e3
+        mapping.planned_s[mr.direction] = float(sync.t_out - sync.tau_out
+                                                - (sync.t_in - sync.tau_in))
+        noise = _still_noise(test, mr, sync)
+        if noise is not None:
+            mapping.still_noise_um[mr.direction] = noise
         tp = mr.t - sync.tau(mr.t)
         runs.append(_run_on_arc(test, geom, mr.direction, tp, mr.t, mr.r))
     return geom, runs, mapping
+
+
+def _still_noise(test: PlannedTest, mr: MeasuredRun, sync: Sync) -> Optional[float]:
+    """um: the robust scatter of the readings while the head stands still before the run's
+    feed-in (the dwell), a straight line taken off, at least the rounding noise of the
+    reading's smallest step (step / sqrt 12); None with fewer than 20 such samples or a
+    reading that does not change at all."""
+    k0 = test.runs[mr.direction].feed_in[0]
+    t_ramp = test.plan.block_span(k0)[0] + sync.tau_in
+    # the dwell block just before the feed-in (a wait: feed 0)
+    waits = np.nonzero((test.blocks.feed == 0.0) & (np.arange(len(test.blocks.feed)) < k0))[0]
+    if not len(waits):
+        return None
+    w0, w1 = test.plan.block_span(int(waits[-1]))
+    sel = (mr.t >= w0 + sync.tau_in + 0.1 * (w1 - w0)) & (mr.t <= min(w1 + sync.tau_in,
+                                                                         t_ramp) - 0.01)
+    if sel.sum() < 20:
+        return None
+    t, r = mr.t[sel], mr.r[sel]
+    steps = np.abs(np.diff(r))
+    steps = steps[steps > 1e-9]
+    if not len(steps):  # a constant reading: its resolution is not known here
+        return None
+    coef = np.polyfit(t - t.mean(), r, 1)
+    e = r - np.polyval(coef, t - t.mean())
+    mad = float(1.4826 * np.median(np.abs(e - np.median(e))))
+    # a coarse reading (a 1 um dial) that hardly changes still has its rounding noise
+    return max(mad, float(steps.min()) / math.sqrt(12.0)) * 1e3
 
 
 def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:
@@ -533,8 +576,12 @@ def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarra
     at_speed = speed >= AT_SPEED * test.plan.vn[test.plan.block_at(tp)]
     keep = on_arc & (capture | at_speed)
     start = math.radians(run_angles(test.spec, direction)[0])
+    qa = qb = None
+    if test.current is not None:  # compensated: the axes went where the program said
+        cmd = test.plan.sample(tp[keep])[0]
+        qa, qb = cmd[:, a], cmd[:, b]
     return Run(direction, theta[keep], dev[keep], t[keep], vel[keep, a], vel[keep, b],
-               capture[keep], start)
+               capture[keep], start, None, qa, qb)
 
 
 def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
@@ -563,7 +610,7 @@ def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
     if test is None or any(d not in test.runs for d in raw):
         for d, (theta, dev) in raw.items():
             runs.append(Run(d, theta, dev))
-        return geom, runs, Mapping(None)
+        return geom, runs, Mapping(None, timed=False, planned=False)
     settings = settings or MotionSettings(constant_speed=True)
     test.use(settings)
     for d, (theta, dev) in raw.items():
@@ -577,4 +624,4 @@ def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
         pos, vel = test.nominal(t_of)
         on_arc = (theta >= th.min()) & (theta <= th.max())
         runs.append(_arc_run(test, geom, d, theta, dev, t_of, t_of, pos, vel, on_arc))
-    return geom, runs, Mapping(settings)
+    return geom, runs, Mapping(settings, timed=False)

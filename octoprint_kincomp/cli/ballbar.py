@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from ..core.params import Params, ParamsError
-from .common import CliError, floats, load_params, read_text, write_text
+from .common import EXIT_OK, EXIT_UNTRUSTED, CliError, floats, load_params, read_text, write_text
 
 
 def _limits(args):
@@ -173,10 +173,19 @@ def cmd_analyze(args) -> int:
     if args.params_out:
         write_text(args.params_out, json.dumps(result["parameters"], indent=2))
     if args.json:
-        print(json.dumps(result, indent=2, default=float))
+        out = {k: v for k, v in result.items() if k != "findings_i18n"}
+        print(json.dumps(out, indent=2, default=float))
     else:
         print(format_diagnostics(result))
-    return 0
+    if result.get("trusted", True):
+        return EXIT_OK
+    import sys
+
+    errors = [f for f in result["findings"] if f["severity"] == "error"]
+    print(f"kincomp: untrusted result ({len(errors)} error finding"
+          f"{'' if len(errors) == 1 else 's'}: {errors[0]['code']}): do not apply it as it is "
+          f"(exit status {EXIT_UNTRUSTED})", file=sys.stderr)
+    return EXIT_UNTRUSTED
 
 
 def _pm(value, sigma, decimals: int = 2) -> str:
@@ -220,8 +229,17 @@ def format_diagnostics(result) -> str:
     lines.append("firmware equivalents:")
     for fam in ("marlin", "klipper", "reprapfirmware"):
         lines += ["  " + x for x in result["firmware"][fam]]
-    for n in result["notes"]:
-        lines.append("note: " + n)
+    findings = result.get("findings")
+    if findings is None:
+        findings = [{"severity": "info", "message": n, "advice": ""} for n in result["notes"]]
+    if findings:
+        lines.append("")
+        lines.append("findings (worst first): " + ("trusted" if result.get("trusted", True)
+                                                   else "NOT TRUSTED: an error below"))
+    for f in findings:
+        lines.append(f"{f['severity']}: {f['message']}")
+        if f.get("advice"):
+            lines.append(f"    advice: {f['advice']}")
     return "\n".join(lines)
 
 
@@ -259,7 +277,8 @@ def format_campaign(d) -> list:
 
 def cmd_artifact(args) -> int:
     from ..ballbar.analysis import Geometry, propose_params
-    from ..ballbar.artifacts import ArtifactError, diagnostics_from_artifact
+    from ..ballbar.artifacts import ArtifactError, artifact_findings, diagnostics_from_artifact
+    from ..ballbar.findings import info, trusted
 
     if getattr(args, "artifact_command", None) == "program":
         return cmd_artifact_program(args)
@@ -283,8 +302,10 @@ def cmd_artifact(args) -> int:
         raise CliError(str(exc)) from None
     notes = []
     params = propose_params(diag, Geometry(args.plane.upper(), 0.0, None, None), current, notes)
-    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(), "notes": notes},
-                     indent=2))
+    found = artifact_findings(diag) + [info("proposal.note", n) for n in notes]
+    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(),
+                      "findings": [f.to_dict() for f in found], "trusted": trusted(found),
+                      "notes": notes}, indent=2))
     return 0
 
 
@@ -432,7 +453,9 @@ def add_ballbar_commands(sub) -> None:
                    help="ignore this many degrees after each reversal (default 15)")
     a.add_argument("--calibrated-bar", action="store_true",
                    help="the bar length is calibrated: also fit the mean scale")
-    a.add_argument("--cyclic-pitch", type=float, help="also fit a cyclic error of this pitch, mm")
+    a.add_argument("--cyclic-pitch", type=float,
+                   help="fit a cyclic error of this pitch, mm (default: fitted when the "
+                        "residual shows one; 0: never)")
     a.add_argument("--params-out", help="write the proposed params file here")
     a.set_defaults(func=cmd_analyze)
 

@@ -10,6 +10,9 @@ from ..core.params import Params, ParamsError
 
 EXIT_OK = 0
 EXIT_ERROR = 1
+# ``analyze``: the result was computed but a check found an error (``trusted`` false); its
+# findings say why (docs/trust-checks.md). 2 is argparse's usage error.
+EXIT_UNTRUSTED = 3
 
 
 class CliError(Exception):

@@ -1,7 +1,8 @@
 """A result's findings as the API and the browser carry them (no OctoPrint import here).
 
 An analysis returns ``findings`` (:class:`..ballbar.findings.Finding` objects or their
-dicts) and ``trusted``; one that does not yet (older analyses) has its free-text notes
+dicts; ``findings_i18n``, when given, is preferred: its messages keep their templates) and
+``trusted``; one that does not yet (older analyses) has its free-text notes
 turned into info findings. Stored with a run as ``findings`` (worst first, message and
 advice as translatable ``{"text", "template", "params"}``) and ``trusted`` (False when any
 finding is an error, or the analysis said so). Applying an untrusted run needs ``force``.
@@ -37,8 +38,9 @@ def _wire(item: Any) -> Dict[str, Any]:
 
 
 def findings_of(result: Dict[str, Any]) -> Tuple[List[Dict[str, Any]], bool]:
-    """(findings for the wire, worst first; trusted) of an analysis ``result``."""
-    items = result.get("findings")
+    """(findings for the wire, worst first; trusted) of an analysis ``result`` (its
+    ``findings_i18n``, the translatable form, where the analysis gives it)."""
+    items = result.get("findings_i18n") or result.get("findings")
     if items is None:
         items = from_notes(result.get("notes") or [])
     wire = sorted((_wire(f) for f in items), key=lambda f: -_RANK[f["severity"]])

@@ -251,6 +251,8 @@ def test_artifact_route(capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["parameters"]["scale_ppm"]["x"] == pytest.approx(500.0)
     assert out["parameters"]["meta"]["source"] == "printed artifact"
+    assert out["trusted"] is True
+    assert [f["code"] for f in out["findings"]][0] == "artifact.hand_measured"
 
 
 def test_optional_cyclic_error():
@@ -260,8 +262,16 @@ def test_optional_cyclic_error():
     with_cyclic = analyse(trace, cyclic_pitch=40.0)["diagnostics"]
     assert with_cyclic["cyclic_error_um"]["a"] == pytest.approx(3.0, abs=0.3)
     assert with_cyclic["cyclic_error_um"]["b"] < 0.3
-    without = analyse(trace)["diagnostics"]
+    without = analyse(trace, cyclic_pitch=0.0)["diagnostics"]  # 0: never fitted
+    assert "cyclic_error_um" not in without
     assert without["fit"]["rms_um"] > 2 * with_cyclic["fit"]["rms_um"]
+    # by default the residual shows it: fitted, pitch and amplitude reported (issue 23)
+    auto = analyse(trace)
+    d = auto["diagnostics"]
+    assert d["cyclic_error_um"]["pitch_mm"] == pytest.approx(40.0, rel=0.01)
+    assert d["cyclic_error_um"]["a"] == pytest.approx(3.0, abs=0.3)
+    assert d["fit"]["rms_um"] < 1.1 * with_cyclic["fit"]["rms_um"]
+    assert [f["code"] for f in auto["findings"]].count("model.cyclic_fitted") == 1
 
 
 def test_a_trace_with_one_direction_is_refused():

@@ -284,3 +284,27 @@ def test_servo_precomp_stays_on_at_the_re_test(small):
     assert "pre-compensation works" in sp["reason"]
     lag = out["parameters"]["servo_lag_ms"]["x"]
     assert lag == pytest.approx(first.servo_lag_ms["x"], abs=0.05)
+
+
+def test_glitches_and_drift_in_a_campaign_trace_are_reported_like_a_single_trace():
+    """Outliers the checks leave out of a campaign trace's fit are said (data.outliers, with
+    the file name), and its ISO circularity is the raw one, as for a single trace, beside the
+    circularity without them (circularity_robust_um); a bar drift is said per trace too."""
+    steps = plan_campaign(VOLUME, radius_xy=40, radius_vertical=30, campaign_id="glitch",
+                          printer="virtual")
+    clean = volume_truth(noise_um=0.5, sample_rate_hz=200)
+    knocked = volume_truth(noise_um=0.5, sample_rate_hz=200, glitches=(8, 200.0),
+                           bar_drift_um_per_min=10.0)
+    items = [(s.file.replace(".gcode", ".csv"),
+              simulate(s.spec, knocked if s.spec.plane == "XY" else clean)) for s in steps]
+    out = analyse_campaign(items, Params())
+    xy = [t for t in out["diagnostics"]["traces"] if t["plane"] == "XY"][0]
+    f = [x for x in out["findings"] if x["code"] == "data.outliers"]
+    assert len(f) == 1 and f[0]["severity"] == "warning", out["findings"]
+    assert f[0]["message"].startswith(xy["file"] + ": ")
+    assert xy["circularity_um"]["bidirectional"] > 150.0
+    assert xy["circularity_robust_um"]["bidirectional"] < 0.5 * xy["circularity_um"][
+        "bidirectional"]
+    drift = [x for x in out["findings"] if x["code"] == "model.drift"]
+    assert [x["message"].split(":")[0] for x in drift] == [xy["file"]], out["findings"]
+    assert drift[0]["evidence"]["bar_drift_um_per_min"] == pytest.approx(10.0, abs=0.5)

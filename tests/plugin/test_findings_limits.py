@@ -51,10 +51,13 @@ def call(app, view, *args, json=None, method="POST"):
 def _with_error(trace, current=None, **kw):
     """The real analysis, with an error finding as issue 23's motion check gives one."""
     result = analyse(trace, current=current, **kw)
-    result["findings"] = [F.info("note", "said for the record"), F.error(
+    found = [F.info("note", "said for the record"), F.error(
         "motion.feed_capped", Msg("the run took %(s)s s longer than planned", s="19.1"),
         Msg("lower the feed to what the Z axis reaches"), sync_mismatch_ms=19074.0)]
-    result["trusted"] = F.trusted(result["findings"])
+    # (the analysis's own shapes: English dicts and the translatable wire form)
+    result["findings"] = [f.to_dict() for f in found]
+    result["findings_i18n"] = [f.to_wire() for f in found]
+    result["trusted"] = F.trusted(found)
     return result
 
 
@@ -62,8 +65,11 @@ def _with_error(trace, current=None, **kw):
 def test_notes_become_info_findings_and_the_run_is_trusted(app, plugin):
     code, run = call(app, plugin.api_analyze, json=SUMMARY)
     assert code == 200 and run["trusted"] is True
-    assert [f["severity"] for f in run["findings"]] == ["info"] * len(run["notes"])
-    assert [f["message"]["text"] for f in run["findings"]] == run["notes"]
+    # a clean summary: info findings only, every note among them, messages translatable
+    assert run["findings"] and {f["severity"] for f in run["findings"]} == {"info"}
+    texts = [f["message"]["text"] for f in run["findings"]]
+    assert all(n in texts for n in run["notes"])
+    assert all(f["message"].get("template") for f in run["findings"])
     code, stored = call(app, plugin.api_run, run["id"], method="GET")
     assert stored["findings"] == run["findings"]
     code, _ = call(app, plugin.api_apply, json={"run": run["id"]})
