@@ -1,7 +1,8 @@
 /*
  * KinComp web UI: the printer's motion limits on the settings page (what the firmware said to
  * M503, or the text a Klipper user pasted, combined with the printer profile's axis speeds).
- * Feeds in mm/min, accelerations in mm/s^2. Its own Save: settings key "motion_limits".
+ * Feeds in mm/min, accelerations in mm/s^2. Saved (settings key "motion_limits") by the
+ * settings page's one Save when the text was changed (kincomp_settings.js saveAll).
  */
 $(function () {
     "use strict";
@@ -56,12 +57,18 @@ $(function () {
             return read ? _.map(read.notes_i18n || [], K.trMsg) : [];
         });
 
+        self.storedText = "";
         self.load = function () {
             return OctoPrint.get(API("status")).done(function (status) {
                 self.status(status.motion_limits || null);
                 var stated = (status.motion_limits && status.motion_limits.stated) || {};
-                self.text(stated.text || "");
+                self.storedText = stated.text || "";
+                self.text(self.storedText);
             });
+        };
+        // the text differs from what is stored (the page's one Save then saves it too)
+        self.changed = function () {
+            return (self.text() || "").trim() !== (self.storedText || "").trim();
         };
 
         var post = function (text, message) {

@@ -17,6 +17,7 @@ $(function () {
         self.access = parameters[0];
         self.loginState = parameters[1];
         self.sensorSettings = parameters[2];  // the live sensor's part of this page
+        self.limitsSettings = parameters[3];  // the printer's motion limits' part
         self.docs = ko.observableArray([]);
 
         self.enabled = ko.observable(false);
@@ -265,20 +266,28 @@ $(function () {
             });
         };
 
-        // the page's one Save: the settings and, if it was changed, the live sensor's part
-        // (each shows its own errors next to its fields)
+        // the page's one Save: the settings and, if they were changed, the live sensor's
+        // part and the motion limits (each shows its own errors next to its fields)
         self.saveAll = function () {
-            // one after the other: two saves at once could each store the other's old part
-            var sensor = self.sensorSettings;
-            var first = sensor && sensor.changed() ? sensor.save() : $.Deferred().resolve().promise();
-            var all = $.Deferred();
-            first.always(function () {
-                self.save().done(all.resolve).fail(all.reject);
+            // one after the other: each save is read-merge-write on the server, and a part
+            // saved while another's answer is pending would reload stale fields
+            var parts = _.filter([self.sensorSettings, self.limitsSettings], function (p) {
+                return p && p.changed();
             });
+            var all = $.Deferred();
+            var next = function (i) {
+                if (i >= parts.length) {
+                    self.save().done(all.resolve).fail(all.reject);
+                    return;
+                }
+                parts[i].save().always(function () { next(i + 1); });
+            };
+            next(0);
             return all.promise();
         };
         self.reloadAll = function () {
             if (self.sensorSettings) self.sensorSettings.load();
+            if (self.limitsSettings) self.limitsSettings.load();
             return self.load();
         };
 
@@ -322,7 +331,8 @@ $(function () {
 
     OCTOPRINT_VIEWMODELS.push({
         construct: KinCompSettingsViewModel,
-        dependencies: ["accessViewModel", "loginStateViewModel", "kinCompSensorSettingsViewModel"],
+        dependencies: ["accessViewModel", "loginStateViewModel", "kinCompSensorSettingsViewModel",
+                       "kinCompLimitsViewModel"],
         elements: ["#settings_plugin_kincomp"]
     });
 });
