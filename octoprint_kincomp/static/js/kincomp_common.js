@@ -114,7 +114,10 @@
             ["command-line", gettext("Command line")],
             ["http-api", gettext("HTTP API")],
             ["firmware-export", gettext("Firmware export")],
-            ["how-compensation-works", gettext("How compensation works")]
+            ["how-compensation-works", gettext("How compensation works")],
+            ["trust-checks", gettext("What KinComp checks before it trusts a result")],
+            ["motion-limits", gettext("Motion limits of the printer")],
+            ["artifact", gettext("Calibration with a printed artifact")]
         ];
     };
     var docs = function (homepage) {
