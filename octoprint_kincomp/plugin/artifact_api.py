@@ -17,15 +17,12 @@ Errors are JSON ``{"error": ...}`` in the user's language, 400 naming the field.
 from __future__ import annotations
 
 import datetime as _dt
-import io
 import json
 from typing import Any, Dict, List
 
 import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
-from octoprint.filemanager import FileDestinations
-from octoprint.filemanager.util import StreamWrapper
 
 from ..ballbar.artifact_drawing import legend, svg
 from ..ballbar.artifact_fit import ArtifactFitError, analyse_artifact, parse_readings
@@ -33,7 +30,7 @@ from ..ballbar.artifact_program import (PLANES, ArtifactProgramError, ArtifactSp
                                         read_measurements, read_program_info)
 from ..ballbar.formats import TraceError
 from . import http
-from .calibration_api import PROGRAM_FOLDER, CalibrationApi
+from .calibration_api import CalibrationApi
 from .runs import RunNotStorable
 
 MAX_PROGRAM_BYTES = 8 * 1024 * 1024
@@ -55,14 +52,11 @@ def sheet(text: str, volume=None) -> Dict[str, Any]:
 
 
 class ArtifactApi:
-    def __init__(self, store, queue, calibration: CalibrationApi, files_api, printer,
-                 file_manager):
+    def __init__(self, store, queue, calibration: CalibrationApi, files_api):
         self._store = store
         self._queue = queue
         self._calibration = calibration
         self._files = files_api
-        self._printer = printer
-        self._file_manager = file_manager
 
     def program(self):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
@@ -92,18 +86,12 @@ class ArtifactApi:
         if do_print:
             http.require(Permissions.PRINT)
         name = f"artifact_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
-        path = f"{PROGRAM_FOLDER}/{name}"
-        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
-                                      ignore_existing=True)
-        self._file_manager.add_file(FileDestinations.LOCAL, path,
-                                    StreamWrapper(name, io.BytesIO(text.encode())),
-                                    allow_overwrite=True)
+        path = self._calibration.store_program(text, name)
         printing = False
         if do_print:
-            if not self._printer.is_operational() or self._printer.is_printing():
+            if not self._calibration.printer_ready():
                 return http.error(gettext("The printer is not ready to print"), 409)
-            self._printer.select_file(path, False, printAfterSelect=True,
-                                      tags={"plugin:kincomp", "kincomp:calibration"})
+            self._calibration.start_print(path)
             printing = True
         out = sheet(text, spec.volume)
         out.update(path=path, printing=printing, lines=text.count("\n"))

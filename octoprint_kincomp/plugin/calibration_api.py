@@ -163,32 +163,46 @@ class CalibrationApi:
         """The limits a test must respect now (stated limits and the printer profile)."""
         return effective_limits(self._store.current(), self._store.max_feeds())
 
-    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
-        """Writes the ballbar program ``text`` as ``kincomp/<name>`` into OctoPrint's storage
-        and tells demo mode, with the test as the program states it (its params hash and
-        campaign keys go into the simulated trace); returns the path, the program hash and
-        that test."""
+    def store_program(self, text: str, name: str) -> str:
+        """Writes the G-code ``text`` as ``kincomp/<name>`` into OctoPrint's storage (the
+        folder made if missing, a file of that name replaced); returns its path."""
         path = f"{PROGRAM_FOLDER}/{name}"
         self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
                                       ignore_existing=True)
         self._file_manager.add_file(
             FileDestinations.LOCAL, path,
             StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
+        return path
+
+    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
+        """Writes the ballbar program ``text`` as ``kincomp/<name>`` (:meth:`store_program`)
+        and tells demo mode, with the test as the program states it (its params hash and
+        campaign keys go into the simulated trace); returns the path, the program hash and
+        that test."""
+        path = self.store_program(text, name)
         stated, prog_hash = spec_from_program(text)
         self._demo.program_written(path, stated, prog_hash)
         return path, prog_hash, stated
+
+    def printer_ready(self) -> bool:
+        """Whether a program can be started now (connected, not printing)."""
+        return self._printer.is_operational() and not self._printer.is_printing()
+
+    def start_print(self, path: str) -> None:
+        """Selects the stored file ``path`` and prints it, tagged as KinComp's."""
+        self._printer.select_file(path, False, printAfterSelect=True,
+                                  tags={"plugin:kincomp", "kincomp:calibration"})
 
     def print_program(self, path: str, spec: TestSpec, prog_hash: str,
                       arm: bool = True) -> Tuple[bool, Optional[Dict[str, Any]]]:
         """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
         use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
         state); (False, None) if the printer is not ready (not connected, or printing)."""
-        if not self._printer.is_operational() or self._printer.is_printing():
+        if not self.printer_ready():
             return False, None
         capture = self.on_print(path, spec, prog_hash) \
             if arm and self.on_print is not None else None
-        self._printer.select_file(path, False, printAfterSelect=True,
-                                  tags={"plugin:kincomp", "kincomp:calibration"})
+        self.start_print(path)
         return True, capture
 
     # ~~ measurements in ---------------------------------------------------------------------

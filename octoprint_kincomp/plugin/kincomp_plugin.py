@@ -116,8 +116,7 @@ class KinCompPlugin(
         recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
         self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
                                     self.demo, measurements)
-        self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files, printer,
-                                    files)
+        self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files)
 
     def data_folder(self) -> str:
         """The plugin's data folder (made if missing), absolute: OctoPrint's basedir may be

@@ -51,9 +51,7 @@ $(function () {
         self.touched = false;
 
         self.canWrite = ko.pureComputed(function () {
-            self.loginState.currentUser();
-            var perm = self.access.permissions.PLUGIN_KINCOMP_ADMIN;
-            return perm ? self.loginState.hasPermission(perm) : false;
+            return K.canAdmin(self);
         });
 
         self.view = ko.pureComputed(function () {

@@ -255,8 +255,17 @@
             });
     };
 
+    // whether the logged-in user has KinComp's admin permission (a view model ``vm`` with
+    // OctoPrint's loginState and access view models; re-evaluated on login and logout)
+    var canAdmin = function (vm) {
+        vm.loginState.currentUser();
+        var perm = vm.access.permissions.PLUGIN_KINCOMP_ADMIN;
+        return perm ? vm.loginState.hasPermission(perm) : false;
+    };
+
     window.KinComp = {
         API: API,
+        canAdmin: canAdmin,
         num: num,
         fmt: fmt,
         reductionText: reductionText,

@@ -20,9 +20,7 @@ $(function () {
         self.busy = ko.observable(false);
 
         self.canWrite = ko.pureComputed(function () {
-            self.loginState.currentUser();
-            var perm = self.access.permissions.PLUGIN_KINCOMP_ADMIN;
-            return perm ? self.loginState.hasPermission(perm) : false;
+            return K.canAdmin(self);
         });
 
         var value = function (v, digits) {

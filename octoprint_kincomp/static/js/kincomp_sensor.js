@@ -22,11 +22,7 @@ $(function () {
     var notify = K.notify;
     var trMsg = K.trMsg;
 
-    var canAdmin = function (vm) {
-        vm.loginState.currentUser(); // re-evaluate on login/logout
-        var perm = vm.access.permissions.PLUGIN_KINCOMP_ADMIN;
-        return perm ? vm.loginState.hasPermission(perm) : false;
-    };
+    var canAdmin = K.canAdmin;
 
     /* ------------------------------------------------------------ settings section */
 

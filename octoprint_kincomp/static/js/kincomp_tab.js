@@ -35,9 +35,7 @@ $(function () {
         self.outdatedFiles = ko.observableArray([]);
 
         self.canWrite = ko.pureComputed(function () {
-            self.loginState.currentUser(); // re-evaluate on login/logout
-            var perm = self.access.permissions.PLUGIN_KINCOMP_ADMIN;
-            return perm ? self.loginState.hasPermission(perm) : false;
+            return K.canAdmin(self);
         });
 
         // step 1
