@@ -71,7 +71,11 @@ class MoveHandler:
         st = self.state
         rep = st.report
         rep.untouched_unknown += 0 if self.comp.passthrough else 1
-        st.q_drive = None  # the drives go where the line says
+        passthrough = self.comp.passthrough
+        if not passthrough:
+            q_before = self.writer.carriage(st.m)
+            if st.q_drive is not None:
+                q_before = [q if d is None else d for q, d in zip(q_before, st.q_drive)]
         u = MM_PER_INCH if st.inches else 1.0
         c_before = [None if v is None else v - st.g[k] for k, v in enumerate(st.fw)]
         new_m = list(st.m)
@@ -96,9 +100,35 @@ class MoveHandler:
                 if not known_before[k] and st.fw[k] is not None:
                     bl.place(k, st.fw[k] - st.g[k])
         st.m = new_m
+        st.q_drive = None if passthrough else self._drives_after(given, q_before)
         e = next((w for w in words if w.letter == "E"), None)
         self.track_e(e)
         return line
+
+    def _drives_after(self, given, q_before):
+        """``StreamState.q_drive`` after a move passed as written: an axis the line names is
+        where the line put its drive (firmware coordinate, no take-up offset on it: its
+        geometric command is that minus the offset of its direction); an axis it does not
+        name stays where its drive was (``q_before``, mm), offset and direction kept. Where
+        that equals the command of the new desired position nothing is recorded."""
+        st = self.state
+        bl = self.backlash
+        q_after = self.writer.carriage(st.m)
+        stays = []
+        for k in range(3):
+            if k in given:
+                if st.frame_lost[k] or st.fw[k] is None:
+                    d = None
+                else:
+                    c = st.fw[k] - st.g[k]
+                    d = c - bl.target(k, c)
+            else:
+                d = q_before[k]
+                if d is None and st.fw[k] is not None:
+                    c = st.fw[k] - st.g[k]
+                    d = c - bl.target(k, c)
+            stays.append(None if d is None or q_after[k] == d else float(d))
+        return None if stays == [None, None, None] else tuple(stays)
 
     # -- G0/G1 ---------------------------------------------------------------------------
     def linear(self, cmd, words: List[Word], line: str):

@@ -217,3 +217,38 @@ def test_the_printer_with_play_lands_after_homing_axes_one_by_one():
              "G28 X", "G28 Y", "G1 X0.082 Y96.494"]
     _, groups = compensate_groups(p, lines, Options(decimals=6))
     assert dist(printed(p, groups).actual(), desired_positions(lines)[-1]) < 2e-6
+
+
+def test_a_move_passed_as_written_keeps_the_drive_state_of_the_axes_it_needs():
+    """Issue 28 (the worst of the corpus run): with Z's home unknown, a move that passes as
+    written because Y's command needs Z moves the Y drive in +Y (its carriage lags b/2); the
+    Z move after it must keep that offset, not start Y from a forgotten direction."""
+    p = Params.from_dict({"squareness_um_per_m": {"yz": 500.0}, "backlash": {"y": 30.0}})
+    lines = ["G90", "M83", "G28", "G1 X0 Y95 F9000", "G1 Z0.05", "G1 X10 Y100 E1"]
+    _, groups = compensate_groups(p, lines, Options(home_mm=(None, 0.0, None), decimals=6))
+    assert groups[3][1] == ["G1 X0 Y95 F9000"]  # untouched: Y needs Z
+    printer = Printer(p)
+    for (line, outs), want in zip(groups, desired_positions(lines)):
+        for o in outs:
+            printer.run_line(o)
+        if line in ("G1 Z0.05", "G1 X10 Y100 E1"):
+            assert dist(printer.actual(), want) < 2e-6, (line, outs)
+
+
+def test_an_axis_a_passed_move_does_not_name_keeps_its_drive_and_offset():
+    """Home known for X and Z only (``--home 250,?,5``) under XY and XZ skew with X
+    backlash: a Z move passes as written (X's command needs the unknown Y); X's drive is
+    still at its home command and the first XY move must judge X's take-up from there (it
+    landed b/2 = 25 um off)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0, "xz": 1000.0},
+                          "backlash": {"x": 50.0}})
+    lines = ["G28", "G1 Z10", "G1 X200 Y100", "G1 X220 Y120", "G1 X210 Y90"]
+    _, groups = compensate_groups(p, lines, Options(home_mm=(250.0, None, 5.0), decimals=6))
+    assert groups[1][1] == ["G1 Z10"]  # untouched: X's command needs Y
+    home = (250.0, 0.0, 5.0)
+    printer = Printer(p, home_mm=home)
+    for (line, outs), want in zip(groups, desired_positions(lines, home_mm=home)):
+        for o in outs:
+            printer.run_line(o)
+        if line.startswith("G1 X"):
+            assert dist(printer.actual(), want) < 2e-6, (line, outs)
