@@ -90,3 +90,25 @@ def printed(truth: Params, groups) -> "Printer":
         for o in outs:
             printer.run_line(o)
     return printer
+
+
+def zero_length_extrusions(groups, **kw) -> List[Tuple[str, str]]:
+    """(input line, output line) for every output move of ``groups`` ([(input line, [output
+    lines])]) that extrudes (or, of several lines, carries a feed alone) without moving,
+    where the input move had length: a firmware extrudes a blob in place (issue 28)."""
+    fw_in = FirmwareInterpreter(**kw)
+    fw_out = FirmwareInterpreter(**kw)
+    found = []
+    for line, outs in groups:
+        had_length = any(isinstance(ev, Move) and dist(ev.start, ev.end) > 0
+                         for ev in fw_in.execute(line))
+        for o in outs:
+            moves = [ev for ev in fw_out.execute(o) if isinstance(ev, Move)]
+            if not had_length or not moves:
+                continue
+            still = all(dist(ev.start, ev.end) == 0 for ev in moves)
+            words = o.split(";")[0].split()[1:]
+            feed_alone = len(outs) > 1 and bool(words) and all(w[0] == "F" for w in words)
+            if still and (any(ev.e != 0 for ev in moves) or feed_alone):
+                found.append((line, o))
+    return found
