@@ -84,10 +84,32 @@ def test_deadband_ignores_float_noise_but_not_real_reversals():
     assert len(out) == 2  # 1 um back is a real reversal: the carriage would stay in the play
 
 
+def test_the_default_deadband_ignores_retreats_far_below_a_step():
+    """Issue 28: an X retreat of 7 nm (a BambuStudio helix) cost a take-up, a sliver and a
+    take-up back; the default deadband is a twentieth of a step at 80 steps/mm (0.625 um),
+    derived from ``steps_per_mm`` when that is given. A 1 um retreat is still taken up."""
+    assert Options().deadband_mm == pytest.approx(0.000625)
+    assert Options(steps_per_mm=100).deadband_mm == pytest.approx(0.0005)
+    assert Options(steps_per_mm=400, deadband_mm=0.002).deadband_mm == 0.002
+    for bad in (0, -80, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            Options(steps_per_mm=bad)
+    for opts, retreat, lines in ((Options(decimals=8), 0.000007, 1),
+                                 (Options(decimals=8), 0.0006, 1),
+                                 (Options(decimals=8), 0.001, 2),
+                                 (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
+                                 (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2)):
+        comp = make_compensator(BL, opts)
+        comp.process("G28")
+        comp.process("G1 X50 Y0 Z1")
+        assert len(comp.process(f"G1 X{50 - retreat:.6f}")) == lines, (opts, retreat)
+
+
 def test_sub_deadband_steps_cannot_add_up_to_an_untaken_reversal():
     """The deadband is a hysteresis around the farthest command reached, not a per-step
-    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all."""
-    t = BacklashTracker(BL)
+    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all
+    (a deadband of 1 nm set here; the default is derived from the step size)."""
+    t = BacklashTracker(BL, deadband_mm=1e-6)
     assert t.detect_reversals((0, 0, 0), (10, 0, 0), (0, 0, 0)) == [0]
     x, revs = 10.0, []
     for _ in range(10):
