@@ -59,12 +59,19 @@ class MoveHandler:
         return need
 
     def track_e(self, e_word: Optional[Word]) -> None:
-        """Absolute E position for splitting absolute-E arcs. Relative extrusion is not
-        summed (float sums of millions of moves mean little): the position becomes unknown
-        until ``G92 E`` or an absolute E move defines it again."""
+        """Absolute E position (the program's E units) for splitting absolute-E moves, kept
+        as Marlin keeps it: an absolute E word sets it, a relative one (M83, or G91 while
+        G90/G91 govern E) adds to it, so after M83, G91 moves and G90 (E absolute again) the
+        next absolute E is split from the summed position (issue 28). Unknown (None) until
+        ``G92 E`` or an absolute E word defines it; a relative E from an unknown position
+        leaves it unknown."""
         if e_word is None:
             return
-        self.state.e_pos = None if self.comp.e_relative else e_word.value
+        st = self.state
+        if not self.comp.e_relative:
+            st.e_pos = e_word.value
+        elif st.e_pos is not None:
+            st.e_pos = st.e_pos + e_word.value
 
     def untouched(self, given, words, known_before, line: str):
         """Pass a move through as written and keep tracking where the head went."""
