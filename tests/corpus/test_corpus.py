@@ -89,6 +89,14 @@ def run_case(path, pname, home, limit):
     ref_text = marker_line(params) + "\n" + "".join(o + "\n" for _, outs, _, _ in groups
                                              for o in outs)
     engines_equal(params, lines, options, ref_text)
+    figures = os.environ.get("KINCOMP_CORPUS_FIGURES")
+    if figures:  # (for the record: one JSON line per case)
+        with open(figures, "a") as out:
+            out.write(json.dumps({
+                "file": os.path.basename(path), "params": pname, "home": home,
+                "lines": f.lines, "lines_out": f.lines_out, "checked": f.checked_moves,
+                "max_dev_um": round(f.max_deviation_mm * 1000, 3),
+                "max_first_dev_um": round(f.max_first_deviation_mm * 1000, 3)}) + "\n")
     return f
 
 
