@@ -168,9 +168,13 @@ def test_smoothing_ramp_spanning_several_moves():
 
 
 def test_backlash_on_arcs_reverses_at_quadrants():
+    """Exact landing with a 1 nm deadband; with the default (a twentieth of a step, issue
+    28) a retreat below it is not taken up and the carriage lands within it."""
     lines = ["G28", "G92 E0", "G1 X100 Y100 Z1 F3000", "G2 X100 Y100 I20 J0 E3"]
-    comp = assert_lands(PER_SIDE, lines)
+    comp = assert_lands(PER_SIDE, lines, Options(decimals=8, deadband_mm=1e-6))
     assert comp.report.takeup_moves >= 3
+    opts = Options(decimals=8)
+    assert_lands(PER_SIDE, lines, opts, tol=opts.deadband_mm + 1e-6)
 
 
 def test_backlash_in_relative_mode():
