@@ -14,8 +14,8 @@ A carriage command that retreats by more than ``deadband_mm`` from the farthest 
 reached in the current direction (the *anchor*) is a reversal. The deadband is a hysteresis
 around that anchor, not a per-move threshold, so steps below it can never add up to an untaken
 reversal (per-move, a slow creep of tiny steps, e.g. an X command drifting with Z under XZ
-skew, could). Its default is a twentieth of a full step of a printer at 80 steps/mm
-(:func:`deadband_for`: 0.625 um): a retreat that small mostly moves the drive by no step at all
+skew, could). Given the printer's step size it is a twentieth of a full step
+(:func:`deadband_for`: 0.625 um at 80 steps/mm; without one it is 1 nm): a retreat that small mostly moves the drive by no step at all
 (the firmware rounds positions to steps), and taking it up as a reversal costs a take-up, a
 sliver to the extreme and a take-up back (issue 28: a BambuStudio helix gave three needless
 lines for an X retreat of 7 nm). Left untaken, such a retreat leaves the carriage at most the
@@ -42,7 +42,10 @@ def deadband_for(steps_per_mm: float) -> float:
     return DEADBAND_STEPS / steps_per_mm
 
 
-DEFAULT_DEADBAND_MM = deadband_for(DEFAULT_STEPS_PER_MM)
+# Without a step size the deadband stays 1 nm (float noise only): the step-derived one is
+# opt-in (``Options.steps_per_mm``) until the arc writer judges its breaks with it (a half
+# circle starting at a skewed X extreme then landed b off on the printer with play).
+DEFAULT_DEADBAND_MM = 1e-6
 
 
 def reversal(d: int, a: Optional[float], q: float, q_from: float,

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple, Union
 
 from .arcpath import ArcWriter
-from .backlash import DEFAULT_STEPS_PER_MM, BacklashTracker, deadband_for
+from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker, deadband_for
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
 from .kinematics import KinematicModel, changes_nothing
@@ -104,7 +104,8 @@ class Options:
                 and math.isfinite(self.steps_per_mm) and self.steps_per_mm > 0):
             raise ValueError("steps_per_mm must be a number above 0")
         if self.deadband_mm is None:
-            self.deadband_mm = deadband_for(self.steps_per_mm or DEFAULT_STEPS_PER_MM)
+            self.deadband_mm = (DEFAULT_DEADBAND_MM if self.steps_per_mm is None
+                                else deadband_for(self.steps_per_mm))
         elif not (math.isfinite(self.deadband_mm) and 0 <= self.deadband_mm <= 0.1):
             raise ValueError("deadband_mm must be within 0..0.1 mm")
         home_mm = tuple(self.home_mm)

@@ -86,17 +86,20 @@ def test_deadband_ignores_float_noise_but_not_real_reversals():
 
 def test_the_default_deadband_ignores_retreats_far_below_a_step():
     """Issue 28: an X retreat of 7 nm (a BambuStudio helix) cost a take-up, a sliver and a
-    take-up back; the default deadband is a twentieth of a step at 80 steps/mm (0.625 um),
-    derived from ``steps_per_mm`` when that is given. A 1 um retreat is still taken up."""
-    assert Options().deadband_mm == pytest.approx(0.000625)
+    take-up back; given the step size the deadband is a twentieth of a step (0.625 um at
+    80 steps/mm). A 1 um retreat is still taken up. (Without a step size it stays 1 nm.)"""
+    assert Options().deadband_mm == 1e-6
+    assert Options(steps_per_mm=80).deadband_mm == pytest.approx(0.000625)
     assert Options(steps_per_mm=100).deadband_mm == pytest.approx(0.0005)
     assert Options(steps_per_mm=400, deadband_mm=0.002).deadband_mm == 0.002
     for bad in (0, -80, float("nan"), float("inf")):
         with pytest.raises(ValueError):
             Options(steps_per_mm=bad)
-    for opts, retreat, lines in ((Options(decimals=8), 0.000007, 1),
-                                 (Options(decimals=8), 0.0006, 1),
-                                 (Options(decimals=8), 0.001, 2),
+    step80 = dict(decimals=8, steps_per_mm=80)
+    for opts, retreat, lines in ((Options(**step80), 0.000007, 1),
+                                 (Options(**step80), 0.0006, 1),
+                                 (Options(**step80), 0.001, 2),
+                                 (Options(decimals=8), 0.000007, 2),
                                  (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
                                  (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2)):
         comp = make_compensator(BL, opts)
@@ -173,7 +176,7 @@ def test_backlash_on_arcs_reverses_at_quadrants():
     lines = ["G28", "G92 E0", "G1 X100 Y100 Z1 F3000", "G2 X100 Y100 I20 J0 E3"]
     comp = assert_lands(PER_SIDE, lines, Options(decimals=8, deadband_mm=1e-6))
     assert comp.report.takeup_moves >= 3
-    opts = Options(decimals=8)
+    opts = Options(decimals=8, steps_per_mm=80)
     assert_lands(PER_SIDE, lines, opts, tol=opts.deadband_mm + 1e-6)
 
 
