@@ -591,8 +591,9 @@ def test_with_backlash_the_printer_with_play_lands_too(lines, geo, bl):
     """The take-up moves are what make a printer with play land: replayed through the play,
     every compensated move ends on its point (the 1e-6 output resolution plus the
     compensator's reversal deadband, a hysteresis, so sub-deadband steps cannot add up, and
-    a retreat below it, not taken up, leaves the carriage at most that far off (0.625 um by
-    default since issue 28, through a model of norm < 1.02); after an arc 1.5e-6 more: its
+    a retreat below it, not taken up, leaves the carriage at most that far off (1 nm by
+    default, 0.625 um given 80 steps/mm, through a model of norm < 1.02); after an arc 1.5e-6
+    more: its
     written centre is rounded, so the firmware's circle may turn an axis up to that much
     before the piece's end where the axis reverses, and the play then stays on the other
     side). Partial homing included: the first move after it is judged from the home
