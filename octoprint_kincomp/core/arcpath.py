@@ -39,7 +39,7 @@ from typing import List, Sequence, Tuple
 
 from . import arcs
 from .gcode import fmt
-from .path import MM_PER_INCH, EDistribution
+from .path import MM_PER_INCH, EDistribution, Pieces
 
 MAX_DEPTH = 3  # a piece that does not fit is halved at most this often
 SAMPLES = (1, 2, 3, 5, 6, 7)  # the eighths where a piece is checked (its middle, 4, fits)
@@ -240,30 +240,35 @@ class _Job:
         self.code_text, self.given, self.tail, self.comment = code_text, given, tail, comment
         self.edist, self.e_word = edist, e_word
         self.out: List[str] = []
+        self.pieces = Pieces(self.out, edist)
         self.first = True
         self.arcs = 0  # G2/G3 written
         self.segments = 0  # lines written for the arc (not take-ups)
         self.dev = 0.0  # worst deviation of a written arc piece (um)
 
-    def words(self, f: float, last: bool) -> List[str]:
-        """E share (and, on the first line, the other words) of a segment ending at f."""
+    def words(self, f: float, last: bool):
+        """(E share and, on the first line, the other words; the E word) of a segment
+        ending at f."""
         e_text = None
         if self.e_word is not None:
             e_text = self.edist.take(self.arc.length_to(f), last)
         if self.first:
-            self.first = False
-            return [e_text if wd is self.e_word else wd.text for wd in self.tail]
-        return [e_text] if e_text is not None else []
+            return [e_text if wd is self.e_word else wd.text for wd in self.tail], e_text
+        return ([e_text] if e_text is not None else []), e_text
 
     def line(self, code: str, p, q, f: float, extra: List[str]) -> None:
         last = f == 1.0
         w = self.aw.w
         write_axes = self.given if last else ()
-        words = extra + self.words(f, last)
-        comment, self.comment = self.comment, ""
-        self.out.append(w.emit(code, p, q, write_axes, words, comment, 0.0, None,
-                               keep_empty=True))
-        self.segments += 1
+        mark = self.edist.mark()
+        words, e_text = self.words(f, last)
+        line = w.emit(code, p, q, write_axes, extra + words, self.comment, 0.0, None,
+                      keep_empty=True)
+        if self.pieces.add(line, w.moved, words, e_text, last, mark):
+            self.first = False
+            self.comment = ""
+            if line is self.out[-1]:
+                self.segments += 1
 
     def piece(self, fa: float, fb: float, pb, qb, depth: int) -> None:
         arc = self.arc
@@ -384,8 +389,10 @@ class _Job:
             sweep = math.atan2(sa * eb - sb * ea, sa * ea + sb * eb)
             if self.clockwise:
                 sweep = -sweep
-            if not sweep > 0.0:
-                return None
+            if sweep <= 0.0:
+                # a half circle's end lies at +-pi: atan2 may give either sign (the circle
+                # turns the right way, checked above, so the sweep is in (0, 2 pi))
+                sweep += 2.0 * math.pi
         dev = 0.0
         for j in SAMPLES:
             T = self.target(eighths[j])

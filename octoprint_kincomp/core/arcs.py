@@ -39,7 +39,11 @@ def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
                            clockwise: bool) -> Tuple[float, float]:
     """Centre (a, b) of the arc from (a0, b0) to (a1, b1) with signed radius ``r``.
 
-    A negative ``r`` selects the arc longer than 180 degrees (RS274 convention).
+    A negative ``r`` selects the arc longer than 180 degrees (RS274 convention). A radius
+    below half the chord is taken as half the chord, as Marlin does (its ``G2``/``G3``: the
+    distance of the centre from the chord's midpoint is 0 where ``r^2 < (chord/2)^2``): the
+    arc is the half circle over the chord, turning as G2/G3 says (issue 28; such an R was
+    refused before and the line passed uncompensated).
     """
     da, db = a1 - a0, b1 - b0
     chord = norm2(da, db)
@@ -50,8 +54,6 @@ def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
     half = chord / 2.0
     rr = abs(r)
     if rr < half:
-        if half - rr > max(1e-4 * half, 1e-3):
-            raise ArcError(f"radius {rr:g} mm is smaller than half the chord {half:g} mm")
         rr = half
     h = math.sqrt(max(rr * rr - half * half, 0.0))
     # Unit normal to the chord, to the left of the travel direction.

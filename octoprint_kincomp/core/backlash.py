@@ -10,14 +10,19 @@ geometric correction, where ``dir`` is the direction the axis is travelling (+1/
 unknown, e.g. at start or after homing). On a reversal ``dir`` flips and the offset changes by
 ``fraction * b(q)``: the take-up. It is applied either at once (the caller emits a take-up move
 before the reversing move) or ramped linearly over the next ``smoothing_mm`` of path length.
-A carriage command that retreats by more than ``deadband_mm`` (default 1 nm) from the farthest
-command reached in the current direction (the *anchor*) is a reversal. The deadband is a
-hysteresis around that anchor, not a per-move threshold, so steps below it can never add up to
-an untaken reversal (per-move, a slow creep of sub-nm steps, e.g. an X command drifting with Z
-under XZ skew, could). It only absorbs float noise of computed points; every reversal that
-G-code can express (1 um at 3 decimals) is real and taken up, since a drive that retreats by
-less than the play leaves the carriage behind. With no direction yet (start, after homing) the
-anchor is where the drive was last put (the home position after G28).
+A carriage command that retreats by more than ``deadband_mm`` from the farthest command
+reached in the current direction (the *anchor*) is a reversal. The deadband is a hysteresis
+around that anchor, not a per-move threshold, so steps below it can never add up to an untaken
+reversal (per-move, a slow creep of tiny steps, e.g. an X command drifting with Z under XZ
+skew, could). Given the printer's step size it is a twentieth of a full step
+(:func:`deadband_for`: 0.625 um at 80 steps/mm; without one it is 1 nm): a retreat that small mostly moves the drive by no step at all
+(the firmware rounds positions to steps), and taking it up as a reversal costs a take-up, a
+sliver to the extreme and a take-up back (issue 28: a BambuStudio helix gave three needless
+lines for an X retreat of 7 nm). Left untaken, such a retreat leaves the carriage at most the
+deadband from where it should be. Every reversal that G-code at 3 decimals can express (1 um)
+stays above it and is taken up, since a drive that retreats by less than the play leaves the
+carriage behind. With no direction yet (start, after homing) the anchor is where the drive
+was last put (the home position after G28).
 """
 
 from __future__ import annotations
@@ -27,6 +32,19 @@ from typing import List, Optional, Sequence, Tuple
 from .params import AXES, Params
 from .state import BacklashState
 
+DEFAULT_STEPS_PER_MM = 80.0  # a typical belt-driven X/Y (16 microsteps, 20-tooth GT2)
+DEADBAND_STEPS = 0.05  # the deadband in full steps of the drive
+
+
+def deadband_for(steps_per_mm: float) -> float:
+    """The reversal deadband (mm) of a drive with ``steps_per_mm`` (steps per mm, > 0):
+    :data:`DEADBAND_STEPS` of its step (0.625 um at 80, 0.5 um at 100 steps/mm)."""
+    return DEADBAND_STEPS / steps_per_mm
+
+
+# Without a step size the deadband stays 1 nm (float noise only): the step-derived one is
+# opt-in (``Options.steps_per_mm``) until the arc writer judges its breaks with it (a half
+# circle starting at a skewed X extreme then landed b off on the printer with play).
 DEFAULT_DEADBAND_MM = 1e-6
 
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple, Union
 
 from .arcpath import ArcWriter
-from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker
+from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker, deadband_for
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
 from .kinematics import KinematicModel, changes_nothing
@@ -70,6 +70,9 @@ class Options:
     ``home_mm``: per axis where G28 leaves it (mm, machine frame), None: not known (see the
     module docstring; the library default 0,0,0 suits the simulator's printers, not every
     real one).
+    ``steps_per_mm``: the printer's resolution (steps per mm) from which the reversal
+    deadband is derived (``backlash.deadband_for``: a twentieth of a step; None: a typical
+    80 steps/mm, 0.625 um); ``deadband_mm`` (mm) sets the deadband itself instead.
     """
 
     chord_tol_mm: float = 0.01
@@ -77,7 +80,8 @@ class Options:
     policy: str = "warn"
     decimals: int = 3
     home_mm: Tuple[Optional[float], Optional[float], Optional[float]] = (0.0, 0.0, 0.0)
-    deadband_mm: float = DEFAULT_DEADBAND_MM
+    deadband_mm: Optional[float] = None
+    steps_per_mm: Optional[float] = None
     g90_influences_extruder: bool = True
     linearise_arcs: bool = False
 
@@ -95,6 +99,15 @@ class Options:
             if lim[0] >= lim[1] or lim[2] >= lim[3] or lim[4] >= lim[5]:
                 raise ValueError("limits must be given as min,max pairs with min < max")
             self.limits = lim
+        if self.steps_per_mm is not None and not (
+                isinstance(self.steps_per_mm, (int, float))
+                and math.isfinite(self.steps_per_mm) and self.steps_per_mm > 0):
+            raise ValueError("steps_per_mm must be a number above 0")
+        if self.deadband_mm is None:
+            self.deadband_mm = (DEFAULT_DEADBAND_MM if self.steps_per_mm is None
+                                else deadband_for(self.steps_per_mm))
+        elif not (math.isfinite(self.deadband_mm) and 0 <= self.deadband_mm <= 0.1):
+            raise ValueError("deadband_mm must be within 0..0.1 mm")
         home_mm = tuple(self.home_mm)
         if len(home_mm) != 3 or any(
                 v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))

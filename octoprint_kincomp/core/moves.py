@@ -59,19 +59,30 @@ class MoveHandler:
         return need
 
     def track_e(self, e_word: Optional[Word]) -> None:
-        """Absolute E position for splitting absolute-E arcs. Relative extrusion is not
-        summed (float sums of millions of moves mean little): the position becomes unknown
-        until ``G92 E`` or an absolute E move defines it again."""
+        """Absolute E position (the program's E units) for splitting absolute-E moves, kept
+        as Marlin keeps it: an absolute E word sets it, a relative one (M83, or G91 while
+        G90/G91 govern E) adds to it, so after M83, G91 moves and G90 (E absolute again) the
+        next absolute E is split from the summed position (issue 28). Unknown (None) until
+        ``G92 E`` or an absolute E word defines it; a relative E from an unknown position
+        leaves it unknown."""
         if e_word is None:
             return
-        self.state.e_pos = None if self.comp.e_relative else e_word.value
+        st = self.state
+        if not self.comp.e_relative:
+            st.e_pos = e_word.value
+        elif st.e_pos is not None:
+            st.e_pos = st.e_pos + e_word.value
 
     def untouched(self, given, words, known_before, line: str):
         """Pass a move through as written and keep tracking where the head went."""
         st = self.state
         rep = st.report
         rep.untouched_unknown += 0 if self.comp.passthrough else 1
-        st.q_drive = None  # the drives go where the line says
+        passthrough = self.comp.passthrough
+        if not passthrough:
+            q_before = self.writer.carriage(st.m)
+            if st.q_drive is not None:
+                q_before = [q if d is None else d for q, d in zip(q_before, st.q_drive)]
         u = MM_PER_INCH if st.inches else 1.0
         c_before = [None if v is None else v - st.g[k] for k, v in enumerate(st.fw)]
         new_m = list(st.m)
@@ -96,9 +107,35 @@ class MoveHandler:
                 if not known_before[k] and st.fw[k] is not None:
                     bl.place(k, st.fw[k] - st.g[k])
         st.m = new_m
+        st.q_drive = None if passthrough else self._drives_after(given, q_before)
         e = next((w for w in words if w.letter == "E"), None)
         self.track_e(e)
         return line
+
+    def _drives_after(self, given, q_before):
+        """``StreamState.q_drive`` after a move passed as written: an axis the line names is
+        where the line put its drive (firmware coordinate, no take-up offset on it: its
+        geometric command is that minus the offset of its direction); an axis it does not
+        name stays where its drive was (``q_before``, mm), offset and direction kept. Where
+        that equals the command of the new desired position nothing is recorded."""
+        st = self.state
+        bl = self.backlash
+        q_after = self.writer.carriage(st.m)
+        stays = []
+        for k in range(3):
+            if k in given:
+                if st.frame_lost[k] or st.fw[k] is None:
+                    d = None
+                else:
+                    c = st.fw[k] - st.g[k]
+                    d = c - bl.target(k, c)
+            else:
+                d = q_before[k]
+                if d is None and st.fw[k] is not None:
+                    c = st.fw[k] - st.g[k]
+                    d = c - bl.target(k, c)
+            stays.append(None if d is None or q_after[k] == d else float(d))
+        return None if stays == [None, None, None] else tuple(stays)
 
     # -- G0/G1 ---------------------------------------------------------------------------
     def linear(self, cmd, words: List[Word], line: str):

@@ -30,7 +30,7 @@ class EDistribution:
     of its own resolution (at least 5 decimals) so the pieces add up exactly."""
 
     __slots__ = ("word", "relative", "e0", "total_len", "decimals", "scale", "units",
-                 "units_done")
+                 "units_done", "part")
 
     def __init__(self, word: Optional[Word], relative: bool, e0: Optional[float],
                  total_len: float):
@@ -44,6 +44,7 @@ class EDistribution:
             if relative:
                 self.units = round(word.value * self.scale)
                 self.units_done = 0
+                self.part = 0  # units of the last piece taken
 
     def take(self, s_end: float, last: bool) -> Optional[str]:
         """The E word of the piece that ends ``s_end`` mm along the path."""
@@ -53,14 +54,79 @@ class EDistribution:
         if last:
             if not self.relative or self.units_done == 0:
                 return w.text  # the whole E word in one piece: exactly as written
-            return "E" + fmt((self.units - self.units_done) / self.scale, self.decimals)
+            self.part = self.units - self.units_done
+            return "E" + fmt(self.part / self.scale, self.decimals)
         f = s_end / self.total_len if self.total_len > 0 else 1.0
         if self.relative:
             upto = round(self.units * f)
-            part = upto - self.units_done
+            self.part = upto - self.units_done
             self.units_done = upto
-            return "E" + fmt(part / self.scale, self.decimals)
+            return "E" + fmt(self.part / self.scale, self.decimals)
         return "E" + fmt(self.e0 + (w.value - self.e0) * f, self.decimals)
+
+    def mark(self):
+        """What :meth:`untake` goes back to (before a piece is taken)."""
+        return (self.units_done, self.part) if self.word is not None and self.relative \
+            else None
+
+    def untake(self, mark) -> None:
+        """Forget the pieces taken since :meth:`mark`: their share goes to the next one."""
+        if mark is not None:
+            self.units_done, self.part = mark
+
+    def merged(self, prev_part: Optional[int]) -> str:
+        """The E word of the last piece and the one before it (units ``prev_part`` when
+        relative) written as one: the last piece had no length (see :class:`Pieces`)."""
+        if not self.relative:
+            return self.word.text
+        return "E" + fmt((prev_part + self.part) / self.scale, self.decimals)
+
+
+class Pieces:
+    """The output lines of one move cut into pieces (chords, arc pieces, ramp splits) and
+    the rule that no piece of no length carries extrusion or words where the move has length
+    (issue 28): a piece whose rounded coordinates do not move (``moved`` false) but that
+    carries words (E, or the first piece's F) is not written; its words go on to the next
+    piece (E by length, so the next piece's share holds it). The last piece cannot pass
+    its E on: it is folded into the piece written before it (whose E then reaches the
+    word's end value). A move of one piece is written as it is."""
+
+    __slots__ = ("out", "edist", "prev")
+
+    def __init__(self, out: List[str], edist: "EDistribution"):
+        self.out = out
+        self.edist = edist
+        self.prev = None  # (index in out, its E text, its relative E units) of the last piece
+
+    def add(self, line: str, moved: bool, words: List[str], e_text: Optional[str],
+            last: bool, mark) -> bool:
+        """Place a piece just emitted (``line``: its text, ``words``: its words after the
+        axes, ``e_text``: its E word, ``mark``: the E split before it). False: it was not
+        written (the caller passes its words on: first piece's tail and comment)."""
+        out = self.out
+        if moved or not words:
+            self._keep(line, e_text)
+            return True
+        if not last:
+            self.edist.untake(mark)
+            return False
+        prev = self.prev
+        if prev is None or e_text is None or len(words) != 1:
+            self._keep(line, e_text)
+            return True
+        idx, prev_text, prev_part = prev
+        merged = self.edist.merged(prev_part)
+        old = out[idx]
+        at = old.index(" " + prev_text)
+        out[idx] = old[:at + 1] + merged + old[at + 1 + len(prev_text):]
+        return True
+
+    def _keep(self, line: str, e_text: Optional[str]) -> None:
+        ed = self.edist
+        self.out.append(line)
+        if e_text is not None:
+            part = ed.part if ed.word is not None and ed.relative else None
+            self.prev = (len(self.out) - 1, e_text, part)
 
 
 def lerp(a, b, f):
@@ -80,6 +146,7 @@ class PathWriter:
         self.state = state
         self.needs = needs
         self.servo_s = servo_s
+        self.moved = False  # whether the line :meth:`emit` wrote last moves an axis
 
     def path(self, code_text: str, start: List[Optional[float]], points, given, e_word,
              tail: List[Word], comment: str, e_relative: bool) -> List[str]:
@@ -109,6 +176,7 @@ class PathWriter:
         edist = EDistribution(e_word, e_relative, st.e_pos, total_len)
         e_unsplittable = e_word is not None and not e_relative and st.e_pos is None
         out: List[str] = []
+        pieces = Pieces(out, edist)
         first = True
         s_done = 0.0
         p0 = start
@@ -154,17 +222,20 @@ class PathWriter:
                 else:
                     p, q = p1, q1
                 sub_len = (f - f_prev) * seg_len if seg_len is not None else 0.0
+                last = idx == n_points - 1 and f == 1.0
+                mark = edist.mark()
                 e_text = None
                 if e_word is not None:
-                    e_text = edist.take(s_done + sub_len, idx == n_points - 1 and f == 1.0)
+                    e_text = edist.take(s_done + sub_len, last)
                 if first:
                     words = [e_text if w is e_word else w.text for w in tail]
-                    first = False
                 else:
                     words = [e_text] if e_text is not None else []
-                out.append(self.emit(code_text, p, q, write_axes if f == 1.0 else (),
-                                     words, comment, sub_len, velocity, keep_empty=True))
-                comment = ""
+                line = self.emit(code_text, p, q, write_axes if f == 1.0 else (),
+                                 words, comment, sub_len, velocity, keep_empty=True)
+                if pieces.add(line, self.moved, words, e_text, last, mark):
+                    first = False
+                    comment = ""
                 if bl.any_active:
                     bl.advance(sub_len)
                 s_done += sub_len
@@ -233,6 +304,7 @@ class PathWriter:
         u = MM_PER_INCH if st.inches else 1.0
         dec = self.options.decimals + (2 if st.inches else 0)
         lim = self.options.limits
+        fw_before = list(st.fw)
         axes_text = []
         rep = st.report
         for k in range(3):
@@ -254,6 +326,7 @@ class PathWriter:
         for k in range(3):
             if p[k] is not None:
                 st.m[k] = p[k]
+        self.moved = st.fw != fw_before
         if not axes_text and not words and not keep_empty:
             return None
         parts = [code_text] + axes_text + words

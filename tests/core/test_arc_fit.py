@@ -320,3 +320,41 @@ def test_linearise_arcs_option_writes_chords():
     out = comp.process("G2 X120 Y100 I10 J0 E1")
     assert all(o.startswith("G1 ") for o in out) and len(out) > 4
     assert comp.report.arcs_linearised == 1 and comp.report.arcs_kept == 0
+
+
+def test_a_helical_half_circle_is_one_arc_when_it_fits():
+    """Issue 28: a helix of 360 degrees (BambuStudio's lift) is written in two 180 degree
+    pieces; each is one G2 when the fit is within the tolerance, as a planar half circle is
+    (a half circle's end lies at +-180 degrees, where the angle's sign is a coin toss: the
+    helix was halved into 90 degree lines at a deviation of 0.2 um)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}})
+    lines = ["G28", "G90", "M83", "G1 X65 Y245 Z0.4", "G2 X66.72 Y246.72 I0.86 J0.86 E0.1",
+             "G1 X65 Y245 Z0.4", "G2 X65 Y245 Z0.6 I-0.86 J-0.86 E0.1"]
+    opts = Options()
+    comp, results = printed_arcs(p, lines, opts, play=False)
+    (_, planar, d1), (_, helix, d2) = results
+    assert len(planar) == 1 and planar[0].startswith("G2 ")
+    assert len(helix) == 2 and all(o.startswith("G2 ") for o in helix), helix
+    assert helix[-1].split()[1:4] == ["X64.755", "Y245", "Z0.6"]
+    assert max(d1, d2) <= opts.chord_tol_mm + _resolution(opts) + FINE
+
+
+@pytest.mark.parametrize("r", ["R4.9", "R-4.9", "R0.001"])
+def test_an_r_below_half_the_chord_is_the_half_circle_marlin_prints(r):
+    """Issue 28: Marlin prints an R arc whose R is below half its chord as the half circle
+    over the chord (the centre's distance from the midpoint is 0 when r^2 < (chord/2)^2);
+    it was refused as malformed and passed uncompensated, 65 um off under the paper's skew."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": -3638.6},
+                          "scale_ppm": {"x": -451.7, "y": 287.0}})
+    lines = ["G28", "G90", "G1 X10 Y18", f"G2 X20 Y18 {r}"]
+    opts = Options()
+    comp, results = printed_arcs(p, lines, opts, play=False)
+    assert comp.report.malformed == 0 and comp.report.untouched_unknown == 0
+    (line, outs, d), = results
+    assert d <= opts.chord_tol_mm + _resolution(opts) + FINE, (outs, d)
+    # the half circle over the chord, clockwise: through (15, 23), above it
+    arc = arcs.Arc((10, 18, 0), (20, 18, 0), 17,
+                   *arcs.centre_from_words((10, 18, 0), (20, 18, 0), 17, (None, None),
+                                           float(r[1:]), True), True)
+    assert (arc.ca, arc.cb, arc.r0) == (15.0, 18.0, 5.0)
+    assert arc.point(0.5) == pytest.approx((15.0, 23.0, 0.0))

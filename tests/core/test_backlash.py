@@ -84,10 +84,35 @@ def test_deadband_ignores_float_noise_but_not_real_reversals():
     assert len(out) == 2  # 1 um back is a real reversal: the carriage would stay in the play
 
 
+def test_the_default_deadband_ignores_retreats_far_below_a_step():
+    """Issue 28: an X retreat of 7 nm (a BambuStudio helix) cost a take-up, a sliver and a
+    take-up back; given the step size the deadband is a twentieth of a step (0.625 um at
+    80 steps/mm). A 1 um retreat is still taken up. (Without a step size it stays 1 nm.)"""
+    assert Options().deadband_mm == 1e-6
+    assert Options(steps_per_mm=80).deadband_mm == pytest.approx(0.000625)
+    assert Options(steps_per_mm=100).deadband_mm == pytest.approx(0.0005)
+    assert Options(steps_per_mm=400, deadband_mm=0.002).deadband_mm == 0.002
+    for bad in (0, -80, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            Options(steps_per_mm=bad)
+    step80 = dict(decimals=8, steps_per_mm=80)
+    for opts, retreat, lines in ((Options(**step80), 0.000007, 1),
+                                 (Options(**step80), 0.0006, 1),
+                                 (Options(**step80), 0.001, 2),
+                                 (Options(decimals=8), 0.000007, 2),
+                                 (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
+                                 (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2)):
+        comp = make_compensator(BL, opts)
+        comp.process("G28")
+        comp.process("G1 X50 Y0 Z1")
+        assert len(comp.process(f"G1 X{50 - retreat:.6f}")) == lines, (opts, retreat)
+
+
 def test_sub_deadband_steps_cannot_add_up_to_an_untaken_reversal():
     """The deadband is a hysteresis around the farthest command reached, not a per-step
-    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all."""
-    t = BacklashTracker(BL)
+    threshold: 0.4 nm retreats one after another are a reversal once they pass 1 nm in all
+    (a deadband of 1 nm set here; the default is derived from the step size)."""
+    t = BacklashTracker(BL, deadband_mm=1e-6)
     assert t.detect_reversals((0, 0, 0), (10, 0, 0), (0, 0, 0)) == [0]
     x, revs = 10.0, []
     for _ in range(10):
@@ -146,9 +171,13 @@ def test_smoothing_ramp_spanning_several_moves():
 
 
 def test_backlash_on_arcs_reverses_at_quadrants():
+    """Exact landing with a 1 nm deadband; with the default (a twentieth of a step, issue
+    28) a retreat below it is not taken up and the carriage lands within it."""
     lines = ["G28", "G92 E0", "G1 X100 Y100 Z1 F3000", "G2 X100 Y100 I20 J0 E3"]
-    comp = assert_lands(PER_SIDE, lines)
+    comp = assert_lands(PER_SIDE, lines, Options(decimals=8, deadband_mm=1e-6))
     assert comp.report.takeup_moves >= 3
+    opts = Options(decimals=8, steps_per_mm=80)
+    assert_lands(PER_SIDE, lines, opts, tol=opts.deadband_mm + 1e-6)
 
 
 def test_backlash_in_relative_mode():
@@ -217,3 +246,38 @@ def test_the_printer_with_play_lands_after_homing_axes_one_by_one():
              "G28 X", "G28 Y", "G1 X0.082 Y96.494"]
     _, groups = compensate_groups(p, lines, Options(decimals=6))
     assert dist(printed(p, groups).actual(), desired_positions(lines)[-1]) < 2e-6
+
+
+def test_a_move_passed_as_written_keeps_the_drive_state_of_the_axes_it_needs():
+    """Issue 28 (the worst of the corpus run): with Z's home unknown, a move that passes as
+    written because Y's command needs Z moves the Y drive in +Y (its carriage lags b/2); the
+    Z move after it must keep that offset, not start Y from a forgotten direction."""
+    p = Params.from_dict({"squareness_um_per_m": {"yz": 500.0}, "backlash": {"y": 30.0}})
+    lines = ["G90", "M83", "G28", "G1 X0 Y95 F9000", "G1 Z0.05", "G1 X10 Y100 E1"]
+    _, groups = compensate_groups(p, lines, Options(home_mm=(None, 0.0, None), decimals=6))
+    assert groups[3][1] == ["G1 X0 Y95 F9000"]  # untouched: Y needs Z
+    printer = Printer(p)
+    for (line, outs), want in zip(groups, desired_positions(lines)):
+        for o in outs:
+            printer.run_line(o)
+        if line in ("G1 Z0.05", "G1 X10 Y100 E1"):
+            assert dist(printer.actual(), want) < 2e-6, (line, outs)
+
+
+def test_an_axis_a_passed_move_does_not_name_keeps_its_drive_and_offset():
+    """Home known for X and Z only (``--home 250,?,5``) under XY and XZ skew with X
+    backlash: a Z move passes as written (X's command needs the unknown Y); X's drive is
+    still at its home command and the first XY move must judge X's take-up from there (it
+    landed b/2 = 25 um off)."""
+    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0, "xz": 1000.0},
+                          "backlash": {"x": 50.0}})
+    lines = ["G28", "G1 Z10", "G1 X200 Y100", "G1 X220 Y120", "G1 X210 Y90"]
+    _, groups = compensate_groups(p, lines, Options(home_mm=(250.0, None, 5.0), decimals=6))
+    assert groups[1][1] == ["G1 Z10"]  # untouched: X's command needs Y
+    home = (250.0, 0.0, 5.0)
+    printer = Printer(p, home_mm=home)
+    for (line, outs), want in zip(groups, desired_positions(lines, home_mm=home)):
+        for o in outs:
+            printer.run_line(o)
+        if line.startswith("G1 X"):
+            assert dist(printer.actual(), want) < 2e-6, (line, outs)

@@ -299,8 +299,10 @@ def test_pure_translation_keeps_arcs():
 
 
 def test_malformed_arc_passes_untouched():
-    comp, outs = run(SKEW, ["G28", "G1 X0 Y0 Z1", "G2 X50 Y0 R10"])
-    assert outs[2] == ["G2 X50 Y0 R10"]
+    """(An R below half the chord is no longer malformed: Marlin prints the half circle,
+    see test_arc_fit; an R arc ending where it starts describes no circle.)"""
+    comp, outs = run(SKEW, ["G28", "G1 X0 Y0 Z1", "G2 X0 Y0 R10"])
+    assert outs[2] == ["G2 X0 Y0 R10"]
     assert comp.report.malformed == 1
 
 
@@ -345,3 +347,34 @@ def test_g92_on_an_unknown_axis_does_not_invent_a_machine_frame():
     comp2.process("G92.1")
     assert comp2.state.frame_lost == [False, False, False] and comp2.known == (False, False, False)
     assert comp2.process("G1 X10 Y100 Z1") != "G1 X10 Y100 Z1"
+
+
+@pytest.mark.parametrize("run_in", [
+    ["M83", "G1 X50 Y50 Z1 F3000 E1", "G91", "G1 Z0.2 E-0.5", "G90"],  # G91 moves E too
+    ["M83", "G1 X50 Y50 Z1 F3000 E1", "G1 E-0.5", "G91", "G1 Z0.2", "G90"],
+    ["G91", "G1 X50 Y50 Z1.2 E0.25", "G1 E0.25", "G90"],  # G91 alone: E relative too
+])
+def test_e_is_tracked_through_g90_g91_m82_m83_as_marlin_does(run_in):
+    """Issue 28: after M83, a G91 move and G90, E is absolute again (Marlin: G90 clears the
+    relative flag of every axis, E's too) and its position is the sum of the relative
+    moves since G92 E0; the next arc with E is compensated and split from there (it passed
+    untouched: relative E was not summed)."""
+    lines = ["G28", "G90", "G92 E0"] + run_in + ["G2 X70 Y50 I10 J0 E3"]
+    comp, outs = run(SKEW, lines)
+    arc = outs[-1]
+    assert comp.report.untouched_unknown == 0 and arc != ["G2 X70 Y50 I10 J0 E3"]
+    assert comp.state.e_pos == 3.0
+    es = [words(o)["E"] for o in arc if "E" in words(o)]
+    assert len(es) > 1 and es[-1] == 3.0
+    assert all(b > a for a, b in zip(es, es[1:]))
+    # the first piece's E follows from 0.5 (1 - 0.5) by length: more than half of 2.5 needs
+    # more than half of the arc
+    assert 0.5 < es[0] < 3.0
+    assert_lands(SKEW, lines, Options(decimals=8), tol=2e-3)
+
+
+def test_relative_e_from_an_unknown_position_leaves_it_unknown():
+    lines = ["G28", "M83", "G1 X50 Y50 Z1 F3000 E1", "G90", "M82",
+             "G2 X70 Y50 I10 J0 E3"]
+    comp, outs = run(SKEW, lines)
+    assert outs[-1] == ["G2 X70 Y50 I10 J0 E3"] and comp.report.untouched_unknown == 1

@@ -396,3 +396,18 @@ def test_limit_examples_of_arc_chords_come_in_emission_order(engine):
         ref = general(text, p, opts)
         assert len(ref[1]["limit_examples"]) >= 3
         assert whole_file(text, p, opts) == ref
+
+
+def test_relative_e_adds_up_in_long_runs_like_the_reference(engine):
+    """Issue 28: relative E is summed into the E position (Marlin); the file engine sums a
+    run of moves as the reference path does line by line, and the absolute-E arc after
+    M83, G91 and G90 is split from that sum on every engine."""
+    moves = [f"G1 X{50 + (i % 7) * 3.1:.3f} Y{60 + (i % 5) * 2.3:.3f} E0.0{i % 9 + 1}"
+             for i in range(60)]
+    text = "\n".join(["G28", "G90", "G92 E0", "M83", "G1 X50 Y50 Z1 F3000"] + moves
+                     + ["G91", "G1 Z0.2 E-0.5", "G90", "G2 X70 Y50 I10 J0 E9.5"]
+                     + moves[:30] + ["G90", "G3 X50 Y50 I-10 J0 E12.25", ""])
+    for params in PARAMS:
+        check(text, params, Options())
+    ref, rep = general(text, PARAMS[1], Options())
+    assert rep["untouched_unknown_position"] == 0

@@ -44,7 +44,8 @@ class Printer:
     def run_line(self, line: str):
         """Actual nozzle positions (mm) at the end of each commanded segment of ``line``."""
         out = []
-        for ev in self.fw.execute(line):
+        self.events = self.fw.execute(line)  # (what the line commanded, for the caller)
+        for ev in self.events:
             if isinstance(ev, Home):
                 self.play.reset(ev.axes)
             if isinstance(ev, Move):
@@ -90,3 +91,31 @@ def printed(truth: Params, groups) -> "Printer":
         for o in outs:
             printer.run_line(o)
     return printer
+
+
+def zero_length_extrusions(groups, **kw) -> List[Tuple[str, str]]:
+    """(input line, output line) for every output move of ``groups`` ([(input line, [output
+    lines])]) that extrudes (or, of several lines, carries a feed alone) without moving,
+    where the input move had length: a firmware extrudes a blob in place (issue 28)."""
+    fw_in = FirmwareInterpreter(**kw)
+    fw_out = FirmwareInterpreter(**kw)
+    found = []
+    for line, outs in groups:
+        had_length = any(isinstance(ev, Move) and dist(ev.start, ev.end) > 0
+                         for ev in fw_in.execute(line))
+        for o in outs:
+            if had_length and still_extruding(o, fw_out.execute(o), len(outs)):
+                found.append((line, o))
+    return found
+
+
+def still_extruding(out_line: str, events, n_out: int) -> bool:
+    """Whether the output line ``out_line`` (one of ``n_out`` written for an input move of
+    some length; ``events``: what it commanded) extrudes without moving, or is one of
+    several lines and carries a feed alone."""
+    moves = [ev for ev in events if isinstance(ev, Move)]
+    if not moves or any(dist(ev.start, ev.end) != 0 for ev in moves):
+        return False
+    words = out_line.split(";")[0].split()[1:]
+    feed_alone = n_out > 1 and bool(words) and all(w[0] == "F" for w in words)
+    return any(ev.e != 0 for ev in moves) or feed_alone

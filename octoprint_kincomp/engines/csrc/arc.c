@@ -268,8 +268,8 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
         sweep = atan2(sa * eb - sb * ea, sa * ea + sb * eb);
         if (j->cw)
             sweep = -sweep;
-        if (!(sweep > 0.0))
-            return 0;
+        if (sweep <= 0.0)  /* a half circle's end at +-pi (arcpath.py) */
+            sweep += 2.0 * M_PI;
     }
     for (i = 0; i < 6; i++) {
         double va, vb, dr, lin, dl, e;
@@ -322,11 +322,18 @@ static int write_line(Job *j, const char *code, const double *p, const double *q
     char *o = kk_line_begin(j->out);
     int len = 2, last = f == 1.0, t;
     State *s = j->s;
+    double fw_before[3];
     if (o == NULL)
         return -1;
     o[0] = code[0];
     o[1] = code[1];
+    memcpy(fw_before, s->fw, sizeof fw_before);
     if (kk_point(j->K, s, p, q, last ? j->given : NONE, q, ALL, j->m_old, o, &len) < 0)
+        return -1;
+    /* a piece that does not move but carries words (E, the first piece's F): the reference
+     * passes them on or folds them back (core/path.py Pieces); Python decides */
+    if (fw_before[0] == s->fw[0] && fw_before[1] == s->fw[1] && fw_before[2] == s->fw[2] &&
+        (j->ed.present || (j->first && (j->tail[0] != NULL || j->tail[1] != NULL))))
         return -1;
     memcpy(s->m, p, 3 * sizeof(double));
     memcpy(o + len, extra, extra_len);
@@ -551,11 +558,17 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
         s.arc_segments += j.segments;
         if (j.dev > s.arc_dev)
             s.arc_dev = j.dev;
-        if (present[5]) {
+        if (present[5]) {  /* MoveHandler.track_e (transform.c) */
             s.e_set = 1;
-            s.e_none = e_rel;
-            s.e_known = !e_rel;
-            s.e_pos = val[5];
+            if (e_rel) {
+                s.e_none = !s.e_known;
+                if (s.e_known)
+                    s.e_pos = s.e_pos + val[5];
+            } else {
+                s.e_none = 0;
+                s.e_known = 1;
+                s.e_pos = val[5];
+            }
         }
         memcpy(s.q_last, qa, sizeof qa);
         s.q_last_known = 1;

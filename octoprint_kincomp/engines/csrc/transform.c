@@ -231,10 +231,17 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             s.f_set = 1;
         }
         if (present[4]) {
+            /* MoveHandler.track_e: absolute E sets the position, relative E adds to it */
             s.e_set = 1;
-            s.e_none = s.e_abs_mode == 0;
-            s.e_known = !s.e_none;
-            s.e_pos = val[4];
+            if (s.e_abs_mode == 0) {
+                s.e_none = !s.e_known;
+                if (s.e_known)
+                    s.e_pos = s.e_pos + val[4];
+            } else {
+                s.e_none = 0;
+                s.e_known = 1;
+                s.e_pos = val[4];
+            }
         }
         s.lineno++;
         s.lines++;

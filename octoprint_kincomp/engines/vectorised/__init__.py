@@ -250,9 +250,15 @@ class FileEngine:
         fl = tk.last_value(5, i0, i1)
         if fl is not None:
             comp.state.feed = fl[1] * u
-        el = tk.last_value(4, i0, i1)
-        if el is not None:
-            comp.state.e_pos = None if comp.e_relative else el[1]
+        if not comp.e_relative:
+            el = tk.last_value(4, i0, i1)
+            if el is not None:
+                comp.state.e_pos = el[1]
+        elif comp.state.e_pos is not None:  # relative E adds up (MoveHandler.track_e)
+            e = comp.state.e_pos
+            for v in tk.values(4, i0, i1):
+                e = e + v
+            comp.state.e_pos = e
 
     def _finish_inert(self, tk, i0, i1, cand) -> bytes:
         self._finish_counts(tk, i0, i1, cand, 0, 0)

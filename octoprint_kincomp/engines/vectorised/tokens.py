@@ -8,7 +8,7 @@ numbers are checked and parsed in numbers.py.
 
 from __future__ import annotations
 
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -180,6 +180,14 @@ class Tokens:
             hit = self.move_lines[k] == tline[lf]
             self.fpre_start[k[hit]] = tpos[lf[hit]]
             self.fpre_end[k[hit]] = te[lf[hit]]
+
+    def values(self, which: int, i0: int, i1: int) -> List[float]:
+        """The values of the words ``which`` (4: E, 5: F) of the candidate lines in
+        [i0, i1), in order."""
+        j0 = int(np.searchsorted(self._tline, i0, side="left"))
+        j1 = int(np.searchsorted(self._tline, i1, side="left"))
+        hits = np.flatnonzero(self._letter[j0:j1] == which) + j0
+        return [float(self.buf[int(self._ts[j]) + 1: int(self._te[j])]) for j in hits.tolist()]
 
     def last_value(self, which: int, i0: int, i1: int) -> Optional[Tuple[int, float]]:
         """(line, value) of the last word ``which`` (4: E, 5: F) of the candidate lines in
