@@ -13,7 +13,7 @@ from tests.support import ROOT
 DOCS = os.path.join(ROOT, "docs")
 PAGES = ["user-guide", "calibration", "live-capture", "command-line", "http-api",
          "firmware-export", "how-compensation-works", "architecture", "tests", "performance",
-         "trust-checks", "motion-limits", "untrusted-results", "artifact", "reliability"]
+         "trust-checks", "motion-limits", "untrusted-results", "artifact", "reliability", "compensation-details"]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
