@@ -14,7 +14,10 @@ TEMPLATES = os.path.join(ROOT, "octoprint_kincomp", "templates")
 
 
 def _render(name):
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(TEMPLATES), autoescape=True)
+    # (OctoPrint finds a plugin's templates as plugin_<id>/<name>, as the includes say)
+    files = jinja2.FileSystemLoader(TEMPLATES)
+    env = jinja2.Environment(loader=jinja2.ChoiceLoader(
+        [files, jinja2.PrefixLoader({"plugin_kincomp": files})]), autoescape=True)
     env.globals["_"] = lambda text, **kw: text
     return env.get_template(name).render()
 
