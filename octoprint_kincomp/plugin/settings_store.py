@@ -345,6 +345,9 @@ class SettingsStore:
                 return
             adopted = not s["profile"]
             new, _ = self.update(data, replace_params=True, immediately=True, internal=True)
+        # the views reload what they show (the badge, the tab, the history, the limits)
+        self._notifier.message({"type": "profile", "profile": self.profile_status(new)})
+        self._notifier.message({"type": "motion_limits"})
         if adopted:
             self._logger.info("KinComp: the calibration now belongs to printer profile %s",
                               pid)
