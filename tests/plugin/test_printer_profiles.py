@@ -155,3 +155,15 @@ def test_the_history_shows_the_runs_of_the_profile_in_force(api):
     assert runs.get(on_a)["profile"] == "printer_a"
     connect(api, A)
     assert listed() == {old, on_a}
+
+
+def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
+    bad = dict(CALIBRATED, profile="printer_a",
+               profiles={"printer_a": {"params": {"scale_ppm": {"x": "garbage"}}}})
+    ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
+    try:
+        st = status(ns)
+        assert st["settings_problem_field"] == "profiles.printer_a.params.scale_ppm.x"
+        assert st["compensation"]["enabled"] is False and not ns.plugin.queue.enabled
+    finally:
+        ns.stop()
