@@ -244,6 +244,8 @@ class SettingsStore:
                     new = recorded(stored, new)
                 diff = self._store(new, write)
             self._applied(old, new, immediately)
+            if not internal and self._follow(self.current()):  # (settings just fixed)
+                new = self.current()
             return new, diff
 
     def save(self, new: Dict[str, Any], immediately: Optional[bool] = None,
@@ -295,12 +297,16 @@ class SettingsStore:
     def apply(self, s: Dict[str, Any], immediately: Optional[bool] = None) -> None:
         """The settings ``s`` to the queue's compensator: at once if ``immediately`` (None:
         as the settings' ``apply_changes`` says), else from the next print on if one runs.
-        Compensation stays off while the printer profile in force has no calibration."""
+        Compensation stays off while the printer profile in force has no calibration, and
+        while the set is another profile's than the connected printer's."""
         params, options = self.engine_config(s)
         now = s["apply_changes"] == "immediately" if immediately is None else immediately
         q = self._queue
         q.pass_through_on_error = s["pass_through_on_error"]
-        if not q.configure(params, options, s["enabled"] and calibrated(s), now):
+        connected = self._connected_id()
+        # another printer connected than the one whose set this is: off until it switches
+        theirs = not s["profile"] or connected is None or connected == s["profile"]
+        if not q.configure(params, options, s["enabled"] and calibrated(s) and theirs, now):
             self._notifier.notify(
                 "info", N_("A print is running: the new KinComp settings (parameters, "
                            "compensation on or off) take effect from the next print on."))
@@ -327,24 +333,35 @@ class SettingsStore:
     def follow_profile(self) -> None:
         """Puts the current printer profile's set in force if another one is (a profile
         chosen on connecting, at start-up; while no printer is connected the last one's set
-        stays), at once: printer A's parameters must never
-        reach printer B. Says which one, and applies the settings. A profile without a
-        calibration: compensation off, and the user is told."""
+        stays), at once: printer A's parameters must never reach printer B. Says which one,
+        and applies the settings. A profile without a calibration: compensation off, and the
+        user is told."""
         with self.lock:
             s = self.current()
-            profile = self.active_profile(connected=True)
-            if profile is None:  # no printer connected: the last one's set stays in force
-                if s["profile"]:
-                    self.apply(s)
-                    return
-                profile = self.active_profile()
-            pid = profile_id(profile)
-            data = switch(s, pid) if self.problem is None else None
-            if data is None:
+            if not self._follow(s):
                 self.apply(s)
-                return
-            adopted = not s["profile"]
-            new, _ = self.update(data, replace_params=True, immediately=True, internal=True)
+
+    def _connected_id(self) -> Optional[str]:
+        """The id of the connected printer's profile; None while none is connected."""
+        profile = self.active_profile(connected=True)
+        return None if profile is None else profile_id(profile)
+
+    def _follow(self, s: Dict[str, Any]) -> bool:
+        """Switches to the current profile's set if ``s`` (valid settings in force) is
+        another's; True if it did (and applied it)."""
+        if self.problem is not None:
+            return False  # compensation is off; the switch follows once they are fixed
+        profile = self.active_profile(connected=True)
+        if profile is None:  # no printer connected: the last one's set stays in force
+            if s["profile"]:
+                return False
+            profile = self.active_profile()
+        pid = profile_id(profile)
+        data = switch(s, pid)
+        if data is None:
+            return False
+        adopted = not s["profile"]
+        new, _ = self.update(data, replace_params=True, immediately=True, internal=True)
         # the views reload what they show (the badge, the tab, the history, the limits)
         self._notifier.message({"type": "profile", "profile": self.profile_status(new)})
         self._notifier.message({"type": "motion_limits"})
@@ -360,6 +377,7 @@ class SettingsStore:
                 "warning", N_("Printer profile %(profile)s has no KinComp calibration: "
                               "prints go out uncompensated until you calibrate it or "
                               "enter its parameters."), profile=profile_name(profile))
+        return True
 
     # ~~ OctoPrint's settings endpoint --------------------------------------------------------
     def check_settings_request(self):

@@ -167,3 +167,24 @@ def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
         assert st["compensation"]["enabled"] is False and not ns.plugin.queue.enabled
     finally:
         ns.stop()
+
+
+def test_a_fix_of_bad_stored_settings_on_another_printer_never_applies_the_first_ones(tmp_path):
+    bad = dict(CALIBRATED, profile="printer_a", decimals="garbage",
+               profiles={"printer_a": {"params": CALIBRATED["params"]}})
+    ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
+    try:
+        pm = ns.plugin._printer_profile_manager
+        pm.get_current.return_value = pm.get_current_or_default.return_value = B
+        ns.plugin.on_event("Connected", {})  # B connected while the settings are invalid
+        assert not ns.plugin.queue.enabled
+        resp = ns.client.post(PREFIX + "/settings", data=json.dumps(
+            {"decimals": 3, "apply_now": True}), content_type="application/json")
+        assert resp.status_code == 200, resp.get_json()
+        st = status(ns)
+        assert st["profile"]["id"] == "printer_b" and st["profile"]["calibrated"] is False
+        assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+        assert not ns.plugin.queue.enabled
+        assert ns.plugin.queue.comp.params.squareness_um_per_m["xy"] == 0.0
+    finally:
+        ns.stop()
