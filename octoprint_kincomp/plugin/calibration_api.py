@@ -424,7 +424,8 @@ class CalibrationApi:
     # ~~ the run history -----------------------------------------------------------------------
     def runs(self):
         http.require(Permissions.STATUS)
-        return flask.jsonify(runs=self._runs.list())
+        s = self._store.current()  # the history of the printer profile in force
+        return flask.jsonify(runs=self._runs.list(s["profile"] or None, s["legacy_profile"]))
 
     def run(self, run_id: str):
         http.require(Permissions.STATUS)

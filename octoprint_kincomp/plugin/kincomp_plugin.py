@@ -88,6 +88,8 @@ class KinCompPlugin(
         self.notifier = notifier = Notifier(self._plugin_manager, self._event_bus,
                                             self._identifier)
         self.runs = RunStore(self.data_folder())
+        # a run belongs to the printer profile in force when it is recorded
+        self.runs.profile = lambda: self.store.current()["profile"]
         self.queue = queue = QueueCompensator(Params(), Options())
         self.demo = DemoMode(notifier, log)
         self.firmware = FirmwareCheck(self.watch, queue, printer, notifier, log)
@@ -129,6 +131,7 @@ class KinCompPlugin(
 
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
+        self.store.follow_profile()  # settings from before profiles: adopted by this one
         self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
                           "on" if self.queue.enabled else "off",
                           engine())
@@ -200,6 +203,8 @@ class KinCompPlugin(
         prints = self.prints
         if comm_instance is not prints.comm:
             prints.connection_changed(comm_instance)
+            # a new connection's profile decides the calibration before its first command
+            self.store.follow_profile()
         if tags and FILE_TAG in tags and (not prints.file_lines_seen or "fileline:1" in tags):
             prints.file_line(tags)  # (a print's first line: the other lines change nothing)
         queue = self.queue
@@ -227,6 +232,7 @@ class KinCompPlugin(
     def received_hook(self, comm_instance, line, *args, **kwargs):
         if comm_instance is not self.prints.comm:
             self.prints.connection_changed(comm_instance)
+            self.store.follow_profile()
         self.firmware.received(line)
         self.limits.received(line)
         if self.queue.home_query_out:  # the firmware's answer to our M114 after G28
@@ -271,10 +277,11 @@ class KinCompPlugin(
         elif event == Events.FIRMWARE_DATA:
             self.firmware.query(payload)
             self.limits.firmware_data(payload)
-        elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED):
-            # the bed volume (limits) and axis feeds come from the printer profile, which
-            # a connection may switch and the user may edit
-            self.store.apply(self.store.current())
+        elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED,
+                       Events.PRINTER_PROFILE_DELETED):
+            # the calibration, bed volume (limits) and axis feeds belong to the printer
+            # profile, which a connection may switch and the user may edit
+            self.store.follow_profile()
         elif event == Events.TRANSFER_STARTED:
             self.prints.transfer_started()
         elif event == Events.PRINT_PAUSED:

@@ -10,7 +10,8 @@ message, its partial data). Run ids are generated here and checked on every look
 request can never name a path outside the runs folder (the campaign store, ``campaigns.py``,
 keeps its documents by the same rules). A run that is not plain JSON (a NaN or an infinity)
 is never stored; one stored by an older version is read with those numbers as null, so it
-can still be shown.
+can still be shown. A new run is tagged with the printer profile in force (``profile``); the
+history lists the runs of one profile.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import json
 import os
 import re
 import secrets
-from typing import Any, Dict, List, Optional
+from typing import Any, Callable, Dict, List, Optional
 
 from ..core.atomic import write_atomic
 
@@ -41,6 +42,8 @@ class RunStore:
     ID = _ID  # what an id looks like (checked on every lookup)
     PREFIX = ""  # of new ids
     NotFound = RunNotFound
+    # () -> the printer profile id a new run is recorded for (None: runs are not tagged)
+    profile: Optional[Callable[[], str]] = None
 
     def __init__(self, data_folder: str):
         # absolute, resolved once: a relative basedir (./run.sh) must not be taken against
@@ -62,11 +65,13 @@ class RunStore:
         (nothing stored) if it is not plain JSON. A failed write (disk full: OSError) keeps
         nothing of a new run: not its trace without it."""
         path = self._path(run["id"])
+        new = not os.path.exists(path)
+        if new and self.profile is not None and "profile" not in run:
+            run["profile"] = self.profile()
         try:
             text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
         except (TypeError, ValueError) as exc:
             raise RunNotStorable(str(exc)) from None
-        new = not os.path.exists(path)
         try:
             if trace is not None:
                 self.save_trace(run["id"], trace)
@@ -109,14 +114,19 @@ class RunStore:
                        reverse=True)
         return [n for n in names if self.ID.fullmatch(n)][:MAX_RUNS_LISTED]
 
-    def list(self) -> List[Dict[str, Any]]:
-        """Summaries, newest first."""
+    def list(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
+        """Summaries, newest first; with ``profile``, only the runs of that printer profile
+        (a run recorded before profiles counts as ``legacy``'s: the profile in force when
+        the settings moved onto profiles)."""
         out = []
         for run_id in self.ids():
             try:
-                out.append(self.summary(self.get(run_id)))
+                run = self.get(run_id)
             except RunNotFound:
                 continue
+            if profile is not None and run.get("profile", legacy) != profile:
+                continue
+            out.append(self.summary(run))
         return out
 
     def summary(self, run: Dict[str, Any]) -> Dict[str, Any]:
@@ -141,6 +151,7 @@ class RunStore:
             "message": run.get("message"),
             "campaign": run.get("campaign"),
             "campaign_step": run.get("campaign_step"),
+            "profile": run.get("profile"),
         }
 
     def delete(self, run_id: str) -> None:

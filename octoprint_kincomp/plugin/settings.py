@@ -63,7 +63,20 @@ def defaults() -> Dict[str, Any]:
         "sensor": sensor_defaults(),
         "software_update": software_update.default_settings(),
         "motion_limits": motion_limits_defaults(),
+        # per printer: the OctoPrint printer profile whose set (PER_PROFILE keys) is in
+        # force above ("" : none yet, the set is adopted by the active profile), every
+        # profile's set by profile id, and the profile the runs recorded before profiles
+        # belong to (see printer_profiles.py); set by KinComp only, never by a request
+        "profile": "",
+        "profiles": {},
+        "legacy_profile": "",
     }
+
+
+# what belongs to one printer: kept per printer profile, swapped when the profile changes
+PER_PROFILE = ("params", "home_mm", "motion_limits")
+# set only by KinComp itself (a profile switch), dropped from what a request sends
+INTERNAL_KEYS = ("profile", "profiles", "legacy_profile")
 
 
 # the printer's motion limits as stated (ballbar/limits.py reads them): the firmware's
@@ -291,6 +304,32 @@ def validate_sensor(value: Any) -> Dict[str, Any]:
     return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
 
 
+def _profile_id(value: Any, field: str) -> str:
+    if not isinstance(value, str) or len(value) > 200:
+        raise SettingsError(field, Msg("must be a printer profile id (a text)"))
+    return value
+
+
+def _profiles(value: Any, field: str) -> Dict[str, Dict[str, Any]]:
+    """Each printer profile's set: an object of PER_PROFILE keys (a missing key: its
+    default; no ``params``: the profile has no calibration), each checked as on top."""
+    if not isinstance(value, dict):
+        raise SettingsError(field, Msg("must be an object"))
+    out: Dict[str, Dict[str, Any]] = {}
+    for pid, entry in value.items():
+        _profile_id(pid, field)
+        where = f"{field}.{pid}"
+        if not isinstance(entry, dict):
+            raise SettingsError(where, Msg("must be an object"))
+        checked = {}
+        for key, item in entry.items():
+            if key not in PER_PROFILE:
+                raise SettingsError(f"{where}.{key}", Msg("unknown setting"))
+            checked[key] = CHECKS[key](item, f"{where}.{key}")
+        out[pid] = checked
+    return out
+
+
 # key -> check(value, field): the checked value, or SettingsError naming the field. Every
 # key of the defaults has one (a test keeps them equal); the order is the order of checking.
 CHECKS: Dict[str, Callable[[Any, str], Any]] = {
@@ -308,6 +347,9 @@ CHECKS: Dict[str, Callable[[Any, str], Any]] = {
     "motion_limits": lambda v, f: validate_motion_limits(v),
     "software_update": _software_update,
     "params": _params,
+    "profile": lambda v, f: _profile_id(v, f),
+    "legacy_profile": lambda v, f: _profile_id(v, f),
+    "profiles": lambda v, f: _profiles(v, f),
 }
 
 

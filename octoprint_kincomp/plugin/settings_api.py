@@ -5,7 +5,8 @@
   conflicts), the firmware equivalents of the parameters, demo mode, the bed limits (mm)
   and axis max feeds (mm/min) of the printer profile, the printer's motion limits
   (``motion_limits``: stated, read, combined with the profile; :mod:`.motion_limits`),
-  the background jobs, and what is wrong
+  the background jobs, the printer profile whose calibration is in force (``profile``:
+  id, name, calibrated, known ids; :mod:`.printer_profiles`), and what is wrong
   with the stored settings, if anything (``settings_problem``, its ``settings_problem_field``;
   compensation is off then, ``settings`` shows the invalid value as its default).
 * ``POST /settings``: a partial settings document, merged into the stored one and validated
@@ -53,6 +54,7 @@ class SettingsApi:
         return flask.jsonify(
             version=__version__,
             settings=s,
+            profile=store.profile_status(s),
             params_hash=params.hash(),
             engine=engine(),
             compensation=self._queue.status(),

@@ -42,8 +42,10 @@ from ..core.messages import error_message
 from ..core.params import Params
 from . import http
 from .notify import N_, Notifier
+from .printer_profiles import calibrated, profile_id, profile_name, recorded, switch
 from .queue import QueueCompensator
 from .settings import (
+    INTERNAL_KEYS,
     SETTINGS_VERSION,
     SettingsError,
     SettingsInvalid,
@@ -217,14 +219,20 @@ class SettingsStore:
 
     def update(self, data: Dict[str, Any], replace_params: bool = False,
                immediately: Optional[bool] = None, vet: Optional[Callable] = None,
-               write: bool = True) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+               write: bool = True, internal: bool = False
+               ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """The one way a change is saved: under ``lock``, the stored document with ``data``
         merged in (``replace_params``: its ``params`` replace the stored ones whole),
         validated whole, ``vet(stored, new)`` (may raise, e.g. a permission refused),
-        stored in one step, written to config.yaml (``write``) and applied. Raises
+        what it changes of the printer's own set recorded for the profile in force
+        (:func:`.printer_profiles.recorded`), stored in one step, written to config.yaml
+        (``write``) and applied. The profile keys (``INTERNAL_KEYS``) are KinComp's own:
+        dropped from ``data`` unless ``internal`` (a profile switch). Raises
         :class:`SettingsError` (nothing changed) or what ``vet`` or the write raise (an
         OSError: the stored document is put back, nothing changed). Returns (the new
         settings, the diff stored)."""
+        if not internal:
+            data = {k: v for k, v in data.items() if k not in INTERNAL_KEYS}
         with self.lock:
             old = self.current()
             with self._config_lock:
@@ -232,8 +240,12 @@ class SettingsStore:
                 new = validate_settings(data, stored, replace_params=replace_params)
                 if vet is not None:
                     vet(stored, new)
+                if not internal:
+                    new = recorded(stored, new)
                 diff = self._store(new, write)
             self._applied(old, new, immediately)
+            if not internal and self._follow(self.current()):  # (settings just fixed)
+                new = self.current()
             return new, diff
 
     def save(self, new: Dict[str, Any], immediately: Optional[bool] = None,
@@ -244,6 +256,7 @@ class SettingsStore:
         with self.lock:
             old = self.current()
             with self._config_lock:
+                new = recorded(self.stored(), new)
                 diff = self._store(new, write)
             self._applied(old, new, immediately)
             return diff
@@ -283,16 +296,88 @@ class SettingsStore:
 
     def apply(self, s: Dict[str, Any], immediately: Optional[bool] = None) -> None:
         """The settings ``s`` to the queue's compensator: at once if ``immediately`` (None:
-        as the settings' ``apply_changes`` says), else from the next print on if one runs."""
+        as the settings' ``apply_changes`` says), else from the next print on if one runs.
+        Compensation stays off while the printer profile in force has no calibration, and
+        while the set is another profile's than the connected printer's."""
         params, options = self.engine_config(s)
         now = s["apply_changes"] == "immediately" if immediately is None else immediately
         q = self._queue
         q.pass_through_on_error = s["pass_through_on_error"]
-        if not q.configure(params, options, s["enabled"], now):
+        connected = self._connected_id()
+        # another printer connected than the one whose set this is: off until it switches
+        theirs = not s["profile"] or connected is None or connected == s["profile"]
+        if not q.configure(params, options, s["enabled"] and calibrated(s) and theirs, now):
             self._notifier.notify(
                 "info", N_("A print is running: the new KinComp settings (parameters, "
                            "compensation on or off) take effect from the next print on."))
         self._on_applied(s)
+
+    # ~~ printer profiles ---------------------------------------------------------------------
+    def active_profile(self, connected: bool = False) -> Optional[Dict[str, Any]]:
+        """OctoPrint's current printer profile (or its default one; ``connected``: None
+        while none is selected, i.e. no printer connected); {} if OctoPrint gives none."""
+        try:
+            if connected:
+                return self._profiles.get_current()
+            return self._profiles.get_current_or_default() or {}
+        except Exception:  # noqa: BLE001 - no profile manager answer: the default id
+            return {}
+
+    def profile_status(self, s: Dict[str, Any]) -> Dict[str, Any]:
+        """Which printer profile's calibration is in force (for /status and the UI)."""
+        profile = self.active_profile(connected=True) or self.active_profile()
+        return {"id": s["profile"], "name": profile_name(profile)
+                if profile_id(profile) == s["profile"] else s["profile"],
+                "calibrated": calibrated(s), "known": sorted(s["profiles"])}
+
+    def follow_profile(self) -> None:
+        """Puts the current printer profile's set in force if another one is (a profile
+        chosen on connecting, at start-up; while no printer is connected the last one's set
+        stays), at once: printer A's parameters must never reach printer B. Says which one,
+        and applies the settings. A profile without a calibration: compensation off, and the
+        user is told."""
+        with self.lock:
+            s = self.current()
+            if not self._follow(s):
+                self.apply(s)
+
+    def _connected_id(self) -> Optional[str]:
+        """The id of the connected printer's profile; None while none is connected."""
+        profile = self.active_profile(connected=True)
+        return None if profile is None else profile_id(profile)
+
+    def _follow(self, s: Dict[str, Any]) -> bool:
+        """Switches to the current profile's set if ``s`` (valid settings in force) is
+        another's; True if it did (and applied it)."""
+        if self.problem is not None:
+            return False  # compensation is off; the switch follows once they are fixed
+        profile = self.active_profile(connected=True)
+        if profile is None:  # no printer connected: the last one's set stays in force
+            if s["profile"]:
+                return False
+            profile = self.active_profile()
+        pid = profile_id(profile)
+        data = switch(s, pid)
+        if data is None:
+            return False
+        adopted = not s["profile"]
+        new, _ = self.update(data, replace_params=True, immediately=True, internal=True)
+        # the views reload what they show (the badge, the tab, the history, the limits)
+        self._notifier.message({"type": "profile", "profile": self.profile_status(new)})
+        self._notifier.message({"type": "motion_limits"})
+        if adopted:
+            self._logger.info("KinComp: the calibration now belongs to printer profile %s",
+                              pid)
+        elif calibrated(new):
+            self._notifier.notify(
+                "info", N_("Printer profile %(profile)s: its KinComp calibration is in "
+                           "force."), profile=profile_name(profile))
+        else:
+            self._notifier.notify(
+                "warning", N_("Printer profile %(profile)s has no KinComp calibration: "
+                              "prints go out uncompensated until you calibrate it or "
+                              "enter its parameters."), profile=profile_name(profile))
+        return True
 
     # ~~ OctoPrint's settings endpoint --------------------------------------------------------
     def check_settings_request(self):

@@ -14,9 +14,10 @@ PROFILE = {"volume": {"width": 220, "depth": 220, "height": 200, "origin": "lowe
            "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}}}
 
 
-def blueprint_client(basedir: str, stored=None):
+def blueprint_client(basedir: str, stored=None, profile=None):
     """(namespace with plugin, client, uploads, storage, patches); stop the patches with
-    ``ns.stop()``. ``stored``: KinComp's settings as written in config.yaml before start."""
+    ``ns.stop()``. ``stored``: KinComp's settings as written in config.yaml before start;
+    ``profile``: OctoPrint's current printer profile (default: PROFILE, without an id)."""
     from octoprint.filemanager.storage import LocalFileStorage
 
     patches = [mock.patch("octoprint_kincomp.plugin.http.require"),
@@ -24,8 +25,9 @@ def blueprint_client(basedir: str, stored=None):
                           side_effect=lambda p, type=None: str(p).endswith(".gcode"))]
     for p in patches:
         p.start()
-    plugin = mocked_plugin(basedir, stored=stored)
-    plugin._printer_profile_manager.get_current_or_default.return_value = PROFILE
+    plugin = mocked_plugin(basedir, stored=stored, profile=profile)
+    if profile is None:
+        plugin._printer_profile_manager.get_current_or_default.return_value = PROFILE
     try:
         from octoprint_kincomp.plugin.worker import InProcessWorker
 

@@ -1,5 +1,6 @@
 /*
- * KinComp in OctoPrint's top bar: "KinComp" with the compensation state (on/off), one click
+ * KinComp in OctoPrint's top bar: "KinComp" with the compensation state (on/off; "no
+ * calibration" when the printer profile in force has none; its name in the title), one click
  * to the calibration tab wherever OctoPrint has put it (its overflow menu on narrow
  * windows). Links with the class kincomp-open-tab (the wizard, the settings) open the tab
  * the same way, closing the dialog they are in.
@@ -34,9 +35,15 @@ $(function () {
             return !!(perm && self.loginState.hasPermission(perm));
         });
         self.title = ko.pureComputed(function () {
-            return self.tab.enabled()
+            var profile = self.tab.profileName()
+                ? " " + _.sprintf(gettext("Printer profile: %(profile)s."), {profile: self.tab.profileName()})
+                : "";
+            if (!self.tab.profileCalibrated()) {
+                return gettext("KinComp: this printer profile has no calibration, prints go out uncompensated. Click to open the calibration tab.") + profile;
+            }
+            return (self.tab.enabled()
                 ? gettext("KinComp: compensation is on. Click to open the calibration tab.")
-                : gettext("KinComp: compensation is off. Click to open the calibration tab.");
+                : gettext("KinComp: compensation is off. Click to open the calibration tab.")) + profile;
         });
     }
 

@@ -29,6 +29,10 @@ $(function () {
         self.enabled = ko.observable(false);
         self.demo = ko.observable(false);
         self.paramsHash = ko.observable("");
+        // the printer profile whose calibration is in force (issue 28): its name, and
+        // whether it has a calibration at all (without one compensation stays off)
+        self.profileName = ko.observable("");
+        self.profileCalibrated = ko.observable(true);
         self.version = ko.observable("");
         self.homepage = ko.observable("");
         self.limits = ko.observable([0, 200, 0, 200, 0, 200]);
@@ -181,7 +185,10 @@ $(function () {
             var perm = self.access.permissions.STATUS;
             if (!perm || !self.loginState.hasPermission(perm)) return;
             OctoPrint.get(API("status")).done(function (status) {
-                self.enabled(status.settings.enabled);
+                var profile = status.profile || {calibrated: true, name: ""};
+                self.profileName(profile.name || "");
+                self.profileCalibrated(!!profile.calibrated);
+                self.enabled(status.settings.enabled && !!profile.calibrated);
                 self.demo(status.demo);
                 if (status.settings_problem && !self.problemShown) {
                     self.problemShown = true;
@@ -531,6 +538,12 @@ $(function () {
         };
         self.onEventFileAdded = function () {
             self.refresh();
+        };
+        // another printer profile in force: its calibration, its history
+        self.onDataUpdaterPluginMessage = function (plugin, data) {
+            if (plugin !== "kincomp" || !data || data.type !== "profile") return;
+            self.refresh();
+            self.loadRuns();
         };
         // the custom event plugin_kincomp_params_applied, camel-cased by OctoPrint
         self.onEventPluginKincompParamsApplied = function () {

@@ -1,0 +1,190 @@
+"""Issue 28, first half: a calibration belongs to one printer (OctoPrint printer profile).
+Switching profiles switches the parameters, home and motion limits in force; a profile
+without a calibration prints uncompensated and says so; the settings from before profiles
+move onto the profile active then; the history shows the runs of the profile in force."""
+
+import json
+import os
+from unittest import mock
+
+import pytest
+import yaml
+
+from tests.support.blueprint import PREFIX, blueprint_client
+
+VOLUME = {"width": 220, "depth": 220, "height": 200, "origin": "lowerleft"}
+A = {"id": "printer_a", "name": "Printer A", "volume": VOLUME}
+B = {"id": "printer_b", "name": "Printer B", "volume": VOLUME}
+# today's global set (from before profiles): XY squareness 1000 um/m, the home known
+CALIBRATED = {
+    "enabled": True,
+    "params": {"squareness_um_per_m": {"xy": 1000.0, "xz": 0.0, "yz": 0.0}},
+    "home_mm": [0.0, 0.0, 0.0],
+    "motion_limits": {"text": "M203 X500 Y500 Z12 E120\nM201 X3000 Y3000 Z100 E5000",
+                      "firmware": "Marlin"},
+}
+MOVE = "G1 X100 Y100 F3000"
+
+
+@pytest.fixture
+def api(tmp_path):
+    ns = blueprint_client(str(tmp_path), stored=CALIBRATED, profile=A)
+    ns.config = os.path.join(str(tmp_path), "base", "config.yaml")
+    yield ns
+    ns.stop()
+
+
+def status(api):
+    return api.client.get(PREFIX + "/status").get_json()
+
+
+def connect(api, profile):
+    """A printer connected with ``profile``: a new connection's first command."""
+    pm = api.plugin._printer_profile_manager
+    pm.get_current.return_value = profile
+    pm.get_current_or_default.return_value = profile
+    comm = mock.MagicMock()
+    api.plugin.queuing_hook(comm, "queuing", "M110 N0", None, "M110")
+    return comm
+
+
+def sent(api, comm, line):
+    """What KinComp sends for ``line`` (None: the line as written)."""
+    return api.plugin.queuing_hook(comm, "queuing", line, None, line.split()[0],
+                                   tags={"source:file"})
+
+
+def messages(api):
+    return [c[0][1] for c in api.plugin._plugin_manager.send_plugin_message.call_args_list
+            if c[0][1].get("type") == "notify"]
+
+
+def stored(api):
+    with open(api.config) as f:
+        return yaml.safe_load(f)["plugins"]["kincomp"]
+
+
+def test_the_settings_from_before_profiles_move_onto_the_active_profile(api):
+    doc = stored(api)
+    assert doc["profile"] == "printer_a" and doc["legacy_profile"] == "printer_a"
+    kept = doc["profiles"]["printer_a"]
+    assert kept["params"]["squareness_um_per_m"]["xy"] == 1000.0
+    assert kept["home_mm"] == [0.0, 0.0, 0.0]
+    assert kept["motion_limits"]["text"].startswith("M203 X500")
+    st = status(api)
+    assert st["profile"] == {"id": "printer_a", "name": "Printer A", "calibrated": True,
+                             "known": ["printer_a"]}
+    assert st["compensation"]["enabled"] is True
+
+
+def test_switching_profiles_switches_the_calibration_in_force(api):
+    comm = connect(api, A)
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is not None  # A's skew moves the point
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+
+    comm = connect(api, B)
+    st = status(api)
+    assert st["profile"]["id"] == "printer_b" and st["profile"]["calibrated"] is False
+    assert st["compensation"]["enabled"] is False and not api.plugin.queue.enabled
+    assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    assert st["settings"]["home_mm"] is None and st["settings"]["motion_limits"]["text"] == ""
+    # said, not silent
+    warned = [m for m in messages(api) if m["severity"] == "warning"]
+    assert any("Printer B has no KinComp calibration" in m["text"] for m in warned)
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None  # B prints as written: A's skew is not applied
+
+    # B gets its own parameters; A's are kept
+    resp = api.client.post(PREFIX + "/settings", data=json.dumps(
+        {"params": {"scale_ppm": {"x": 500.0}}, "home_mm": [0, 0, 0], "apply_now": True}),
+        content_type="application/json")
+    assert resp.status_code == 200, resp.get_json()
+    st = status(api)
+    assert st["profile"]["calibrated"] is True and st["compensation"]["enabled"] is True
+    assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    doc = stored(api)
+    assert doc["profiles"]["printer_b"]["params"]["scale_ppm"]["x"] == 500.0
+    assert doc["profiles"]["printer_a"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+
+    # back to A (on OctoPrint's event): A's set is in force again, B's kept
+    api.plugin._printer_profile_manager.get_current.return_value = A
+    api.plugin.on_event("Connected", {})
+    st = status(api)
+    assert st["profile"]["id"] == "printer_a" and st["profile"]["calibrated"] is True
+    assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+    assert st["settings"]["params"]["scale_ppm"]["x"] == 0.0
+    assert st["settings"]["motion_limits"]["text"].startswith("M203 X500")
+    assert stored(api)["profiles"]["printer_b"]["params"]["scale_ppm"]["x"] == 500.0
+
+
+def test_a_request_cannot_name_the_profile_in_force(api):
+    resp = api.client.post(PREFIX + "/settings", data=json.dumps(
+        {"profile": "printer_b", "profiles": {}}), content_type="application/json")
+    assert resp.status_code == 200
+    doc = stored(api)
+    assert doc["profile"] == "printer_a" and "printer_a" in doc["profiles"]
+
+
+def test_without_a_printer_connected_the_last_profile_stays_in_force(api):
+    pm = api.plugin._printer_profile_manager
+    pm.get_current.return_value = None  # disconnected: OctoPrint deselects the profile
+    pm.get_current_or_default.return_value = B
+    api.plugin.on_event("PrinterProfileModified", {"identifier": "printer_b"})
+    assert status(api)["profile"]["id"] == "printer_a" and api.plugin.queue.enabled
+
+
+def test_the_history_shows_the_runs_of_the_profile_in_force(api):
+    runs = api.plugin.runs
+    old = runs.new_id()  # a run recorded before profiles: no profile in it
+    with open(os.path.join(runs.folder, old + ".json"), "w") as f:
+        json.dump({"id": old, "source": "trace"}, f)
+    on_a = runs.new_id()
+    runs.save({"id": on_a, "source": "trace"})
+    assert runs.get(on_a)["profile"] == "printer_a"
+
+    def listed():
+        return {r["id"] for r in api.client.get(PREFIX + "/runs").get_json()["runs"]}
+
+    assert listed() == {old, on_a}
+    connect(api, B)
+    on_b = runs.new_id()
+    runs.save({"id": on_b, "source": "summary"})
+    assert listed() == {on_b}
+    runs.save(dict(runs.get(on_a), applied=True))  # an update keeps the run's profile
+    assert runs.get(on_a)["profile"] == "printer_a"
+    connect(api, A)
+    assert listed() == {old, on_a}
+
+
+def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
+    bad = dict(CALIBRATED, profile="printer_a",
+               profiles={"printer_a": {"params": {"scale_ppm": {"x": "garbage"}}}})
+    ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
+    try:
+        st = status(ns)
+        assert st["settings_problem_field"] == "profiles.printer_a.params.scale_ppm.x"
+        assert st["compensation"]["enabled"] is False and not ns.plugin.queue.enabled
+    finally:
+        ns.stop()
+
+
+def test_a_fix_of_bad_stored_settings_on_another_printer_never_applies_the_first_ones(tmp_path):
+    bad = dict(CALIBRATED, profile="printer_a", decimals="garbage",
+               profiles={"printer_a": {"params": CALIBRATED["params"]}})
+    ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
+    try:
+        pm = ns.plugin._printer_profile_manager
+        pm.get_current.return_value = pm.get_current_or_default.return_value = B
+        ns.plugin.on_event("Connected", {})  # B connected while the settings are invalid
+        assert not ns.plugin.queue.enabled
+        resp = ns.client.post(PREFIX + "/settings", data=json.dumps(
+            {"decimals": 3, "apply_now": True}), content_type="application/json")
+        assert resp.status_code == 200, resp.get_json()
+        st = status(ns)
+        assert st["profile"]["id"] == "printer_b" and st["profile"]["calibrated"] is False
+        assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+        assert not ns.plugin.queue.enabled
+        assert ns.plugin.queue.comp.params.squareness_um_per_m["xy"] == 0.0
+    finally:
+        ns.stop()
