@@ -13,7 +13,8 @@ from tests.support import ROOT
 DOCS = os.path.join(ROOT, "docs")
 PAGES = ["user-guide", "calibration", "live-capture", "command-line", "http-api",
          "firmware-export", "how-compensation-works", "architecture", "tests", "performance",
-         "trust-checks", "motion-limits", "untrusted-results", "artifact", "reliability", "compensation-details"]
+         "trust-checks", "motion-limits", "untrusted-results", "artifact", "reliability", "compensation-details",
+         "printer-profiles"]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
