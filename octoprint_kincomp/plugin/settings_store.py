@@ -338,8 +338,19 @@ class SettingsStore:
         user is told."""
         with self.lock:
             s = self.current()
-            if not self._follow(s):
-                self.apply(s)
+            try:
+                if self._follow(s):
+                    return
+            except Exception as exc:  # noqa: BLE001 - e.g. config.yaml not writable
+                # the switch was not stored: the set in force is still the other
+                # profile's, and apply() below keeps compensation off for this printer
+                self._logger.exception("KinComp: the printer profile's calibration could "
+                                       "not be put in force")
+                self._notifier.notify(
+                    "error", N_("KinComp could not switch to this printer's calibration "
+                                "(%(error)s): compensation is off until it can."),
+                    error=str(exc)[:120])
+            self.apply(s)
 
     def _connected_id(self) -> Optional[str]:
         """The id of the connected printer's profile; None while none is connected."""
@@ -352,10 +363,11 @@ class SettingsStore:
         if self.problem is not None:
             return False  # compensation is off; the switch follows once they are fixed
         profile = self.active_profile(connected=True)
-        if profile is None:  # no printer connected: the last one's set stays in force
-            if s["profile"]:
-                return False
-            profile = self.active_profile()
+        if profile is None:
+            # no printer connected: the last one's set stays in force, and settings from
+            # before profiles wait for the first printer that connects (OctoPrint's default
+            # profile need not be the printer they were measured on)
+            return False
         pid = profile_id(profile)
         data = switch(s, pid)
         if data is None:

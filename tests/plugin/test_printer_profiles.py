@@ -77,6 +77,40 @@ def test_the_settings_from_before_profiles_move_onto_the_active_profile(api):
     assert st["compensation"]["enabled"] is True
 
 
+def test_settings_from_before_profiles_wait_for_the_first_printer_that_connects(tmp_path):
+    """OctoPrint's default profile (B here) need not be the printer the old calibration was
+    measured on: nothing is adopted while no printer is connected; the first one that
+    connects (A) adopts it."""
+    ns = blueprint_client(str(tmp_path), stored=CALIBRATED, profile=B, connected=False)
+    try:
+        ns.config = os.path.join(str(tmp_path), "base", "config.yaml")
+        assert not stored(ns).get("profile")  # not adopted by the default profile B
+        comm = connect(ns, A)
+        doc = stored(ns)
+        assert doc["profile"] == "printer_a" and doc["legacy_profile"] == "printer_a"
+        assert doc["profiles"]["printer_a"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+        sent(ns, comm, "G28")
+        assert sent(ns, comm, MOVE) is not None and ns.plugin.queue.enabled
+    finally:
+        ns.stop()
+
+
+def test_a_switch_that_cannot_be_stored_leaves_compensation_off(api):
+    """config.yaml not writable when printer B connects: A's set stays stored, so it must
+    not be applied to B; said as an error, and no exception reaches OctoPrint's hook."""
+    comm = connect(api, A)
+    assert api.plugin.queue.enabled
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+    with mock.patch.object(api.plugin.store, "_store",
+                           side_effect=OSError(28, "No space left on device")):
+        comm = connect(api, B)  # (raises nothing)
+    assert not api.plugin.queue.enabled
+    assert any(m["severity"] == "error" and "could not switch" in m["text"]
+               for m in messages(api))
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None  # A's skew is not applied to B
+
+
 def test_switching_profiles_switches_the_calibration_in_force(api):
     comm = connect(api, A)
     sent(api, comm, "G28")

@@ -14,10 +14,11 @@ PROFILE = {"volume": {"width": 220, "depth": 220, "height": 200, "origin": "lowe
            "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}}}
 
 
-def blueprint_client(basedir: str, stored=None, profile=None):
+def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     """(namespace with plugin, client, uploads, storage, patches); stop the patches with
     ``ns.stop()``. ``stored``: KinComp's settings as written in config.yaml before start;
-    ``profile``: OctoPrint's current printer profile (default: PROFILE, without an id)."""
+    ``profile``: OctoPrint's current printer profile (default: PROFILE, without an id);
+    ``connected`` False: no printer connected at the start."""
     from octoprint.filemanager.storage import LocalFileStorage
 
     patches = [mock.patch("octoprint_kincomp.plugin.http.require"),
@@ -25,7 +26,7 @@ def blueprint_client(basedir: str, stored=None, profile=None):
                           side_effect=lambda p, type=None: str(p).endswith(".gcode"))]
     for p in patches:
         p.start()
-    plugin = mocked_plugin(basedir, stored=stored, profile=profile)
+    plugin = mocked_plugin(basedir, stored=stored, profile=profile, connected=connected)
     if profile is None:
         plugin._printer_profile_manager.get_current_or_default.return_value = PROFILE
     try:

@@ -9,12 +9,14 @@ from unittest import mock
 from octoprint_kincomp.plugin.settings import defaults
 
 
-def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None):
+def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None,
+                  connected=True):
     """A started plugin (initialize + on_after_startup) keeping its files under ``basedir``;
     the printer prints, the profile's bed is ``bed_mm`` square and high. ``stored``:
     KinComp's settings in config.yaml before the start (as a user may have edited them).
     ``profile``: OctoPrint's current printer profile (a dict with its ``id``) from the
-    start on, instead of a default one without an id."""
+    start on, instead of a default one without an id; ``connected`` False: no printer is
+    connected at the start (OctoPrint has no current profile then)."""
     import yaml
     from octoprint.plugin import PluginSettings
     from octoprint.settings import Settings
@@ -49,6 +51,8 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None
     if profile is not None:
         p._printer_profile_manager.get_current.return_value = profile
         p._printer_profile_manager.get_current_or_default.return_value = profile
+    if not connected:
+        p._printer_profile_manager.get_current.return_value = None
     data = os.path.join(basedir, "data")
     os.makedirs(data, exist_ok=True)
     p._data_folder = data
