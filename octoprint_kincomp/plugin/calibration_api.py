@@ -383,7 +383,7 @@ class CalibrationApi:
             if params_doc is None:
                 return http.error(gettext("This run has no proposed parameters (its capture "
                                           "failed)"), 400)
-            refused = self.untrusted(run, force)
+            refused = self.other_printers(run) or self.untrusted(run, force)
             if refused is not None:
                 return refused
         elif "params" in data:
@@ -394,6 +394,18 @@ class CalibrationApi:
             return http.error(gettext("Give 'run' or 'params'"), 400)
         return self.apply_params(params_doc, apply_now, run,
                                  {"enabled": data["enabled"]} if "enabled" in data else None)
+
+    def other_printers(self, run: Dict[str, Any]):
+        """409 when ``run`` was recorded for another printer profile than the one in force
+        (a stale page or another user's switch: printer A's result must never be applied to
+        printer B; ``force`` does not override it); None to go on."""
+        s = self._store.current()
+        mine = run.get("profile") or s.get("legacy_profile") or ""
+        if not s.get("profile") or not mine or mine == s["profile"]:
+            return None
+        return http.error(gettext("This run belongs to printer profile %(run)s, but %(current)s "
+                                  "is in force: connect that printer to apply it.",
+                                  run=mine, current=s["profile"]), 409)
 
     @staticmethod
     def untrusted(run: Dict[str, Any], force: bool):

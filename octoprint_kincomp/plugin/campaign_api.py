@@ -293,7 +293,7 @@ class CampaignApi:
         except RunNotFound:
             return http.error(gettext("Campaign %(id)s has no joint analysis to apply: "
                                       "analyse it first", id=cid), 409)
-        refused = self._calibration.untrusted(run, force)
+        refused = self._calibration.other_printers(run) or self._calibration.untrusted(run, force)
         if refused is not None:
             return refused
         resp = self._calibration.apply_params(

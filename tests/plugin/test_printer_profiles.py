@@ -191,6 +191,26 @@ def test_the_history_shows_the_runs_of_the_profile_in_force(api):
     assert listed() == {old, on_a}
 
 
+def test_a_run_of_another_printer_is_not_applied(api):
+    """A stale page (or the API) applying printer A's run while B is in force: refused,
+    ``force`` included; B's set unchanged."""
+    runs = api.plugin.runs
+    on_a = runs.new_id()
+    runs.save({"id": on_a, "source": "trace", "trusted": True,
+               "proposed": {"squareness_um_per_m": {"xy": 500.0}}})
+    connect(api, B)
+    for force in (False, True):
+        resp = api.client.post(PREFIX + "/apply", data=json.dumps(
+            {"run": on_a, "enabled": True, "force": force}), content_type="application/json")
+        assert resp.status_code == 409 and "printer_a" in resp.get_json()["error"]
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    connect(api, A)
+    resp = api.client.post(PREFIX + "/apply", data=json.dumps({"run": on_a}),
+                           content_type="application/json")
+    assert resp.status_code == 200, resp.get_json()
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 500.0
+
+
 def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
     bad = dict(CALIBRATED, profile="printer_a",
                profiles={"printer_a": {"params": {"scale_ppm": {"x": "garbage"}}}})
