@@ -558,18 +558,8 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
         s.arc_segments += j.segments;
         if (j.dev > s.arc_dev)
             s.arc_dev = j.dev;
-        if (present[5]) {  /* MoveHandler.track_e (transform.c) */
-            s.e_set = 1;
-            if (e_rel) {
-                s.e_none = !s.e_known;
-                if (s.e_known)
-                    s.e_pos = s.e_pos + val[5];
-            } else {
-                s.e_none = 0;
-                s.e_known = 1;
-                s.e_pos = val[5];
-            }
-        }
+        if (present[5])
+            kk_track_e(&s, e_rel, val[5]);
         memcpy(s.q_last, qa, sizeof qa);
         s.q_last_known = 1;
         s.moved = 1;

@@ -119,6 +119,22 @@ typedef struct {
     int moved;                        /* a move committed: m, fw, backlash to write */
 } State;
 
+/* MoveHandler.track_e: an E word ``v`` (program units) seen on a move; absolute E sets the
+   position, relative E (``relative``) adds to it, from an unknown position it stays unknown */
+static inline void kk_track_e(State *s, int relative, double v)
+{
+    s->e_set = 1;
+    if (relative) {
+        s->e_none = !s->e_known;
+        if (s->e_known)
+            s->e_pos = s->e_pos + v;
+    } else {
+        s->e_none = 0;
+        s->e_known = 1;
+        s->e_pos = v;
+    }
+}
+
 /* The state's three objects (strong references during a call): the stream state, its
  * backlash state and its report, slotted classes read and written in their slots. */
 typedef struct {

@@ -230,19 +230,8 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             s.feed = val[fslot] * u;
             s.f_set = 1;
         }
-        if (present[4]) {
-            /* MoveHandler.track_e: absolute E sets the position, relative E adds to it */
-            s.e_set = 1;
-            if (s.e_abs_mode == 0) {
-                s.e_none = !s.e_known;
-                if (s.e_known)
-                    s.e_pos = s.e_pos + val[4];
-            } else {
-                s.e_none = 0;
-                s.e_known = 1;
-                s.e_pos = val[4];
-            }
-        }
+        if (present[4])
+            kk_track_e(&s, s.e_abs_mode == 0, val[4]);
         s.lineno++;
         s.lines++;
         s.moves++;
