@@ -29,15 +29,24 @@ def _on_disk(config):
         return ((yaml.safe_load(f) or {}).get("plugins") or {}).get("kincomp") or {}
 
 
-def test_concurrent_partial_saves_keep_the_calibration(tmp_path):
+def _calibrated(tmp_path):
+    """A plugin (and its config.yaml path) with CALIBRATION applied through the API."""
     ns = blueprint_client(str(tmp_path))
-    config = os.path.join(str(tmp_path), "base", "config.yaml")
     try:
-        plugin, client = ns.plugin, ns.client
-        resp = client.post(PREFIX + "/apply", data=json.dumps(
+        resp = ns.client.post(PREFIX + "/apply", data=json.dumps(
             {"params": CALIBRATION, "enabled": True, "apply_now": True}),
             content_type="application/json")
         assert resp.status_code == 200, resp.get_json()
+    except BaseException:
+        ns.stop()
+        raise
+    return ns, os.path.join(str(tmp_path), "base", "config.yaml")
+
+
+def test_concurrent_partial_saves_keep_the_calibration(tmp_path):
+    ns, config = _calibrated(tmp_path)
+    try:
+        plugin, client = ns.plugin, ns.client
         want = Params.from_dict(CALIBRATION).hash()
         assert plugin.queue.params.hash() == want
         failures = []
@@ -96,14 +105,9 @@ def test_a_failed_write_changes_nothing(tmp_path, monkeypatch):
     and in the compensator) stays as it was."""
     import errno
 
-    ns = blueprint_client(str(tmp_path))
-    config = os.path.join(str(tmp_path), "base", "config.yaml")
+    ns, config = _calibrated(tmp_path)
     try:
         plugin, client = ns.plugin, ns.client
-        resp = client.post(PREFIX + "/apply", data=json.dumps(
-            {"params": CALIBRATION, "enabled": True, "apply_now": True}),
-            content_type="application/json")
-        assert resp.status_code == 200
         before, disk_before = plugin.store.current(), _on_disk(config)
 
         def full(*a, **kw):
