@@ -197,48 +197,45 @@ def _sigma_of(fit: _Fit, g: np.ndarray, sigma: float) -> float:
 # ---------------------------------------------------------------------------------------
 # screening
 
+def _left_out(o: "_Obs", off) -> List[Tuple[int, float]]:
+    """Leaves the readings ``v`` of ``o`` for which ``off(v)`` out (kept in ``o.excluded``);
+    returns them as (index among the readings it had, value)."""
+    out = [(i, v) for i, v in enumerate(o.values) if off(v)]
+    o.excluded.extend(out)
+    o.values = [v for v in o.values if not off(v)]
+    return out
+
+
 def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
     """Leave out readings far from nominal or from their repeats' median; returns the pooled
     repeat standard deviation (mm; 0 without repeats)."""
     for o in obs:
         L = o.meas.length
         limit = max(GROSS_MM, GROSS_FRACTION * L)
-        keep = []
-        for i, v in enumerate(o.values):
-            if abs(v - L) > limit:
-                o.excluded.append((i, v))
-                found.append(fnd.warning(
-                    "artifact.reading_far_from_nominal",
-                    Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from the nominal "
-                        "%(nominal)s mm: a typo? It was left out.", n=i + 1, id=o.meas.id,
-                        value=f"{v:.2f}", off=f"{v - L:+.2f}", nominal=f"{L:.2f}"),
-                    Msg("Check the reading and measure %(id)s again.", id=o.meas.id),
-                    id=o.meas.id, reading=i + 1, value_mm=v, nominal_mm=round(L, 4)))
-            else:
-                keep.append(v)
-        o.values = keep
+        for i, v in _left_out(o, lambda v: abs(v - L) > limit):
+            found.append(fnd.warning(
+                "artifact.reading_far_from_nominal",
+                Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from the nominal "
+                    "%(nominal)s mm: a typo? It was left out.", n=i + 1, id=o.meas.id,
+                    value=f"{v:.2f}", off=f"{v - L:+.2f}", nominal=f"{L:.2f}"),
+                Msg("Check the reading and measure %(id)s again.", id=o.meas.id),
+                id=o.meas.id, reading=i + 1, value_mm=v, nominal_mm=round(L, 4)))
     sds = [float(np.std(o.values, ddof=1)) for o in obs if len(o.values) >= 2]
     typical = float(np.median(sds)) if sds else 0.0
     limit = max(REPEAT_FLOOR_MM, REPEAT_SIGMAS * typical)
     for o in obs:
         if len(o.values) >= 3:
             med = float(np.median(o.values))
-            keep = []
-            for i, v in enumerate(o.values):
-                if abs(v - med) > limit:
-                    o.excluded.append((i, v))
-                    found.append(fnd.warning(
-                        "artifact.reading_disagrees",
-                        Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from its "
-                            "repeats (median %(median)s mm): a typo, or the jaws on a seam? It "
-                            "was left out.", n=i + 1, id=o.meas.id, value=f"{v:.2f}",
-                            off=f"{v - med:+.3f}", median=f"{med:.3f}"),
-                        Msg("Measure %(id)s again.", id=o.meas.id),
-                        id=o.meas.id, reading=i + 1, value_mm=v, median_mm=med,
-                        limit_mm=round(limit, 4)))
-                else:
-                    keep.append(v)
-            o.values = keep
+            for i, v in _left_out(o, lambda v: abs(v - med) > limit):
+                found.append(fnd.warning(
+                    "artifact.reading_disagrees",
+                    Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from its "
+                        "repeats (median %(median)s mm): a typo, or the jaws on a seam? It "
+                        "was left out.", n=i + 1, id=o.meas.id, value=f"{v:.2f}",
+                        off=f"{v - med:+.3f}", median=f"{med:.3f}"),
+                    Msg("Measure %(id)s again.", id=o.meas.id),
+                    id=o.meas.id, reading=i + 1, value_mm=v, median_mm=med,
+                    limit_mm=round(limit, 4)))
         elif len(o.values) == 2 and abs(o.values[0] - o.values[1]) > limit:
             found.append(fnd.warning(
                 "artifact.repeats_disagree",
