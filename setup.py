@@ -13,9 +13,15 @@ kernel = setuptools.Extension(
     optional=True,
     # (no builtins for the libm functions: the kernel must call the very functions Python's
     # math module calls, not a merged sincos or a compile-time constant)
-    extra_compile_args=[] if os.name == "nt" else [
-        "-ffp-contract=off", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-atan2",
-        "-fno-builtin-acos"],
+    extra_compile_args=[]
+    if os.name == "nt"
+    else [
+        "-ffp-contract=off",
+        "-fno-builtin-sin",
+        "-fno-builtin-cos",
+        "-fno-builtin-atan2",
+        "-fno-builtin-acos",
+    ],
     libraries=[] if os.name == "nt" else ["m"],
 )
 

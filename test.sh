@@ -4,4 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 ./scripts/bootstrap.sh
+# the linter and the formatter first: the tree is kept clean (pyproject.toml [tool.ruff])
+.venv/bin/ruff check --quiet .
+.venv/bin/ruff format --check --quiet .
 exec .venv/bin/python -m pytest -q "$@"

@@ -15,9 +15,12 @@ import numpy as np
 
 def main() -> int:
     from octoprint_kincomp.ballbar.artifact_fit import analyse_artifact
-    from octoprint_kincomp.ballbar.artifact_program import (ArtifactSpec, generate,
-                                                            read_measurements,
-                                                            read_program_info)
+    from octoprint_kincomp.ballbar.artifact_program import (
+        ArtifactSpec,
+        generate,
+        read_measurements,
+        read_program_info,
+    )
     from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
     from octoprint_kincomp.core.params import Params
 
@@ -28,8 +31,11 @@ def main() -> int:
     meas, info = read_measurements(text), read_program_info(text)
 
     def named_alone(readings, mid):
-        bad = [f for f in analyse_artifact(meas, readings, info=info)["findings"]
-               if f["severity"] != "info"]
+        bad = [
+            f
+            for f in analyse_artifact(meas, readings, info=info)["findings"]
+            if f["severity"] != "info"
+        ]
         return [f["evidence"].get("id") for f in bad] == [mid]
 
     for size, seed in (("paper", 99), ("small", 98)):
@@ -38,21 +44,36 @@ def main() -> int:
         flagged = typo_one = typo_all = 0
         for _ in range(n):
             if size == "paper":
-                sq = {"xy": -3638.6 * rng.uniform(0.5, 1.2) * float(rng.choice([-1, 1])),
-                      "xz": rng.uniform(-1500, 1500), "yz": rng.uniform(-1500, 1500)}
+                sq = {
+                    "xy": -3638.6 * rng.uniform(0.5, 1.2) * float(rng.choice([-1, 1])),
+                    "xz": rng.uniform(-1500, 1500),
+                    "yz": rng.uniform(-1500, 1500),
+                }
                 sc = {a: rng.uniform(-500, 500) for a in "xyz"}
             else:
                 sq = {p: 100 * float(rng.choice([-1, 1])) for p in ("xy", "xz", "yz")}
-                sc = {"x": 50 * float(rng.choice([-1, 1])), "y": 0.0,
-                      "z": -50 * float(rng.choice([-1, 1]))}
+                sc = {
+                    "x": 50 * float(rng.choice([-1, 1])),
+                    "y": 0.0,
+                    "z": -50 * float(rng.choice([-1, 1])),
+                }
             truth = Params.from_dict({"squareness_um_per_m": sq, "scale_ppm": sc})
-            r = simulate_readings(meas, truth, shrinkage=rng.uniform(0, 0.005),
-                                  line_width_mm=rng.uniform(0.4, 0.5), rng=rng)
+            r = simulate_readings(
+                meas,
+                truth,
+                shrinkage=rng.uniform(0, 0.005),
+                line_width_mm=rng.uniform(0.4, 0.5),
+                rng=rng,
+            )
             res = analyse_artifact(meas, r, info=info)
             d, u = res["diagnostics"], res["diagnostics"]["uncertainty"]
             want = {("squareness_um_per_m", p): sq[p] for p in sq}
-            want.update({("scale_mismatch_ppm", f"{a}-{b}"): sc[a] - sc[b]
-                         for a, b in (("x", "y"), ("x", "z"), ("y", "z"))})
+            want.update(
+                {
+                    ("scale_mismatch_ppm", f"{a}-{b}"): sc[a] - sc[b]
+                    for a, b in (("x", "y"), ("x", "z"), ("y", "z"))
+                }
+            )
             for (key, sub), v in want.items():
                 hits.setdefault(sub, []).append(abs(d[key][sub] - v) <= 2 * u[key][sub])
                 sig.setdefault(sub, []).append(u[key][sub])
@@ -67,10 +88,14 @@ def main() -> int:
             typo_all += named_alone(every, mid)
         print(f"## {size}: {n} trials")
         for sub in hits:
-            print(f"{sub}: within 2 sigma {100 * np.mean(hits[sub]):.1f} %, sigma mean "
-                  f"{np.mean(sig[sub]):.1f}, max {np.max(sig[sub]):.1f}")
-        print(f"clean trials with a warning/error: {flagged}; one reading +-1 mm named alone: "
-              f"{typo_one}/{n}; all repeats of one id +1 mm named alone: {typo_all}/{n}")
+            print(
+                f"{sub}: within 2 sigma {100 * np.mean(hits[sub]):.1f} %, sigma mean "
+                f"{np.mean(sig[sub]):.1f}, max {np.max(sig[sub]):.1f}"
+            )
+        print(
+            f"clean trials with a warning/error: {flagged}; one reading +-1 mm named alone: "
+            f"{typo_one}/{n}; all repeats of one id +1 mm named alone: {typo_all}/{n}"
+        )
     return 0
 
 

@@ -39,15 +39,23 @@ def main() -> int:
     steps = plan_campaign((0, 220, 0, 220, 0, 250), second_feed=3700)
     items = [(s.name, simulate_program(generate(s.spec), truth)) for s in steps]
     rows = [
-        ("plan R100 XY program (2774 blocks)",
-         best(lambda: plan_program(program, spec.centre, truth.motion), args.repeat)),
-        (f"sample the plan at 500 Hz ({len(ts)} samples)",
-         best(lambda: plan.sample(ts), args.repeat)),
-        ("simulate R100 XY, both directions, 500 Hz",
-         best(lambda: simulate_program(program, truth), args.repeat)),
+        (
+            "plan R100 XY program (2774 blocks)",
+            best(lambda: plan_program(program, spec.centre, truth.motion), args.repeat),
+        ),
+        (
+            f"sample the plan at 500 Hz ({len(ts)} samples)",
+            best(lambda: plan.sample(ts), args.repeat),
+        ),
+        (
+            "simulate R100 XY, both directions, 500 Hz",
+            best(lambda: simulate_program(program, truth), args.repeat),
+        ),
         ("analyse its native trace", best(lambda: analyse(trace), args.repeat)),
-        ("analyse it without planner settings (estimated)",
-         best(lambda: analyse(bare), args.repeat)),
+        (
+            "analyse it without planner settings (estimated)",
+            best(lambda: analyse(bare), args.repeat),
+        ),
         ("joint fit of a 4-trace campaign", best(lambda: analyse_campaign(items), args.repeat)),
     ]
     for name, secs in rows:

@@ -31,8 +31,8 @@ def main() -> int:
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from octoprint_kincomp.engines import select
-    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
     from octoprint_kincomp.plugin.queue import FILE_TAG
+    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
     from tests.support.mocked_plugin import mocked_plugin
 
     tmp = tempfile.mkdtemp(prefix="kincomp-hook-")
@@ -57,13 +57,17 @@ def main() -> int:
         elif line.startswith(("G2 ", "G3 ")):
             samples["G2"].append(dt)
     rep = p.queue.comp.report
-    print(f"engine: {select.engine()}; "
-          f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups, "
-          f"{rep.arcs_kept} arcs kept, {rep.arcs_split} split")
+    print(
+        f"engine: {select.engine()}; "
+        f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups, "
+        f"{rep.arcs_kept} arcs kept, {rep.arcs_split} split"
+    )
     for kind, got in samples.items():
         got.sort()
-        print(f"KinCompPlugin.queuing_hook, {kind} line: p50 {got[len(got) // 2] / 1000:.2f} us"
-              f"  p99 {got[int(len(got) * 0.99)] / 1000:.2f} us ({len(got)} lines)")
+        print(
+            f"KinCompPlugin.queuing_hook, {kind} line: p50 {got[len(got) // 2] / 1000:.2f} us"
+            f"  p99 {got[int(len(got) * 0.99)] / 1000:.2f} us ({len(got)} lines)"
+        )
     return 0
 
 

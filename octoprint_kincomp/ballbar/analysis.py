@@ -30,6 +30,8 @@ import numpy as np
 from ..core.kinematics import changes_nothing
 from ..core.messages import Msg
 from ..core.params import AXES, Params
+from . import checks
+from .findings import Finding, info, trusted, warning, worst_first
 from .formats import (
     AngleTrace,
     NativeTrace,
@@ -39,17 +41,39 @@ from .formats import (
     meta_float,
     meta_plane,
 )
-from . import checks
-from .findings import Finding, info, trusted, warning, worst_first
 from .metrics import circularity, iso_metrics, plot_data
-from .model import DEFAULT_MASK_DEG, FitResult, Geometry, Model, Run, fit, reversal_mask
-from .model import diagnostic_values, uncertainty_values
+from .model import (
+    DEFAULT_MASK_DEG,
+    FitResult,
+    Geometry,
+    Model,
+    Run,
+    diagnostic_values,
+    fit,
+    reversal_mask,
+    uncertainty_values,
+)
 from .proposal import propose_params
 from .timing import Mapping, runs_from_angle, runs_from_native
 
-__all__ = ["DEFAULT_MASK_DEG", "FitResult", "Geometry", "Model", "PLANE_KEYS", "Run", "analyse",
-           "analyse_runs", "fit", "iso_metrics", "load_runs", "plot_data", "propose_params",
-           "reversal_mask", "runs_from_angle", "runs_from_native"]
+__all__ = [
+    "DEFAULT_MASK_DEG",
+    "FitResult",
+    "Geometry",
+    "Model",
+    "PLANE_KEYS",
+    "Run",
+    "analyse",
+    "analyse_runs",
+    "fit",
+    "iso_metrics",
+    "load_runs",
+    "plot_data",
+    "propose_params",
+    "reversal_mask",
+    "runs_from_angle",
+    "runs_from_native",
+]
 
 PLANE_KEYS = {"XY": "xy", "XZ": "xz", "YZ": "yz"}
 
@@ -59,8 +83,9 @@ def load_runs(trace, current: Optional[Params] = None) -> Tuple[Geometry, List[R
     return geom, runs
 
 
-def load_runs_mapped(trace, current: Optional[Params] = None
-                     ) -> Tuple[Geometry, List[Run], Mapping]:
+def load_runs_mapped(
+    trace, current: Optional[Params] = None
+) -> Tuple[Geometry, List[Run], Mapping]:
     if isinstance(trace, NativeTrace):
         loaded = runs_from_native(trace, current)
     elif isinstance(trace, AngleTrace):
@@ -69,8 +94,9 @@ def load_runs_mapped(trace, current: Optional[Params] = None
         raise TraceError(Msg("not a trace"))
     geom, runs, mapping = loaded
     if current is not None and current.servo_precomp:
-        runs = [dataclasses.replace(run, known=_lead_speed_error(geom, run, current))
-                for run in runs]
+        runs = [
+            dataclasses.replace(run, known=_lead_speed_error(geom, run, current)) for run in runs
+        ]
     return geom, runs, mapping
 
 
@@ -103,10 +129,13 @@ def _check_both_directions(runs: Sequence[Run]) -> None:
     present = {r.direction for r in runs if len(r.theta)}
     for d in ("ccw", "cw"):
         if d not in present:
-            raise TraceError(Msg(
-                "the trace has no %(direction)s run: with one direction the fit cannot tell "
-                "squareness from servo mismatch; test (or export) both directions",
-                direction=d.upper()))
+            raise TraceError(
+                Msg(
+                    "the trace has no %(direction)s run: with one direction the fit cannot tell "
+                    "squareness from servo mismatch; test (or export) both directions",
+                    direction=d.upper(),
+                )
+            )
 
 
 @dataclass
@@ -122,10 +151,16 @@ class CheckedFit:
     robust_runs: Optional[List[Run]] = None  # for the circularity without outliers
 
 
-def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
-                mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
-                cyclic_pitch: Optional[float] = None, label: str = "",
-                fixed: Optional[Dict[str, float]] = None) -> CheckedFit:
+def checked_fit(
+    geom: Geometry,
+    runs: Sequence[Run],
+    mapping: Optional[Mapping],
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    label: str = "",
+    fixed: Optional[Dict[str, float]] = None,
+) -> CheckedFit:
     """Fit, then check the evidence (see :mod:`.checks`): outliers are left out and the fit
     repeated; a clear cyclic error in the residual is fitted (when ``cyclic_pitch`` is not
     given); the timing and the residual against the noise floor become findings."""
@@ -146,11 +181,13 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
     keep = checks.keep_mask(runs, mask_deg)
     scan = checks.scan_cyclic(geom, runs, f, keep)
     if scan is not None:
-        out.checks["cyclic_scan"] = {"pitch_mm": round(scan["pitch_mm"], 4),
-                                     "amplitude_um": {k: round(v, 3) for k, v in
-                                                      scan["amplitude_um"].items()}}
+        out.checks["cyclic_scan"] = {
+            "pitch_mm": round(scan["pitch_mm"], 4),
+            "amplitude_um": {k: round(v, 3) for k, v in scan["amplitude_um"].items()},
+        }
     if cyclic_pitch is None and checks.cyclic_detected(
-            scan, floor, checks.excess_mm2(runs, f, keep, floor)):
+        scan, floor, checks.excess_mm2(runs, f, keep, floor)
+    ):
         cyclic_pitch = float(scan["pitch_mm"])
         f2 = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
         if f2.rms_um < f.rms_um:
@@ -158,9 +195,16 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
             out.cyclic_pitch = cyclic_pitch
             found.append(checks.cyclic_finding(scan, label))
             scan = checks.scan_cyclic(geom, runs, f, keep)
-    adequacy, ev = checks.adequacy_findings(geom, runs, f, keep, floor, source,
-                                            scan if checks.cyclic_detected(scan, floor)
-                                            else None, label)
+    adequacy, ev = checks.adequacy_findings(
+        geom,
+        runs,
+        f,
+        keep,
+        floor,
+        source,
+        scan if checks.cyclic_detected(scan, floor) else None,
+        label,
+    )
     found += adequacy
     out.checks["adequacy"] = ev
     wider = mask_deg + checks.STABILITY_EXTRA_DEG
@@ -170,21 +214,31 @@ def checked_fit(geom: Geometry, runs: Sequence[Run], mapping: Optional[Mapping],
         f_wide = None
     if f_wide is not None:
         found += checks.stability_findings(
-            diagnostic_values(f.values, geom.radius), diagnostic_values(f_wide.values,
-                                                                        geom.radius),
+            diagnostic_values(f.values, geom.radius),
+            diagnostic_values(f_wide.values, geom.radius),
             uncertainty_values(f.sigma, geom.radius),
-            uncertainty_values(f_wide.sigma, geom.radius), mask_deg, wider, label,
-            checks.reached_sides(runs))
+            uncertainty_values(f_wide.sigma, geom.radius),
+            mask_deg,
+            wider,
+            label,
+            checks.reached_sides(runs),
+        )
     out.fit = f
     out.runs = runs
     out.findings = found
     return out
 
 
-def analyse_runs(geom: Geometry, runs: Sequence[Run], meta: Dict[str, str],
-                 mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
-                 cyclic_pitch: Optional[float] = None, f: Optional[FitResult] = None,
-                 mapping: Optional[Mapping] = None) -> Dict[str, object]:
+def analyse_runs(
+    geom: Geometry,
+    runs: Sequence[Run],
+    meta: Dict[str, str],
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    f: Optional[FitResult] = None,
+    mapping: Optional[Mapping] = None,
+) -> Dict[str, object]:
     if f is None:
         f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
     v = f.values
@@ -201,21 +255,34 @@ def analyse_runs(geom: Geometry, runs: Sequence[Run], meta: Dict[str, str],
     diag["bar_calibrated"] = calibrated
     if cyclic_pitch:
         diag["cyclic_error_um"] = {
-            "a": math.hypot(v["cAs"], v["cAc"]) * 1e3, "b": math.hypot(v["cBs"], v["cBc"]) * 1e3,
-            "pitch_mm": cyclic_pitch}
+            "a": math.hypot(v["cAs"], v["cAc"]) * 1e3,
+            "b": math.hypot(v["cBs"], v["cBc"]) * 1e3,
+            "pitch_mm": cyclic_pitch,
+        }
     diag["uncertainty"] = uncertainty_values(f.sigma, geom.radius)
     diag.update(iso_metrics(geom, runs, calibrated))
-    diag["fit"] = {"rms_um": f.rms_um, "samples": f.samples, "masked": f.masked,
-                   "mask_deg": mask_deg, "condition": f.condition, "iterations": f.iterations,
-                   "correlation_inflation": f.correlation_inflation,
-                   "model": "exact geometry, joint CW+CCW, common centre"}
+    diag["fit"] = {
+        "rms_um": f.rms_um,
+        "samples": f.samples,
+        "masked": f.masked,
+        "mask_deg": mask_deg,
+        "condition": f.condition,
+        "iterations": f.iterations,
+        "correlation_inflation": f.correlation_inflation,
+        "model": "exact geometry, joint CW+CCW, common centre",
+    }
     if mapping is not None:
         diag["fit"].update(mapping.as_dict())
     return diag
 
 
-def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_MASK_DEG,
-            calibrated: bool = False, cyclic_pitch: Optional[float] = None) -> Dict[str, object]:
+def analyse(
+    trace,
+    current: Optional[Params] = None,
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+) -> Dict[str, object]:
     """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes",
     "plot"}. ``current``: the parameters active during the test (the fit is then a residual
     and the program the printer ran is the compensated one)."""
@@ -227,23 +294,32 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
     plot = None
     if isinstance(trace, Summary):
         diag = dict(trace.diagnostics)
-        geom = Geometry(meta_plane(trace.meta),
-                        meta_float(trace.meta, "radius_mm", 0.0),
-                        meta_centre(trace.meta),
-                        meta_float(trace.meta, "feed_mm_min", 0.0) or None)
+        geom = Geometry(
+            meta_plane(trace.meta),
+            meta_float(trace.meta, "radius_mm", 0.0),
+            meta_centre(trace.meta),
+            meta_float(trace.meta, "feed_mm_min", 0.0) or None,
+        )
         diag.setdefault("plane", geom.plane)
         diag["source"] = trace.meta.get("source", "summary")
         notes += trace.notes
-        found.append(info("source.summary", Msg(
-            "These values come from another program's summary, not from a trace: KinComp "
-            "could not check the motion, the fit or the noise behind them.")))
+        found.append(
+            info(
+                "source.summary",
+                Msg(
+                    "These values come from another program's summary, not from a trace: KinComp "
+                    "could not check the motion, the fit or the noise behind them."
+                ),
+            )
+        )
     else:
         geom, runs, mapping = load_runs_mapped(trace, current)
         _check_both_directions(runs)
         cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch)
         f = cf.fit
-        diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f,
-                            mapping)
+        diag = analyse_runs(
+            geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping
+        )
         found += cf.findings
         found += outlier_findings(cf, diag)
         diag["checks"] = cf.checks
@@ -256,22 +332,32 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
             found.append(info("motion.estimated", n))
         measured_with = trace.meta.get("params_hash", "").strip()
         if measured_with not in ("", "none", "-") and measured_with != current.hash():
-            n = Msg("The trace was measured with parameters %(hash)s, but the "
-                    "analysis assumes %(current)s were in force: give the parameters "
-                    "that were active during the test, or the residuals are wrong.",
-                    hash=measured_with, current=current.hash())
+            n = Msg(
+                "The trace was measured with parameters %(hash)s, but the "
+                "analysis assumes %(current)s were in force: give the parameters "
+                "that were active during the test, or the residuals are wrong.",
+                hash=measured_with,
+                current=current.hash(),
+            )
             notes.append(n)
-            found.append(warning("params.mismatch", n, evidence_hash=measured_with,
-                                 current_hash=current.hash()))
+            found.append(
+                warning(
+                    "params.mismatch", n, evidence_hash=measured_with, current_hash=current.hash()
+                )
+            )
         if not calibrated:
-            n = Msg("The bar is not calibrated: the mean radius mixes the bar's own "
-                    "length error with the mean axis scale, so only the scale "
-                    "mismatch is used.")
+            n = Msg(
+                "The bar is not calibrated: the mean radius mixes the bar's own "
+                "length error with the mean axis scale, so only the scale "
+                "mismatch is used."
+            )
             notes.append(n)
             found.append(info("bar.uncalibrated", n))
     if current is not None and not changes_nothing(current):
-        n = Msg("The test ran with compensation active: the fitted errors are "
-                "residuals and the proposed parameters are current + residual.")
+        n = Msg(
+            "The test ran with compensation active: the fitted errors are "
+            "residuals and the proposed parameters are current + residual."
+        )
         notes.append(n)
         found.append(info("params.residual", n))
     before = len(notes)
@@ -290,8 +376,7 @@ def analyse(trace, current: Optional[Params] = None, mask_deg: float = DEFAULT_M
     }
 
 
-def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = ""
-                     ) -> List[Finding]:
+def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = "") -> List[Finding]:
     """The circularity without the outliers the checks left out of the fit, and a finding
     saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
     message (a campaign's file name)."""
@@ -304,17 +389,39 @@ def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = ""
     n = cf.checks.get("outliers", 0)
     ev = dict(outliers=n, g_b_um=round(g, 2), g_b_without_um=round(gr, 2))
     if g > checks.OUTLIER_DOMINATE * gr:
-        return [warning("data.outliers", Msg(
-            "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor glitch, a "
-            "knock): the circularity G(b) is %(g)s um with them and %(gr)s um without. They "
-            "dominate G(b) and any before/after comparison of it; the fit left them out.",
-            pre=pre, n=n, g=f"{g:.1f}", gr=f"{gr:.1f}"), Msg(
-            "Compare circularity without the outliers (circularity_robust_um), or repeat the "
-            "test with the sensor's cable and mount secured."), **ev)]
-    return [info("data.outliers", Msg(
-        "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
-        "(G(b) %(g)s um with them, %(gr)s um without).", pre=pre, n=n, g=f"{g:.1f}",
-        gr=f"{gr:.1f}"), **ev)]
+        return [
+            warning(
+                "data.outliers",
+                Msg(
+                    "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor glitch, a "
+                    "knock): the circularity G(b) is %(g)s um with them and %(gr)s um without. They "
+                    "dominate G(b) and any before/after comparison of it; the fit left them out.",
+                    pre=pre,
+                    n=n,
+                    g=f"{g:.1f}",
+                    gr=f"{gr:.1f}",
+                ),
+                Msg(
+                    "Compare circularity without the outliers (circularity_robust_um), or repeat the "
+                    "test with the sensor's cable and mount secured."
+                ),
+                **ev,
+            )
+        ]
+    return [
+        info(
+            "data.outliers",
+            Msg(
+                "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
+                "(G(b) %(g)s um with them, %(gr)s um without).",
+                pre=pre,
+                n=n,
+                g=f"{g:.1f}",
+                gr=f"{gr:.1f}",
+            ),
+            **ev,
+        )
+    ]
 
 
 def mapping_notes(mapping: Mapping) -> List[str]:
@@ -322,9 +429,19 @@ def mapping_notes(mapping: Mapping) -> List[str]:
     if s is None or not s.estimated:
         return []
     if s.constant_speed:
-        return [Msg("The trace records no planner settings; its ramps fit motion at constant "
-                    "speed, so time was mapped to angle at the programmed feed.")]
-    return [Msg("The trace records no planner settings; estimated from its own start-up and "
-                "stop transients: acceleration %(accel)s mm/s^2, junction deviation %(jd)s mm "
-                "(90 deg corner speed %(corner)s mm/s).", accel=f"{s.accel_mm_s2:.0f}",
-                jd=f"{s.junction_deviation_mm:.4f}", corner=f"{s.corner_speed_90:.1f}")]
+        return [
+            Msg(
+                "The trace records no planner settings; its ramps fit motion at constant "
+                "speed, so time was mapped to angle at the programmed feed."
+            )
+        ]
+    return [
+        Msg(
+            "The trace records no planner settings; estimated from its own start-up and "
+            "stop transients: acceleration %(accel)s mm/s^2, junction deviation %(jd)s mm "
+            "(90 deg corner speed %(corner)s mm/s).",
+            accel=f"{s.accel_mm_s2:.0f}",
+            jd=f"{s.junction_deviation_mm:.4f}",
+            corner=f"{s.corner_speed_90:.1f}",
+        )
+    ]

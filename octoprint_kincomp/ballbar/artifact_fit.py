@@ -73,6 +73,7 @@ class _Obs:
 # ---------------------------------------------------------------------------------------
 # input
 
+
 def parse_readings(data) -> Dict[str, List[float]]:
     """``{"<id>": [mm, ...]}`` (or one number per id) -> lists of floats; raises a clear
     :class:`ArtifactFitError` for anything else."""
@@ -80,8 +81,9 @@ def parse_readings(data) -> Dict[str, List[float]]:
         try:
             data = json.loads(data)
         except ValueError as exc:
-            raise ArtifactFitError(Msg("the readings are not valid JSON (%(error)s)",
-                                       error=str(exc))) from None
+            raise ArtifactFitError(
+                Msg("the readings are not valid JSON (%(error)s)", error=str(exc))
+            ) from None
     if not isinstance(data, dict):
         raise ArtifactFitError(Msg('the readings must be a JSON object {"<id>": [mm, ...]}'))
     out = {}
@@ -90,11 +92,19 @@ def parse_readings(data) -> Dict[str, List[float]]:
             vals = [vals]
         clean = []
         for v in vals:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v <= 0:
-                raise ArtifactFitError(Msg("reading %(value)s of %(id)s is not a positive "
-                                           "length in mm", value=json.dumps(v)[:20],
-                                           id=str(key)))
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or v <= 0
+            ):
+                raise ArtifactFitError(
+                    Msg(
+                        "reading %(value)s of %(id)s is not a positive length in mm",
+                        value=json.dumps(v)[:20],
+                        id=str(key),
+                    )
+                )
             clean.append(float(v))
         out[str(key)] = clean
     return out
@@ -102,6 +112,7 @@ def parse_readings(data) -> Dict[str, List[float]]:
 
 # ---------------------------------------------------------------------------------------
 # the model
+
 
 def _unit(n: int, i: int) -> np.ndarray:
     g = np.zeros(n)
@@ -176,7 +187,7 @@ def _solve(obs: Sequence[_Obs], w0: float) -> _Fit:
     null = Vt[rank:].T
     cov_s = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
     Ur = U[:, :rank]
-    lev = np.sum(Ur ** 2, axis=1)
+    lev = np.sum(Ur**2, axis=1)
     cond = float(s[0] / s[rank - 1]) if rank else None
     return _Fit(p, y - pred, wts, Js, scale, null, cov_s, rank, cond, lev)
 
@@ -197,7 +208,8 @@ def _sigma_of(fit: _Fit, g: np.ndarray, sigma: float) -> float:
 # ---------------------------------------------------------------------------------------
 # screening
 
-def _left_out(o: "_Obs", off) -> List[Tuple[int, float]]:
+
+def _left_out(o: _Obs, off) -> List[Tuple[int, float]]:
     """Leaves the readings ``v`` of ``o`` for which ``off(v)`` out (kept in ``o.excluded``);
     returns them as (index among the readings it had, value)."""
     out = [(i, v) for i, v in enumerate(o.values) if off(v)]
@@ -213,13 +225,25 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
         L = o.meas.length
         limit = max(GROSS_MM, GROSS_FRACTION * L)
         for i, v in _left_out(o, lambda v: abs(v - L) > limit):
-            found.append(fnd.warning(
-                "artifact.reading_far_from_nominal",
-                Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from the nominal "
-                    "%(nominal)s mm: a typo? It was left out.", n=i + 1, id=o.meas.id,
-                    value=f"{v:.2f}", off=f"{v - L:+.2f}", nominal=f"{L:.2f}"),
-                Msg("Check the reading and measure %(id)s again.", id=o.meas.id),
-                id=o.meas.id, reading=i + 1, value_mm=v, nominal_mm=round(L, 4)))
+            found.append(
+                fnd.warning(
+                    "artifact.reading_far_from_nominal",
+                    Msg(
+                        "Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from the nominal "
+                        "%(nominal)s mm: a typo? It was left out.",
+                        n=i + 1,
+                        id=o.meas.id,
+                        value=f"{v:.2f}",
+                        off=f"{v - L:+.2f}",
+                        nominal=f"{L:.2f}",
+                    ),
+                    Msg("Check the reading and measure %(id)s again.", id=o.meas.id),
+                    id=o.meas.id,
+                    reading=i + 1,
+                    value_mm=v,
+                    nominal_mm=round(L, 4),
+                )
+            )
     sds = [float(np.std(o.values, ddof=1)) for o in obs if len(o.values) >= 2]
     typical = float(np.median(sds)) if sds else 0.0
     limit = max(REPEAT_FLOOR_MM, REPEAT_SIGMAS * typical)
@@ -227,23 +251,42 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
         if len(o.values) >= 3:
             med = float(np.median(o.values))
             for i, v in _left_out(o, lambda v: abs(v - med) > limit):
-                found.append(fnd.warning(
-                    "artifact.reading_disagrees",
-                    Msg("Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from its "
-                        "repeats (median %(median)s mm): a typo, or the jaws on a seam? It "
-                        "was left out.", n=i + 1, id=o.meas.id, value=f"{v:.2f}",
-                        off=f"{v - med:+.3f}", median=f"{med:.3f}"),
-                    Msg("Measure %(id)s again.", id=o.meas.id),
-                    id=o.meas.id, reading=i + 1, value_mm=v, median_mm=med,
-                    limit_mm=round(limit, 4)))
+                found.append(
+                    fnd.warning(
+                        "artifact.reading_disagrees",
+                        Msg(
+                            "Reading %(n)s of %(id)s (%(value)s mm) is %(off)s mm from its "
+                            "repeats (median %(median)s mm): a typo, or the jaws on a seam? It "
+                            "was left out.",
+                            n=i + 1,
+                            id=o.meas.id,
+                            value=f"{v:.2f}",
+                            off=f"{v - med:+.3f}",
+                            median=f"{med:.3f}",
+                        ),
+                        Msg("Measure %(id)s again.", id=o.meas.id),
+                        id=o.meas.id,
+                        reading=i + 1,
+                        value_mm=v,
+                        median_mm=med,
+                        limit_mm=round(limit, 4),
+                    )
+                )
         elif len(o.values) == 2 and abs(o.values[0] - o.values[1]) > limit:
-            found.append(fnd.warning(
-                "artifact.repeats_disagree",
-                Msg("The two readings of %(id)s differ by %(diff)s mm; with two it cannot be "
-                    "told which is wrong.", id=o.meas.id,
-                    diff=f"{abs(o.values[0] - o.values[1]):.3f}"),
-                Msg("Measure %(id)s a third time.", id=o.meas.id),
-                id=o.meas.id, values_mm=list(o.values)))
+            found.append(
+                fnd.warning(
+                    "artifact.repeats_disagree",
+                    Msg(
+                        "The two readings of %(id)s differ by %(diff)s mm; with two it cannot be "
+                        "told which is wrong.",
+                        id=o.meas.id,
+                        diff=f"{abs(o.values[0] - o.values[1]):.3f}",
+                    ),
+                    Msg("Measure %(id)s a third time.", id=o.meas.id),
+                    id=o.meas.id,
+                    values_mm=list(o.values),
+                )
+            )
     resid = [v - o.mean for o in obs if len(o.values) >= 2 for v in o.values]
     dof = sum(len(o.values) - 1 for o in obs if len(o.values) >= 2)
     return math.sqrt(sum(r * r for r in resid) / dof) if dof else 0.0
@@ -252,10 +295,16 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
 # ---------------------------------------------------------------------------------------
 # the analysis
 
-def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, List[float]],
-                     current: Optional[Params] = None, info: Optional[Dict[str, str]] = None,
-                     resolution_mm: float = RESOLUTION_MM, simulated: bool = False,
-                     wire: bool = False) -> Dict[str, object]:
+
+def analyse_artifact(
+    measurements: Sequence[Measurement],
+    readings: Dict[str, List[float]],
+    current: Optional[Params] = None,
+    info: Optional[Dict[str, str]] = None,
+    resolution_mm: float = RESOLUTION_MM,
+    simulated: bool = False,
+    wire: bool = False,
+) -> Dict[str, object]:
     """Fit the readings of an artifact program's measurements; returns ``{"diagnostics",
     "parameters", "firmware", "notes", "findings", "trusted"}`` (see the module docstring).
     ``current``: the parameters active while the artifact was printed (the fit is then a
@@ -268,22 +317,31 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
     by_id = {m.id: m for m in measurements}
     unknown = sorted(set(readings) - set(by_id))
     if unknown:
-        raise ArtifactFitError(Msg("readings for ids the program does not have: %(ids)s "
-                                   "(check the program given with the readings)",
-                                   ids=", ".join(unknown[:8])))
+        raise ArtifactFitError(
+            Msg(
+                "readings for ids the program does not have: %(ids)s "
+                "(check the program given with the readings)",
+                ids=", ".join(unknown[:8]),
+            )
+        )
     found: List[fnd.Finding] = []
     obs = [_Obs(m, list(readings[m.id])) for m in measurements if readings.get(m.id)]
     n_readings = sum(len(o.values) for o in obs)
     missing = [m.id for m in measurements if not readings.get(m.id)]
     if missing:
-        found.append(fnd.info("artifact.not_measured",
-                              Msg("Not measured: %(ids)s.", ids=", ".join(missing)),
-                              ids=missing))
+        found.append(
+            fnd.info(
+                "artifact.not_measured",
+                Msg("Not measured: %(ids)s.", ids=", ".join(missing)),
+                ids=missing,
+            )
+        )
     repeat_sd = _screen_repeats(obs, found)
     obs = [o for o in obs if o.values]
     if len(obs) < 2:
-        raise ArtifactFitError(Msg("too few readings: at least an outside and an inside "
-                                   "measurement are needed"))
+        raise ArtifactFitError(
+            Msg("too few readings: at least an outside and an inside measurement are needed")
+        )
     try:
         w0 = float(info.get("line_width_mm", "0.45"))
     except ValueError:
@@ -295,7 +353,7 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
     while True:
         fit = _solve(obs, w0)
         dof = len(obs) - fit.rank
-        rss = float(np.sum(fit.weights * fit.resid ** 2))
+        rss = float(np.sum(fit.weights * fit.resid**2))
         s_res = math.sqrt(rss / dof) if dof > 0 else 0.0
         sigma = max(s_res, repeat_sd, floor)
         worst, worst_t = None, 0.0
@@ -313,30 +371,55 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
             break
         o = obs.pop(worst)
         dropped.append(o)
-        found.append(fnd.warning(
-            "artifact.measurement_outlier",
-            Msg("%(id)s (mean %(mean)s mm) disagrees with the other measurements by %(off)s mm "
-                "(%(t)s sigma): a typo, a jaw on a seam or a damaged wall? It was left out.",
-                id=o.meas.id, mean=f"{o.mean:.3f}", off=f"{fit.resid[worst]:+.3f}",
-                t=f"{worst_t:.0f}"),
-            Msg("Check the readings of %(id)s and measure it again.", id=o.meas.id),
-            id=o.meas.id, residual_um=round(float(fit.resid[worst]) * 1e3, 1),
-            t=round(worst_t, 1), readings_mm=list(o.values)))
+        found.append(
+            fnd.warning(
+                "artifact.measurement_outlier",
+                Msg(
+                    "%(id)s (mean %(mean)s mm) disagrees with the other measurements by %(off)s mm "
+                    "(%(t)s sigma): a typo, a jaw on a seam or a damaged wall? It was left out.",
+                    id=o.meas.id,
+                    mean=f"{o.mean:.3f}",
+                    off=f"{fit.resid[worst]:+.3f}",
+                    t=f"{worst_t:.0f}",
+                ),
+                Msg("Check the readings of %(id)s and measure it again.", id=o.meas.id),
+                id=o.meas.id,
+                residual_um=round(float(fit.resid[worst]) * 1e3, 1),
+                t=round(worst_t, 1),
+                readings_mm=list(o.values),
+            )
+        )
     if worst is not None and worst_t > OUTLIER_T:
-        found.append(fnd.error(
-            "artifact.too_many_outliers",
-            Msg("%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
-                "were left out: the readings do not fit one printed artifact.",
-                id=obs[worst].meas.id, t=f"{worst_t:.0f}", n=len(dropped)),
-            Msg("Check that the readings belong to this program and were typed in the right "
-                "fields."), id=obs[worst].meas.id))
+        found.append(
+            fnd.error(
+                "artifact.too_many_outliers",
+                Msg(
+                    "%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
+                    "were left out: the readings do not fit one printed artifact.",
+                    id=obs[worst].meas.id,
+                    t=f"{worst_t:.0f}",
+                    n=len(dropped),
+                ),
+                Msg(
+                    "Check that the readings belong to this program and were typed in the right "
+                    "fields."
+                ),
+                id=obs[worst].meas.id,
+            )
+        )
 
     unchecked = [o.meas.id for o, h in zip(obs, fit.leverage) if h > MAX_LEVERAGE]
     if unchecked:
-        found.append(fnd.info(
-            "artifact.unchecked",
-            Msg("No other measurement checks %(ids)s: a typo there would go unnoticed.",
-                ids=", ".join(unchecked)), ids=unchecked))
+        found.append(
+            fnd.info(
+                "artifact.unchecked",
+                Msg(
+                    "No other measurement checks %(ids)s: a typo there would go unnoticed.",
+                    ids=", ".join(unchecked),
+                ),
+                ids=unchecked,
+            )
+        )
 
     n = len(NAMES)
     quantities = {
@@ -369,43 +452,79 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
         mean_u = (float(g @ fit.p) * 1e6, _sigma_of(fit, g, sigma) * 1e6)
     _line_width_check(values, info, found)
     if dof >= 3 and repeat_sd > 0 and s_res > 3 * max(repeat_sd, floor):
-        found.append(fnd.warning(
-            "artifact.features_disagree",
-            Msg("The measurements scatter about the fit by %(rms)s um, %(ratio)s times more "
-                "than the repeats of one measurement (%(rep)s um): the part may be warped, or "
-                "errors other than squareness and scale shaped it. The uncertainties use the "
-                "larger scatter.", rms=f"{s_res * 1e3:.0f}",
-                ratio=f"{s_res / repeat_sd:.0f}", rep=f"{repeat_sd * 1e3:.0f}"),
-            rms_um=round(s_res * 1e3, 2), repeat_um=round(repeat_sd * 1e3, 2)))
+        found.append(
+            fnd.warning(
+                "artifact.features_disagree",
+                Msg(
+                    "The measurements scatter about the fit by %(rms)s um, %(ratio)s times more "
+                    "than the repeats of one measurement (%(rep)s um): the part may be warped, or "
+                    "errors other than squareness and scale shaped it. The uncertainties use the "
+                    "larger scatter.",
+                    rms=f"{s_res * 1e3:.0f}",
+                    ratio=f"{s_res / repeat_sd:.0f}",
+                    rep=f"{repeat_sd * 1e3:.0f}",
+                ),
+                rms_um=round(s_res * 1e3, 2),
+                repeat_um=round(repeat_sd * 1e3, 2),
+            )
+        )
     if fit.condition is not None and fit.condition > ILL_CONDITIONED:
-        found.append(fnd.warning(
-            "artifact.ill_conditioned",
-            Msg("The measurements barely separate the unknowns (condition number %(cond)s): "
-                "spans nearly parallel, or too few directions. Small reading errors move the "
-                "result a lot; the uncertainties say how much.", cond=f"{fit.condition:.0f}"),
-            Msg("Measure the spans of every direction the artifact has."),
-            condition=round(fit.condition, 1)))
+        found.append(
+            fnd.warning(
+                "artifact.ill_conditioned",
+                Msg(
+                    "The measurements barely separate the unknowns (condition number %(cond)s): "
+                    "spans nearly parallel, or too few directions. Small reading errors move the "
+                    "result a lot; the uncertainties say how much.",
+                    cond=f"{fit.condition:.0f}",
+                ),
+                Msg("Measure the spans of every direction the artifact has."),
+                condition=round(fit.condition, 1),
+            )
+        )
     if dof < 3:
-        found.append(fnd.warning(
-            "artifact.little_redundancy",
-            Msg("Only %(dof)s more measurements than unknowns: the uncertainties rest on the "
-                "repeats and the caliper's resolution, not on the fit.", dof=max(dof, 0)),
-            Msg("Measure every span of the artifact, outside and inside."), dof=max(dof, 0)))
-    found.append(fnd.info(
-        "artifact.absolute_scale",
-        Msg("The plastic's shrinkage cannot be told from a common scale error: only the scale "
-            "differences between the axes are used; the proposal keeps the mean scale as it "
-            "was.")))
-    found.append(fnd.info(
-        "artifact.model",
-        Msg("Assumed: straight axes with squareness and scale errors, shrinkage the same in "
-            "every direction, one line width per wall family. Backlash and non-linear errors "
-            "are not measured by this artifact.")))
+        found.append(
+            fnd.warning(
+                "artifact.little_redundancy",
+                Msg(
+                    "Only %(dof)s more measurements than unknowns: the uncertainties rest on the "
+                    "repeats and the caliper's resolution, not on the fit.",
+                    dof=max(dof, 0),
+                ),
+                Msg("Measure every span of the artifact, outside and inside."),
+                dof=max(dof, 0),
+            )
+        )
+    found.append(
+        fnd.info(
+            "artifact.absolute_scale",
+            Msg(
+                "The plastic's shrinkage cannot be told from a common scale error: only the scale "
+                "differences between the axes are used; the proposal keeps the mean scale as it "
+                "was."
+            ),
+        )
+    )
+    found.append(
+        fnd.info(
+            "artifact.model",
+            Msg(
+                "Assumed: straight axes with squareness and scale errors, shrinkage the same in "
+                "every direction, one line width per wall family. Backlash and non-linear errors "
+                "are not measured by this artifact."
+            ),
+        )
+    )
     if not changes_nothing(current):
-        found.append(fnd.info(
-            "artifact.residual",
-            Msg("The artifact was printed with compensation active: the fitted errors are "
-                "residuals and the proposed parameters are current + residual.")))
+        found.append(
+            fnd.info(
+                "artifact.residual",
+                Msg(
+                    "The artifact was printed with compensation active: the fitted errors are "
+                    "residuals and the proposed parameters are current + residual."
+                ),
+            )
+        )
 
     diag: Dict[str, object] = {
         "source": "printed artifact",
@@ -415,8 +534,7 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
         "scale_mismatch_ppm": values["scale_mismatch_ppm"],
         "line_width_mm": values["line_width_mm"],
         "mean_scale_with_shrinkage_ppm": mean_u[0] if mean_u else None,
-        "uncertainty": {**sigmas, "mean_scale_with_shrinkage_ppm":
-                        mean_u[1] if mean_u else None},
+        "uncertainty": {**sigmas, "mean_scale_with_shrinkage_ppm": mean_u[1] if mean_u else None},
         "fit": {
             "readings": n_readings,
             "readings_used": int(sum(len(o.values) for o in obs)),
@@ -427,8 +545,9 @@ def analyse_artifact(measurements: Sequence[Measurement], readings: Dict[str, Li
             "rms_um": s_res * 1e3,
             "repeat_sd_um": repeat_sd * 1e3,
             "sigma_reading_um": sigma * 1e3,
-            "sigma_from": ("residual" if sigma == s_res else "repeats" if sigma == repeat_sd
-                           else "resolution"),
+            "sigma_from": (
+                "residual" if sigma == s_res else "repeats" if sigma == repeat_sd else "resolution"
+            ),
             "model": "affine errors (squareness, scale) + isotropic shrinkage + line width",
         },
         "measurements": _per_measurement(obs, fit, dropped, measurements, readings),
@@ -451,44 +570,84 @@ def _separability(values, sigmas, planes_made, found) -> None:
         v, s = values["squareness_um_per_m"][plane], sigmas["squareness_um_per_m"][plane]
         if v is None:
             if made:
-                found.append(fnd.warning(
-                    "artifact.not_separable",
-                    Msg("The readings cannot separate the %(plane)s squareness (measurements "
-                        "missing or left out); it stays as it was.", plane=plane.upper()),
-                    Msg("Measure the %(plane)s diagonals, outside and inside.",
-                        plane=plane.upper()), quantity="squareness." + plane))
+                found.append(
+                    fnd.warning(
+                        "artifact.not_separable",
+                        Msg(
+                            "The readings cannot separate the %(plane)s squareness (measurements "
+                            "missing or left out); it stays as it was.",
+                            plane=plane.upper(),
+                        ),
+                        Msg(
+                            "Measure the %(plane)s diagonals, outside and inside.",
+                            plane=plane.upper(),
+                        ),
+                        quantity="squareness." + plane,
+                    )
+                )
             else:
-                found.append(fnd.info(
-                    "artifact.not_measured_plane",
-                    Msg("This artifact has no %(plane)s part: the %(plane)s squareness stays "
-                        "as it was.", plane=plane.upper()), plane=plane.upper()))
+                found.append(
+                    fnd.info(
+                        "artifact.not_measured_plane",
+                        Msg(
+                            "This artifact has no %(plane)s part: the %(plane)s squareness stays "
+                            "as it was.",
+                            plane=plane.upper(),
+                        ),
+                        plane=plane.upper(),
+                    )
+                )
         elif s > POOR_SQUARENESS_UM_PER_M:
-            found.append(fnd.warning(
-                "artifact.poorly_determined",
-                Msg("The %(plane)s squareness is poorly determined (+- %(sigma)s um/m, 1 "
-                    "sigma): too few or too short spans.", plane=plane.upper(),
-                    sigma=f"{s:.0f}"),
-                Msg("Measure more repeats, or print the artifact larger (a longer caliper)."),
-                quantity="squareness." + plane, sigma_um_per_m=round(s, 1)))
+            found.append(
+                fnd.warning(
+                    "artifact.poorly_determined",
+                    Msg(
+                        "The %(plane)s squareness is poorly determined (+- %(sigma)s um/m, 1 "
+                        "sigma): too few or too short spans.",
+                        plane=plane.upper(),
+                        sigma=f"{s:.0f}",
+                    ),
+                    Msg("Measure more repeats, or print the artifact larger (a longer caliper)."),
+                    quantity="squareness." + plane,
+                    sigma_um_per_m=round(s, 1),
+                )
+            )
     for pair in PAIRS:
         v, s = values["scale_mismatch_ppm"][pair], sigmas["scale_mismatch_ppm"][pair]
         axes = pair.replace("-", "").upper()
         if v is None:
             if all(any(a in p for p in planes_made) for a in axes):
-                found.append(fnd.warning(
-                    "artifact.not_separable",
-                    Msg("The readings cannot separate the scale mismatch %(pair)s; it stays as "
-                        "it was.", pair=pair), quantity="scale_mismatch." + pair))
+                found.append(
+                    fnd.warning(
+                        "artifact.not_separable",
+                        Msg(
+                            "The readings cannot separate the scale mismatch %(pair)s; it stays as "
+                            "it was.",
+                            pair=pair,
+                        ),
+                        quantity="scale_mismatch." + pair,
+                    )
+                )
         elif s > POOR_MISMATCH_PPM:
-            found.append(fnd.warning(
-                "artifact.poorly_determined",
-                Msg("The scale mismatch %(pair)s is poorly determined (+- %(sigma)s ppm, 1 "
-                    "sigma).", pair=pair, sigma=f"{s:.0f}"),
-                quantity="scale_mismatch." + pair, sigma_ppm=round(s, 1)))
+            found.append(
+                fnd.warning(
+                    "artifact.poorly_determined",
+                    Msg(
+                        "The scale mismatch %(pair)s is poorly determined (+- %(sigma)s ppm, 1 "
+                        "sigma).",
+                        pair=pair,
+                        sigma=f"{s:.0f}",
+                    ),
+                    quantity="scale_mismatch." + pair,
+                    sigma_ppm=round(s, 1),
+                )
+            )
 
 
-FAMILY_NAMES = {"vertical_walls": Msg("walls of the flat part"),
-                "slanted_walls": Msg("45 deg walls")}
+FAMILY_NAMES = {
+    "vertical_walls": Msg("walls of the flat part"),
+    "slanted_walls": Msg("45 deg walls"),
+}
 
 
 def _line_width_check(values, info, found) -> None:
@@ -498,14 +657,23 @@ def _line_width_check(values, info, found) -> None:
         return
     for fam, w in values["line_width_mm"].items():
         if w is not None and not 0.5 * nozzle <= w <= 2.5 * nozzle:
-            found.append(fnd.error(
-                "artifact.line_width_implausible",
-                Msg("The fitted line width of the %(family)s is %(width)s mm with a %(nozzle)s "
-                    "mm nozzle: outside and inside readings swapped or typed in the wrong "
-                    "fields?", family=FAMILY_NAMES[fam], width=f"{w:.3f}",
-                    nozzle=f"{nozzle:g}"),
-                Msg("Outside readings are the larger ones of each span; check the fields."),
-                family=fam, line_width_mm=round(w, 4), nozzle_mm=nozzle))
+            found.append(
+                fnd.error(
+                    "artifact.line_width_implausible",
+                    Msg(
+                        "The fitted line width of the %(family)s is %(width)s mm with a %(nozzle)s "
+                        "mm nozzle: outside and inside readings swapped or typed in the wrong "
+                        "fields?",
+                        family=FAMILY_NAMES[fam],
+                        width=f"{w:.3f}",
+                        nozzle=f"{nozzle:g}",
+                    ),
+                    Msg("Outside readings are the larger ones of each span; check the fields."),
+                    family=fam,
+                    line_width_mm=round(w, 4),
+                    nozzle_mm=nozzle,
+                )
+            )
 
 
 def _per_measurement(obs, fit, dropped, measurements, readings) -> Dict[str, dict]:
@@ -526,8 +694,7 @@ def _per_measurement(obs, fit, dropped, measurements, readings) -> Dict[str, dic
     return out
 
 
-def _propose(values, fit: _Fit, est_axes: List[int], current: Params, simulated: bool
-             ) -> Params:
+def _propose(values, fit: _Fit, est_axes: List[int], current: Params, simulated: bool) -> Params:
     """current + residual: squareness as fitted (0 where not separable), scales with their
     mean removed (only the mismatch is measured)."""
     u = np.zeros(3)
@@ -542,4 +709,3 @@ def _propose(values, fit: _Fit, est_axes: List[int], current: Params, simulated:
     split_alignment(A_res @ alignment_matrix(current), d)
     d["meta"] = proposal_meta("printed artifact", simulated, "XYZ", current)
     return checked_params(d)
-

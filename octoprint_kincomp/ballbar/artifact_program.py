@@ -46,7 +46,8 @@ FILAMENT_MM = 1.75
 
 _MEASURE_RE = re.compile(
     r"^;\s*kincomp measure:\s*id=(?P<id>[A-Za-z0-9_.-]+)\s+kind=(?P<kind>\S+)\s+"
-    r"from=(?P<from>\S+)\s+to=(?P<to>\S+)(?:\s+hint=(?P<hint>.*))?$")
+    r"from=(?P<from>\S+)\s+to=(?P<to>\S+)(?:\s+hint=(?P<hint>.*))?$"
+)
 
 
 class ArtifactProgramError(ValueError):
@@ -58,8 +59,7 @@ class ArtifactProgramError(ValueError):
 class ArtifactSpec:
     """What the user chooses. ``volume`` = (X0, X1, Y0, Y1, Z0, Z1), mm, machine frame."""
 
-    volume: Tuple[float, float, float, float, float, float] = (0.0, 220.0, 0.0, 220.0, 0.0,
-                                                               250.0)
+    volume: Tuple[float, float, float, float, float, float] = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
     planes: Tuple[str, ...] = PLANES
     nozzle_mm: float = 0.4
     hotend_c: float = 210.0
@@ -132,7 +132,7 @@ class Feature:
     length: float
     hint: str
     tops: Tuple[float, float] = (5.0, 5.0)  # top height of the first and second wall, mm
-    fins: List["Fin"] = field(default_factory=list)
+    fins: List[Fin] = field(default_factory=list)
 
     @property
     def end(self) -> Vec:
@@ -170,27 +170,41 @@ class Fin:
 # ---------------------------------------------------------------------------------------
 # layout
 
+
 def _check_spec(spec: ArtifactSpec) -> None:
     x0, x1, y0, y1, z0, z1 = spec.volume
     if not (x1 > x0 and y1 > y0 and z1 > z0):
-        raise ArtifactProgramError(Msg("the volume must be X0,X1,Y0,Y1,Z0,Z1 with each "
-                                       "minimum below its maximum"))
-    for name, v, lo, hi in (("nozzle", spec.nozzle_mm, 0.1, 2.0),
-                            ("first layer", spec.first_layer_mm, 0.05, 1.0),
-                            ("layer height", spec.layer, 0.05, 1.0),
-                            ("line width", spec.width, 0.1, 3.0),
-                            ("nozzle temperature", spec.hotend_c, 150.0, 350.0),
-                            ("bed temperature", spec.bed_c, 0.0, 150.0),
-                            ("caliper range", spec.max_span_mm, 50.0, 1000.0),
-                            ("tower span", spec.tower_span_mm, 20.0, 1000.0)):
+        raise ArtifactProgramError(
+            Msg("the volume must be X0,X1,Y0,Y1,Z0,Z1 with each minimum below its maximum")
+        )
+    for name, v, lo, hi in (
+        ("nozzle", spec.nozzle_mm, 0.1, 2.0),
+        ("first layer", spec.first_layer_mm, 0.05, 1.0),
+        ("layer height", spec.layer, 0.05, 1.0),
+        ("line width", spec.width, 0.1, 3.0),
+        ("nozzle temperature", spec.hotend_c, 150.0, 350.0),
+        ("bed temperature", spec.bed_c, 0.0, 150.0),
+        ("caliper range", spec.max_span_mm, 50.0, 1000.0),
+        ("tower span", spec.tower_span_mm, 20.0, 1000.0),
+    ):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
-            raise ArtifactProgramError(Msg("%(name)s %(value)s is out of range "
-                                           "(%(lo)s..%(hi)s)", name=name, value=f"{v:g}",
-                                           lo=f"{lo:g}", hi=f"{hi:g}"))
+            raise ArtifactProgramError(
+                Msg(
+                    "%(name)s %(value)s is out of range (%(lo)s..%(hi)s)",
+                    name=name,
+                    value=f"{v:g}",
+                    lo=f"{lo:g}",
+                    hi=f"{hi:g}",
+                )
+            )
     bad = [p for p in spec.planes if p not in PLANES]
     if bad or not spec.planes:
-        raise ArtifactProgramError(Msg("planes must be among XY, XZ, YZ (got %(planes)s)",
-                                       planes=",".join(spec.planes) or "none"))
+        raise ArtifactProgramError(
+            Msg(
+                "planes must be among XY, XZ, YZ (got %(planes)s)",
+                planes=",".join(spec.planes) or "none",
+            )
+        )
 
 
 def layout(spec: ArtifactSpec) -> List[Feature]:
@@ -208,20 +222,25 @@ def layout(spec: ArtifactSpec) -> List[Feature]:
         _xy_features(spec, bx0, rx1, by0, ry1, z0)  # a bed too small for it says so first
     towers: List[Feature] = []
     if has_xz:
-        towers += _tower_features(spec, "XZ", (bx0, rx1), (by1 - lane / 2, by1 - 1.5 * lane),
-                                  z0, z1)
+        towers += _tower_features(
+            spec, "XZ", (bx0, rx1), (by1 - lane / 2, by1 - 1.5 * lane), z0, z1
+        )
     if has_yz:
-        towers += _tower_features(spec, "YZ", (by0, ry1), (bx1 - lane / 2, bx1 - 1.5 * lane),
-                                  z0, z1)
+        towers += _tower_features(
+            spec, "YZ", (by0, ry1), (bx1 - lane / 2, bx1 - 1.5 * lane), z0, z1
+        )
     # on small beds the diagonals' ends come near the axis spans' walls: shorten the
     # diagonals (2 mm at a time) until every wall keeps its clearance
     cut = 0.0
     while True:
-        feats = (_xy_features(spec, bx0, rx1, by0, ry1, z0, cut) if "XY" in spec.planes
-                 else []) + towers
+        feats = (
+            _xy_features(spec, bx0, rx1, by0, ry1, z0, cut) if "XY" in spec.planes else []
+        ) + towers
         for f in feats:
-            f.fins = [Fin(f.start, f.n, f.tops[0], spec.fin_length_mm),
-                      Fin(f.end, f.n, f.tops[1], spec.fin_length_mm)]
+            f.fins = [
+                Fin(f.start, f.n, f.tops[0], spec.fin_length_mm),
+                Fin(f.end, f.n, f.tops[1], spec.fin_length_mm),
+            ]
         try:
             _check_clearance(feats, spec)
             return feats
@@ -233,11 +252,11 @@ def layout(spec: ArtifactSpec) -> List[Feature]:
 
 def _seg_dist(p, q, a, b) -> float:
     """Shortest distance between 2D segments pq and ab (mm)."""
+
     def point_seg(c, s0, s1):
         dx, dy = s1[0] - s0[0], s1[1] - s0[1]
         L2 = dx * dx + dy * dy
-        t = 0.0 if L2 == 0 else max(0.0, min(1.0, ((c[0] - s0[0]) * dx + (c[1] - s0[1]) * dy)
-                                              / L2))
+        t = 0.0 if L2 == 0 else max(0.0, min(1.0, ((c[0] - s0[0]) * dx + (c[1] - s0[1]) * dy) / L2))
         return math.hypot(c[0] - s0[0] - t * dx, c[1] - s0[1] - t * dy)
 
     def cross(o, u, v):
@@ -261,14 +280,18 @@ def _check_clearance(feats: Sequence[Feature], spec: ArtifactSpec, need: float =
                 z = z0 + (top - z0) * k / 8
                 d = _seg_dist(*fa.segment(z), *fb.segment(z))
                 if d < need + spec.width * 3:
-                    raise ArtifactProgramError(Msg(
-                        "walls of %(a)s and %(b)s come too close (%(d)s mm): the volume is too "
-                        "small for this artifact", a=feats[ia].name, b=feats[ib].name,
-                        d=f"{d:.1f}"))
+                    raise ArtifactProgramError(
+                        Msg(
+                            "walls of %(a)s and %(b)s come too close (%(d)s mm): the volume is too "
+                            "small for this artifact",
+                            a=feats[ia].name,
+                            b=feats[ib].name,
+                            d=f"{d:.1f}",
+                        )
+                    )
 
 
-def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0
-                 ) -> List[Feature]:
+def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0) -> List[Feature]:
     """Spans along X and Y and 45 deg diagonals (``cut`` mm shorter than they could be),
     symmetric about the region's centre."""
     w = spec.width
@@ -276,9 +299,13 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0
     side = min(ax1 - ax0, ay1 - ay0) - 2 * reach
     span = min(spec.max_span_mm - 3.0, side)
     if span < 60.0:
-        raise ArtifactProgramError(Msg("the bed is too small for the XY part (%(side)s mm "
-                                       "free; it needs at least 60 mm spans)",
-                                       side=f"{side:.0f}"))
+        raise ArtifactProgramError(
+            Msg(
+                "the bed is too small for the XY part (%(side)s mm "
+                "free; it needs at least 60 mm spans)",
+                side=f"{side:.0f}",
+            )
+        )
     cx, cy = (ax0 + ax1) / 2, (ay0 + ay1) / 2
     zm = z0 + spec.xy_height_mm / 2  # the walls' mid height: where the jaws go
     half = span / 2
@@ -292,35 +319,86 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0
     feats = []
     top = (z0 + spec.xy_height_mm,) * 2
     for i, s in enumerate((-off, off), 1):
-        feats.append(Feature(f"X{i}", "XY", (cx - half, cy + s, zm), (1.0, 0.0, 0.0), span,
-                             "walls across X, " + ("front" if i == 1 else "back"), top))
+        feats.append(
+            Feature(
+                f"X{i}",
+                "XY",
+                (cx - half, cy + s, zm),
+                (1.0, 0.0, 0.0),
+                span,
+                "walls across X, " + ("front" if i == 1 else "back"),
+                top,
+            )
+        )
     for i, s in enumerate((-off, off), 1):
-        feats.append(Feature(f"Y{i}", "XY", (cx + s, cy - half, zm), (0.0, 1.0, 0.0), span,
-                             "walls across Y, " + ("left" if i == 1 else "right"), top))
+        feats.append(
+            Feature(
+                f"Y{i}",
+                "XY",
+                (cx + s, cy - half, zm),
+                (0.0, 1.0, 0.0),
+                span,
+                "walls across Y, " + ("left" if i == 1 else "right"),
+                top,
+            )
+        )
     for i, s in enumerate(shifts, 1):  # A: towards +X+Y, shifted along (-1, 1)
         start = (cx - h - s * r, cy - h + s * r, zm)
-        feats.append(Feature(f"A{i}", "XY", start, (r, r, 0.0), diag,
-                             "diagonal walls front-left to back-right", top))
+        feats.append(
+            Feature(
+                f"A{i}",
+                "XY",
+                start,
+                (r, r, 0.0),
+                diag,
+                "diagonal walls front-left to back-right",
+                top,
+            )
+        )
     for i, s in enumerate(shifts, 1):  # B: towards +X-Y, shifted along (1, 1)
         start = (cx - h + s * r, cy + h + s * r, zm)
-        feats.append(Feature(f"B{i}", "XY", start, (r, -r, 0.0), diag,
-                             "diagonal walls back-left to front-right", top))
+        feats.append(
+            Feature(
+                f"B{i}",
+                "XY",
+                start,
+                (r, -r, 0.0),
+                diag,
+                "diagonal walls back-left to front-right",
+                top,
+            )
+        )
     return feats
 
 
-def _tower_features(spec: ArtifactSpec, plane: str, along: Tuple[float, float],
-                    lanes: Tuple[float, float], z0: float, z1: float) -> List[Feature]:
+def _tower_features(
+    spec: ArtifactSpec,
+    plane: str,
+    along: Tuple[float, float],
+    lanes: Tuple[float, float],
+    z0: float,
+    z1: float,
+) -> List[Feature]:
     """One 45 deg tower per lane: the first leans one way, the second the other."""
     low = 8.0  # height of the first wall's measuring point above the bed (jaw clearance)
     above = 5.0  # each wall rises this far above its measuring point
     lo, hi = along
     room = hi - lo - 2 * spec.width
     r = 1 / math.sqrt(2)
-    span = min(spec.tower_span_mm, spec.max_span_mm - 3.0, (room - low - above) / math.sqrt(2),
-               (z1 - z0 - low - above - 1.0) / r)
+    span = min(
+        spec.tower_span_mm,
+        spec.max_span_mm - 3.0,
+        (room - low - above) / math.sqrt(2),
+        (z1 - z0 - low - above - 1.0) / r,
+    )
     if span < 30.0:
-        raise ArtifactProgramError(Msg("no room for the %(plane)s towers (span %(span)s mm; "
-                                       "they need 30 mm)", plane=plane, span=f"{span:.0f}"))
+        raise ArtifactProgramError(
+            Msg(
+                "no room for the %(plane)s towers (span %(span)s mm; they need 30 mm)",
+                plane=plane,
+                span=f"{span:.0f}",
+            )
+        )
     k = 0 if plane == "XZ" else 1  # the horizontal axis of the plane
     feats = []
     for i, (sign, c) in enumerate(((1.0, lanes[0]), (-1.0, lanes[1])), 1):
@@ -333,27 +411,46 @@ def _tower_features(spec: ArtifactSpec, plane: str, along: Tuple[float, float],
         start[1 - k] = c
         tops = (z0 + low + above, z0 + low + span * r + above)
         lean = ("-" if sign > 0 else "+") + "XYZ"[k]
-        feats.append(Feature(f"{plane}{i}", plane, tuple(start), tuple(n), span,
-                             f"45 deg tower in {plane} leaning towards {lean}", tops))
+        feats.append(
+            Feature(
+                f"{plane}{i}",
+                plane,
+                tuple(start),
+                tuple(n),
+                span,
+                f"45 deg tower in {plane} leaning towards {lean}",
+                tops,
+            )
+        )
     return feats
 
 
 # ---------------------------------------------------------------------------------------
 # measurements (the header contract)
 
+
 def measurements(features: Sequence[Feature]) -> List[Measurement]:
     out = []
     for f in features:
         for kind in KINDS:
             if f.plane == "XY":
-                hint = (f"{f.hint}: outer jaws on the outer faces of both walls" if kind ==
-                        "outside" else f"{f.hint}: inner jaws on the facing faces of both walls")
+                hint = (
+                    f"{f.hint}: outer jaws on the outer faces of both walls"
+                    if kind == "outside"
+                    else f"{f.hint}: inner jaws on the facing faces of both walls"
+                )
             else:
-                hint = (f"{f.hint}: caliper along the 45 deg line, outer jaws on the low face of "
-                        "the short wall and the top face of the tall wall" if kind == "outside"
-                        else f"{f.hint}: inner jaws between the two leaning walls, square to them")
-            out.append(Measurement(f"{f.name}-{'out' if kind == 'outside' else 'in'}", kind,
-                                   f.start, f.end, hint))
+                hint = (
+                    f"{f.hint}: caliper along the 45 deg line, outer jaws on the low face of "
+                    "the short wall and the top face of the tall wall"
+                    if kind == "outside"
+                    else f"{f.hint}: inner jaws between the two leaning walls, square to them"
+                )
+            out.append(
+                Measurement(
+                    f"{f.name}-{'out' if kind == 'outside' else 'in'}", kind, f.start, f.end, hint
+                )
+            )
     return out
 
 
@@ -362,8 +459,10 @@ def _pt(p: Sequence[float]) -> str:
 
 
 def measure_line(m: Measurement) -> str:
-    return (f"{MEASURE_PREFIX} id={m.id} kind={m.kind} from={_pt(m.start)} to={_pt(m.end)} "
-            f"hint={m.hint}")
+    return (
+        f"{MEASURE_PREFIX} id={m.id} kind={m.kind} from={_pt(m.start)} to={_pt(m.end)} "
+        f"hint={m.hint}"
+    )
 
 
 def read_measurements(text: str) -> List[Measurement]:
@@ -375,31 +474,47 @@ def read_measurements(text: str) -> List[Measurement]:
             continue
         mt = _MEASURE_RE.match(line.strip())
         if not mt:
-            raise ArtifactProgramError(Msg("line %(line)s: malformed measurement (expected "
-                                           "id=, kind=, from=X,Y,Z, to=X,Y,Z, hint=)",
-                                           line=lineno))
+            raise ArtifactProgramError(
+                Msg(
+                    "line %(line)s: malformed measurement (expected "
+                    "id=, kind=, from=X,Y,Z, to=X,Y,Z, hint=)",
+                    line=lineno,
+                )
+            )
         try:
             start = tuple(float(v) for v in mt["from"].split(","))
             end = tuple(float(v) for v in mt["to"].split(","))
         except ValueError:
             start = end = ()
         if len(start) != 3 or len(end) != 3 or not all(map(math.isfinite, start + end)):
-            raise ArtifactProgramError(Msg("line %(line)s: from= and to= need three numbers "
-                                           "each (mm)", line=lineno))
+            raise ArtifactProgramError(
+                Msg("line %(line)s: from= and to= need three numbers each (mm)", line=lineno)
+            )
         if mt["kind"] not in KINDS:
-            raise ArtifactProgramError(Msg("line %(line)s: kind must be outside or inside, not "
-                                           "%(kind)s", line=lineno, kind=mt["kind"]))
+            raise ArtifactProgramError(
+                Msg(
+                    "line %(line)s: kind must be outside or inside, not %(kind)s",
+                    line=lineno,
+                    kind=mt["kind"],
+                )
+            )
         if math.dist(start, end) < 1.0:
-            raise ArtifactProgramError(Msg("line %(line)s: from and to are less than 1 mm "
-                                           "apart", line=lineno))
+            raise ArtifactProgramError(
+                Msg("line %(line)s: from and to are less than 1 mm apart", line=lineno)
+            )
         if mt["id"] in seen:
-            raise ArtifactProgramError(Msg("line %(line)s: measurement id %(id)s appears "
-                                           "twice", line=lineno, id=mt["id"]))
+            raise ArtifactProgramError(
+                Msg("line %(line)s: measurement id %(id)s appears twice", line=lineno, id=mt["id"])
+            )
         seen.add(mt["id"])
         out.append(Measurement(mt["id"], mt["kind"], start, end, (mt["hint"] or "").strip()))
     if not out:
-        raise ArtifactProgramError(Msg("the program has no '; kincomp measure:' lines: it is "
-                                       "not a KinComp artifact program"))
+        raise ArtifactProgramError(
+            Msg(
+                "the program has no '; kincomp measure:' lines: it is "
+                "not a KinComp artifact program"
+            )
+        )
     return out
 
 
@@ -408,13 +523,14 @@ def read_program_info(text: str) -> Dict[str, str]:
     info = {}
     for line in text.splitlines():
         if line.startswith("; kincomp artifact ") and ":" in line:
-            key, _, value = line[len("; kincomp artifact "):].partition(":")
+            key, _, value = line[len("; kincomp artifact ") :].partition(":")
             info[key.strip()] = value.strip()
     return info
 
 
 # ---------------------------------------------------------------------------------------
 # G-code
+
 
 def _f(v: float) -> str:
     t = f"{v:.3f}".rstrip("0").rstrip(".")
@@ -441,8 +557,7 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         f"; kincomp artifact max_span_mm: {_f(spec.max_span_mm)}",
         "; Print with compensation as it will be used (or off); tell the analysis which "
         "parameters were active.",
-        "; Measure every span below with calipers (repeat each 3 times), mm, "
-        "0.01 mm resolution.",
+        "; Measure every span below with calipers (repeat each 3 times), mm, 0.01 mm resolution.",
     ]
     out += [measure_line(m) for m in meas]
     park_z = min(z1, top + 10.0)
@@ -460,8 +575,11 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         f"G1 Z{_f(z0 + 2)} F{_f(spec.z_feed)}",
     ]
     # prime line along the front edge
-    px0, px1, py = x0 + spec.margin_mm / 2, min(x1 - spec.margin_mm / 2,
-                                                x0 + spec.margin_mm / 2 + 60), y0 + 3
+    px0, px1, py = (
+        x0 + spec.margin_mm / 2,
+        min(x1 - spec.margin_mm / 2, x0 + spec.margin_mm / 2 + 60),
+        y0 + 3,
+    )
     out.append(f"G1 X{_f(px0)} Y{_f(py)} F{_f(spec.travel_feed)}")
     out.append(f"G1 Z{_f(z0 + h1)} F{_f(spec.z_feed)}")
     e = (px1 - px0) * 1.5 * w * h1 / area
@@ -484,8 +602,10 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
             for o in offsets:
                 lines.append(f.segment(zmid, o))
         while lines:  # nearest line next, printed from its nearer end
-            best = min(range(len(lines)), key=lambda i: min(math.dist(pos, lines[i][0]),
-                                                            math.dist(pos, lines[i][1])))
+            best = min(
+                range(len(lines)),
+                key=lambda i: min(math.dist(pos, lines[i][0]), math.dist(pos, lines[i][1])),
+            )
             a, b = lines.pop(best)
             if math.dist(pos, b) < math.dist(pos, a):
                 a, b = b, a
@@ -508,8 +628,7 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         "M104 S0",
         "M140 S0",
         "M107",
-        f"G0 X{_f(x0 + spec.margin_mm / 2)} Y{_f(y1 - spec.margin_mm / 2)} "
-        f"F{_f(spec.travel_feed)}",
+        f"G0 X{_f(x0 + spec.margin_mm / 2)} Y{_f(y1 - spec.margin_mm / 2)} F{_f(spec.travel_feed)}",
         "M84",
         "; kincomp artifact end",
     ]
@@ -529,5 +648,10 @@ def _check_inside(lines: Sequence[str], spec: ArtifactSpec) -> None:
             v = float(word[1:])
             lo, hi = (x0, x1) if k == 0 else (y0, y1) if k == 1 else (z0, z1)
             if not lo - 1e-9 <= v <= hi + 1e-9:
-                raise ArtifactProgramError(Msg("the artifact does not fit the volume (%(axis)s "
-                                               "%(value)s)", axis="XYZ"[k], value=_f(v)))
+                raise ArtifactProgramError(
+                    Msg(
+                        "the artifact does not fit the volume (%(axis)s %(value)s)",
+                        axis="XYZ"[k],
+                        value=_f(v),
+                    )
+                )

@@ -20,9 +20,13 @@ from ..core.params import Params
 from .artifact_program import Measurement
 
 
-def true_spans(measurements: Sequence[Measurement], errors: Params, shrinkage: float = 0.0,
-               line_width_mm: float = 0.45, compensated_with: Optional[Params] = None
-               ) -> Dict[str, float]:
+def true_spans(
+    measurements: Sequence[Measurement],
+    errors: Params,
+    shrinkage: float = 0.0,
+    line_width_mm: float = 0.45,
+    compensated_with: Optional[Params] = None,
+) -> Dict[str, float]:
     """The noise-free reading of every measurement (mm) on the simulated printer
     (``compensated_with``: the parameters KinComp compensated the print with)."""
     model = KinematicModel(errors)
@@ -40,11 +44,17 @@ def true_spans(measurements: Sequence[Measurement], errors: Params, shrinkage: f
     return out
 
 
-def simulate_readings(measurements: Sequence[Measurement], errors: Params,
-                      shrinkage: float = 0.0, line_width_mm: float = 0.45,
-                      noise_um: float = 10.0, repeats: int = 3, resolution_mm: float = 0.01,
-                      rng: Optional[np.random.Generator] = None,
-                      compensated_with: Optional[Params] = None) -> Dict[str, List[float]]:
+def simulate_readings(
+    measurements: Sequence[Measurement],
+    errors: Params,
+    shrinkage: float = 0.0,
+    line_width_mm: float = 0.45,
+    noise_um: float = 10.0,
+    repeats: int = 3,
+    resolution_mm: float = 0.01,
+    rng: Optional[np.random.Generator] = None,
+    compensated_with: Optional[Params] = None,
+) -> Dict[str, List[float]]:
     """``{"<id>": [reading_mm, ...]}`` as a user with calipers would type it."""
     rng = rng if rng is not None else np.random.default_rng(1)
     spans = true_spans(measurements, errors, shrinkage, line_width_mm, compensated_with)

@@ -50,8 +50,9 @@ def scale_from_lengths(pairs: Iterable[Tuple[float, float]]) -> Dict[str, float]
     """Mean scale error (ppm) and its standard error from (nominal, measured) mm pairs."""
     vals = []
     for nominal, measured in pairs:
-        if not (nominal > 0 and measured > 0 and math.isfinite(nominal)
-                and math.isfinite(measured)):
+        if not (
+            nominal > 0 and measured > 0 and math.isfinite(nominal) and math.isfinite(measured)
+        ):
             raise ArtifactError(Msg("lengths must be positive numbers in mm"))
         vals.append((measured / nominal - 1.0) * 1e6)
     if not vals:
@@ -65,18 +66,27 @@ def scale_from_lengths(pairs: Iterable[Tuple[float, float]]) -> Dict[str, float]
     return {"scale_ppm": mean, "standard_error_ppm": sem, "n": len(vals)}
 
 
-def diagnostics_from_artifact(plane: str, ac: float, bd: float, ad: float,
-                              lengths: Dict[str, Sequence[Tuple[float, float]]] = None) -> dict:
+def diagnostics_from_artifact(
+    plane: str,
+    ac: float,
+    bd: float,
+    ad: float,
+    lengths: Dict[str, Sequence[Tuple[float, float]]] = None,
+) -> dict:
     """A diagnostics dict (analysis keys) from artifact measurements.
 
     ``lengths`` maps axis letters ("x", ...) to (nominal, measured) pairs; absolute scales
     come out as ``scale_ppm`` per axis (a printed part measures absolute length).
     """
-    diag = {"plane": plane.upper(), "squareness_um_per_m": squareness_from_diagonals(ac, bd, ad),
-            "source": "printed artifact"}
+    diag = {
+        "plane": plane.upper(),
+        "squareness_um_per_m": squareness_from_diagonals(ac, bd, ad),
+        "source": "printed artifact",
+    }
     if lengths:
-        diag["scale_ppm"] = {ax.lower(): scale_from_lengths(p)["scale_ppm"]
-                             for ax, p in lengths.items()}
+        diag["scale_ppm"] = {
+            ax.lower(): scale_from_lengths(p)["scale_ppm"] for ax, p in lengths.items()
+        }
     return diag
 
 
@@ -85,9 +95,17 @@ def artifact_findings(diag: Dict[str, object]) -> list:
     the caliper's (a 100 mm square resolves about 100-200 um/m of squareness)."""
     from .findings import info
 
-    return [info("artifact.hand_measured", Msg(
-        "Measured by hand on a printed part: KinComp cannot check the motion or the noise "
-        "behind these lengths; the print's shrinkage and the caliper's error (10-20 um on a "
-        "100 mm square: 100-200 um/m of squareness) are in the result."),
-        Msg("Measure each length three times and use the mean; print the largest square the "
-            "bed allows."))]
+    return [
+        info(
+            "artifact.hand_measured",
+            Msg(
+                "Measured by hand on a printed part: KinComp cannot check the motion or the noise "
+                "behind these lengths; the print's shrinkage and the caliper's error (10-20 um on a "
+                "100 mm square: 100-200 um/m of squareness) are in the result."
+            ),
+            Msg(
+                "Measure each length three times and use the mean; print the largest square the "
+                "bed allows."
+            ),
+        )
+    ]

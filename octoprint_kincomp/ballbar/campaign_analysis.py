@@ -23,11 +23,10 @@ import numpy as np
 from ..core.kinematics import changes_nothing
 from ..core.messages import Msg
 from ..core.params import AXES, Params
-from .analysis import (analyse_runs, checked_fit, load_runs_mapped, mapping_notes,
-                       outlier_findings)
-from .findings import Finding, info, trusted, worst_first
 from . import checks
+from .analysis import analyse_runs, checked_fit, load_runs_mapped, mapping_notes, outlier_findings
 from .campaign import CampaignError, check_traces
+from .findings import Finding, info, trusted, worst_first
 from .formats import TraceError
 from .joint import TraceFit, check_coverage, joint_fit, joint_values, summary
 from .metrics import plot_data
@@ -42,10 +41,14 @@ AGREE_SIGMA = 2.0  # lags at two feeds agree when they differ by less than this 
 AGREE_FRACTION = 0.2
 
 
-def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Params] = None,
-                     mask_deg: float = DEFAULT_MASK_DEG, calibrated: bool = False,
-                     cyclic_pitch: Optional[float] = None,
-                     manifest: Optional[Dict[str, object]] = None) -> Dict[str, object]:
+def analyse_campaign(
+    items: Sequence[Tuple[str, object]],
+    current: Optional[Params] = None,
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    manifest: Optional[Dict[str, object]] = None,
+) -> Dict[str, object]:
     """Joint analysis of a campaign's traces; raises CampaignError (naming the file) when the
     traces are not one complete campaign or a test failed: nothing is proposed then."""
     from ..core.firmware import equivalents
@@ -81,15 +84,22 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
     if pitches and cyclic_pitch is None:
         # one cyclic term for the joint model: the pitch the traces showed (their median)
         cyclic_pitch = float(np.median(pitches))
-        fits = [TraceFit(t.name, t.geom, t.runs, fit(t.geom, t.runs, mask_deg, calibrated,
-                                                       cyclic_pitch)) for t in fits]
+        fits = [
+            TraceFit(
+                t.name, t.geom, t.runs, fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch)
+            )
+            for t in fits
+        ]
     res = joint_fit(fits, mask_deg, calibrated, cyclic_pitch)
     for i, (t, (meta, mapping, cf, raw)) in enumerate(zip(fits, maps)):
         # each test on its own, with the out-of-plane motion the other planes' squareness
         # causes (from the joint fit) taken into account
         fixed = res.layout.out_of_plane(t.geom.plane, res.values)
-        f = fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed) \
-            if any(fixed.values()) else t.fit
+        f = (
+            fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+            if any(fixed.values())
+            else t.fit
+        )
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
         found += outlier_findings(cf, diag, t.name)
@@ -106,34 +116,53 @@ def analyse_campaign(items: Sequence[Tuple[str, object]], current: Optional[Para
     camp["planes"] = list(res.layout.planes)
     camp["traces"] = len(fits)
     camp["fitted"] = _fitted(res)
-    camp["scale_rule"] = (Msg("absolute: the calibrated bar's length gives the mean scale")
-                          if calibrated else
-                          Msg("a ballbar sees only differences between axes: the mean scale "
-                              "of the measured axes is left as it was"))
-    camp["servo_rule"] = Msg("only differences between axes are measurable: the axis that "
-                             "lags least is at 0")
+    camp["scale_rule"] = (
+        Msg("absolute: the calibrated bar's length gives the mean scale")
+        if calibrated
+        else Msg(
+            "a ballbar sees only differences between axes: the mean scale "
+            "of the measured axes is left as it was"
+        )
+    )
+    camp["servo_rule"] = Msg(
+        "only differences between axes are measurable: the axis that lags least is at 0"
+    )
     camp["residual"] = not changes_nothing(current)
     closure = _closure(per_trace)
     if closure is not None:
         camp["closure_ppm"] = closure
         if abs(closure["value"]) > 3 * closure["sigma"] + 1.0:
-            notes.append(Msg("The scale mismatches of XY, XZ and YZ do not add up (x-y + y-z - "
-                             "x-z = %(value)s +- %(sigma)s ppm): an error the model does not "
-                             "describe (non-linear scale, a loose bar); check the set-up.",
-                             value=f"{closure['value']:.1f}", sigma=f"{closure['sigma']:.1f}"))
+            notes.append(
+                Msg(
+                    "The scale mismatches of XY, XZ and YZ do not add up (x-y + y-z - "
+                    "x-z = %(value)s +- %(sigma)s ppm): an error the model does not "
+                    "describe (non-linear scale, a loose bar); check the set-up.",
+                    value=f"{closure['value']:.1f}",
+                    sigma=f"{closure['sigma']:.1f}",
+                )
+            )
     camp["servo_precomp"] = _servo_decision(per_trace, current, notes)
     heights = _xy_heights(per_trace, notes)
     if heights:
         camp["squareness_xy_by_height"] = heights
-    camp["fit"] = {"rms_um": res.rms_um, "samples": res.samples, "condition": res.condition,
-                   "iterations": res.iterations,
-                   "model": "joint exact geometry over all traces, one parameter set"}
+    camp["fit"] = {
+        "rms_um": res.rms_um,
+        "samples": res.samples,
+        "condition": res.condition,
+        "iterations": res.iterations,
+        "model": "joint exact geometry over all traces, one parameter set",
+    }
     simulated = any(t.get("simulated") for t in per_trace)
-    params = propose_campaign(res, len(fits), current, notes,
-                              bool(camp["servo_precomp"]["proposed"]), simulated)
+    params = propose_campaign(
+        res, len(fits), current, notes, bool(camp["servo_precomp"]["proposed"]), simulated
+    )
     if camp["residual"]:
-        notes.append(Msg("The campaign ran with compensation active: the fitted errors are "
-                         "residuals and the proposed parameters are current + residual."))
+        notes.append(
+            Msg(
+                "The campaign ran with compensation active: the fitted errors are "
+                "residuals and the proposed parameters are current + residual."
+            )
+        )
     shown = {str(x.message) for x in found}
     found += [info("campaign.note", n) for n in notes if str(n) not in shown]
     found = worst_first(found)
@@ -164,10 +193,15 @@ def _check_outliers(fits: Sequence[TraceFit]) -> None:
     med = float(np.median([t.fit.rms_um for t in fits]))
     for t in fits:
         if t.fit.rms_um > RMS_OUTLIER * med and t.fit.rms_um > 3.0:
-            raise CampaignError(Msg(
-                "%(file)s: the fit leaves %(rms)s um rms (the other tests %(med)s um): the bar "
-                "slipped or the test failed; repeat this test", file=t.name,
-                rms=f"{t.fit.rms_um:.1f}", med=f"{med:.1f}"))
+            raise CampaignError(
+                Msg(
+                    "%(file)s: the fit leaves %(rms)s um rms (the other tests %(med)s um): the bar "
+                    "slipped or the test failed; repeat this test",
+                    file=t.name,
+                    rms=f"{t.fit.rms_um:.1f}",
+                    med=f"{med:.1f}",
+                )
+            )
 
 
 def _closure(per_trace) -> Optional[Dict[str, float]]:
@@ -176,8 +210,11 @@ def _closure(per_trace) -> Optional[Dict[str, float]]:
         by.setdefault(d["plane"], d)
     if set(by) != {"XY", "XZ", "YZ"}:
         return None
-    v = (by["XY"]["scale_mismatch_ppm"] + by["YZ"]["scale_mismatch_ppm"]
-         - by["XZ"]["scale_mismatch_ppm"])
+    v = (
+        by["XY"]["scale_mismatch_ppm"]
+        + by["YZ"]["scale_mismatch_ppm"]
+        - by["XZ"]["scale_mismatch_ppm"]
+    )
     s = math.sqrt(sum(by[p]["uncertainty"]["scale_mismatch_ppm"] ** 2 for p in by))
     return {"value": v, "sigma": s}
 
@@ -185,16 +222,23 @@ def _closure(per_trace) -> Optional[Dict[str, float]]:
 def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, object]:
     xy = [d for d in per_trace if d["plane"] == "XY" and d.get("servo_mismatch_ms") is not None]
     feeds = sorted({round(d["feed_mm_min"] or 0.0, 1) for d in xy})
-    by_feed = [{"feed_mm_min": d["feed_mm_min"], "file": d["file"],
-                "servo_mismatch_ms": d["servo_mismatch_ms"],
-                "sigma": d["uncertainty"]["servo_mismatch_ms"]} for d in xy]
+    by_feed = [
+        {
+            "feed_mm_min": d["feed_mm_min"],
+            "file": d["file"],
+            "servo_mismatch_ms": d["servo_mismatch_ms"],
+            "sigma": d["uncertainty"]["servo_mismatch_ms"],
+        }
+        for d in xy
+    ]
     out: Dict[str, object] = {"by_feed": by_feed}
     if len(feeds) < 2 or feeds[-1] < 1.2 * feeds[0]:
         out["proposed"] = current.servo_precomp
         out["reason"] = Msg(
             "XY ran at one feed only: one feed cannot show that the lag grows with speed, so "
             "servo pre-compensation stays %(state)s (add XY at a second feed to decide)",
-            state=Msg("on") if current.servo_precomp else Msg("off"))
+            state=Msg("on") if current.servo_precomp else Msg("off"),
+        )
         notes.append(out["reason"])
         return out
     lo = min(xy, key=lambda d: d["feed_mm_min"])
@@ -203,13 +247,18 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
     b, sb = hi["servo_mismatch_ms"], hi["uncertainty"]["servo_mismatch_ms"]
     diff, sdiff = b - a, math.hypot(sa, sb)
     # measured with the lead on, a and b are residuals: the lag itself is the lead's + them
-    lead = current.servo_lag_ms["x"] - current.servo_lag_ms["y"] if current.servo_precomp \
-        else 0.0
+    lead = current.servo_lag_ms["x"] - current.servo_lag_ms["y"] if current.servo_precomp else 0.0
     size = max(abs(a + lead), abs(b + lead))
-    w = 1 / sa ** 2 + 1 / sb ** 2
-    mean, smean = (a / sa ** 2 + b / sb ** 2) / w, 1 / math.sqrt(w)
-    fmt = dict(f1=f"{lo['feed_mm_min']:g}", f2=f"{hi['feed_mm_min']:g}", a=f"{a:.3f}",
-               sa=f"{sa:.3f}", b=f"{b:.3f}", sb=f"{sb:.3f}")
+    w = 1 / sa**2 + 1 / sb**2
+    mean, smean = (a / sa**2 + b / sb**2) / w, 1 / math.sqrt(w)
+    fmt = dict(
+        f1=f"{lo['feed_mm_min']:g}",
+        f2=f"{hi['feed_mm_min']:g}",
+        a=f"{a:.3f}",
+        sa=f"{sa:.3f}",
+        b=f"{b:.3f}",
+        sb=f"{sb:.3f}",
+    )
     if abs(diff) > max(AGREE_SIGMA * sdiff, AGREE_FRACTION * size):
         out["proposed"] = False
         totals = dict(fmt, a=f"{a + lead:.3f}", b=f"{b + lead:.3f}")  # the lag itself
@@ -217,7 +266,8 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
             "The XY servo mismatch differs between F%(f1)s (%(a)s +- %(sa)s ms) and F%(f2)s "
             "(%(b)s +- %(sb)s ms): the lag is not proportional to speed, so leading each move "
             "by v*T would be wrong at other speeds; servo pre-compensation is left off",
-            **totals)
+            **totals,
+        )
     elif current.servo_precomp:
         # measured with the lead on: a and b are what it leaves
         out["proposed"] = True
@@ -225,19 +275,26 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
             "With servo pre-compensation on (%(lag)s ms), the XY servo mismatch left is "
             "%(a)s +- %(sa)s ms at F%(f1)s and %(b)s +- %(sb)s ms at F%(f2)s, within "
             "%(share)s %% of the lag at both feeds: the pre-compensation works; it stays on",
-            lag=f"{lead:.3f}", share=f"{AGREE_FRACTION * 100:g}", **fmt)
+            lag=f"{lead:.3f}",
+            share=f"{AGREE_FRACTION * 100:g}",
+            **fmt,
+        )
     elif abs(mean) < max(3 * smean, 0.01):
         out["proposed"] = False
         out["reason"] = Msg(
             "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s +- %(sa)s and "
             "%(b)s +- %(sb)s ms) but not measurably different from zero: servo "
-            "pre-compensation would change nothing; left off", **fmt)
+            "pre-compensation would change nothing; left off",
+            **fmt,
+        )
     else:
         out["proposed"] = True
         out["reason"] = Msg(
             "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s +- %(sa)s and "
             "%(b)s +- %(sb)s ms): the lag is proportional to speed, so leading each move by "
-            "v*T removes it; servo pre-compensation is proposed", **fmt)
+            "v*T removes it; servo pre-compensation is proposed",
+            **fmt,
+        )
     out["difference_ms"] = diff
     out["difference_sigma_ms"] = sdiff
     notes.append(out["reason"])
@@ -251,23 +308,36 @@ def _xy_heights(per_trace, notes: List[str]) -> List[Dict[str, float]]:
             xy.setdefault(round(d["centre"][2], 1), d)
     if len(xy) < 2:
         return []
-    out = [{"z_mm": z, "squareness_um_per_m": d["squareness_um_per_m"],
-            "sigma": d["uncertainty"]["squareness_um_per_m"], "file": d["file"]}
-           for z, d in sorted(xy.items())]
+    out = [
+        {
+            "z_mm": z,
+            "squareness_um_per_m": d["squareness_um_per_m"],
+            "sigma": d["uncertainty"]["squareness_um_per_m"],
+            "file": d["file"],
+        }
+        for z, d in sorted(xy.items())
+    ]
     lo, hi = out[0], out[-1]
     diff = hi["squareness_um_per_m"] - lo["squareness_um_per_m"]
     sig = math.hypot(lo["sigma"], hi["sigma"])
     if abs(diff) > 3 * sig + 2.0:
-        notes.append(Msg(
-            "XY squareness changes with height: %(a)s um/m at Z %(za)s mm, %(b)s um/m at Z "
-            "%(zb)s mm (an axis rolls or pitches); the parameters hold one value for the whole "
-            "volume, exact only near the middle.", a=f"{lo['squareness_um_per_m']:.1f}",
-            za=f"{lo['z_mm']:g}", b=f"{hi['squareness_um_per_m']:.1f}", zb=f"{hi['z_mm']:g}"))
+        notes.append(
+            Msg(
+                "XY squareness changes with height: %(a)s um/m at Z %(za)s mm, %(b)s um/m at Z "
+                "%(zb)s mm (an axis rolls or pitches); the parameters hold one value for the whole "
+                "volume, exact only near the middle.",
+                a=f"{lo['squareness_um_per_m']:.1f}",
+                za=f"{lo['z_mm']:g}",
+                b=f"{hi['squareness_um_per_m']:.1f}",
+                zb=f"{hi['z_mm']:g}",
+            )
+        )
     return out
 
 
-def propose_campaign(res, n_traces: int, current: Params, notes: List[str],
-                     servo_precomp: bool, simulated: bool) -> Params:
+def propose_campaign(
+    res, n_traces: int, current: Params, notes: List[str], servo_precomp: bool, simulated: bool
+) -> Params:
     """``current`` updated with the campaign's jointly fitted residuals (see module doc)."""
     lay = res.layout
     d = current.to_dict()
@@ -282,24 +352,30 @@ def propose_campaign(res, n_traces: int, current: Params, notes: List[str],
     frac = current.backlash_fraction if current.has_backlash else 0.0
     for a, (lo, hi) in lay.backlash_span.items():
         table = current.backlash[a]
-        pts = [(q, res.value(lay.backlash_row(a, q)) * 1e3 + frac * table.um_at(q))
-               for q in ((lo, hi) if hi - lo >= 1.0 else (lo,))]
+        pts = [
+            (q, res.value(lay.backlash_row(a, q)) * 1e3 + frac * table.um_at(q))
+            for q in ((lo, hi) if hi - lo >= 1.0 else (lo,))
+        ]
         if min(v for _, v in pts) < -0.5:
-            notes.append(Msg("Negative backlash on %(axis)s: the current value "
-                             "over-compensates.", axis=a.upper()))
+            notes.append(
+                Msg(
+                    "Negative backlash on %(axis)s: the current value over-compensates.",
+                    axis=a.upper(),
+                )
+            )
         pts = [(q, max(0.0, v)) for q, v in pts]
-        d["backlash"][a] = pts[0][1] if len(pts) == 1 else [{"at_mm": q, "um": v}
-                                                          for q, v in pts]
+        d["backlash"][a] = pts[0][1] if len(pts) == 1 else [{"at_mm": q, "um": v} for q, v in pts]
     if lay.backlash_span and current.backlash_fraction == 0:
         d["backlash"]["fraction"] = 1.0
     if lay.servo:
-        applied = current.servo_lag_ms if current.servo_precomp else {k: 0.0 for k in AXES}
+        applied = current.servo_lag_ms if current.servo_precomp else dict.fromkeys(AXES, 0.0)
         true = {a: applied[a] + res.value(lay.lag_row(a)) * 1e3 for a in lay.lag_axes}
         base = min(true.values())
         lag = dict(current.servo_lag_ms)
         lag.update({a: v - base for a, v in true.items()})
         d["servo_lag_ms"] = lag
     d["servo_precomp"] = servo_precomp
-    d["meta"] = proposal_meta("ballbar campaign (%d traces)" % n_traces, simulated,
-                              "+".join(lay.planes), current)
+    d["meta"] = proposal_meta(
+        "ballbar campaign (%d traces)" % n_traces, simulated, "+".join(lay.planes), current
+    )
     return checked_params(d)

@@ -75,19 +75,32 @@ def motion_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
     if not mapping.timed:
         if mapping.planned:
             s = mapping.settings
-            how = (Msg("the planned motion of the program (%(motion)s)", motion=Msg(
-                "constant speed") if s.constant_speed else Msg(
-                "acceleration %(a)s mm/s^2", a=f"{s.accel_mm_s2:g}")))
+            how = Msg(
+                "the planned motion of the program (%(motion)s)",
+                motion=Msg("constant speed")
+                if s.constant_speed
+                else Msg("acceleration %(a)s mm/s^2", a=f"{s.accel_mm_s2:g}"),
+            )
         else:
             how = Msg("a constant feed along the circle (the metadata describe no program)")
-        out.append(info(
-            "motion.not_checked",
-            Msg("%(pre)sThe trace gives angles, not times: each sample was taken to be at the "
-                "nominal angle the program commanded, with velocities from %(how)s. Whether "
-                "the printer ran the program as planned (feed or acceleration caps, a speed "
-                "factor, a trace of another program) was not checked.", pre=pre, how=how),
-            Msg("Export or capture the time series (time, reading) when you can: KinComp then "
-                "checks the timing of every run."), timed=False))
+        out.append(
+            info(
+                "motion.not_checked",
+                Msg(
+                    "%(pre)sThe trace gives angles, not times: each sample was taken to be at the "
+                    "nominal angle the program commanded, with velocities from %(how)s. Whether "
+                    "the printer ran the program as planned (feed or acceleration caps, a speed "
+                    "factor, a trace of another program) was not checked.",
+                    pre=pre,
+                    how=how,
+                ),
+                Msg(
+                    "Export or capture the time series (time, reading) when you can: KinComp then "
+                    "checks the timing of every run."
+                ),
+                timed=False,
+            )
+        )
         return out
     for d, mismatch in sorted(mapping.sync_ms.items()):
         planned = mapping.planned_s.get(d)
@@ -100,8 +113,9 @@ def motion_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
     return out
 
 
-def _timing_error(geom: Geometry, direction: str, mismatch_ms: float, planned_s: float,
-                  tol_ms: float, pre: str) -> Finding:
+def _timing_error(
+    geom: Geometry, direction: str, mismatch_ms: float, planned_s: float, tol_ms: float, pre: str
+) -> Finding:
     actual = planned_s + mismatch_ms * 1e-3
     ratio = actual / planned_s  # > 1: slower than planned
     speed_pct = 100.0 / ratio if ratio > 0 else 0.0
@@ -110,38 +124,64 @@ def _timing_error(geom: Geometry, direction: str, mismatch_ms: float, planned_s:
     feed = (geom.feed or 0.0) / ratio
     if ratio > 1 and vertical:
         cause = "axis_cap"
-        likely = Msg("most likely the Z axis is capped below the programmed feed (its maximum "
-                     "feed or acceleration, M203/M201 or max_z_velocity), which the plan did not "
-                     "know")
+        likely = Msg(
+            "most likely the Z axis is capped below the programmed feed (its maximum "
+            "feed or acceleration, M203/M201 or max_z_velocity), which the plan did not "
+            "know"
+        )
     elif ratio > 1:
         cause = "speed_factor"
-        likely = Msg("most likely a speed factor: the printer ran at about %(pct)s %% "
-                     "(M220 S%(pct)s), or an axis feed or acceleration cap the plan did not "
-                     "know", pct=f"{speed_pct:.0f}")
+        likely = Msg(
+            "most likely a speed factor: the printer ran at about %(pct)s %% "
+            "(M220 S%(pct)s), or an axis feed or acceleration cap the plan did not "
+            "know",
+            pct=f"{speed_pct:.0f}",
+        )
     else:
         cause = "speed_factor_or_program"
-        likely = Msg("the printer moved faster than the program says: a speed factor above "
-                     "100 %% (M220 S%(pct)s), or the trace belongs to another program",
-                     pct=f"{speed_pct:.0f}")
-    msg = Msg("%(pre)sThe %(direction)s run took %(actual)s s from the end of the feed-in to "
-              "the start of the feed-out; the program plans %(planned)s s (%(diff)s ms, "
-              "tolerance %(tol)s ms): the printer did not run this program as planned, so "
-              "time was mapped to the wrong angles. This is %(likely)s. Had the trace come "
-              "from another program (another plane's arc, radius or feed), a radius of "
-              "%(radius)s mm or a feed of %(feed)s mm/min would explain the time.", pre=pre,
-              direction=direction.upper(),
-              actual=_fmt(actual, 2), planned=_fmt(planned_s, 2), diff=f"{mismatch_ms:+.0f}",
-              tol=_fmt(tol_ms, 0), likely=likely, radius=_fmt(radius, 1), feed=_fmt(feed, 0))
-    advice = Msg("Do not apply this result. Check that the trace belongs to this program "
-                 "(plane, radius, feed), that no speed factor is set (M220 S100) and that "
-                 "no axis is capped below the test's feed (M503: M203/M201); regenerate the "
-                 "program with the printer's limits and test again.")
-    return error("motion.timing", msg, advice, direction=direction,
-                 sync_mismatch_ms=round(mismatch_ms, 3), planned_s=round(planned_s, 4),
-                 actual_s=round(actual, 4), tolerance_ms=round(tol_ms, 3),
-                 time_ratio=round(ratio, 5), implied_speed_factor_pct=round(speed_pct, 1),
-                 implied_radius_mm=round(radius, 2), implied_feed_mm_min=round(feed, 1),
-                 likely_cause=cause)
+        likely = Msg(
+            "the printer moved faster than the program says: a speed factor above "
+            "100 %% (M220 S%(pct)s), or the trace belongs to another program",
+            pct=f"{speed_pct:.0f}",
+        )
+    msg = Msg(
+        "%(pre)sThe %(direction)s run took %(actual)s s from the end of the feed-in to "
+        "the start of the feed-out; the program plans %(planned)s s (%(diff)s ms, "
+        "tolerance %(tol)s ms): the printer did not run this program as planned, so "
+        "time was mapped to the wrong angles. This is %(likely)s. Had the trace come "
+        "from another program (another plane's arc, radius or feed), a radius of "
+        "%(radius)s mm or a feed of %(feed)s mm/min would explain the time.",
+        pre=pre,
+        direction=direction.upper(),
+        actual=_fmt(actual, 2),
+        planned=_fmt(planned_s, 2),
+        diff=f"{mismatch_ms:+.0f}",
+        tol=_fmt(tol_ms, 0),
+        likely=likely,
+        radius=_fmt(radius, 1),
+        feed=_fmt(feed, 0),
+    )
+    advice = Msg(
+        "Do not apply this result. Check that the trace belongs to this program "
+        "(plane, radius, feed), that no speed factor is set (M220 S100) and that "
+        "no axis is capped below the test's feed (M503: M203/M201); regenerate the "
+        "program with the printer's limits and test again."
+    )
+    return error(
+        "motion.timing",
+        msg,
+        advice,
+        direction=direction,
+        sync_mismatch_ms=round(mismatch_ms, 3),
+        planned_s=round(planned_s, 4),
+        actual_s=round(actual, 4),
+        tolerance_ms=round(tol_ms, 3),
+        time_ratio=round(ratio, 5),
+        implied_speed_factor_pct=round(speed_pct, 1),
+        implied_radius_mm=round(radius, 2),
+        implied_feed_mm_min=round(feed, 1),
+        likely_cause=cause,
+    )
 
 
 # -- noise floor, residuals ------------------------------------------------------------
@@ -225,18 +265,31 @@ def without(runs: Sequence[Run], drop: Dict[str, np.ndarray]) -> List[Run]:
     out = []
     for run in runs:
         k = ~drop.get(run.direction, np.zeros(len(run.theta), dtype=bool))
-        pick = (lambda x: None if x is None else x[k])
-        out.append(Run(run.direction, run.theta[k], run.dev[k], pick(run.t), pick(run.vA),
-                       pick(run.vB), pick(run.capture), run.start_theta, pick(run.known),
-                       pick(run.qA), pick(run.qB)))
+        pick = lambda x: None if x is None else x[k]
+        out.append(
+            Run(
+                run.direction,
+                run.theta[k],
+                run.dev[k],
+                pick(run.t),
+                pick(run.vA),
+                pick(run.vB),
+                pick(run.capture),
+                run.start_theta,
+                pick(run.known),
+                pick(run.qA),
+                pick(run.qB),
+            )
+        )
     return out
 
 
 # -- cyclic error ----------------------------------------------------------------------
 
 
-def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndarray
-                ) -> Optional[Dict[str, float]]:
+def scan_cyclic(
+    geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndarray
+) -> Optional[Dict[str, float]]:
     """The strongest periodic term of the residual in axis position (carriage coordinates,
     pitch CYCLIC_PITCH_MM): {"pitch_mm", "amplitude_um" (a and b), "dsse_mm2"}; None
     without a centre. The residual of axis A's cyclic error is ``a sin(k qA + phi) cos t``
@@ -274,7 +327,7 @@ def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndar
         if norm <= 0:
             continue
         idx = np.floor((q - q.min()) / h).astype(int)
-        z = np.fft.fft(np.bincount(idx, weights=wgt, minlength=n_fft)[:n_fft])[:n_fft // 2]
+        z = np.fft.fft(np.bincount(idx, weights=wgt, minlength=n_fft)[:n_fft])[: n_fft // 2]
         power += np.abs(z) ** 2 / norm
         amps[:, col] = np.abs(z) / norm
     inside = (ks >= 2 * math.pi / CYCLIC_PITCH_MM[1]) & (ks <= 2 * math.pi / CYCLIC_PITCH_MM[0])
@@ -286,13 +339,16 @@ def scan_cyclic(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndar
         den = y0 - 2 * y1 + y2
         if den < 0:
             k = ks[j] + 0.5 * (y0 - y2) / den * dk
-    return {"pitch_mm": float(2 * math.pi / k),
-            "amplitude_um": {"a": float(amps[j, 0]) * 1e3, "b": float(amps[j, 1]) * 1e3},
-            "dsse_mm2": float(power[j])}
+    return {
+        "pitch_mm": float(2 * math.pi / k),
+        "amplitude_um": {"a": float(amps[j, 0]) * 1e3, "b": float(amps[j, 1]) * 1e3},
+        "dsse_mm2": float(power[j]),
+    }
 
 
-def cyclic_detected(scan: Optional[Dict[str, float]], floor_um: float,
-                    excess_mm2: Optional[float] = None) -> bool:
+def cyclic_detected(
+    scan: Optional[Dict[str, float]], floor_um: float, excess_mm2: Optional[float] = None
+) -> bool:
     """A cyclic term worth fitting: CYCLIC_MIN_UM or more, CYCLIC_CHI2 noise variances, and
     (given the residual's sum of squares above the noise, ``excess_mm2``) at least
     CYCLIC_SHARE of that excess (a misfit of something else is not fitted away as one)."""
@@ -323,9 +379,14 @@ def _explained(res: np.ndarray, cols: List[np.ndarray]) -> float:
     return float(res @ res - e @ e)
 
 
-def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndarray,
-                   floor_um: float, cyclic: Optional[Dict[str, float]]
-                   ) -> Dict[str, float]:
+def residual_looks(
+    geom: Geometry,
+    runs: Sequence[Run],
+    f: FitResult,
+    keep: np.ndarray,
+    floor_um: float,
+    cyclic: Optional[Dict[str, float]],
+) -> Dict[str, float]:
     """Share (0..1) of the residual's excess over the noise (sum of squares) that each
     look-alike explains: ``motor_backlash`` (steps where a CoreXY/H-bot motor reverses, XY),
     ``reversal_spikes`` (a tail decaying over 8 deg after each reversal point),
@@ -343,10 +404,12 @@ def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.n
     c, s = np.cos(theta), np.sin(theta)
     out: Dict[str, float] = {}
     if geom.plane == "XY":
-        vA = np.concatenate([r.vA if r.vA is not None else -r.w * np.sin(r.theta)
-                             for r in runs])[keep]
-        vB = np.concatenate([r.vB if r.vB is not None else r.w * np.cos(r.theta)
-                             for r in runs])[keep]
+        vA = np.concatenate([r.vA if r.vA is not None else -r.w * np.sin(r.theta) for r in runs])[
+            keep
+        ]
+        vB = np.concatenate([r.vB if r.vB is not None else r.w * np.cos(r.theta) for r in runs])[
+            keep
+        ]
         cols = [np.sign(vA + vB) * (c + s), np.sign(vA - vB) * (c - s)]
         out["motor_backlash"] = _explained(res, cols) / excess
     deg = np.degrees(theta)
@@ -369,7 +432,7 @@ def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.n
             x = (r.t - r.t.mean()) / max(float(np.ptp(r.t)) if m else 0.0, 1e-9)
             for power in (2, 3):
                 col = np.zeros(n_all)
-                col[i:i + m] = x ** power
+                col[i : i + m] = x**power
                 cols.append(col[keep])
             i += m
         out["time_trend"] = _explained(res, cols) / excess
@@ -382,32 +445,50 @@ def residual_looks(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.n
 
 
 LOOK_MESSAGES = {
-    "motor_backlash": Msg("steps where a motor of a CoreXY/H-bot reverses (45, 135, 225, 315 "
-                          "deg), not where an axis does: backlash in the motors or belts, "
-                          "which the per-axis backlash model cannot describe"),
-    "reversal_spikes": Msg("tails that decay after the reversal points, beyond the part "
-                           "left out of the fit: reversal spikes or stick-slip"),
-    "odd_harmonics": Msg("odd harmonics of the angle (3, 5, 7, 9 per turn): lateral play or "
-                         "steps the model does not describe"),
-    "time_trend": Msg("a slow change in time that is not linear: the bar or the printer "
-                      "warming up"),
+    "motor_backlash": Msg(
+        "steps where a motor of a CoreXY/H-bot reverses (45, 135, 225, 315 "
+        "deg), not where an axis does: backlash in the motors or belts, "
+        "which the per-axis backlash model cannot describe"
+    ),
+    "reversal_spikes": Msg(
+        "tails that decay after the reversal points, beyond the part "
+        "left out of the fit: reversal spikes or stick-slip"
+    ),
+    "odd_harmonics": Msg(
+        "odd harmonics of the angle (3, 5, 7, 9 per turn): lateral play or "
+        "steps the model does not describe"
+    ),
+    "time_trend": Msg(
+        "a slow change in time that is not linear: the bar or the printer warming up"
+    ),
     "periodic": Msg("a periodic error along an axis"),
-    "high_frequency": Msg("fast sample-to-sample scatter above the sensor's noise while "
-                          "moving: vibration"),
+    "high_frequency": Msg(
+        "fast sample-to-sample scatter above the sensor's noise while moving: vibration"
+    ),
 }
 
 
-def adequacy_findings(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: np.ndarray,
-                      floor_um: float, floor_source: str, cyclic: Optional[Dict[str, float]],
-                      label: str = "") -> Tuple[List[Finding], Dict[str, object]]:
+def adequacy_findings(
+    geom: Geometry,
+    runs: Sequence[Run],
+    f: FitResult,
+    keep: np.ndarray,
+    floor_um: float,
+    floor_source: str,
+    cyclic: Optional[Dict[str, float]],
+    label: str = "",
+) -> Tuple[List[Finding], Dict[str, object]]:
     """The fit's rms against the noise floor: a warning above ADEQUACY_RATIO with what the
     residual looks like; returns (findings, evidence for the diagnostics)."""
     pre = (label + ": ") if label else ""
     ratio = f.rms_um / floor_um if floor_um > 0 else float("inf")
-    ev: Dict[str, object] = {"rms_um": round(f.rms_um, 3), "noise_floor_um": round(floor_um, 3),
-                             "noise_floor_source": floor_source,
-                             "ratio": round(ratio, 3) if math.isfinite(ratio) else None,
-                             "threshold": ADEQUACY_RATIO}
+    ev: Dict[str, object] = {
+        "rms_um": round(f.rms_um, 3),
+        "noise_floor_um": round(floor_um, 3),
+        "noise_floor_source": floor_source,
+        "ratio": round(ratio, 3) if math.isfinite(ratio) else None,
+        "threshold": ADEQUACY_RATIO,
+    }
     if ratio <= ADEQUACY_RATIO:
         return [], ev
     looks = residual_looks(geom, runs, f, keep, floor_um, cyclic)
@@ -416,36 +497,56 @@ def adequacy_findings(geom: Geometry, runs: Sequence[Run], f: FitResult, keep: n
     if named:
         what = joined([LOOK_MESSAGES[k] for k in named[:2]])
         if "periodic" in named[:2] and cyclic:
-            what = Msg("%(what)s (strongest at a pitch of %(pitch)s mm)", what=what,
-                       pitch=_fmt(cyclic["pitch_mm"], 2))
+            what = Msg(
+                "%(what)s (strongest at a pitch of %(pitch)s mm)",
+                what=what,
+                pitch=_fmt(cyclic["pitch_mm"], 2),
+            )
     else:
-        what = Msg("nothing the checks recognise (not periodic, not at the reversals, not "
-                   "harmonic)")
-    msg = Msg("%(pre)sThe fit leaves %(rms)s um rms where the sensor's noise is %(floor)s um "
-              "(%(ratio)s times; a right model leaves about 1): the model does not describe "
-              "everything this printer does. What is left looks like %(what)s. The fitted "
-              "values may be biased.", pre=pre, rms=_fmt(f.rms_um, 2), floor=_fmt(floor_um, 2),
-              ratio=_fmt(ratio, 1), what=what)
-    advice = Msg("Look at the residual in the plot; repeat the test to see whether it stays. "
-                 "Apply only if the values agree with a repeat.")
+        what = Msg(
+            "nothing the checks recognise (not periodic, not at the reversals, not harmonic)"
+        )
+    msg = Msg(
+        "%(pre)sThe fit leaves %(rms)s um rms where the sensor's noise is %(floor)s um "
+        "(%(ratio)s times; a right model leaves about 1): the model does not describe "
+        "everything this printer does. What is left looks like %(what)s. The fitted "
+        "values may be biased.",
+        pre=pre,
+        rms=_fmt(f.rms_um, 2),
+        floor=_fmt(floor_um, 2),
+        ratio=_fmt(ratio, 1),
+        what=what,
+    )
+    advice = Msg(
+        "Look at the residual in the plot; repeat the test to see whether it stays. "
+        "Apply only if the values agree with a repeat."
+    )
     return [warning("model.misfit", msg, advice, **ev)], ev
 
 
 def cyclic_finding(scan: Dict[str, float], label: str = "") -> Finding:
     pre = (label + ": ") if label else ""
     amp = scan["amplitude_um"]
-    return info("model.cyclic_fitted",
-                Msg("%(pre)sThe residual showed a periodic error along the axes (pitch "
-                    "%(pitch)s mm, amplitude A %(a)s um, B %(b)s um: belt teeth, a pulley or a "
-                    "leadscrew); it was fitted with the other errors so that it does not bias "
-                    "them. Firmware cannot compensate it.", pre=pre,
-                    pitch=_fmt(scan["pitch_mm"], 3), a=_fmt(amp["a"], 2), b=_fmt(amp["b"], 2)),
-                pitch_mm=round(scan["pitch_mm"], 4),
-                amplitude_um={k: round(v, 3) for k, v in amp.items()})
+    return info(
+        "model.cyclic_fitted",
+        Msg(
+            "%(pre)sThe residual showed a periodic error along the axes (pitch "
+            "%(pitch)s mm, amplitude A %(a)s um, B %(b)s um: belt teeth, a pulley or a "
+            "leadscrew); it was fitted with the other errors so that it does not bias "
+            "them. Firmware cannot compensate it.",
+            pre=pre,
+            pitch=_fmt(scan["pitch_mm"], 3),
+            a=_fmt(amp["a"], 2),
+            b=_fmt(amp["b"], 2),
+        ),
+        pitch_mm=round(scan["pitch_mm"], 4),
+        amplitude_um={k: round(v, 3) for k, v in amp.items()},
+    )
 
 
-def drift_finding(diag: Dict[str, object], runs: Sequence[Run], label: str = ""
-                  ) -> Optional[Finding]:
+def drift_finding(
+    diag: Dict[str, object], runs: Sequence[Run], label: str = ""
+) -> Optional[Finding]:
     """Info when the fitted bar drift moved the reading by more than 1 um over the test
     (the runs' first to last sample)."""
     rate = diag.get("bar_drift_um_per_min")
@@ -457,11 +558,19 @@ def drift_finding(diag: Dict[str, object], runs: Sequence[Run], label: str = ""
     if total <= 1.0:
         return None
     pre = (label + ": ") if label else ""
-    return info("model.drift",
-                Msg("%(pre)sThe bar length drifted %(rate)s um/min (%(total)s um over the "
-                    "test), fitted as a linear drift: let the printer and the bar warm up "
-                    "before testing.", pre=pre, rate=f"{rate:+.2f}", total=_fmt(total, 1)),
-                bar_drift_um_per_min=round(rate, 3), over_test_um=round(total, 2))
+    return info(
+        "model.drift",
+        Msg(
+            "%(pre)sThe bar length drifted %(rate)s um/min (%(total)s um over the "
+            "test), fitted as a linear drift: let the printer and the bar warm up "
+            "before testing.",
+            pre=pre,
+            rate=f"{rate:+.2f}",
+            total=_fmt(total, 1),
+        ),
+        bar_drift_um_per_min=round(rate, 3),
+        over_test_um=round(total, 2),
+    )
 
 
 # -- stability against the reversal mask ------------------------------------------------
@@ -473,8 +582,12 @@ def drift_finding(diag: Dict[str, object], runs: Sequence[Run], label: str = ""
 # variance sigma_wide^2 - sigma_narrow^2 when the model is right.
 STABILITY_EXTRA_DEG = 10.0
 STABILITY_SIGMA = 3.0
-HALF_TOLERANCE = {"squareness_um_per_m": 2.5, "scale_mismatch_ppm": 2.5,
-                  "servo_mismatch_ms": 0.025, "backlash_um": 0.75}
+HALF_TOLERANCE = {
+    "squareness_um_per_m": 2.5,
+    "scale_mismatch_ppm": 2.5,
+    "servo_mismatch_ms": 0.025,
+    "backlash_um": 0.75,
+}
 
 
 def _flat(d: Dict[str, object]) -> Dict[str, float]:
@@ -504,10 +617,16 @@ def reached_sides(runs: Sequence[Run]) -> List[str]:
     return out
 
 
-def stability_findings(a: Dict[str, object], b: Dict[str, object], sig_a: Dict[str, object],
-                       sig_b: Dict[str, object], mask_a: float, mask_b: float,
-                       label: str = "", sides: Optional[Sequence[str]] = None
-                       ) -> List[Finding]:
+def stability_findings(
+    a: Dict[str, object],
+    b: Dict[str, object],
+    sig_a: Dict[str, object],
+    sig_b: Dict[str, object],
+    mask_a: float,
+    mask_b: float,
+    label: str = "",
+    sides: Optional[Sequence[str]] = None,
+) -> List[Finding]:
     """Compare the diagnostics of two fits (reversal masks ``mask_a`` < ``mask_b`` deg, with
     their 1-sigma ``sig_a``, ``sig_b``); ``sides``: the backlash sides measured (the others
     are not compared)."""
@@ -529,16 +648,32 @@ def stability_findings(a: Dict[str, object], b: Dict[str, object], sig_a: Dict[s
     if not moved:
         return []
     pre = (label + ": ") if label else ""
-    what = joined([Msg("%(key)s %(a)s -> %(b)s", key=k, a=f"{va:.3g}", b=f"{vb:.3g}")
-                   for k, (va, vb, _) in moved.items()])
-    return [warning("model.unstable", Msg(
-        "%(pre)sThe result depends on how much is left out around the reversal points "
-        "(%(m1)s deg -> %(m2)s deg): %(what)s. Something near the reversals that the model "
-        "does not describe pulls the fit; the values may be off by about these shifts.",
-        pre=pre, m1=f"{mask_a:g}", m2=f"{mask_b:g}", what=what), Msg(
-        "Repeat the test; if the shift stays, analyse with a wider mask (--mask-deg) and "
-        "compare."), shifts={k: round(s, 4) for k, (_, _, s) in moved.items()},
-        mask_deg=[mask_a, mask_b])]
+    what = joined(
+        [
+            Msg("%(key)s %(a)s -> %(b)s", key=k, a=f"{va:.3g}", b=f"{vb:.3g}")
+            for k, (va, vb, _) in moved.items()
+        ]
+    )
+    return [
+        warning(
+            "model.unstable",
+            Msg(
+                "%(pre)sThe result depends on how much is left out around the reversal points "
+                "(%(m1)s deg -> %(m2)s deg): %(what)s. Something near the reversals that the model "
+                "does not describe pulls the fit; the values may be off by about these shifts.",
+                pre=pre,
+                m1=f"{mask_a:g}",
+                m2=f"{mask_b:g}",
+                what=what,
+            ),
+            Msg(
+                "Repeat the test; if the shift stays, analyse with a wider mask (--mask-deg) and "
+                "compare."
+            ),
+            shifts={k: round(s, 4) for k, (_, _, s) in moved.items()},
+            mask_deg=[mask_a, mask_b],
+        )
+    ]
 
 
 def keep_mask(runs: Sequence[Run], mask_deg: float) -> np.ndarray:

@@ -35,8 +35,12 @@ def compensate_text(program: str, params: Params) -> str:
     return dst.getvalue()
 
 
-def run_round(truth: Truth, spec: Optional[TestSpec] = None, servo_precomp: bool = False,
-              current: Optional[Params] = None) -> Dict[str, object]:
+def run_round(
+    truth: Truth,
+    spec: Optional[TestSpec] = None,
+    servo_precomp: bool = False,
+    current: Optional[Params] = None,
+) -> Dict[str, object]:
     """Before/after analyses of one calibration round (dicts as returned by ``analyse``)."""
     spec = spec or TestSpec()
     current = current or Params()
@@ -69,8 +73,9 @@ def _hash(program: str) -> str:
     return spec_from_program(program)[1]
 
 
-def run_campaign_round(truth: Truth, volume=VOLUME, second_feed: Optional[float] = 3700.0
-                       ) -> Dict[str, object]:
+def run_campaign_round(
+    truth: Truth, volume=VOLUME, second_feed: Optional[float] = 3700.0
+) -> Dict[str, object]:
     """Before (zero parameters) and after (the proposal applied: kinematic model only and with
     servo pre-compensation) campaign analyses over the whole volume."""
     steps = plan_campaign(volume, second_feed=second_feed, campaign_id="closed-loop")
@@ -84,8 +89,9 @@ def run_campaign_round(truth: Truth, volume=VOLUME, second_feed: Optional[float]
     return {"steps": steps, "before": before, "after": after, "params": proposed}
 
 
-def campaign_tables(res: Dict[str, object]) -> List[Tuple[str, List[Dict[str, object]],
-                                                          List[Dict[str, object]]]]:
+def campaign_tables(
+    res: Dict[str, object],
+) -> List[Tuple[str, List[Dict[str, object]], List[Dict[str, object]]]]:
     """Per test: (title, rows with the kinematic model only, rows with servo
     pre-compensation): the paper's Table 2 for every plane. Parametric rows are the plane's
     values in the joint fit of each campaign; the ISO metrics are those of the trace."""
@@ -94,23 +100,30 @@ def campaign_tables(res: Dict[str, object]) -> List[Tuple[str, List[Dict[str, ob
     kin = res["after"][False]["diagnostics"]["traces"]
     pre = res["after"][True]["diagnostics"]["traces"]
     for b, a0, a1 in zip(before, kin, pre):
-        title = (f"{b['plane']} R{b['radius_mm']:g} F{b['feed_mm_min']:g} at {_height(b)} "
-                 f"({b['file']})")
+        title = (
+            f"{b['plane']} R{b['radius_mm']:g} F{b['feed_mm_min']:g} at {_height(b)} ({b['file']})"
+        )
         joint = lambda d: dict(d, **d["joint"])  # noqa: E731
         out.append((title, table(joint(b), joint(a0)), table(joint(b), joint(a1))))
     return out
 
 
 def format_campaign_table(title: str, kin, pre) -> str:
-    out = [title, "",
-           "| error | unit | before | after, kinematic | reduction | after, + servo precomp | "
-           "reduction |", "|---|---|---:|---:|---:|---:|---:|"]
+    out = [
+        title,
+        "",
+        "| error | unit | before | after, kinematic | reduction | after, + servo precomp | "
+        "reduction |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
     num = lambda v: "" if v is None else f"{v:.2f}"  # noqa: E731
     pct = lambda v: "" if v is None else f"{v:.1f} %"  # noqa: E731
     for r0, r1 in zip(kin, pre):
-        out.append(f"| {r0['error']} | {r0['unit']} | {num(r0['before'])} | {num(r0['after'])} "
-                   f"| {pct(r0['reduction_pct'])} | {num(r1['after'])} | "
-                   f"{pct(r1['reduction_pct'])} |")
+        out.append(
+            f"| {r0['error']} | {r0['unit']} | {num(r0['before'])} | {num(r0['after'])} "
+            f"| {pct(r0['reduction_pct'])} | {num(r1['after'])} | "
+            f"{pct(r1['reduction_pct'])} |"
+        )
     return "\n".join(out) + "\n"
 
 
@@ -174,18 +187,29 @@ def table(before: dict, after: dict) -> List[Dict[str, object]]:
         b, a = _get(before, key), _get(after, key)
         floor = noise_floor(before, after, key, unit)
         at_noise = b is not None and a is not None and abs(b) <= floor
-        rows.append({"error": label, "key": key, "unit": unit, "before": b, "after": a,
-                     "noise_floor": floor, "at_noise": at_noise,
-                     "reduction_pct": None if at_noise else reduction(b, a)})
+        rows.append(
+            {
+                "error": label,
+                "key": key,
+                "unit": unit,
+                "before": b,
+                "after": a,
+                "noise_floor": floor,
+                "at_noise": at_noise,
+                "reduction_pct": None if at_noise else reduction(b, a),
+            }
+        )
     return rows
 
 
 def format_table(rows, title: str) -> str:
-    out = [title, "",
-           "| error | unit | before | after | reduction |", "|---|---|---:|---:|---:|"]
+    out = [title, "", "| error | unit | before | after | reduction |", "|---|---|---:|---:|---:|"]
     for r in rows:
-        red = "at noise level" if r.get("at_noise") else (
-            "" if r["reduction_pct"] is None else f"{r['reduction_pct']:.1f} %")
+        red = (
+            "at noise level"
+            if r.get("at_noise")
+            else ("" if r["reduction_pct"] is None else f"{r['reduction_pct']:.1f} %")
+        )
         b = "" if r["before"] is None else f"{r['before']:.2f}"
         a = "" if r["after"] is None else f"{r['after']:.2f}"
         out.append(f"| {r['error']} | {r['unit']} | {b} | {a} | {red} |")
@@ -196,10 +220,14 @@ def main(argv=None) -> int:
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m octoprint_kincomp closed-loop")
-    ap.add_argument("--noise-um", type=float, default=0.5,
-                    help="ballbar measurement noise, um (1 sigma)")
-    ap.add_argument("--campaign", action="store_true",
-                    help="one campaign over the whole volume (XY, XZ, YZ fitted jointly)")
+    ap.add_argument(
+        "--noise-um", type=float, default=0.5, help="ballbar measurement noise, um (1 sigma)"
+    )
+    ap.add_argument(
+        "--campaign",
+        action="store_true",
+        help="one campaign over the whole volume (XY, XZ, YZ fitted jointly)",
+    )
     args = ap.parse_args(argv)
     if not 0.0 <= args.noise_um <= 50.0:
         ap.error("--noise-um must be within 0..50 um")
@@ -209,21 +237,24 @@ def main(argv=None) -> int:
     truth.noise_um = args.noise_um
     for precomp in (False, True):
         res = run_round(truth, servo_precomp=precomp)
-        title = (f"SIMULATED one-round calibration, paper's Table 1 errors, "
-                 f"{args.noise_um:g} um noise, XY R100 F1850 "
-                 + ("with servo pre-compensation" if precomp else "(kinematic model only)"))
-        print(format_table(table(res["before"]["diagnostics"], res["after"]["diagnostics"]),
-                           title))
+        title = (
+            f"SIMULATED one-round calibration, paper's Table 1 errors, "
+            f"{args.noise_um:g} um noise, XY R100 F1850 "
+            + ("with servo pre-compensation" if precomp else "(kinematic model only)")
+        )
+        print(format_table(table(res["before"]["diagnostics"], res["after"]["diagnostics"]), title))
     return 0
 
 
 def main_campaign(noise_um: float) -> int:
     truth = volume_truth(noise_um=noise_um)
     res = run_campaign_round(truth)
-    print(f"SIMULATED one-campaign calibration over the volume {VOLUME} mm, {noise_um:g} um "
-          "noise; true errors: squareness xy -3638.6, xz +800, yz -500 um/m; scale x -451.7, "
-          "y +287, z +150 ppm; backlash X 37.4/4.4 um (-X/+X), Y 5.4/11.3 um (-Y/+Y), Z 8 um; "
-          "servo lag X 0.62, Z 0.3 ms; planner 1500 mm/s^2, JD 0.013 mm\n")
+    print(
+        f"SIMULATED one-campaign calibration over the volume {VOLUME} mm, {noise_um:g} um "
+        "noise; true errors: squareness xy -3638.6, xz +800, yz -500 um/m; scale x -451.7, "
+        "y +287, z +150 ppm; backlash X 37.4/4.4 um (-X/+X), Y 5.4/11.3 um (-Y/+Y), Z 8 um; "
+        "servo lag X 0.62, Z 0.3 ms; planner 1500 mm/s^2, JD 0.013 mm\n"
+    )
     for note in res["before"]["notes"]:
         print(f"note: {note}")
     print()

@@ -69,7 +69,9 @@ class DemoBallbar:
             spec, prog_hash = self._spec, self._hash
             self._lines = []
         trace = simulate_program(text, self.truth, spec, prog_hash)
-        trace.meta["source"] = ("SIMULATED by KinComp demo mode: virtual ballbar on a virtual "
-                                "printer with hidden errors")
+        trace.meta["source"] = (
+            "SIMULATED by KinComp demo mode: virtual ballbar on a virtual "
+            "printer with hidden errors"
+        )
         self.last_trace = trace
         return trace

@@ -39,8 +39,13 @@ class Finding:
 
     def to_dict(self) -> Dict[str, Any]:
         """JSON form (message and advice as the English text)."""
-        return {"code": self.code, "severity": self.severity, "message": str(self.message),
-                "advice": str(self.advice), "evidence": dict(self.evidence)}
+        return {
+            "code": self.code,
+            "severity": self.severity,
+            "message": str(self.message),
+            "advice": str(self.advice),
+            "evidence": dict(self.evidence),
+        }
 
     def to_wire(self) -> Dict[str, Any]:
         """JSON form for the browser: message and advice as :func:`as_dict` (translatable)."""
@@ -50,18 +55,21 @@ class Finding:
         return out
 
 
-def info(code: str, message: Union[str, Msg], advice: Union[str, Msg] = "",
-         **evidence: Any) -> Finding:
+def info(
+    code: str, message: Union[str, Msg], advice: Union[str, Msg] = "", **evidence: Any
+) -> Finding:
     return Finding(code, "info", message, advice, evidence)
 
 
-def warning(code: str, message: Union[str, Msg], advice: Union[str, Msg] = "",
-            **evidence: Any) -> Finding:
+def warning(
+    code: str, message: Union[str, Msg], advice: Union[str, Msg] = "", **evidence: Any
+) -> Finding:
     return Finding(code, "warning", message, advice, evidence)
 
 
-def error(code: str, message: Union[str, Msg], advice: Union[str, Msg] = "",
-          **evidence: Any) -> Finding:
+def error(
+    code: str, message: Union[str, Msg], advice: Union[str, Msg] = "", **evidence: Any
+) -> Finding:
     return Finding(code, "error", message, advice, evidence)
 
 

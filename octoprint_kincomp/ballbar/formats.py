@@ -114,8 +114,9 @@ def meta_float(meta: Dict[str, str], key: str, default: Optional[float] = None) 
     try:
         v = float(meta[key])
     except ValueError:
-        raise TraceError(Msg("metadata '%(key)s': %(value)s is not a number", key=key,
-                             value=repr(meta[key]))) from None
+        raise TraceError(
+            Msg("metadata '%(key)s': %(value)s is not a number", key=key, value=repr(meta[key]))
+        ) from None
     if not math.isfinite(v):
         raise TraceError(Msg("metadata '%(key)s' must be finite", key=key))
     return v
@@ -126,8 +127,13 @@ def meta_plane(meta: Dict[str, str]) -> str:
     if plane == "ZX":
         plane = "XZ"
     if plane not in PLANES:
-        raise TraceError(Msg("metadata 'plane' must be one of %(choices)s, got %(plane)s",
-                             choices=", ".join(PLANES), plane=repr(meta.get("plane"))))
+        raise TraceError(
+            Msg(
+                "metadata 'plane' must be one of %(choices)s, got %(plane)s",
+                choices=", ".join(PLANES),
+                plane=repr(meta.get("plane")),
+            )
+        )
     return plane
 
 
@@ -137,8 +143,9 @@ def meta_centre(meta: Dict[str, str]) -> Optional[Tuple[float, float, float]]:
     try:
         c = tuple(float(v) for v in meta["centre"].split(","))
     except ValueError:
-        raise TraceError(Msg("metadata 'centre': %(value)s is not X,Y,Z",
-                             value=repr(meta["centre"]))) from None
+        raise TraceError(
+            Msg("metadata 'centre': %(value)s is not X,Y,Z", value=repr(meta["centre"]))
+        ) from None
     if len(c) != 3 or not all(math.isfinite(v) for v in c):
         raise TraceError(Msg("metadata 'centre' needs three finite numbers X,Y,Z"))
     return c
@@ -165,40 +172,62 @@ def parse_csv_trace(text: str):
                 k, v = body.split(":", 1)
                 k = k.strip()
                 if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", k):
-                    raise TraceError(Msg("line %(line)s: bad metadata key %(key)s", line=lineno,
-                                         key=repr(k)))
+                    raise TraceError(
+                        Msg("line %(line)s: bad metadata key %(key)s", line=lineno, key=repr(k))
+                    )
                 meta[k] = v.strip()
             continue
         if header is None:
             norm = line.replace(" ", "").lower()
             if norm not in (NATIVE_HEADER, ANGLE_HEADER):
-                raise TraceError(Msg(
-                    "line %(line)s: expected the header '%(native)s' or '%(angle)s', got "
-                    "%(got)s", line=lineno, native=NATIVE_HEADER, angle=ANGLE_HEADER,
-                    got=repr(line[:60])))
+                raise TraceError(
+                    Msg(
+                        "line %(line)s: expected the header '%(native)s' or '%(angle)s', got "
+                        "%(got)s",
+                        line=lineno,
+                        native=NATIVE_HEADER,
+                        angle=ANGLE_HEADER,
+                        got=repr(line[:60]),
+                    )
+                )
             header = norm
             continue
         parts = line.split(",")
         if len(parts) != 3:
-            raise TraceError(Msg("line %(line)s: expected 3 comma-separated fields, got "
-                                 "%(n)s", line=lineno, n=len(parts)))
+            raise TraceError(
+                Msg(
+                    "line %(line)s: expected 3 comma-separated fields, got %(n)s",
+                    line=lineno,
+                    n=len(parts),
+                )
+            )
         d = parts[0].strip().lower()
         if d not in ("cw", "ccw"):
-            raise TraceError(Msg("line %(line)s: direction must be 'cw' or 'ccw', got %(got)s",
-                                 line=lineno, got=repr(parts[0])))
+            raise TraceError(
+                Msg(
+                    "line %(line)s: direction must be 'cw' or 'ccw', got %(got)s",
+                    line=lineno,
+                    got=repr(parts[0]),
+                )
+            )
         try:
             a, b = float(parts[1]), float(parts[2])
         except ValueError:
-            raise TraceError(Msg("line %(line)s: not a number in %(text)s", line=lineno,
-                                 text=repr(line[:60]))) from None
+            raise TraceError(
+                Msg("line %(line)s: not a number in %(text)s", line=lineno, text=repr(line[:60]))
+            ) from None
         if not (math.isfinite(a) and math.isfinite(b)):
             raise TraceError(Msg("line %(line)s: NaN or infinite value", line=lineno))
         rows.append((d, a, b))
         if len(rows) > MAX_ROWS:
             raise TraceError(Msg("more than %(n)s samples", n=MAX_ROWS))
     if header is None:
-        raise TraceError(Msg("no header line (direction,time_s,reading_mm or "
-                             "direction,angle_deg,deviation_um) found"))
+        raise TraceError(
+            Msg(
+                "no header line (direction,time_s,reading_mm or "
+                "direction,angle_deg,deviation_um) found"
+            )
+        )
     if not rows:
         raise TraceError(Msg("the trace has no samples"))
     meta_plane(meta)
@@ -228,9 +257,13 @@ for _axis in ("A", "B"):
     for _side, _key in (("POS", "plus"), ("NEG", "minus")):
         _B5R_NAMES[f"AF_BACKLASH_{_axis}_{_side}"] = ("backlash_um", f"{_axis.lower()}_{_key}")
         _B5R_NAMES[f"AF_LATERAL_PLAY_{_axis}_{_side}"] = (
-            "lateral_play_um", f"{_axis.lower()}_{_key}")
+            "lateral_play_um",
+            f"{_axis.lower()}_{_key}",
+        )
         _B5R_NAMES[f"AF_REVERSAL_SPIKES_{_axis}_{_side}"] = (
-            "reversal_spikes_um", f"{_axis.lower()}_{_key}")
+            "reversal_spikes_um",
+            f"{_axis.lower()}_{_key}",
+        )
 
 _UNIT_TO = {  # DT -> (kind, factor to KinComp's unit)
     "UT_LENGTH_UM": ("length", 1.0),
@@ -247,15 +280,16 @@ _UNIT_TO = {  # DT -> (kind, factor to KinComp's unit)
 def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     """Read the diagnostics of a Renishaw ``.b5r`` XML file (no DTDs, no entities)."""
     if len(data) > MAX_XML_BYTES:
-        raise TraceError(Msg(".b5r file is larger than %(mb)s MB",
-                             mb=MAX_XML_BYTES // (1024 * 1024)))
+        raise TraceError(
+            Msg(".b5r file is larger than %(mb)s MB", mb=MAX_XML_BYTES // (1024 * 1024))
+        )
     head = data[:4096].lower()
     if b"<!doctype" in data.lower() or b"<!entity" in data.lower():
-        raise TraceError(Msg(".b5r file contains a DTD or entity declarations; refused for "
-                             "safety"))
+        raise TraceError(Msg(".b5r file contains a DTD or entity declarations; refused for safety"))
     if b"\x00" in head:
-        raise TraceError(Msg(".b5r file is not text XML (binary or UTF-16 files are not "
-                             "supported)"))
+        raise TraceError(
+            Msg(".b5r file is not text XML (binary or UTF-16 files are not supported)")
+        )
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:
@@ -263,16 +297,18 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     except (LookupError, ValueError) as exc:
         # expat raises these (not ParseError) for an XML declaration naming an unknown
         # codec (LookupError) or a multi-byte one such as utf-7 (ValueError)
-        raise TraceError(Msg(".b5r: unsupported XML encoding (%(error)s)",
-                             error=str(exc))) from None
+        raise TraceError(
+            Msg(".b5r: unsupported XML encoding (%(error)s)", error=str(exc))
+        ) from None
     meta: Dict[str, str] = {"source": ".b5r (Renishaw)"}
     plane_el = root.find(".//PLANE")
     raw_plane = (plane_el.get("TEST_PLANE") if plane_el is not None else None) or ""
     raw_plane = raw_plane.strip().upper()
     swap = raw_plane == "ZX"
     if raw_plane not in ("XY", "YZ", "ZX", "XZ"):
-        raise TraceError(Msg(".b5r: PLANE/@TEST_PLANE must be XY, YZ or ZX, got %(got)s",
-                             got=repr(raw_plane)))
+        raise TraceError(
+            Msg(".b5r: PLANE/@TEST_PLANE must be XY, YZ or ZX, got %(got)s", got=repr(raw_plane))
+        )
     meta["plane"] = "XZ" if raw_plane in ("ZX", "XZ") else raw_plane
     spec = root.find(".//TEST_SPEC")
     if spec is not None and spec.get("NAME"):
@@ -295,8 +331,13 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
         try:
             value = float(text)
         except ValueError:
-            raise TraceError(Msg(".b5r: FEATURE %(name)s has a non-numeric value %(value)s",
-                                 name=name, value=repr(text[:30])))
+            raise TraceError(
+                Msg(
+                    ".b5r: FEATURE %(name)s has a non-numeric value %(value)s",
+                    name=name,
+                    value=repr(text[:30]),
+                )
+            )
         if not math.isfinite(value):
             raise TraceError(Msg(".b5r: FEATURE %(name)s is not finite", name=name))
         key, sub = _B5R_NAMES[name]
@@ -306,14 +347,24 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
                 ppm = value
             elif kind == "length":
                 if radius_mm is None or not 0.0 < radius_mm < math.inf:
-                    raise TraceError(Msg(".b5r: scale mismatch given in um but the test radius "
-                                         "is unknown; give the radius"))
+                    raise TraceError(
+                        Msg(
+                            ".b5r: scale mismatch given in um but the test radius "
+                            "is unknown; give the radius"
+                        )
+                    )
                 ppm = value * factor / radius_mm * 1000.0
-                notes.append(Msg("scale mismatch converted from um to ppm assuming um over the "
-                                 "test radius"))
+                notes.append(
+                    Msg("scale mismatch converted from um to ppm assuming um over the test radius")
+                )
             else:
-                raise TraceError(Msg(".b5r: FEATURE %(name)s has an unexpected unit %(unit)s",
-                                     name=name, unit=repr(dt)))
+                raise TraceError(
+                    Msg(
+                        ".b5r: FEATURE %(name)s has an unexpected unit %(unit)s",
+                        name=name,
+                        unit=repr(dt),
+                    )
+                )
             if not math.isfinite(ppm):  # a finite value can overflow in the conversion
                 raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
             diag["scale_mismatch_ppm"] = ppm
@@ -323,8 +374,9 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
             if not math.isfinite(value):  # e.g. 1e308 mm in um
                 raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
         elif kind is None:
-            raise TraceError(Msg(".b5r: FEATURE %(name)s has an unknown unit %(unit)s",
-                                 name=name, unit=repr(dt)))
+            raise TraceError(
+                Msg(".b5r: FEATURE %(name)s has an unknown unit %(unit)s", name=name, unit=repr(dt))
+            )
         if sub is None:
             diag[key] = value
         else:
@@ -357,8 +409,13 @@ def _swap_ab(diag: Dict[str, object]) -> None:
 # ---------------------------------------------------------------------------------------
 # typed summary
 
-SUMMARY_NUMBER_KEYS = ("squareness_um_per_m", "scale_mismatch_ppm", "servo_mismatch_ms",
-                       "radius_mm", "feed_mm_min")
+SUMMARY_NUMBER_KEYS = (
+    "squareness_um_per_m",
+    "scale_mismatch_ppm",
+    "servo_mismatch_ms",
+    "radius_mm",
+    "feed_mm_min",
+)
 SUMMARY_GROUPS = {
     "backlash_um": ("a_plus", "a_minus", "b_plus", "b_minus"),
     "circularity_um": ("cw", "ccw", "bidirectional"),
@@ -387,15 +444,17 @@ def parse_summary(data) -> Summary:
                 if not line:
                     continue
                 if ":" not in line and "=" not in line:
-                    raise TraceError(Msg("summary line %(line)s: expected 'key: value'",
-                                         line=lineno))
+                    raise TraceError(
+                        Msg("summary line %(line)s: expected 'key: value'", line=lineno)
+                    )
                 k, v = re.split(r"[:=]", line, 1)
                 obj[k.strip()] = v.strip()
         except ValueError as exc:
             # valid JSON syntax that json still refuses (an integer of more than 4300
             # digits); JSONDecodeError, a ValueError too, is handled above
-            raise TraceError(Msg("summary JSON cannot be read: %(error)s",
-                                 error=str(exc)[:80])) from None
+            raise TraceError(
+                Msg("summary JSON cannot be read: %(error)s", error=str(exc)[:80])
+            ) from None
     else:
         obj = data
     if not isinstance(obj, dict):
@@ -410,8 +469,9 @@ def parse_summary(data) -> Summary:
                 raise TraceError(Msg("summary field '%(field)s' must be an object", field=group))
             for k in g:
                 if k not in subs:
-                    raise TraceError(Msg("summary field '%(field)s' is unknown",
-                                         field=f"{group}.{k}"))
+                    raise TraceError(
+                        Msg("summary field '%(field)s' is unknown", field=f"{group}.{k}")
+                    )
             for k, v in g.items():
                 flat[f"{group.rsplit('_', 1)[0]}_{k}"] = v
     for key, raw in flat.items():
@@ -430,8 +490,8 @@ def parse_summary(data) -> Summary:
             continue
         for group, subs in SUMMARY_GROUPS.items():
             prefix = group.rsplit("_", 1)[0] + "_"
-            if key.startswith(prefix) and key[len(prefix):] in subs:
-                diag.setdefault(group, {})[key[len(prefix):]] = value
+            if key.startswith(prefix) and key[len(prefix) :] in subs:
+                diag.setdefault(group, {})[key[len(prefix) :]] = value
                 break
         else:
             raise TraceError(Msg("summary field '%(field)s' is unknown", field=key))
@@ -442,8 +502,9 @@ def parse_summary(data) -> Summary:
     if "backlash_um" in diag:
         for k, v in diag["backlash_um"].items():
             if v < 0:
-                raise TraceError(Msg("summary field '%(field)s' must be >= 0",
-                                     field=f"backlash_um.{k}"))
+                raise TraceError(
+                    Msg("summary field '%(field)s' must be >= 0", field=f"backlash_um.{k}")
+                )
     return Summary(meta=meta, diagnostics=diag)
 
 
@@ -453,8 +514,13 @@ def _num(raw, key) -> float:
     try:
         v = float(raw)
     except (TypeError, ValueError, OverflowError):  # OverflowError: a JSON int >= 1e309
-        raise TraceError(Msg("summary field '%(field)s': %(value)s is not a number",
-                             field=key, value=repr(str(raw)[:30]))) from None
+        raise TraceError(
+            Msg(
+                "summary field '%(field)s': %(value)s is not a number",
+                field=key,
+                value=repr(str(raw)[:30]),
+            )
+        ) from None
     if not math.isfinite(v):
         raise TraceError(Msg("summary field '%(field)s' must be finite", field=key))
     return v
@@ -472,7 +538,9 @@ def load_any(data: bytes, filename: str = ""):
         text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise TraceError(Msg("file is not UTF-8 text (nor .b5r XML)")) from None
-    if NATIVE_HEADER in text.replace(" ", "").lower() or \
-            ANGLE_HEADER in text.replace(" ", "").lower():
+    if (
+        NATIVE_HEADER in text.replace(" ", "").lower()
+        or ANGLE_HEADER in text.replace(" ", "").lower()
+    ):
         return parse_csv_trace(text)
     return parse_summary(text)

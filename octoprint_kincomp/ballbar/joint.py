@@ -76,7 +76,7 @@ class JointResult:
     samples: int
     condition: float
     iterations: int
-    layout: "Layout"
+    layout: Layout
     local: Dict[str, Dict[str, float]] = field(default_factory=dict)  # per trace, fitted
     local_names: List[List[str]] = field(default_factory=list)  # per trace, model names
     radii: List[float] = field(default_factory=list)
@@ -103,8 +103,11 @@ class Layout:
         names = [f"sq_{p.lower()}" for p in self.planes]
         free_scale = self.axes if calibrated else self.axes[:-1]
         names += [f"s_{a}" for a in free_scale]
-        self.lag_axes = [a for a in self.axes if any(
-            a in t.geom.letters and "dT" in t.model.names for t in traces)]
+        self.lag_axes = [
+            a
+            for a in self.axes
+            if any(a in t.geom.letters and "dT" in t.model.names for t in traces)
+        ]
         if self.servo:
             names += [f"T_{a}" for a in self.lag_axes[:-1]]
         self.backlash_span: Dict[str, Tuple[float, float]] = {}
@@ -171,8 +174,10 @@ class Layout:
 
     def out_of_plane(self, plane: str, g: np.ndarray) -> Dict[str, float]:
         """The fixed out-of-plane coupling of a trace in ``plane`` for campaign vector g."""
-        sq = {p: float(g[self.index[f"sq_{p}"]]) if f"sq_{p}" in self.index else 0.0
-              for p in ("xy", "xz", "yz")}
+        sq = {
+            p: float(g[self.index[f"sq_{p}"]]) if f"sq_{p}" in self.index else 0.0
+            for p in ("xy", "xz", "yz")
+        }
         if plane == "YZ":
             return {"oA": sq["xy"], "oB": sq["xz"]}
         if plane == "XZ":
@@ -199,13 +204,26 @@ def _reversal_positions(traces: Sequence[TraceFit], axis: str) -> List[float]:
     return out
 
 
-def joint_fit(traces: Sequence[TraceFit], mask_deg: float, calibrated: bool,
-              cyclic_pitch: Optional[float] = None, max_iter: int = 15) -> JointResult:
+def joint_fit(
+    traces: Sequence[TraceFit],
+    mask_deg: float,
+    calibrated: bool,
+    cyclic_pitch: Optional[float] = None,
+    max_iter: int = 15,
+) -> JointResult:
     for t in traces:
         both = {r.direction for r in t.runs} == {"cw", "ccw"}
         fit_servo = both and (bool(t.geom.speed) or all(r.vA is not None for r in t.runs))
-        t.model = Model(t.geom, t.runs, fit_servo, calibrated, cyclic_pitch,
-                        "drift" in t.fit.values, None, t.fit.t_ref)
+        t.model = Model(
+            t.geom,
+            t.runs,
+            fit_servo,
+            calibrated,
+            cyclic_pitch,
+            "drift" in t.fit.values,
+            None,
+            t.fit.t_ref,
+        )
         t.keep = fit_mask(t.runs, mask_deg)
         t.y = np.concatenate([r.fit_dev() for r in t.runs])
     lay = Layout(traces, calibrated)
@@ -246,11 +264,22 @@ def joint_fit(traces: Sequence[TraceFit], mask_deg: float, calibrated: bool,
         t.model.fixed = lay.out_of_plane(t.geom.plane, g)
         p = lay.maps[i] @ g
         res = (t.y - t.model.predict(p))[t.keep]
-        rms[t.name] = float(np.sqrt(np.mean(res ** 2))) * 1e3
+        rms[t.name] = float(np.sqrt(np.mean(res**2))) * 1e3
         local[t.name] = dict(zip(t.model.names, p.tolist()))
     n = int(sum(t.keep.sum() for t in traces))
-    return JointResult(lay.names, g, cov, rms, n, cond, it, lay, local,
-                       [list(t.model.names) for t in traces], [t.geom.radius for t in traces])
+    return JointResult(
+        lay.names,
+        g,
+        cov,
+        rms,
+        n,
+        cond,
+        it,
+        lay,
+        local,
+        [list(t.model.names) for t in traces],
+        [t.geom.radius for t in traces],
+    )
 
 
 def lag_values(res: JointResult) -> Tuple[Dict[str, float], Dict[str, float]]:
@@ -271,34 +300,42 @@ def summary(res: JointResult) -> Dict[str, object]:
     lay = res.layout
     d: Dict[str, object] = {}
     u: Dict[str, object] = {}
-    d["squareness_um_per_m"] = {p.lower(): res.value(lay.unit(f"sq_{p.lower()}")) * 1e6
-                                for p in lay.planes}
-    u["squareness_um_per_m"] = {p.lower(): res.sigma(lay.unit(f"sq_{p.lower()}")) * 1e6
-                                for p in lay.planes}
+    d["squareness_um_per_m"] = {
+        p.lower(): res.value(lay.unit(f"sq_{p.lower()}")) * 1e6 for p in lay.planes
+    }
+    u["squareness_um_per_m"] = {
+        p.lower(): res.sigma(lay.unit(f"sq_{p.lower()}")) * 1e6 for p in lay.planes
+    }
     d["scale_ppm"] = {a: res.value(lay.scale_row(a)) * 1e6 for a in lay.axes}
     u["scale_ppm"] = {a: res.sigma(lay.scale_row(a)) * 1e6 for a in lay.axes}
-    pairs = [(x, y) for i, x in enumerate(lay.axes) for y in lay.axes[i + 1:]]
-    d["scale_mismatch_ppm"] = {f"{x}-{y}": res.value(lay.scale_row(x) - lay.scale_row(y)) * 1e6
-                               for x, y in pairs}
-    u["scale_mismatch_ppm"] = {f"{x}-{y}": res.sigma(lay.scale_row(x) - lay.scale_row(y)) * 1e6
-                               for x, y in pairs}
+    pairs = [(x, y) for i, x in enumerate(lay.axes) for y in lay.axes[i + 1 :]]
+    d["scale_mismatch_ppm"] = {
+        f"{x}-{y}": res.value(lay.scale_row(x) - lay.scale_row(y)) * 1e6 for x, y in pairs
+    }
+    u["scale_mismatch_ppm"] = {
+        f"{x}-{y}": res.sigma(lay.scale_row(x) - lay.scale_row(y)) * 1e6 for x, y in pairs
+    }
     if lay.servo:
         d["servo_lag_ms"], u["servo_lag_ms"] = lag_values(res)
-        lp = [(x, y) for i, x in enumerate(lay.lag_axes) for y in lay.lag_axes[i + 1:]]
-        d["servo_mismatch_ms"] = {f"{x}-{y}": res.value(lay.lag_row(x) - lay.lag_row(y)) * 1e3
-                                  for x, y in lp}
-        u["servo_mismatch_ms"] = {f"{x}-{y}": res.sigma(lay.lag_row(x) - lay.lag_row(y)) * 1e3
-                                  for x, y in lp}
+        lp = [(x, y) for i, x in enumerate(lay.lag_axes) for y in lay.lag_axes[i + 1 :]]
+        d["servo_mismatch_ms"] = {
+            f"{x}-{y}": res.value(lay.lag_row(x) - lay.lag_row(y)) * 1e3 for x, y in lp
+        }
+        u["servo_mismatch_ms"] = {
+            f"{x}-{y}": res.sigma(lay.lag_row(x) - lay.lag_row(y)) * 1e3 for x, y in lp
+        }
     d["backlash_um"], u["backlash_um"] = {}, {}
     for a, (lo, hi) in lay.backlash_span.items():
         if f"b_{a}" in lay.index:
             d["backlash_um"][a] = res.value(lay.unit(f"b_{a}")) * 1e3
             u["backlash_um"][a] = res.sigma(lay.unit(f"b_{a}")) * 1e3
         else:
-            d["backlash_um"][a] = [{"at_mm": q, "um": res.value(lay.backlash_row(a, q)) * 1e3}
-                                   for q in (lo, hi)]
-            u["backlash_um"][a] = [{"at_mm": q, "um": res.sigma(lay.backlash_row(a, q)) * 1e3}
-                                   for q in (lo, hi)]
+            d["backlash_um"][a] = [
+                {"at_mm": q, "um": res.value(lay.backlash_row(a, q)) * 1e3} for q in (lo, hi)
+            ]
+            u["backlash_um"][a] = [
+                {"at_mm": q, "um": res.sigma(lay.backlash_row(a, q)) * 1e3} for q in (lo, hi)
+            ]
     d["uncertainty"] = u
     return d
 
@@ -311,8 +348,13 @@ def joint_values(res: JointResult, i: int) -> Dict[str, object]:
     vals = {n: res.value(r) for n, r in rows.items()}
     sig = {n: res.sigma(r) for n, r in rows.items()}
     radius = res.radii[i]
-    keys = ("squareness_um_per_m", "scale_mismatch_ppm", "servo_mismatch_ms", "backlash_um",
-            "mean_scale_ppm")
+    keys = (
+        "squareness_um_per_m",
+        "scale_mismatch_ppm",
+        "servo_mismatch_ms",
+        "backlash_um",
+        "mean_scale_ppm",
+    )
     d = {k: v for k, v in diagnostic_values(vals, radius).items() if k in keys}
     d["uncertainty"] = {k: v for k, v in uncertainty_values(sig, radius).items() if k in keys}
     return d
@@ -323,19 +365,35 @@ def check_coverage(name: str, geom: Geometry, runs: Sequence[Run]) -> None:
     directions = {r.direction for r in runs}
     for d in ("ccw", "cw"):
         if d not in directions:
-            raise TraceError(Msg("%(file)s: the %(direction)s run is missing (the test did not "
-                                 "complete)", file=name, direction=d))
+            raise TraceError(
+                Msg(
+                    "%(file)s: the %(direction)s run is missing (the test did not complete)",
+                    file=name,
+                    direction=d,
+                )
+            )
     for r in runs:
         cap = r.captured()
         if len(cap.theta) < 10:
-            raise TraceError(Msg("%(file)s: the %(direction)s run has no samples on the "
-                                 "capture arc", file=name, direction=r.direction))
+            raise TraceError(
+                Msg(
+                    "%(file)s: the %(direction)s run has no samples on the capture arc",
+                    file=name,
+                    direction=r.direction,
+                )
+            )
         deg = np.sort(np.degrees(cap.theta))
         span = float(deg[-1] - deg[0])
         gap = float(np.max(np.diff(deg))) if len(deg) > 1 else 360.0
         if span < 0.95 * (geom.capture_deg or 360.0) or gap > 5.0:
-            raise TraceError(Msg(
-                "%(file)s: the %(direction)s run covers %(span)s of the %(capture)s deg "
-                "capture arc (largest gap %(gap)s deg): the test did not complete",
-                file=name, direction=r.direction, span=f"{span:.0f}",
-                capture=f"{geom.capture_deg:g}", gap=f"{gap:.1f}"))
+            raise TraceError(
+                Msg(
+                    "%(file)s: the %(direction)s run covers %(span)s of the %(capture)s deg "
+                    "capture arc (largest gap %(gap)s deg): the test did not complete",
+                    file=name,
+                    direction=r.direction,
+                    span=f"{span:.0f}",
+                    capture=f"{geom.capture_deg:g}",
+                    gap=f"{gap:.1f}",
+                )
+            )

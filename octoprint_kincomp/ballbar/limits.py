@@ -68,12 +68,18 @@ class MotionLimits:
     notes: List[Msg] = field(default_factory=list)  # what was assumed while reading
 
     def empty(self) -> bool:
-        return not (self.max_feed_mm_min or self.max_accel_mm_s2 or self.print_accel_mm_s2
-                    or self.travel_accel_mm_s2 or self.junction_deviation_mm is not None
-                    or self.jerk_mm_s or self.square_corner_velocity_mm_s is not None)
+        return not (
+            self.max_feed_mm_min
+            or self.max_accel_mm_s2
+            or self.print_accel_mm_s2
+            or self.travel_accel_mm_s2
+            or self.junction_deviation_mm is not None
+            or self.jerk_mm_s
+            or self.square_corner_velocity_mm_s is not None
+        )
 
     @staticmethod
-    def from_feeds(feeds: Optional[Dict[str, float]], source: str) -> "MotionLimits":
+    def from_feeds(feeds: Optional[Dict[str, float]], source: str) -> MotionLimits:
         """Axis max feeds (mm/min), e.g. OctoPrint's printer profile's axis speeds."""
         out = MotionLimits()
         for a, v in (feeds or {}).items():
@@ -87,7 +93,7 @@ class MotionLimits:
                 out.sources[f"max_feed_mm_min.{a}"] = source
         return out
 
-    def combined(self, other: Optional["MotionLimits"]) -> "MotionLimits":
+    def combined(self, other: Optional[MotionLimits]) -> MotionLimits:
         """The lower of each limit of ``self`` and ``other`` (with its source)."""
         if other is None:
             return self
@@ -100,8 +106,12 @@ class MotionLimits:
                     getattr(out, key)[a] = pick
                     src = self if pick == mine.get(a) else other
                     out.sources[f"{key}.{a}"] = src.sources.get(f"{key}.{a}", "")
-        for key in ("print_accel_mm_s2", "travel_accel_mm_s2", "junction_deviation_mm",
-                    "square_corner_velocity_mm_s"):
+        for key in (
+            "print_accel_mm_s2",
+            "travel_accel_mm_s2",
+            "junction_deviation_mm",
+            "square_corner_velocity_mm_s",
+        ):
             pick = _lower(getattr(self, key), getattr(other, key))
             if pick is not None:
                 setattr(out, key, pick)
@@ -111,15 +121,17 @@ class MotionLimits:
 
     def to_dict(self) -> Dict[str, Any]:
         """JSON form (notes as English text)."""
-        return {"max_feed_mm_min": dict(self.max_feed_mm_min),
-                "max_accel_mm_s2": dict(self.max_accel_mm_s2),
-                "print_accel_mm_s2": self.print_accel_mm_s2,
-                "travel_accel_mm_s2": self.travel_accel_mm_s2,
-                "junction_deviation_mm": self.junction_deviation_mm,
-                "jerk_mm_s": dict(self.jerk_mm_s),
-                "square_corner_velocity_mm_s": self.square_corner_velocity_mm_s,
-                "sources": dict(self.sources),
-                "notes": [str(n) for n in self.notes]}
+        return {
+            "max_feed_mm_min": dict(self.max_feed_mm_min),
+            "max_accel_mm_s2": dict(self.max_accel_mm_s2),
+            "print_accel_mm_s2": self.print_accel_mm_s2,
+            "travel_accel_mm_s2": self.travel_accel_mm_s2,
+            "junction_deviation_mm": self.junction_deviation_mm,
+            "jerk_mm_s": dict(self.jerk_mm_s),
+            "square_corner_velocity_mm_s": self.square_corner_velocity_mm_s,
+            "sources": dict(self.sources),
+            "notes": [str(n) for n in self.notes],
+        }
 
 
 def _lower(a: Optional[float], b: Optional[float]) -> Optional[float]:
@@ -128,11 +140,18 @@ def _lower(a: Optional[float], b: Optional[float]) -> Optional[float]:
 
 
 # ~~ reading ----------------------------------------------------------------------------------
-_GCODE = re.compile(r"(?:^|[\s:])(M20[1345])((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
-                    r"[^;]*(?:;(.*))?$")
+_GCODE = re.compile(
+    r"(?:^|[\s:])(M20[1345])((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
+    r"[^;]*(?:;(.*))?$"
+)
 _WORD = re.compile(r"([A-Za-z])(-?\d*\.?\d+)")
-_KLIPPER_KEYS = ("max_velocity", "max_accel", "max_z_velocity", "max_z_accel",
-                 "square_corner_velocity")
+_KLIPPER_KEYS = (
+    "max_velocity",
+    "max_accel",
+    "max_z_velocity",
+    "max_z_accel",
+    "square_corner_velocity",
+)
 _CFG = re.compile(r"^\s*(" + "|".join(_KLIPPER_KEYS) + r")\s*[:=]\s*([-+0-9.eE]+)\s*$")
 _SECTION = re.compile(r"^\s*\[([^\]]+)\]")
 _SVL = re.compile(r"SET_VELOCITY_LIMIT\b(.*)$", re.IGNORECASE)
@@ -141,7 +160,7 @@ _MM_S = re.compile(r"(?:mm|units)\s*/\s*(?:s\b|sec)", re.IGNORECASE)
 
 
 def firmware_feed_unit(firmware: Optional[str]) -> Optional[str]:
-    """"mm/min" for RepRapFirmware (its M203 takes mm/min), "mm/s" for Marlin, Prusa,
+    """ "mm/min" for RepRapFirmware (its M203 takes mm/min), "mm/s" for Marlin, Prusa,
     Klipper and Smoothieware; None when the name says nothing."""
     name = (firmware or "").lower()
     if "reprapfirmware" in name or "rrf" in name or "duet" in name:
@@ -167,7 +186,8 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
         raise LimitsError(Msg("the motion limits must be a text"))
     out = MotionLimits()
     fw_unit = firmware_feed_unit(firmware) or (
-        "mm/min" if re.search(r"reprapfirmware", text, re.IGNORECASE) else None)
+        "mm/min" if re.search(r"reprapfirmware", text, re.IGNORECASE) else None
+    )
     header_unit: Optional[str] = None
     section: Optional[str] = None
     klipper: Dict[str, float] = {}
@@ -189,8 +209,11 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
         if m:
             for key, val in re.findall(r"(\w+)\s*=\s*([-+0-9.eE]+)", m.group(1)):
                 v = _number(val)
-                name = {"velocity": "max_velocity", "accel": "max_accel",
-                        "square_corner_velocity": "square_corner_velocity"}.get(key.lower())
+                name = {
+                    "velocity": "max_velocity",
+                    "accel": "max_accel",
+                    "square_corner_velocity": "square_corner_velocity",
+                }.get(key.lower())
                 if name and v is not None and v > 0:
                     klipper[name] = v
             continue
@@ -198,18 +221,32 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
         if not m:
             # a header such as "echo:; Maximum feedrates (units/s):" sets the next M203's unit
             if "feedrate" in line.lower() or "maximum speed" in line.lower():
-                header_unit = "mm/min" if _MM_MIN.search(line) else \
-                    "mm/s" if _MM_S.search(line) else header_unit
+                header_unit = (
+                    "mm/min"
+                    if _MM_MIN.search(line)
+                    else "mm/s"
+                    if _MM_S.search(line)
+                    else header_unit
+                )
             continue
         code, words, comment = m.group(1), m.group(2), m.group(3) or ""
         vals = {k.upper(): _number(v) for k, v in _WORD.findall(words)}
         if code == "M203":
-            unit = "mm/min" if _MM_MIN.search(comment) else "mm/s" if _MM_S.search(comment) \
+            unit = (
+                "mm/min"
+                if _MM_MIN.search(comment)
+                else "mm/s"
+                if _MM_S.search(comment)
                 else header_unit or fw_unit
+            )
             if unit is None:
                 unit = "mm/s"
-                out.notes.append(Msg("M203 has no stated unit: read as mm/s (Marlin's); "
-                                     "RepRapFirmware states mm/min"))
+                out.notes.append(
+                    Msg(
+                        "M203 has no stated unit: read as mm/s (Marlin's); "
+                        "RepRapFirmware states mm/min"
+                    )
+                )
             factor = 1.0 if unit == "mm/min" else 60.0
             for a in AXES:
                 v = vals.get(a.upper())
@@ -245,10 +282,13 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
     if klipper:
         _apply_klipper(out, klipper)
     if out.empty():
-        raise LimitsError(Msg(
-            "no motion limits found: paste the printer's answer to M503 (M201, M203, M204, "
-            "M205 lines) or Klipper's [printer] section (max_velocity, max_accel, "
-            "max_z_velocity, max_z_accel)"))
+        raise LimitsError(
+            Msg(
+                "no motion limits found: paste the printer's answer to M503 (M201, M203, M204, "
+                "M205 lines) or Klipper's [printer] section (max_velocity, max_accel, "
+                "max_z_velocity, max_z_accel)"
+            )
+        )
     return out
 
 
@@ -257,14 +297,19 @@ def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:
     ``max_z_velocity`` the Z component (default: max_velocity); the same for accel."""
     v, a = cfg.get("max_velocity"), cfg.get("max_accel")
     vz, az = cfg.get("max_z_velocity", v), cfg.get("max_z_accel", a)
-    for axis, vel, src in (("x", v, "max_velocity"), ("y", v, "max_velocity"),
-                           ("z", vz, "max_z_velocity" if "max_z_velocity" in cfg
-                            else "max_velocity")):
+    for axis, vel, src in (
+        ("x", v, "max_velocity"),
+        ("y", v, "max_velocity"),
+        ("z", vz, "max_z_velocity" if "max_z_velocity" in cfg else "max_velocity"),
+    ):
         if vel is not None:
             out.max_feed_mm_min[axis] = vel * 60.0
             out.sources[f"max_feed_mm_min.{axis}"] = f"Klipper {src}"
-    for axis, acc, src in (("x", a, "max_accel"), ("y", a, "max_accel"),
-                           ("z", az, "max_z_accel" if "max_z_accel" in cfg else "max_accel")):
+    for axis, acc, src in (
+        ("x", a, "max_accel"),
+        ("y", a, "max_accel"),
+        ("z", az, "max_z_accel" if "max_z_accel" in cfg else "max_accel"),
+    ):
         if acc is not None:
             out.max_accel_mm_s2[axis] = acc
             out.sources[f"max_accel_mm_s2.{axis}"] = f"Klipper {src}"
@@ -292,8 +337,13 @@ class FeedChoice:
         return self.feed_mm_min < self.requested_mm_min
 
 
-def circle_feed(plane: str, radius_mm: float, feed_mm_min: float,
-                limits: Optional[MotionLimits], overshoot_deg: float = 20.0) -> FeedChoice:
+def circle_feed(
+    plane: str,
+    radius_mm: float,
+    feed_mm_min: float,
+    limits: Optional[MotionLimits],
+    overshoot_deg: float = 20.0,
+) -> FeedChoice:
     """The highest feed (mm/min, at most ``feed_mm_min``, whole mm/min) at which every axis
     of ``plane`` can follow a circle of ``radius_mm`` (see the module docstring). Raises
     LimitsError naming the binding limit when that is below MIN_TEST_FEED."""
@@ -306,11 +356,22 @@ def circle_feed(plane: str, radius_mm: float, feed_mm_min: float,
     for a in axes:
         cap = limits.max_feed_mm_min.get(a)
         if cap is not None:
-            candidates.append((cap, Msg(
-                "the %(axis)s axis' max feed is %(cap)s mm/min (%(source)s)", axis=a.upper(),
-                cap=f"{cap:g}", source=limits.sources.get(f"max_feed_mm_min.{a}", "-"))))
-    accels = [(limits.max_accel_mm_s2[a], f"max_accel_mm_s2.{a}", a.upper())
-              for a in axes if a in limits.max_accel_mm_s2]
+            candidates.append(
+                (
+                    cap,
+                    Msg(
+                        "the %(axis)s axis' max feed is %(cap)s mm/min (%(source)s)",
+                        axis=a.upper(),
+                        cap=f"{cap:g}",
+                        source=limits.sources.get(f"max_feed_mm_min.{a}", "-"),
+                    ),
+                )
+            )
+    accels = [
+        (limits.max_accel_mm_s2[a], f"max_accel_mm_s2.{a}", a.upper())
+        for a in axes
+        if a in limits.max_accel_mm_s2
+    ]
     if limits.print_accel_mm_s2:
         accels.append((limits.print_accel_mm_s2, "print_accel_mm_s2", None))
     if accels:
@@ -318,13 +379,26 @@ def circle_feed(plane: str, radius_mm: float, feed_mm_min: float,
         r = float(radius_mm)
         ramp = 2.0 * r * math.radians(max(overshoot_deg, 0.0))
         v = math.sqrt(acc * min(r, ramp) if ramp > 0 else acc * r) * 60.0
-        what = Msg("the %(axis)s axis' max acceleration", axis=axis) if axis else \
-            Msg("the print acceleration")
-        candidates.append((v, Msg(
-            "%(what)s of %(acc)s mm/s^2 (%(source)s) allows at most %(cap)s mm/min on a "
-            "%(radius)s mm circle (reached within the %(overshoot)s deg overshoot)",
-            what=what, acc=f"{acc:g}", source=limits.sources.get(key, "-"),
-            cap=f"{math.floor(v):g}", radius=f"{r:g}", overshoot=f"{overshoot_deg:g}")))
+        what = (
+            Msg("the %(axis)s axis' max acceleration", axis=axis)
+            if axis
+            else Msg("the print acceleration")
+        )
+        candidates.append(
+            (
+                v,
+                Msg(
+                    "%(what)s of %(acc)s mm/s^2 (%(source)s) allows at most %(cap)s mm/min on a "
+                    "%(radius)s mm circle (reached within the %(overshoot)s deg overshoot)",
+                    what=what,
+                    acc=f"{acc:g}",
+                    source=limits.sources.get(key, "-"),
+                    cap=f"{math.floor(v):g}",
+                    radius=f"{r:g}",
+                    overshoot=f"{overshoot_deg:g}",
+                ),
+            )
+        )
     for cap, why in candidates:
         if cap < best - 1e-9:
             best = cap
@@ -334,12 +408,17 @@ def circle_feed(plane: str, radius_mm: float, feed_mm_min: float,
     if best < feed - 1e-9:
         best = float(math.floor(best)) if best >= 1 else best
     if best < MIN_TEST_FEED:
-        raise LimitsError(Msg(
-            "a %(radius)s mm circle in %(plane)s cannot run at a usable feed: %(why)s, below "
-            "the %(min)s mm/min a test needs. Check the printer's limits (M203, M201, "
-            "M204)", radius=f"{float(radius_mm):g}", plane=str(plane).upper(),
-            why=joined(reasons) if reasons else Msg("the feed asked is too low"),
-            min=f"{MIN_TEST_FEED:g}"))
+        raise LimitsError(
+            Msg(
+                "a %(radius)s mm circle in %(plane)s cannot run at a usable feed: %(why)s, below "
+                "the %(min)s mm/min a test needs. Check the printer's limits (M203, M201, "
+                "M204)",
+                radius=f"{float(radius_mm):g}",
+                plane=str(plane).upper(),
+                why=joined(reasons) if reasons else Msg("the feed asked is too low"),
+                min=f"{MIN_TEST_FEED:g}",
+            )
+        )
     unknown = [a for a in axes if a not in limits.max_feed_mm_min]
     return FeedChoice(best, feed, reasons, unknown)
 
@@ -350,22 +429,31 @@ def require_known(choice: FeedChoice, plane: str) -> None:
     axis distorts the circle's timing. (XY feeds of ~30 mm/s are within every printer's
     reach; unknown X/Y limits are only said in the program's header.)"""
     if "z" in choice.unknown:
-        raise LimitsError(Msg(
-            "the Z axis' max feed is not known, and a %(plane)s circle at %(feed)s mm/min "
-            "needs Z to reach %(feed)s mm/min: give the printer's limits (its answer to "
-            "M503, or Klipper's printer.cfg) or the axes' max feeds", plane=str(plane).upper(),
-            feed=f"{choice.feed_mm_min:g}"))
+        raise LimitsError(
+            Msg(
+                "the Z axis' max feed is not known, and a %(plane)s circle at %(feed)s mm/min "
+                "needs Z to reach %(feed)s mm/min: give the printer's limits (its answer to "
+                "M503, or Klipper's printer.cfg) or the axes' max feeds",
+                plane=str(plane).upper(),
+                feed=f"{choice.feed_mm_min:g}",
+            )
+        )
 
 
 def describe(choice: FeedChoice) -> List[str]:
     """G-code comment lines (without ';') saying how the feed was chosen."""
     out = []
     if choice.lowered:
-        out.append(f"feed lowered from {choice.requested_mm_min:g} to "
-                   f"{choice.feed_mm_min:g} mm/min: " + "; ".join(str(r) for r in choice.reasons))
+        out.append(
+            f"feed lowered from {choice.requested_mm_min:g} to "
+            f"{choice.feed_mm_min:g} mm/min: " + "; ".join(str(r) for r in choice.reasons)
+        )
     if choice.unknown:
-        out.append("max feed not known for axis " + ", ".join(a.upper() for a in choice.unknown)
-                   + f": assumed it reaches {choice.feed_mm_min:g} mm/min")
+        out.append(
+            "max feed not known for axis "
+            + ", ".join(a.upper() for a in choice.unknown)
+            + f": assumed it reaches {choice.feed_mm_min:g} mm/min"
+        )
     return out
 
 
@@ -373,8 +461,9 @@ def axes_text(values: Dict[str, float]) -> str:
     return ", ".join(f"{a.upper()} {values[a]:g}" for a in AXES if a in values)
 
 
-def limits_from_sequence(feeds: Optional[Sequence[float]], accels: Optional[Sequence[float]],
-                         source: str) -> MotionLimits:
+def limits_from_sequence(
+    feeds: Optional[Sequence[float]], accels: Optional[Sequence[float]], source: str
+) -> MotionLimits:
     """Limits given as X,Y,Z triples (feeds mm/min, accelerations mm/s^2), e.g. the CLI's
     ``--max-feed`` and ``--max-accel``."""
     out = MotionLimits.from_feeds(dict(zip(AXES, feeds or ())), source)

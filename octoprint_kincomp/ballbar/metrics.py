@@ -100,14 +100,17 @@ def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[s
     e, coef = _lsc(theta, dev)
     circ["bidirectional"] = float(e.max() - e.min()) * 1e3
     mzc["bidirectional"] = _mzc_range(theta, dev) * 1e3
-    out: Dict[str, object] = {"circularity_um": circ, "circularity_mzc_um": mzc,
-                              "circularity_filtered_um": circularity([_smoothed(r)
-                                                                       for r in runs]),
-                              "filter_deg": FILTER_DEG}
+    out: Dict[str, object] = {
+        "circularity_um": circ,
+        "circularity_mzc_um": mzc,
+        "circularity_filtered_um": circularity([_smoothed(r) for r in runs]),
+        "filter_deg": FILTER_DEG,
+    }
     if len(by) == 2:
         # hysteresis: CW vs CCW at the same angle, common centre removed
-        centred = {d: r.dev - coef[1] * np.cos(r.theta) - coef[2] * np.sin(r.theta)
-                   for d, r in by.items()}
+        centred = {
+            d: r.dev - coef[1] * np.cos(r.theta) - coef[2] * np.sin(r.theta) for d, r in by.items()
+        }
         a = by["ccw"]
         b = by["cw"]
         order = np.argsort(b.theta)
@@ -117,18 +120,23 @@ def iso_metrics(geom: Geometry, runs: Sequence[Run], calibrated: bool) -> Dict[s
         out["hysteresis_um"] = float(np.max(np.abs(centred["ccw"][inside] - interp))) * 1e3
     if calibrated:
         radial = dev - coef[1] * np.cos(theta) - coef[2] * np.sin(theta)
-        out["radial_deviation_um"] = {"max": float(radial.max()) * 1e3,
-                                      "min": float(radial.min()) * 1e3}
+        out["radial_deviation_um"] = {
+            "max": float(radial.max()) * 1e3,
+            "min": float(radial.min()) * 1e3,
+        }
     else:
         out["radial_deviation_um"] = None
-    out["iso_centre"] = ("least-squares centre (LSC) per direction; common LSC centre for the "
-                         "bidirectional value and hysteresis; circularity_mzc_um uses the "
-                         "minimum-zone centre")
+    out["iso_centre"] = (
+        "least-squares centre (LSC) per direction; common LSC centre for the "
+        "bidirectional value and hysteresis; circularity_mzc_um uses the "
+        "minimum-zone centre"
+    )
     return out
 
 
-def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str, object],
-              bins: int = 720) -> Dict[str, object]:
+def plot_data(
+    geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str, object], bins: int = 720
+) -> Dict[str, object]:
     """What a ballbar plot shows: per direction the deviation (um) against the angle (deg)
     with the common least-squares centre and the mean radius removed, and the fitted model
     on the same footing (the fitted ellipse), averaged into ``bins`` angle bins."""
@@ -136,14 +144,18 @@ def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str,
     theta = np.concatenate([r.theta for r in runs])
     dev = np.concatenate([r.dev for r in runs])
     _, coef = _lsc(theta, dev)
-    model = Model(geom, runs, "dT" in f.values, "sm" in f.values, None, "drift" in f.values,
-                  f.fixed, f.t_ref)
+    model = Model(
+        geom, runs, "dT" in f.values, "sm" in f.values, None, "drift" in f.values, f.fixed, f.t_ref
+    )
     names = [n for n in model.names if n in f.values]
     model.names = names
     pred = model.predict(np.array([f.values[n] for n in names]))
     out: Dict[str, object] = {
-        "plane": geom.plane, "axes": diag.get("axes"), "radius_mm": geom.radius,
-        "simulated": bool(diag.get("simulated")), "directions": {},
+        "plane": geom.plane,
+        "axes": diag.get("axes"),
+        "radius_mm": geom.radius,
+        "simulated": bool(diag.get("simulated")),
+        "directions": {},
         "centre_removed_um": {"a": float(coef[1]) * 1e3, "b": float(coef[2]) * 1e3},
     }
     i = 0
@@ -152,7 +164,7 @@ def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str,
         th = run.theta
         base = coef[0] + coef[1] * np.cos(th) + coef[2] * np.sin(th)
         d = (run.dev - base) * 1e3
-        m = (pred[i:i + n] - base) * 1e3
+        m = (pred[i : i + n] - base) * 1e3
         i += n
         deg = np.degrees(th)
         lo, hi = float(deg.min()), float(deg.max())
@@ -160,8 +172,7 @@ def plot_data(geom: Geometry, runs: Sequence[Run], f: FitResult, diag: Dict[str,
         which = np.clip(np.searchsorted(edges, deg, side="right") - 1, 0, len(edges) - 2)
         cnt = np.bincount(which, minlength=len(edges) - 1)
         ok = cnt > 0
-        mean = lambda v: (np.bincount(which, weights=v, minlength=len(edges) - 1)[ok]
-                          / cnt[ok])
+        mean = lambda v: np.bincount(which, weights=v, minlength=len(edges) - 1)[ok] / cnt[ok]
         out["directions"][run.direction] = {
             "angle_deg": np.round(mean(deg), 3).tolist(),
             "dev_um": np.round(mean(d), 3).tolist(),

@@ -72,15 +72,25 @@ class Run:
     def w(self) -> int:
         return 1 if self.direction == "ccw" else -1
 
-    def captured(self) -> "Run":
+    def captured(self) -> Run:
         """The samples inside the capture arc (what the ISO metrics evaluate)."""
         if self.capture is None or self.capture.all():
             return self
         k = self.capture
-        pick = (lambda x: None if x is None else x[k])
-        return Run(self.direction, self.theta[k], self.dev[k], pick(self.t), pick(self.vA),
-                   pick(self.vB), None, self.start_theta, pick(self.known), pick(self.qA),
-                   pick(self.qB))
+        pick = lambda x: None if x is None else x[k]
+        return Run(
+            self.direction,
+            self.theta[k],
+            self.dev[k],
+            pick(self.t),
+            pick(self.vA),
+            pick(self.vB),
+            None,
+            self.start_theta,
+            pick(self.known),
+            pick(self.qA),
+            pick(self.qB),
+        )
 
 
 @dataclass
@@ -109,9 +119,17 @@ class Geometry:
 class Model:
     """Exact radial deviation (mm) of the circle test for a parameter vector."""
 
-    def __init__(self, geom: Geometry, runs: Sequence[Run], fit_servo: bool,
-                 calibrated: bool, cyclic_pitch: Optional[float], fit_drift: bool = False,
-                 fixed: Optional[Dict[str, float]] = None, t_ref: Optional[float] = None):
+    def __init__(
+        self,
+        geom: Geometry,
+        runs: Sequence[Run],
+        fit_servo: bool,
+        calibrated: bool,
+        cyclic_pitch: Optional[float],
+        fit_drift: bool = False,
+        fixed: Optional[Dict[str, float]] = None,
+        t_ref: Optional[float] = None,
+    ):
         self.R = geom.radius
         self.fixed = dict(fixed or {})
         v = geom.speed or 0.0
@@ -262,14 +280,20 @@ def covariance(J: np.ndarray, rms: float, dof: int, inflation: float) -> np.ndar
     scale[scale == 0] = 1.0
     Js = J / scale
     inv = np.linalg.pinv(Js.T @ Js)
-    s2 = (rms ** 2) * len(J) / max(1, dof)
-    return inv / np.outer(scale, scale) * s2 * inflation ** 2
+    s2 = (rms**2) * len(J) / max(1, dof)
+    return inv / np.outer(scale, scale) * s2 * inflation**2
 
 
-def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
-        calibrated: bool = False, cyclic_pitch: Optional[float] = None,
-        max_iter: int = 12, fit_drift: Optional[bool] = None,
-        fixed: Optional[Dict[str, float]] = None) -> FitResult:
+def fit(
+    geom: Geometry,
+    runs: Sequence[Run],
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    max_iter: int = 12,
+    fit_drift: Optional[bool] = None,
+    fixed: Optional[Dict[str, float]] = None,
+) -> FitResult:
     both = {r.direction for r in runs} == {"cw", "ccw"}
     has_v = all(r.vA is not None for r in runs)
     fit_servo = both and (bool(geom.speed) or has_v)
@@ -300,8 +324,12 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
         if np.max(np.abs(step * scale)) < 1e-10:
             break
     if not np.all(np.isfinite(p)):
-        raise TraceError(Msg("the fit does not converge: the readings do not look like this "
-                             "test (check the metadata: plane, radius, feed, angles)"))
+        raise TraceError(
+            Msg(
+                "the fit does not converge: the readings do not look like this "
+                "test (check the metadata: plane, radius, feed, angles)"
+            )
+        )
     ev = np.linalg.eigvalsh(N)
     cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else None  # None: singular
     res = y - model.predict(p)
@@ -312,8 +340,8 @@ def fit(geom: Geometry, runs: Sequence[Run], mask_deg: float = DEFAULT_MASK_DEG,
     kept_runs = []
     for run in runs:
         n = len(run.theta)
-        out.residuals[run.direction] = (run.theta, res[i:i + n])
-        kept_runs.append(_time_ordered(run, res[i:i + n], keep[i:i + n]))
+        out.residuals[run.direction] = (run.theta, res[i : i + n])
+        kept_runs.append(_time_ordered(run, res[i : i + n], keep[i : i + n]))
         i += n
     out.correlation_inflation = correlation_inflation(kept_runs)
     cov = covariance(J, rms, int(keep.sum()) - len(p), out.correlation_inflation)
@@ -336,11 +364,15 @@ def diagnostic_values(v: Dict[str, float], radius: float) -> Dict[str, object]:
         "squareness_um_per_m": v["alpha"] * 1e6,
         "scale_mismatch_ppm": v["ds"] * 1e6,
         "servo_mismatch_ms": v["dT"] * 1e3 if "dT" in v else None,
-        "backlash_um": {"a_plus": v["bAp"] * 1e3, "a_minus": v["bAm"] * 1e3,
-                        "b_plus": v["bBp"] * 1e3, "b_minus": v["bBm"] * 1e3},
+        "backlash_um": {
+            "a_plus": v["bAp"] * 1e3,
+            "a_minus": v["bAm"] * 1e3,
+            "b_plus": v["bBp"] * 1e3,
+            "b_minus": v["bBm"] * 1e3,
+        },
         "centre_offset_um": {"a": v["dA"] * 1e3, "b": v["dB"] * 1e3},
         "radius_offset_um": v.get("r0", 0.0) * 1e3,
-        "straightness_um": {"a": v["kA"] * radius ** 2 * 1e3, "b": v["kB"] * radius ** 2 * 1e3},
+        "straightness_um": {"a": v["kA"] * radius**2 * 1e3, "b": v["kB"] * radius**2 * 1e3},
     }
     if "sm" in v:
         d["mean_scale_ppm"] = v["sm"] * 1e6

@@ -59,8 +59,14 @@ class MotionSettings:
     small_segments: bool = True  # Marlin's JD_HANDLE_SMALL_SEGMENTS
     estimated: bool = False  # found from a trace's own transients, not given
 
-    KEYS = ("motion", "accel_mm_s2", "junction_deviation_mm", "square_corner_velocity_mm_s",
-            "max_feed_mm_min", "max_accel_mm_s2")
+    KEYS = (
+        "motion",
+        "accel_mm_s2",
+        "junction_deviation_mm",
+        "square_corner_velocity_mm_s",
+        "max_feed_mm_min",
+        "max_accel_mm_s2",
+    )
 
     @property
     def klipper(self) -> bool:
@@ -75,36 +81,39 @@ class MotionSettings:
         return math.sqrt(self.accel_mm_s2 * (self.junction_deviation_mm or 0.0) * s / (1 - s))
 
     def caps(self) -> np.ndarray:
-        return np.array([float(self.max_feed_mm_min.get(a, math.inf) or math.inf) / 60.0
-                         for a in AXES])
+        return np.array(
+            [float(self.max_feed_mm_min.get(a, math.inf) or math.inf) / 60.0 for a in AXES]
+        )
 
     def axis_accels(self) -> Optional[np.ndarray]:
         if not self.max_accel_mm_s2:
             return None
-        return np.array([float(self.max_accel_mm_s2.get(a, math.inf) or math.inf)
-                         for a in AXES])
+        return np.array([float(self.max_accel_mm_s2.get(a, math.inf) or math.inf) for a in AXES])
 
     # -- documents ------------------------------------------------------------------------
     def metadata(self) -> Dict[str, str]:
         """``# key: value`` lines of a trace (what the analysis reads back)."""
         if self.constant_speed:
             return {"motion": "constant_speed"}
-        out = {"motion": "planner" + (" (estimated)" if self.estimated else ""),
-               "accel_mm_s2": f"{self.accel_mm_s2:g}"}
+        out = {
+            "motion": "planner" + (" (estimated)" if self.estimated else ""),
+            "accel_mm_s2": f"{self.accel_mm_s2:g}",
+        }
         if self.klipper:
             out["square_corner_velocity_mm_s"] = f"{self.square_corner_velocity_mm_s:g}"
         else:
             out["junction_deviation_mm"] = f"{self.junction_deviation_mm:g}"
         out["max_feed_mm_min"] = ",".join(f"{self.max_feed_mm_min.get(a, 0):g}" for a in AXES)
         if self.max_accel_mm_s2:
-            out["max_accel_mm_s2"] = ",".join(f"{self.max_accel_mm_s2.get(a, 0):g}"
-                                              for a in AXES)
+            out["max_accel_mm_s2"] = ",".join(f"{self.max_accel_mm_s2.get(a, 0):g}" for a in AXES)
         return out
 
     def as_dict(self) -> Dict[str, object]:
         """JSON form for diagnostics."""
-        d: Dict[str, object] = {"motion": "constant_speed" if self.constant_speed
-                                else "planner", "estimated": self.estimated}
+        d: Dict[str, object] = {
+            "motion": "constant_speed" if self.constant_speed else "planner",
+            "estimated": self.estimated,
+        }
         if not self.constant_speed:
             d["accel_mm_s2"] = self.accel_mm_s2
             if self.klipper:
@@ -116,21 +125,26 @@ class MotionSettings:
         return d
 
     @staticmethod
-    def from_metadata(meta: Dict[str, str]) -> Optional["MotionSettings"]:
+    def from_metadata(meta: Dict[str, str]) -> Optional[MotionSettings]:
         """Settings recorded in a trace's metadata; None when it records none (old traces,
         other loggers). Raises ValueError (with the key) for malformed values."""
         kind = meta.get("motion", "").strip().lower()
         if not kind and "accel_mm_s2" not in meta:
             return None
         if kind == "constant_speed":
-            return MotionSettings(constant_speed=True, max_feed_mm_min=_axis_triple(
-                meta.get("max_feed_mm_min"), "max_feed_mm_min", DEFAULT_MAX_FEED))
+            return MotionSettings(
+                constant_speed=True,
+                max_feed_mm_min=_axis_triple(
+                    meta.get("max_feed_mm_min"), "max_feed_mm_min", DEFAULT_MAX_FEED
+                ),
+            )
         d: Dict[str, object] = {}
         for key in ("accel_mm_s2", "junction_deviation_mm", "square_corner_velocity_mm_s"):
             if key in meta:
                 d[key] = meta[key]
-        d["max_feed_mm_min"] = _axis_triple(meta.get("max_feed_mm_min"), "max_feed_mm_min",
-                                            DEFAULT_MAX_FEED)
+        d["max_feed_mm_min"] = _axis_triple(
+            meta.get("max_feed_mm_min"), "max_feed_mm_min", DEFAULT_MAX_FEED
+        )
         if "max_accel_mm_s2" in meta:
             d["max_accel_mm_s2"] = _axis_triple(meta["max_accel_mm_s2"], "max_accel_mm_s2", {})
         s = MotionSettings.from_dict(d)
@@ -138,7 +152,7 @@ class MotionSettings:
         return s
 
     @staticmethod
-    def from_dict(d: Dict[str, object]) -> "MotionSettings":
+    def from_dict(d: Dict[str, object]) -> MotionSettings:
         """From a truth file / printer profile; raises ParamsError naming the field."""
         s = MotionSettings()
         if d.get("motion", "planner") == "constant_speed" or d.get("constant_speed") is True:
@@ -147,24 +161,28 @@ class MotionSettings:
             s.accel_mm_s2 = _positive(d["accel_mm_s2"], "accel_mm_s2", 1.0, 1e6)
         if d.get("square_corner_velocity_mm_s") is not None:
             s.square_corner_velocity_mm_s = _positive(
-                d["square_corner_velocity_mm_s"], "square_corner_velocity_mm_s", 0.0, 1000.0)
+                d["square_corner_velocity_mm_s"], "square_corner_velocity_mm_s", 0.0, 1000.0
+            )
             s.junction_deviation_mm = None
         elif d.get("junction_deviation_mm") is not None:
-            s.junction_deviation_mm = _positive(d["junction_deviation_mm"],
-                                                "junction_deviation_mm", 0.0, 10.0)
+            s.junction_deviation_mm = _positive(
+                d["junction_deviation_mm"], "junction_deviation_mm", 0.0, 10.0
+            )
         if d.get("max_feed_mm_min") is not None:
-            s.max_feed_mm_min = {a: _positive(v, f"max_feed_mm_min.{a}", 1.0, 1e6)
-                                 for a, v in _axis_map(d["max_feed_mm_min"],
-                                                       "max_feed_mm_min").items()}
+            s.max_feed_mm_min = {
+                a: _positive(v, f"max_feed_mm_min.{a}", 1.0, 1e6)
+                for a, v in _axis_map(d["max_feed_mm_min"], "max_feed_mm_min").items()
+            }
             for a in AXES:
                 s.max_feed_mm_min.setdefault(a, DEFAULT_MAX_FEED[a])
         if d.get("max_accel_mm_s2"):
-            s.max_accel_mm_s2 = {a: _positive(v, f"max_accel_mm_s2.{a}", 1.0, 1e6)
-                                 for a, v in _axis_map(d["max_accel_mm_s2"],
-                                                       "max_accel_mm_s2").items()}
+            s.max_accel_mm_s2 = {
+                a: _positive(v, f"max_accel_mm_s2.{a}", 1.0, 1e6)
+                for a, v in _axis_map(d["max_accel_mm_s2"], "max_accel_mm_s2").items()
+            }
         return s
 
-    def with_(self, **changes) -> "MotionSettings":
+    def with_(self, **changes) -> MotionSettings:
         return replace(self, **changes)
 
 
@@ -174,8 +192,7 @@ def _positive(v, name: str, lo: float, hi: float) -> float:
     except (TypeError, ValueError):
         raise ParamsError(name, Msg("must be a number")) from None
     if not (lo < x <= hi) or not math.isfinite(x):
-        raise ParamsError(name, Msg("must be within %(lo)s..%(hi)s", lo=f"{lo:g}",
-                                    hi=f"{hi:g}"))
+        raise ParamsError(name, Msg("must be within %(lo)s..%(hi)s", lo=f"{lo:g}", hi=f"{hi:g}"))
     return x
 
 
@@ -187,7 +204,7 @@ def _axis_map(v, name: str) -> Dict[str, object]:
         return dict(v)
     if isinstance(v, (list, tuple)) and len(v) == 3:
         return dict(zip(AXES, v))
-    raise ParamsError(name, Msg("expected {\"x\": .., \"y\": .., \"z\": ..}"))
+    raise ParamsError(name, Msg('expected {"x": .., "y": .., "z": ..}'))
 
 
 def _axis_triple(text: Optional[str], key: str, default: Dict[str, float]) -> Dict[str, float]:
@@ -289,8 +306,9 @@ class Plan:
         s = s + np.where(tau > ta, vc * t2, 0.0)
         s = s + np.where(tau > ta + tc, vc * t3 - 0.5 * a * t3 * t3, 0.0)
         # the phase's velocity (a block's dc/da are exact; s never exceeds L)
-        v = np.where(tau < ta, v0 + a * t1,
-                     np.where(tau < ta + tc, vc, np.maximum(vc - a * t3, v1)))
+        v = np.where(
+            tau < ta, v0 + a * t1, np.where(tau < ta + tc, vc, np.maximum(vc - a * t3, v1))
+        )
         s = np.minimum(s, self.L[i])
         after = ts >= self.duration
         v = np.where(after, 0.0, v)
@@ -317,9 +335,16 @@ class Blocks:
     wait: np.ndarray  # s of dwell for a wait block, 0 for a move after a stop, -1 otherwise
     end: np.ndarray
 
-    def plan(self, settings: Optional[MotionSettings] = None) -> "Plan":
-        return _plan_arrays(self.p0, self.p1, self.feed, self.line, self.wait, self.end,
-                            settings or MotionSettings())
+    def plan(self, settings: Optional[MotionSettings] = None) -> Plan:
+        return _plan_arrays(
+            self.p0,
+            self.p1,
+            self.feed,
+            self.line,
+            self.wait,
+            self.end,
+            settings or MotionSettings(),
+        )
 
 
 def program_blocks(events: Iterable[object], start: Sequence[float]) -> Blocks:
@@ -355,14 +380,19 @@ def program_blocks(events: Iterable[object], start: Sequence[float]) -> Blocks:
                 waits.append(float(ev.seconds))
         elif isinstance(ev, (Stop, Home)):
             stop_next = True
-    return Blocks(np.array(p0s, dtype=float).reshape(-1, 3),
-                  np.array(p1s, dtype=float).reshape(-1, 3), np.array(feeds, dtype=float),
-                  np.array(lines, dtype=int), np.array(waits, dtype=float),
-                  np.array(pos, dtype=float))
+    return Blocks(
+        np.array(p0s, dtype=float).reshape(-1, 3),
+        np.array(p1s, dtype=float).reshape(-1, 3),
+        np.array(feeds, dtype=float),
+        np.array(lines, dtype=int),
+        np.array(waits, dtype=float),
+        np.array(pos, dtype=float),
+    )
 
 
-def plan_events(events: Iterable[object], start: Sequence[float],
-                settings: Optional[MotionSettings] = None) -> Plan:
+def plan_events(
+    events: Iterable[object], start: Sequence[float], settings: Optional[MotionSettings] = None
+) -> Plan:
     """Plan a program's events (see :func:`program_events`)."""
     return program_blocks(events, start).plan(settings)
 
@@ -377,16 +407,21 @@ def _plan_arrays(P0, P1, feed, line, wait, end, s: MotionSettings) -> Plan:
     absu = np.abs(U)
     caps = s.caps()
     with np.errstate(divide="ignore"):
-        cap_speed = np.min(np.where(absu > 1e-12, caps[None, :] / np.maximum(absu, 1e-300),
-                                    np.inf), axis=1)
+        cap_speed = np.min(
+            np.where(absu > 1e-12, caps[None, :] / np.maximum(absu, 1e-300), np.inf), axis=1
+        )
     vn = np.minimum(feed / 60.0, cap_speed)
     vn[is_wait] = 0.0
     acc = np.full(n, float(s.accel_mm_s2))
     amax = s.axis_accels()
     if amax is not None:
         with np.errstate(divide="ignore"):
-            acc = np.minimum(acc, np.min(np.where(absu > 1e-12, amax[None, :]
-                                                  / np.maximum(absu, 1e-300), np.inf), axis=1))
+            acc = np.minimum(
+                acc,
+                np.min(
+                    np.where(absu > 1e-12, amax[None, :] / np.maximum(absu, 1e-300), np.inf), axis=1
+                ),
+            )
     vn2 = vn * vn
     if s.constant_speed or n == 0:
         v0 = vn.copy()
@@ -422,8 +457,24 @@ def _plan_arrays(P0, P1, feed, line, wait, end, s: MotionSettings) -> Plan:
             tc = np.where(is_wait, np.maximum(wait, 0.0), dc / np.where(vc > 0, vc, 1.0))
     dur = ta + tc + td
     t0 = np.concatenate([[0.0], np.cumsum(dur)[:-1]]) if n else np.zeros(0)
-    return Plan(t0=t0, p0=P0, u=U, L=L, v0=v0, vc=vc, v1=v1, a=a, ta=ta, tc=tc, td=td,
-                line=line, f=feed / 60.0, vn=vn, end=end, settings=s)
+    return Plan(
+        t0=t0,
+        p0=P0,
+        u=U,
+        L=L,
+        v0=v0,
+        vc=vc,
+        v1=v1,
+        a=a,
+        ta=ta,
+        tc=tc,
+        td=td,
+        line=line,
+        f=feed / 60.0,
+        vn=vn,
+        end=end,
+        settings=s,
+    )
 
 
 def _junction_v2(U, L, acc, vn2, stop, is_wait, s: MotionSettings) -> np.ndarray:
@@ -441,15 +492,17 @@ def _junction_v2(U, L, acc, vn2, stop, is_wait, s: MotionSettings) -> np.ndarray
     a_prev, a_next = acc[:-1], acc[1:]
     L_prev, L_next = L[:-1], L[1:]
     if s.klipper:
-        v2 = R * s.square_corner_velocity_mm_s ** 2 * SQRT2_1
+        v2 = R * s.square_corner_velocity_mm_s**2 * SQRT2_1
         tan_d2 = sin_d2 / np.sqrt(0.5 * (1.0 + cos_t))
-        v2 = np.minimum(v2, np.minimum(0.5 * L_next * tan_d2 * a_next,
-                                       0.5 * L_prev * tan_d2 * a_prev))
+        v2 = np.minimum(
+            v2, np.minimum(0.5 * L_next * tan_d2 * a_next, 0.5 * L_prev * tan_d2 * a_prev)
+        )
     else:
         v2 = a_next * float(s.junction_deviation_mm or 0.0) * R
         if s.small_segments:
-            theta = (math.radians(-40) * cos_t ** 2 - math.radians(50)) * cos_t \
-                + math.radians(90) - 0.18
+            theta = (
+                (math.radians(-40) * cos_t**2 - math.radians(50)) * cos_t + math.radians(90) - 0.18
+            )
             arc = (L_next < 1.0) & (theta > math.radians(135))
             with np.errstate(divide="ignore"):
                 lim = L_next / np.maximum(math.pi - theta, 1e-12) * a_next
@@ -468,6 +521,7 @@ def program_blocks_of(text_or_lines, start: Sequence[float]) -> Blocks:
     return program_blocks(program_events(lines, start), start)
 
 
-def plan_program(text_or_lines, start: Sequence[float],
-                 settings: Optional[MotionSettings] = None) -> Plan:
+def plan_program(
+    text_or_lines, start: Sequence[float], settings: Optional[MotionSettings] = None
+) -> Plan:
     return program_blocks_of(text_or_lines, start).plan(settings)

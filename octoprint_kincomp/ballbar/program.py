@@ -67,19 +67,36 @@ class TestSpec:
     def __post_init__(self):
         self.plane = str(self.plane).upper()
         if self.plane not in PLANES:
-            raise ProgramError(Msg("plane must be one of %(choices)s, got %(plane)s",
-                                   choices=", ".join(PLANES), plane=repr(self.plane)))
+            raise ProgramError(
+                Msg(
+                    "plane must be one of %(choices)s, got %(plane)s",
+                    choices=", ".join(PLANES),
+                    plane=repr(self.plane),
+                )
+            )
         self.centre = tuple(float(v) for v in self.centre)
         if len(self.centre) != 3 or not all(math.isfinite(v) for v in self.centre):
             raise ProgramError(Msg("centre needs three finite coordinates X,Y,Z (mm)"))
-        for name, lo, hi in (("radius_mm", 5.0, 1000.0), ("feed_mm_min", 10.0, 60000.0),
-                             ("feed_in_mm", 0.1, 5.0), ("overshoot_deg", 0.0, 180.0),
-                             ("dwell_s", 0.0, 60.0), ("chord_error_um", 0.01, 50.0),
-                             ("lift_mm", 0.0, 100.0)):
+        for name, lo, hi in (
+            ("radius_mm", 5.0, 1000.0),
+            ("feed_mm_min", 10.0, 60000.0),
+            ("feed_in_mm", 0.1, 5.0),
+            ("overshoot_deg", 0.0, 180.0),
+            ("dwell_s", 0.0, 60.0),
+            ("chord_error_um", 0.01, 50.0),
+            ("lift_mm", 0.0, 100.0),
+        ):
             v = float(getattr(self, name))
             if not (lo <= v <= hi) or not math.isfinite(v):
-                raise ProgramError(Msg("%(name)s must be within %(lo)s..%(hi)s, got %(value)s",
-                                       name=name, lo=f"{lo:g}", hi=f"{hi:g}", value=f"{v:g}"))
+                raise ProgramError(
+                    Msg(
+                        "%(name)s must be within %(lo)s..%(hi)s, got %(value)s",
+                        name=name,
+                        lo=f"{lo:g}",
+                        hi=f"{hi:g}",
+                        value=f"{v:g}",
+                    )
+                )
             setattr(self, name, v)
         if self.capture_deg is None:
             self.capture_deg = 360.0 if self.plane == "XY" else 220.0
@@ -88,8 +105,11 @@ class TestSpec:
         if not (10.0 <= float(self.capture_deg) <= 360.0):
             raise ProgramError(Msg("capture_deg must be within 10..360"))
         self.directions = tuple(self.directions)
-        if not self.directions or len(set(self.directions)) != len(self.directions) or \
-                any(d not in ("ccw", "cw") for d in self.directions):
+        if (
+            not self.directions
+            or len(set(self.directions)) != len(self.directions)
+            or any(d not in ("ccw", "cw") for d in self.directions)
+        ):
             raise ProgramError(Msg("directions are 'ccw' and/or 'cw'"))
 
     @property
@@ -137,8 +157,7 @@ def cap_feed(feed: float, plane: str, max_feed_mm_min: Optional[Dict[str, float]
     if not max_feed_mm_min:
         return feed
     a, b = PLANES[plane.upper()]
-    caps = [max_feed_mm_min.get(AXIS[k].lower()) or max_feed_mm_min.get(AXIS[k])
-            for k in (a, b)]
+    caps = [max_feed_mm_min.get(AXIS[k].lower()) or max_feed_mm_min.get(AXIS[k]) for k in (a, b)]
     caps = [float(c) for c in caps if c]
     return min([feed] + caps)
 
@@ -181,8 +200,9 @@ def check_bounds(spec: TestSpec, volume: Optional[Sequence[float]]) -> None:
         n = max(8, int(abs(sweep)))
         for i in range(n + 1):
             pts.append(spec.point(a0 + sweep * i / n, spec.radius_mm + spec.feed_in_mm))
-    lift = list(spec.point(run_angles(spec, spec.directions[0])[0],
-                           spec.radius_mm + spec.feed_in_mm))
+    lift = list(
+        spec.point(run_angles(spec, spec.directions[0])[0], spec.radius_mm + spec.feed_in_mm)
+    )
     lift[2] += spec.lift_mm
     pts.append(tuple(lift))
     problems = []
@@ -191,17 +211,34 @@ def check_bounds(spec: TestSpec, volume: Optional[Sequence[float]]) -> None:
         vmin = min(p[k] for p in pts)
         vmax = max(p[k] for p in pts)
         if vmin < lo - 1e-9:
-            problems.append(Msg("%(axis)s reaches %(value)s mm, below the limit %(limit)s mm",
-                                axis=name, value=f"{vmin:.2f}", limit=f"{lo:g}"))
+            problems.append(
+                Msg(
+                    "%(axis)s reaches %(value)s mm, below the limit %(limit)s mm",
+                    axis=name,
+                    value=f"{vmin:.2f}",
+                    limit=f"{lo:g}",
+                )
+            )
         if vmax > hi + 1e-9:
-            problems.append(Msg("%(axis)s reaches %(value)s mm, above the limit %(limit)s mm",
-                                axis=name, value=f"{vmax:.2f}", limit=f"{hi:g}"))
+            problems.append(
+                Msg(
+                    "%(axis)s reaches %(value)s mm, above the limit %(limit)s mm",
+                    axis=name,
+                    value=f"{vmax:.2f}",
+                    limit=f"{hi:g}",
+                )
+            )
     if problems:
-        raise ProgramError(Msg(
-            "the %(radius)s mm circle about %(centre)s in %(plane)s does not fit the machine: "
-            "%(problem)s. Move the centre or use a smaller radius.",
-            radius=f"{spec.radius_mm:g}", centre=",".join(f"{v:g}" for v in spec.centre),
-            plane=spec.plane, problem=joined(problems)))
+        raise ProgramError(
+            Msg(
+                "the %(radius)s mm circle about %(centre)s in %(plane)s does not fit the machine: "
+                "%(problem)s. Move the centre or use a smaller radius.",
+                radius=f"{spec.radius_mm:g}",
+                centre=",".join(f"{v:g}" for v in spec.centre),
+                plane=spec.plane,
+                problem=joined(problems),
+            )
+        )
 
 
 def _fmt(v: float) -> str:
@@ -209,9 +246,13 @@ def _fmt(v: float) -> str:
     return "0.0000" if t == "-0.0000" else t
 
 
-def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
-             params_hash: str = "none", date: Optional[str] = None,
-             feed_notes: Sequence[str] = ()) -> str:
+def generate(
+    spec: TestSpec,
+    volume: Optional[Sequence[float]] = None,
+    params_hash: str = "none",
+    date: Optional[str] = None,
+    feed_notes: Sequence[str] = (),
+) -> str:
     """The G-code program (text) for ``spec``; raises ProgramError if it does not fit.
     ``feed_notes``: header comment lines saying how the feed was chosen (limits.describe).
 
@@ -233,8 +274,10 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
     w("G91")
     w(f"G1 Z{spec.lift_mm:g} F600 ; lift before travel")
     w("G90")
-    w(f"G1 X{_fmt(start[0])} Y{_fmt(start[1])} F{spec.travel_feed_mm_min:g}"
-      " ; travel to above the start point")
+    w(
+        f"G1 X{_fmt(start[0])} Y{_fmt(start[1])} F{spec.travel_feed_mm_min:g}"
+        " ; travel to above the start point"
+    )
     w(f"G1 Z{_fmt(start[2])} F600 ; to the test height")
     if spec.mount_pause:
         w("M400")
@@ -242,8 +285,10 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
     feed = spec.feed_mm_min
     for d in spec.directions:
         a0, sweep = run_angles(spec, d)
-        w(f"; --- run {d}: feed-in at {a0:g} deg, sweep {sweep:g} deg, capture "
-          f"{spec.capture_deg:g} deg from {spec.start_deg:g} deg")
+        w(
+            f"; --- run {d}: feed-in at {a0:g} deg, sweep {sweep:g} deg, capture "
+            f"{spec.capture_deg:g} deg from {spec.start_deg:g} deg"
+        )
         w(f"M117 {RUN_MARKER} {d}")
         p = spec.point(a0, r_out)
         w(f"G1 {la}{_fmt(p[a])} {lb}{_fmt(p[b])} F{feed:g}")
@@ -278,8 +323,10 @@ def generate(spec: TestSpec, volume: Optional[Sequence[float]] = None,
     if feed_notes:
         header += [f"; {n}" for n in feed_notes]
     elif spec.requested_feed_mm_min and spec.requested_feed_mm_min != spec.feed_mm_min:
-        header.append(f"; feed capped from {spec.requested_feed_mm_min:g} mm/min "
-                      "to the slowest axis' max feed")
+        header.append(
+            f"; feed capped from {spec.requested_feed_mm_min:g} mm/min "
+            "to the slowest axis' max feed"
+        )
     header += [f"; ballbar {k}: {v}" for k, v in meta.items()]
     header.append(f"; ballbar params_hash: {params_hash}")
     header.append(f"; ballbar program_hash: {prog_hash}")
@@ -291,7 +338,7 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
     meta = {}
     for line in text.splitlines()[:60]:
         if line.startswith("; ballbar ") and ":" in line:
-            k, v = line[len("; ballbar "):].split(":", 1)
+            k, v = line[len("; ballbar ") :].split(":", 1)
             meta[k.strip()] = v.strip()
     if "plane" not in meta:
         raise ProgramError(Msg("not a KinComp ballbar program (no '; ballbar plane:' line)"))

@@ -40,9 +40,14 @@ def checked_params(d: Dict[str, object]) -> Params:
     try:
         return Params.from_dict(d)
     except ParamsError as exc:
-        raise TraceError(Msg("the proposed parameters are out of range (%(error)s); errors "
-                             "this large are implausible: check the set-up and the "
-                             "measurement", error=error_message(exc))) from None
+        raise TraceError(
+            Msg(
+                "the proposed parameters are out of range (%(error)s); errors "
+                "this large are implausible: check the set-up and the "
+                "measurement",
+                error=error_message(exc),
+            )
+        ) from None
 
 
 def proposal_meta(source: str, simulated: bool, plane: str, current: Params) -> Dict[str, str]:
@@ -54,8 +59,9 @@ def proposal_meta(source: str, simulated: bool, plane: str, current: Params) -> 
     }
 
 
-def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
-                   notes: List[str]) -> Params:
+def propose_params(
+    diag: Dict[str, object], geom: Geometry, current: Params, notes: List[str]
+) -> Params:
     """Current parameters updated with the residual errors of one test (see module doc)."""
     a, b = geom.axes
     d = current.to_dict()
@@ -91,33 +97,55 @@ def propose_params(diag: Dict[str, object], geom: Geometry, current: Params,
             if geom.centre is not None and geom.radius:
                 lo = geom.centre[ax] - geom.radius
                 hi = geom.centre[ax] + geom.radius
-                vals = (max(0.0, minus + frac * table.um_at(lo)),
-                        max(0.0, plus + frac * table.um_at(hi)))
-                d["backlash"][AXES[ax]] = [{"at_mm": lo, "um": vals[0]},
-                                           {"at_mm": hi, "um": vals[1]}]
+                vals = (
+                    max(0.0, minus + frac * table.um_at(lo)),
+                    max(0.0, plus + frac * table.um_at(hi)),
+                )
+                d["backlash"][AXES[ax]] = [
+                    {"at_mm": lo, "um": vals[0]},
+                    {"at_mm": hi, "um": vals[1]},
+                ]
             else:
                 mean_cur = sum(um for _, um in table.points) / len(table.points)
                 d["backlash"][AXES[ax]] = max(0.0, (plus + minus) / 2 + frac * mean_cur)
-                notes.append(Msg("Backlash of %(axis)s set to the mean of both ends: the "
-                                 "test centre is unknown.", axis=AXES[ax].upper()))
+                notes.append(
+                    Msg(
+                        "Backlash of %(axis)s set to the mean of both ends: the "
+                        "test centre is unknown.",
+                        axis=AXES[ax].upper(),
+                    )
+                )
             if min(plus, minus) < -0.5:
-                notes.append(Msg("Negative residual backlash on %(axis)s: the current value "
-                                 "over-compensates.", axis=AXES[ax].upper()))
+                notes.append(
+                    Msg(
+                        "Negative residual backlash on %(axis)s: the current value "
+                        "over-compensates.",
+                        axis=AXES[ax].upper(),
+                    )
+                )
         if current.backlash_fraction == 0:
             d["backlash"]["fraction"] = 1.0
         elif current.backlash_fraction < 1.0:
-            notes.append(Msg("Backlash values are the measured lost motion; the fraction "
-                             "stays at %(fraction)s, so %(fraction)s of it is taken up (set "
-                             "the fraction to 1 for all of it).",
-                             fraction=f"{current.backlash_fraction:g}"))
+            notes.append(
+                Msg(
+                    "Backlash values are the measured lost motion; the fraction "
+                    "stays at %(fraction)s, so %(fraction)s of it is taken up (set "
+                    "the fraction to 1 for all of it).",
+                    fraction=f"{current.backlash_fraction:g}",
+                )
+            )
     # Servo lag: mismatch assigned to the first axis of the plane.
     dT = diag.get("servo_mismatch_ms")
     if dT is not None:
-        applied = current.servo_lag_ms if current.servo_precomp else {k: 0.0 for k in AXES}
+        applied = current.servo_lag_ms if current.servo_precomp else dict.fromkeys(AXES, 0.0)
         lag = dict(applied)
         lag[AXES[a]] = applied[AXES[a]] + float(dT)
         d["servo_lag_ms"] = lag
         d["servo_precomp"] = current.servo_precomp
-    d["meta"] = proposal_meta(str(diag.get("source") or "ballbar analysis"),
-                              bool(diag.get("simulated")), geom.plane, current)
+    d["meta"] = proposal_meta(
+        str(diag.get("source") or "ballbar analysis"),
+        bool(diag.get("simulated")),
+        geom.plane,
+        current,
+    )
     return checked_params(d)

@@ -47,8 +47,15 @@ from .program import END_MARKER, RUN_MARKER, ProgramError, run_angles, spec_from
 from .timing import nominal_positions
 
 SIMULATED_LABEL = "SIMULATED data (KinComp printer + ballbar simulator), not a measurement"
-MOTION_KEYS = ("motion", "accel_mm_s2", "junction_deviation_mm", "square_corner_velocity_mm_s",
-               "max_feed_mm_min", "max_accel_mm_s2", "constant_speed")
+MOTION_KEYS = (
+    "motion",
+    "accel_mm_s2",
+    "junction_deviation_mm",
+    "square_corner_velocity_mm_s",
+    "max_feed_mm_min",
+    "max_accel_mm_s2",
+    "constant_speed",
+)
 
 
 @dataclass
@@ -56,7 +63,7 @@ class Truth:
     """The simulated printer's true errors and motion (see the module docstring)."""
 
     errors: Params = field(default_factory=Params)
-    servo_lag_ms: Dict[str, float] = field(default_factory=lambda: {a: 0.0 for a in AXES})
+    servo_lag_ms: Dict[str, float] = field(default_factory=lambda: dict.fromkeys(AXES, 0.0))
     cyclic: Dict[str, Tuple[float, float, float]] = field(default_factory=dict)
     spike_um: float = 0.0
     spike_decay_mm: float = 3.0
@@ -89,25 +96,43 @@ class Truth:
         return m.with_(max_feed_mm_min=feed, max_accel_mm_s2=acc or None)
 
     @staticmethod
-    def from_dict(d: dict) -> "Truth":
+    def from_dict(d: dict) -> Truth:
         if not isinstance(d, dict):
             raise ParamsError("", Msg("truth must be a JSON object"))
         if "errors" not in d:  # a plain params document: errors only
             return Truth(errors=Params.from_dict(d))
-        allowed = {"errors", "servo_lag_ms", "cyclic", "reversal_spikes", "noise_um",
-                   "setup_offset_um", "bar_length_error_um", "sample_rate_hz", "seed",
-                   "steps_per_mm", "bar_drift_um_per_min", "speed_factor_pct",
-                   "hidden_max_feed_mm_min", "hidden_max_accel_mm_s2", "glitches",
-                   "corexy_motor_backlash_um", "corexy_motor_scale_ppm"} | set(MOTION_KEYS)
+        allowed = {
+            "errors",
+            "servo_lag_ms",
+            "cyclic",
+            "reversal_spikes",
+            "noise_um",
+            "setup_offset_um",
+            "bar_length_error_um",
+            "sample_rate_hz",
+            "seed",
+            "steps_per_mm",
+            "bar_drift_um_per_min",
+            "speed_factor_pct",
+            "hidden_max_feed_mm_min",
+            "hidden_max_accel_mm_s2",
+            "glitches",
+            "corexy_motor_backlash_um",
+            "corexy_motor_scale_ppm",
+        } | set(MOTION_KEYS)
         for k in d:
             if k not in allowed:
-                raise ParamsError(k, Msg("unknown key (allowed: %(allowed)s)",
-                                         allowed=", ".join(sorted(allowed))))
+                raise ParamsError(
+                    k, Msg("unknown key (allowed: %(allowed)s)", allowed=", ".join(sorted(allowed)))
+                )
         t = Truth(errors=Params.from_dict(d["errors"]))
         t.servo_lag_ms = {a: float(d.get("servo_lag_ms", {}).get(a, 0.0)) for a in AXES}
         for a, c in d.get("cyclic", {}).items():
-            t.cyclic[a] = (float(c["amplitude_um"]), float(c["pitch_mm"]),
-                           float(c.get("phase_deg", 0.0)))
+            t.cyclic[a] = (
+                float(c["amplitude_um"]),
+                float(c["pitch_mm"]),
+                float(c.get("phase_deg", 0.0)),
+            )
         sp = d.get("reversal_spikes", {})
         t.spike_um = float(sp.get("amplitude_um", 0.0))
         t.spike_decay_mm = float(sp.get("decay_mm", 3.0))
@@ -136,8 +161,7 @@ class Truth:
         for key in ("hidden_max_feed_mm_min", "hidden_max_accel_mm_s2"):
             for a, v in (d.get(key) or {}).items():
                 if a not in AXES or not float(v) > 0:
-                    raise ParamsError(f"{key}.{a}", Msg("an axis (x, y, z) and a positive "
-                                                        "number"))
+                    raise ParamsError(f"{key}.{a}", Msg("an axis (x, y, z) and a positive number"))
                 getattr(t, key)[a] = float(v)
         g = d.get("glitches") or {}
         t.glitches = (int(g.get("count", 0)), float(g.get("amplitude_um", 0.0)))
@@ -152,13 +176,19 @@ class Truth:
         return t
 
     @staticmethod
-    def load(path: str) -> "Truth":
+    def load(path: str) -> Truth:
         with open(path, encoding="utf-8") as f:
             try:
                 return Truth.from_dict(json.load(f))
             except json.JSONDecodeError as exc:
-                raise ParamsError("", Msg("not valid JSON (%(error)s at line %(line)s)",
-                                          error=exc.msg, line=exc.lineno))
+                raise ParamsError(
+                    "",
+                    Msg(
+                        "not valid JSON (%(error)s at line %(line)s)",
+                        error=exc.msg,
+                        line=exc.lineno,
+                    ),
+                )
 
 
 def paper_truth(**overrides) -> Truth:
@@ -168,12 +198,16 @@ def paper_truth(**overrides) -> Truth:
     +X/-X ends, Y 11.3/5.4 um at the +Y/-Y ends, servo mismatch 0.62 ms (X lags more).
     """
     t = Truth(
-        errors=Params.from_dict({
-            "squareness_um_per_m": {"xy": -3638.6},
-            "scale_ppm": {"x": -451.7, "y": 287.0},
-            "backlash": {"x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
-                         "y": [{"at_mm": 10.0, "um": 5.4}, {"at_mm": 210.0, "um": 11.3}]},
-        }),
+        errors=Params.from_dict(
+            {
+                "squareness_um_per_m": {"xy": -3638.6},
+                "scale_ppm": {"x": -451.7, "y": 287.0},
+                "backlash": {
+                    "x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
+                    "y": [{"at_mm": 10.0, "um": 5.4}, {"at_mm": 210.0, "um": 11.3}],
+                },
+            }
+        ),
         servo_lag_ms={"x": 0.62, "y": 0.0, "z": 0.0},
     )
     for k, v in overrides.items():
@@ -184,10 +218,16 @@ def paper_truth(**overrides) -> Truth:
 def tuned_truth(**overrides) -> Truth:
     """A well-tuned printer: squareness 40 um/m, scale X +30, Y -20 ppm, backlash 3/2 um
     (X/Y), servo lag X 0.1 ms."""
-    t = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 40.0},
-                                       "scale_ppm": {"x": 30.0, "y": -20.0},
-                                       "backlash": {"x": 3.0, "y": 2.0}}),
-              servo_lag_ms={"x": 0.1, "y": 0.0, "z": 0.0})
+    t = Truth(
+        errors=Params.from_dict(
+            {
+                "squareness_um_per_m": {"xy": 40.0},
+                "scale_ppm": {"x": 30.0, "y": -20.0},
+                "backlash": {"x": 3.0, "y": 2.0},
+            }
+        ),
+        servo_lag_ms={"x": 0.1, "y": 0.0, "z": 0.0},
+    )
     for k, v in overrides.items():
         setattr(t, k, v)
     return t
@@ -198,13 +238,17 @@ def volume_truth(**overrides) -> Truth:
     xz +800, yz -500 um/m; scale X -451.7, Y +287, Z +150 ppm; backlash X 37.4/4.4 um at the
     -X/+X ends (x = 10/210 mm), Y 5.4/11.3 at -Y/+Y, Z 8 um; servo lag X 0.62 ms, Z 0.3 ms."""
     t = paper_truth()
-    t.errors = Params.from_dict({
-        "squareness_um_per_m": {"xy": -3638.6, "xz": 800.0, "yz": -500.0},
-        "scale_ppm": {"x": -451.7, "y": 287.0, "z": 150.0},
-        "backlash": {"x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
-                     "y": [{"at_mm": 10.0, "um": 5.4}, {"at_mm": 210.0, "um": 11.3}],
-                     "z": 8.0},
-    })
+    t.errors = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -3638.6, "xz": 800.0, "yz": -500.0},
+            "scale_ppm": {"x": -451.7, "y": 287.0, "z": 150.0},
+            "backlash": {
+                "x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
+                "y": [{"at_mm": 10.0, "um": 5.4}, {"at_mm": 210.0, "um": 11.3}],
+                "z": 8.0,
+            },
+        }
+    )
     t.servo_lag_ms = {"x": 0.62, "y": 0.0, "z": 0.3}
     for k, v in overrides.items():
         setattr(t, k, v)
@@ -225,8 +269,9 @@ def _lagging(q: np.ndarray, play_mm: float) -> np.ndarray:
     return out
 
 
-def _corexy_motors(drive: np.ndarray, play_um: Dict[str, float], scale_ppm: Dict[str, float]
-                   ) -> np.ndarray:
+def _corexy_motors(
+    drive: np.ndarray, play_um: Dict[str, float], scale_ppm: Dict[str, float]
+) -> np.ndarray:
     """X and Y after CoreXY motors A (X+Y) and B (X-Y): each motor's belt scale (ppm, a
     belt stretched or tensioned differently: its travel is ``1 + s`` times the command) and
     play (um of the motor's travel)."""
@@ -272,7 +317,7 @@ def _servo(u: np.ndarray, dt: float, lag_s: float) -> np.ndarray:
     b = -(1.0 - a) * lag_s * np.diff(u) / dt
     m = 1 if a <= 0 else int(math.ceil(math.log(1e-17) / math.log(a)))
     m = max(1, min(m, len(b)))
-    e = np.convolve(b, a ** np.arange(m))[:len(b)]
+    e = np.convolve(b, a ** np.arange(m))[: len(b)]
     return u + np.concatenate([[0.0], e])
 
 
@@ -293,10 +338,10 @@ class Simulator:
             u[:, k] = np.round(u[:, k] * spm) / spm
         drive = np.stack(
             [_servo(u[:, k], dt, tr.servo_lag_ms.get(AXES[k], 0.0) * 1e-3) for k in range(3)],
-            axis=1)
+            axis=1,
+        )
         if tr.corexy_motor_backlash_um or tr.corexy_motor_scale_ppm:
-            drive = _corexy_motors(drive, tr.corexy_motor_backlash_um,
-                                   tr.corexy_motor_scale_ppm)
+            drive = _corexy_motors(drive, tr.corexy_motor_backlash_um, tr.corexy_motor_scale_ppm)
         play = Play(tr.errors)
         carriage = drive.copy()
         for k in range(3):
@@ -306,8 +351,9 @@ class Simulator:
             carriage += self._spikes(drive)
         for a, (amp, pitch, phase) in tr.cyclic.items():
             k = AXES.index(a)
-            carriage[:, k] += amp * 1e-3 * np.sin(
-                2 * math.pi * carriage[:, k] / pitch + math.radians(phase))
+            carriage[:, k] += (
+                amp * 1e-3 * np.sin(2 * math.pi * carriage[:, k] / pitch + math.radians(phase))
+            )
         return self.model.forward_many(carriage)
 
     def _spikes(self, drive: np.ndarray) -> np.ndarray:
@@ -407,8 +453,9 @@ class Simulator:
             rows.extend(zip([direction] * len(sel), ts[sel].tolist(), reading[sel].tolist()))
         return NativeTrace(meta=meta, rows=rows)
 
-    def run_program_angle(self, text: str, spec=None, prog_hash: str = "",
-                          compensated_with: Optional[Params] = None) -> AngleTrace:
+    def run_program_angle(
+        self, text: str, spec=None, prog_hash: str = "", compensated_with: Optional[Params] = None
+    ) -> AngleTrace:
         """The same run as an angle-domain trace: each sample on the circle (capture and
         overshoot arcs) at the nominal angle the program commanded at that instant (what
         ballbar software exports). A program that was compensated with ``compensated_with``
@@ -418,14 +465,20 @@ class Simulator:
         for direction, sel in runs:
             nominal = nominal_positions(plan, ts[sel], u[sel], compensated_with)
             theta, on_arc = arc_angles_of(nominal, spec, direction)
-            rows.extend(zip([direction] * int(on_arc.sum()), theta[on_arc].tolist(),
-                            (reading[sel][on_arc] * 1e3).tolist()))
+            rows.extend(
+                zip(
+                    [direction] * int(on_arc.sum()),
+                    theta[on_arc].tolist(),
+                    (reading[sel][on_arc] * 1e3).tolist(),
+                )
+            )
         meta.pop("sample_rate_hz", None)
         return AngleTrace(meta=meta, rows=rows)
 
 
-def arc_angles_of(nominal: np.ndarray, spec, direction: str, tol_mm: float = 0.003
-                  ) -> Tuple[np.ndarray, np.ndarray]:
+def arc_angles_of(
+    nominal: np.ndarray, spec, direction: str, tol_mm: float = 0.003
+) -> Tuple[np.ndarray, np.ndarray]:
     """Nominal angles (deg, continuous from the run's feed-in angle) of positions (n, 3) and
     whether each is on the circle (not on the radial feed-in/out)."""
     a, b = spec.axes
@@ -443,8 +496,13 @@ def simulate_program(text: str, truth: Truth, spec=None, prog_hash: str = "") ->
     return Simulator(truth).run_program(text, spec, prog_hash)
 
 
-def simulate_angle_trace(text: str, truth: Truth, spec=None, prog_hash: str = "",
-                         compensated_with: Optional[Params] = None) -> AngleTrace:
+def simulate_angle_trace(
+    text: str,
+    truth: Truth,
+    spec=None,
+    prog_hash: str = "",
+    compensated_with: Optional[Params] = None,
+) -> AngleTrace:
     return Simulator(truth).run_program_angle(text, spec, prog_hash, compensated_with)
 
 
@@ -464,6 +522,6 @@ def _strip_number(line: str) -> str:
             i += 1
         s = s[i:].lstrip()
         star = s.rfind("*")
-        if star >= 0 and s[star + 1:].strip().isdigit():
+        if star >= 0 and s[star + 1 :].strip().isdigit():
             s = s[:star].rstrip()
     return s

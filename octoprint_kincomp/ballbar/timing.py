@@ -52,8 +52,9 @@ def geometry_from_meta(meta: Dict[str, str]) -> Geometry:
     plane = meta_plane(meta)
     radius = meta_float(meta, "radius_mm")
     if not (1.0 <= radius <= 2000.0):
-        raise TraceError(Msg("metadata 'radius_mm' %(value)s is out of range (1..2000)",
-                             value=f"{radius:g}"))
+        raise TraceError(
+            Msg("metadata 'radius_mm' %(value)s is out of range (1..2000)", value=f"{radius:g}")
+        )
     feed = meta_float(meta, "feed_mm_min", 0.0) or None
     start = meta_float(meta, "start_deg", 0.0 if plane == "XY" else -20.0)
     cap = meta_float(meta, "capture_deg", 360.0 if plane == "XY" else 220.0)
@@ -65,11 +66,23 @@ def spec_from_meta(meta: Dict[str, str]) -> TestSpec:
     Raises ProgramError for values no KinComp program can have."""
     geom = geometry_from_meta(meta)
     directions = tuple(d.strip() for d in meta.get("directions", "ccw,cw").split(",") if d)
-    kw = dict(plane=geom.plane, centre=geom.centre or (0.0, 0.0, 0.0), radius_mm=geom.radius,
-              feed_mm_min=geom.feed or 1850.0, capture_deg=geom.capture_deg,
-              start_deg=geom.capture_start_deg, directions=directions)
-    for key in ("feed_in_mm", "overshoot_deg", "dwell_s", "chord_error_um", "lift_mm",
-                "travel_feed_mm_min"):
+    kw = dict(
+        plane=geom.plane,
+        centre=geom.centre or (0.0, 0.0, 0.0),
+        radius_mm=geom.radius,
+        feed_mm_min=geom.feed or 1850.0,
+        capture_deg=geom.capture_deg,
+        start_deg=geom.capture_start_deg,
+        directions=directions,
+    )
+    for key in (
+        "feed_in_mm",
+        "overshoot_deg",
+        "dwell_s",
+        "chord_error_um",
+        "lift_mm",
+        "travel_feed_mm_min",
+    ):
         if key in meta:
             kw[key] = meta_float(meta, key)
     if "mount_pause" in meta:
@@ -90,8 +103,9 @@ def program_text(spec: TestSpec, current: Optional[Params]) -> str:
     return dst.getvalue()
 
 
-def nominal_positions(plan: Plan, ts: np.ndarray, cmd: np.ndarray,
-                      params: Optional[Params]) -> np.ndarray:
+def nominal_positions(
+    plan: Plan, ts: np.ndarray, cmd: np.ndarray, params: Optional[Params]
+) -> np.ndarray:
     """Nominal (desired) positions of commanded positions ``cmd`` (n, 3) at times ``ts`` of a
     program compensated with ``params``: servo lead and backlash offsets removed, then the
     compensation model inverted (``desired = forward(command)``)."""
@@ -100,8 +114,7 @@ def nominal_positions(plan: Plan, ts: np.ndarray, cmd: np.ndarray,
     return _undo_compensation(plan, ts, cmd, params)
 
 
-def _undo_compensation(plan: Plan, ts: np.ndarray, cmd: np.ndarray, params: Params
-                       ) -> np.ndarray:
+def _undo_compensation(plan: Plan, ts: np.ndarray, cmd: np.ndarray, params: Params) -> np.ndarray:
     i = plan.block_at(ts)
     u = plan.u[i]
     q = np.array(cmd, dtype=float)
@@ -141,7 +154,7 @@ class PlannedTest:
     settings: Optional[MotionSettings] = None
 
     @staticmethod
-    def build(spec: TestSpec, current: Optional[Params]) -> "PlannedTest":
+    def build(spec: TestSpec, current: Optional[Params]) -> PlannedTest:
         if current is not None and changes_nothing(current):
             current = None
         text = program_text(spec, current)
@@ -198,8 +211,9 @@ class Ramp:
     falling: bool  # feed-in (reading falls) or feed-out
 
 
-def _crossing_time(t: np.ndarray, r: np.ndarray, level: float, falling: bool,
-                   last: bool = False) -> Optional[float]:
+def _crossing_time(
+    t: np.ndarray, r: np.ndarray, level: float, falling: bool, last: bool = False
+) -> Optional[float]:
     s = (r < level) if falling else (r > level)
     d = np.nonzero(s[1:] & ~s[:-1])[0]
     if len(d) == 0:
@@ -230,8 +244,9 @@ def _ramp_terms(test: PlannedTest, ramp: Ramp, tau: float):
     return e, g
 
 
-def _fit_tau(test: PlannedTest, ramps: List[Ramp], tau: float, iters: int = 8
-             ) -> Tuple[float, float]:
+def _fit_tau(
+    test: PlannedTest, ramps: List[Ramp], tau: float, iters: int = 8
+) -> Tuple[float, float]:
     """Gauss-Newton on one time offset shared by ``ramps``; returns (tau, SSE)."""
     for _ in range(iters):
         num = den = 0.0
@@ -299,8 +314,7 @@ class MeasuredRun:
     tau0: Tuple[float, float] = (0.0, 0.0)
 
 
-def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarray
-                  ) -> MeasuredRun:
+def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarray) -> MeasuredRun:
     """Coarse sync (mid-level crossings) and the measured ramp windows of one run."""
     spec = test.spec
     d = spec.feed_in_mm
@@ -324,9 +338,13 @@ def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarra
             w0, w1 = p0 - CORNER_S, p1 + RAMP_BEFORE_S
         sel = (t >= w0 + tau) & (t <= w1 + tau)
         if sel.sum() < 4:
-            raise TraceError(Msg("%(direction)s run: too few samples on the radial feed-in/"
-                                 "feed-out to synchronise (sample rate too low?)",
-                                 direction=direction))
+            raise TraceError(
+                Msg(
+                    "%(direction)s run: too few samples on the radial feed-in/"
+                    "feed-out to synchronise (sample rate too low?)",
+                    direction=direction,
+                )
+            )
         mr.ramps.append(Ramp(t[sel], r[sel], k0, k1, falling))
     return mr
 
@@ -376,8 +394,9 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
     lj = math.log(base.junction_deviation_mm)
     _, a_best = min((cost(planner(math.log(a), lj), False), float(a)) for a in A_GRID)
     da, dj = math.log(A_GRID[1] / A_GRID[0]), math.log(JD_GRID[1] / JD_GRID[0])
-    la, s_best = _minimise(lambda x: cost(planner(x, lj), False), math.log(a_best), da,
-                           da / 2, tol=0.005)
+    la, s_best = _minimise(
+        lambda x: cost(planner(x, lj), False), math.log(a_best), da, da / 2, tol=0.005
+    )
     s_const = cost(base.with_(constant_speed=True), False)
     c_best = cost(planner(la, lj), True)
     lj2, _ = _minimise(lambda x: cost(planner(la, x), True), lj, 2 * dj, dj / 2, tol=0.02)
@@ -394,12 +413,17 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
     def clearly(c_plan: float, c_flat: float) -> bool:
         return c_flat - c_plan > 10.0 * min(c_flat, c_plan) / max(n, 1)
 
-    if not (clearly(s_best, s_const) or clearly(c_best, c_const)) or \
-            test.spec.feed_mm_min / 60.0 / math.exp(la) < 2.0 * dt:
+    if (
+        not (clearly(s_best, s_const) or clearly(c_best, c_const))
+        or test.spec.feed_mm_min / 60.0 / math.exp(la) < 2.0 * dt
+    ):
         s = base.with_(constant_speed=True, estimated=True)
     else:
-        s = base.with_(accel_mm_s2=round(math.exp(la), 1),
-                       junction_deviation_mm=round(math.exp(lj), 5), estimated=True)
+        s = base.with_(
+            accel_mm_s2=round(math.exp(la), 1),
+            junction_deviation_mm=round(math.exp(lj), 5),
+            estimated=True,
+        )
     test.use(s)
     return s
 
@@ -436,8 +460,9 @@ def _planned_test(meta: Dict[str, str], current: Optional[Params]) -> PlannedTes
     try:
         spec = spec_from_meta(meta)
     except ProgramError as exc:
-        raise TraceError(Msg("metadata does not describe a test program: %(error)s",
-                             error=str(exc))) from None
+        raise TraceError(
+            Msg("metadata does not describe a test program: %(error)s", error=str(exc))
+        ) from None
     return PlannedTest.build(spec, current)
 
 
@@ -449,8 +474,9 @@ def _settings_from_meta(meta: Dict[str, str]) -> Optional[MotionSettings]:
         raise TraceError(Msg("metadata '%(key)s' is not valid", key=str(key))) from None
 
 
-def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
-                     ) -> Tuple[Geometry, List[Run], Mapping]:
+def runs_from_native(
+    trace: NativeTrace, current: Optional[Params] = None
+) -> Tuple[Geometry, List[Run], Mapping]:
     """Map each sample's time to its nominal angle with the planned motion."""
     meta = trace.meta
     geom = geometry_from_meta(meta)
@@ -469,8 +495,9 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
         order = np.argsort(arr[:, 0], kind="stable")
         t, r = arr[order, 0], arr[order, 1]
         if len(t) < 50:
-            raise TraceError(Msg("the %(direction)s run has only %(n)s samples",
-                                 direction=direction, n=len(t)))
+            raise TraceError(
+                Msg("the %(direction)s run has only %(n)s samples", direction=direction, n=len(t))
+            )
         measured.append((direction, t, r))
     if not measured:
         raise TraceError(Msg("no cw or ccw samples"))
@@ -484,8 +511,9 @@ def runs_from_native(trace: NativeTrace, current: Optional[Params] = None
     for mr in mruns:
         sync = sync_run(test, mr, common=False)
         mapping.sync_ms[mr.direction] = float(sync.tau_out - sync.tau_in) * 1e3
-        mapping.planned_s[mr.direction] = float(sync.t_out - sync.tau_out
-                                                - (sync.t_in - sync.tau_in))
+        mapping.planned_s[mr.direction] = float(
+            sync.t_out - sync.tau_out - (sync.t_in - sync.tau_in)
+        )
         noise = _still_noise(test, mr, sync)
         if noise is not None:
             mapping.still_noise_um[mr.direction] = noise
@@ -506,8 +534,9 @@ def _still_noise(test: PlannedTest, mr: MeasuredRun, sync: Sync) -> Optional[flo
     if not len(waits):
         return None
     w0, w1 = test.plan.block_span(int(waits[-1]))
-    sel = (mr.t >= w0 + sync.tau_in + 0.1 * (w1 - w0)) & (mr.t <= min(w1 + sync.tau_in,
-                                                                         t_ramp) - 0.01)
+    sel = (mr.t >= w0 + sync.tau_in + 0.1 * (w1 - w0)) & (
+        mr.t <= min(w1 + sync.tau_in, t_ramp) - 0.01
+    )
     if sel.sum() < 20:
         return None
     t, r = mr.t[sel], mr.r[sel]
@@ -539,8 +568,9 @@ def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:
 AT_SPEED = 0.98  # overshoot samples are fitted where the planned speed is this near nominal
 
 
-def _run_on_arc(test: PlannedTest, geom: Geometry, direction: str, tp: np.ndarray,
-                t: np.ndarray, r: np.ndarray) -> Run:
+def _run_on_arc(
+    test: PlannedTest, geom: Geometry, direction: str, tp: np.ndarray, t: np.ndarray, r: np.ndarray
+) -> Run:
     """The samples on the circle: the capture arc, and the overshoot arcs where the head runs
     at its nominal speed (for the fit only; the ISO metrics use the capture arc)."""
     rp = test.runs[direction]
@@ -562,9 +592,18 @@ def _angles(test: PlannedTest, direction: str, pos: np.ndarray) -> np.ndarray:
     return theta
 
 
-def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarray,
-             dev: np.ndarray, t: np.ndarray, tp: np.ndarray, pos: np.ndarray, vel: np.ndarray,
-             on_arc: np.ndarray) -> Run:
+def _arc_run(
+    test: PlannedTest,
+    geom: Geometry,
+    direction: str,
+    theta: np.ndarray,
+    dev: np.ndarray,
+    t: np.ndarray,
+    tp: np.ndarray,
+    pos: np.ndarray,
+    vel: np.ndarray,
+    on_arc: np.ndarray,
+) -> Run:
     """A run of the samples kept; the chords' sag (the program's polyline runs up to
     ``chord_error_um`` inside the circle) is taken off each reading."""
     a, b = test.spec.axes
@@ -580,12 +619,24 @@ def _arc_run(test: PlannedTest, geom: Geometry, direction: str, theta: np.ndarra
     if test.current is not None:  # compensated: the axes went where the program said
         cmd = test.plan.sample(tp[keep])[0]
         qa, qb = cmd[:, a], cmd[:, b]
-    return Run(direction, theta[keep], dev[keep], t[keep], vel[keep, a], vel[keep, b],
-               capture[keep], start, None, qa, qb)
+    return Run(
+        direction,
+        theta[keep],
+        dev[keep],
+        t[keep],
+        vel[keep, a],
+        vel[keep, b],
+        capture[keep],
+        start,
+        None,
+        qa,
+        qb,
+    )
 
 
-def runs_from_angle(trace: AngleTrace, current: Optional[Params] = None
-                    ) -> Tuple[Geometry, List[Run], Mapping]:
+def runs_from_angle(
+    trace: AngleTrace, current: Optional[Params] = None
+) -> Tuple[Geometry, List[Run], Mapping]:
     """Angle-domain runs; velocities and times from the planned program when the metadata
     describes one (a constant feed otherwise)."""
     geom = geometry_from_meta(trace.meta)

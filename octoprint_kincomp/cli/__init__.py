@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m octoprint_kincomp",
         description="KinComp: kinematic error compensation of G-code "
-                    "(squareness, scale, backlash).",
+        "(squareness, scale, backlash).",
     )
     sub = ap.add_subparsers(dest="command", required=True)
     add_file_commands(sub)

@@ -24,7 +24,8 @@ def _limits(args):
         given = limits_from_sequence(
             floats(args.max_feed, 3, "--max-feed") if args.max_feed else None,
             floats(args.max_accel, 3, "--max-accel") if args.max_accel else None,
-            "command line")
+            "command line",
+        )
         known = given.combined(known)
     return known
 
@@ -58,15 +59,24 @@ def cmd_program(args) -> int:
     limits = _limits(args)
     params_hash = load_params(args.params).hash() if args.params else "none"
     try:
-        spec = TestSpec(plane=args.plane, centre=tuple(centre), radius_mm=args.radius,
-                        feed_mm_min=args.feed, requested_feed_mm_min=args.feed,
-                        feed_in_mm=args.feed_in, overshoot_deg=args.overshoot,
-                        capture_deg=args.capture, start_deg=args.start,
-                        mount_pause=args.mount_pause, printer=args.printer)
+        spec = TestSpec(
+            plane=args.plane,
+            centre=tuple(centre),
+            radius_mm=args.radius,
+            feed_mm_min=args.feed,
+            requested_feed_mm_min=args.feed,
+            feed_in_mm=args.feed_in,
+            overshoot_deg=args.overshoot,
+            capture_deg=args.capture,
+            start_deg=args.start,
+            mount_pause=args.mount_pause,
+            printer=args.printer,
+        )
         volume = floats(args.volume, 6, "--volume") if args.volume else None
         check_bounds(spec, volume)
-        spec.feed_mm_min, notes = _feed(args, spec.plane, spec.radius_mm, spec.overshoot_deg,
-                                        limits)
+        spec.feed_mm_min, notes = _feed(
+            args, spec.plane, spec.radius_mm, spec.overshoot_deg, limits
+        )
         text = generate(spec, volume=volume, params_hash=params_hash, feed_notes=notes)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
@@ -87,11 +97,17 @@ def _program_campaign(args) -> int:
     volume = floats(args.volume, 6, "--volume")
     params_hash = load_params(args.params).hash() if args.params else "none"
     try:
-        steps = plan_campaign(volume, radius_xy=args.radius,
-                              radius_vertical=args.radius_vertical, feed=args.feed,
-                              second_height=args.second_height, second_feed=args.second_feed,
-                              limits=_limits(args), require_limits=True,
-                              printer=args.printer)
+        steps = plan_campaign(
+            volume,
+            radius_xy=args.radius,
+            radius_vertical=args.radius_vertical,
+            feed=args.feed,
+            second_height=args.second_height,
+            second_feed=args.second_feed,
+            limits=_limits(args),
+            require_limits=True,
+            printer=args.printer,
+        )
         write_campaign(steps, args.output, volume, params_hash=params_hash)
     except ProgramError as exc:
         raise CliError(str(exc)) from None
@@ -99,8 +115,10 @@ def _program_campaign(args) -> int:
         raise CliError(f"{args.output}: {exc.strerror}") from None
     for i, step in enumerate(steps, 1):
         s = step.spec
-        print(f"{i}. {os.path.join(args.output, step.file)}: {s.plane} R{s.radius_mm:g} "
-              f"F{s.feed_mm_min:g} about {','.join(f'{v:g}' for v in s.centre)}")
+        print(
+            f"{i}. {os.path.join(args.output, step.file)}: {s.plane} R{s.radius_mm:g} "
+            f"F{s.feed_mm_min:g} about {','.join(f'{v:g}' for v in s.centre)}"
+        )
     print(f"manifest: {os.path.join(args.output, MANIFEST_NAME)}")
     return 0
 
@@ -154,8 +172,13 @@ def cmd_analyze(args) -> int:
         path = args.trace[0]
         trace = _read_trace(path)
         try:
-            result = analyse(trace, current=current, mask_deg=args.mask_deg,
-                             calibrated=args.calibrated_bar, cyclic_pitch=args.cyclic_pitch)
+            result = analyse(
+                trace,
+                current=current,
+                mask_deg=args.mask_deg,
+                calibrated=args.calibrated_bar,
+                cyclic_pitch=args.cyclic_pitch,
+            )
         except TraceError as exc:
             raise CliError(f"{path}: {exc}") from None
     else:
@@ -165,9 +188,14 @@ def cmd_analyze(args) -> int:
         items = [(os.path.basename(p), _read_trace(p)) for p in args.trace]
         try:
             manifest = load_manifest(args.manifest) if args.manifest else None
-            result = analyse_campaign(items, current=current, mask_deg=args.mask_deg,
-                                      calibrated=args.calibrated_bar,
-                                      cyclic_pitch=args.cyclic_pitch, manifest=manifest)
+            result = analyse_campaign(
+                items,
+                current=current,
+                mask_deg=args.mask_deg,
+                calibrated=args.calibrated_bar,
+                cyclic_pitch=args.cyclic_pitch,
+                manifest=manifest,
+            )
         except TraceError as exc:  # CampaignError names the file itself
             raise CliError(str(exc)) from None
     if args.params_out:
@@ -182,9 +210,12 @@ def cmd_analyze(args) -> int:
     import sys
 
     errors = [f for f in result["findings"] if f["severity"] == "error"]
-    print(f"kincomp: untrusted result ({len(errors)} error finding"
-          f"{'' if len(errors) == 1 else 's'}: {errors[0]['code']}): do not apply it as it is "
-          f"(exit status {EXIT_UNTRUSTED})", file=sys.stderr)
+    print(
+        f"kincomp: untrusted result ({len(errors)} error finding"
+        f"{'' if len(errors) == 1 else 's'}: {errors[0]['code']}): do not apply it as it is "
+        f"(exit status {EXIT_UNTRUSTED})",
+        file=sys.stderr,
+    )
     return EXIT_UNTRUSTED
 
 
@@ -195,20 +226,29 @@ def _pm(value, sigma, decimals: int = 2) -> str:
 def diagnostic_lines(d) -> list:
     """The fitted values of one test's diagnostics, with their 1-sigma uncertainties."""
     u = d.get("uncertainty") or {}
-    lines = [f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
-             f"feed {d.get('feed_mm_min')} mm/min"]
-    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_mismatch_ppm", "ppm"),
-                      ("servo_mismatch_ms", "ms"), ("mean_scale_ppm", "ppm"),
-                      ("bar_drift_um_per_min", "um/min")):
+    lines = [
+        f"plane {d.get('plane')}, radius {d.get('radius_mm')} mm, "
+        f"feed {d.get('feed_mm_min')} mm/min"
+    ]
+    for key, unit in (
+        ("squareness_um_per_m", "um/m"),
+        ("scale_mismatch_ppm", "ppm"),
+        ("servo_mismatch_ms", "ms"),
+        ("mean_scale_ppm", "ppm"),
+        ("bar_drift_um_per_min", "um/min"),
+    ):
         if d.get(key) is not None:
-            lines.append(f"{key:22s} {_pm(d[key], u.get(key), 3 if unit == 'ms' else 2)} "
-                         f"{unit}")
+            lines.append(f"{key:22s} {_pm(d[key], u.get(key), 3 if unit == 'ms' else 2)} {unit}")
     for key in ("backlash_um", "centre_offset_um", "circularity_um", "straightness_um"):
         if isinstance(d.get(key), dict):
             sub = u.get(key) if isinstance(u.get(key), dict) else {}
-            lines.append(f"{key:22s} " + "  ".join(
-                f"{k} {v:.2f}" + (f" +- {sub[k]:.2f}" if sub.get(k) is not None else "")
-                for k, v in d[key].items()))
+            lines.append(
+                f"{key:22s} "
+                + "  ".join(
+                    f"{k} {v:.2f}" + (f" +- {sub[k]:.2f}" if sub.get(k) is not None else "")
+                    for k, v in d[key].items()
+                )
+            )
     if d.get("hysteresis_um") is not None:
         lines.append(f"{'hysteresis_um':22s} {d['hysteresis_um']:10.2f}")
     return lines
@@ -234,8 +274,10 @@ def format_diagnostics(result) -> str:
         findings = [{"severity": "info", "message": n, "advice": ""} for n in result["notes"]]
     if findings:
         lines.append("")
-        lines.append("findings (worst first): " + ("trusted" if result.get("trusted", True)
-                                                   else "NOT TRUSTED: an error below"))
+        lines.append(
+            "findings (worst first): "
+            + ("trusted" if result.get("trusted", True) else "NOT TRUSTED: an error below")
+        )
     for f in findings:
         lines.append(f"{f['severity']}: {f['message']}")
         if f.get("advice"):
@@ -252,26 +294,39 @@ def format_campaign(d) -> list:
     c = d["campaign"]
     u = c["uncertainty"]
     lines.append("")
-    lines.append(f"--- campaign: {len(d['traces'])} traces, planes {'+'.join(c['planes'])}, "
-                 "fitted jointly (+- : 1-sigma)")
-    for key, unit in (("squareness_um_per_m", "um/m"), ("scale_ppm", "ppm"),
-                      ("scale_mismatch_ppm", "ppm"), ("servo_lag_ms", "ms"),
-                      ("servo_mismatch_ms", "ms")):
+    lines.append(
+        f"--- campaign: {len(d['traces'])} traces, planes {'+'.join(c['planes'])}, "
+        "fitted jointly (+- : 1-sigma)"
+    )
+    for key, unit in (
+        ("squareness_um_per_m", "um/m"),
+        ("scale_ppm", "ppm"),
+        ("scale_mismatch_ppm", "ppm"),
+        ("servo_lag_ms", "ms"),
+        ("servo_mismatch_ms", "ms"),
+    ):
         if isinstance(c.get(key), dict):
             n = 3 if unit == "ms" else 2
-            lines.append(f"{key:22s} " + "  ".join(
-                f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" for k, v in c[key].items()) + f" {unit}")
+            lines.append(
+                f"{key:22s} "
+                + "  ".join(f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" for k, v in c[key].items())
+                + f" {unit}"
+            )
     for axis, v in c.get("backlash_um", {}).items():
         if isinstance(v, list):
-            text = "  ".join(f"at {p['at_mm']:g} mm {p['um']:.2f} +- {s['um']:.2f}"
-                             for p, s in zip(v, u["backlash_um"][axis]))
+            text = "  ".join(
+                f"at {p['at_mm']:g} mm {p['um']:.2f} +- {s['um']:.2f}"
+                for p, s in zip(v, u["backlash_um"][axis])
+            )
         else:
             text = f"{v:.2f} +- {u['backlash_um'][axis]:.2f}"
         lines.append(f"{'backlash_um.' + axis:22s} {text} um")
     lines.append(f"scale: {c['scale_rule']}")
     lines.append(f"servo: {c['servo_rule']}")
-    lines.append("servo pre-compensation: " + ("proposed" if c["servo_precomp"]["proposed"]
-                                              else "not proposed"))
+    lines.append(
+        "servo pre-compensation: "
+        + ("proposed" if c["servo_precomp"]["proposed"] else "not proposed")
+    )
     return lines
 
 
@@ -285,8 +340,10 @@ def cmd_artifact(args) -> int:
     if getattr(args, "artifact_command", None) == "analyze":
         return cmd_artifact_analyze(args)
     if not args.diagonals:
-        raise CliError("artifact: give --diagonals AC,BD,AD (a printed square), or use "
-                       "'artifact program' / 'artifact analyze' (KinComp's own artifact)")
+        raise CliError(
+            "artifact: give --diagonals AC,BD,AD (a printed square), or use "
+            "'artifact program' / 'artifact analyze' (KinComp's own artifact)"
+        )
     current = load_params(args.current) if args.current else Params()
     ac, bd, ad = floats(args.diagonals, 3, "--diagonals")
     lengths = {}
@@ -303,9 +360,18 @@ def cmd_artifact(args) -> int:
     notes = []
     params = propose_params(diag, Geometry(args.plane.upper(), 0.0, None, None), current, notes)
     found = artifact_findings(diag) + [info("proposal.note", n) for n in notes]
-    print(json.dumps({"diagnostics": diag, "parameters": params.to_dict(),
-                      "findings": [f.to_dict() for f in found], "trusted": trusted(found),
-                      "notes": notes}, indent=2))
+    print(
+        json.dumps(
+            {
+                "diagnostics": diag,
+                "parameters": params.to_dict(),
+                "findings": [f.to_dict() for f in found],
+                "trusted": trusted(found),
+                "notes": notes,
+            },
+            indent=2,
+        )
+    )
     return 0
 
 
@@ -316,10 +382,18 @@ def cmd_artifact_program(args) -> int:
     planes = tuple(p.strip().upper() for p in args.planes.split(",") if p.strip())
     hotend, bed = floats(args.temps, 2, "--temps")
     try:
-        spec = ArtifactSpec(volume=volume, planes=planes, nozzle_mm=args.nozzle,
-                            hotend_c=hotend, bed_c=bed, first_layer_mm=args.first_layer,
-                            layer_mm=args.layer, line_width_mm=args.line_width,
-                            max_span_mm=args.caliper, tower_span_mm=args.tower_span)
+        spec = ArtifactSpec(
+            volume=volume,
+            planes=planes,
+            nozzle_mm=args.nozzle,
+            hotend_c=hotend,
+            bed_c=bed,
+            first_layer_mm=args.first_layer,
+            layer_mm=args.layer,
+            line_width_mm=args.line_width,
+            max_span_mm=args.caliper,
+            tower_span_mm=args.tower_span,
+        )
         text = generate(spec)
     except ArtifactProgramError as exc:
         raise CliError(str(exc)) from None
@@ -329,8 +403,11 @@ def cmd_artifact_program(args) -> int:
 
 def cmd_artifact_analyze(args) -> int:
     from ..ballbar.artifact_fit import ArtifactFitError, analyse_artifact, parse_readings
-    from ..ballbar.artifact_program import (ArtifactProgramError, read_measurements,
-                                            read_program_info)
+    from ..ballbar.artifact_program import (
+        ArtifactProgramError,
+        read_measurements,
+        read_program_info,
+    )
     from ..ballbar.formats import TraceError
 
     current = load_params(args.artifact_current) if args.artifact_current else Params()
@@ -341,8 +418,9 @@ def cmd_artifact_analyze(args) -> int:
         raise CliError(f"{args.program}: {exc}") from None
     try:
         readings = parse_readings(read_text(args.measurements))
-        result = analyse_artifact(measurements, readings, current=current,
-                                  info=read_program_info(program))
+        result = analyse_artifact(
+            measurements, readings, current=current, info=read_program_info(program)
+        )
     except ArtifactFitError as exc:
         raise CliError(f"{args.measurements}: {exc}") from None
     except TraceError as exc:  # the proposal is out of range
@@ -363,19 +441,28 @@ def format_artifact(result) -> str:
     lines = []
     if d.get("simulated"):
         lines.append("SIMULATED data")
-    for key, unit, n in (("squareness_um_per_m", "um/m", 1), ("scale_mismatch_ppm", "ppm", 1),
-                         ("line_width_mm", "mm", 3)):
-        parts = [f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" if v is not None else f"{k} -"
-                 for k, v in d[key].items()]
+    for key, unit, n in (
+        ("squareness_um_per_m", "um/m", 1),
+        ("scale_mismatch_ppm", "ppm", 1),
+        ("line_width_mm", "mm", 3),
+    ):
+        parts = [
+            f"{k} {v:.{n}f} +- {u[key][k]:.{n}f}" if v is not None else f"{k} -"
+            for k, v in d[key].items()
+        ]
         lines.append(f"{key:22s} " + "  ".join(parts) + f" {unit}")
     f = d["fit"]
-    lines.append(f"fit: {f['readings_used']} of {f['readings']} readings, rms {f['rms_um']:.1f} "
-                 f"um, sigma per reading {f['sigma_reading_um']:.1f} um (from "
-                 f"{f['sigma_from']}); +- : 1 sigma")
+    lines.append(
+        f"fit: {f['readings_used']} of {f['readings']} readings, rms {f['rms_um']:.1f} "
+        f"um, sigma per reading {f['sigma_reading_um']:.1f} um (from "
+        f"{f['sigma_from']}); +- : 1 sigma"
+    )
     lines.append("trusted" if result["trusted"] else "NOT trusted (see the errors below)")
     for item in result["findings"]:
-        lines.append(f"{item['severity']}: {item['message']}"
-                     + (f" {item['advice']}" if item["advice"] else ""))
+        lines.append(
+            f"{item['severity']}: {item['message']}"
+            + (f" {item['advice']}" if item["advice"] else "")
+        )
     lines.append("")
     lines.append("firmware equivalents:")
     for fam in ("marlin", "klipper", "reprapfirmware"):
@@ -393,40 +480,76 @@ def add_ballbar_commands(sub) -> None:
     p = sub.add_parser("program", help="generate an ISO 230-4 ballbar test program")
     p.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
     p.add_argument("--centre", metavar="X,Y,Z", help="pivot position, mm")
-    p.add_argument("--radius", type=float, default=100.0,
-                   help="mm (default 100; with --campaign: the XY tests)")
+    p.add_argument(
+        "--radius",
+        type=float,
+        default=100.0,
+        help="mm (default 100; with --campaign: the XY tests)",
+    )
     p.add_argument("--feed", type=float, default=1850.0, help="mm/min (default 1850)")
-    p.add_argument("--max-feed", metavar="FX,FY,FZ",
-                   help="axis max feeds in mm/min: the feed is capped at the slowest")
-    p.add_argument("--max-accel", metavar="AX,AY,AZ",
-                   help="axis max accelerations in mm/s^2: the feed is lowered so that the "
-                        "circle's acceleration stays within them")
-    p.add_argument("--limits", metavar="FILE",
-                   help="the printer's motion limits: its answer to M503 (M201/M203/M204/"
-                        "M205 lines) or Klipper's printer.cfg; needed for XZ/YZ tests unless "
-                        "--max-feed gives Z")
-    p.add_argument("--firmware", metavar="NAME",
-                   help="with --limits: the firmware (Marlin, RepRapFirmware, ...), which "
-                        "decides M203's unit when the text does not state it")
+    p.add_argument(
+        "--max-feed",
+        metavar="FX,FY,FZ",
+        help="axis max feeds in mm/min: the feed is capped at the slowest",
+    )
+    p.add_argument(
+        "--max-accel",
+        metavar="AX,AY,AZ",
+        help="axis max accelerations in mm/s^2: the feed is lowered so that the "
+        "circle's acceleration stays within them",
+    )
+    p.add_argument(
+        "--limits",
+        metavar="FILE",
+        help="the printer's motion limits: its answer to M503 (M201/M203/M204/"
+        "M205 lines) or Klipper's printer.cfg; needed for XZ/YZ tests unless "
+        "--max-feed gives Z",
+    )
+    p.add_argument(
+        "--firmware",
+        metavar="NAME",
+        help="with --limits: the firmware (Marlin, RepRapFirmware, ...), which "
+        "decides M203's unit when the text does not state it",
+    )
     p.add_argument("--feed-in", type=float, default=1.0, help="radial feed-in, mm")
     p.add_argument("--overshoot", type=float, default=20.0, help="overshoot arcs, deg")
     p.add_argument("--capture", type=float, help="capture arc, deg (360 XY, 220 vertical)")
     p.add_argument("--start", type=float, help="capture start angle, deg (0 XY, -20 vertical)")
-    p.add_argument("--volume", metavar="X0,X1,Y0,Y1,Z0,Z1",
-                   help="machine volume in mm: refuse a circle that does not fit")
-    p.add_argument("--mount-pause", action="store_true",
-                   help="pause (M0) to mount the ballbar at the start and unmount at the end")
+    p.add_argument(
+        "--volume",
+        metavar="X0,X1,Y0,Y1,Z0,Z1",
+        help="machine volume in mm: refuse a circle that does not fit",
+    )
+    p.add_argument(
+        "--mount-pause",
+        action="store_true",
+        help="pause (M0) to mount the ballbar at the start and unmount at the end",
+    )
     p.add_argument("--params", help="the params that will be in force (their hash is recorded)")
     p.add_argument("--printer", help="printer name to record (campaign checks)")
-    p.add_argument("--campaign", action="store_true",
-                   help="write a whole campaign (XY, XZ, YZ on --volume) into the -o directory")
-    p.add_argument("--radius-vertical", type=float, default=50.0,
-                   help="campaign: radius of the XZ and YZ tests, mm (default 50)")
-    p.add_argument("--second-height", type=float, metavar="Z",
-                   help="campaign: XY again at this height (mm), squareness against Z")
-    p.add_argument("--second-feed", type=float, metavar="F",
-                   help="campaign: XY again at this feed (mm/min, e.g. 3700), decides servo "
-                        "pre-compensation")
+    p.add_argument(
+        "--campaign",
+        action="store_true",
+        help="write a whole campaign (XY, XZ, YZ on --volume) into the -o directory",
+    )
+    p.add_argument(
+        "--radius-vertical",
+        type=float,
+        default=50.0,
+        help="campaign: radius of the XZ and YZ tests, mm (default 50)",
+    )
+    p.add_argument(
+        "--second-height",
+        type=float,
+        metavar="Z",
+        help="campaign: XY again at this height (mm), squareness against Z",
+    )
+    p.add_argument(
+        "--second-feed",
+        type=float,
+        metavar="F",
+        help="campaign: XY again at this feed (mm/min, e.g. 3700), decides servo pre-compensation",
+    )
     p.add_argument("-o", "--output", help="output file (campaign: directory)")
     p.set_defaults(func=cmd_program)
 
@@ -435,68 +558,119 @@ def add_ballbar_commands(sub) -> None:
     s.add_argument("--truth", required=True, help="JSON with the printer's true errors")
     s.add_argument("--noise-um", type=float, help="measurement noise (standard deviation), um")
     s.add_argument("--rate", type=float, help="ballbar sample rate, Hz (default 500)")
-    s.add_argument("--angle", action="store_true",
-                   help="write the angle-domain trace (direction,angle_deg,deviation_um)")
-    s.add_argument("--compensated-with", metavar="P.json",
-                   help="--angle: the params the program was compensated with")
+    s.add_argument(
+        "--angle",
+        action="store_true",
+        help="write the angle-domain trace (direction,angle_deg,deviation_um)",
+    )
+    s.add_argument(
+        "--compensated-with",
+        metavar="P.json",
+        help="--angle: the params the program was compensated with",
+    )
     s.add_argument("-o", "--output")
     s.set_defaults(func=cmd_simulate)
 
-    a = sub.add_parser("analyze", help="fit a ballbar trace, .b5r or typed summary; several "
-                                       "traces of a campaign are fitted jointly")
+    a = sub.add_parser(
+        "analyze",
+        help="fit a ballbar trace, .b5r or typed summary; several "
+        "traces of a campaign are fitted jointly",
+    )
     a.add_argument("trace", nargs="+")
-    a.add_argument("--manifest", help="the campaign's campaign.json (checks every test is "
-                                      "there)")
+    a.add_argument("--manifest", help="the campaign's campaign.json (checks every test is there)")
     a.add_argument("--current", help="params that were active during the test (residual fit)")
     a.add_argument("--json", action="store_true", help="print one JSON object")
-    a.add_argument("--mask-deg", type=float, default=15.0,
-                   help="ignore this many degrees after each reversal (default 15)")
-    a.add_argument("--calibrated-bar", action="store_true",
-                   help="the bar length is calibrated: also fit the mean scale")
-    a.add_argument("--cyclic-pitch", type=float,
-                   help="fit a cyclic error of this pitch, mm (default: fitted when the "
-                        "residual shows one; 0: never)")
+    a.add_argument(
+        "--mask-deg",
+        type=float,
+        default=15.0,
+        help="ignore this many degrees after each reversal (default 15)",
+    )
+    a.add_argument(
+        "--calibrated-bar",
+        action="store_true",
+        help="the bar length is calibrated: also fit the mean scale",
+    )
+    a.add_argument(
+        "--cyclic-pitch",
+        type=float,
+        help="fit a cyclic error of this pitch, mm (default: fitted when the "
+        "residual shows one; 0: never)",
+    )
     a.add_argument("--params-out", help="write the proposed params file here")
     a.set_defaults(func=cmd_analyze)
 
     c = sub.add_parser("closed-loop", help="print the simulated one-round before/after table")
-    c.add_argument("--noise-um", type=float, default=0.5,
-                   help="ballbar measurement noise, um (1 sigma; default 0.5)")
-    c.add_argument("--campaign", action="store_true",
-                   help="one campaign over the whole volume, a table per plane")
+    c.add_argument(
+        "--noise-um",
+        type=float,
+        default=0.5,
+        help="ballbar measurement noise, um (1 sigma; default 0.5)",
+    )
+    c.add_argument(
+        "--campaign",
+        action="store_true",
+        help="one campaign over the whole volume, a table per plane",
+    )
     c.set_defaults(func=cmd_closed_loop)
 
-    t = sub.add_parser("artifact", help="parameters from a printed square (and lengths), or "
-                                        "KinComp's own artifact: 'artifact program', "
-                                        "'artifact analyze'")
+    t = sub.add_parser(
+        "artifact",
+        help="parameters from a printed square (and lengths), or "
+        "KinComp's own artifact: 'artifact program', "
+        "'artifact analyze'",
+    )
     t.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
     t.add_argument("--diagonals", metavar="AC,BD,AD", help="mm")
-    t.add_argument("--length", action="append", metavar="AXIS:NOMINAL:MEASURED",
-                   help="a measured length along an axis, mm (repeatable)")
+    t.add_argument(
+        "--length",
+        action="append",
+        metavar="AXIS:NOMINAL:MEASURED",
+        help="a measured length along an axis, mm (repeatable)",
+    )
     t.add_argument("--current", help="params active when the artifact was printed")
     t.set_defaults(func=cmd_artifact, artifact_command=None)
     ts = t.add_subparsers(dest="artifact_command", metavar="{program,analyze}")
     tp = ts.add_parser("program", help="write KinComp's caliper artifact as G-code")
-    tp.add_argument("--volume", default="0,220,0,220,0,250", metavar="X0,X1,Y0,Y1,Z0,Z1",
-                    help="the printer's volume, mm (default 0,220,0,220,0,250)")
+    tp.add_argument(
+        "--volume",
+        default="0,220,0,220,0,250",
+        metavar="X0,X1,Y0,Y1,Z0,Z1",
+        help="the printer's volume, mm (default 0,220,0,220,0,250)",
+    )
     tp.add_argument("--planes", default="XY,XZ,YZ", help="parts to print (default XY,XZ,YZ)")
     tp.add_argument("--nozzle", type=float, default=0.4, help="nozzle diameter, mm")
-    tp.add_argument("--temps", default="210,60", metavar="NOZZLE,BED",
-                    help="temperatures, deg C (default 210,60)")
+    tp.add_argument(
+        "--temps",
+        default="210,60",
+        metavar="NOZZLE,BED",
+        help="temperatures, deg C (default 210,60)",
+    )
     tp.add_argument("--first-layer", type=float, default=0.2, help="first layer height, mm")
     tp.add_argument("--layer", type=float, help="layer height, mm (default min(0.2, nozzle/2))")
     tp.add_argument("--line-width", type=float, help="mm (default 1.125 x nozzle)")
-    tp.add_argument("--caliper", type=float, default=150.0,
-                    help="the caliper's range, mm: no span is longer (default 150)")
-    tp.add_argument("--tower-span", type=float, default=100.0,
-                    help="longest XZ/YZ tower span, mm (sets their height; default 100)")
+    tp.add_argument(
+        "--caliper",
+        type=float,
+        default=150.0,
+        help="the caliper's range, mm: no span is longer (default 150)",
+    )
+    tp.add_argument(
+        "--tower-span",
+        type=float,
+        default=100.0,
+        help="longest XZ/YZ tower span, mm (sets their height; default 100)",
+    )
     tp.add_argument("-o", "--output", help="output file (default: standard output)")
     tp.set_defaults(func=cmd_artifact)
     ta = ts.add_parser("analyze", help="fit the caliper readings of KinComp's artifact")
     ta.add_argument("measurements", help='JSON {"<id>": [reading_mm, ...], ...}')
     ta.add_argument("--program", required=True, help="the artifact's G-code (its header)")
-    ta.add_argument("--current", dest="artifact_current",
-                    help="params active when the artifact was printed (residual fit)")
+    ta.add_argument(
+        "--current",
+        dest="artifact_current",
+        help="params active when the artifact was printed (residual fit)",
+    )
     ta.add_argument("--json", action="store_true", help="print one JSON object")
     ta.add_argument("--params-out", help="write the proposed params file here")
     ta.set_defaults(func=cmd_artifact)

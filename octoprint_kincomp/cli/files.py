@@ -56,12 +56,10 @@ def cmd_compensate(args) -> int:
         clean_stale(os.path.dirname(target) or ".")
     try:
         with signals_raise():
-            report = compensate_file(args.input, args.output, params, options,
-                                     dry_run=args.dry_run)
+            report = compensate_file(args.input, args.output, params, options, dry_run=args.dry_run)
     except (Interrupted, KeyboardInterrupt) as exc:
         signum = exc.signum if isinstance(exc, Interrupted) else 2
-        print(f"kincomp: interrupted; {args.output or args.input} was not changed",
-              file=sys.stderr)
+        print(f"kincomp: interrupted; {args.output or args.input} was not changed", file=sys.stderr)
         return 128 + signum
     except AlreadyCompensated as exc:
         raise CliError(f"{args.input}: {exc}") from None
@@ -86,14 +84,17 @@ def _same_mode(source: str, target: str) -> None:
     try:
         os.chmod(target, os.stat(source).st_mode & 0o777)
     except OSError as exc:
-        raise CliError(f"{target}: written, but its mode could not be set: "
-                       f"{exc.strerror}") from None
+        raise CliError(
+            f"{target}: written, but its mode could not be set: {exc.strerror}"
+        ) from None
 
 
 def summary(path: str, report, params_hash: str) -> str:
     """One line on what ``compensate`` wrote (``report``: its Report)."""
-    line = (f"kincomp: wrote {path}: {report.moves_compensated} of {report.moves} moves "
-            f"compensated (params {params_hash}), {report.lines_out} lines")
+    line = (
+        f"kincomp: wrote {path}: {report.moves_compensated} of {report.moves} moves "
+        f"compensated (params {params_hash}), {report.lines_out} lines"
+    )
     notes = []
     if report.untouched_unknown:
         notes.append(f"{report.untouched_unknown} sent as written (position unknown)")
@@ -116,10 +117,16 @@ def cmd_params(args) -> int:
 
 
 # --format choices and the firmwares they print; which current values each one uses
-FORMATS = {"klipper": ("klipper",), "marlin": ("marlin",), "rrf": ("reprapfirmware",),
-           "all": FIRMWARES}
-CURRENT = (("steps_per_mm", "--steps-per-mm", ("marlin", "all")),
-           ("rotation_distance", "--rotation-distance", ("klipper", "all")))
+FORMATS = {
+    "klipper": ("klipper",),
+    "marlin": ("marlin",),
+    "rrf": ("reprapfirmware",),
+    "all": FIRMWARES,
+}
+CURRENT = (
+    ("steps_per_mm", "--steps-per-mm", ("marlin", "all")),
+    ("rotation_distance", "--rotation-distance", ("klipper", "all")),
+)
 
 
 def _positive(text: str, flag: str):
@@ -146,7 +153,6 @@ def cmd_firmware(args) -> int:
     return EXIT_OK
 
 
-
 def add_file_commands(sub) -> None:
     c = sub.add_parser(
         "compensate",
@@ -155,20 +161,37 @@ def add_file_commands(sub) -> None:
     c.add_argument("input", help="G-code file")
     c.add_argument("-o", "--output", help="output file (default: edit INPUT in place)")
     c.add_argument("--params", help="params JSON file (see: params --init)")
-    c.add_argument("--limits", metavar="X0,X1,Y0,Y1,Z0,Z1",
-                   help="machine limits in mm; compensated points outside are handled by --policy")
-    c.add_argument("--policy", choices=("warn", "clamp", "error"), default="warn",
-                   help="what to do when compensation pushes a point outside --limits")
-    c.add_argument("--chord-tol", type=float, default=0.01, metavar="MM",
-                   help="how far a compensated arc may deviate from the true arc "
-                        "(default 0.01 mm)")
-    c.add_argument("--linearise-arcs", action="store_true",
-                   help="write G2/G3 as G1 segments (firmware without arc support)")
+    c.add_argument(
+        "--limits",
+        metavar="X0,X1,Y0,Y1,Z0,Z1",
+        help="machine limits in mm; compensated points outside are handled by --policy",
+    )
+    c.add_argument(
+        "--policy",
+        choices=("warn", "clamp", "error"),
+        default="warn",
+        help="what to do when compensation pushes a point outside --limits",
+    )
+    c.add_argument(
+        "--chord-tol",
+        type=float,
+        default=0.01,
+        metavar="MM",
+        help="how far a compensated arc may deviate from the true arc (default 0.01 mm)",
+    )
+    c.add_argument(
+        "--linearise-arcs",
+        action="store_true",
+        help="write G2/G3 as G1 segments (firmware without arc support)",
+    )
     c.add_argument("--decimals", type=int, default=3, help="X/Y/Z decimals in mm (default 3)")
-    c.add_argument("--home", metavar="X,Y,Z",
-                   help="position after G28 in mm, '?' for an axis whose home is not known "
-                        "(default: none known; homed axes are then compensated from their "
-                        "first absolute move on)")
+    c.add_argument(
+        "--home",
+        metavar="X,Y,Z",
+        help="position after G28 in mm, '?' for an axis whose home is not known "
+        "(default: none known; homed axes are then compensated from their "
+        "first absolute move on)",
+    )
     c.add_argument("--report", action="store_true", help="print the report as JSON")
     c.add_argument("--dry-run", action="store_true", help="only print the report, write nothing")
     c.set_defaults(func=cmd_compensate)
@@ -179,15 +202,26 @@ def add_file_commands(sub) -> None:
     p.set_defaults(func=cmd_params)
 
     f = sub.add_parser(
-        "firmware", help="print firmware equivalents (M852, M425, SET_SKEW, ...); with --format "
-                         "the ready-to-paste blocks")
+        "firmware",
+        help="print firmware equivalents (M852, M425, SET_SKEW, ...); with --format "
+        "the ready-to-paste blocks",
+    )
     f.add_argument("--params", required=True)
-    f.add_argument("--format", choices=tuple(FORMATS),
-                   help="ready-to-paste blocks: Klipper printer.cfg and commands, Marlin "
-                        "commands with M500, RepRapFirmware config.g (default: one line per "
-                        "command for every firmware)")
-    f.add_argument("--steps-per-mm", metavar="X,Y,Z",
-                   help="the printer's current steps/mm (Marlin): print the new M92 values")
-    f.add_argument("--rotation-distance", metavar="X,Y,Z",
-                   help="the current rotation_distance in mm (Klipper): print the new values")
+    f.add_argument(
+        "--format",
+        choices=tuple(FORMATS),
+        help="ready-to-paste blocks: Klipper printer.cfg and commands, Marlin "
+        "commands with M500, RepRapFirmware config.g (default: one line per "
+        "command for every firmware)",
+    )
+    f.add_argument(
+        "--steps-per-mm",
+        metavar="X,Y,Z",
+        help="the printer's current steps/mm (Marlin): print the new M92 values",
+    )
+    f.add_argument(
+        "--rotation-distance",
+        metavar="X,Y,Z",
+        help="the current rotation_distance in mm (Klipper): print the new values",
+    )
     f.set_defaults(func=cmd_firmware)

@@ -25,13 +25,23 @@ def _config(args):
     from ..sensor import SensorConfig, SensorError
 
     try:
-        return SensorConfig.from_dict(dict(
-            port=args.port, baudrate=args.baud, protocol=args.protocol, units=args.units,
-            positive=args.positive, pattern=args.pattern or "", scale=args.scale,
-            range=args.range or "", sample_rate_hz=args.rate or 0.0))
+        return SensorConfig.from_dict(
+            dict(
+                port=args.port,
+                baudrate=args.baud,
+                protocol=args.protocol,
+                units=args.units,
+                positive=args.positive,
+                pattern=args.pattern or "",
+                scale=args.scale,
+                range=args.range or "",
+                sample_rate_hz=args.rate or 0.0,
+            )
+        )
     except SensorError as exc:
         option = {"baudrate": "--baud", "sample_rate_hz": "--rate", "port": "port"}.get(
-            exc.field, "--" + exc.field)
+            exc.field, "--" + exc.field
+        )
         raise CliError(f"{option}: {exc.message}" if exc.field else str(exc)) from None
 
 
@@ -47,10 +57,12 @@ def _line(st) -> str:
     reading = st.get("reading_mm")
     noise = st.get("noise_um")
     diag = st.get("diagnostics") or {}
-    return (f"{st['state']:9s} reading {'-' if reading is None else f'{reading:+.4f}'} mm  "
-            f"noise {'-' if noise is None else f'{noise:.2f}'} um  "
-            f"samples {st.get('samples', 0)}  bad lines {diag.get('bad_lines', 0)}  "
-            f"runs {st.get('runs_found', 0)}")
+    return (
+        f"{st['state']:9s} reading {'-' if reading is None else f'{reading:+.4f}'} mm  "
+        f"noise {'-' if noise is None else f'{noise:.2f}'} um  "
+        f"samples {st.get('samples', 0)}  bad lines {diag.get('bad_lines', 0)}  "
+        f"runs {st.get('runs_found', 0)}"
+    )
 
 
 def cmd_capture(args) -> int:
@@ -80,8 +92,10 @@ def cmd_capture(args) -> int:
     if args.raw and res.stream is not None:
         write_text(args.raw, res.stream.to_text())
     if not res.ok:
-        raise CliError(f"capture failed: {res.message}" +
-                       (f" (raw stream kept in {args.raw})" if args.raw and res.stream else ""))
+        raise CliError(
+            f"capture failed: {res.message}"
+            + (f" (raw stream kept in {args.raw})" if args.raw and res.stream else "")
+        )
     write_text(args.output, res.trace.to_text())
     print(f"captured {len(res.trace.rows)} samples in {len(res.runs)} runs", file=sys.stderr)
     return 0
@@ -113,8 +127,9 @@ def cmd_virtual(args) -> int:
         truth = Truth.load(args.truth) if args.truth else None
     except (ParamsError, OSError, KeyError, TypeError, ValueError) as exc:
         raise CliError(f"invalid truth file {args.truth}: {exc}") from None
-    vs = VirtualSensor(truth, transport="tcp" if args.tcp else "pty", protocol=args.protocol,
-                       speedup=args.speedup)
+    vs = VirtualSensor(
+        truth, transport="tcp" if args.tcp else "pty", protocol=args.protocol, speedup=args.speedup
+    )
     print(f"SIMULATED ballbar streaming on {vs.start()} (Ctrl-C stops)", flush=True)
     try:
         time.sleep(args.delay)
@@ -133,23 +148,34 @@ def cmd_virtual(args) -> int:
 def add_sensor_commands(sub) -> None:
     sub.add_parser("sensor-ports", help="list the serial ports").set_defaults(func=cmd_ports)
 
-    p = sub.add_parser("sensor-capture", help="capture a ballbar test live from a serial "
-                       "sensor into a native trace")
+    p = sub.add_parser(
+        "sensor-capture",
+        help="capture a ballbar test live from a serial sensor into a native trace",
+    )
     p.add_argument("port", help="device path or pyserial URL (socket://host:port, ...)")
-    p.add_argument("program", help="the ballbar program being printed (its '; ballbar' header "
-                   "gives the test)")
+    p.add_argument(
+        "program", help="the ballbar program being printed (its '; ballbar' header gives the test)"
+    )
     p.add_argument("--baud", type=int, default=115200)
     p.add_argument("--protocol", choices=("kincomp", "plain", "pattern"), default="kincomp")
     p.add_argument("--pattern", help="pattern protocol: regex with a (?P<value>...) group")
     p.add_argument("--scale", type=float, default=1.0, help="pattern protocol: value factor")
     p.add_argument("--units", choices=("mm", "um", "inch"), default="mm")
-    p.add_argument("--positive", choices=("longer", "shorter"), default="longer",
-                   help="what a positive reading means")
+    p.add_argument(
+        "--positive",
+        choices=("longer", "shorter"),
+        default="longer",
+        help="what a positive reading means",
+    )
     p.add_argument("--range", help="the sensor's range low,high in its units")
-    p.add_argument("--rate", type=float, help="the device's sample rate, Hz (host-timed "
-                   "protocols; else fitted)")
-    p.add_argument("--preview-s", type=float, default=3.0,
-                   help="seconds of live readings before arming")
+    p.add_argument(
+        "--rate",
+        type=float,
+        help="the device's sample rate, Hz (host-timed protocols; else fitted)",
+    )
+    p.add_argument(
+        "--preview-s", type=float, default=3.0, help="seconds of live readings before arming"
+    )
     p.add_argument("--timeout", type=float, default=None, help="give up after this many s")
     p.add_argument("-o", "--output", help="native trace file (default: stdout)")
     p.add_argument("--raw", help="also write the raw stream (kept when the capture fails)")
@@ -162,8 +188,10 @@ def add_sensor_commands(sub) -> None:
     p.add_argument("-o", "--output")
     p.set_defaults(func=cmd_trace)
 
-    p = sub.add_parser("sensor-virtual", help="a SIMULATED ballbar on a pty or loopback "
-                       "socket that plays a program")
+    p = sub.add_parser(
+        "sensor-virtual",
+        help="a SIMULATED ballbar on a pty or loopback socket that plays a program",
+    )
     p.add_argument("program")
     p.add_argument("--truth", help="the simulated printer's errors (default: the demo's)")
     p.add_argument("--tcp", action="store_true", help="loopback socket instead of a pty")

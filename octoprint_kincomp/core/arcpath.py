@@ -49,9 +49,8 @@ SLIVER = 0.1  # a piece whose sagitta is at most this many output resolutions is
 EIGHTHS = tuple(j * 0.125 for j in range(9))
 # a spiral or helix can turn an axis round just before or after a piece's end (where the
 # circle's break angle is not): fractions that close in on both ends, to 2^-16 of the piece
-NEAR_ENDS = tuple(2.0 ** -e for e in range(16, 3, -1))
-DENSE = (0.0,) + NEAR_ENDS + EIGHTHS[1:-1] + tuple(1.0 - f for f in reversed(NEAR_ENDS)) \
-    + (1.0,)
+NEAR_ENDS = tuple(2.0**-e for e in range(16, 3, -1))
+DENSE = (0.0,) + NEAR_ENDS + EIGHTHS[1:-1] + tuple(1.0 - f for f in reversed(NEAR_ENDS)) + (1.0,)
 
 
 def model_gain(A) -> float:
@@ -62,8 +61,9 @@ def model_gain(A) -> float:
     return math.sqrt(rows * cols)
 
 
-def strictly_between(va: float, vb: float, sa: float, sb: float, ea: float, eb: float,
-                     clockwise: bool) -> bool:
+def strictly_between(
+    va: float, vb: float, sa: float, sb: float, ea: float, eb: float, clockwise: bool
+) -> bool:
     """Whether the direction (va, vb) lies strictly between the start direction (sa, sb) and
     the end direction (ea, eb), turning clockwise or counter-clockwise from the start: its
     angle from the start in (0, that of the end), both taken in [0, 2 pi). Decided by the
@@ -101,16 +101,16 @@ class ArcWriter:
         self.k_dev = model_gain(writer.model.A) * SAMPLE_MARGIN
         bl = self.backlash
         # per plane: the angles where the command of a backlash axis reverses
-        self.breaks = {plane: tuple(phi for k, phi in comp.moves.extreme_axes(plane)
-                                    if bl.active[k]) for plane in arcs.PLANES}
+        self.breaks = {
+            plane: tuple(phi for k, phi in comp.moves.extreme_axes(plane) if bl.active[k])
+            for plane in arcs.PLANES
+        }
         tables = [t for k, t in enumerate(bl.tables) if bl.active[k]]
-        self.max_offset = bl.half * max((um for t in tables for _, um in t.points),
-                                        default=0.0)
+        self.max_offset = bl.half * max((um for t in tables for _, um in t.points), default=0.0)
         # per output unit (index: inches): what may be spent on the fit, and the sagitta
         # below which a piece is a G1 (mm)
         tol = self.options.chord_tol_mm
-        res = (10.0 ** -self.options.decimals,
-               MM_PER_INCH * 10.0 ** -(self.options.decimals + 2))
+        res = (10.0**-self.options.decimals, MM_PER_INCH * 10.0 ** -(self.options.decimals + 2))
         self.budget = (tol - ROUNDING_ALLOWANCE * res[0], tol - ROUNDING_ALLOWANCE * res[1])
         self.sliver = (SLIVER * res[0], SLIVER * res[1])
         self.overshoot = res  # mm: how far a written circle may carry a backlash axis back
@@ -118,8 +118,12 @@ class ArcWriter:
     def usable(self) -> bool:
         """Whether arcs can be written as arcs here (see the module docstring)."""
         w = self.w
-        return (not self.options.linearise_arcs and self.backlash.smoothing == 0
-                and w.servo_s is None and None not in self.state.fw)
+        return (
+            not self.options.linearise_arcs
+            and self.backlash.smoothing == 0
+            and w.servo_s is None
+            and None not in self.state.fw
+        )
 
     def inside_limits(self, arc: arcs.Arc) -> bool:
         """With limits: the arc's box (desired) and that box compensated, widened by the
@@ -194,15 +198,34 @@ class ArcWriter:
         return True
 
     # -- writing -----------------------------------------------------------------------
-    def write(self, code_text: str, arc: arcs.Arc, cuts: Sequence[float], clockwise: bool,
-              given, e_word, tail, comment: str, e_relative: bool) -> List[str]:
+    def write(
+        self,
+        code_text: str,
+        arc: arcs.Arc,
+        cuts: Sequence[float],
+        clockwise: bool,
+        given,
+        e_word,
+        tail,
+        comment: str,
+        e_relative: bool,
+    ) -> List[str]:
         """The lines of one arc cut at ``cuts`` (:meth:`Arc.cuts` with :attr:`breaks`);
         ``tail``: its words other than X/Y/Z/I/J/K/R/P."""
         st = self.state
         bl = self.backlash
         w = self.w
-        job = _Job(self, arc, clockwise, code_text, given, tail, comment,
-                   EDistribution(e_word, e_relative, st.e_pos, arc.length_to(1.0)), e_word)
+        job = _Job(
+            self,
+            arc,
+            clockwise,
+            code_text,
+            given,
+            tail,
+            comment,
+            EDistribution(e_word, e_relative, st.e_pos, arc.length_to(1.0)),
+            e_word,
+        )
         fa, pa = 0.0, arc.start
         qa = w.carriage(pa)
         if st.q_drive is not None:  # drives that are not at the command of the start
@@ -234,8 +257,9 @@ class ArcWriter:
 class _Job:
     """The lines of one arc being written."""
 
-    def __init__(self, aw: ArcWriter, arc, clockwise, code_text, given, tail, comment,
-                 edist, e_word):
+    def __init__(
+        self, aw: ArcWriter, arc, clockwise, code_text, given, tail, comment, edist, e_word
+    ):
         self.aw, self.arc, self.clockwise = aw, arc, clockwise
         self.code_text, self.given, self.tail, self.comment = code_text, given, tail, comment
         self.edist, self.e_word = edist, e_word
@@ -262,8 +286,9 @@ class _Job:
         write_axes = self.given if last else ()
         mark = self.edist.mark()
         words, e_text = self.words(f, last)
-        line = w.emit(code, p, q, write_axes, extra + words, self.comment, 0.0, None,
-                      keep_empty=True)
+        line = w.emit(
+            code, p, q, write_axes, extra + words, self.comment, 0.0, None, keep_empty=True
+        )
         if self.pieces.add(line, w.moved, words, e_text, last, mark):
             self.first = False
             self.comment = ""
@@ -318,8 +343,7 @@ class _Job:
             out[k] = c + g[k]
         return out[0], out[1], out[2]
 
-    def overshoots(self, S, E, ka: float, kb: float, radius: float, sa: float,
-                   sb: float) -> bool:
+    def overshoots(self, S, E, ka: float, kb: float, radius: float, sa: float, sb: float) -> bool:
         """Whether the written circle (centre ka, kb; start S, end E, firmware mm; sa, sb:
         centre -> start) turns a backlash axis of the plane round inside the piece by more
         than the output resolution. The piece ends where the command of such an axis
@@ -330,8 +354,12 @@ class _Job:
         ia, ib = arc.ia, arc.ib
         allowed = aw.overshoot[aw.state.inches]
         ea, eb = E[ia] - ka, E[ib] - kb
-        for k, centre, va, vb in ((ia, ka, radius, 0.0), (ia, ka, -radius, 0.0),
-                                  (ib, kb, 0.0, radius), (ib, kb, 0.0, -radius)):
+        for k, centre, va, vb in (
+            (ia, ka, radius, 0.0),
+            (ia, ka, -radius, 0.0),
+            (ib, kb, 0.0, radius),
+            (ib, kb, 0.0, -radius),
+        ):
             if not aw.backlash.active[k]:
                 continue
             if strictly_between(va, vb, sa, sb, ea, eb, self.clockwise):  # its extreme in k
@@ -421,5 +449,3 @@ class _Job:
             va, vb = ux / u, uy / u
         words = sorted([la + fmt(va, dec), lb + fmt(vb, dec)])
         return words, dev
-
-

@@ -35,8 +35,9 @@ def norm2(a: float, b: float) -> float:
     return math.sqrt(a * a + b * b)
 
 
-def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
-                           clockwise: bool) -> Tuple[float, float]:
+def arc_centre_from_radius(
+    a0: float, b0: float, a1: float, b1: float, r: float, clockwise: bool
+) -> Tuple[float, float]:
     """Centre (a, b) of the arc from (a0, b0) to (a1, b1) with signed radius ``r``.
 
     A negative ``r`` selects the arc longer than 180 degrees (RS274 convention). A radius
@@ -66,8 +67,16 @@ def arc_centre_from_radius(a0: float, b0: float, a1: float, b1: float, r: float,
     return ma + sign * h * na, mb + sign * h * nb
 
 
-def arc_sweep(a0: float, b0: float, a1: float, b1: float, ca: float, cb: float,
-              clockwise: bool, turns: int = 0) -> Tuple[float, float, float, float]:
+def arc_sweep(
+    a0: float,
+    b0: float,
+    a1: float,
+    b1: float,
+    ca: float,
+    cb: float,
+    clockwise: bool,
+    turns: int = 0,
+) -> Tuple[float, float, float, float]:
     """(start angle, signed sweep, start radius, end radius) of an arc about (ca, cb).
 
     An arc whose end equals its start is a full circle. ``turns`` adds complete circles
@@ -103,9 +112,17 @@ def segment_angle(radius: float, chord_tol: float) -> float:
     return step
 
 
-def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: float, cb: float,
-              clockwise: bool, chord_tol: float, turns: int = 0,
-              breaks: Sequence[float] = (0.0, math.pi / 2)) -> List[Vec]:
+def linearise(
+    start: Sequence[float],
+    end: Sequence[float],
+    plane: int,
+    ca: float,
+    cb: float,
+    clockwise: bool,
+    chord_tol: float,
+    turns: int = 0,
+    breaks: Sequence[float] = (0.0, math.pi / 2),
+) -> List[Vec]:
     """Chord end points (excluding ``start``, ending exactly at ``end``) of an arc.
 
     The chords keep within ``chord_tol`` of the arc, the radius is blended linearly from the
@@ -141,8 +158,9 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
 
         def clear(x: float) -> bool:
             j = bisect.bisect_left(forced_sorted, x)
-            return all(abs(x - forced_sorted[i]) > gap
-                       for i in (j - 1, j) if 0 <= i < len(forced_sorted))
+            return all(
+                abs(x - forced_sorted[i]) > gap for i in (j - 1, j) if 0 <= i < len(forced_sorted)
+            )
 
         fracs = {i / n for i in range(1, n) if clear(i / n)}
         fracs.update(forced)
@@ -168,10 +186,15 @@ def linearise(start: Sequence[float], end: Sequence[float], plane: int, ca: floa
     return pts
 
 
-
-def centre_from_words(start: Sequence[float], end: Sequence[float], plane: int,
-                      offsets: Tuple[Optional[float], Optional[float]], radius: Optional[float],
-                      clockwise: bool, absolute_ij: bool = False) -> Tuple[float, float]:
+def centre_from_words(
+    start: Sequence[float],
+    end: Sequence[float],
+    plane: int,
+    offsets: Tuple[Optional[float], Optional[float]],
+    radius: Optional[float],
+    clockwise: bool,
+    absolute_ij: bool = False,
+) -> Tuple[float, float]:
     """Arc centre (first, second plane axis) from the offset words or the R word (mm)."""
     ia, ib, _, _, _ = PLANES[plane]
     oa, ob = offsets
@@ -199,16 +222,40 @@ class Arc:
     the linear axis moves in proportion (helix). Every engine evaluates it with the same
     operations in the same order."""
 
-    __slots__ = ("plane", "ia", "ib", "il", "ca", "cb", "t0", "sweep", "r0", "r1", "dr",
-                 "l0", "dl", "start", "end")
+    __slots__ = (
+        "plane",
+        "ia",
+        "ib",
+        "il",
+        "ca",
+        "cb",
+        "t0",
+        "sweep",
+        "r0",
+        "r1",
+        "dr",
+        "l0",
+        "dl",
+        "start",
+        "end",
+    )
 
-    def __init__(self, start: Sequence[float], end: Sequence[float], plane: int, ca: float,
-                 cb: float, clockwise: bool, turns: int = 0):
+    def __init__(
+        self,
+        start: Sequence[float],
+        end: Sequence[float],
+        plane: int,
+        ca: float,
+        cb: float,
+        clockwise: bool,
+        turns: int = 0,
+    ):
         ia, ib, il, _, _ = PLANES[plane]
         self.plane, self.ia, self.ib, self.il = plane, ia, ib, il
         self.ca, self.cb = ca, cb
-        self.t0, self.sweep, self.r0, self.r1 = arc_sweep(start[ia], start[ib], end[ia],
-                                                          end[ib], ca, cb, clockwise, turns)
+        self.t0, self.sweep, self.r0, self.r1 = arc_sweep(
+            start[ia], start[ib], end[ia], end[ib], ca, cb, clockwise, turns
+        )
         self.dr = self.r1 - self.r0
         self.l0 = start[il]
         self.dl = end[il] - start[il]

@@ -42,8 +42,9 @@ def replacing(target: str, suffix: str = ".tmp") -> Iterator[BinaryIO]:
     target = os.path.realpath(target)
     directory = os.path.dirname(target) or "."
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-", suffix=suffix,
-                                   dir=directory)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f"{TEMP_PREFIX}{os.getpid()}-", suffix=suffix, dir=directory
+        )
     except OSError as exc:
         raise _named(exc, target) from None
     try:
@@ -127,6 +128,7 @@ def signals_raise() -> Iterator[None]:
     """Within the block SIGTERM and SIGHUP raise :class:`Interrupted` (SIGINT raises
     KeyboardInterrupt anyway), so that :func:`replacing` removes its temporary file; the
     previous handlers come back afterwards. Main thread only (a no-op elsewhere)."""
+
     def handler(signum, frame):
         raise Interrupted(signum)
 

@@ -48,8 +48,9 @@ def deadband_for(steps_per_mm: float) -> float:
 DEFAULT_DEADBAND_MM = 1e-6
 
 
-def reversal(d: int, a: Optional[float], q: float, q_from: float,
-             deadband: float) -> Tuple[int, Optional[float]]:
+def reversal(
+    d: int, a: Optional[float], q: float, q_from: float, deadband: float
+) -> Tuple[int, Optional[float]]:
     """The reversal rule, once for every Python path: an axis travelling in direction ``d``
     (+1/-1, 0 unknown) with anchor ``a`` (mm; None: unknown, the move's start ``q_from``
     is taken) is commanded to ``q`` (mm). Returns (the new direction if this is a reversal,
@@ -76,8 +77,12 @@ class BacklashTracker:
     direction state ``state`` (a :class:`~.state.BacklashState`, part of the stream state
     that the engines share; a fresh one if not given)."""
 
-    def __init__(self, params: Params, state: Optional[BacklashState] = None,
-                 deadband_mm: float = DEFAULT_DEADBAND_MM):
+    def __init__(
+        self,
+        params: Params,
+        state: Optional[BacklashState] = None,
+        deadband_mm: float = DEFAULT_DEADBAND_MM,
+    ):
         self.tables = [params.backlash[a] for a in AXES]
         self.half = params.backlash_fraction * 1e-3 / 2.0  # um -> mm, half on each side
         self.active = [
@@ -140,8 +145,9 @@ class BacklashTracker:
             s.anchor[k] = q
         return new
 
-    def detect_reversals(self, p0: Sequence[float], p1: Sequence[float],
-                         q0: Sequence[float], ramp: bool = True) -> List[int]:
+    def detect_reversals(
+        self, p0: Sequence[float], p1: Sequence[float], q0: Sequence[float], ramp: bool = True
+    ) -> List[int]:
         """Axes whose carriage command reverses on the move p0 -> p1 (mm, geometric
         commands), see :meth:`turn`. With smoothing (and ``ramp``) a take-up starts ramping
         from the offset in force at the move start (carriage position ``q0``).

@@ -100,18 +100,25 @@ class Options:
                 raise ValueError("limits must be given as min,max pairs with min < max")
             self.limits = lim
         if self.steps_per_mm is not None and not (
-                isinstance(self.steps_per_mm, (int, float))
-                and math.isfinite(self.steps_per_mm) and self.steps_per_mm > 0):
+            isinstance(self.steps_per_mm, (int, float))
+            and math.isfinite(self.steps_per_mm)
+            and self.steps_per_mm > 0
+        ):
             raise ValueError("steps_per_mm must be a number above 0")
         if self.deadband_mm is None:
-            self.deadband_mm = (DEFAULT_DEADBAND_MM if self.steps_per_mm is None
-                                else deadband_for(self.steps_per_mm))
+            self.deadband_mm = (
+                DEFAULT_DEADBAND_MM
+                if self.steps_per_mm is None
+                else deadband_for(self.steps_per_mm)
+            )
         elif not (math.isfinite(self.deadband_mm) and 0 <= self.deadband_mm <= 0.1):
             raise ValueError("deadband_mm must be within 0..0.1 mm")
         home_mm = tuple(self.home_mm)
         if len(home_mm) != 3 or any(
-                v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                   or not math.isfinite(v)) for v in home_mm):
+            v is not None
+            and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v))
+            for v in home_mm
+        ):
             raise ValueError("home_mm needs three finite numbers or None (unknown)")
         self.home_mm = tuple(None if v is None else float(v) for v in home_mm)
 
@@ -150,8 +157,9 @@ class Compensator:
         self.moved_by = tuple(
             frozenset({j} | {k for k in range(3) if inv_coupling[k][j]}) for j in range(3)
         )
-        self.writer = PathWriter(self.model, self.backlash, self.options, self.state,
-                                 self.needs, self.servo_s)
+        self.writer = PathWriter(
+            self.model, self.backlash, self.options, self.state, self.needs, self.servo_s
+        )
         self.moves = MoveHandler(self)
         self.arc_writer = ArcWriter(self.writer, self)
         # policy "error": lines are processed so that a refused one changes nothing
@@ -162,8 +170,12 @@ class Compensator:
     def accelerable(self) -> bool:
         """Whether an accelerated line engine can serve this model: an affine model without
         smoothed take-ups or servo lead (everything else takes this reference path)."""
-        return (not self.passthrough and self.model.is_affine
-                and self.backlash.smoothing == 0 and self.servo_s is None)
+        return (
+            not self.passthrough
+            and self.model.is_affine
+            and self.backlash.smoothing == 0
+            and self.servo_s is None
+        )
 
     @property
     def report(self) -> Report:
@@ -185,11 +197,10 @@ class Compensator:
         """Back to the power-on state: positions unknown, G90, G21, M82, G17."""
         self.state.reset()
 
-    def adopt_state(self, other: "Compensator") -> None:
+    def adopt_state(self, other: Compensator) -> None:
         """Continue from ``other``'s modal state and positions (a parameter change in the
         middle of a stream); backlash directions carry over for axes active in both."""
-        carried = [k for k in range(3)
-                   if self.backlash.active[k] and other.backlash.active[k]]
+        carried = [k for k in range(3) if self.backlash.active[k] and other.backlash.active[k]]
         self.state.take_over(other.state, carried)
 
     def invalidate(self, axes: Sequence[int] = (0, 1, 2)) -> None:
@@ -291,8 +302,10 @@ class Compensator:
             return
         q_after = self.writer.carriage(st.m)
         drive = [at[k] if k in axes else q_before[k] for k in range(3)]
-        stays = [None if drive[k] is None or q_after[k] == drive[k] else float(drive[k])
-                 for k in range(3)]
+        stays = [
+            None if drive[k] is None or q_after[k] == drive[k] else float(drive[k])
+            for k in range(3)
+        ]
         st.q_drive = None if stays == [None, None, None] else tuple(stays)
 
     def malformed(self, line: str) -> str:

@@ -64,7 +64,7 @@ def parse_command(line: str) -> Optional[Command]:
     numbered = False
     m = _LINENO.match(code)
     if m:
-        code = code[m.end():]
+        code = code[m.end() :]
         numbered = True
     star = code.rfind("*")
     if star >= 0 and _CHECKSUM.match(code, star):
@@ -79,7 +79,7 @@ def parse_command(line: str) -> Optional[Command]:
         number=int(m.group(2)),
         sub=int(m.group(3)) if m.group(3) is not None else None,
         code_text=code[: m.end()].strip(),
-        body=code[m.end():],
+        body=code[m.end() :],
         comment=comment,
         numbered=numbered,
     )
@@ -102,7 +102,7 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
             value = float(m.group(2))
             if not abs(value) < MAX_WORD_VALUE:
                 return None
-            text = body[m.start(1): m.end()]
+            text = body[m.start(1) : m.end()]
         else:
             m = _BARE_LETTER.match(body, pos) if allow_bare else None
             if not m:

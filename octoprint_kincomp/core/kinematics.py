@@ -119,9 +119,7 @@ class KinematicModel:
         self.A = (cols - origin).T  # A[:, j] = f(e_j) - f(0)
         self.b = origin
         self.A_inv = np.linalg.inv(self.A)
-        self.is_identity = bool(
-            affine and np.array_equal(self.A, np.eye(3)) and not np.any(self.b)
-        )
+        self.is_identity = bool(affine and np.array_equal(self.A, np.eye(3)) and not np.any(self.b))
         self.is_translation = bool(affine and np.array_equal(self.A, np.eye(3)))
         # Plain-Python copies for the per-move hot path and the accelerated engines:
         # q = inverse_rows (p - offset_mm) for affine models.
@@ -251,5 +249,8 @@ def _degree(coeffs) -> int:
 def changes_nothing(params: Params) -> bool:
     """True when compensating with ``params`` changes nothing: the model is the identity and
     neither backlash nor servo pre-compensation is active (the output must equal the input)."""
-    return (KinematicModel(params).is_identity and not params.has_backlash
-            and not params.has_servo_precomp)
+    return (
+        KinematicModel(params).is_identity
+        and not params.has_backlash
+        and not params.has_servo_precomp
+    )

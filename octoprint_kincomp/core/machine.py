@@ -48,9 +48,14 @@ Event = Union[Move, Dwell, Home]
 
 
 class FirmwareInterpreter:
-    def __init__(self, home_mm: Vec = (0.0, 0.0, 0.0), arc_tol_mm: float = 1e-4,
-                 start: Optional[Vec] = None, g90_influences_extruder: bool = True,
-                 default_feed: float = 1500.0):
+    def __init__(
+        self,
+        home_mm: Vec = (0.0, 0.0, 0.0),
+        arc_tol_mm: float = 1e-4,
+        start: Optional[Vec] = None,
+        g90_influences_extruder: bool = True,
+        default_feed: float = 1500.0,
+    ):
         self.home = tuple(float(v) for v in home_mm)
         self.arc_tol = arc_tol_mm
         self.machine: List[float] = list(start if start is not None else self.home)
@@ -171,8 +176,9 @@ class FirmwareInterpreter:
         radius = wd["R"] * u if "R" in wd else None
         turns = int(wd.get("P", 0))
         try:
-            ca, cb = arcs.centre_from_words(start, end, self.plane, offs, radius, clockwise,
-                                            self.ij_absolute)
+            ca, cb = arcs.centre_from_words(
+                start, end, self.plane, offs, radius, clockwise, self.ij_absolute
+            )
             if self.ij_absolute:
                 ca -= self.g[ia]
                 cb -= self.g[ib]
@@ -193,8 +199,9 @@ class FirmwareInterpreter:
         out: List[Event] = []
         prev = start
         for p, seg in zip(pts, lens):
-            out.append(Move(prev, p, self.feed, "arc", self.lineno,
-                            de * seg / total if total > 0 else 0.0))
+            out.append(
+                Move(prev, p, self.feed, "arc", self.lineno, de * seg / total if total > 0 else 0.0)
+            )
             prev = p
         self.machine = list(end)
         return out

@@ -19,7 +19,7 @@ class Msg(str):
     template: str
     params: Dict[str, Any]
 
-    def __new__(cls, template: str, **params: Any) -> "Msg":
+    def __new__(cls, template: str, **params: Any) -> Msg:
         obj = super().__new__(cls, template % params if params else template)
         obj.template = template
         obj.params = params
@@ -46,8 +46,7 @@ def translate(text: Union[str, Msg], gettext: Callable[[str], str]) -> str:
     messages too are translated as well); any other text as it is."""
     if not isinstance(text, Msg):
         return str(text)
-    params = {k: translate(v, gettext) if isinstance(v, Msg) else v
-              for k, v in text.params.items()}
+    params = {k: translate(v, gettext) if isinstance(v, Msg) else v for k, v in text.params.items()}
     return gettext(text.template) % params if params else gettext(text.template)
 
 
@@ -56,9 +55,11 @@ def as_dict(text: Union[str, Msg]) -> Dict[str, Any]:
     such dicts); a plain text has no template."""
     if not isinstance(text, Msg):
         return {"text": str(text)}
-    return {"text": str(text), "template": text.template,
-            "params": {k: as_dict(v) if isinstance(v, Msg) else v
-                       for k, v in text.params.items()}}
+    return {
+        "text": str(text),
+        "template": text.template,
+        "params": {k: as_dict(v) if isinstance(v, Msg) else v for k, v in text.params.items()},
+    }
 
 
 def error_message(exc: BaseException) -> Union[str, Msg]:

@@ -91,8 +91,7 @@ def homed_axes(body: str) -> List[int]:
     return named_axes(body) or [0, 1, 2]
 
 
-def home(st: StreamState, backlash, axes: Sequence[int],
-         at: Sequence[Optional[float]]) -> None:
+def home(st: StreamState, backlash, axes: Sequence[int], at: Sequence[Optional[float]]) -> None:
     """The drives of ``axes`` were homed: their frames are restored and each is known at
     ``at[k]`` (mm, machine frame = firmware frame after homing), or, where ``at[k]`` is None
     (where the firmware homes is not known), unknown: no correction may then assume a home

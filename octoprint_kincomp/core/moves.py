@@ -101,8 +101,7 @@ class MoveHandler:
             st.fw_text[k] = None
         bl = self.backlash
         if bl.any_active:
-            bl.observe(c_before, [None if v is None else v - st.g[k]
-                                  for k, v in enumerate(st.fw)])
+            bl.observe(c_before, [None if v is None else v - st.g[k] for k, v in enumerate(st.fw)])
             for k in given:
                 if not known_before[k] and st.fw[k] is not None:
                     bl.place(k, st.fw[k] - st.g[k])
@@ -150,14 +149,24 @@ class MoveHandler:
             return line
         need = self.needed(given)
         known_before = self.comp.known
-        if self.comp.passthrough or any(target[k] is None for k in need) or (
-            not st.absolute and any(st.m[k] is None for k in given)
+        if (
+            self.comp.passthrough
+            or any(target[k] is None for k in need)
+            or (not st.absolute and any(st.m[k] is None for k in given))
         ):
             return self.untouched(given, words, known_before, line)
         start = list(st.m)
         tail = [w for w in words if w.letter not in "XYZ"]
-        out = self.writer.path(cmd.code_text, start, [tuple(target)], given, e_word, tail,
-                               cmd.comment, self.comp.e_relative)
+        out = self.writer.path(
+            cmd.code_text,
+            start,
+            [tuple(target)],
+            given,
+            e_word,
+            tail,
+            cmd.comment,
+            self.comp.e_relative,
+        )
         self.track_e(e_word)
         st.report.moves_compensated += 1
         return out
@@ -195,8 +204,9 @@ class MoveHandler:
         tol = self.options.chord_tol_mm
         writer = comp.arc_writer
         try:
-            ca, cb = arcs.centre_from_words(start, end, plane, offs, radius, clockwise,
-                                            st.ij_absolute)
+            ca, cb = arcs.centre_from_words(
+                start, end, plane, offs, radius, clockwise, st.ij_absolute
+            )
             if st.ij_absolute:
                 ca -= st.w[ia]
                 cb -= st.w[ib]
@@ -207,15 +217,23 @@ class MoveHandler:
                 cuts = arc.cuts(writer.breaks[plane])
                 keep = writer.monotone(arc, cuts)
             if not keep:
-                pts = arcs.linearise(start, end, plane, ca, cb, clockwise, tol, turns,
-                                     self.extreme_angles(plane))
+                pts = arcs.linearise(
+                    start, end, plane, ca, cb, clockwise, tol, turns, self.extreme_angles(plane)
+                )
         except arcs.ArcError:
             comp.malformed(line)
             return self.untouched(given, words, known_before, line)
         if comp.pure_translation and not st.ij_absolute and turns == 0:
-            out = self.writer.path(cmd.code_text, list(start), [end], given, None,
-                                   [w for w in words if w.letter not in "XYZ"], cmd.comment,
-                                   comp.e_relative)
+            out = self.writer.path(
+                cmd.code_text,
+                list(start),
+                [end],
+                given,
+                None,
+                [w for w in words if w.letter not in "XYZ"],
+                cmd.comment,
+                comp.e_relative,
+            )
             st.report.moves_compensated += 1
             st.report.arcs_kept += 1
             self.track_e(e_word)
@@ -226,11 +244,21 @@ class MoveHandler:
         tail = [w for w in words if w.letter not in "XYZIJKRP"]
         rep = st.report
         if keep:
-            out = writer.write(cmd.code_text, arc, cuts, clockwise, given, e_word, tail,
-                               cmd.comment, comp.e_relative)
+            out = writer.write(
+                cmd.code_text,
+                arc,
+                cuts,
+                clockwise,
+                given,
+                e_word,
+                tail,
+                cmd.comment,
+                comp.e_relative,
+            )
         else:
-            out = self.writer.path("G1", list(start), pts, given, e_word, tail, cmd.comment,
-                                   comp.e_relative)
+            out = self.writer.path(
+                "G1", list(start), pts, given, e_word, tail, cmd.comment, comp.e_relative
+            )
             rep.arcs_linearised += 1
             rep.arc_segments += len(pts)
         self.track_e(e_word)
@@ -245,8 +273,9 @@ class MoveHandler:
         """
         ia, ib, _, _, _ = arcs.PLANES[plane]
         Ai = self.model.A_inv
-        return tuple((k, math.atan2(Ai[k, ib], Ai[k, ia])) for k in range(3)
-                     if Ai[k, ia] or Ai[k, ib])
+        return tuple(
+            (k, math.atan2(Ai[k, ib], Ai[k, ia])) for k in range(3) if Ai[k, ia] or Ai[k, ib]
+        )
 
     def extreme_angles(self, plane: int) -> Tuple[float, ...]:
         """The angles of :meth:`extreme_axes` (chord ends are placed there)."""

@@ -115,28 +115,26 @@ class Params:
 
     kinematics: str = "parallel"
     squareness_um_per_m: Dict[str, float] = field(
-        default_factory=lambda: {k: 0.0 for k in PLANE_PAIRS}
+        default_factory=lambda: dict.fromkeys(PLANE_PAIRS, 0.0)
     )
-    scale_ppm: Dict[str, float] = field(default_factory=lambda: {k: 0.0 for k in AXES})
+    scale_ppm: Dict[str, float] = field(default_factory=lambda: dict.fromkeys(AXES, 0.0))
     backlash: Dict[str, BacklashAxis] = field(
         default_factory=lambda: {k: BacklashAxis() for k in AXES}
     )
     backlash_fraction: float = 1.0
     backlash_smoothing_mm: float = 0.0
     axis_errors: Dict[str, Dict[str, Tuple[float, ...]]] = field(
-        default_factory=lambda: {a: {t: (0.0,) for t in HTM_TERMS} for a in AXES}
+        default_factory=lambda: {a: dict.fromkeys(HTM_TERMS, (0.0,)) for a in AXES}
     )
-    nozzle_offset_mm: Dict[str, float] = field(default_factory=lambda: {k: 0.0 for k in AXES})
-    servo_lag_ms: Dict[str, float] = field(default_factory=lambda: {k: 0.0 for k in AXES})
+    nozzle_offset_mm: Dict[str, float] = field(default_factory=lambda: dict.fromkeys(AXES, 0.0))
+    servo_lag_ms: Dict[str, float] = field(default_factory=lambda: dict.fromkeys(AXES, 0.0))
     servo_precomp: bool = False
     meta: Dict[str, Any] = field(default_factory=dict)
 
     # -- derived facts -------------------------------------------------------------------
     @property
     def has_backlash(self) -> bool:
-        return self.backlash_fraction > 0 and any(
-            not self.backlash[a].is_zero for a in AXES
-        )
+        return self.backlash_fraction > 0 and any(not self.backlash[a].is_zero for a in AXES)
 
     @property
     def has_servo_precomp(self) -> bool:
@@ -186,33 +184,41 @@ class Params:
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=False) + "\n"
 
-    def replace(self, **changes) -> "Params":
+    def replace(self, **changes) -> Params:
         """A copy with some top-level fields replaced (re-validated)."""
         d = self.to_dict()
         d.update(changes)
         return Params.from_dict(d)
 
     @staticmethod
-    def from_dict(data: Any) -> "Params":
+    def from_dict(data: Any) -> Params:
         return _parse(data)
 
     @staticmethod
-    def from_json(text: str) -> "Params":
+    def from_json(text: str) -> Params:
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise ParamsError("", Msg("not valid JSON (%(error)s at line %(line)s)",
-                                      error=exc.msg, line=exc.lineno)) from None
+            raise ParamsError(
+                "",
+                Msg("not valid JSON (%(error)s at line %(line)s)", error=exc.msg, line=exc.lineno),
+            ) from None
         return _parse(data)
 
     @staticmethod
-    def load(path: str) -> "Params":
+    def load(path: str) -> Params:
         try:
             with open(path, encoding="utf-8") as f:
                 text = f.read()
         except OSError as exc:
-            raise ParamsError("", Msg("cannot read params file %(path)s: %(error)s",
-                                      path=repr(path), error=exc.strerror)) from None
+            raise ParamsError(
+                "",
+                Msg(
+                    "cannot read params file %(path)s: %(error)s",
+                    path=repr(path),
+                    error=exc.strerror,
+                ),
+            ) from None
         return Params.from_json(text)
 
 
@@ -224,23 +230,39 @@ def default_params() -> Params:
 # validation
 
 
-def _number(value: Any, field: str, limit: Optional[float] = None, lo: Optional[float] = None,
-            hi: Optional[float] = None) -> float:
+def _number(
+    value: Any,
+    field: str,
+    limit: Optional[float] = None,
+    lo: Optional[float] = None,
+    hi: Optional[float] = None,
+) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParamsError(field, Msg("must be a number, got %(value)s",
-                                     value=json.dumps(value)[:40]))
+        raise ParamsError(
+            field, Msg("must be a number, got %(value)s", value=json.dumps(value)[:40])
+        )
     v = float(value)
     if not math.isfinite(v):
         raise ParamsError(field, Msg("must be a finite number (NaN/Infinity are not allowed)"))
     if limit is not None and abs(v) > limit:
-        raise ParamsError(field, Msg("%(value)s is out of range (|value| <= %(limit)s)",
-                                     value=f"{v:g}", limit=f"{limit:g}"))
+        raise ParamsError(
+            field,
+            Msg(
+                "%(value)s is out of range (|value| <= %(limit)s)",
+                value=f"{v:g}",
+                limit=f"{limit:g}",
+            ),
+        )
     if lo is not None and v < lo:
-        raise ParamsError(field, Msg("%(value)s is out of range (must be >= %(lo)s)",
-                                     value=f"{v:g}", lo=f"{lo:g}"))
+        raise ParamsError(
+            field,
+            Msg("%(value)s is out of range (must be >= %(lo)s)", value=f"{v:g}", lo=f"{lo:g}"),
+        )
     if hi is not None and v > hi:
-        raise ParamsError(field, Msg("%(value)s is out of range (must be <= %(hi)s)",
-                                     value=f"{v:g}", hi=f"{hi:g}"))
+        raise ParamsError(
+            field,
+            Msg("%(value)s is out of range (must be <= %(hi)s)", value=f"{v:g}", hi=f"{hi:g}"),
+        )
     return v
 
 
@@ -269,8 +291,10 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
             field, Msg("must be a number (um) or a non-empty list of {at_mm, um} points")
         )
     if len(value) > MAX_BACKLASH_POINTS:
-        raise ParamsError(field, Msg("at most %(n)s points, got %(count)s",
-                                     n=MAX_BACKLASH_POINTS, count=len(value)))
+        raise ParamsError(
+            field,
+            Msg("at most %(n)s points, got %(count)s", n=MAX_BACKLASH_POINTS, count=len(value)),
+        )
     pts = []
     for i, item in enumerate(value):
         f = f"{field}[{i}]"
@@ -286,63 +310,90 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
     pts.sort()
     for (p0, _), (p1, _) in zip(pts, pts[1:]):
         if p1 == p0:
-            raise ParamsError(field, Msg("two points at the same position %(at)s mm",
-                                         at=f"{p0:g}"))
+            raise ParamsError(field, Msg("two points at the same position %(at)s mm", at=f"{p0:g}"))
     return BacklashAxis(tuple(pts))
 
 
 def _poly(value: Any, field: str, limit: float) -> Tuple[float, ...]:
     if isinstance(value, list):
         if not value or len(value) > MAX_POLY_DEGREE + 1:
-            raise ParamsError(field, Msg("needs 1..%(n)s coefficients",
-                                         n=MAX_POLY_DEGREE + 1))
+            raise ParamsError(field, Msg("needs 1..%(n)s coefficients", n=MAX_POLY_DEGREE + 1))
         coeffs = tuple(_number(v, f"{field}[{i}]") for i, v in enumerate(value))
     else:
         coeffs = (_number(value, field),)
     # Bound the term over a generous 1 m travel so that nothing absurd gets through.
-    worst = sum(abs(c) * 1000.0 ** k for k, c in enumerate(coeffs))
+    worst = sum(abs(c) * 1000.0**k for k, c in enumerate(coeffs))
     if worst > limit:
-        raise ParamsError(field, Msg("reaches %(value)s over 1 m of travel (limit %(limit)s)",
-                                     value=f"{worst:g}", limit=f"{limit:g}"))
+        raise ParamsError(
+            field,
+            Msg(
+                "reaches %(value)s over 1 m of travel (limit %(limit)s)",
+                value=f"{worst:g}",
+                limit=f"{limit:g}",
+            ),
+        )
     return coeffs
 
 
 def _parse(data: Any) -> Params:
     top_keys = (
-        "version", "kinematics", "squareness_um_per_m", "scale_ppm", "backlash",
-        "axis_errors", "nozzle_offset_mm", "servo_lag_ms", "servo_precomp", "meta",
+        "version",
+        "kinematics",
+        "squareness_um_per_m",
+        "scale_ppm",
+        "backlash",
+        "axis_errors",
+        "nozzle_offset_mm",
+        "servo_lag_ms",
+        "servo_precomp",
+        "meta",
     )
     obj = _object(data, "", top_keys)
     version = obj.get("version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
-        raise ParamsError("version", Msg("unsupported params version %(version)s (this "
-                                         "KinComp reads version %(supported)s)",
-                                         version=repr(version), supported=SCHEMA_VERSION))
+        raise ParamsError(
+            "version",
+            Msg(
+                "unsupported params version %(version)s (this KinComp reads version %(supported)s)",
+                version=repr(version),
+                supported=SCHEMA_VERSION,
+            ),
+        )
     kin = obj.get("kinematics", "parallel")
     if kin not in KINEMATICS:
-        raise ParamsError("kinematics", Msg("must be one of %(choices)s",
-                                            choices=", ".join(KINEMATICS)))
-    sq = _axis_map(obj.get("squareness_um_per_m", {}), "squareness_um_per_m", PLANE_PAIRS,
-                   MAX_SQUARENESS_UM_PER_M)
+        raise ParamsError(
+            "kinematics", Msg("must be one of %(choices)s", choices=", ".join(KINEMATICS))
+        )
+    sq = _axis_map(
+        obj.get("squareness_um_per_m", {}),
+        "squareness_um_per_m",
+        PLANE_PAIRS,
+        MAX_SQUARENESS_UM_PER_M,
+    )
     sc = _axis_map(obj.get("scale_ppm", {}), "scale_ppm", AXES, MAX_SCALE_PPM)
 
     bl = _object(obj.get("backlash", {}), "backlash", AXES + ("fraction", "smoothing_mm"))
     backlash = {a: _backlash_axis(bl.get(a, 0.0), f"backlash.{a}") for a in AXES}
     fraction = _number(bl.get("fraction", 1.0), "backlash.fraction", lo=0.0, hi=1.0)
-    smoothing = _number(bl.get("smoothing_mm", 0.0), "backlash.smoothing_mm", lo=0.0,
-                        hi=MAX_SMOOTHING_MM)
+    smoothing = _number(
+        bl.get("smoothing_mm", 0.0), "backlash.smoothing_mm", lo=0.0, hi=MAX_SMOOTHING_MM
+    )
 
     errs_in = _object(obj.get("axis_errors", {}), "axis_errors", AXES)
     axis_errors = {}
     for a in AXES:
         terms = _object(errs_in.get(a, {}), f"axis_errors.{a}", HTM_TERMS)
         axis_errors[a] = {
-            t: _poly(terms.get(t, 0.0), f"axis_errors.{a}.{t}",
-                     MAX_TRANSLATION_UM if t.endswith("_um") else MAX_ROTATION_URAD)
+            t: _poly(
+                terms.get(t, 0.0),
+                f"axis_errors.{a}.{t}",
+                MAX_TRANSLATION_UM if t.endswith("_um") else MAX_ROTATION_URAD,
+            )
             for t in HTM_TERMS
         }
-    nozzle = _axis_map(obj.get("nozzle_offset_mm", {}), "nozzle_offset_mm", AXES,
-                       MAX_NOZZLE_OFFSET_MM)
+    nozzle = _axis_map(
+        obj.get("nozzle_offset_mm", {}), "nozzle_offset_mm", AXES, MAX_NOZZLE_OFFSET_MM
+    )
     servo = _axis_map(obj.get("servo_lag_ms", {}), "servo_lag_ms", AXES, MAX_SERVO_LAG_MS)
     precomp = obj.get("servo_precomp", False)
     if not isinstance(precomp, bool):
@@ -369,7 +420,8 @@ def _parse(data: Any) -> Params:
     )
 
 
-def backlash_points_for_ends(minus_end_mm: float, minus_um: float, plus_end_mm: float,
-                             plus_um: float) -> List[Dict[str, float]]:
+def backlash_points_for_ends(
+    minus_end_mm: float, minus_um: float, plus_end_mm: float, plus_um: float
+) -> List[Dict[str, float]]:
     """Backlash points from per-side values measured at the -end and +end of a circle."""
     return [{"at_mm": minus_end_mm, "um": minus_um}, {"at_mm": plus_end_mm, "um": plus_um}]

@@ -29,18 +29,26 @@ class EDistribution:
     last piece of an absolute E is the word as written; relative E is split in whole units
     of its own resolution (at least 5 decimals) so the pieces add up exactly."""
 
-    __slots__ = ("word", "relative", "e0", "total_len", "decimals", "scale", "units",
-                 "units_done", "part")
+    __slots__ = (
+        "word",
+        "relative",
+        "e0",
+        "total_len",
+        "decimals",
+        "scale",
+        "units",
+        "units_done",
+        "part",
+    )
 
-    def __init__(self, word: Optional[Word], relative: bool, e0: Optional[float],
-                 total_len: float):
+    def __init__(self, word: Optional[Word], relative: bool, e0: Optional[float], total_len: float):
         self.word = word
         self.relative = relative
         self.e0 = e0
         self.total_len = total_len
         if word is not None:
             self.decimals = max(decimals_of(word.text), 5)
-            self.scale = 10 ** self.decimals
+            self.scale = 10**self.decimals
             if relative:
                 self.units = round(word.value * self.scale)
                 self.units_done = 0
@@ -66,8 +74,7 @@ class EDistribution:
 
     def mark(self):
         """What :meth:`untake` goes back to (before a piece is taken)."""
-        return (self.units_done, self.part) if self.word is not None and self.relative \
-            else None
+        return (self.units_done, self.part) if self.word is not None and self.relative else None
 
     def untake(self, mark) -> None:
         """Forget the pieces taken since :meth:`mark`: their share goes to the next one."""
@@ -93,13 +100,14 @@ class Pieces:
 
     __slots__ = ("out", "edist", "prev")
 
-    def __init__(self, out: List[str], edist: "EDistribution"):
+    def __init__(self, out: List[str], edist: EDistribution):
         self.out = out
         self.edist = edist
         self.prev = None  # (index in out, its E text, its relative E units) of the last piece
 
-    def add(self, line: str, moved: bool, words: List[str], e_text: Optional[str],
-            last: bool, mark) -> bool:
+    def add(
+        self, line: str, moved: bool, words: List[str], e_text: Optional[str], last: bool, mark
+    ) -> bool:
         """Place a piece just emitted (``line``: its text, ``words``: its words after the
         axes, ``e_text``: its E word, ``mark``: the E split before it). False: it was not
         written (the caller passes its words on: first piece's tail and comment)."""
@@ -118,7 +126,7 @@ class Pieces:
         merged = self.edist.merged(prev_part)
         old = out[idx]
         at = old.index(" " + prev_text)
-        out[idx] = old[:at + 1] + merged + old[at + 1 + len(prev_text):]
+        out[idx] = old[: at + 1] + merged + old[at + 1 + len(prev_text) :]
         return True
 
     def _keep(self, line: str, e_text: Optional[str]) -> None:
@@ -131,8 +139,9 @@ class Pieces:
 
 def lerp(a, b, f):
     """Point ``f`` (0..1) of the way from ``a`` to ``b``; None stays None."""
-    return tuple(None if a[k] is None or b[k] is None else a[k] + (b[k] - a[k]) * f
-                 for k in range(3))
+    return tuple(
+        None if a[k] is None or b[k] is None else a[k] + (b[k] - a[k]) * f for k in range(3)
+    )
 
 
 class PathWriter:
@@ -148,8 +157,17 @@ class PathWriter:
         self.servo_s = servo_s
         self.moved = False  # whether the line :meth:`emit` wrote last moves an axis
 
-    def path(self, code_text: str, start: List[Optional[float]], points, given, e_word,
-             tail: List[Word], comment: str, e_relative: bool) -> List[str]:
+    def path(
+        self,
+        code_text: str,
+        start: List[Optional[float]],
+        points,
+        given,
+        e_word,
+        tail: List[Word],
+        comment: str,
+        e_relative: bool,
+    ) -> List[str]:
         """Emit the polyline ``start -> points`` (desired machine positions, mm).
 
         ``tail`` are the line's words other than X/Y/Z in their original order; the first
@@ -231,8 +249,17 @@ class PathWriter:
                     words = [e_text if w is e_word else w.text for w in tail]
                 else:
                     words = [e_text] if e_text is not None else []
-                line = self.emit(code_text, p, q, write_axes if f == 1.0 else (),
-                                 words, comment, sub_len, velocity, keep_empty=True)
+                line = self.emit(
+                    code_text,
+                    p,
+                    q,
+                    write_axes if f == 1.0 else (),
+                    words,
+                    comment,
+                    sub_len,
+                    velocity,
+                    keep_empty=True,
+                )
                 if pieces.add(line, self.moved, words, e_text, last, mark):
                     first = False
                     comment = ""
@@ -248,9 +275,7 @@ class PathWriter:
         if None not in p:
             return self.model.inverse(p)
         q = self.model.inverse([v if v is not None else 0.0 for v in p])
-        return tuple(
-            None if any(p[j] is None for j in self.needs[k]) else q[k] for k in range(3)
-        )
+        return tuple(None if any(p[j] is None for j in self.needs[k]) else q[k] for k in range(3))
 
     def limit(self, k: int, p: float, c: float) -> float:
         """Apply the limits policy to axis k's command ``c`` (mm) for desired ``p`` (mm)."""
@@ -266,7 +291,9 @@ class PathWriter:
                 if opts.policy == "error":
                     raise LimitError(
                         f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
-                        f"limits {lo:g}..{hi:g} mm", st.lineno)
+                        f"limits {lo:g}..{hi:g} mm",
+                        st.lineno,
+                    )
                 if opts.policy == "clamp":
                     c = min(max(c, lo), hi)
         elif p != st.m[k]:
@@ -292,8 +319,18 @@ class PathWriter:
         delta = fmt(float(text) - old / u, dec)
         return delta, delta.strip("0.") != "", old + float(delta) * u, None
 
-    def emit(self, code_text: str, p, q, write_axes, words: List[str], comment: str,
-             travel: float, velocity, keep_empty: bool = False) -> Optional[str]:
+    def emit(
+        self,
+        code_text: str,
+        p,
+        q,
+        write_axes,
+        words: List[str],
+        comment: str,
+        travel: float,
+        velocity,
+        keep_empty: bool = False,
+    ) -> Optional[str]:
         """Format one output move to desired position ``p`` and update the stream state.
 
         Returns None when nothing would be written and ``keep_empty`` is false (a take-up

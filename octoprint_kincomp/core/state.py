@@ -34,10 +34,25 @@ class Report:
     axis, [X, Y, Z] in um (a dict by axis name in :meth:`to_dict`)."""
 
     # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
-    __slots__ = ("lines", "moves", "moves_compensated", "untouched_unknown", "malformed",
-                 "malformed_examples", "arcs_kept", "arcs_split", "arcs_linearised",
-                 "arc_segments", "arc_max_deviation_um", "takeup_moves", "lines_out",
-                 "max_correction_um", "limit_hits", "limit_examples", "source_outside")
+    __slots__ = (
+        "lines",
+        "moves",
+        "moves_compensated",
+        "untouched_unknown",
+        "malformed",
+        "malformed_examples",
+        "arcs_kept",
+        "arcs_split",
+        "arcs_linearised",
+        "arc_segments",
+        "arc_max_deviation_um",
+        "takeup_moves",
+        "lines_out",
+        "max_correction_um",
+        "limit_hits",
+        "limit_examples",
+        "source_outside",
+    )
 
     def __init__(self) -> None:
         self.lines = 0
@@ -146,9 +161,28 @@ class StreamState:
     """
 
     # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
-    __slots__ = ("report", "lineno", "backlash", "m", "fw", "fw_text", "w", "g", "frame_lost",
-                 "absolute", "e_absolute_mode", "inches", "plane", "ij_absolute", "e_pos",
-                 "feed", "tool", "q_last", "limit_recheck", "q_drive")
+    __slots__ = (
+        "report",
+        "lineno",
+        "backlash",
+        "m",
+        "fw",
+        "fw_text",
+        "w",
+        "g",
+        "frame_lost",
+        "absolute",
+        "e_absolute_mode",
+        "inches",
+        "plane",
+        "ij_absolute",
+        "e_pos",
+        "feed",
+        "tool",
+        "q_last",
+        "limit_recheck",
+        "q_drive",
+    )
 
     def __init__(self) -> None:
         self.report = Report()
@@ -188,15 +222,24 @@ class StreamState:
             self.backlash.forget(k)
         self.q_drive = None
 
-    def take_over(self, other: "StreamState", backlash_axes=()) -> None:
+    def take_over(self, other: StreamState, backlash_axes=()) -> None:
         """Continue from ``other``'s modes and positions (new parameters mid-stream: desired
         positions do not depend on the model and the firmware coordinates are what the
         firmware holds). Backlash directions carry over for ``backlash_axes`` (the anchor is
         a geometric command, the same frame under either model)."""
         for name in ("m", "fw", "fw_text", "w", "g", "frame_lost"):
             setattr(self, name, list(getattr(other, name)))
-        for name in ("absolute", "e_absolute_mode", "inches", "plane", "ij_absolute", "e_pos",
-                     "feed", "tool", "lineno"):
+        for name in (
+            "absolute",
+            "e_absolute_mode",
+            "inches",
+            "plane",
+            "ij_absolute",
+            "e_pos",
+            "feed",
+            "tool",
+            "lineno",
+        ):
             setattr(self, name, getattr(other, name))
         for k in backlash_axes:
             self.backlash.dir[k] = other.backlash.dir[k]
@@ -207,13 +250,25 @@ class StreamState:
         self.q_drive = other.q_drive
 
     # what a line refused by the limits policy "error" must leave as it was
-    _RESTORED = ("m", "fw", "fw_text", "w", "g", "e_pos", "feed", "q_last", "limit_recheck",
-                 "q_drive")
+    _RESTORED = (
+        "m",
+        "fw",
+        "fw_text",
+        "w",
+        "g",
+        "e_pos",
+        "feed",
+        "q_last",
+        "limit_recheck",
+        "q_drive",
+    )
 
     def snapshot(self) -> tuple:
         bl = self.backlash
-        return (tuple(copy.copy(getattr(self, a)) for a in self._RESTORED),
-                tuple(list(getattr(bl, a)) for a in BacklashState.FIELDS))
+        return (
+            tuple(copy.copy(getattr(self, a)) for a in self._RESTORED),
+            tuple(list(getattr(bl, a)) for a in BacklashState.FIELDS),
+        )
 
     def restore(self, snap: tuple) -> None:
         mine, bl = snap

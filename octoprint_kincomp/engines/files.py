@@ -40,8 +40,9 @@ def marker_line(params: Params) -> str:
     return make_marker_line(params.hash(), __version__)
 
 
-def compensate_lines(lines: Iterable[str], comp: Compensator,
-                     header: Optional[str] = None) -> Iterator[str]:
+def compensate_lines(
+    lines: Iterable[str], comp: Compensator, header: Optional[str] = None
+) -> Iterator[str]:
     """Yield output lines (with endings) for input lines (with endings)."""
     process = comp.process
     for raw in lines:
@@ -60,8 +61,9 @@ def compensate_lines(lines: Iterable[str], comp: Compensator,
             yield join_output(out, ending)
 
 
-def compensate_stream(src: IO[str], dst: IO[str], params: Params,
-                      options: Optional[Options] = None) -> Report:
+def compensate_stream(
+    src: IO[str], dst: IO[str], params: Params, options: Optional[Options] = None
+) -> Report:
     comp = make_compensator(params, options)
     write = dst.write
     for out in compensate_lines(src, comp, marker_line(params)):
@@ -75,8 +77,9 @@ def _check_head(text: str) -> None:
         raise AlreadyCompensated(found)
 
 
-def compensate_binary(src: IO[bytes], dst: IO[bytes], params: Params,
-                      options: Optional[Options] = None, progress=None) -> Report:
+def compensate_binary(
+    src: IO[bytes], dst: IO[bytes], params: Params, options: Optional[Options] = None, progress=None
+) -> Report:
     """Compensate a binary stream with the vectorised engine (same output as the line path).
 
     ``progress(bytes_read)`` is called as the input is consumed."""
@@ -87,9 +90,14 @@ def compensate_binary(src: IO[bytes], dst: IO[bytes], params: Params,
     return comp.report
 
 
-def compensate_file(in_path: str, out_path: Optional[str], params: Params,
-                    options: Optional[Options] = None, dry_run: bool = False,
-                    progress=None) -> Report:
+def compensate_file(
+    in_path: str,
+    out_path: Optional[str],
+    params: Params,
+    options: Optional[Options] = None,
+    dry_run: bool = False,
+    progress=None,
+) -> Report:
     """Compensate ``in_path`` into ``out_path`` (or in place when None). Atomic on success."""
     existing = file_marker(in_path)
     if existing is not None:

@@ -62,10 +62,19 @@ def build(comp: Compensator) -> Optional[object]:
     aw = comp.arc_writer
     arcs = None
     if not comp.options.linearise_arcs:
-        arcs = (comp.pure_translation, comp.options.chord_tol_mm, aw.k_dev, aw.budget,
-                aw.sliver, aw.overshoot, aw.max_offset, tuple(float(v) for v in aw.breaks[17]))
-    return _ext.Kernel(affine, tables, bl.half, bl.deadband, comp.options.limits,
-                       comp.options.decimals, arcs)
+        arcs = (
+            comp.pure_translation,
+            comp.options.chord_tol_mm,
+            aw.k_dev,
+            aw.budget,
+            aw.sliver,
+            aw.overshoot,
+            aw.max_offset,
+            tuple(float(v) for v in aw.breaks[17]),
+        )
+    return _ext.Kernel(
+        affine, tables, bl.half, bl.deadband, comp.options.limits, comp.options.decimals, arcs
+    )
 
 
 def _check_program() -> List[str]:
@@ -75,8 +84,20 @@ def _check_program() -> List[str]:
     and an inch section."""
     rnd = random.Random(20261124)
     lines = ["G28", "G1 X10 Y10 Z0.3 F3000"]
-    traps = ["0.0625", "0.1875", "1.0005", "0.002877", "-0", "+0.0", "12.3456789012345678",
-             "123.4565", "0.0635", "199.9995", "7.", ".5"]
+    traps = [
+        "0.0625",
+        "0.1875",
+        "1.0005",
+        "0.002877",
+        "-0",
+        "+0.0",
+        "12.3456789012345678",
+        "123.4565",
+        "0.0635",
+        "199.9995",
+        "7.",
+        ".5",
+    ]
     for i in range(240):
         if i % 3 == 0:
             x, y = rnd.choice(traps), rnd.choice(traps)
@@ -86,19 +107,35 @@ def _check_program() -> List[str]:
         tail = rnd.choice(["", " E%.5f" % rnd.uniform(0, 50), " E-0.8 F2400", " F1800"])
         lines.append(rnd.choice(["G1 X%s Y%s%s", "G0 X%s Y%s%s"]) % (x, y, tail))
         if i % 37 == 0:
-            lines.append("G1 F%d X%s Y%s Z%.2f" % (rnd.randint(600, 9000), y, x,
-                                                   rnd.uniform(0.2, 5)))
+            lines.append(
+                "G1 F%d X%s Y%s Z%.2f" % (rnd.randint(600, 9000), y, x, rnd.uniform(0.2, 5))
+            )
         if i % 11 == 0:  # an arc from here (kept as arcs: libm's trigonometry, the fit)
             r, a, b = rnd.uniform(1, 30), rnd.uniform(0, 6.28), rnd.uniform(-3, 3)
             lines.append("G1 X100 Y100")
-            lines.append("%s X%.3f Y%.3f I%.3f J%.3f E%.5f" % (
-                "G2" if b < 0 else "G3", 100 + r * math.cos(a) - r * math.cos(a + b),
-                100 + r * math.sin(a) - r * math.sin(a + b), r * math.cos(a), r * math.sin(a),
-                rnd.uniform(0, 50)))
+            lines.append(
+                "%s X%.3f Y%.3f I%.3f J%.3f E%.5f"
+                % (
+                    "G2" if b < 0 else "G3",
+                    100 + r * math.cos(a) - r * math.cos(a + b),
+                    100 + r * math.sin(a) - r * math.sin(a + b),
+                    r * math.cos(a),
+                    r * math.sin(a),
+                    rnd.uniform(0, 50),
+                )
+            )
         if i == 200:
-            lines += ["G20", "G1 X1.23456 Y2.34567", "G1 X0.5 Y3.25",
-                      "G3 X1.5 Y3.25 I0.5 J0 Z0.1", "G21", "M83", "G2 X120 Y100 I10 J0 E0.5",
-                      "G1 X100 Y100 E0.1", "M82"]
+            lines += [
+                "G20",
+                "G1 X1.23456 Y2.34567",
+                "G1 X0.5 Y3.25",
+                "G3 X1.5 Y3.25 I0.5 J0 Z0.1",
+                "G21",
+                "M83",
+                "G2 X120 Y100 I10 J0 E0.5",
+                "G1 X100 Y100 E0.1",
+                "M82",
+            ]
     return lines + ["G21", "G1 X1 Y1", "G1 X-0.75 Y-0.25"]  # (ends below zero: the sign of fw)
 
 
@@ -107,11 +144,21 @@ def self_check(make: Optional[Callable] = None) -> bool:
     program exactly what the reference path writes (every line, the report and the state)
     and takes most of its lines itself (a kernel that declined them all would pass the
     comparison while the Python paths did the work)."""
-    params = Params.from_dict({
-        "squareness_um_per_m": {"xy": -1234.5, "xz": 210.0, "yz": -80.0},
-        "scale_ppm": {"x": 333.3, "y": -287.0, "z": 50.0},
-        "backlash": {"x": [{"at_mm": 0, "um": 40.0}, {"at_mm": 100, "um": 12.5},
-                           {"at_mm": 200, "um": 30.0}], "y": 17.0, "fraction": 0.8}})
+    params = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -1234.5, "xz": 210.0, "yz": -80.0},
+            "scale_ppm": {"x": 333.3, "y": -287.0, "z": 50.0},
+            "backlash": {
+                "x": [
+                    {"at_mm": 0, "um": 40.0},
+                    {"at_mm": 100, "um": 12.5},
+                    {"at_mm": 200, "um": 30.0},
+                ],
+                "y": 17.0,
+                "fraction": 0.8,
+            },
+        }
+    )
     options = Options(limits=(-1.0, 201.0, -1.0, 201.0, 0.0, 200.0), policy="clamp")
     program = _check_program()
     taken = 0
@@ -129,10 +176,15 @@ def self_check(make: Optional[Callable] = None) -> bool:
                 taken += 1
             if ref.process(line) != out:
                 return False
-    except Exception:  # noqa: BLE001 - a kernel that raises fails its check
+    except Exception:
         _log.exception("KinComp: the compiled kernel failed its self-check")
         return False
     a, b = ref.state, got.state
-    return (2 * taken > len(program) and a.report.to_dict() == b.report.to_dict()
-            and a.m == b.m and a.fw == b.fw and a.fw_text == b.fw_text
-            and a.backlash.dir == b.backlash.dir)
+    return (
+        2 * taken > len(program)
+        and a.report.to_dict() == b.report.to_dict()
+        and a.m == b.m
+        and a.fw == b.fw
+        and a.fw_text == b.fw_text
+        and a.backlash.dir == b.backlash.dir
+    )

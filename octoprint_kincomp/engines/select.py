@@ -26,8 +26,10 @@ def _decide() -> str:
     if not kernel.built() or os.environ.get("KINCOMP_KERNEL", "1") == "0":
         return "python"
     if not kernel.self_check():
-        _log.warning("KinComp: the compiled kernel disagrees with the reference path on "
-                     "this platform; the pure-Python paths are used")
+        _log.warning(
+            "KinComp: the compiled kernel disagrees with the reference path on "
+            "this platform; the pure-Python paths are used"
+        )
         return "python"
     return "compiled"
 

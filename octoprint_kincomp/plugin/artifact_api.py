@@ -26,8 +26,14 @@ from octoprint.access.permissions import Permissions
 
 from ..ballbar.artifact_drawing import legend, svg
 from ..ballbar.artifact_fit import ArtifactFitError, analyse_artifact, parse_readings
-from ..ballbar.artifact_program import (PLANES, ArtifactProgramError, ArtifactSpec, generate,
-                                        read_measurements, read_program_info)
+from ..ballbar.artifact_program import (
+    PLANES,
+    ArtifactProgramError,
+    ArtifactSpec,
+    generate,
+    read_measurements,
+    read_program_info,
+)
 from ..ballbar.formats import TraceError
 from . import http
 from .calibration_api import CalibrationApi
@@ -66,18 +72,24 @@ class ArtifactApi:
             planes = data.get("planes", list(PLANES))
             if isinstance(planes, str):
                 planes = [p.strip() for p in planes.split(",") if p.strip()]
-            if not isinstance(planes, list) or not planes or not all(
-                    isinstance(p, str) and p.upper() in PLANES for p in planes):
-                raise http.BadRequest(gettext("'%(key)s' must be a list of XY, XZ, YZ",
-                                              key="planes"))
+            if (
+                not isinstance(planes, list)
+                or not planes
+                or not all(isinstance(p, str) and p.upper() in PLANES for p in planes)
+            ):
+                raise http.BadRequest(
+                    gettext("'%(key)s' must be a list of XY, XZ, YZ", key="planes")
+                )
             temps = http.numbers(data, "temps", 2, (210.0, 60.0))
             spec = ArtifactSpec(
                 volume=tuple(self._store.limits() or DEFAULT_VOLUME),
                 planes=tuple(p.upper() for p in planes),
                 nozzle_mm=http.number(data, "nozzle", 0.4),
-                hotend_c=temps[0], bed_c=temps[1],
+                hotend_c=temps[0],
+                bed_c=temps[1],
                 first_layer_mm=http.number(data, "first_layer", 0.2),
-                max_span_mm=http.number(data, "caliper", 150.0))
+                max_span_mm=http.number(data, "caliper", 150.0),
+            )
             text = generate(spec, date=_dt.datetime.now().strftime("%Y-%m-%d %H:%M"))
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
@@ -103,8 +115,9 @@ class ArtifactApi:
             with open(disk, encoding="utf-8", errors="replace") as f:
                 return f.read(MAX_PROGRAM_BYTES)
         except OSError as exc:
-            http.abort(400, gettext("%(path)s cannot be read: %(error)s", path=path,
-                                    error=exc.strerror))
+            http.abort(
+                400, gettext("%(path)s cannot be read: %(error)s", path=path, error=exc.strerror)
+            )
 
     def sheet(self):
         http.require(Permissions.STATUS)
@@ -113,8 +126,14 @@ class ArtifactApi:
         try:
             out = sheet(text)
         except ArtifactProgramError as exc:
-            return http.error(gettext("%(path)s: %(reason)s", path=path,
-                                      reason=http.tr(exc.args[0] if exc.args else exc)), 400)
+            return http.error(
+                gettext(
+                    "%(path)s: %(reason)s",
+                    path=path,
+                    reason=http.tr(exc.args[0] if exc.args else exc),
+                ),
+                400,
+            )
         out["path"] = path
         return flask.jsonify(out)
 
@@ -127,30 +146,57 @@ class ArtifactApi:
         text = self._read(path)
         raw = data.get("readings")
         if not isinstance(raw, dict) or any(
-                isinstance(v, list) and len(v) > MAX_READINGS for v in raw.values()):
-            return http.error(gettext("'%(key)s' must map each measurement to at most "
-                                      "%(n)s readings in mm", key="readings", n=MAX_READINGS),
-                              400)
+            isinstance(v, list) and len(v) > MAX_READINGS for v in raw.values()
+        ):
+            return http.error(
+                gettext(
+                    "'%(key)s' must map each measurement to at most %(n)s readings in mm",
+                    key="readings",
+                    n=MAX_READINGS,
+                ),
+                400,
+            )
         # empty fields are not measured
-        raw = {k: [v for v in (vals if isinstance(vals, list) else [vals]) if v is not None]
-               for k, vals in raw.items()}
+        raw = {
+            k: [v for v in (vals if isinstance(vals, list) else [vals]) if v is not None]
+            for k, vals in raw.items()
+        }
         try:
             measurements = read_measurements(text)
             readings = parse_readings(raw)
-            result = analyse_artifact(measurements, readings, current=self._queue.in_force,
-                                      info=read_program_info(text), wire=True)
+            result = analyse_artifact(
+                measurements,
+                readings,
+                current=self._queue.in_force,
+                info=read_program_info(text),
+                wire=True,
+            )
         except (ArtifactProgramError, ArtifactFitError, TraceError) as exc:
-            return http.error(gettext("Invalid artifact measurements: %(e)s",
-                                      e=http.tr(exc.args[0] if exc.args else exc)), 400)
+            return http.error(
+                gettext(
+                    "Invalid artifact measurements: %(e)s",
+                    e=http.tr(exc.args[0] if exc.args else exc),
+                ),
+                400,
+            )
         result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
         result["diagnostics"]["program"] = path
         findings: List[Dict[str, Any]] = result["findings"]
         try:
             run = self._calibration.record_run(
-                result, str(path).rsplit("/", 1)[-1], "artifact",
-                json.dumps(readings, indent=1).encode(), None,
-                extra={"findings": findings, "trusted": result["trusted"]})
+                result,
+                str(path).rsplit("/", 1)[-1],
+                "artifact",
+                json.dumps(readings, indent=1).encode(),
+                None,
+                extra={"findings": findings, "trusted": result["trusted"]},
+            )
         except RunNotStorable:
-            return http.error(gettext("The analysis gave numbers that are not finite; check "
-                                      "the measurements (nothing was stored)"), 400)
+            return http.error(
+                gettext(
+                    "The analysis gave numbers that are not finite; check "
+                    "the measurements (nothing was stored)"
+                ),
+                400,
+            )
         return flask.jsonify(run)

@@ -89,9 +89,17 @@ def safe_name(name: str) -> str:
 
 
 class CalibrationApi:
-    def __init__(self, store: SettingsStore, queue: QueueCompensator, runs: RunStore,
-                 demo: DemoMode, notifier: Notifier, printer, file_manager,
-                 job_api: JobApi):
+    def __init__(
+        self,
+        store: SettingsStore,
+        queue: QueueCompensator,
+        runs: RunStore,
+        demo: DemoMode,
+        notifier: Notifier,
+        printer,
+        file_manager,
+        job_api: JobApi,
+    ):
         self._store = store
         self._queue = queue
         self._runs = runs
@@ -127,26 +135,39 @@ class CalibrationApi:
             )
             volume = self._store.limits()
             check_bounds(spec, volume)
-            choice = circle_feed(spec.plane, spec.radius_mm, feed, self.motion_limits(),
-                                 overshoot_deg=spec.overshoot_deg)
+            choice = circle_feed(
+                spec.plane,
+                spec.radius_mm,
+                feed,
+                self.motion_limits(),
+                overshoot_deg=spec.overshoot_deg,
+            )
             spec.feed_mm_min = choice.feed_mm_min
             params = self._queue.in_force
-            text = generate(spec, volume=volume, params_hash=params.hash(),
-                            feed_notes=describe(choice))
+            text = generate(
+                spec, volume=volume, params_hash=params.hash(), feed_notes=describe(choice)
+            )
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         except (ProgramError, LimitsError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
-        name = f"ballbar_{spec.plane}_R{spec.radius_mm:g}_" \
-               f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        name = (
+            f"ballbar_{spec.plane}_R{spec.radius_mm:g}_"
+            f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        )
         path, prog_hash, _ = self.write_program(text, name)
-        printing, capture = self.print_program(path, spec, prog_hash) if do_print \
-            else (False, None)
+        printing, capture = self.print_program(path, spec, prog_hash) if do_print else (False, None)
         if do_print and not printing:
             return http.error(gettext("The printer is not ready to print"), 409)
-        return flask.jsonify(path=path, spec=spec_dict(spec), lines=text.count("\n"),
-                             printing=printing, program_hash=prog_hash, capture=capture,
-                             feed_lowered=[as_dict(r) for r in choice.reasons])
+        return flask.jsonify(
+            path=path,
+            spec=spec_dict(spec),
+            lines=text.count("\n"),
+            printing=printing,
+            program_hash=prog_hash,
+            capture=capture,
+            feed_lowered=[as_dict(r) for r in choice.reasons],
+        )
 
     def test_printing(self) -> bool:
         """Whether one of KinComp's test programs (its program folder) is printing."""
@@ -155,7 +176,7 @@ class CalibrationApi:
                 return False
             job = self._printer.get_current_job() or {}
             path = str((job.get("file") or {}).get("path") or "")
-        except Exception:  # noqa: BLE001 - no job: no test
+        except Exception:
             return False
         return path.startswith(PROGRAM_FOLDER + "/")
 
@@ -167,11 +188,13 @@ class CalibrationApi:
         """Writes the G-code ``text`` as ``kincomp/<name>`` into OctoPrint's storage (the
         folder made if missing, a file of that name replaced); returns its path."""
         path = f"{PROGRAM_FOLDER}/{name}"
-        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER,
-                                      ignore_existing=True)
+        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER, ignore_existing=True)
         self._file_manager.add_file(
-            FileDestinations.LOCAL, path,
-            StreamWrapper(name, io.BytesIO(text.encode())), allow_overwrite=True)
+            FileDestinations.LOCAL,
+            path,
+            StreamWrapper(name, io.BytesIO(text.encode())),
+            allow_overwrite=True,
+        )
         return path
 
     def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
@@ -190,18 +213,21 @@ class CalibrationApi:
 
     def start_print(self, path: str) -> None:
         """Selects the stored file ``path`` and prints it, tagged as KinComp's."""
-        self._printer.select_file(path, False, printAfterSelect=True,
-                                  tags={"plugin:kincomp", "kincomp:calibration"})
+        self._printer.select_file(
+            path, False, printAfterSelect=True, tags={"plugin:kincomp", "kincomp:calibration"}
+        )
 
-    def print_program(self, path: str, spec: TestSpec, prog_hash: str,
-                      arm: bool = True) -> Tuple[bool, Optional[Dict[str, Any]]]:
+    def print_program(
+        self, path: str, spec: TestSpec, prog_hash: str, arm: bool = True
+    ) -> Tuple[bool, Optional[Dict[str, Any]]]:
         """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
         use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
         state); (False, None) if the printer is not ready (not connected, or printing)."""
         if not self.printer_ready():
             return False, None
-        capture = self.on_print(path, spec, prog_hash) \
-            if arm and self.on_print is not None else None
+        capture = (
+            self.on_print(path, spec, prog_hash) if arm and self.on_print is not None else None
+        )
         self.start_print(path)
         return True, capture
 
@@ -220,14 +246,17 @@ class CalibrationApi:
         def run(job, progress) -> None:
             result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
             kind = result.pop("kind", None) or "upload"
-            job.result = self.record_run(result, safe, kind,
-                                         data if kind != "summary" else None,
-                                         result.get("plot"))["id"]
+            job.result = self.record_run(
+                result, safe, kind, data if kind != "summary" else None, result.get("plot")
+            )["id"]
 
         job = self._job_api.submit("analyse", None, run)
         return self._job_api.answer(
-            job, lambda j: self._runs.get(j.result), wait=TRACE_WAIT_S,
-            failed=lambda j: self._analysis_failed(safe, j.exception or j.error))
+            job,
+            lambda j: self._runs.get(j.result),
+            wait=TRACE_WAIT_S,
+            failed=lambda j: self._analysis_failed(safe, j.exception or j.error),
+        )
 
     def read_upload(self) -> Tuple[bytes, str]:
         """The uploaded file (multipart field 'file', or the raw body) and its name; raises
@@ -258,23 +287,33 @@ class CalibrationApi:
         if "summary" in data:
             if not isinstance(data["summary"], dict):
                 return http.error(gettext("'%(key)s' must be an object", key="summary"), 400)
-            return self._analyse_and_store(json.dumps(data["summary"]).encode(),
-                                           "typed summary", "summary")
+            return self._analyse_and_store(
+                json.dumps(data["summary"]).encode(), "typed summary", "summary"
+            )
         if "artifact" in data:
             try:
                 diag = self._artifact(data["artifact"])
                 notes = []
-                params = propose_params(diag, Geometry(diag["plane"], 0.0, None, None),
-                                        self._queue.in_force, notes)
+                params = propose_params(
+                    diag, Geometry(diag["plane"], 0.0, None, None), self._queue.in_force, notes
+                )
             except http.BadRequest as exc:
-                return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)),
-                                  400)
+                return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
             except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
-                return http.error(gettext("Invalid artifact measurements: %(e)s",
-                                          e=http.tr(exc)), 400)
-            return self._store_run({"diagnostics": diag, "parameters": params.to_dict(),
-                                    "firmware": equivalents(params), "notes": notes},
-                                   "printed artifact", "artifact", None)
+                return http.error(
+                    gettext("Invalid artifact measurements: %(e)s", e=http.tr(exc)), 400
+                )
+            return self._store_run(
+                {
+                    "diagnostics": diag,
+                    "parameters": params.to_dict(),
+                    "firmware": equivalents(params),
+                    "notes": notes,
+                },
+                "printed artifact",
+                "artifact",
+                None,
+            )
         return http.error(gettext("Give 'summary' or 'artifact'"), 400)
 
     @staticmethod
@@ -287,26 +326,38 @@ class CalibrationApi:
         ac, bd, ad = (http.number(a, k, None, "artifact.") for k in ("ac", "bd", "ad"))
         lengths = a.get("lengths") or {}
         if not isinstance(lengths, dict) or set(lengths) - set("xyzXYZ"):
-            raise http.BadRequest(gettext(
-                "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
-                key="artifact.lengths"))
+            raise http.BadRequest(
+                gettext(
+                    "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
+                    key="artifact.lengths",
+                )
+            )
         pairs = {}
         for axis, items in lengths.items():
             where = f"artifact.lengths.{axis}"
-            if not isinstance(items, list) or not 0 < len(items) <= MAX_LENGTH_PAIRS or \
-                    not all(isinstance(p, list) and len(p) == 2 for p in items):
-                raise http.BadRequest(gettext(
-                    "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
-                    key=where, n=MAX_LENGTH_PAIRS))
-            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p)
-                           for p in items]
+            if (
+                not isinstance(items, list)
+                or not 0 < len(items) <= MAX_LENGTH_PAIRS
+                or not all(isinstance(p, list) and len(p) == 2 for p in items)
+            ):
+                raise http.BadRequest(
+                    gettext(
+                        "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
+                        key=where,
+                        n=MAX_LENGTH_PAIRS,
+                    )
+                )
+            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p) for p in items]
         diag = diagnostics_from_artifact(plane, ac, bd, ad, pairs)
         http.check_json(diag)  # an overflow (1e308 mm) is no measurement
         return diag
 
     def _analysis_failed(self, name: str, exc) -> str:
-        return gettext("%(name)s: %(reason)s", name=name, reason=http.tr(exc)
-                       if isinstance(exc, BaseException) else str(exc))
+        return gettext(
+            "%(name)s: %(reason)s",
+            name=name,
+            reason=http.tr(exc) if isinstance(exc, BaseException) else str(exc),
+        )
 
     def _analyse_and_store(self, data: bytes, filename: str, source: str):
         safe = safe_name(os.path.basename(str(filename)))
@@ -319,20 +370,33 @@ class CalibrationApi:
             # values the formats accept but the analysis cannot use: the user's input
             return http.error(self._analysis_failed(safe, exc), 400)
         kind = getattr(trace, "kind", source)
-        return self._store_run(result, safe, kind, data if kind != "summary" else None,
-                               result.get("plot"))
+        return self._store_run(
+            result, safe, kind, data if kind != "summary" else None, result.get("plot")
+        )
 
-    def _store_run(self, result: Dict[str, Any], filename: str, source: str,
-                   raw: Optional[bytes], plot=None):
+    def _store_run(
+        self, result: Dict[str, Any], filename: str, source: str, raw: Optional[bytes], plot=None
+    ):
         try:
             return flask.jsonify(self.record_run(result, filename, source, raw, plot))
         except RunNotStorable:
-            return http.error(gettext("The analysis gave numbers that are not finite; check "
-                                      "the measurements (nothing was stored)"), 400)
+            return http.error(
+                gettext(
+                    "The analysis gave numbers that are not finite; check "
+                    "the measurements (nothing was stored)"
+                ),
+                400,
+            )
 
-    def record_run(self, result: Dict[str, Any], filename: str, source: str,
-                   raw: Optional[bytes], plot=None,
-                   extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+    def record_run(
+        self,
+        result: Dict[str, Any],
+        filename: str,
+        source: str,
+        raw: Optional[bytes],
+        plot=None,
+        extra: Optional[Dict[str, Any]] = None,
+    ) -> Dict[str, Any]:
         """Store an analysis as a run (and ``raw``, the measurement file, next to it;
         ``extra``: more fields, e.g. a campaign's keys) and announce it; returns the run.
         Raises :class:`RunNotStorable` (nothing stored) if a number is not finite. Needs
@@ -360,8 +424,9 @@ class CalibrationApi:
         }
         run.update(extra or {})
         self._runs.save(run, raw)
-        self._notifier.event("calibration_analysed", {"run": run_id, "source": source,
-                                                      "simulated": run["simulated"]})
+        self._notifier.event(
+            "calibration_analysed", {"run": run_id, "source": source, "simulated": run["simulated"]}
+        )
         return run
 
     # ~~ applying a proposal -----------------------------------------------------------------
@@ -381,8 +446,9 @@ class CalibrationApi:
                 return http.error(gettext("No such calibration run"), 404)
             params_doc = run.get("proposed")
             if params_doc is None:
-                return http.error(gettext("This run has no proposed parameters (its capture "
-                                          "failed)"), 400)
+                return http.error(
+                    gettext("This run has no proposed parameters (its capture failed)"), 400
+                )
             refused = self.other_printers(run) or self.untrusted(run, force)
             if refused is not None:
                 return refused
@@ -392,8 +458,9 @@ class CalibrationApi:
             params_doc = data["params"]
         else:
             return http.error(gettext("Give 'run' or 'params'"), 400)
-        return self.apply_params(params_doc, apply_now, run,
-                                 {"enabled": data["enabled"]} if "enabled" in data else None)
+        return self.apply_params(
+            params_doc, apply_now, run, {"enabled": data["enabled"]} if "enabled" in data else None
+        )
 
     def other_printers(self, run: Dict[str, Any]):
         """409 when ``run`` was recorded for another printer profile than the one in force
@@ -403,9 +470,15 @@ class CalibrationApi:
         mine = run.get("profile") or s.get("legacy_profile") or ""
         if not s.get("profile") or not mine or mine == s["profile"]:
             return None
-        return http.error(gettext("This run belongs to printer profile %(run)s, but %(current)s "
-                                  "is in force: connect that printer to apply it.",
-                                  run=mine, current=s["profile"]), 409)
+        return http.error(
+            gettext(
+                "This run belongs to printer profile %(run)s, but %(current)s "
+                "is in force: connect that printer to apply it.",
+                run=mine,
+                current=s["profile"],
+            ),
+            409,
+        )
 
     @staticmethod
     def untrusted(run: Dict[str, Any], force: bool):
@@ -416,8 +489,13 @@ class CalibrationApi:
             return None
         return http.error(http.tr(reason), 409)
 
-    def apply_params(self, params_doc, apply_now: bool, run: Optional[Dict[str, Any]] = None,
-                     settings: Optional[Dict[str, Any]] = None):
+    def apply_params(
+        self,
+        params_doc,
+        apply_now: bool,
+        run: Optional[Dict[str, Any]] = None,
+        settings: Optional[Dict[str, Any]] = None,
+    ):
         """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
         whole (400 naming the field, nothing saved); marks ``run`` applied."""
         new = {"params": params_doc}
@@ -429,9 +507,11 @@ class CalibrationApi:
         if run is not None:
             run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
             self._runs.save(run)
-        return flask.jsonify(params=new["params"],
-                             params_hash=Params.from_dict(new["params"]).hash(),
-                             compensation=self._queue.status())
+        return flask.jsonify(
+            params=new["params"],
+            params_hash=Params.from_dict(new["params"]).hash(),
+            compensation=self._queue.status(),
+        )
 
     # ~~ the run history -----------------------------------------------------------------------
     def runs(self):
@@ -457,8 +537,9 @@ class CalibrationApi:
         if path is None:
             return http.error(gettext("This run has no stored measurement file"), 404)
         name = safe_name(str(run.get("filename") or "trace"))
-        return flask.send_file(path, mimetype="application/octet-stream", as_attachment=True,
-                               download_name=name)
+        return flask.send_file(
+            path, mimetype="application/octet-stream", as_attachment=True, download_name=name
+        )
 
     def compare(self):
         http.require(Permissions.STATUS)
@@ -467,16 +548,18 @@ class CalibrationApi:
             b = self._runs.get(flask.request.args.get("after", ""))
         except RunNotFound:
             return http.error(gettext("No such calibration run"), 404)
-        return flask.jsonify(table=table(a["diagnostics"], b["diagnostics"]),
-                             before=a["id"], after=b["id"])
+        return flask.jsonify(
+            table=table(a["diagnostics"], b["diagnostics"]), before=a["id"], after=b["id"]
+        )
 
     # ~~ demo mode ---------------------------------------------------------------------------
     def demo_trace(self):
         http.require(Permissions.STATUS)
         trace = self._demo.last_trace()
         if trace is None:
-            return http.error(gettext("No simulated trace yet: print a ballbar program in "
-                                      "demo mode first"), 404)
+            return http.error(
+                gettext("No simulated trace yet: print a ballbar program in demo mode first"), 404
+            )
         resp = flask.make_response(trace.to_text())
         resp.headers["Content-Type"] = "text/csv; charset=utf-8"
         resp.headers["Content-Disposition"] = 'attachment; filename="simulated_trace.csv"'

@@ -68,24 +68,41 @@ PLAN_FIELDS = {
 }
 
 
-def number(data: Dict[str, Any], key: str, default: Optional[float], lo: float,
-           hi: float) -> Optional[float]:
+def number(
+    data: Dict[str, Any], key: str, default: Optional[float], lo: float, hi: float
+) -> Optional[float]:
     """The JSON number ``data[key]`` (``default`` when absent; None when null and
     optional); raises http.BadRequest naming ``key`` for anything else or out of range."""
     value = data.get(key, default)
     if value is None and default is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(value) or not lo <= value <= hi:
-        raise http.BadRequest(gettext("'%(key)s' must be a number from %(lo)s to %(hi)s",
-                                      key=key, lo=f"{lo:g}", hi=f"{hi:g}"))
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not lo <= value <= hi
+    ):
+        raise http.BadRequest(
+            gettext(
+                "'%(key)s' must be a number from %(lo)s to %(hi)s",
+                key=key,
+                lo=f"{lo:g}",
+                hi=f"{hi:g}",
+            )
+        )
     return float(value)
 
 
 class CampaignApi:
-    def __init__(self, store: SettingsStore, runs: RunStore, campaigns: CampaignStore,
-                 calibration: CalibrationApi, demo: DemoMode,
-                 measurements: CampaignMeasurements):
+    def __init__(
+        self,
+        store: SettingsStore,
+        runs: RunStore,
+        campaigns: CampaignStore,
+        calibration: CalibrationApi,
+        demo: DemoMode,
+        measurements: CampaignMeasurements,
+    ):
         self._store = store
         self._runs = runs
         self._campaigns = campaigns
@@ -104,8 +121,10 @@ class CampaignApi:
             dry_run = http.flag(data, "dry_run")
             if data.get("retest_of") is not None:
                 before = self._campaigns.get(str(data["retest_of"]))
-                data = dict(before.get("options") or {}, **{k: v for k, v in data.items()
-                                                           if k in PLAN_FIELDS})
+                data = dict(
+                    before.get("options") or {},
+                    **{k: v for k, v in data.items() if k in PLAN_FIELDS},
+                )
             options = {k: number(data, k, *v) for k, v in PLAN_FIELDS.items()}
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
@@ -118,15 +137,28 @@ class CampaignApi:
         printer = self.measure.printer()
         try:
             steps = plan_campaign(
-                volume, radius_xy=options["radius_xy"],
-                radius_vertical=options["radius_vertical"], feed=options["feed"],
-                xy_height=options["xy_height"], second_height=options["second_height"],
+                volume,
+                radius_xy=options["radius_xy"],
+                radius_vertical=options["radius_vertical"],
+                feed=options["feed"],
+                xy_height=options["xy_height"],
+                second_height=options["second_height"],
                 second_feed=options["second_feed"],
-                limits=self._calibration.motion_limits(), printer=printer, campaign_id=cid)
+                limits=self._calibration.motion_limits(),
+                printer=printer,
+                campaign_id=cid,
+            )
         except (ProgramError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
-        doc = new_campaign(cid, steps, volume, printer, self.measure.in_force().hash(),
-                           options, before["id"] if before else None)
+        doc = new_campaign(
+            cid,
+            steps,
+            volume,
+            printer,
+            self.measure.in_force().hash(),
+            options,
+            before["id"] if before else None,
+        )
         if dry_run:
             return flask.jsonify(self._view(doc, stored=False))
         self._campaigns.save(doc)
@@ -135,8 +167,9 @@ class CampaignApi:
     # ~~ reading -------------------------------------------------------------------------------
     def list(self):
         http.require(Permissions.STATUS)
-        return flask.jsonify(campaigns=[self._view(d, analysis=False)
-                                        for d in self._campaigns.list()])
+        return flask.jsonify(
+            campaigns=[self._view(d, analysis=False) for d in self._campaigns.list()]
+        )
 
     def get(self, cid: str):
         http.require(Permissions.STATUS)
@@ -164,7 +197,8 @@ class CampaignApi:
         except (ProgramError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
         path, prog_hash, stated = self._calibration.write_program(
-            text, f"{cid}_{n}_{safe_name(step['name'])}.gcode")
+            text, f"{cid}_{n}_{safe_name(step['name'])}.gcode"
+        )
         step["path"] = path
         step["program_hash"] = prog_hash
         # the test as its program states it: a live capture's trace names campaign and test
@@ -172,32 +206,51 @@ class CampaignApi:
         # mode: its virtual bar is that live sensor (demo.live); without the live path the
         # demo's simulated trace of the printed commands is collected instead (trace route)
         demo = self._demo
-        printing, capture = self._calibration.print_program(
-            path, stated, prog_hash, arm=demo.ballbar is None or demo.live) \
-            if do_print else (False, None)
+        printing, capture = (
+            self._calibration.print_program(
+                path, stated, prog_hash, arm=demo.ballbar is None or demo.live
+            )
+            if do_print
+            else (False, None)
+        )
         if printing:
             step["printed"] = now()
         self._campaigns.save(doc)
         if do_print and not printing:
             return http.error(gettext("The printer is not ready to print"), 409)
-        return flask.jsonify(campaign=self._view(doc), path=path, printing=printing,
-                             program_hash=prog_hash, capture=capture)
+        return flask.jsonify(
+            campaign=self._view(doc),
+            path=path,
+            printing=printing,
+            program_hash=prog_hash,
+            capture=capture,
+        )
 
     def _within_limits(self, spec: TestSpec, n: int) -> None:
         """Refused (409) when the printer's motion limits, as they are now, no longer allow
         test ``n``'s planned feed (they were read or changed after the plan)."""
         try:
-            choice = circle_feed(spec.plane, spec.radius_mm, spec.feed_mm_min,
-                                 self._calibration.motion_limits(),
-                                 overshoot_deg=spec.overshoot_deg)
+            choice = circle_feed(
+                spec.plane,
+                spec.radius_mm,
+                spec.feed_mm_min,
+                self._calibration.motion_limits(),
+                overshoot_deg=spec.overshoot_deg,
+            )
         except LimitsError as exc:
             raise Refused(exc.args[0], 409) from None
         if choice.lowered:
-            raise Refused(Msg(
-                "Test %(n)s was planned at %(feed)s mm/min, but the printer's motion limits "
-                "allow %(allowed)s mm/min now (%(why)s): plan the campaign again",
-                n=n, feed=f"{spec.feed_mm_min:g}", allowed=f"{choice.feed_mm_min:g}",
-                why=joined(choice.reasons)), 409)
+            raise Refused(
+                Msg(
+                    "Test %(n)s was planned at %(feed)s mm/min, but the printer's motion limits "
+                    "allow %(allowed)s mm/min now (%(why)s): plan the campaign again",
+                    n=n,
+                    feed=f"{spec.feed_mm_min:g}",
+                    allowed=f"{choice.feed_mm_min:g}",
+                    why=joined(choice.reasons),
+                ),
+                409,
+            )
 
     def trace(self, cid: str, n: int):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
@@ -206,8 +259,7 @@ class CampaignApi:
             demo = http.flag(body or {}, "demo")
             doc, step = self.measure.open_step(cid, n)
             if body is not None and not demo:
-                raise Refused(Msg("Give the trace file (multipart field 'file') or "
-                                  "\"demo\": true"))
+                raise Refused(Msg("Give the trace file (multipart field 'file') or \"demo\": true"))
             if demo:
                 data, filename = self._simulated(cid, step)
             else:
@@ -224,11 +276,20 @@ class CampaignApi:
     def _simulated(self, cid: str, step: Dict[str, Any]) -> Tuple[bytes, str]:
         """Demo mode's SIMULATED trace of ``step`` (Refused, 404, when there is none)."""
         simulated = self._demo.last_trace()
-        if simulated is None or simulated.meta.get("campaign") != cid or \
-                simulated.meta.get("campaign_step") != step["name"]:
-            raise Refused(Msg("No simulated trace of test %(n)s (%(name)s) yet: print its "
-                              "program in demo mode first", n=step["n"], name=step["name"]),
-                          404)
+        if (
+            simulated is None
+            or simulated.meta.get("campaign") != cid
+            or simulated.meta.get("campaign_step") != step["name"]
+        ):
+            raise Refused(
+                Msg(
+                    "No simulated trace of test %(n)s (%(name)s) yet: print its "
+                    "program in demo mode first",
+                    n=step["n"],
+                    name=step["name"],
+                ),
+                404,
+            )
         return simulated.to_text().encode(), f"test{step['n']}_{step['name']}_simulated.csv"
 
     # ~~ the joint analysis and applying it ----------------------------------------------------
@@ -250,10 +311,12 @@ class CampaignApi:
             camp[key + "_i18n"] = as_dict(camp[key])
         camp["servo_precomp"]["reason_i18n"] = as_dict(camp["servo_precomp"]["reason"])
         extra = campaign_keys(cid, None, current)
-        extra.update(plots=result["plots"], campaign_steps=[s["name"] for s in doc["steps"]],
-                     step_runs=[s["run"] for s in doc["steps"]])
-        run = self._calibration.record_run(result, f"campaign {cid}", "campaign", None, None,
-                                           extra)
+        extra.update(
+            plots=result["plots"],
+            campaign_steps=[s["name"] for s in doc["steps"]],
+            step_runs=[s["run"] for s in doc["steps"]],
+        )
+        run = self._calibration.record_run(result, f"campaign {cid}", "campaign", None, None, extra)
         doc["result"] = run["id"]
         doc["analysed"] = now()
         self._campaigns.save(doc)
@@ -271,10 +334,15 @@ class CampaignApi:
             except RunNotFound:
                 run = None
             if run is None or path is None:
-                raise Refused(Msg(
-                    "The campaign is incomplete: test %(n)s (%(name)s, %(file)s) has no "
-                    "measurement; nothing is analysed from a partial campaign", n=step["n"],
-                    name=step["name"], file=os.path.basename(step.get("path") or "-")))
+                raise Refused(
+                    Msg(
+                        "The campaign is incomplete: test %(n)s (%(name)s, %(file)s) has no "
+                        "measurement; nothing is analysed from a partial campaign",
+                        n=step["n"],
+                        name=step["name"],
+                        file=os.path.basename(step.get("path") or "-"),
+                    )
+                )
             with open(path, "rb") as f:
                 items.append((run["filename"], load_any(f.read(), run["filename"])))
         return items
@@ -291,20 +359,27 @@ class CampaignApi:
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)
         except RunNotFound:
-            return http.error(gettext("Campaign %(id)s has no joint analysis to apply: "
-                                      "analyse it first", id=cid), 409)
+            return http.error(
+                gettext("Campaign %(id)s has no joint analysis to apply: analyse it first", id=cid),
+                409,
+            )
         refused = self._calibration.other_printers(run) or self._calibration.untrusted(run, force)
         if refused is not None:
             return refused
         resp = self._calibration.apply_params(
-            run["proposed"], apply_now, run,
-            {"enabled": data["enabled"]} if "enabled" in data else None)
+            run["proposed"],
+            apply_now,
+            run,
+            {"enabled": data["enabled"]} if "enabled" in data else None,
+        )
         if resp.status_code == 200:
             doc["applied"] = now()
             self._campaigns.save(doc)
         return resp
 
-    def _view(self, doc: Dict[str, Any], stored: bool = True,
-              analysis: bool = True) -> Dict[str, Any]:
-        return view(doc, self._runs, self._campaigns, self.measure.in_force().hash(), stored,
-                    analysis)
+    def _view(
+        self, doc: Dict[str, Any], stored: bool = True, analysis: bool = True
+    ) -> Dict[str, Any]:
+        return view(
+            doc, self._runs, self._campaigns, self.measure.in_force().hash(), stored, analysis
+        )

@@ -42,8 +42,15 @@ class Refused(Exception):
 
 
 class CampaignMeasurements:
-    def __init__(self, queue: QueueCompensator, runs: RunStore, campaigns: CampaignStore,
-                 calibration, notifier: Notifier, profiles):
+    def __init__(
+        self,
+        queue: QueueCompensator,
+        runs: RunStore,
+        campaigns: CampaignStore,
+        calibration,
+        notifier: Notifier,
+        profiles,
+    ):
         self._queue = queue
         self._runs = runs
         self._campaigns = campaigns
@@ -61,7 +68,7 @@ class CampaignMeasurements:
         """The printer profile's name (the traces' ``printer``)."""
         try:
             profile = self._profiles.get_current_or_default() or {}
-        except Exception:  # noqa: BLE001 - no profile: no name
+        except Exception:
             return None
         name = profile.get("name") or profile.get("id")
         return str(name) if name else None
@@ -71,16 +78,29 @@ class CampaignMeasurements:
         since the campaign began."""
         force = self.in_force().hash()
         if force != doc["params_hash"]:
-            raise Refused(Msg(
-                "The parameters in force changed since campaign %(id)s began (%(then)s, now "
-                "%(now)s): all tests of a campaign must be measured with the same parameters. "
-                "Start a new campaign.", id=doc["id"], then=doc["params_hash"], now=force), 409)
+            raise Refused(
+                Msg(
+                    "The parameters in force changed since campaign %(id)s began (%(then)s, now "
+                    "%(now)s): all tests of a campaign must be measured with the same parameters. "
+                    "Start a new campaign.",
+                    id=doc["id"],
+                    then=doc["params_hash"],
+                    now=force,
+                ),
+                409,
+            )
         printer = self.printer()
         if doc.get("printer") and printer != doc["printer"]:
-            raise Refused(Msg(
-                "The printer profile changed since campaign %(id)s began (%(then)s, now "
-                "%(now)s): a campaign is measured on one printer. Start a new campaign.",
-                id=doc["id"], then=doc["printer"], now=printer or "-"), 409)
+            raise Refused(
+                Msg(
+                    "The printer profile changed since campaign %(id)s began (%(then)s, now "
+                    "%(now)s): a campaign is measured on one printer. Start a new campaign.",
+                    id=doc["id"],
+                    then=doc["printer"],
+                    now=printer or "-",
+                ),
+                409,
+            )
 
     def open_step(self, cid: str, n: int):
         """(campaign, its test n) when the campaign can still measure it; else Refused."""
@@ -91,14 +111,26 @@ class CampaignMeasurements:
         if not 1 <= n <= len(doc["steps"]):
             raise Refused(Msg("Campaign %(id)s has no test %(n)s", id=cid, n=n), 404)
         if doc.get("result"):
-            raise Refused(Msg("Campaign %(id)s is analysed and closed: to measure again, "
-                              "start a re-test campaign.", id=cid), 409)
+            raise Refused(
+                Msg(
+                    "Campaign %(id)s is analysed and closed: to measure again, "
+                    "start a re-test campaign.",
+                    id=cid,
+                ),
+                409,
+            )
         self.check_unchanged(doc)
         return doc, doc["steps"][n - 1]
 
     # ~~ a trace as a test's measurement --------------------------------------------------------
-    def measure(self, doc: Dict[str, Any], step: Dict[str, Any], data: bytes, name: str,
-                extra: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+    def measure(
+        self,
+        doc: Dict[str, Any],
+        step: Dict[str, Any],
+        data: bytes,
+        name: str,
+        extra: Optional[Dict[str, Any]] = None,
+    ) -> Dict[str, Any]:
         """The trace ``data`` (file ``name``) as ``step``'s measurement: checked, analysed,
         stored as a run of the campaign (``extra``: more fields) and linked to the test;
         returns the run. Refused (400) naming the file when it is not this test's trace or
@@ -111,12 +143,14 @@ class CampaignMeasurements:
                 raise Refused(Msg("%(name)s: %(reason)s", name=name, reason=wrong))
             result = analyse(trace, current=current)
         except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
-            raise Refused(Msg("%(name)s: %(reason)s", name=name,
-                              reason=error_message(exc))) from None
+            raise Refused(
+                Msg("%(name)s: %(reason)s", name=name, reason=error_message(exc))
+            ) from None
         fields = campaign_keys(doc["id"], step["name"], current)
         fields.update(extra or {})
-        run = self._calibration.record_run(result, name, trace.kind, data,
-                                           result.get("plot"), fields)
+        run = self._calibration.record_run(
+            result, name, trace.kind, data, result.get("plot"), fields
+        )
         step["run"] = run["id"]
         step["measured"] = now()
         self._campaigns.save(doc)
@@ -140,17 +174,34 @@ class CampaignMeasurements:
             doc = self._campaigns.get(cid)
             step = next((s for s in doc["steps"] if s["name"] == step_name), None)
             if step is None:
-                raise Refused(Msg("%(name)s: campaign %(id)s has no test %(test)s", name=name,
-                                  id=cid, test=step_name or "-"))
+                raise Refused(
+                    Msg(
+                        "%(name)s: campaign %(id)s has no test %(test)s",
+                        name=name,
+                        id=cid,
+                        test=step_name or "-",
+                    )
+                )
             doc, step = self.open_step(cid, step["n"])
-            new = self.measure(doc, step, data, name, {
-                "source": run.get("source"), "status": "ok", "capture": run.get("capture")})
+            new = self.measure(
+                doc,
+                step,
+                data,
+                name,
+                {"source": run.get("source"), "status": "ok", "capture": run.get("capture")},
+            )
         except CampaignNotFound:
             return run
         except Refused as exc:
-            self._notifier.notify("error", N_("The live capture was not taken as a test of "
-                                              "its campaign: %(reason)s. It is kept in the "
-                                              "history as a single run."), reason=exc.message)
+            self._notifier.notify(
+                "error",
+                N_(
+                    "The live capture was not taken as a test of "
+                    "its campaign: %(reason)s. It is kept in the "
+                    "history as a single run."
+                ),
+                reason=exc.message,
+            )
             return run
         raw = self._runs.raw_path(run["id"])
         if raw is not None:
@@ -163,38 +214,59 @@ class CampaignMeasurements:
 def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[Msg]:
     """Why ``trace`` is not the measurement of ``step`` of campaign ``doc`` (None: it is)."""
     if not isinstance(trace, (NativeTrace, AngleTrace)):
-        return Msg("a campaign test needs a measured trace (native or angle CSV) written "
-                   "with the test's program, not a summary")
+        return Msg(
+            "a campaign test needs a measured trace (native or angle CSV) written "
+            "with the test's program, not a summary"
+        )
     meta = trace.meta
     got = (meta.get("campaign") or "").strip()
     if got != doc["id"]:
-        return Msg("it belongs to campaign %(other)s, not to %(id)s", other=got or "-",
-                   id=doc["id"])
+        return Msg(
+            "it belongs to campaign %(other)s, not to %(id)s", other=got or "-", id=doc["id"]
+        )
     got = (meta.get("campaign_step") or "").strip()
     if got != step["name"]:
-        return Msg("it is the trace of test %(other)s, not of test %(n)s (%(name)s)",
-                   other=got or "-", n=step["n"], name=step["name"])
+        return Msg(
+            "it is the trace of test %(other)s, not of test %(n)s (%(name)s)",
+            other=got or "-",
+            n=step["n"],
+            name=step["name"],
+        )
     got = (meta.get("program_hash") or "").strip()
     if got != step["program_hash"]:
-        return Msg("its program (program_hash %(got)s) is not test %(n)s's program "
-                   "(%(want)s): the metadata does not match the program", got=got or "-",
-                   n=step["n"], want=step["program_hash"])
+        return Msg(
+            "its program (program_hash %(got)s) is not test %(n)s's program "
+            "(%(want)s): the metadata does not match the program",
+            got=got or "-",
+            n=step["n"],
+            want=step["program_hash"],
+        )
     got = (meta.get("params_hash") or "").strip()
     if got and got != doc["params_hash"]:
-        return Msg("it was measured with parameters %(got)s, but the campaign runs with "
-                   "%(want)s", got=got, want=doc["params_hash"])
+        return Msg(
+            "it was measured with parameters %(got)s, but the campaign runs with %(want)s",
+            got=got,
+            want=doc["params_hash"],
+        )
     got = (meta.get("printer") or "").strip()
     if doc.get("printer") and got != doc["printer"]:
-        return Msg("it comes from printer %(got)s, but the campaign is for %(want)s",
-                   got=got or "-", want=doc["printer"])
+        return Msg(
+            "it comes from printer %(got)s, but the campaign is for %(want)s",
+            got=got or "-",
+            want=doc["printer"],
+        )
     return None
 
 
 def campaign_keys(cid: str, step: Optional[str], current: Params) -> Dict[str, Any]:
     """A campaign run's fields: its campaign, its test (None: the joint analysis) and the
     parameters in force."""
-    return {"campaign": cid, "campaign_step": step, "params_before": current.to_dict(),
-            "params_before_hash": current.hash()}
+    return {
+        "campaign": cid,
+        "campaign_step": step,
+        "params_before": current.to_dict(),
+        "params_before_hash": current.hash(),
+    }
 
 
 def _campaign_of(data: bytes):

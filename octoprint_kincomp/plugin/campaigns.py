@@ -51,9 +51,15 @@ class CampaignStore(RunStore):
         return out
 
 
-def new_campaign(cid: str, steps: Sequence[Any], volume: Sequence[float],
-                 printer: Optional[str], params_hash: str, options: Dict[str, Any],
-                 retest_of: Optional[str] = None) -> Dict[str, Any]:
+def new_campaign(
+    cid: str,
+    steps: Sequence[Any],
+    volume: Sequence[float],
+    printer: Optional[str],
+    params_hash: str,
+    options: Dict[str, Any],
+    retest_of: Optional[str] = None,
+) -> Dict[str, Any]:
     """The document of a freshly planned campaign (nothing printed yet)."""
     return {
         "id": cid,
@@ -63,21 +69,24 @@ def new_campaign(cid: str, steps: Sequence[Any], volume: Sequence[float],
         "params_hash": params_hash,
         "options": options,
         "retest_of": retest_of,
-        "steps": [{
-            "n": i,
-            "name": s.name,
-            "plane": s.spec.plane,
-            "centre": list(s.spec.centre),
-            "radius_mm": s.spec.radius_mm,
-            "feed_mm_min": s.spec.feed_mm_min,
-            "requested_feed_mm_min": s.spec.requested_feed_mm_min,
-            "spec": spec_dict(s.spec),
-            "program_hash": body_hash(s.spec),
-            "path": None,
-            "printed": None,
-            "run": None,
-            "measured": None,
-        } for i, s in enumerate(steps, 1)],
+        "steps": [
+            {
+                "n": i,
+                "name": s.name,
+                "plane": s.spec.plane,
+                "centre": list(s.spec.centre),
+                "radius_mm": s.spec.radius_mm,
+                "feed_mm_min": s.spec.feed_mm_min,
+                "requested_feed_mm_min": s.spec.requested_feed_mm_min,
+                "spec": spec_dict(s.spec),
+                "program_hash": body_hash(s.spec),
+                "path": None,
+                "printed": None,
+                "run": None,
+                "measured": None,
+            }
+            for i, s in enumerate(steps, 1)
+        ],
         "result": None,
         "applied": None,
     }
@@ -101,14 +110,26 @@ def state(doc: Dict[str, Any]) -> str:
     return "measuring" if next_step(doc) is not None else "measured"
 
 
-def view(doc: Dict[str, Any], runs: RunStore, campaigns: CampaignStore, in_force_hash: str,
-         stored: bool = True, analysis: bool = True) -> Dict[str, Any]:
+def view(
+    doc: Dict[str, Any],
+    runs: RunStore,
+    campaigns: CampaignStore,
+    in_force_hash: str,
+    stored: bool = True,
+    analysis: bool = True,
+) -> Dict[str, Any]:
     """The campaign document with its progress, each test's measurement summary and, once
     analysed (and ``analysis``), the joint result with the comparison per test;
     ``in_force_hash``: the parameters in force now (changed: the campaign cannot go on)."""
-    out = dict(doc, stored=stored, state=state(doc), next_step=next_step(doc),
-               measured=sum(1 for s in doc["steps"] if s.get("run")),
-               in_force_hash=in_force_hash, params_changed=in_force_hash != doc["params_hash"])
+    out = dict(
+        doc,
+        stored=stored,
+        state=state(doc),
+        next_step=next_step(doc),
+        measured=sum(1 for s in doc["steps"] if s.get("run")),
+        in_force_hash=in_force_hash,
+        params_changed=in_force_hash != doc["params_hash"],
+    )
     out["steps"] = [dict(s, summary=_summary(runs, s.get("run"))) for s in doc["steps"]]
     if analysis and doc.get("result"):
         out["analysis"] = _analysis(doc, runs, campaigns)
@@ -127,8 +148,9 @@ def _summary(runs: RunStore, run_id: Optional[str]) -> Optional[Dict[str, Any]]:
     return out
 
 
-def _analysis(doc: Dict[str, Any], runs: RunStore,
-              campaigns: CampaignStore) -> Optional[Dict[str, Any]]:
+def _analysis(
+    doc: Dict[str, Any], runs: RunStore, campaigns: CampaignStore
+) -> Optional[Dict[str, Any]]:
     """The joint result; per test the Table-2 rows (before: the same test of the campaign
     this one re-tests, if analysed) and the plot of that test."""
     try:
@@ -137,20 +159,22 @@ def _analysis(doc: Dict[str, Any], runs: RunStore,
         return None
     before = _before(doc.get("retest_of"), runs, campaigns)
     comparison = []
-    for name, after in zip(run.get("campaign_steps") or [],
-                           run["diagnostics"].get("traces") or []):
+    for name, after in zip(run.get("campaign_steps") or [], run["diagnostics"].get("traces") or []):
         b = before.get(name)
-        comparison.append({
-            "step": name,
-            "rows": table(_joint(b["trace"]) if b else {}, _joint(after)),
-            "before_plot": b["plot"] if b else None,
-            "before_run": b["run"] if b else None,
-        })
+        comparison.append(
+            {
+                "step": name,
+                "rows": table(_joint(b["trace"]) if b else {}, _joint(after)),
+                "before_plot": b["plot"] if b else None,
+                "before_run": b["run"] if b else None,
+            }
+        )
     return dict(run, comparison=comparison)
 
 
-def _before(cid: Optional[str], runs: RunStore,
-            campaigns: CampaignStore) -> Dict[str, Dict[str, Any]]:
+def _before(
+    cid: Optional[str], runs: RunStore, campaigns: CampaignStore
+) -> Dict[str, Dict[str, Any]]:
     """Per test name of campaign ``cid``'s joint analysis: its trace diagnostics and plot;
     empty when there is none."""
     try:
@@ -159,8 +183,10 @@ def _before(cid: Optional[str], runs: RunStore,
         return {}
     traces = run["diagnostics"].get("traces") or []
     plots = run.get("plots") or [None] * len(traces)
-    return {name: {"trace": t, "plot": p, "run": run["id"]}
-            for name, t, p in zip(run.get("campaign_steps") or [], traces, plots)}
+    return {
+        name: {"trace": t, "plot": p, "run": run["id"]}
+        for name, t, p in zip(run.get("campaign_steps") or [], traces, plots)
+    }
 
 
 def _joint(trace_diag: Dict[str, Any]) -> Dict[str, Any]:

@@ -96,8 +96,9 @@ class DemoMode:
             return None
         with self._lock:
             if self._sensor is None:
-                self._sensor = VirtualSensor(demo.truth, speedup=DEMO_SPEEDUP,
-                                             range_mm=DEMO_RANGE_MM)
+                self._sensor = VirtualSensor(
+                    demo.truth, speedup=DEMO_SPEEDUP, range_mm=DEMO_RANGE_MM
+                )
                 self._sensor.start()
             return self._sensor.url
 
@@ -118,16 +119,14 @@ class DemoMode:
             return None
         return float("inf") if self._simulating else sensor.program_end
 
-    def _play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str,
-              start: float) -> None:
+    def _play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str, start: float) -> None:
         """Simulate the program (about a second, on its own thread) and stream it from
         ``start`` on."""
         try:
             lines = self.lines_as_sent(generate(spec))
             sensor.play(lines, start, spec=spec, program_hash=prog_hash)
         except (ProgramError, OSError, ValueError):
-            self._logger.exception("KinComp demo: the virtual ballbar could not play the "
-                                   "program")
+            self._logger.exception("KinComp demo: the virtual ballbar could not play the program")
         finally:
             self._simulating = False
 
@@ -161,8 +160,12 @@ class DemoMode:
                 self._start_play(sensor, spec, self._program_hash)
 
     def _start_play(self, sensor: VirtualSensor, spec: TestSpec, prog_hash: str) -> None:
-        threading.Thread(target=self._play, name="kincomp-demo-ballbar", daemon=True,
-                         args=(sensor, spec, prog_hash, time.monotonic())).start()
+        threading.Thread(
+            target=self._play,
+            name="kincomp-demo-ballbar",
+            daemon=True,
+            args=(sensor, spec, prog_hash, time.monotonic()),
+        ).start()
 
     def _file_line(self, cmd: str) -> None:
         """A line of the printed file is queued: the first one after the mount pause starts
@@ -177,8 +180,9 @@ class DemoMode:
             self._deferred = None
         self._start_play(*deferred)
 
-    def record(self, cmd: str, result: Optional[List[str]],
-               tags: Optional[Iterable[str]] = None) -> None:
+    def record(
+        self, cmd: str, result: Optional[List[str]], tags: Optional[Iterable[str]] = None
+    ) -> None:
         """What the queuing hook sends for ``cmd`` (``tags``: OctoPrint's, a line of the
         printed file has ``source:file``): ``result`` (None: ``cmd`` as it is). Recorded once
         here: in the sent phase resends would repeat lines."""
@@ -206,8 +210,9 @@ class DemoMode:
         if not done:
             demo.cancel()
             return
-        threading.Thread(target=self._simulate, args=(demo, self._played), name="kincomp-demo",
-                         daemon=True).start()
+        threading.Thread(
+            target=self._simulate, args=(demo, self._played), name="kincomp-demo", daemon=True
+        ).start()
 
     def last_trace(self) -> Optional[NativeTrace]:
         """The last simulated trace, if demo mode is on and one was made."""
@@ -219,7 +224,7 @@ class DemoMode:
         ``played``: the print was played on the live sensor (its capture tells the UI)."""
         try:
             trace = demo.finish()
-        except Exception:  # noqa: BLE001 - a demo failure must not disturb anything else
+        except Exception:
             self._logger.exception("KinComp demo: simulation failed")
             return
         if trace is None:
@@ -228,9 +233,16 @@ class DemoMode:
             return
         meta = getattr(trace, "meta", None) or {}
         if meta.get("campaign"):  # a campaign's test: the campaign's wizard collects it
-            self._notifier.message({"type": "demo_trace", "campaign": meta["campaign"],
-                                    "campaign_step": meta.get("campaign_step")})
+            self._notifier.message(
+                {
+                    "type": "demo_trace",
+                    "campaign": meta["campaign"],
+                    "campaign_step": meta.get("campaign_step"),
+                }
+            )
         else:
-            self._notifier.notify("success", N_(
-                "SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."))
+            self._notifier.notify(
+                "success",
+                N_("SIMULATED ballbar trace ready (demo mode): load it in the calibration tab."),
+            )
             self._notifier.message({"type": "demo_trace"})

@@ -46,6 +46,7 @@ from .settings_store import SettingsStore
 from .upload import CompensatingStream
 from .worker import WorkerProcess
 
+
 class LinkOutside(PermissionError):
     """A symbolic link in the uploads folder leads out of it (not followed)."""
 
@@ -76,8 +77,15 @@ class FilesApi:
     job list and a job's output until it is moved into the uploads. Owns the job queue
     (``jobs``) and so the worker process (``worker``: None for a new process)."""
 
-    def __init__(self, store: SettingsStore, queue: QueueCompensator, file_manager,
-                 notifier: Notifier, data_folder: Callable[[], str], worker=None):
+    def __init__(
+        self,
+        store: SettingsStore,
+        queue: QueueCompensator,
+        file_manager,
+        notifier: Notifier,
+        data_folder: Callable[[], str],
+        worker=None,
+    ):
         self._store = store
         self._queue = queue
         self._file_manager = file_manager
@@ -85,8 +93,11 @@ class FilesApi:
         self._data_folder = data_folder
         folder = data_folder()
         start_up_clean(folder)
-        self.jobs = JobQueue(self._job_changed, history=os.path.join(folder, "jobs.json"),
-                             worker=worker if worker is not None else WorkerProcess())
+        self.jobs = JobQueue(
+            self._job_changed,
+            history=os.path.join(folder, "jobs.json"),
+            worker=worker if worker is not None else WorkerProcess(),
+        )
         self.job_api = JobApi(self.jobs)
 
     # ~~ endpoints ---------------------------------------------------------------------------
@@ -103,8 +114,13 @@ class FilesApi:
         except SettingsInvalid as exc:
             return http.error(http.tr(exc), 409)
         params, options = self._store.engine_config(s)
-        args = {"src": disk, "dst": None, "params": params.to_dict(),
-                "options": options_dict(options), "dry_run": True}
+        args = {
+            "src": disk,
+            "dst": None,
+            "params": params.to_dict(),
+            "options": options_dict(options),
+            "dry_run": True,
+        }
 
         def run(job: Job, progress) -> None:
             job.report = self.jobs.worker.call(job.id, "compensate", args, progress)
@@ -124,8 +140,9 @@ class FilesApi:
             return http.error(http.tr(exc), 409)
         if file_marker(disk) is not None:
             return http.error(gettext("This file is already compensated"), 409)
-        job = self.job_api.submit("compensate", path, self._compensation(path),
-                                  held_while_printing=True)
+        job = self.job_api.submit(
+            "compensate", path, self._compensation(path), held_while_printing=True
+        )
         return flask.make_response(flask.jsonify(job=job.to_dict()), 202)
 
     def files(self):
@@ -142,18 +159,23 @@ class FilesApi:
                     path = entry.get("path") or prefix + name
                     try:
                         h = file_marker(self._disk(path))
-                    except Exception:  # noqa: BLE001 - unreadable, or a link out: unmarked
+                    except Exception:
                         h = None
-                    out.append({"path": path, "params_hash": h,
-                                "outdated": h is not None and h != current})
+                    out.append(
+                        {"path": path, "params_hash": h, "outdated": h is not None and h != current}
+                    )
 
-        walk(self._file_manager.list_files(FileDestinations.LOCAL, recursive=True)
-             .get(FileDestinations.LOCAL))
+        walk(
+            self._file_manager.list_files(FileDestinations.LOCAL, recursive=True).get(
+                FileDestinations.LOCAL
+            )
+        )
         return flask.jsonify(files=out, params_hash=current)
 
     # ~~ jobs ------------------------------------------------------------------------------------
     def _compensation(self, path: str):
         """A job's work: ``path`` compensated into ``<root>.kincomp<ext>`` beside it."""
+
         def run(job: Job, progress) -> None:
             s = self._store.require_usable()  # the settings may have changed meanwhile
             params, options = self._store.engine_config(s)
@@ -162,25 +184,40 @@ class FilesApi:
             os.makedirs(folder, exist_ok=True)
             out = os.path.join(folder, job.id + ".gcode")
             try:
-                result = self.jobs.worker.call(job.id, "compensate", {
-                    "src": src, "dst": out, "params": params.to_dict(),
-                    "options": options_dict(options)}, progress)
+                result = self.jobs.worker.call(
+                    job.id,
+                    "compensate",
+                    {
+                        "src": src,
+                        "dst": out,
+                        "params": params.to_dict(),
+                        "options": options_dict(options),
+                    },
+                    progress,
+                )
                 if result["precompensated"] is not None:
                     raise AlreadyCompensated(result["precompensated"])
                 root, ext = os.path.splitext(path)
                 dest = f"{root}.kincomp{ext or '.gcode'}"
                 self._file_manager.add_file(
-                    FileDestinations.LOCAL, dest,
+                    FileDestinations.LOCAL,
+                    dest,
                     DiskFileWrapper(os.path.basename(dest), out, move=True),
-                    allow_overwrite=True)
+                    allow_overwrite=True,
+                )
                 self._file_manager.set_additional_metadata(
-                    FileDestinations.LOCAL, dest, "kincomp",
-                    {"params_hash": params.hash(), "source": path}, overwrite=True)
+                    FileDestinations.LOCAL,
+                    dest,
+                    "kincomp",
+                    {"params_hash": params.hash(), "source": path},
+                    overwrite=True,
+                )
                 job.result = dest
                 job.report = result["report"]
             finally:
                 if os.path.exists(out):
                     os.unlink(out)
+
         return run
 
     def _job_changed(self, job: Job) -> None:
@@ -199,26 +236,33 @@ class FilesApi:
         params, options = self._store.engine_config(s, printer_profile)
         if changes_nothing(params):
             return None
-        return StreamWrapper(file_object.filename,
-                             CompensatingStream(file_object.stream(), params, options))
+        return StreamWrapper(
+            file_object.filename, CompensatingStream(file_object.stream(), params, options)
+        )
 
     def file_added(self, payload: Dict[str, Any]) -> None:
         """FILE_ADDED: in background mode an unmarked local G-code file gets a job."""
         s = self._store.current()
         path = payload.get("path")
-        if (not s["enabled"] or s["mode"] != "background" or not path
-                or payload.get("storage") != FileDestinations.LOCAL
-                or not valid_file_type(path, type="gcode")):
+        if (
+            not s["enabled"]
+            or s["mode"] != "background"
+            or not path
+            or payload.get("storage") != FileDestinations.LOCAL
+            or not valid_file_type(path, type="gcode")
+        ):
             return
         try:
             if file_marker(self._disk(path)) is not None:
                 return
-            self.jobs.submit("compensate", path, self._compensation(path),
-                             held_while_printing=True)
+            self.jobs.submit("compensate", path, self._compensation(path), held_while_printing=True)
         except (OSError, ValueError, QueueFull) as exc:
-            self._notifier.notify("error", N_("KinComp could not queue %(path)s for "
-                                              "compensation: %(reason)s"),
-                                  path=path, reason=str(exc))
+            self._notifier.notify(
+                "error",
+                N_("KinComp could not queue %(path)s for compensation: %(reason)s"),
+                path=path,
+                reason=str(exc),
+            )
 
     # ~~ inside ----------------------------------------------------------------------------------
     def _disk(self, path: str) -> str:
@@ -228,13 +272,18 @@ class FilesApi:
         root = self._uploads_root()
         real, base = os.path.realpath(disk), os.path.realpath(root)
         if os.path.commonpath([real, base]) != base:
-            raise LinkOutside(gettext("%(path)s is a link out of the uploads folder; KinComp "
-                                      "does not follow it", path=path))
+            raise LinkOutside(
+                gettext(
+                    "%(path)s is a link out of the uploads folder; KinComp does not follow it",
+                    path=path,
+                )
+            )
         return disk
 
     def _uploads_root(self) -> str:
-        return os.path.dirname(self._file_manager.path_on_disk(
-            FileDestinations.LOCAL, "kincomp-root-probe.gcode"))
+        return os.path.dirname(
+            self._file_manager.path_on_disk(FileDestinations.LOCAL, "kincomp-root-probe.gcode")
+        )
 
     def _canonical(self, disk: str) -> str:
         """The one spelling of the stored file at ``disk``: its path below the uploads
@@ -258,9 +307,8 @@ class FilesApi:
             http.abort(403, str(exc))
         except ValueError:  # the storage refuses paths outside its folder
             exists = False
-        except Exception:  # noqa: BLE001 - OctoPrint's sanitizing fails on some paths
+        except Exception:
             http.abort(400, gettext("'%(key)s' is not a valid file path", key="path"))
         if not exists:
             http.abort(404, gettext("No such G-code file"))
         return disk
-

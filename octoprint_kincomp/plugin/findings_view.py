@@ -31,9 +31,13 @@ def _wire(item: Any) -> Dict[str, Any]:
         return item.to_wire()
     if isinstance(item, dict):
         severity = item.get("severity") if item.get("severity") in _RANK else "warning"
-        return {"code": str(item.get("code") or "finding"), "severity": severity,
-                "message": _text(item.get("message")), "advice": _text(item.get("advice")),
-                "evidence": dict(item.get("evidence") or {})}
+        return {
+            "code": str(item.get("code") or "finding"),
+            "severity": severity,
+            "message": _text(item.get("message")),
+            "advice": _text(item.get("advice")),
+            "evidence": dict(item.get("evidence") or {}),
+        }
     return from_notes([item])[0].to_wire()
 
 
@@ -44,8 +48,7 @@ def findings_of(result: Dict[str, Any]) -> Tuple[List[Dict[str, Any]], bool]:
     if items is None:
         items = from_notes(result.get("notes") or [])
     wire = sorted((_wire(f) for f in items), key=lambda f: -_RANK[f["severity"]])
-    trusted = result.get("trusted") is not False and \
-        not any(f["severity"] == "error" for f in wire)
+    trusted = result.get("trusted") is not False and not any(f["severity"] == "error" for f in wire)
     return wire, trusted
 
 
@@ -66,5 +69,8 @@ def refusal(run: Dict[str, Any]) -> Any:
         return None
     errors = [f for f in run.get("findings") or [] if f.get("severity") == "error"]
     reason = _msg(errors[0]["message"]) if errors else ""
-    return Msg("This result is not trusted (%(reason)s): read its findings first. To apply "
-               "it anyway, confirm with \"force\": true.", reason=reason or "-")
+    return Msg(
+        "This result is not trusted (%(reason)s): read its findings first. To apply "
+        'it anyway, confirm with "force": true.',
+        reason=reason or "-",
+    )

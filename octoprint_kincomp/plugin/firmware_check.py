@@ -19,8 +19,9 @@ CONFLICT_NAMES = {"skew": N_("skew"), "backlash": N_("backlash"), "scale": N_("a
 
 
 class FirmwareCheck:
-    def __init__(self, watch: FirmwareWatcher, queue: QueueCompensator, printer,
-                 notifier: Notifier, logger):
+    def __init__(
+        self, watch: FirmwareWatcher, queue: QueueCompensator, printer, notifier: Notifier, logger
+    ):
         self.watch = watch
         self._queue = queue
         self._printer = printer
@@ -48,10 +49,16 @@ class FirmwareCheck:
             if self._warned.get(kind) != where:
                 self._warned[kind] = where
                 self._logger.warning("Double compensation: firmware %s active (%s)", kind, where)
-                self._notifier.notify("warning", N_(
-                    "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
-                    "corrected twice. Turn one of them off."), tr_params=("kind",),
-                    kind=CONFLICT_NAMES[kind], where=where)
+                self._notifier.notify(
+                    "warning",
+                    N_(
+                        "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
+                        "corrected twice. Turn one of them off."
+                    ),
+                    tr_params=("kind",),
+                    kind=CONFLICT_NAMES[kind],
+                    where=where,
+                )
 
     def query(self, payload: Dict[str, Any]) -> None:
         """After the M115 reply (FIRMWARE_DATA): a Marlin firmware is asked for its
@@ -61,5 +68,5 @@ class FirmwareCheck:
             return
         try:
             self._printer.commands(["M503"], tags={"plugin:kincomp", "kincomp:firmware-check"})
-        except Exception:  # noqa: BLE001 - a check, not a necessity
+        except Exception:
             self._logger.exception("KinComp: could not ask the firmware for its settings")

@@ -70,14 +70,14 @@ class FirmwareWatcher:
         low = text.upper()
         for code in ("M852", "M556"):
             i = low.find(code)
-            if i >= 0 and not low[i + 4: i + 5].isdigit():
-                self._skew_cmd(code, text[i + 4:], where)
+            if i >= 0 and not low[i + 4 : i + 5].isdigit():
+                self._skew_cmd(code, text[i + 4 :], where)
         i = low.find("M425")
-        if i >= 0 and not low[i + 4: i + 5].isdigit():
-            self._backlash_cmd(text[i + 4:], where)
+        if i >= 0 and not low[i + 4 : i + 5].isdigit():
+            self._backlash_cmd(text[i + 4 :], where)
         i = low.find("M579")
-        if i >= 0 and not low[i + 4: i + 5].isdigit():
-            self._scale_cmd(text[i + 4:], where)
+        if i >= 0 and not low[i + 4 : i + 5].isdigit():
+            self._scale_cmd(text[i + 4 :], where)
         if low.startswith("SET_SKEW"):
             if "CLEAR" in low:
                 self.skew = None

@@ -21,15 +21,18 @@ from .notify import N_
 
 def permissions() -> List[Dict[str, Any]]:
     """What the octoprint.access.permissions hook registers (as PLUGIN_KINCOMP_ADMIN)."""
-    return [{
-        "key": "ADMIN",
-        "name": "KinComp admin",
-        "description": N_("Change KinComp's parameters, run and apply calibrations and "
-                          "compensate files"),
-        "roles": ["admin"],
-        "dangerous": True,
-        "default_groups": [ADMIN_GROUP],
-    }]
+    return [
+        {
+            "key": "ADMIN",
+            "name": "KinComp admin",
+            "description": N_(
+                "Change KinComp's parameters, run and apply calibrations and compensate files"
+            ),
+            "roles": ["admin"],
+            "dangerous": True,
+            "default_groups": [ADMIN_GROUP],
+        }
+    ]
 
 
 def error(message: str, status: int = 400):
@@ -77,8 +80,13 @@ def os_error(exc: OSError):
     disk is full (whatever was being written was not kept: every write is atomic), else
     re-raised (a 500: a fault of KinComp's own)."""
     if disk_full(exc):
-        return error(gettext("The disk is full: KinComp could not store this (nothing was "
-                             "changed). Free some space and try again."), 507)
+        return error(
+            gettext(
+                "The disk is full: KinComp could not store this (nothing was "
+                "changed). Free some space and try again."
+            ),
+            507,
+        )
     raise exc
 
 
@@ -97,19 +105,30 @@ def check_json(data: Any) -> None:
         if isinstance(value, float) and not math.isfinite(value):
             raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
         if isinstance(value, str) and not _encodable(value):
-            raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
-                                     key=where or "body"))
+            raise BadRequest(
+                gettext("'%(key)s' is not valid text (a lone surrogate)", key=where or "body")
+            )
         if isinstance(value, (dict, list)):
             if depth > MAX_JSON_DEPTH:
-                raise BadRequest(gettext("The request body is nested too deeply (at most "
-                                         "%(n)s levels)", n=MAX_JSON_DEPTH))
+                raise BadRequest(
+                    gettext(
+                        "The request body is nested too deeply (at most %(n)s levels)",
+                        n=MAX_JSON_DEPTH,
+                    )
+                )
             items = value.items() if isinstance(value, dict) else enumerate(value)
             for key, item in items:
                 if isinstance(key, str) and not _encodable(key):
-                    raise BadRequest(gettext("'%(key)s' is not valid text (a lone surrogate)",
-                                             key=where or "body"))
-                name = f"{where}[{key}]" if isinstance(key, int) else \
-                    (f"{where}.{key}" if where else str(key))
+                    raise BadRequest(
+                        gettext(
+                            "'%(key)s' is not valid text (a lone surrogate)", key=where or "body"
+                        )
+                    )
+                name = (
+                    f"{where}[{key}]"
+                    if isinstance(key, int)
+                    else (f"{where}.{key}" if where else str(key))
+                )
                 stack.append((item, name, depth + 1))
 
 
@@ -129,8 +148,11 @@ def json_body() -> Any:
     try:
         data = flask.request.get_json(silent=True)
     except RecursionError:
-        raise BadRequest(gettext("The request body is nested too deeply (at most %(n)s "
-                                 "levels)", n=MAX_JSON_DEPTH)) from None
+        raise BadRequest(
+            gettext(
+                "The request body is nested too deeply (at most %(n)s levels)", n=MAX_JSON_DEPTH
+            )
+        ) from None
     check_json(data)
     return data
 
@@ -155,12 +177,16 @@ def flag(data: Dict[str, Any], key: str) -> bool:
     return value
 
 
-def number(data: Dict[str, Any], key: str, default: Optional[float] = None,
-           prefix: str = "") -> float:
+def number(
+    data: Dict[str, Any], key: str, default: Optional[float] = None, prefix: str = ""
+) -> float:
     """A finite JSON number field (``default`` when absent; required when that is None)."""
     value = data.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(float(value)):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(float(value))
+    ):
         raise BadRequest(gettext("'%(key)s' must be a finite number", key=prefix + key))
     return float(value)
 
@@ -177,8 +203,9 @@ def choice(data: Dict[str, Any], key: str, choices, default: str) -> str:
     """A field holding one of ``choices`` (upper-case; any case accepted)."""
     value = data.get(key, default)
     if not isinstance(value, str) or value.upper() not in choices:
-        raise BadRequest(gettext("'%(key)s' must be one of %(choices)s", key=key,
-                                 choices=", ".join(choices)))
+        raise BadRequest(
+            gettext("'%(key)s' must be one of %(choices)s", key=key, choices=", ".join(choices))
+        )
     return value.upper()
 
 
@@ -192,11 +219,11 @@ def current_user() -> Tuple[Optional[str], bool]:
 
         user = flask_login.current_user
         name = user.get_name() if user is not None and not user.is_anonymous else None
-    except Exception:  # noqa: BLE001 - no request, no login manager: nobody
+    except Exception:
         name = None
     try:
         admin = bool(Permissions.PLUGIN_KINCOMP_ADMIN.can())
-    except Exception:  # noqa: BLE001 - no identity (outside OctoPrint's request handling)
+    except Exception:
         admin = False
     return name, admin
 
@@ -214,17 +241,25 @@ def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
     plugin is disabled (its permission is unknown then); None otherwise."""
     if old.get("software_update") == new.get("software_update"):
         return None
-    from octoprint.access.permissions import Permissions
-
-    from octoprint.access.permissions import UnknownPermission
+    from octoprint.access.permissions import Permissions, UnknownPermission
 
     try:  # (even the truth of an unknown plugin permission raises: no "or" here)
         needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None)
         allowed = (Permissions.ADMIN if needed is None else needed).can()
     except UnknownPermission:  # the software update plugin is disabled: nothing to check by
-        return error(gettext("OctoPrint's software update plugin is disabled: enable it to "
-                             "change where KinComp's updates come from"), 409)
+        return error(
+            gettext(
+                "OctoPrint's software update plugin is disabled: enable it to "
+                "change where KinComp's updates come from"
+            ),
+            409,
+        )
     if allowed:
         return None
-    return error(gettext("Changing where KinComp's updates come from needs OctoPrint's "
-                         "permission to configure software updates"), 403)
+    return error(
+        gettext(
+            "Changing where KinComp's updates come from needs OctoPrint's "
+            "permission to configure software updates"
+        ),
+        403,
+    )

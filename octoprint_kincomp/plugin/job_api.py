@@ -33,24 +33,33 @@ class JobApi:
         self.jobs = jobs
         self._waiters = threading.BoundedSemaphore(MAX_WAITERS)
 
-    def submit(self, kind: str, path: Optional[str], run: Callable,
-               held_while_printing: bool = False) -> Job:
+    def submit(
+        self, kind: str, path: Optional[str], run: Callable, held_while_printing: bool = False
+    ) -> Job:
         """``jobs.submit`` in the requesting user's name; ends the request with 429 when too
         many jobs wait (or too many of this user's)."""
         owner, admin = http.current_user()
         try:
-            return self.jobs.submit(kind, path, run, held_while_printing=held_while_printing,
-                                    owner=owner, admin=admin)
+            return self.jobs.submit(
+                kind, path, run, held_while_printing=held_while_printing, owner=owner, admin=admin
+            )
         except QueueFull as exc:
-            resp = http.error(gettext("You have too many KinComp jobs waiting; wait for them "
-                                      "or cancel one") if exc.mine else
-                              gettext("Too many KinComp jobs are waiting; try again later"),
-                              429)
+            resp = http.error(
+                gettext("You have too many KinComp jobs waiting; wait for them or cancel one")
+                if exc.mine
+                else gettext("Too many KinComp jobs are waiting; try again later"),
+                429,
+            )
             resp.headers["Retry-After"] = str(RETRY_AFTER_S * 2)
             flask.abort(resp)
 
-    def answer(self, job: Job, body: Callable[[Job], Dict[str, Any]], wait: float = WAIT_S,
-               failed: Optional[Callable[[Job], str]] = None):
+    def answer(
+        self,
+        job: Job,
+        body: Callable[[Job], Dict[str, Any]],
+        wait: float = WAIT_S,
+        failed: Optional[Callable[[Job], str]] = None,
+    ):
         """200 with ``body(job)`` if ``job`` is done within ``wait`` seconds, 400 with
         ``failed(job)`` (default: its error) if it failed, else 202 with the job."""
         if not job.done.is_set() and self._waiters.acquire(blocking=False):
@@ -65,8 +74,9 @@ class JobApi:
                 return http.os_error(job.exception)  # 507: nothing was kept
             if failed is not None:
                 return http.error(failed(job), 400)
-            return http.error(http.tr(job.exception) if job.exception is not None
-                              else str(job.error), 400)
+            return http.error(
+                http.tr(job.exception) if job.exception is not None else str(job.error), 400
+            )
         resp = flask.make_response(flask.jsonify(job=job.to_dict()), 202)
         resp.headers["Retry-After"] = str(RETRY_AFTER_S)  # when to ask GET /jobs/<id>
         return resp
@@ -87,8 +97,9 @@ class JobApi:
             return http.error(gettext("No such job"), 404)
         user, admin = http.current_user()
         if not admin and (user is None or job.owner != user):
-            return http.error(gettext("Only the user who started a job or a KinComp admin "
-                                      "can cancel it"), 403)
+            return http.error(
+                gettext("Only the user who started a job or a KinComp admin can cancel it"), 403
+            )
         if not self.jobs.cancel(job):
             return http.error(gettext("The job has already finished"), 409)
         return flask.jsonify(job=job.to_dict())

@@ -59,9 +59,15 @@ class JobCancelled(RuntimeError):
 class Job:
     """One background job (progress 0..1, result or error)."""
 
-    def __init__(self, kind: str, path: Optional[str], run=None,
-                 held_while_printing: bool = False, owner: Optional[str] = None,
-                 admin: bool = True):
+    def __init__(
+        self,
+        kind: str,
+        path: Optional[str],
+        run=None,
+        held_while_printing: bool = False,
+        owner: Optional[str] = None,
+        admin: bool = True,
+    ):
         self.id = secrets.token_hex(6)
         self.owner = owner  # the user who submitted it (None: KinComp itself)
         self.admin = admin  # submitted with the admin permission (or by KinComp itself)
@@ -85,17 +91,34 @@ class Job:
         return self.state in ("queued", "running")
 
     def to_dict(self) -> Dict:
-        return {"id": self.id, "kind": self.kind, "path": self.path, "owner": self.owner,
-                "progress": round(self.progress, 3), "state": self.state,
-                "result": self.result, "error": self.error, "report": self.report,
-                "started": self.started, "finished": self.finished}
+        return {
+            "id": self.id,
+            "kind": self.kind,
+            "path": self.path,
+            "owner": self.owner,
+            "progress": round(self.progress, 3),
+            "state": self.state,
+            "result": self.result,
+            "error": self.error,
+            "report": self.report,
+            "started": self.started,
+            "finished": self.finished,
+        }
 
     @staticmethod
-    def from_dict(d: Dict) -> "Job":
+    def from_dict(d: Dict) -> Job:
         job = Job(str(d.get("kind") or "compensate"), d.get("path"))
         job.id = str(d.get("id") or job.id)
-        for key in ("owner", "progress", "state", "result", "error", "report", "started",
-                    "finished"):
+        for key in (
+            "owner",
+            "progress",
+            "state",
+            "result",
+            "error",
+            "report",
+            "started",
+            "finished",
+        ):
             if key in d:
                 setattr(job, key, d[key])
         job.done.set()
@@ -109,9 +132,15 @@ class JobQueue:
     path, or None) keeps the job list over restarts; ``worker`` (a ``WorkerProcess`` or
     None) is the process the jobs' work runs in, stopped when idle."""
 
-    def __init__(self, notify: Callable[[Job], None], limit: int = 8,
-                 history: Optional[str] = None, worker=None, per_user: int = PER_USER,
-                 reserved: int = RESERVED):
+    def __init__(
+        self,
+        notify: Callable[[Job], None],
+        limit: int = 8,
+        history: Optional[str] = None,
+        worker=None,
+        per_user: int = PER_USER,
+        reserved: int = RESERVED,
+    ):
         self._notify = notify
         self.limit = limit
         self.per_user = per_user
@@ -131,12 +160,20 @@ class JobQueue:
     def under_way(self, kind: str, path: str) -> Optional[Job]:
         """The job of ``kind`` on ``path`` that is queued or running, if any."""
         with self._cond:
-            return next((j for j in self.jobs.values()
-                         if j.active and j.kind == kind and j.path == path), None)
+            return next(
+                (j for j in self.jobs.values() if j.active and j.kind == kind and j.path == path),
+                None,
+            )
 
-    def submit(self, kind: str, path: Optional[str], run: Callable,
-               held_while_printing: bool = False, owner: Optional[str] = None,
-               admin: bool = True) -> Job:
+    def submit(
+        self,
+        kind: str,
+        path: Optional[str],
+        run: Callable,
+        held_while_printing: bool = False,
+        owner: Optional[str] = None,
+        admin: bool = True,
+    ) -> Job:
         """A new job, or the one of this kind on ``path`` already under way. Raises
         :class:`QueueFull` when ``limit`` jobs are queued or running, or (``admin`` false)
         when ``owner`` has ``per_user`` of them or such users hold all places but the
@@ -236,11 +273,16 @@ class JobQueue:
             job.run(job, progress)
             job.state = "done"
             job.progress = 1.0
-        except Exception as exc:  # noqa: BLE001 - reported to the user, never lost
+        except Exception as exc:
             job.state = "failed"
             job.exception = exc
-            job.error = CANCELLED if job.cancelled else INTERRUPTED if self.stopping else \
-                (str(exc) or type(exc).__name__)
+            job.error = (
+                CANCELLED
+                if job.cancelled
+                else INTERRUPTED
+                if self.stopping
+                else (str(exc) or type(exc).__name__)
+            )
         job.finished = time.time()
         job.run = None
         self._changed(job)
@@ -253,13 +295,14 @@ class JobQueue:
     def _notify_safely(self, job: Job) -> None:
         try:
             self._notify(job)
-        except Exception:  # noqa: BLE001 - a notification must not end the dispatcher
+        except Exception:
             _log.exception("KinComp: job notification failed")
 
     def _trim(self) -> None:
-        finished = sorted((j for j in self.jobs.values() if not j.active),
-                          key=lambda j: j.finished or j.started)
-        for job in finished[:max(0, len(finished) - MAX_HISTORY)]:
+        finished = sorted(
+            (j for j in self.jobs.values() if not j.active), key=lambda j: j.finished or j.started
+        )
+        for job in finished[: max(0, len(finished) - MAX_HISTORY)]:
             del self.jobs[job.id]
 
     # ~~ the job list over restarts ----------------------------------------------------------

@@ -85,8 +85,7 @@ class KinCompPlugin(
     # ~~ lifecycle ---------------------------------------------------------------------------
     def initialize(self):
         log, printer, files = self._logger, self._printer, self._file_manager
-        self.notifier = notifier = Notifier(self._plugin_manager, self._event_bus,
-                                            self._identifier)
+        self.notifier = notifier = Notifier(self._plugin_manager, self._event_bus, self._identifier)
         self.runs = RunStore(self.data_folder())
         # a run belongs to the printer profile in force when it is recorded
         self.runs.profile = lambda: self.store.current()["profile"]
@@ -94,30 +93,48 @@ class KinCompPlugin(
         self.demo = DemoMode(notifier, log)
         self.firmware = FirmwareCheck(self.watch, queue, printer, notifier, log)
         self.store = SettingsStore(
-            self._settings, self._identifier, self._printer_profile_manager, queue, notifier,
-            log, on_applied=self._settings_applied)
+            self._settings,
+            self._identifier,
+            self._printer_profile_manager,
+            queue,
+            notifier,
+            log,
+            on_applied=self._settings_applied,
+        )
         self.files = FilesApi(self.store, queue, files, notifier, self.data_folder)
         self.jobs = self.files.jobs
-        self.prints = PrintState(queue, self.watch, printer, files, notifier, log,
-                                 on_begin=self._print_began, on_end=self._print_ended)
+        self.prints = PrintState(
+            queue,
+            self.watch,
+            printer,
+            files,
+            notifier,
+            log,
+            on_begin=self._print_began,
+            on_end=self._print_ended,
+        )
         queue.on_error = self.prints.compensation_failed
         queue.on_untouched = self.prints.sent_as_written
         self.settings_api = SettingsApi(self.store, queue, self.watch, self.demo, self.jobs)
         self.limits = LimitsCapture(self.store, self._settings, printer, notifier, log)
-        self.calibration = CalibrationApi(self.store, queue, self.runs, self.demo, notifier,
-                                          printer, files, self.files.job_api)
+        self.calibration = CalibrationApi(
+            self.store, queue, self.runs, self.demo, notifier, printer, files, self.files.job_api
+        )
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
         recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
-        self.sensor = SensorApi(recorder, self.runs, self.demo, notifier, printer, files, log,
-                                self._settings.global_get)
+        self.sensor = SensorApi(
+            recorder, self.runs, self.demo, notifier, printer, files, log, self._settings.global_get
+        )
         self.calibration.on_print = self.sensor.program_printing
         self.settings_api.check = self.sensor.check_settings
         campaigns = CampaignStore(self.data_folder())
-        measurements = CampaignMeasurements(queue, self.runs, campaigns, self.calibration,
-                                            notifier, self._printer_profile_manager)
+        measurements = CampaignMeasurements(
+            queue, self.runs, campaigns, self.calibration, notifier, self._printer_profile_manager
+        )
         recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
-        self.campaign = CampaignApi(self.store, self.runs, campaigns, self.calibration,
-                                    self.demo, measurements)
+        self.campaign = CampaignApi(
+            self.store, self.runs, campaigns, self.calibration, self.demo, measurements
+        )
         self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files)
 
     def data_folder(self) -> str:
@@ -132,9 +149,12 @@ class KinCompPlugin(
     def on_after_startup(self):
         self.store.apply(self.store.current(), immediately=True)
         self.store.follow_profile()  # settings from before profiles: adopted by this one
-        self._logger.info("KinComp %s ready (compensation %s, %s engine)", __version__,
-                          "on" if self.queue.enabled else "off",
-                          engine())
+        self._logger.info(
+            "KinComp %s ready (compensation %s, %s engine)",
+            __version__,
+            "on" if self.queue.enabled else "off",
+            engine(),
+        )
 
     def on_shutdown(self):
         self.jobs.stop()  # the worker process ends; a file it was writing is removed
@@ -190,16 +210,27 @@ class KinCompPlugin(
         ]
 
     def get_assets(self):
-        return {"js": ["js/kincomp_common.js", "js/kincomp_findings.js", "js/kincomp_plot.js",
-                       "js/kincomp_sensor.js", "js/kincomp_campaign_draw.js",
-                       "js/kincomp_campaign.js",
-                       "js/kincomp_settings.js", "js/kincomp_limits.js", "js/kincomp_tab.js",
-                       "js/kincomp_artifact.js", "js/kincomp_navbar.js"],
-                "css": ["css/kincomp.css", "css/kincomp_campaign.css"]}
+        return {
+            "js": [
+                "js/kincomp_common.js",
+                "js/kincomp_findings.js",
+                "js/kincomp_plot.js",
+                "js/kincomp_sensor.js",
+                "js/kincomp_campaign_draw.js",
+                "js/kincomp_campaign.js",
+                "js/kincomp_settings.js",
+                "js/kincomp_limits.js",
+                "js/kincomp_tab.js",
+                "js/kincomp_artifact.js",
+                "js/kincomp_navbar.js",
+            ],
+            "css": ["css/kincomp.css", "css/kincomp_campaign.css"],
+        }
 
     # ~~ hooks -------------------------------------------------------------------------------
-    def queuing_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
-                     tags=None, *args, **kwargs):
+    def queuing_hook(
+        self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None, *args, **kwargs
+    ):
         prints = self.prints
         if comm_instance is not prints.comm:
             prints.connection_changed(comm_instance)
@@ -216,16 +247,23 @@ class KinCompPlugin(
             if self.sensor.waiting and cmd[:4] == "M117":
                 self.sensor.command(cmd)  # the program's end marker ends the live capture
             if cmd[:4].upper() == "M220" and held_back(cmd, tags, self.calibration.test_printing()):
-                self.notifier.notify("warning", N_(
-                    "A ballbar test is printing: the speed factor stays at 100 %% (%(command)s "
-                    "was not sent). A test at another speed would not match its plan."),
-                    command=cmd)
+                self.notifier.notify(
+                    "warning",
+                    N_(
+                        "A ballbar test is printing: the speed factor stays at 100 %% (%(command)s "
+                        "was not sent). A test at another speed would not match its plan."
+                    ),
+                    command=cmd,
+                )
                 return (None,)
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)
-        if prints.test_program and gcode in ("M0", "M1") and \
-                prints.program_pause(comm_instance, gcode, tags):
+        if (
+            prints.test_program
+            and gcode in ("M0", "M1")
+            and prints.program_pause(comm_instance, gcode, tags)
+        ):
             return []  # paused here: OctoPrint would block it and warn (nothing is lost)
         return result
 
@@ -241,23 +279,34 @@ class KinCompPlugin(
                 self.queue.home_reported(position)
         return line
 
-    def sending_hook(self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None,
-                     tags=None, *args, **kwargs):
+    def sending_hook(
+        self, comm_instance, phase, cmd, cmd_type, gcode, subcode=None, tags=None, *args, **kwargs
+    ):
         # the "sending" phase runs before the write: in "sent" (after it) the firmware's
         # answer can already have been read on the monitor thread, and would be missed
         if cmd == HOME_QUERY and tags:
             self.queue.home_query_sent(tags)
 
-    def preprocessor_hook(self, path, file_object, links=None, printer_profile=None,
-                          allow_overwrite=False, *args, **kwargs):
+    def preprocessor_hook(
+        self,
+        path,
+        file_object,
+        links=None,
+        printer_profile=None,
+        allow_overwrite=False,
+        *args,
+        **kwargs,
+    ):
         return self.files.preprocess(path, file_object, printer_profile)
 
     def permissions_hook(self, *args, **kwargs):
         return http.permissions()
 
     def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
-        return [("POST", r"/trace", MAX_TRACE_UPLOAD),
-                ("POST", r"/campaigns/[^/]+/steps/[0-9]+/trace", MAX_TRACE_UPLOAD)]
+        return [
+            ("POST", r"/trace", MAX_TRACE_UPLOAD),
+            ("POST", r"/campaigns/[^/]+/steps/[0-9]+/trace", MAX_TRACE_UPLOAD),
+        ]
 
     def custom_events_hook(self, *args, **kwargs):
         return list(CUSTOM_EVENTS)
@@ -277,8 +326,11 @@ class KinCompPlugin(
         elif event == Events.FIRMWARE_DATA:
             self.firmware.query(payload)
             self.limits.firmware_data(payload)
-        elif event in (Events.CONNECTED, Events.PRINTER_PROFILE_MODIFIED,
-                       Events.PRINTER_PROFILE_DELETED):
+        elif event in (
+            Events.CONNECTED,
+            Events.PRINTER_PROFILE_MODIFIED,
+            Events.PRINTER_PROFILE_DELETED,
+        ):
             # the calibration, bed volume (limits) and axis feeds belong to the printer
             # profile, which a connection may switch and the user may edit
             self.store.follow_profile()

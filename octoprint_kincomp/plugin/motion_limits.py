@@ -33,8 +33,9 @@ MAX_LINES = 200  # lines kept of one answer (Marlin's whole M503 is ~60)
 TAGS = {"plugin:kincomp", "kincomp:motion-limits"}
 
 
-def effective_limits(settings: Dict[str, Any],
-                     profile_feeds: Optional[Dict[str, float]]) -> MotionLimits:
+def effective_limits(
+    settings: Dict[str, Any], profile_feeds: Optional[Dict[str, float]]
+) -> MotionLimits:
     """The limits a test must respect: the stated ones (settings ``motion_limits``; an
     unreadable stored text counts as none) and the profile's axis speeds, the lower of each."""
     stated = settings.get("motion_limits") or {}
@@ -47,13 +48,16 @@ def effective_limits(settings: Dict[str, Any],
     return limits.combined(MotionLimits.from_feeds(profile_feeds, "printer profile"))
 
 
-def status(settings: Dict[str, Any], profile_feeds: Optional[Dict[str, float]]
-           ) -> Dict[str, Any]:
+def status(settings: Dict[str, Any], profile_feeds: Optional[Dict[str, float]]) -> Dict[str, Any]:
     """What the settings page shows: the stated limits (source, firmware, when), what was
     read from them and the combined limits a test respects."""
     stated = dict(settings.get("motion_limits") or {})
-    out: Dict[str, Any] = {"stated": stated, "read": None, "error": None,
-                           "profile_feeds": profile_feeds}
+    out: Dict[str, Any] = {
+        "stated": stated,
+        "read": None,
+        "error": None,
+        "profile_feeds": profile_feeds,
+    }
     if (stated.get("text") or "").strip():
         try:
             read = parse_limits(stated["text"], stated.get("firmware") or None)
@@ -112,8 +116,12 @@ class LimitsCapture:
             with self._lock:
                 lines, self._lines = self._lines, []
                 replace, self._replace = self._replace, False
-            threading.Thread(target=self.store, args=("\n".join(lines), replace),
-                             name="kincomp-limits", daemon=True).start()
+            threading.Thread(
+                target=self.store,
+                args=("\n".join(lines), replace),
+                name="kincomp-limits",
+                daemon=True,
+            ).start()
         elif _HEADER.search(line) and ("echo:" in line or line.startswith(";")):
             with self._lock:
                 if len(self._lines) < MAX_LINES:
@@ -126,15 +134,18 @@ class LimitsCapture:
             parse_limits(text, self.firmware or None)
         except LimitsError:
             return False
-        doc = {"text": text, "source": "m503", "firmware": self.firmware,
-               "captured": _dt.datetime.now().isoformat(timespec="seconds")}
+        doc = {
+            "text": text,
+            "source": "m503",
+            "firmware": self.firmware,
+            "captured": _dt.datetime.now().isoformat(timespec="seconds"),
+        }
 
         def vet(stored, new):  # under the settings lock: the stored limits as they are now
             old = stored.get("motion_limits") or {}
             if old.get("source") == "pasted" and not replace:
                 raise _Kept()
-            if (old.get("text") == text and old.get("firmware") == self.firmware
-                    and not replace):
+            if old.get("text") == text and old.get("firmware") == self.firmware and not replace:
                 raise _Kept()  # the same answer as last time: nothing to write
 
         # through the settings store's one save (read, merge, validate, write under its
@@ -151,8 +162,10 @@ class LimitsCapture:
             return False
         self._logger.info("KinComp: the printer's motion limits read from M503")
         self._notifier.message({"type": "motion_limits"})
-        self._notifier.notify("info", N_("KinComp read the printer's motion limits (M503); "
-                                         "test programs keep within them."))
+        self._notifier.notify(
+            "info",
+            N_("KinComp read the printer's motion limits (M503); test programs keep within them."),
+        )
         return True
 
     # ~~ the endpoint ----------------------------------------------------------------------------
@@ -167,6 +180,8 @@ class LimitsCapture:
 
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
         if not self.ask(replace=True):
-            return http.error(gettext("The printer must be connected and not printing to "
-                                      "read its motion limits"), 409)
+            return http.error(
+                gettext("The printer must be connected and not printing to read its motion limits"),
+                409,
+            )
         return flask.make_response(flask.jsonify(asked=True), 202)

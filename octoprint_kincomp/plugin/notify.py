@@ -30,15 +30,20 @@ class Notifier:
         self._event_bus = event_bus
         self._identifier = identifier
 
-    def notify(self, severity: str, msgid: str, tr_params: Sequence[str] = (),
-               **params) -> None:
+    def notify(self, severity: str, msgid: str, tr_params: Sequence[str] = (), **params) -> None:
         """Tell the UI. The parameters named in ``tr_params`` (message ids themselves) and
         the core messages among the parameters (as template + parameters) are translated
         by the browser too."""
-        self.message({
-            "type": "notify", "severity": severity, "msgid": msgid,
-            "params": {k: as_dict(v) if isinstance(v, Msg) else v for k, v in params.items()},
-            "translate": list(tr_params), "text": msgid % params if params else msgid})
+        self.message(
+            {
+                "type": "notify",
+                "severity": severity,
+                "msgid": msgid,
+                "params": {k: as_dict(v) if isinstance(v, Msg) else v for k, v in params.items()},
+                "translate": list(tr_params),
+                "text": msgid % params if params else msgid,
+            }
+        )
 
     def message(self, data: Dict[str, Any]) -> None:
         """A plugin message to KinComp's view models."""

@@ -36,22 +36,35 @@ from .notify import N_, Notifier
 from .queue import QueueCompensator
 
 # handled under the print lock, against the queuing hook's view of the print
-PRINT_EVENTS = frozenset({Events.DISCONNECTED, Events.PRINT_STARTED, Events.PRINT_DONE,
-                          Events.PRINT_FAILED, Events.PRINT_CANCELLED})
+PRINT_EVENTS = frozenset(
+    {
+        Events.DISCONNECTED,
+        Events.PRINT_STARTED,
+        Events.PRINT_DONE,
+        Events.PRINT_FAILED,
+        Events.PRINT_CANCELLED,
+    }
+)
 UNTOUCHED_NOTICE_S = 60.0  # at most one "sent as written" notification per this many s
 PROGRAM_HEAD_LINES = 60  # a test program's ``; ballbar key: value`` header is within these
-PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp",
-                                "trigger:kincomp.program_pause"})
+PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp", "trigger:kincomp.program_pause"})
 
 
 class PrintState:
     """Print begins and ends for ``queue``; ``on_begin(payload)`` and ``on_end(done)`` run
     after the queue has taken a print's beginning or end (``done``: it completed)."""
 
-    def __init__(self, queue: QueueCompensator, watch: FirmwareWatcher, printer,
-                 file_manager, notifier: Notifier, logger,
-                 on_begin: Callable[[Dict[str, Any]], None],
-                 on_end: Callable[[bool], None]):
+    def __init__(
+        self,
+        queue: QueueCompensator,
+        watch: FirmwareWatcher,
+        printer,
+        file_manager,
+        notifier: Notifier,
+        logger,
+        on_begin: Callable[[Dict[str, Any]], None],
+        on_end: Callable[[bool], None],
+    ):
         self._queue = queue
         self._watch = watch
         self._printer = printer
@@ -106,8 +119,7 @@ class PrintState:
         try:
             if comm_instance.isPausing() or comm_instance.isPaused():
                 self.pause_seen = True
-            elif self.pause_seen and (comm_instance.isPrinting() or
-                                      comm_instance.isResuming()):
+            elif self.pause_seen and (comm_instance.isPrinting() or comm_instance.isResuming()):
                 self.resumed()
         except AttributeError:  # not a MachineCom (tests): the event does it
             pass
@@ -128,8 +140,7 @@ class PrintState:
                 comm_instance.setPause(True, tags=set(PROGRAM_PAUSE_TAGS))
         except AttributeError:  # not a MachineCom: leave it to OctoPrint
             return False
-        self._logger.info("KinComp: the test program pauses at %s (the line is not sent)",
-                          gcode)
+        self._logger.info("KinComp: the test program pauses at %s (the line is not sent)", gcode)
         return True
 
     # ~~ from OctoPrint's events ---------------------------------------------------------------
@@ -146,9 +157,13 @@ class PrintState:
             elif event == Events.PRINT_STARTED:
                 self.start_events += 1
                 if payload.get("origin") == FileDestinations.SDCARD and self._queue.enabled:
-                    self._notifier.notify("warning", N_(
-                        "This print runs from the printer's SD card: KinComp cannot "
-                        "compensate it."))
+                    self._notifier.notify(
+                        "warning",
+                        N_(
+                            "This print runs from the printer's SD card: KinComp cannot "
+                            "compensate it."
+                        ),
+                    )
                 if self.begun < self.start_events:  # not seen by the queuing hook
                     self._print_begins(payload)
             else:  # the print is done, failed or cancelled
@@ -163,9 +178,13 @@ class PrintState:
     def transfer_started(self) -> None:
         """TRANSFER_STARTED: a file is streamed to the printer's SD card."""
         if self._queue.enabled:
-            self._notifier.notify("warning", N_(
-                "Files streamed to the printer's SD card are not compensated; compensate "
-                "them on upload first."))
+            self._notifier.notify(
+                "warning",
+                N_(
+                    "Files streamed to the printer's SD card are not compensated; compensate "
+                    "them on upload first."
+                ),
+            )
 
     def paused(self) -> None:
         """PRINT_PAUSED."""
@@ -178,8 +197,10 @@ class PrintState:
         q = self._queue
         if not q.halted:
             return
-        self._logger.warning("KinComp: print resumed after a compensation error; %d moves "
-                             "were held back", q.held_moves)
+        self._logger.warning(
+            "KinComp: print resumed after a compensation error; %d moves were held back",
+            q.held_moves,
+        )
         q.resume()
         self.pause_seen = False
         self.warned_unknown_at = 0.0  # the position is unknown now: say so again
@@ -189,32 +210,50 @@ class PrintState:
         """The queue could not compensate ``cmd``: sent as written if the user chose so,
         else not sent, and a running print is paused."""
         passed = self._queue.pass_through_on_error
-        self._logger.error("KinComp could not compensate %r: %s (%s)", cmd, exc,
-                           "sent as written" if passed else "not sent")
+        self._logger.error(
+            "KinComp could not compensate %r: %s (%s)",
+            cmd,
+            exc,
+            "sent as written" if passed else "not sent",
+        )
         if passed:
-            self._notifier.notify("warning", N_(
-                "KinComp could not compensate '%(cmd)s' (%(err)s); it was sent as written."),
-                cmd=cmd, err=str(exc))
+            self._notifier.notify(
+                "warning",
+                N_("KinComp could not compensate '%(cmd)s' (%(err)s); it was sent as written."),
+                cmd=cmd,
+                err=str(exc),
+            )
             return
         if self._printer.is_printing():
             self._printer.pause_print(tags={"plugin:kincomp"})
-            self._notifier.notify("error", N_(
-                "KinComp could not compensate '%(cmd)s': %(err)s. The command was not sent "
-                "and the print is paused; moves queued until the pause are held back too. "
-                "Cancel the print, or resume to continue without them."),
-                cmd=cmd, err=str(exc))
+            self._notifier.notify(
+                "error",
+                N_(
+                    "KinComp could not compensate '%(cmd)s': %(err)s. The command was not sent "
+                    "and the print is paused; moves queued until the pause are held back too. "
+                    "Cancel the print, or resume to continue without them."
+                ),
+                cmd=cmd,
+                err=str(exc),
+            )
         else:
-            self._notifier.notify("error", N_(
-                "KinComp could not compensate '%(cmd)s': %(err)s. The command was not sent."),
-                cmd=cmd, err=str(exc))
+            self._notifier.notify(
+                "error",
+                N_("KinComp could not compensate '%(cmd)s': %(err)s. The command was not sent."),
+                cmd=cmd,
+                err=str(exc),
+            )
 
     def sent_as_written(self, cmd: str, why: str) -> None:
         """A move went out as written: its start position is not known (no G28 since
         connecting, probing, a compensation error), or it is malformed. Never silent: always
         logged, notified at most once a minute."""
         if why == "malformed":
-            self._logger.warning("KinComp: malformed move %r sent as written; position "
-                                 "forgotten until the next G28 or absolute move", cmd)
+            self._logger.warning(
+                "KinComp: malformed move %r sent as written; position "
+                "forgotten until the next G28 or absolute move",
+                cmd,
+            )
         else:
             self._logger.warning("KinComp: %r sent uncompensated: position unknown", cmd)
         now = time.monotonic()
@@ -222,20 +261,34 @@ class PrintState:
             return
         self.warned_unknown_at = now
         if why == "malformed":
-            self._notifier.notify("warning", N_(
-                "KinComp could not read the move '%(cmd)s' and sent it as written; moves are "
-                "compensated again once the position is known (G28 or an absolute move)."),
-                cmd=cmd)
+            self._notifier.notify(
+                "warning",
+                N_(
+                    "KinComp could not read the move '%(cmd)s' and sent it as written; moves are "
+                    "compensated again once the position is known (G28 or an absolute move)."
+                ),
+                cmd=cmd,
+            )
         elif self.test_program:  # the ballbar is mounted: homing now would break it
-            self._notifier.notify("warning", N_(
-                "KinComp sent the test program's '%(cmd)s' as written because the printer's "
-                "position was not known yet; the program's moves to absolute positions that "
-                "follow are compensated. Do not home the printer while the ballbar is "
-                "mounted."), cmd=cmd)
+            self._notifier.notify(
+                "warning",
+                N_(
+                    "KinComp sent the test program's '%(cmd)s' as written because the printer's "
+                    "position was not known yet; the program's moves to absolute positions that "
+                    "follow are compensated. Do not home the printer while the ballbar is "
+                    "mounted."
+                ),
+                cmd=cmd,
+            )
         else:
-            self._notifier.notify("warning", N_(
-                "KinComp sent '%(cmd)s' uncompensated because the printer's position is "
-                "unknown. Home the printer (G28) so that moves can be compensated."), cmd=cmd)
+            self._notifier.notify(
+                "warning",
+                N_(
+                    "KinComp sent '%(cmd)s' uncompensated because the printer's position is "
+                    "unknown. Home the printer (G28) so that moves can be compensated."
+                ),
+                cmd=cmd,
+            )
 
     # ~~ inside ----------------------------------------------------------------------------------
     def _print_begins(self, payload: Dict[str, Any]) -> None:
@@ -253,7 +306,7 @@ class PrintState:
     def _current_job(self) -> Dict[str, Any]:
         try:
             f = (self._printer.get_current_job() or {}).get("file") or {}
-        except Exception:  # noqa: BLE001 - no job information: not precompensated
+        except Exception:
             f = {}
         return {"origin": f.get("origin"), "path": f.get("path")}
 
@@ -262,7 +315,7 @@ class PrintState:
         try:
             p = self._printer
             return bool(p.is_printing() or p.is_pausing() or p.is_paused())
-        except Exception:  # noqa: BLE001 - no printer state: trust the counts
+        except Exception:
             return True
 
     def _is_test_program(self, payload: Dict[str, Any]) -> bool:
@@ -284,11 +337,16 @@ class PrintState:
         try:
             disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, payload["path"])
             h = file_marker(disk)
-        except Exception:  # noqa: BLE001 - unreadable: treat as not compensated
+        except Exception:
             return False
         if h is not None and h != self._queue.params.hash():
-            self._notifier.notify("warning", N_(
-                "This file was compensated with other KinComp parameters (%(old)s, now "
-                "%(new)s); it prints as compensated then."), old=h,
-                new=self._queue.params.hash())
+            self._notifier.notify(
+                "warning",
+                N_(
+                    "This file was compensated with other KinComp parameters (%(old)s, now "
+                    "%(new)s); it prints as compensated then."
+                ),
+                old=h,
+                new=self._queue.params.hash(),
+            )
         return h is not None

@@ -66,7 +66,7 @@ def _call(callback, *args) -> None:
     then send the original, uncompensated line)."""
     try:
         callback(*args)
-    except Exception:  # noqa: BLE001
+    except Exception:
         _log.exception("KinComp: notification callback failed")
 
 
@@ -80,7 +80,7 @@ def home_query_number(tags) -> Optional[int]:
     for tag in tags or ():
         if tag.startswith(HOME_QUERY_TAG):
             try:
-                return int(tag[len(HOME_QUERY_TAG):])
+                return int(tag[len(HOME_QUERY_TAG) :])
             except ValueError:
                 return None
     return None
@@ -93,16 +93,21 @@ class _Gated:
     def __set_name__(self, owner, name: str) -> None:
         self.name = name
 
-    def __set__(self, obj: "QueueCompensator", value) -> None:
+    def __set__(self, obj: QueueCompensator, value) -> None:
         obj.__dict__[self.name] = value
         obj._reroute()
 
 
 class QueueCompensator:
-    def __init__(self, params: Params, options: Options, enabled: bool = False,
-                 pass_through_on_error: bool = False,
-                 on_error: Optional[Callable[[str, Exception], None]] = None,
-                 on_untouched: Optional[Callable[[str, str], None]] = None):
+    def __init__(
+        self,
+        params: Params,
+        options: Options,
+        enabled: bool = False,
+        pass_through_on_error: bool = False,
+        on_error: Optional[Callable[[str, Exception], None]] = None,
+        on_untouched: Optional[Callable[[str, str], None]] = None,
+    ):
         self._lock = threading.RLock()
         # (the gated attributes, set before the route is first decided in _use)
         vars(self).update(enabled=enabled, skip_file=False, halted=False, awaiting_home=())
@@ -135,9 +140,11 @@ class QueueCompensator:
         """``_route``: the kernel's line function while any line but a G28 goes to it first
         (compensation on, no file passed through, not halted, no home question open), else
         None; the hook then tests this one attribute for most lines."""
-        self._route = self._kernel if (
-            self.enabled and not self.skip_file and not self.halted
-            and not self.awaiting_home) else None
+        self._route = (
+            self._kernel
+            if (self.enabled and not self.skip_file and not self.halted and not self.awaiting_home)
+            else None
+        )
 
     @property
     def params(self) -> Params:
@@ -164,7 +171,7 @@ class QueueCompensator:
                 # (not a line that may home, nor while the home question is open)
                 try:
                     out = route(self._state, cmd)
-                except Exception as exc:  # noqa: BLE001 - the move must not be sent raw
+                except Exception as exc:
                     return self._failed(cmd, exc)
                 if out is not None:
                     return None if out is cmd else out
@@ -198,7 +205,7 @@ class QueueCompensator:
         try:
             # (a line the kernel declined is not offered to it twice)
             out = comp.process_declined(cmd) if offered else comp.process(cmd)
-        except Exception as exc:  # noqa: BLE001 - any failure must not send the move raw
+        except Exception as exc:
             return self._failed(cmd, exc), None
         if home:
             self.awaiting_home, self.home_query_out = home, False
@@ -217,8 +224,7 @@ class QueueCompensator:
         """For a G28: the axes whose home position is to be asked for (those it homes
         whose home is not known, and those still awaiting an earlier answer). Any other
         line takes the axes it moves or re-frames out of a pending question."""
-        if not self.awaiting_home and (
-                "28" not in cmd or None not in self.comp.options.home_mm):
+        if not self.awaiting_home and ("28" not in cmd or None not in self.comp.options.home_mm):
             return ()  # (the common case, cheaply)
         parsed = parse_command(cmd) if cmd.lstrip()[:1] in "GgTtMm" else None
         if parsed is None:
@@ -243,8 +249,11 @@ class QueueCompensator:
         none of them leaves their drives alone (no line the compensator writes carries a
         word for an axis whose position it does not know)."""
         kind, num = parsed.kind, parsed.number
-        if kind == "T" or (kind == "M" and num in INVALIDATING_M) or (
-                kind == "G" and (num in (2, 3) or num in INVALIDATING_G)):
+        if (
+            kind == "T"
+            or (kind == "M" and num in INVALIDATING_M)
+            or (kind == "G" and (num in (2, 3) or num in INVALIDATING_G))
+        ):
             return (0, 1, 2)
         if kind == "G" and num in (0, 1):
             return tuple(named_axes(parsed.body))
@@ -259,8 +268,7 @@ class QueueCompensator:
         homing, and one OctoPrint dropped (a cancelled print clears its queue) is never sent."""
         number = home_query_number(tags)
         with self._lock:
-            self.home_query_out = bool(self.awaiting_home) and \
-                number == self.home_query_number
+            self.home_query_out = bool(self.awaiting_home) and number == self.home_query_number
 
     def home_reported(self, position: Dict[str, float]) -> bool:
         """The firmware's position report (x, y, z in mm) after our M114: the homed axes
@@ -271,8 +279,11 @@ class QueueCompensator:
             axes, self.awaiting_home, self.home_query_out = self.awaiting_home, (), False
             st = self.comp.state
             at = [position.get(a) for a in "xyz"]
-            axes = [k for k in axes if st.m[k] is None and isinstance(at[k], float)
-                    and math.isfinite(at[k])]
+            axes = [
+                k
+                for k in axes
+                if st.m[k] is None and isinstance(at[k], float) and math.isfinite(at[k])
+            ]
             if st.inches or not axes:
                 return False
             self.comp.homed_at(axes, at)
@@ -316,14 +327,16 @@ class QueueCompensator:
                 self.comp.reset()  # whatever happened meanwhile was not tracked
             self.enabled = enabled
 
-    def configure(self, params: Params, options: Options, enabled: bool,
-                  immediately: bool) -> bool:
+    def configure(self, params: Params, options: Options, enabled: bool, immediately: bool) -> bool:
         """New parameters and on/off switch. Returns True if they apply now, False if they
         wait for the next print (a print is running and the user did not ask for
         'immediately'); a later call replaces what waits."""
         with self._lock:
-            same = (params.hash() == self.comp.params.hash()
-                    and options == self.comp.options and enabled == self.enabled)
+            same = (
+                params.hash() == self.comp.params.hash()
+                and options == self.comp.options
+                and enabled == self.enabled
+            )
             if same:
                 self.pending = None
                 return True

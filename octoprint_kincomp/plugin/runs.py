@@ -110,8 +110,9 @@ class RunStore:
 
     def ids(self) -> List[str]:
         """The stored ids, newest first (at most MAX_RUNS_LISTED)."""
-        names = sorted((n[:-5] for n in os.listdir(self.folder) if n.endswith(".json")),
-                       reverse=True)
+        names = sorted(
+            (n[:-5] for n in os.listdir(self.folder) if n.endswith(".json")), reverse=True
+        )
         return [n for n in names if self.ID.fullmatch(n)][:MAX_RUNS_LISTED]
 
     def list(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:

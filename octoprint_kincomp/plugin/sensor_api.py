@@ -30,8 +30,8 @@ capture failed).
 from __future__ import annotations
 
 import functools
-import os
 import math
+import os
 import queue
 import threading
 import time
@@ -70,6 +70,7 @@ def sensor_config(s: Dict[str, Any]) -> SensorConfig:
 @dataclass
 class Armed:
     """A capture armed for one printed program."""
+
     spec: TestSpec
     program_hash: str
     path: str
@@ -83,9 +84,17 @@ class Armed:
 
 
 class SensorApi:
-    def __init__(self, recorder: CaptureRecorder, runs: RunStore, demo: DemoMode,
-                 notifier: Notifier, printer, file_manager, logger,
-                 global_get: Callable[[List[str]], Any]):
+    def __init__(
+        self,
+        recorder: CaptureRecorder,
+        runs: RunStore,
+        demo: DemoMode,
+        notifier: Notifier,
+        printer,
+        file_manager,
+        logger,
+        global_get: Callable[[List[str]], Any],
+    ):
         self._recorder = recorder
         self._runs = runs
         self._demo = demo
@@ -104,7 +113,7 @@ class SensorApi:
         self._preview = False  # the user wants the live preview
         self._last_run: Optional[Dict[str, Any]] = None
         self._push_pending = False
-        self._q: "queue.Queue[Tuple[str, Optional[Capture]]]" = queue.Queue()
+        self._q: queue.Queue[Tuple[str, Optional[Capture]]] = queue.Queue()
         threading.Thread(target=self._loop, name="kincomp-sensor-ui", daemon=True).start()
 
     # ~~ which sensor ------------------------------------------------------------------------
@@ -130,32 +139,38 @@ class SensorApi:
         ports = [self._global_get(["serial", "port"])]
         try:
             ports.append(self._printer.get_current_connection()[1])
-        except Exception:  # noqa: BLE001 - not connected: only the configured one
+        except Exception:
             pass
         return [p for p in ports if isinstance(p, str) and p and p.upper() != "AUTO"]
 
     def _printers(self, port: str) -> bool:
         def norm(p: str) -> str:
             return os.path.realpath(p) if p.startswith("/") else p.strip().lower()
+
         return norm(port) in {norm(p) for p in self.printer_ports()}
 
     def check_settings(self, s: Dict[str, Any]) -> None:
         """SettingsError when the sensor's port is the printer's own."""
         port = s["sensor"]["port"]
         if port and self._printers(port):
-            raise SettingsError("sensor.port", Msg(
-                "%(port)s is the printer's own port: choose the sensor's port", port=port))
+            raise SettingsError(
+                "sensor.port",
+                Msg("%(port)s is the printer's own port: choose the sensor's port", port=port),
+            )
 
     def _capture(self) -> Capture:
         """The capture of the sensor in use (an outdated one closed and replaced); raises
         SensorError when no sensor is set or its port is the printer's."""
         cfg, source = self._config(start=True)
         if cfg is None or not cfg.port:
-            raise SensorError(Msg("no live sensor is set: choose its port in KinComp's "
-                                  "settings"), "port")
+            raise SensorError(
+                Msg("no live sensor is set: choose its port in KinComp's settings"), "port"
+            )
         if self._printers(cfg.port):
-            raise SensorError(Msg("%(port)s is the printer's own port: choose the sensor's "
-                                  "port", port=cfg.port), "port")
+            raise SensorError(
+                Msg("%(port)s is the printer's own port: choose the sensor's port", port=cfg.port),
+                "port",
+            )
         cap = self._cap
         if cap is not None and cap.config == cfg:
             return cap
@@ -170,8 +185,9 @@ class SensorApi:
         return cap
 
     # ~~ arming and ending ---------------------------------------------------------------------
-    def program_printing(self, path: str, spec: TestSpec, program_hash: str
-                         ) -> Optional[Dict[str, Any]]:
+    def program_printing(
+        self, path: str, spec: TestSpec, program_hash: str
+    ) -> Optional[Dict[str, Any]]:
         """CalibrationApi.on_print: the program at ``path`` is about to print: arm the
         capture (None when no sensor is in use). Never raises: a capture that cannot start
         is a message, the print goes on."""
@@ -180,10 +196,16 @@ class SensorApi:
         try:
             self._arm(spec, program_hash, path)
         except SensorError as exc:
-            self._notifier.notify("error", N_("The live ballbar capture did not start: "
-                                              "%(reason)s"), reason=exc.message)
-            return {"armed": False, "message": str(exc.message),
-                    "message_i18n": as_dict(exc.message)}
+            self._notifier.notify(
+                "error",
+                N_("The live ballbar capture did not start: %(reason)s"),
+                reason=exc.message,
+            )
+            return {
+                "armed": False,
+                "message": str(exc.message),
+                "message_i18n": as_dict(exc.message),
+            }
         return {"armed": True, "source": self._source, "port": self._cap.config.port}
 
     def _arm(self, spec: TestSpec, program_hash: str, path: str) -> None:
@@ -194,8 +216,12 @@ class SensorApi:
                     raise SensorError(Msg("a capture is already running"))
                 previous = cap.result
                 # a mount pause waits for the user: give them MOUNT_WAIT_S more to mount it
-                cap.arm(spec, program_hash, max_duration_s=3.0 * program_seconds(spec) + (
-                    MOUNT_WAIT_S if spec.mount_pause else 300.0))
+                cap.arm(
+                    spec,
+                    program_hash,
+                    max_duration_s=3.0 * program_seconds(spec)
+                    + (MOUNT_WAIT_S if spec.mount_pause else 300.0),
+                )
                 self._armed = Armed(spec, program_hash, path, self._source, previous)
                 self.waiting = True
         self._request_push(cap)
@@ -264,15 +290,20 @@ class SensorApi:
                 elif kind == "configure":
                     self._reconfigure()
                 self._watch()
-            except Exception:  # noqa: BLE001 - the worker must go on
+            except Exception:
                 self._logger.exception("KinComp: live sensor worker")
 
     def _push(self, cap: Optional[Capture]) -> None:
         if cap is not self._cap:
             return
         chart = cap.live(CHART_S, CHART_POINTS) if cap is not None else {}
-        self._notifier.message({"type": "sensor", "status": self._status(cap),
-                                "chart": {"t": chart.get("t", []), "mm": chart.get("mm", [])}})
+        self._notifier.message(
+            {
+                "type": "sensor",
+                "status": self._status(cap),
+                "chart": {"t": chart.get("t", []), "mm": chart.get("mm", [])},
+            }
+        )
 
     def _watch(self) -> None:
         """Stop an armed capture when its time is up; record it once it has ended."""
@@ -284,8 +315,7 @@ class SensorApi:
             self._ended(cap)
             return
         now = time.monotonic()
-        if armed.stop_at is not None and now >= armed.stop_at and \
-                armed.after_stream_s is not None:
+        if armed.stop_at is not None and now >= armed.stop_at and armed.after_stream_s is not None:
             armed.stop_at = max(armed.stop_at, self._stream_stop(armed, armed.stop_at))
         if armed.stop_at is not None and now >= armed.stop_at:
             armed.stop_at, armed.stopped_at = None, now
@@ -293,15 +323,19 @@ class SensorApi:
         elif armed.stopped_at is not None and now - armed.stopped_at > STOP_WAIT_S:
             with self._lock:  # the stop came before the capture took the arm request
                 self._armed, self.waiting = None, False
-            self._recorded(self._recorder.record_missing(
-                armed, Msg("the capture did not start before it was stopped")), cap, armed)
+            self._recorded(
+                self._recorder.record_missing(
+                    armed, Msg("the capture did not start before it was stopped")
+                ),
+                cap,
+                armed,
+            )
 
     def _ended(self, cap: Optional[Capture]) -> None:
         with self._lock:
             armed = self._armed
             result = cap.result if cap is not None else None
-            if armed is None or cap is not self._cap or result is None or \
-                    result is armed.previous:
+            if armed is None or cap is not self._cap or result is None or result is armed.previous:
                 return
             self._armed, self.waiting = None, False
         if not self._preview:  # first: reading the port would slow the analysis down
@@ -311,12 +345,24 @@ class SensorApi:
     def _recorded(self, run: Dict[str, Any], cap: Capture, armed: Armed) -> None:
         """Tell the UI: the run, and ``test_of`` the campaign's test the program is (also
         when the run is not that test's measurement: a failed capture, or one refused)."""
-        self._last_run = {k: run.get(k) for k in ("id", "status", "message", "message_i18n",
-                                                  "simulated", "campaign", "campaign_step")}
+        self._last_run = {
+            k: run.get(k)
+            for k in (
+                "id",
+                "status",
+                "message",
+                "message_i18n",
+                "simulated",
+                "campaign",
+                "campaign_step",
+            )
+        }
         spec = armed.spec
-        self._last_run["test_of"] = {"campaign": spec.campaign,
-                                     "campaign_step": spec.campaign_step} \
-            if spec.campaign else None
+        self._last_run["test_of"] = (
+            {"campaign": spec.campaign, "campaign_step": spec.campaign_step}
+            if spec.campaign
+            else None
+        )
         if not self._preview:
             self._release()
         self._push(self._cap)
@@ -346,8 +392,9 @@ class SensorApi:
                 cap.close(wait_s=1.0)
             if self._armed is None:
                 self._demo.release_sensor()
-        self._notifier.message({"type": "sensor", "status": self._status(self._cap),
-                                "chart": {"t": [], "mm": []}})
+        self._notifier.message(
+            {"type": "sensor", "status": self._status(self._cap), "chart": {"t": [], "mm": []}}
+        )
 
     # ~~ what the UI sees ------------------------------------------------------------------------
     def _status(self, cap: Optional[Capture]) -> Dict[str, Any]:
@@ -355,21 +402,40 @@ class SensorApi:
         if cap is not None:
             st = cap.status()
         else:
-            st = {"state": "idle", "message": None, "port_open": False, "reading_mm": None,
-                  "noise_um": None, "last_data_age_s": None, "sensor": {}, "diagnostics": {},
-                  "samples": 0, "runs_found": 0, "port": cfg.port if cfg else "",
-                  "protocol": cfg.protocol if cfg else ""}
+            st = {
+                "state": "idle",
+                "message": None,
+                "port_open": False,
+                "reading_mm": None,
+                "noise_um": None,
+                "last_data_age_s": None,
+                "sensor": {},
+                "diagnostics": {},
+                "samples": 0,
+                "runs_found": 0,
+                "port": cfg.port if cfg else "",
+                "protocol": cfg.protocol if cfg else "",
+            }
         msg = st.get("message")
         armed = self._armed
         st.update(
             message=str(msg) if msg else None,
             message_i18n=as_dict(msg) if msg else None,
-            check=bar_check(st), source=source, configured=cfg is not None,
-            preview=self._preview, last_run=self._last_run,
-            armed=None if armed is None else {
-                "path": armed.path, "plane": armed.spec.plane,
-                "radius_mm": armed.spec.radius_mm, "program_hash": armed.program_hash,
-                "stopping": armed.stop_at is not None or armed.stopped_at is not None})
+            check=bar_check(st),
+            source=source,
+            configured=cfg is not None,
+            preview=self._preview,
+            last_run=self._last_run,
+            armed=None
+            if armed is None
+            else {
+                "path": armed.path,
+                "plane": armed.spec.plane,
+                "radius_mm": armed.spec.radius_mm,
+                "program_hash": armed.program_hash,
+                "stopping": armed.stop_at is not None or armed.stopped_at is not None,
+            },
+        )
         return st
 
     # ~~ routes ------------------------------------------------------------------------------------
@@ -385,13 +451,15 @@ class SensorApi:
             return http.error(gettext("'seconds' must be a number"), 400)
         cap = self._cap
         chart = cap.live(seconds, 400) if cap is not None else {}
-        return flask.jsonify(dict(self._status(cap), chart={"t": chart.get("t", []),
-                                                            "mm": chart.get("mm", [])}))
+        return flask.jsonify(
+            dict(self._status(cap), chart={"t": chart.get("t", []), "mm": chart.get("mm", [])})
+        )
 
     def ports(self):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
-        return flask.jsonify(ports=list_ports(), printer_ports=self.printer_ports(),
-                             demo=self._demo.live)
+        return flask.jsonify(
+            ports=list_ports(), printer_ports=self.printer_ports(), demo=self._demo.live
+        )
 
     def open(self):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
@@ -417,8 +485,9 @@ class SensorApi:
         data = http.json_object() or {}
         path = data.get("path")
         if not isinstance(path, str) or not path:
-            return http.error(gettext("Give 'path': a ballbar program in OctoPrint's local "
-                                      "storage"), 400)
+            return http.error(
+                gettext("Give 'path': a ballbar program in OctoPrint's local storage"), 400
+            )
         try:
             exists = self._file_manager.file_exists(FileDestinations.LOCAL, path)
         except ValueError:  # OctoPrint's storage refuses the name (a lone "\\", ..)
@@ -433,8 +502,9 @@ class SensorApi:
         except (ProgramError, SensorError) as exc:
             return http.error(http.tr(getattr(exc, "message", exc)), 400)
         except OSError as exc:
-            return http.error(gettext("%(path)s cannot be read: %(error)s", path=path,
-                                      error=exc.strerror), 400)
+            return http.error(
+                gettext("%(path)s cannot be read: %(error)s", path=path, error=exc.strerror), 400
+            )
         return flask.jsonify(self._status(self._cap))
 
     def stop(self):
@@ -454,5 +524,6 @@ class SensorApi:
             return http.error(gettext("No such calibration run"), 404)
         if path is None:
             return http.error(gettext("This run has no raw sensor stream"), 404)
-        return flask.send_file(path, mimetype="text/csv", as_attachment=True,
-                               download_name=f"{run_id}_raw_stream.csv")
+        return flask.send_file(
+            path, mimetype="text/csv", as_attachment=True, download_name=f"{run_id}_raw_stream.csv"
+        )

@@ -34,8 +34,7 @@ def _iso(wall: float) -> Optional[str]:
 
 
 class CaptureRecorder:
-    def __init__(self, calibration, runs: RunStore, queue: QueueCompensator,
-                 notifier: Notifier):
+    def __init__(self, calibration, runs: RunStore, queue: QueueCompensator, notifier: Notifier):
         self._calibration = calibration  # CalibrationApi: record_run
         self._runs = runs
         self._queue = queue
@@ -58,31 +57,46 @@ class CaptureRecorder:
             result = analyse(trace, current=self._queue.in_force)
         except TraceError as exc:
             return self._failed(error_message(exc), capture, res)
-        run = self._calibration.record_run(result, filename, SOURCE, data, result.get("plot"),
-                                           extra={"status": "ok", "capture": capture})
+        run = self._calibration.record_run(
+            result,
+            filename,
+            SOURCE,
+            data,
+            result.get("plot"),
+            extra={"status": "ok", "capture": capture},
+        )
         self._save_raw(run["id"], res)
         return self.on_recorded(run) if self.on_recorded is not None else run
 
     def record_missing(self, armed, message) -> Dict[str, Any]:
         """A capture that ended without any result (``message`` says why)."""
-        capture = {"source": armed.source, "program": armed.path,
-                   "program_hash": armed.program_hash, "samples": 0}
+        capture = {
+            "source": armed.source,
+            "program": armed.path,
+            "program_hash": armed.program_hash,
+            "samples": 0,
+        }
         return self._failed(message, capture, None)
 
     def _metadata(self, res: CaptureResult, armed, port: str) -> Dict[str, Any]:
         stream = res.stream
         return {
-            "source": armed.source, "port": port, "program": armed.path,
+            "source": armed.source,
+            "port": port,
+            "program": armed.path,
             "program_hash": res.program_hash,
-            "armed_at": _iso(res.armed_at), "ended_at": _iso(res.ended_at),
+            "armed_at": _iso(res.armed_at),
+            "ended_at": _iso(res.ended_at),
             "duration_s": round(res.ended_at - res.armed_at, 3) if res.armed_at else None,
             "samples": len(stream) if stream is not None else 0,
             "sensor": dict(stream.meta) if stream is not None else {},
-            "runs": res.runs, "diagnostics": res.diagnostics,
+            "runs": res.runs,
+            "diagnostics": res.diagnostics,
         }
 
-    def _failed(self, message, capture: Dict[str, Any], res: Optional[CaptureResult]
-                ) -> Dict[str, Any]:
+    def _failed(
+        self, message, capture: Dict[str, Any], res: Optional[CaptureResult]
+    ) -> Dict[str, Any]:
         current = self._queue.in_force
         run_id = self._runs.new_id()
         plane = res.spec.plane if res is not None else None
@@ -98,20 +112,36 @@ class CaptureRecorder:
             "params_before": current.to_dict(),
             "params_before_hash": current.hash(),
             "diagnostics": {"plane": plane} if plane else {},
-            "proposed": None, "firmware": None, "notes": [], "notes_i18n": [],
+            "proposed": None,
+            "firmware": None,
+            "notes": [],
+            "notes_i18n": [],
             # the failure as the run's one finding: nothing here can be trusted
-            "findings": [{"code": "capture.failed", "severity": "error",
-                          "message": as_dict(message), "advice": {"text": ""},
-                          "evidence": {}}],
+            "findings": [
+                {
+                    "code": "capture.failed",
+                    "severity": "error",
+                    "message": as_dict(message),
+                    "advice": {"text": ""},
+                    "evidence": {},
+                }
+            ],
             "trusted": False,
-            "plot": None, "applied": None,
+            "plot": None,
+            "applied": None,
             "capture": capture,
         }
         self._save_raw(run_id, res)
         self._runs.save(run)
-        self._notifier.notify("error", N_("The live ballbar capture failed: %(reason)s. The "
-                                          "data so far is kept in the history; the print "
-                                          "itself is not affected."), reason=message)
+        self._notifier.notify(
+            "error",
+            N_(
+                "The live ballbar capture failed: %(reason)s. The "
+                "data so far is kept in the history; the print "
+                "itself is not affected."
+            ),
+            reason=message,
+        )
         return run
 
     def _save_raw(self, run_id: str, res: Optional[CaptureResult]) -> None:

@@ -41,9 +41,14 @@ class SettingsInvalid(SettingsError):
 
     def __init__(self, reason: SettingsError):
         self.reason = reason
-        super().__init__(reason.field, Msg(
-            "the stored KinComp settings are invalid (%(reason)s); fix them in KinComp's "
-            "settings first", reason=str(reason)))
+        super().__init__(
+            reason.field,
+            Msg(
+                "the stored KinComp settings are invalid (%(reason)s); fix them in KinComp's "
+                "settings first",
+                reason=str(reason),
+            ),
+        )
 
 
 def defaults() -> Dict[str, Any]:
@@ -91,8 +96,18 @@ def motion_limits_defaults() -> Dict[str, Any]:
 
 
 # the sensor settings the plugin stores (SensorConfig's others keep their defaults)
-SENSOR_KEYS = ("enabled", "port", "baudrate", "protocol", "units", "positive", "pattern",
-               "scale", "range", "sample_rate_hz")
+SENSOR_KEYS = (
+    "enabled",
+    "port",
+    "baudrate",
+    "protocol",
+    "units",
+    "positive",
+    "pattern",
+    "scale",
+    "range",
+    "sample_rate_hz",
+)
 # the JSON types of the sensor settings (SensorConfig checks ranges and choices)
 SENSOR_TEXTS = ("port", "protocol", "units", "positive", "pattern", "range")
 SENSOR_NUMBERS = ("baudrate", "scale", "sample_rate_hz")
@@ -141,12 +156,22 @@ def _choice(value: Any, field: str, allowed: Sequence[str]) -> str:
 
 
 def _number(value: Any, field: str, lo: float, hi: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(float(value)):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(float(value))
+    ):
         raise SettingsError(field, Msg("must be a finite number"))
     if not lo <= float(value) <= hi:
-        raise SettingsError(field, Msg("%(value)s is out of range (%(lo)s..%(hi)s)",
-                                       value=f"{value:g}", lo=f"{lo:g}", hi=f"{hi:g}"))
+        raise SettingsError(
+            field,
+            Msg(
+                "%(value)s is out of range (%(lo)s..%(hi)s)",
+                value=f"{value:g}",
+                lo=f"{lo:g}",
+                hi=f"{hi:g}",
+            ),
+        )
     return float(value)
 
 
@@ -165,8 +190,9 @@ def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]
     return out
 
 
-def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = None,
-                      replace_params: bool = False) -> Dict[str, Any]:
+def validate_settings(
+    data: Dict[str, Any], base: Optional[Dict[str, Any]] = None, replace_params: bool = False
+) -> Dict[str, Any]:
     """``base`` (the current settings, default: defaults) updated with ``data``, checked.
 
     A ``params`` object is merged into the current parameters (:func:`merge_params`), so a
@@ -186,8 +212,11 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
         if key not in SETTING_KEYS:
             raise SettingsError(key, Msg("unknown setting"))
     data = copy.deepcopy(data)
-    if not replace_params and isinstance(data.get("params"), dict) and \
-            isinstance(out.get("params"), dict):
+    if (
+        not replace_params
+        and isinstance(data.get("params"), dict)
+        and isinstance(out.get("params"), dict)
+    ):
         data["params"] = merge_params(out["params"], data["params"])
     for key in MERGED:
         if isinstance(data.get(key), dict) and isinstance(out.get(key), dict):
@@ -198,10 +227,17 @@ def validate_settings(data: Dict[str, Any], base: Optional[Dict[str, Any]] = Non
             out[key] = check(out[key], key)
         except SettingsError:
             raise
-        except (TypeError, ValueError, ArithmeticError, LookupError, AttributeError,
-                RecursionError) as exc:
-            raise SettingsError(key, Msg("invalid value (%(error)s)",
-                                         error=str(exc)[:80] or type(exc).__name__)) from None
+        except (
+            TypeError,
+            ValueError,
+            ArithmeticError,
+            LookupError,
+            AttributeError,
+            RecursionError,
+        ) as exc:
+            raise SettingsError(
+                key, Msg("invalid value (%(error)s)", error=str(exc)[:80] or type(exc).__name__)
+            ) from None
     return out
 
 
@@ -215,17 +251,22 @@ def _home(home: Any, field: str) -> Optional[List[Optional[float]]]:
     if home is None:
         return None
     if not isinstance(home, list) or len(home) != 3:
-        raise SettingsError(field, Msg("must be a list of three numbers (mm) or "
-                                       "null (learned from the printer)"))
-    return [None if v is None else _number(v, f"{field}[{i}]", -10000, 10000)
-            for i, v in enumerate(home)]
+        raise SettingsError(
+            field, Msg("must be a list of three numbers (mm) or null (learned from the printer)")
+        )
+    return [
+        None if v is None else _number(v, f"{field}[{i}]", -10000, 10000)
+        for i, v in enumerate(home)
+    ]
 
 
 def _demo(demo: Any, field: str) -> Dict[str, bool]:
     if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
         raise SettingsError(field, Msg("must be an object with 'enabled' and 'live'"))
-    return {"enabled": _bool(demo.get("enabled", False), f"{field}.enabled"),
-            "live": _bool(demo.get("live", True), f"{field}.live")}
+    return {
+        "enabled": _bool(demo.get("enabled", False), f"{field}.enabled"),
+        "live": _bool(demo.get("live", True), f"{field}.live"),
+    }
 
 
 def _software_update(value: Any, field: str) -> Dict[str, Any]:
@@ -239,8 +280,7 @@ def _params(value: Any, field: str) -> Dict[str, Any]:
     try:
         return Params.from_dict(value).to_dict()
     except ParamsError as exc:
-        raise SettingsError(f"{field}.{exc.field}" if exc.field else field,
-                            exc.message) from None
+        raise SettingsError(f"{field}.{exc.field}" if exc.field else field, exc.message) from None
 
 
 def validate_motion_limits(value: Any) -> Dict[str, Any]:
@@ -256,8 +296,9 @@ def validate_motion_limits(value: Any) -> Dict[str, Any]:
         if not isinstance(out[key], str):
             raise SettingsError(f"motion_limits.{key}", Msg("must be a text"))
     if len(out["text"]) > MAX_TEXT:
-        raise SettingsError("motion_limits.text", Msg("is longer than %(n)s characters",
-                                                      n=MAX_TEXT))
+        raise SettingsError(
+            "motion_limits.text", Msg("is longer than %(n)s characters", n=MAX_TEXT)
+        )
     out["source"] = _choice(out["source"], "motion_limits.source", MOTION_LIMIT_SOURCES)
     if out["captured"] is not None and not isinstance(out["captured"], str):
         raise SettingsError("motion_limits.captured", Msg("must be a date text or null"))
@@ -296,11 +337,11 @@ def validate_sensor(value: Any) -> Dict[str, Any]:
         if cfg.pattern:
             compile_pattern(cfg.pattern)
     except SensorError as exc:
-        raise SettingsError(f"sensor.{exc.field}" if exc.field else "sensor",
-                            exc.message) from None
+        raise SettingsError(f"sensor.{exc.field}" if exc.field else "sensor", exc.message) from None
     if enabled and not cfg.port:
-        raise SettingsError("sensor.port", Msg("choose the sensor's port (or switch live "
-                                               "capture off)"))
+        raise SettingsError(
+            "sensor.port", Msg("choose the sensor's port (or switch live capture off)")
+        )
     return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
 
 
@@ -353,8 +394,9 @@ CHECKS: Dict[str, Callable[[Any, str], Any]] = {
 }
 
 
-def engine_config(settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
-                  ) -> Tuple[Params, Options]:
+def engine_config(
+    settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
+) -> Tuple[Params, Options]:
     """The Params and compensator Options the settings describe."""
     params = Params.from_dict(settings["params"])
     options = Options(
@@ -423,7 +465,8 @@ def repaired(stored: Dict[str, Any]) -> Tuple[Dict[str, Any], List[SettingsError
                 key = path[-1]
                 holds = there and (
                     (isinstance(parent, dict) and key in parent)
-                    or (isinstance(parent, list) and isinstance(key, int) and key < len(parent)))
+                    or (isinstance(parent, list) and isinstance(key, int) and key < len(parent))
+                )
                 found, default = _lookup(base, path)
                 if found and (holds or isinstance(parent, dict)):
                     parent[key] = copy.deepcopy(default)
@@ -443,10 +486,10 @@ def limits_from_profile(profile: Optional[Dict[str, Any]]) -> Optional[Tuple[flo
         return None
     vol = profile.get("volume") or {}
     box = vol.get("custom_box")
-    if isinstance(box, dict) and all(k in box for k in ("x_min", "x_max", "y_min", "y_max",
-                                                         "z_min", "z_max")):
-        lim = tuple(float(box[k]) for k in ("x_min", "x_max", "y_min", "y_max",
-                                             "z_min", "z_max"))
+    if isinstance(box, dict) and all(
+        k in box for k in ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+    ):
+        lim = tuple(float(box[k]) for k in ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max"))
     else:
         try:
             w, d, h = float(vol["width"]), float(vol["depth"]), float(vol["height"])

@@ -37,8 +37,14 @@ from .settings_store import SettingsStore
 
 
 class SettingsApi:
-    def __init__(self, store: SettingsStore, queue: QueueCompensator, watch: FirmwareWatcher,
-                 demo: DemoMode, jobs: JobQueue):
+    def __init__(
+        self,
+        store: SettingsStore,
+        queue: QueueCompensator,
+        watch: FirmwareWatcher,
+        demo: DemoMode,
+        jobs: JobQueue,
+    ):
         self._store = store
         self._queue = queue
         self._watch = watch
@@ -58,8 +64,11 @@ class SettingsApi:
             params_hash=params.hash(),
             engine=engine(),
             compensation=self._queue.status(),
-            firmware={"skew": self._watch.skew, "backlash": self._watch.backlash,
-                      "conflicts": self._watch.conflicts(params)},
+            firmware={
+                "skew": self._watch.skew,
+                "backlash": self._watch.backlash,
+                "conflicts": self._watch.conflicts(params),
+            },
             equivalents=http.with_i18n(equivalents(params)),
             demo=self._demo.ballbar is not None,
             limits=store.limits(),
@@ -67,8 +76,7 @@ class SettingsApi:
             motion_limits=limits_status(s, store.max_feeds()),
             jobs=[j.to_dict() for j in self._jobs.jobs.values()],
             settings_problem=(http.tr(store.problem) if store.problem is not None else None),
-            settings_problem_field=(store.problem.field if store.problem is not None
-                                    else None),
+            settings_problem_field=(store.problem.field if store.problem is not None else None),
         )
 
     def save(self):
@@ -81,6 +89,7 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
+
         def vet(stored, new):
             if self.check is not None:
                 self.check(new)
@@ -94,5 +103,8 @@ class SettingsApi:
             return http.error(http.tr(exc), 400)
         except http.Refused as exc:
             return exc.response
-        return flask.jsonify(settings=new, params_hash=Params.from_dict(new["params"]).hash(),
-                             compensation=self._queue.status())
+        return flask.jsonify(
+            settings=new,
+            params_hash=Params.from_dict(new["params"]).hash(),
+            compensation=self._queue.status(),
+        )

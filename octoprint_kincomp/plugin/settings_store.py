@@ -67,9 +67,16 @@ class SettingsStore:
     serialises every read-merge-validate-write of the stored document.
     """
 
-    def __init__(self, settings, identifier: str, profiles, queue: QueueCompensator,
-                 notifier: Notifier, logger,
-                 on_applied: Callable[[Dict[str, Any]], None]):
+    def __init__(
+        self,
+        settings,
+        identifier: str,
+        profiles,
+        queue: QueueCompensator,
+        notifier: Notifier,
+        logger,
+        on_applied: Callable[[Dict[str, Any]], None],
+    ):
         self._settings = settings
         self._identifier = identifier
         self._profiles = profiles
@@ -82,8 +89,9 @@ class SettingsStore:
         # config.yaml: OctoPrint's own saves (``/api/settings``) and its reloads of a
         # changed config.yaml then never fall in between (they take it too). Always taken
         # after ``lock``, never before; nothing of OctoPrint's holding it calls KinComp.
-        self._config_lock = getattr(getattr(settings, "settings", None), "_lock", None) \
-            or threading.RLock()
+        self._config_lock = (
+            getattr(getattr(settings, "settings", None), "_lock", None) or threading.RLock()
+        )
         # what is wrong with the stored settings (a SettingsError), None when they are valid
         self.problem: Optional[SettingsError] = None
 
@@ -136,18 +144,25 @@ class SettingsStore:
         if self.problem is None or str(self.problem) != str(exc):
             self._logger.error(
                 "Stored KinComp settings are invalid (%s): compensation is off until they "
-                "are fixed; nothing stored was changed", exc)
+                "are fixed; nothing stored was changed",
+                exc,
+            )
             self._notifier.notify(
-                "error", N_("The stored KinComp settings are invalid (%(reason)s): "
-                            "compensation is off until you fix them in KinComp's settings. "
-                            "Nothing stored was changed."), reason=error_message(exc))
+                "error",
+                N_(
+                    "The stored KinComp settings are invalid (%(reason)s): "
+                    "compensation is off until you fix them in KinComp's settings. "
+                    "Nothing stored was changed."
+                ),
+                reason=error_message(exc),
+            )
         self.problem = exc
 
     def limits(self) -> Optional[Tuple[float, ...]]:
         """The current printer profile's bed volume (x0, x1, y0, y1, z0, z1 mm), if any."""
         try:
             profile = self._profiles.get_current_or_default()
-        except Exception:  # noqa: BLE001 - no profile: no limits
+        except Exception:
             profile = None
         return limits_from_profile(profile)
 
@@ -155,7 +170,7 @@ class SettingsStore:
         """The current printer profile's axis max feeds (mm/min), if any."""
         try:
             return max_feeds_from_profile(self._profiles.get_current_or_default())
-        except Exception:  # noqa: BLE001
+        except Exception:
             return None
 
     def engine_config(self, s: Dict[str, Any], profile=None) -> Tuple[Params, Options]:
@@ -189,8 +204,9 @@ class SettingsStore:
                 if key in defaults():
                     self._settings.set([key], value)
             try:
-                validate_settings({k: v for k, v in migrated.items() if k in defaults()},
-                                  defaults())
+                validate_settings(
+                    {k: v for k, v in migrated.items() if k in defaults()}, defaults()
+                )
                 unused = set(raw) - set(defaults())  # moved, or no longer known
             except SettingsError:
                 unused = set(raw) - set(migrated)  # only what moved: nothing else is touched
@@ -205,22 +221,29 @@ class SettingsStore:
         stay as they were. Without the KinComp admin permission nothing is changed (the
         request hook answers 403 first)."""
         if flask.has_request_context() and not Permissions.PLUGIN_KINCOMP_ADMIN.can():
-            self._logger.warning("KinComp settings refused: the user lacks the KinComp "
-                                 "admin permission")
+            self._logger.warning(
+                "KinComp settings refused: the user lacks the KinComp admin permission"
+            )
             return {}
         try:
             _, diff = self.update(data, write=False)
         except SettingsError as exc:
             self._logger.warning("KinComp settings refused: %s", exc)
-            self._notifier.notify("error", N_("KinComp settings not saved: %(reason)s"),
-                                  reason=error_message(exc))
+            self._notifier.notify(
+                "error", N_("KinComp settings not saved: %(reason)s"), reason=error_message(exc)
+            )
             return {}
         return diff
 
-    def update(self, data: Dict[str, Any], replace_params: bool = False,
-               immediately: Optional[bool] = None, vet: Optional[Callable] = None,
-               write: bool = True, internal: bool = False
-               ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+    def update(
+        self,
+        data: Dict[str, Any],
+        replace_params: bool = False,
+        immediately: Optional[bool] = None,
+        vet: Optional[Callable] = None,
+        write: bool = True,
+        internal: bool = False,
+    ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """The one way a change is saved: under ``lock``, the stored document with ``data``
         merged in (``replace_params``: its ``params`` replace the stored ones whole),
         validated whole, ``vet(stored, new)`` (may raise, e.g. a permission refused),
@@ -248,8 +271,7 @@ class SettingsStore:
                 new = self.current()
             return new, diff
 
-    def save(self, new: Dict[str, Any], immediately: Optional[bool] = None,
-             write: bool = False):
+    def save(self, new: Dict[str, Any], immediately: Optional[bool] = None, write: bool = False):
         """Stores the validated settings ``new`` (complete: made by ``validate_settings``
         over ``stored()``) as :meth:`update` does, without merging or checking. Returns the
         diff stored (what differs from the defaults)."""
@@ -278,16 +300,21 @@ class SettingsStore:
                 raise
         return diff
 
-    def _applied(self, old: Dict[str, Any], new: Dict[str, Any],
-                 immediately: Optional[bool]) -> None:
+    def _applied(
+        self, old: Dict[str, Any], new: Dict[str, Any], immediately: Optional[bool]
+    ) -> None:
         """``new`` (just stored) to the queue; ``params_applied`` if the parameters changed."""
         self.apply(new, immediately=immediately)
         if new["params"] != old["params"]:
             params = Params.from_dict(new["params"])
-            self._notifier.event("params_applied", {
-                "params_hash": params.hash(),
-                "previous_hash": Params.from_dict(old["params"]).hash(),
-                "pending_until_next_print": self._queue.pending is not None})
+            self._notifier.event(
+                "params_applied",
+                {
+                    "params_hash": params.hash(),
+                    "previous_hash": Params.from_dict(old["params"]).hash(),
+                    "pending_until_next_print": self._queue.pending is not None,
+                },
+            )
 
     def write(self) -> None:
         """Writes the stored settings to OctoPrint's config file (atomically: a temporary
@@ -308,8 +335,12 @@ class SettingsStore:
         theirs = not s["profile"] or connected is None or connected == s["profile"]
         if not q.configure(params, options, s["enabled"] and calibrated(s) and theirs, now):
             self._notifier.notify(
-                "info", N_("A print is running: the new KinComp settings (parameters, "
-                           "compensation on or off) take effect from the next print on."))
+                "info",
+                N_(
+                    "A print is running: the new KinComp settings (parameters, "
+                    "compensation on or off) take effect from the next print on."
+                ),
+            )
         self._on_applied(s)
 
     # ~~ printer profiles ---------------------------------------------------------------------
@@ -320,15 +351,18 @@ class SettingsStore:
             if connected:
                 return self._profiles.get_current()
             return self._profiles.get_current_or_default() or {}
-        except Exception:  # noqa: BLE001 - no profile manager answer: the default id
+        except Exception:
             return {}
 
     def profile_status(self, s: Dict[str, Any]) -> Dict[str, Any]:
         """Which printer profile's calibration is in force (for /status and the UI)."""
         profile = self.active_profile(connected=True) or self.active_profile()
-        return {"id": s["profile"], "name": profile_name(profile)
-                if profile_id(profile) == s["profile"] else s["profile"],
-                "calibrated": calibrated(s), "known": sorted(s["profiles"])}
+        return {
+            "id": s["profile"],
+            "name": profile_name(profile) if profile_id(profile) == s["profile"] else s["profile"],
+            "calibrated": calibrated(s),
+            "known": sorted(s["profiles"]),
+        }
 
     def follow_profile(self) -> None:
         """Puts the current printer profile's set in force if another one is (a profile
@@ -341,15 +375,20 @@ class SettingsStore:
             try:
                 if self._follow(s):
                     return
-            except Exception as exc:  # noqa: BLE001 - e.g. config.yaml not writable
+            except Exception as exc:
                 # the switch was not stored: the set in force is still the other
                 # profile's, and apply() below keeps compensation off for this printer
-                self._logger.exception("KinComp: the printer profile's calibration could "
-                                       "not be put in force")
+                self._logger.exception(
+                    "KinComp: the printer profile's calibration could not be put in force"
+                )
                 self._notifier.notify(
-                    "error", N_("KinComp could not switch to this printer's calibration "
-                                "(%(error)s): compensation is off until it can."),
-                    error=str(exc)[:120])
+                    "error",
+                    N_(
+                        "KinComp could not switch to this printer's calibration "
+                        "(%(error)s): compensation is off until it can."
+                    ),
+                    error=str(exc)[:120],
+                )
             self.apply(s)
 
     def _connected_id(self) -> Optional[str]:
@@ -378,17 +417,23 @@ class SettingsStore:
         self._notifier.message({"type": "profile", "profile": self.profile_status(new)})
         self._notifier.message({"type": "motion_limits"})
         if adopted:
-            self._logger.info("KinComp: the calibration now belongs to printer profile %s",
-                              pid)
+            self._logger.info("KinComp: the calibration now belongs to printer profile %s", pid)
         elif calibrated(new):
             self._notifier.notify(
-                "info", N_("Printer profile %(profile)s: its KinComp calibration is in "
-                           "force."), profile=profile_name(profile))
+                "info",
+                N_("Printer profile %(profile)s: its KinComp calibration is in force."),
+                profile=profile_name(profile),
+            )
         else:
             self._notifier.notify(
-                "warning", N_("Printer profile %(profile)s has no KinComp calibration: "
-                              "prints go out uncompensated until you calibrate it or "
-                              "enter its parameters."), profile=profile_name(profile))
+                "warning",
+                N_(
+                    "Printer profile %(profile)s has no KinComp calibration: "
+                    "prints go out uncompensated until you calibrate it or "
+                    "enter its parameters."
+                ),
+                profile=profile_name(profile),
+            )
         return True
 
     # ~~ OctoPrint's settings endpoint --------------------------------------------------------
@@ -412,8 +457,9 @@ class SettingsStore:
         if mine is None:
             return None
         if not Permissions.PLUGIN_KINCOMP_ADMIN.can():
-            return http.error(gettext("Changing KinComp's settings needs the KinComp admin "
-                                      "permission"), 403)
+            return http.error(
+                gettext("Changing KinComp's settings needs the KinComp admin permission"), 403
+            )
         try:
             http.check_json(mine)
         except http.BadRequest as exc:

@@ -42,8 +42,9 @@ def _url(value: Any, field: str, template: bool = False) -> str:
     if parts.scheme != "https" or not parts.netloc:
         raise UpdateSettingsError(field, Msg("must be an https address"))
     if template and "{target_version}" not in value:
-        raise UpdateSettingsError(field, Msg("must contain {target_version} where the "
-                                             "version goes"))
+        raise UpdateSettingsError(
+            field, Msg("must contain {target_version} where the version goes")
+        )
     return value
 
 
@@ -51,16 +52,17 @@ def validate(value: Any) -> Dict[str, Any]:
     """A checked copy of the ``software_update`` setting (UpdateSettingsError naming the
     field otherwise)."""
     if not isinstance(value, dict) or set(value) - set(default_settings()):
-        raise UpdateSettingsError("software_update", Msg(
-            "must be an object with 'type', 'version_url' and 'archive_url'"))
+        raise UpdateSettingsError(
+            "software_update", Msg("must be an object with 'type', 'version_url' and 'archive_url'")
+        )
     out = dict(default_settings(), **value)
     if out["type"] not in TYPES:
-        raise UpdateSettingsError("software_update.type", Msg(
-            "must be one of %(choices)s", choices=", ".join(TYPES)))
+        raise UpdateSettingsError(
+            "software_update.type", Msg("must be one of %(choices)s", choices=", ".join(TYPES))
+        )
     if out["type"] == "jsondata":
         out["version_url"] = _url(out["version_url"], "software_update.version_url")
-        out["archive_url"] = _url(out["archive_url"], "software_update.archive_url",
-                                  template=True)
+        out["archive_url"] = _url(out["archive_url"], "software_update.archive_url", template=True)
     else:
         for key in ("version_url", "archive_url"):
             if not isinstance(out[key], str):
@@ -70,13 +72,18 @@ def validate(value: Any) -> Dict[str, Any]:
 
 def check_config(setting: Dict[str, Any], identifier: str = "kincomp") -> Dict[str, Any]:
     """The software update plugin's configuration for KinComp (``{identifier: {...}}``)."""
-    common = {"displayName": "KinComp", "displayVersion": __version__,
-              "current": __version__}
+    common = {"displayName": "KinComp", "displayVersion": __version__, "current": __version__}
     if setting.get("type") == "jsondata":
-        config = dict(common, type="jsondata", jsondata=setting["version_url"],
-                      pip=setting["archive_url"])
+        config = dict(
+            common, type="jsondata", jsondata=setting["version_url"], pip=setting["archive_url"]
+        )
     else:
         user, repo = __plugin_url__.rstrip("/").split("/")[-2:]
-        config = dict(common, type="github_release", user=user, repo=repo,
-                      pip=__plugin_url__ + "/archive/{target_version}.zip")
+        config = dict(
+            common,
+            type="github_release",
+            user=user,
+            repo=repo,
+            pip=__plugin_url__ + "/archive/{target_version}.zip",
+        )
     return {identifier: config}

@@ -51,8 +51,9 @@ class CompensatingStream(LineProcessorStream):
             self.passthrough = True
             return data
         first_ending = split_ending(raws[0])[1]
-        return (marker_line(self.params) + (first_ending or "\n")
-                + self._lines(text)).encode(ENCODING, ERRORS)
+        return (marker_line(self.params) + (first_ending or "\n") + self._lines(text)).encode(
+            ENCODING, ERRORS
+        )
 
     def _lines(self, text: str) -> str:
         out = []

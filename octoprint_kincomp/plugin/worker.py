@@ -42,9 +42,14 @@ def _engine_args(params: Dict[str, Any], options: Dict[str, Any]):
     return Params.from_dict(params), Options(**options)
 
 
-def task_compensate(src: str, dst: Optional[str], params: Dict[str, Any],
-                    options: Dict[str, Any], progress: Callable[[float], None],
-                    dry_run: bool = False) -> Dict[str, Any]:
+def task_compensate(
+    src: str,
+    dst: Optional[str],
+    params: Dict[str, Any],
+    options: Dict[str, Any],
+    progress: Callable[[float], None],
+    dry_run: bool = False,
+) -> Dict[str, Any]:
     """``src`` compensated into ``dst`` (or only counted with ``dry_run``): the report, or
     ``{"precompensated": hash}`` for a file that already carries KinComp's marker."""
     from ..engines.files import AlreadyCompensated, compensate_file
@@ -52,15 +57,17 @@ def task_compensate(src: str, dst: Optional[str], params: Dict[str, Any],
     p, o = _engine_args(params, options)
     total = max(1, os.path.getsize(src))
     try:
-        report = compensate_file(src, dst, p, o, dry_run=dry_run,
-                                 progress=lambda done: progress(min(1.0, done / total)))
+        report = compensate_file(
+            src, dst, p, o, dry_run=dry_run, progress=lambda done: progress(min(1.0, done / total))
+        )
     except AlreadyCompensated as exc:
         return {"precompensated": exc.params_hash, "report": None}
     return {"precompensated": None, "report": report.to_dict(), "params_hash": p.hash()}
 
 
-def task_analyse(data: bytes, name: str, current: Dict[str, Any],
-                 progress: Callable[[float], None]) -> Dict[str, Any]:
+def task_analyse(
+    data: bytes, name: str, current: Dict[str, Any], progress: Callable[[float], None]
+) -> Dict[str, Any]:
     """A trace, .b5r or summary file analysed (ballbar.analysis); its kind added."""
     from ..ballbar.analysis import analyse
     from ..ballbar.formats import load_any
@@ -88,7 +95,7 @@ def lower_priority() -> None:
         import psutil
 
         psutil.Process().ionice(psutil.IOPRIO_CLASS_BE, 7)
-    except Exception:  # noqa: BLE001 - not Linux, no psutil: CPU priority is what matters
+    except Exception:
         pass
 
 
@@ -130,10 +137,10 @@ def child_main() -> int:
 
         try:
             result = TASKS[kind](progress=progress, **args)
-        except Exception as exc:  # noqa: BLE001 - handed to the parent, which reports it
+        except Exception as exc:
             try:
                 pickle.dumps(exc)
-            except Exception:  # noqa: BLE001 - an exception that does not pickle: its text
+            except Exception:
                 exc = RuntimeError(str(exc))
             send(("failed", job_id, exc))
         else:
@@ -160,18 +167,23 @@ class WorkerProcess:
     def _start(self) -> subprocess.Popen:
         if self._proc is not None and self._proc.poll() is None:
             return self._proc
-        package_root = os.path.dirname(os.path.dirname(os.path.dirname(
-            os.path.abspath(__file__))))
+        package_root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(
-            [package_root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+            [package_root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+        )
         self._proc = subprocess.Popen(
             [self._python, "-m", "octoprint_kincomp.plugin.worker"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, close_fds=True)
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+            close_fds=True,
+        )
         return self._proc
 
-    def call(self, job_id: str, kind: str, args: Dict[str, Any],
-             progress: Callable[[float], None]) -> Any:
+    def call(
+        self, job_id: str, kind: str, args: Dict[str, Any], progress: Callable[[float], None]
+    ) -> Any:
         """Run one job in the child: its result, or its exception raised here
         (:class:`WorkerDied` if the child ended)."""
         with self._lock:
@@ -189,8 +201,7 @@ class WorkerProcess:
                         break
             except (EOFError, OSError, pickle.UnpicklingError):
                 self._reap()
-                raise WorkerDied("the worker process stopped in the middle of the job") \
-                    from None
+                raise WorkerDied("the worker process stopped in the middle of the job") from None
             except BaseException:
                 # the job abandoned (the progress callback raised: cancelled): the child
                 # ends (its partial file is removed), so the next job starts clean
@@ -241,8 +252,11 @@ class WorkerProcess:
 
     def stop_if_idle(self, idle_s: float) -> None:
         """End the child if it has had no job for ``idle_s`` seconds (it holds memory)."""
-        if self._proc is not None and not self._lock.locked() and \
-                time.monotonic() - self.last_used > idle_s:
+        if (
+            self._proc is not None
+            and not self._lock.locked()
+            and time.monotonic() - self.last_used > idle_s
+        ):
             with self._lock:
                 self._reap()  # end of its input: the child returns
 
@@ -253,8 +267,9 @@ class InProcessWorker:
 
     pid = None
 
-    def call(self, job_id: str, kind: str, args: Dict[str, Any],
-             progress: Callable[[float], None]) -> Any:
+    def call(
+        self, job_id: str, kind: str, args: Dict[str, Any], progress: Callable[[float], None]
+    ) -> Any:
         return TASKS[kind](progress=progress, **args)
 
     def stop(self) -> None:

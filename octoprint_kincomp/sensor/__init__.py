@@ -16,11 +16,21 @@ floor; times are in s. Modules, bottom up:
   a pseudo-terminal or loopback socket).
 """
 
-from .capture import Capture, CaptureResult, STATES
+from .capture import STATES, Capture, CaptureResult
 from .config import PROTOCOLS, SensorConfig
 from .errors import SensorError
 from .ports import list_ports
 from .stream import RawStream, parse_raw_stream, trace_from_stream
 
-__all__ = ["Capture", "CaptureResult", "STATES", "PROTOCOLS", "SensorConfig", "SensorError",
-           "list_ports", "RawStream", "parse_raw_stream", "trace_from_stream"]
+__all__ = [
+    "Capture",
+    "CaptureResult",
+    "STATES",
+    "PROTOCOLS",
+    "SensorConfig",
+    "SensorError",
+    "list_ports",
+    "RawStream",
+    "parse_raw_stream",
+    "trace_from_stream",
+]

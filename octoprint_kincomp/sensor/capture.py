@@ -52,7 +52,13 @@ from .runs import detect_runs, program_seconds
 from .stream import RawStream, trace_from_stream
 
 IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED = (
-    "idle", "preview", "armed", "capturing", "done", "failed")
+    "idle",
+    "preview",
+    "armed",
+    "capturing",
+    "done",
+    "failed",
+)
 STATES = (IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED)
 DEFAULT_MAX_SAMPLES = 1_000_000
 PRE_KEEP_S = 30.0
@@ -76,8 +82,9 @@ class CaptureResult:
 class _Recording:
     """The samples of one armed capture (only the capture thread touches it)."""
 
-    def __init__(self, spec: TestSpec, program_hash: str, max_duration_s: float,
-                 max_samples: int, now: float):
+    def __init__(
+        self, spec: TestSpec, program_hash: str, max_duration_s: float, max_samples: int, now: float
+    ):
         self.spec, self.program_hash = spec, program_hash
         self.max_duration_s, self.max_samples = max_duration_s, max_samples
         self.t, self.mm, self.line = array("d"), array("d"), array("q")
@@ -112,15 +119,20 @@ class _Recording:
             return None
         t = np.array(self.t, dtype=float)
         t = np.round(t - t[0], 6)  # 1 us, as saved: a saved stream gives the same trace
-        return RawStream(dict(info), t, np.array(self.mm, dtype=float),
-                         np.array(self.line, dtype=np.int64))
+        return RawStream(
+            dict(info), t, np.array(self.mm, dtype=float), np.array(self.line, dtype=np.int64)
+        )
 
 
 class Capture:
-    def __init__(self, config: SensorConfig,
-                 listener: Optional[Callable[[str, Dict[str, object]], None]] = None,
-                 opener: Callable = open_port, tick_s: float = 0.5,
-                 pre_keep_s: float = PRE_KEEP_S):
+    def __init__(
+        self,
+        config: SensorConfig,
+        listener: Optional[Callable[[str, Dict[str, object]], None]] = None,
+        opener: Callable = open_port,
+        tick_s: float = 0.5,
+        pre_keep_s: float = PRE_KEEP_S,
+    ):
         config.validate()
         self.config = config
         self.listener = listener
@@ -140,8 +152,13 @@ class Capture:
         self._stop_request = False
         self._rec: Optional[_Recording] = None
         self._result: Optional[CaptureResult] = None
-        self._snapshot: Dict[str, object] = {"sensor": {}, "diagnostics": {}, "samples": 0,
-                                             "elapsed_s": None, "runs_found": 0}
+        self._snapshot: Dict[str, object] = {
+            "sensor": {},
+            "diagnostics": {},
+            "samples": 0,
+            "elapsed_s": None,
+            "runs_found": 0,
+        }
 
     # ---- public, thread-safe, never blocking ---------------------------------------------
 
@@ -169,9 +186,13 @@ class Capture:
         self._thread = threading.Thread(target=self._run, name="kincomp-sensor", daemon=True)
         self._thread.start()
 
-    def arm(self, spec: TestSpec, program_hash: str = "",
-            max_duration_s: Optional[float] = None,
-            max_samples: int = DEFAULT_MAX_SAMPLES) -> None:
+    def arm(
+        self,
+        spec: TestSpec,
+        program_hash: str = "",
+        max_duration_s: Optional[float] = None,
+        max_samples: int = DEFAULT_MAX_SAMPLES,
+    ) -> None:
         """Record from now on and stop when the program's end is seen in the data.
 
         Opens the port if needed. ``max_duration_s`` defaults to 3 x the program's time at
@@ -181,9 +202,12 @@ class Capture:
         with self._lock:
             if self._state in (ARMED, CAPTURING) or self._arm_request is not None:
                 raise SensorError(Msg("a capture is already running"))
-            self._arm_request = dict(spec=spec, program_hash=program_hash,
-                                     max_duration_s=float(max_duration_s),
-                                     max_samples=int(max_samples))
+            self._arm_request = dict(
+                spec=spec,
+                program_hash=program_hash,
+                max_duration_s=float(max_duration_s),
+                max_samples=int(max_samples),
+            )
             self._stop_request = False
         self.open()
 
@@ -230,10 +254,16 @@ class Capture:
     def _status_locked(self) -> Dict[str, object]:
         live = self._live
         age = None if live.last_host_t is None else time.monotonic() - live.last_host_t
-        return {"state": self._state, "message": self._message, "port": self.config.port,
-                "port_open": self._port_open, "protocol": self.config.protocol,
-                "reading_mm": live.reading_mm, "noise_um": live.noise_um(),
-                "last_data_age_s": age}
+        return {
+            "state": self._state,
+            "message": self._message,
+            "port": self.config.port,
+            "port_open": self._port_open,
+            "protocol": self.config.protocol,
+            "reading_mm": live.reading_mm,
+            "noise_um": live.noise_um(),
+            "last_data_age_s": age,
+        }
 
     # ---- the capture thread ---------------------------------------------------------------
 
@@ -252,15 +282,20 @@ class Capture:
             return
         try:
             self.listener(kind, status)
-        except Exception:  # noqa: BLE001 - a listener's bug must not end the capture
+        except Exception:
             pass
 
     def _run(self) -> None:
         try:
             port = self._opener(self.config.port, self.config.baudrate)
-        except Exception as exc:  # noqa: BLE001 - SensorError, or an opener's own fault
-            message = exc.message if isinstance(exc, SensorError) else Msg(
-                "cannot open %(port)s: %(error)s", port=self.config.port, error=str(exc)[:200])
+        except Exception as exc:
+            message = (
+                exc.message
+                if isinstance(exc, SensorError)
+                else Msg(
+                    "cannot open %(port)s: %(error)s", port=self.config.port, error=str(exc)[:200]
+                )
+            )
             self._port_failed(message, None)
             self._exit()
             return
@@ -272,9 +307,14 @@ class Capture:
             while not self._closing:
                 try:
                     data = read_some(port)
-                except Exception as exc:  # noqa: BLE001 - SerialException, OSError, ...
-                    self._port_failed(Msg("the sensor was disconnected or the port failed: "
-                                          "%(error)s", error=str(exc)[:200]), parser)
+                except Exception as exc:
+                    self._port_failed(
+                        Msg(
+                            "the sensor was disconnected or the port failed: %(error)s",
+                            error=str(exc)[:200],
+                        ),
+                        parser,
+                    )
                     return
                 now = time.monotonic()
                 if not self._step(parser, data, now):
@@ -283,9 +323,14 @@ class Capture:
                     base = parser.seq if rate_lines is None else rate_lines
                     rate = (parser.seq - base) / (now - rate_from)
                     if rate > MAX_LINE_RATE:  # would hog the host's CPU
-                        self._port_failed(Msg("the sensor floods the port: %(rate)s lines/s "
-                                              "(at most %(max)s)", rate=f"{rate:.0f}",
-                                              max=MAX_LINE_RATE), parser)
+                        self._port_failed(
+                            Msg(
+                                "the sensor floods the port: %(rate)s lines/s (at most %(max)s)",
+                                rate=f"{rate:.0f}",
+                                max=MAX_LINE_RATE,
+                            ),
+                            parser,
+                        )
                         return
                     rate_from, rate_lines = now, parser.seq
                 if now >= next_tick:
@@ -295,13 +340,15 @@ class Capture:
             self._port_failed(None, parser)
         except SensorError as exc:
             self._port_failed(exc.message, parser)
-        except Exception as exc:  # noqa: BLE001 - never die silently
-            self._port_failed(Msg("internal error in the sensor capture: %(error)s",
-                                  error=repr(exc)[:200]), parser)
+        except Exception as exc:
+            self._port_failed(
+                Msg("internal error in the sensor capture: %(error)s", error=repr(exc)[:200]),
+                parser,
+            )
         finally:
             try:
                 port.close()
-            except Exception:  # noqa: BLE001
+            except Exception:
                 pass
             self._exit()
 
@@ -314,10 +361,13 @@ class Capture:
 
     def _publish(self, parser) -> None:
         rec = self._rec
-        snap = {"sensor": parser.info(), "diagnostics": parser.diagnostics.as_dict(),
-                "samples": len(rec.t) if rec else 0,
-                "elapsed_s": (time.monotonic() - rec.armed_host) if rec else None,
-                "runs_found": rec.runs_found if rec else 0}
+        snap = {
+            "sensor": parser.info(),
+            "diagnostics": parser.diagnostics.as_dict(),
+            "samples": len(rec.t) if rec else 0,
+            "elapsed_s": (time.monotonic() - rec.armed_host) if rec else None,
+            "runs_found": rec.runs_found if rec else 0,
+        }
         with self._lock:
             self._snapshot = snap
 
@@ -356,11 +406,21 @@ class Capture:
         elif now - rec.last_sample_host > cfg.no_data_timeout_s:
             self._end(parser, _no_data(parser, cfg.no_data_timeout_s))
         elif len(rec.t) > rec.max_samples:
-            self._end(parser, Msg("more than %(n)s samples: the sensor floods or the program's "
-                                  "end was not seen", n=rec.max_samples))
+            self._end(
+                parser,
+                Msg(
+                    "more than %(n)s samples: the sensor floods or the program's end was not seen",
+                    n=rec.max_samples,
+                ),
+            )
         elif now - rec.armed_host > rec.max_duration_s:
-            self._evaluate(parser, Msg("the end of the program was not seen within %(s)s s",
-                                       s=f"{rec.max_duration_s:g}"))
+            self._evaluate(
+                parser,
+                Msg(
+                    "the end of the program was not seen within %(s)s s",
+                    s=f"{rec.max_duration_s:g}",
+                ),
+            )
         elif now >= rec.next_check and samples:
             rec.next_check = now + self.tick_s
             self._check(parser, rec)
@@ -387,17 +447,29 @@ class Capture:
             self._end(parser, failure or Msg("no data"))
             return
         try:
-            trace, det = trace_from_stream(stream, rec.spec, rec.program_hash,
-                                           self.config.sample_rate_hz or None)
+            trace, det = trace_from_stream(
+                stream, rec.spec, rec.program_hash, self.config.sample_rate_hz or None
+            )
         except SensorError as exc:
-            reason = exc.message if failure is None else Msg(
-                "%(failure)s (%(reason)s)", failure=failure, reason=exc.message)
+            reason = (
+                exc.message
+                if failure is None
+                else Msg("%(failure)s (%(reason)s)", failure=failure, reason=exc.message)
+            )
             self._end(parser, reason, stream)
             return
-        runs = [{"direction": r.direction, "feed_in_s": r.t_in - det.t_ref,
-                 "feed_out_s": r.t_out - det.t_ref, "samples": r.i1 - r.i0} for r in det.runs]
-        self._finish(parser, CaptureResult(True, None, trace, stream, rec.spec,
-                                           rec.program_hash, runs=runs))
+        runs = [
+            {
+                "direction": r.direction,
+                "feed_in_s": r.t_in - det.t_ref,
+                "feed_out_s": r.t_out - det.t_ref,
+                "samples": r.i1 - r.i0,
+            }
+            for r in det.runs
+        ]
+        self._finish(
+            parser, CaptureResult(True, None, trace, stream, rec.spec, rec.program_hash, runs=runs)
+        )
 
     def _info(self, parser) -> Dict[str, str]:
         """The stream's metadata: the sensor's, and where it came from."""
@@ -408,13 +480,15 @@ class Capture:
             info["source"] = "SIMULATED " + info["source"]
         return info
 
-    def _end(self, parser, message: str, stream: Optional[RawStream] = None,
-             close: bool = False) -> None:
+    def _end(
+        self, parser, message: str, stream: Optional[RawStream] = None, close: bool = False
+    ) -> None:
         rec = self._rec
         if stream is None:
             stream = rec.stream(self._info(parser))
-        self._finish(parser, CaptureResult(False, message, None, stream, rec.spec,
-                                           rec.program_hash), close)
+        self._finish(
+            parser, CaptureResult(False, message, None, stream, rec.spec, rec.program_hash), close
+        )
 
     def _finish(self, parser, result: CaptureResult, close: bool = False) -> None:
         rec = self._rec
@@ -437,8 +511,9 @@ class Capture:
         if self._rec is None and arm is not None:  # armed, but the port never opened
             self._rec = _Recording(now=time.monotonic(), **arm)
         if self._rec is not None:
-            self._end(parser, message or Msg("the sensor port was closed during the capture"),
-                      close=True)
+            self._end(
+                parser, message or Msg("the sensor port was closed during the capture"), close=True
+            )
             return
         if message is None:
             self._set(IDLE, None, _port_open=False)
@@ -448,7 +523,12 @@ class Capture:
 
 def _no_data(parser, seconds: float) -> str:
     if getattr(parser, "waiting_for_header", 0):
-        return Msg("samples arrive but no %(name)s header line: the sensor must send its "
-                   "header at least every 5 s", name="KINCOMP-BALLBAR")
-    return Msg("no data from the sensor for %(s)s s: check the port, the baud rate and the "
-               "sensor's power", s=f"{seconds:g}")
+        return Msg(
+            "samples arrive but no %(name)s header line: the sensor must send its "
+            "header at least every 5 s",
+            name="KINCOMP-BALLBAR",
+        )
+    return Msg(
+        "no data from the sensor for %(s)s s: check the port, the baud rate and the sensor's power",
+        s=f"{seconds:g}",
+    )

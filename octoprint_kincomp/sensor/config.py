@@ -25,8 +25,20 @@ from .protocol_pattern import PatternParser, check_scale, compile_pattern
 from .protocol_plain import PlainParser
 
 PROTOCOLS = ("kincomp", "plain", "pattern")
-BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 250000, 460800, 500000, 921600,
-             1000000, 2000000)
+BAUDRATES = (
+    9600,
+    19200,
+    38400,
+    57600,
+    115200,
+    230400,
+    250000,
+    460800,
+    500000,
+    921600,
+    1000000,
+    2000000,
+)
 
 
 @dataclass
@@ -44,14 +56,19 @@ class SensorConfig:
     no_data_timeout_s: float = 10.0
 
     @staticmethod
-    def from_dict(d: Dict[str, Any]) -> "SensorConfig":
+    def from_dict(d: Dict[str, Any]) -> SensorConfig:
         if not isinstance(d, dict):
             raise SensorError(Msg("sensor settings must be an object"))
         known = set(SensorConfig.__dataclass_fields__)
         for key in d:
             if key not in known:
-                raise SensorError(Msg("unknown sensor setting (allowed: %(allowed)s)",
-                                      allowed=", ".join(sorted(known))), key)
+                raise SensorError(
+                    Msg(
+                        "unknown sensor setting (allowed: %(allowed)s)",
+                        allowed=", ".join(sorted(known)),
+                    ),
+                    key,
+                )
         cfg = SensorConfig(**d)
         cfg.validate()
         return cfg
@@ -64,30 +81,38 @@ class SensorConfig:
             raise SensorError(Msg("port must be a device path or pyserial URL"), "port")
         self.baudrate = _number(self.baudrate, "baudrate", 50, 10_000_000, integer=True)
         if self.protocol not in PROTOCOLS:
-            raise SensorError(Msg("protocol must be one of %(choices)s, got %(got)s",
-                                  choices=", ".join(PROTOCOLS), got=repr(self.protocol)),
-                              "protocol")
+            raise SensorError(
+                Msg(
+                    "protocol must be one of %(choices)s, got %(got)s",
+                    choices=", ".join(PROTOCOLS),
+                    got=repr(self.protocol),
+                ),
+                "protocol",
+            )
         self.convention()
         parse_range(self.range, "range")
         self.sample_rate_hz = _number(self.sample_rate_hz, "sample_rate_hz", 0.0, 100_000.0)
         if 0 < self.sample_rate_hz < 1.0:
-            raise SensorError(Msg("sample_rate_hz must be 0 (fit it) or at least 1"),
-                              "sample_rate_hz")
-        self.max_bad_lines = _number(self.max_bad_lines, "max_bad_lines", 0, 100_000,
-                                     integer=True)
-        self.no_data_timeout_s = _number(self.no_data_timeout_s, "no_data_timeout_s", 1.0,
-                                         600.0)
+            raise SensorError(
+                Msg("sample_rate_hz must be 0 (fit it) or at least 1"), "sample_rate_hz"
+            )
+        self.max_bad_lines = _number(self.max_bad_lines, "max_bad_lines", 0, 100_000, integer=True)
+        self.no_data_timeout_s = _number(self.no_data_timeout_s, "no_data_timeout_s", 1.0, 600.0)
         if self.protocol == "pattern":
             compile_pattern(self.pattern)
             self.scale = check_scale(self.scale)
 
     def convention(self) -> Convention:
-        return Convention(units=self.units,
-                          longer_positive=Convention.parse_positive(self.positive))
+        return Convention(
+            units=self.units, longer_positive=Convention.parse_positive(self.positive)
+        )
 
     def make_parser(self) -> Parser:
-        kw = dict(convention=self.convention(), range_raw=parse_range(self.range),
-                  diagnostics=Diagnostics(max_bad=self.max_bad_lines))
+        kw = dict(
+            convention=self.convention(),
+            range_raw=parse_range(self.range),
+            diagnostics=Diagnostics(max_bad=self.max_bad_lines),
+        )
         if self.protocol == "kincomp":
             return KinCompParser(diagnostics=kw["diagnostics"])
         if self.protocol == "plain":
@@ -103,7 +128,14 @@ def _number(value, field: str, lo: float, hi: float, integer: bool = False):
     except (TypeError, ValueError):
         v = math.nan
     if not (math.isfinite(v) and lo <= v <= hi) or (integer and v != int(v)):
-        raise SensorError(Msg("%(field)s must be a number within %(lo)s..%(hi)s, got %(got)s",
-                              field=field, lo=f"{lo:g}", hi=f"{hi:g}",
-                              got=repr(value)[:30]), field)
+        raise SensorError(
+            Msg(
+                "%(field)s must be a number within %(lo)s..%(hi)s, got %(got)s",
+                field=field,
+                lo=f"{lo:g}",
+                hi=f"{hi:g}",
+                got=repr(value)[:30],
+            ),
+            field,
+        )
     return int(v) if integer else v

@@ -24,8 +24,14 @@ class Convention:
 
     def __post_init__(self):
         if self.units not in UNITS:
-            raise SensorError(Msg("units must be one of %(choices)s, got %(got)s",
-                                  choices=", ".join(UNITS), got=repr(self.units)), "units")
+            raise SensorError(
+                Msg(
+                    "units must be one of %(choices)s, got %(got)s",
+                    choices=", ".join(UNITS),
+                    got=repr(self.units),
+                ),
+                "units",
+            )
 
     @property
     def factor(self) -> float:
@@ -40,6 +46,12 @@ class Convention:
         """``longer`` -> True, ``shorter`` -> False (what a positive reading means)."""
         t = str(text).strip().lower()
         if t not in POSITIVE:
-            raise SensorError(Msg("%(field)s must be 'longer' or 'shorter', got %(got)s",
-                                  field=field, got=repr(str(text)[:20])), field)
+            raise SensorError(
+                Msg(
+                    "%(field)s must be 'longer' or 'shorter', got %(got)s",
+                    field=field,
+                    got=repr(str(text)[:20]),
+                ),
+                field,
+            )
         return t == "longer"

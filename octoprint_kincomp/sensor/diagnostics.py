@@ -59,7 +59,7 @@ class Diagnostics:
     def reset(self) -> None:
         self.lines = 0
         self.samples = 0
-        self.counts: Dict[str, int] = {k: 0 for k in KINDS}
+        self.counts: Dict[str, int] = dict.fromkeys(KINDS, 0)
         self.examples: Dict[str, List[str]] = {k: [] for k in KINDS}
         self.notes: List[Msg] = []
         self._recent: deque = deque(maxlen=self.window)
@@ -97,21 +97,37 @@ class Diagnostics:
         (during a capture); without it only a burst of bad lines is fatal (live preview)."""
         burst = sum(self._recent)
         too_many = total_limit and self.bad_lines > self.max_bad
-        if not too_many and not (len(self._recent) >= min(self.window, 20)
-                                 and burst >= self.burst_fraction * len(self._recent)):
+        if not too_many and not (
+            len(self._recent) >= min(self.window, 20)
+            and burst >= self.burst_fraction * len(self._recent)
+        ):
             return None
         kind = self._worst()
         example = self.examples[kind][0] if self.examples[kind] else ""
         if too_many:
-            return Msg("too many bad lines from the sensor (%(bad)s of %(lines)s): %(reason)s, "
-                       "e.g. %(example)s", bad=self.bad_lines, lines=self.lines,
-                       reason=_REASONS[kind], example=repr(example))
-        return Msg("the sensor sends mostly bad lines (%(burst)s of the last %(n)s): "
-                   "%(reason)s, e.g. %(example)s", burst=burst, n=len(self._recent),
-                   reason=_REASONS[kind], example=repr(example))
+            return Msg(
+                "too many bad lines from the sensor (%(bad)s of %(lines)s): %(reason)s, "
+                "e.g. %(example)s",
+                bad=self.bad_lines,
+                lines=self.lines,
+                reason=_REASONS[kind],
+                example=repr(example),
+            )
+        return Msg(
+            "the sensor sends mostly bad lines (%(burst)s of the last %(n)s): "
+            "%(reason)s, e.g. %(example)s",
+            burst=burst,
+            n=len(self._recent),
+            reason=_REASONS[kind],
+            example=repr(example),
+        )
 
     def as_dict(self) -> Dict[str, object]:
-        return {"lines": self.lines, "samples": self.samples, "bad_lines": self.bad_lines,
-                "counts": {k: v for k, v in self.counts.items() if v},
-                "examples": {k: list(v) for k, v in self.examples.items() if v},
-                "notes": list(self.notes)}
+        return {
+            "lines": self.lines,
+            "samples": self.samples,
+            "bad_lines": self.bad_lines,
+            "counts": {k: v for k, v in self.counts.items() if v},
+            "examples": {k: list(v) for k, v in self.examples.items() if v},
+            "notes": list(self.notes),
+        }

@@ -48,19 +48,23 @@ class LiveView:
         if len(self._mm) < 5:
             return None
         k = min(n, len(self._mm))
-        tail = np.fromiter((self._mm[i] for i in range(len(self._mm) - k, len(self._mm))),
-                           dtype=float, count=k)
+        tail = np.fromiter(
+            (self._mm[i] for i in range(len(self._mm) - k, len(self._mm))), dtype=float, count=k
+        )
         return float(np.std(np.diff(tail)) / math.sqrt(2.0) * 1e3)
 
-    def chart(self, now: float, seconds: float = 10.0, max_points: int = 400
-              ) -> Dict[str, List[float]]:
+    def chart(
+        self, now: float, seconds: float = 10.0, max_points: int = 400
+    ) -> Dict[str, List[float]]:
         """The last ``seconds`` as {"t": s before now (<= 0), "mm": readings}, thinned."""
         ts = list(self._t)
         lo = np.searchsorted(np.asarray(ts), now - seconds) if ts else 0
         ts, mm = ts[lo:], list(self._mm)[lo:]
         step = max(1, int(math.ceil(len(ts) / max_points)))
-        return {"t": [round(t - now, 4) for t in ts[::step]],
-                "mm": [round(v, 6) for v in mm[::step]]}
+        return {
+            "t": [round(t - now, 4) for t in ts[::step]],
+            "mm": [round(v, 6) for v in mm[::step]],
+        }
 
 
 def range_mm(sensor: Dict[str, str]) -> Optional[Tuple[float, float]]:
@@ -85,9 +89,14 @@ def bar_check(status: Dict[str, object]) -> Dict[str, object]:
     reading, noise = status.get("reading_mm"), status.get("noise_um")
     data = age is not None and age <= FRESH_S and status.get("port_open", False)
     rng = range_mm(status.get("sensor") or {})
-    out: Dict[str, object] = {"data": bool(data), "steady": None, "in_range": None,
-                              "range_mm": list(rng) if rng else None, "margin_mm": None,
-                              "steady_max_um": STEADY_UM}
+    out: Dict[str, object] = {
+        "data": bool(data),
+        "steady": None,
+        "in_range": None,
+        "range_mm": list(rng) if rng else None,
+        "margin_mm": None,
+        "steady_max_um": STEADY_UM,
+    }
     if not data or reading is None:
         return out
     if noise is not None:

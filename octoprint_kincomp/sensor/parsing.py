@@ -57,8 +57,14 @@ def parse_range(text, field: str = "range") -> Optional[Tuple[float, float]]:
         parts = text.split(",") if isinstance(text, str) else list(text)
         lo, hi = (float(v) for v in parts)
     except (TypeError, ValueError):
-        raise SensorError(Msg("%(field)s must be two numbers 'low,high', got %(got)s",
-                              field=field, got=repr(str(text)[:40])), field) from None
+        raise SensorError(
+            Msg(
+                "%(field)s must be two numbers 'low,high', got %(got)s",
+                field=field,
+                got=repr(str(text)[:40]),
+            ),
+            field,
+        ) from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise SensorError(Msg("%(field)s must be finite with low < high", field=field), field)
     return lo, hi
@@ -83,9 +89,13 @@ class Parser:
     name = ""
     device_clock = False  # True: Sample.t is the device's clock, else host arrival time
 
-    def __init__(self, convention: Convention = Convention(),
-                 range_raw: Optional[Tuple[float, float]] = None,
-                 diagnostics: Optional[Diagnostics] = None, max_line: int = DEFAULT_MAX_LINE):
+    def __init__(
+        self,
+        convention: Convention = Convention(),
+        range_raw: Optional[Tuple[float, float]] = None,
+        diagnostics: Optional[Diagnostics] = None,
+        max_line: int = DEFAULT_MAX_LINE,
+    ):
         self.convention = convention
         self.range_raw = range_raw  # in the units the sensor sends, before the sign
         self.diagnostics = diagnostics or Diagnostics()
@@ -138,9 +148,12 @@ class Parser:
 
     def info(self) -> Dict[str, str]:
         """Metadata for the trace: protocol, units, sign, range and what the sensor said."""
-        info = {"sensor_protocol": self.name, "sensor_units": self.convention.units,
-                "sensor_positive": "longer" if self.convention.longer_positive else "shorter",
-                "timing": "device clock" if self.device_clock else "host arrival"}
+        info = {
+            "sensor_protocol": self.name,
+            "sensor_units": self.convention.units,
+            "sensor_positive": "longer" if self.convention.longer_positive else "shorter",
+            "timing": "device clock" if self.device_clock else "host arrival",
+        }
         if self.range_raw is not None:
             info["sensor_range"] = f"{self.range_raw[0]:g},{self.range_raw[1]:g}"
         info.update(self.meta)

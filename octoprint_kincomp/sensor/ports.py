@@ -27,11 +27,14 @@ def list_ports() -> List[Dict[str, str]]:
     """The serial ports the system knows: [{"device", "description", "hwid"}]."""
     try:
         from serial.tools import list_ports as lp
+
         found = lp.comports()
-    except Exception:  # noqa: BLE001 - a broken sysfs entry must not break the settings page
+    except Exception:
         return []
-    return [{"device": p.device, "description": p.description or "", "hwid": p.hwid or ""}
-            for p in sorted(found, key=lambda p: p.device)]
+    return [
+        {"device": p.device, "description": p.description or "", "hwid": p.hwid or ""}
+        for p in sorted(found, key=lambda p: p.device)
+    ]
 
 
 def open_error(port: str, exc: BaseException) -> SensorError:
@@ -41,19 +44,26 @@ def open_error(port: str, exc: BaseException) -> SensorError:
     if code is None and isinstance(exc.__context__, OSError):
         code = exc.__context__.errno
     if code in (errno.ENOENT, errno.ENODEV, errno.ENXIO) or "No such file" in text:
-        msg = Msg("port %(port)s does not exist: is the sensor plugged in? (see the list of "
-                  "ports)", port=port)
+        msg = Msg(
+            "port %(port)s does not exist: is the sensor plugged in? (see the list of ports)",
+            port=port,
+        )
     elif code in (errno.EACCES, errno.EPERM) or "ermission denied" in text:
-        msg = Msg("no permission to open %(port)s: add the user that runs OctoPrint to the "
-                  "'dialout' group (then log in again)", port=port)
+        msg = Msg(
+            "no permission to open %(port)s: add the user that runs OctoPrint to the "
+            "'dialout' group (then log in again)",
+            port=port,
+        )
     elif code in (errno.EBUSY, errno.EAGAIN) or "exclusively lock" in text:
-        msg = Msg("port %(port)s is busy: another program (or OctoPrint's printer connection) "
-                  "has it open", port=port)
+        msg = Msg(
+            "port %(port)s is busy: another program (or OctoPrint's printer connection) "
+            "has it open",
+            port=port,
+        )
     elif code == errno.ECONNREFUSED or "refused" in text:
         msg = Msg("nothing accepts connections at %(port)s", port=port)
     elif isinstance(exc, ValueError):
-        msg = Msg("%(port)s is not a serial port or pyserial URL: %(error)s", port=port,
-                  error=text)
+        msg = Msg("%(port)s is not a serial port or pyserial URL: %(error)s", port=port, error=text)
     else:
         msg = Msg("cannot open %(port)s: %(error)s", port=port, error=text)
     return SensorError(msg, "port")
@@ -71,8 +81,7 @@ def open_port(port: str, baudrate: int):
         raise SensorError(Msg("no sensor port is set"), "port")
     timeout = URL_TIMEOUT_S if _network(port) else READ_TIMEOUT_S
     try:
-        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout,
-                                     exclusive=True)
+        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout, exclusive=True)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise open_error(port, exc) from None
 

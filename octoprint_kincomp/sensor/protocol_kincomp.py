@@ -96,9 +96,15 @@ class KinCompParser(Parser):
         if not m:
             raise BadLine("header")
         if int(m.group(1)) != VERSION:
-            raise SensorError(Msg(
-                "the sensor speaks %(name)s version %(version)s; this KinComp reads version "
-                "%(supported)s", name=NAME, version=m.group(1), supported=VERSION))
+            raise SensorError(
+                Msg(
+                    "the sensor speaks %(name)s version %(version)s; this KinComp reads version "
+                    "%(supported)s",
+                    name=NAME,
+                    version=m.group(1),
+                    supported=VERSION,
+                )
+            )
         self.version = m.group(1) + (f".{m.group(2)}" if m.group(2) else "")
         if self.header_seen and self._last_raw is not None:
             self._restart_ok = True  # a repeated header may precede a restarted clock
@@ -138,14 +144,22 @@ class KinCompParser(Parser):
         if value == old:
             return
         if self._last_raw is not None:
-            raise SensorError(Msg("the sensor changed '%(key)s' from %(old)s to %(new)s in the "
-                                  "middle of the stream", key=key, old=repr(old),
-                                  new=repr(value)), key)
+            raise SensorError(
+                Msg(
+                    "the sensor changed '%(key)s' from %(old)s to %(new)s in the "
+                    "middle of the stream",
+                    key=key,
+                    old=repr(old),
+                    new=repr(value),
+                ),
+                key,
+            )
         self._declared[key] = value
         units = self._declared.get("units", "mm")
         positive = Convention.parse_positive(self._declared.get("positive", "longer"))
-        self.convention = Convention(units=units if units in UNITS else "mm",
-                                     longer_positive=positive)
+        self.convention = Convention(
+            units=units if units in UNITS else "mm", longer_positive=positive
+        )
         self.range_raw = parse_range(self._declared.get("range"))
 
     def _clock(self, raw: int) -> None:
@@ -164,16 +178,21 @@ class KinCompParser(Parser):
             if not self._restart_ok:
                 raise BadLine("clock")
             self.restarts += 1
-            self.diagnostics.note(Msg("the sensor restarted (its clock began again); the time "
-                                      "across the restart is estimated"))
+            self.diagnostics.note(
+                Msg(
+                    "the sensor restarted (its clock began again); the time "
+                    "across the restart is estimated"
+                )
+            )
             delta = int(1e6 / self._rate) if self._rate else 1000
         elif delta > MAX_GAP_US:
             jumped = self._jump_raw
             self._jump_raw = raw
             if jumped is None or not 0 <= (raw - jumped) % US32 <= MAX_GAP_US:
                 raise BadLine("clock")
-            self.diagnostics.note(Msg("the device clock jumped forward by %(s)s s",
-                                      s=f"{delta * 1e-6:.1f}"))
+            self.diagnostics.note(
+                Msg("the device clock jumped forward by %(s)s s", s=f"{delta * 1e-6:.1f}")
+            )
         self._jump_raw = None
         self._restart_ok = False
         self._us += delta

@@ -33,16 +33,20 @@ def compile_pattern(pattern: str) -> Pattern:
     if not isinstance(pattern, str) or not pattern.strip():
         raise SensorError(Msg("a pattern is needed for the pattern protocol"), "pattern")
     if len(pattern) > MAX_PATTERN:
-        raise SensorError(Msg("the pattern is longer than %(n)s characters", n=MAX_PATTERN),
-                          "pattern")
+        raise SensorError(
+            Msg("the pattern is longer than %(n)s characters", n=MAX_PATTERN), "pattern"
+        )
     try:
         rx = re.compile(pattern)
     except re.error as exc:
-        raise SensorError(Msg("the pattern is not a valid regular expression: %(error)s",
-                              error=str(exc)), "pattern") from None
+        raise SensorError(
+            Msg("the pattern is not a valid regular expression: %(error)s", error=str(exc)),
+            "pattern",
+        ) from None
     if "value" not in rx.groupindex:
-        raise SensorError(Msg("the pattern needs a named group (?P<value>...) around the "
-                              "number"), "pattern")
+        raise SensorError(
+            Msg("the pattern needs a named group (?P<value>...) around the number"), "pattern"
+        )
     return rx
 
 
@@ -58,12 +62,18 @@ def check_scale(scale) -> float:
             raise TypeError(scale)
         value = float(scale)
     except (TypeError, ValueError):
-        raise SensorError(Msg("scale must be a number, got %(got)s", got=repr(scale)[:30]),
-                          "scale") from None
+        raise SensorError(
+            Msg("scale must be a number, got %(got)s", got=repr(scale)[:30]), "scale"
+        ) from None
     if not math.isfinite(value) or not 1.0 / MAX_SCALE <= abs(value) <= MAX_SCALE:
-        raise SensorError(Msg("scale must be finite, not zero, and within %(lo)s..%(hi)s "
-                              "(either sign)", lo=f"{1.0 / MAX_SCALE:g}",
-                              hi=f"{MAX_SCALE:g}"), "scale")
+        raise SensorError(
+            Msg(
+                "scale must be finite, not zero, and within %(lo)s..%(hi)s (either sign)",
+                lo=f"{1.0 / MAX_SCALE:g}",
+                hi=f"{MAX_SCALE:g}",
+            ),
+            "scale",
+        )
     return value
 
 

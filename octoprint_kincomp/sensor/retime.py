@@ -87,7 +87,9 @@ def retime(seq, t_host, rate_hz: Optional[float] = None) -> Tuple[np.ndarray, Di
         out = np.maximum.accumulate(slope * n + env)
         res = t - out
         method += ", local envelope (rate not steady)"
-    info = {"timing_method": method,
-            "timing_rate_hz": (1.0 / slope) if slope > 0 else None,
-            "timing_jitter_ms": float(np.percentile(np.abs(res), 95)) * 1e3}
+    info = {
+        "timing_method": method,
+        "timing_rate_hz": (1.0 / slope) if slope > 0 else None,
+        "timing_jitter_ms": float(np.percentile(np.abs(res), 95)) * 1e3,
+    }
     return out, info

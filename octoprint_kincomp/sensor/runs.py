@@ -92,8 +92,10 @@ class _Shape:
         self.tol = max(0.05 * self.d, 6.0 * sigma)  # a dwell stays within this, mm
         self.pre = max(0.5 * spec.dwell_s, 3.0 * self.dt)  # still time needed before
         self.post = max(0.75 * spec.dwell_s, 3.0 * self.dt)  # and after a run
-        self.arc_s = {dd: math.radians(abs(run_angles(spec, dd)[1])) * spec.radius_mm / v
-                      for dd in ("ccw", "cw")}
+        self.arc_s = {
+            dd: math.radians(abs(run_angles(spec, dd)[1])) * spec.radius_mm / v
+            for dd in ("ccw", "cw")
+        }
 
 
 def _level(t, r, t0, t1) -> float:
@@ -127,8 +129,15 @@ def find_steps(t: np.ndarray, r: np.ndarray, shape: _Shape) -> List[Event]:
                 last_end = float(t[b - 1])  # the same step, split by noise
                 continue
             last_end = float(t[b - 1])
-            events.append(Event(rising, a, tm, _level(t, r, tm - L - W, tm - L),
-                                _level(t, r, tm + L, tm + L + W)))
+            events.append(
+                Event(
+                    rising,
+                    a,
+                    tm,
+                    _level(t, r, tm - L - W, tm - L),
+                    _level(t, r, tm + L, tm + L + W),
+                )
+            )
     events.sort(key=lambda e: e.t)
     return events
 
@@ -153,13 +162,15 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
     k = 0
     while k < len(events) and len(chain) < len(directions):
         e = events[k]
-        if not e.rising and _step_ok(e, shape) and _still(
-                t, r, e.t - shape.L - shape.pre, e.t - shape.L, e.before, shape.tol):
+        if (
+            not e.rising
+            and _step_ok(e, shape)
+            and _still(t, r, e.t - shape.L - shape.pre, e.t - shape.L, e.before, shape.tol)
+        ):
             det.started = True
             # the gap since the last run is still (at a slow feed the steps' windows L may
             # cover most of a short dwell: then the window checked just above stands for it)
-            gap_from = min(chain[-1].t_out + shape.L, e.t - shape.L - shape.pre) if chain \
-                else 0.0
+            gap_from = min(chain[-1].t_out + shape.L, e.t - shape.L - shape.pre) if chain else 0.0
             if chain and not _still(t, r, gap_from, e.t - shape.L, e.before, shape.tol):
                 chain = []  # something happened between the runs: start again here
             if k + 1 == len(events):
@@ -167,8 +178,11 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
             f = events[k + 1]
             direction = directions[len(chain)]
             pending = k + 2 == len(events) and math.isnan(f.after)  # its level comes next
-            if f.rising and (pending or _step_ok(f, shape)) and \
-                    f.t - e.t >= ARC_MIN * shape.arc_s[direction]:
+            if (
+                f.rising
+                and (pending or _step_ok(f, shape))
+                and f.t - e.t >= ARC_MIN * shape.arc_s[direction]
+            ):
                 chain.append(RunSegment(direction, 0, 0, e.t, f.t, e.before, e.step, f.step))
                 best = chain if len(chain) >= len(best) else best
                 k += 2
@@ -193,13 +207,23 @@ def detect_runs(t, r, spec: TestSpec) -> Detection:
 
 def _why(events, chain, directions, shape) -> str:
     if not events:
-        return Msg("no step of about the feed-in (%(d)s mm) in the data: did the test program "
-                   "run with the bar mounted?", d=f"{shape.d:g}")
+        return Msg(
+            "no step of about the feed-in (%(d)s mm) in the data: did the test program "
+            "run with the bar mounted?",
+            d=f"{shape.d:g}",
+        )
     if not chain:
-        return Msg("no run found: the data has no still dwell, feed-in of %(d)s mm, arc and "
-                   "feed-out in that order", d=f"{shape.d:g}")
-    return Msg("%(found)s of %(n)s runs found (%(directions)s)", found=len(chain),
-               n=len(directions), directions=", ".join(directions))
+        return Msg(
+            "no run found: the data has no still dwell, feed-in of %(d)s mm, arc and "
+            "feed-out in that order",
+            d=f"{shape.d:g}",
+        )
+    return Msg(
+        "%(found)s of %(n)s runs found (%(directions)s)",
+        found=len(chain),
+        n=len(directions),
+        directions=", ".join(directions),
+    )
 
 
 def _cut(t, r, chain: List[RunSegment], shape: _Shape, end_level: float) -> None:
@@ -228,21 +252,29 @@ def explain_failure(t, r, spec: TestSpec, detection: Detection) -> str:
     if detection.runs or len(t) < 10:
         return detection.reason
     if detect_runs(t, -r, spec).runs:
-        return Msg("the readings look inverted (the feed-in made the bar read longer): check "
-                   "the sign setting ('positive')")
+        return Msg(
+            "the readings look inverted (the feed-in made the bar read longer): check "
+            "the sign setting ('positive')"
+        )
     for factor in (1e-3, 1e3, 25.4, 1 / 25.4):  # um, m, inch read as mm; mm read as inch
         for sign in (1.0, -1.0):
             if detect_runs(t, sign * factor * r, spec).runs:
-                return Msg("the feed-in steps are %(factor)s times the feed-in of %(d)s mm: "
-                           "check the units setting", factor=f"{1 / factor:.4g}",
-                           d=f"{spec.feed_in_mm:g}")
+                return Msg(
+                    "the feed-in steps are %(factor)s times the feed-in of %(d)s mm: "
+                    "check the units setting",
+                    factor=f"{1 / factor:.4g}",
+                    d=f"{spec.feed_in_mm:g}",
+                )
     return detection.reason
 
 
 def program_seconds(spec: TestSpec) -> float:
     """How long the runs of ``spec`` take at the programmed feed (s, without travel)."""
     v = spec.feed_mm_min / 60.0
-    per_run = {d: 2.0 * spec.dwell_s + 2.0 * spec.feed_in_mm / v
-               + math.radians(abs(run_angles(spec, d)[1])) * spec.radius_mm / v
-               for d in ("ccw", "cw")}
+    per_run = {
+        d: 2.0 * spec.dwell_s
+        + 2.0 * spec.feed_in_mm / v
+        + math.radians(abs(run_angles(spec, d)[1])) * spec.radius_mm / v
+        for d in ("ccw", "cw")
+    }
     return sum(per_run[d] for d in spec.directions)

@@ -84,8 +84,9 @@ class RawStream:
 def parse_raw_stream(text: str) -> RawStream:
     """Read :meth:`RawStream.to_text` back; raises TraceError naming the line at fault."""
     if len(text) > MAX_RAW_BYTES:
-        raise TraceError(Msg("raw stream is larger than %(mb)s MB",
-                             mb=MAX_RAW_BYTES // (1024 * 1024)))
+        raise TraceError(
+            Msg("raw stream is larger than %(mb)s MB", mb=MAX_RAW_BYTES // (1024 * 1024))
+        )
     meta: Dict[str, str] = {}
     rows = []
     header = False
@@ -100,37 +101,44 @@ def parse_raw_stream(text: str) -> RawStream:
             continue
         if not header:
             if line.replace(" ", "") != RAW_HEADER:
-                raise TraceError(Msg("line %(line)s: expected the header '%(header)s'",
-                                     line=lineno, header=RAW_HEADER))
+                raise TraceError(
+                    Msg(
+                        "line %(line)s: expected the header '%(header)s'",
+                        line=lineno,
+                        header=RAW_HEADER,
+                    )
+                )
             header = True
             continue
         parts = line.split(",")
         try:
             row = (float(parts[0]), float(parts[1]), int(parts[2]))
         except (ValueError, IndexError):
-            raise TraceError(Msg("line %(line)s: expected time_s,reading_mm,line",
-                                 line=lineno)) from None
+            raise TraceError(
+                Msg("line %(line)s: expected time_s,reading_mm,line", line=lineno)
+            ) from None
         if not (math.isfinite(row[0]) and math.isfinite(row[1])):
             raise TraceError(Msg("line %(line)s: NaN or infinite value", line=lineno))
         rows.append(row)
     if not header:
-        raise TraceError(Msg("not a ballbar raw stream (no '%(header)s' line)",
-                             header=RAW_HEADER))
+        raise TraceError(Msg("not a ballbar raw stream (no '%(header)s' line)", header=RAW_HEADER))
     arr = np.array(rows, dtype=float).reshape(-1, 3)
     meta.pop("kind", None)
     return RawStream(meta, arr[:, 0], arr[:, 1], arr[:, 2].astype(np.int64))
 
 
-def stream_times(stream: RawStream, rate_hz: Optional[float] = None
-                 ) -> Tuple[np.ndarray, Dict[str, object]]:
+def stream_times(
+    stream: RawStream, rate_hz: Optional[float] = None
+) -> Tuple[np.ndarray, Dict[str, object]]:
     """The sample times to use (s): the device's own, or host arrival re-timed."""
     if not stream.host_timed:
         return stream.t, {}
     return retime(stream.line, stream.t, rate_hz)
 
 
-def trace_from_stream(stream: RawStream, spec: TestSpec, program_hash: str = "",
-                      rate_hz: Optional[float] = None) -> Tuple[NativeTrace, Detection]:
+def trace_from_stream(
+    stream: RawStream, spec: TestSpec, program_hash: str = "", rate_hz: Optional[float] = None
+) -> Tuple[NativeTrace, Detection]:
     """The native trace of the runs in ``stream``; SensorError saying why if they are not
     all there. ``rate_hz``: the device's declared rate for re-timing (else fitted)."""
     t, timing = stream_times(stream, rate_hz)
@@ -141,8 +149,10 @@ def trace_from_stream(stream: RawStream, spec: TestSpec, program_hash: str = "",
     t_ref = det.t_ref = float(t[det.runs[0].i0])
     rows = []
     for run in det.runs:
-        rows.extend((run.direction, tt - t_ref, rr) for tt, rr in
-                    zip(t[run.i0:run.i1].tolist(), r[run.i0:run.i1].tolist()))
+        rows.extend(
+            (run.direction, tt - t_ref, rr)
+            for tt, rr in zip(t[run.i0 : run.i1].tolist(), r[run.i0 : run.i1].tolist())
+        )
     n = det.runs[-1].i1 - det.runs[0].i0
     span = float(t[det.runs[-1].i1 - 1] - t_ref)
     meta = dict(spec.metadata())
@@ -151,8 +161,6 @@ def trace_from_stream(stream: RawStream, spec: TestSpec, program_hash: str = "",
     if span > 0:
         meta["sample_rate_hz"] = f"{(n - 1) / span:.6g}"
     meta["program_hash"] = program_hash
-    meta.update({f"run_{run.direction}_feed_in_s": f"{run.t_in - t_ref:.4f}"
-                 for run in det.runs})
-    meta.update({f"run_{run.direction}_feed_out_s": f"{run.t_out - t_ref:.4f}"
-                 for run in det.runs})
+    meta.update({f"run_{run.direction}_feed_in_s": f"{run.t_in - t_ref:.4f}" for run in det.runs})
+    meta.update({f"run_{run.direction}_feed_out_s": f"{run.t_out - t_ref:.4f}" for run in det.runs})
     return NativeTrace(meta=meta, rows=rows), det

@@ -36,18 +36,27 @@ from ..ballbar.formats import NativeTrace
 from ..ballbar.program import TestSpec
 from ..ballbar.simulator import Truth, simulate_program
 from .convention import UNITS
-from .protocol_kincomp import NAME, VERSION, US32
+from .protocol_kincomp import NAME, US32, VERSION
 
 MAX_PENDING = 1 << 18  # bytes held for a slow reader; older whole lines are dropped
 TICK_S = 0.005
 
 
 class VirtualSensor:
-    def __init__(self, truth: Optional[Truth] = None, transport: str = "pty",
-                 protocol: str = "kincomp", speedup: float = 1.0,
-                 idle_mm: float = 1.0, clock_start_us: int = 0, header_every_s: float = 2.0,
-                 units: str = "mm", longer_positive: bool = True, seed: int = 7,
-                 range_mm: Optional[Sequence[float]] = None):
+    def __init__(
+        self,
+        truth: Optional[Truth] = None,
+        transport: str = "pty",
+        protocol: str = "kincomp",
+        speedup: float = 1.0,
+        idle_mm: float = 1.0,
+        clock_start_us: int = 0,
+        header_every_s: float = 2.0,
+        units: str = "mm",
+        longer_positive: bool = True,
+        seed: int = 7,
+        range_mm: Optional[Sequence[float]] = None,
+    ):
         if transport not in ("pty", "tcp") or protocol not in ("kincomp", "plain"):
             raise ValueError("transport is 'pty' or 'tcp', protocol 'kincomp' or 'plain'")
         self.truth = truth or demo_truth()
@@ -74,7 +83,9 @@ class VirtualSensor:
         self.url = ""
         self.sent_lines = 0
         self.dropped_bytes = 0
-        self.program_end: Optional[float] = None  # host time when the program's last sample goes out
+        self.program_end: Optional[float] = (
+            None  # host time when the program's last sample goes out
+        )
 
     # ---- transport ------------------------------------------------------------------------
 
@@ -94,8 +105,9 @@ class VirtualSensor:
             self.url = "socket://127.0.0.1:%d" % self._server.getsockname()[1]
         self._epoch = time.monotonic()
         self._running = True
-        self._thread = threading.Thread(target=self._loop, name="kincomp-virtual-ballbar",
-                                        daemon=True)
+        self._thread = threading.Thread(
+            target=self._loop, name="kincomp-virtual-ballbar", daemon=True
+        )
         self._thread.start()
         return self.url
 
@@ -170,8 +182,13 @@ class VirtualSensor:
 
     # ---- the program ----------------------------------------------------------------------
 
-    def play(self, lines: Sequence[str], start_time: Optional[float] = None,
-             spec: Optional[TestSpec] = None, program_hash: str = "") -> NativeTrace:
+    def play(
+        self,
+        lines: Sequence[str],
+        start_time: Optional[float] = None,
+        spec: Optional[TestSpec] = None,
+        program_hash: str = "",
+    ) -> NativeTrace:
         """Simulate the printer executing ``lines`` from ``start_time`` (host monotonic s;
         default now) and stream the bar's readings at their times. Runs the simulator in the
         caller's thread (about a second); returns the simulated trace (the offline stream).
@@ -205,11 +222,15 @@ class VirtualSensor:
         return float(held + (self._rng.normal(0.0, noise) if noise else 0.0))
 
     def header(self) -> List[str]:
-        return [f"{NAME} {VERSION}", "# sensor: KinComp virtual ballbar (SIMULATED)",
-                f"# units: {self.units}",
-                f"# positive: {'longer' if self.longer_positive else 'shorter'}",
-                f"# sample_rate_hz: {self.rate:g}", "# resolution_um: 0.001",
-                "# simulated: true"] + self._range_line()
+        return [
+            f"{NAME} {VERSION}",
+            "# sensor: KinComp virtual ballbar (SIMULATED)",
+            f"# units: {self.units}",
+            f"# positive: {'longer' if self.longer_positive else 'shorter'}",
+            f"# sample_rate_hz: {self.rate:g}",
+            "# resolution_um: 0.001",
+            "# simulated: true",
+        ] + self._range_line()
 
     def _range_line(self) -> List[str]:
         if self.range_mm is None:

@@ -34,9 +34,12 @@ SETTINGS_ONLY = "settingsonly"
 # a test user of OctoPrint's read-only group (status, file list: may ask for dry runs)
 READER = "reader"
 # `octoprint user add` flags of the users a basedir can get
-USER_FLAGS = {ADMIN: ["--admin"], VIEWER: [],
-              SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"],
-              READER: ["-g", "readonly"]}
+USER_FLAGS = {
+    ADMIN: ["--admin"],
+    VIEWER: [],
+    SETTINGS_ONLY: ["-p", "SETTINGS", "-p", "SETTINGS_READ", "-p", "STATUS"],
+    READER: ["-g", "readonly"],
+}
 SERVER_OUT = "server.out"  # OctoPrint's own output (stdout and stderr), in the basedir
 
 
@@ -55,11 +58,17 @@ def _octoprint_cmd(python: Optional[str] = None) -> list:
     return [python, "-m", "octoprint"]
 
 
-def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
-            throttle: float = 0.0, password: Optional[str] = None,
-            extra_config: Optional[Dict[str, Any]] = None,
-            users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None,
-            python: Optional[str] = None) -> Dict[str, str]:
+def prepare(
+    basedir: str,
+    port: int,
+    kincomp: Optional[Dict[str, Any]] = None,
+    throttle: float = 0.0,
+    password: Optional[str] = None,
+    extra_config: Optional[Dict[str, Any]] = None,
+    users: Sequence[str] = (ADMIN, VIEWER),
+    demo: Optional[bool] = None,
+    python: Optional[str] = None,
+) -> Dict[str, str]:
     """Create (or refresh) a basedir; returns the logins {user: (password, apikey)}.
 
     ``kincomp`` replaces KinComp's stored settings (a fresh test server); ``demo`` only
@@ -71,19 +80,31 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
         with open(cfg_path) as f:
             config = yaml.safe_load(f) or {}
     server = config.setdefault("server", {})
-    server.update({"host": "127.0.0.1", "port": port, "firstRun": False,
-                   "onlineCheck": {"enabled": False}, "pluginBlacklist": {"enabled": False},
-                   "seenWizards": {"kincomp": 1, "corewizard": 4, "backup": None,
-                                   "tracking": None}})
+    server.update(
+        {
+            "host": "127.0.0.1",
+            "port": port,
+            "firstRun": False,
+            "onlineCheck": {"enabled": False},
+            "pluginBlacklist": {"enabled": False},
+            "seenWizards": {"kincomp": 1, "corewizard": 4, "backup": None, "tracking": None},
+        }
+    )
     plugins = config.setdefault("plugins", {})
-    plugins.setdefault("virtual_printer", {}).update(
-        {"enabled": True, "throttle": throttle})
+    plugins.setdefault("virtual_printer", {}).update({"enabled": True, "throttle": throttle})
     plugins["tracking"] = {"enabled": False}
     plugins["errortracking"] = {"enabled": False}
     # offline machine: no update checks, feeds or health checks that need the internet;
     # no achievement pop-ups covering the page in screenshots
-    plugins["_disabled"] = ["announcements", "softwareupdate", "health_check", "tracking",
-                            "errortracking", "pluginmanager", "achievements"]
+    plugins["_disabled"] = [
+        "announcements",
+        "softwareupdate",
+        "health_check",
+        "tracking",
+        "errortracking",
+        "pluginmanager",
+        "achievements",
+    ]
     if kincomp is not None:
         plugins["kincomp"] = kincomp
     if demo is not None:
@@ -108,8 +129,11 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
         if user in logins:
             continue
         pw = password if (password and user == ADMIN) else secrets.token_urlsafe(12)
-        cmd = _octoprint_cmd(python) + ["--basedir", basedir, "user", "add", user,
-                                  "--password", pw] + flags
+        cmd = (
+            _octoprint_cmd(python)
+            + ["--basedir", basedir, "user", "add", user, "--password", pw]
+            + flags
+        )
         subprocess.run(cmd, check=True, capture_output=True, env=env)
         logins[user] = {"password": pw, "apikey": secrets.token_hex(16).upper()}
     users_path = os.path.join(basedir, "users.yaml")
@@ -126,8 +150,12 @@ def prepare(basedir: str, port: int, kincomp: Optional[Dict[str, Any]] = None,
     return logins
 
 
-def request_body(headers: Dict[str, str], body: Any = None, raw: Optional[bytes] = None,
-                 content_type: Optional[str] = None) -> Optional[bytes]:
+def request_body(
+    headers: Dict[str, str],
+    body: Any = None,
+    raw: Optional[bytes] = None,
+    content_type: Optional[str] = None,
+) -> Optional[bytes]:
     """The bytes to send: ``body`` as JSON, else ``raw``; sets Content-Type in ``headers``."""
     if body is not None:
         headers["Content-Type"] = "application/json"
@@ -140,16 +168,30 @@ def request_body(headers: Dict[str, str], body: Any = None, raw: Optional[bytes]
 class DevServer:
     """``octoprint serve`` on a prepared basedir (127.0.0.1), stopped by ``stop()``."""
 
-    def __init__(self, basedir: str, port: Optional[int] = None,
-                 kincomp: Optional[Dict[str, Any]] = None, throttle: float = 0.0,
-                 extra_config: Optional[Dict[str, Any]] = None,
-                 users: Sequence[str] = (ADMIN, VIEWER), demo: Optional[bool] = None,
-                 python: Optional[str] = None):
+    def __init__(
+        self,
+        basedir: str,
+        port: Optional[int] = None,
+        kincomp: Optional[Dict[str, Any]] = None,
+        throttle: float = 0.0,
+        extra_config: Optional[Dict[str, Any]] = None,
+        users: Sequence[str] = (ADMIN, VIEWER),
+        demo: Optional[bool] = None,
+        python: Optional[str] = None,
+    ):
         self.basedir = basedir
         self.port = port or free_port()
         self.python = python  # None: this environment's OctoPrint
-        self.logins = prepare(basedir, self.port, kincomp, throttle,
-                              extra_config=extra_config, users=users, demo=demo, python=python)
+        self.logins = prepare(
+            basedir,
+            self.port,
+            kincomp,
+            throttle,
+            extra_config=extra_config,
+            users=users,
+            demo=demo,
+            python=python,
+        )
         self.proc: Optional[subprocess.Popen] = None
         self.url = f"http://127.0.0.1:{self.port}"
 
@@ -157,30 +199,38 @@ class DevServer:
     def admin_key(self) -> str:
         return self.logins[ADMIN]["apikey"]
 
-    def start(self, timeout: float = 120.0, stdout=None) -> "DevServer":
+    def start(self, timeout: float = 120.0, stdout=None) -> DevServer:
         home = os.path.join(self.basedir, "home")
         tmp = os.path.join(self.basedir, "tmp")
         os.makedirs(home, exist_ok=True)
         os.makedirs(tmp, exist_ok=True)
         env = dict(os.environ, HOME=home, TMPDIR=tmp, PYTHONDONTWRITEBYTECODE="1")
         cmd = _octoprint_cmd(self.python)
-        args = cmd + ["serve", "--basedir", self.basedir, "--host", "127.0.0.1",
-                      "--port", str(self.port)]
+        args = cmd + [
+            "serve",
+            "--basedir",
+            self.basedir,
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+        ]
         if hasattr(os, "geteuid") and os.geteuid() == 0:
             args.insert(len(cmd) + 1, "--iknowwhatimdoing")
         log = stdout or open(os.path.join(self.basedir, SERVER_OUT), "wb")
-        self.proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            args, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+        )
         deadline = time.time() + timeout
         while time.time() < deadline:
             if self.proc.poll() is not None:
-                raise RuntimeError(f"OctoPrint exited with {self.proc.returncode}; see "
-                                   f"{self.basedir}/server.out")
+                raise RuntimeError(
+                    f"OctoPrint exited with {self.proc.returncode}; see {self.basedir}/server.out"
+                )
             try:
                 self.request("GET", "/api/version")
                 return self
-            except (urllib.error.URLError, ConnectionError, OSError,
-                    http.client.HTTPException):
+            except (urllib.error.URLError, ConnectionError, OSError, http.client.HTTPException):
                 time.sleep(0.5)
         self.stop()
         raise RuntimeError("OctoPrint did not start in time")
@@ -201,9 +251,16 @@ class DevServer:
         self.proc = None
 
     # -- HTTP helpers ------------------------------------------------------------------------
-    def request(self, method: str, path: str, body: Any = None, key: Optional[str] = "admin",
-                headers: Optional[Dict[str, str]] = None, raw: Optional[bytes] = None,
-                content_type: Optional[str] = None):
+    def request(
+        self,
+        method: str,
+        path: str,
+        body: Any = None,
+        key: Optional[str] = "admin",
+        headers: Optional[Dict[str, str]] = None,
+        raw: Optional[bytes] = None,
+        content_type: Optional[str] = None,
+    ):
         """(status, parsed JSON or text). ``key``: a user of :data:`USERS`, None or an API
         key."""
         hdrs = dict(headers or {})
@@ -223,23 +280,41 @@ class DevServer:
         except ValueError:
             return status, text
 
-    def upload(self, path: str, filename: str, data: bytes, fields: Dict[str, str] = None,
-               key: Optional[str] = "admin"):
+    def upload(
+        self,
+        path: str,
+        filename: str,
+        data: bytes,
+        fields: Dict[str, str] = None,
+        key: Optional[str] = "admin",
+    ):
         boundary = "kincomp" + secrets.token_hex(8)
         parts = []
         for name, value in (fields or {}).items():
-            parts.append(f"--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"\r\n"
-                         f"\r\n{value}\r\n".encode())
-        parts.append(f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; "
-                     f"filename=\"{filename}\"\r\nContent-Type: application/octet-stream\r\n"
-                     f"\r\n".encode() + data + b"\r\n")
+            parts.append(
+                f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"\r\n'
+                f"\r\n{value}\r\n".encode()
+            )
+        parts.append(
+            f'--{boundary}\r\nContent-Disposition: form-data; name="file"; '
+            f'filename="{filename}"\r\nContent-Type: application/octet-stream\r\n'
+            f"\r\n".encode()
+            + data
+            + b"\r\n"
+        )
         parts.append(f"--{boundary}--\r\n".encode())
-        return self.request("POST", path, raw=b"".join(parts), key=key,
-                            content_type=f"multipart/form-data; boundary={boundary}")
+        return self.request(
+            "POST",
+            path,
+            raw=b"".join(parts),
+            key=key,
+            content_type=f"multipart/form-data; boundary={boundary}",
+        )
 
     def connect(self, timeout: float = 60.0) -> None:
-        status, _ = self.request("POST", "/api/connection",
-                                 {"command": "connect", "port": "VIRTUAL", "baudrate": 115200})
+        status, _ = self.request(
+            "POST", "/api/connection", {"command": "connect", "port": "VIRTUAL", "baudrate": 115200}
+        )
         if status != 204:
             raise RuntimeError(f"connect failed: {status}")
         self.wait_state("Operational", timeout)
@@ -293,34 +368,41 @@ def main(argv=None) -> int:
     fresh = not os.path.exists(os.path.join(args.basedir, "config.yaml"))
     # demo mode: on for a fresh basedir, off with --no-demo, else as the user left it
     demo = False if args.no_demo else (True if fresh else None)
-    srv = DevServer(args.basedir, args.port, throttle=0.002, demo=demo,
-                    extra_config={"serial": {"port": "VIRTUAL", "baudrate": 115200,
-                                             "autoconnect": True}})
+    srv = DevServer(
+        args.basedir,
+        args.port,
+        throttle=0.002,
+        demo=demo,
+        extra_config={"serial": {"port": "VIRTUAL", "baudrate": 115200, "autoconnect": True}},
+    )
     with open(os.path.join(args.basedir, "config.yaml")) as f:
         stored = yaml.safe_load(f) or {}
-    demo_on = bool(((stored.get("plugins") or {}).get("kincomp") or {}).get(
-        "demo", {}).get("enabled"))
+    demo_on = bool(
+        ((stored.get("plugins") or {}).get("kincomp") or {}).get("demo", {}).get("enabled")
+    )
 
     def _terminate(signum, frame):
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)  # stop OctoPrint with us, not orphan it
     log_path = os.path.abspath(os.path.join(args.basedir, SERVER_OUT))
-    print(f"starting OctoPrint + KinComp on {srv.url} (its output goes to {log_path}) ...",
-          flush=True)
+    print(
+        f"starting OctoPrint + KinComp on {srv.url} (its output goes to {log_path}) ...", flush=True
+    )
     try:
         try:
             srv.start()  # OctoPrint's output: into log_path, not over the login
         except RuntimeError as exc:
-            print(f"kincomp: {exc}. The end of {log_path}:\n{_tail(log_path)}",
-                  file=sys.stderr)
+            print(f"kincomp: {exc}. The end of {log_path}:\n{_tail(log_path)}", file=sys.stderr)
             return 1
         print(banner(srv, demo_on, log_path), flush=True)  # the last thing printed
         while srv.proc is not None and srv.proc.poll() is None:
             time.sleep(0.5)
         if srv.proc is not None:
-            print(f"kincomp: OctoPrint stopped (exit status {srv.proc.returncode}); see "
-                  f"{log_path}", file=sys.stderr)
+            print(
+                f"kincomp: OctoPrint stopped (exit status {srv.proc.returncode}); see {log_path}",
+                file=sys.stderr,
+            )
     except KeyboardInterrupt:
         pass
     finally:
@@ -328,19 +410,24 @@ def main(argv=None) -> int:
     return 0
 
 
-def banner(srv: "DevServer", demo_on: bool, log_path: str) -> str:
+def banner(srv: DevServer, demo_on: bool, log_path: str) -> str:
     """What ``run.sh`` shows once the server answers: where it is, the login, the logs."""
     admin = srv.logins[ADMIN]
-    lines = ["=" * 72,
-             f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)",
-             f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}"]
+    lines = [
+        "=" * 72,
+        f"OctoPrint + KinComp on {srv.url}  (connects to the virtual printer)",
+        f"login: {ADMIN} / {admin['password']}    API key: {admin['apikey']}",
+    ]
     if demo_on:
-        lines.append("demo mode: the virtual printer has hidden SIMULATED errors and a "
-                     "virtual ballbar")
-    lines += [f"OctoPrint's output: {log_path}",
-              f"its logs: {os.path.abspath(os.path.join(srv.basedir, 'logs'))}",
-              "open the URL, log in, then click 'KinComp' in the top bar; stop with Ctrl-C",
-              "=" * 72]
+        lines.append(
+            "demo mode: the virtual printer has hidden SIMULATED errors and a virtual ballbar"
+        )
+    lines += [
+        f"OctoPrint's output: {log_path}",
+        f"its logs: {os.path.abspath(os.path.join(srv.basedir, 'logs'))}",
+        "open the URL, log in, then click 'KinComp' in the top bar; stop with Ctrl-C",
+        "=" * 72,
+    ]
     return "\n".join(lines)
 
 

@@ -23,10 +23,16 @@ from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.params import Params
 
 XZ_TRUTH = dict(
-    errors=Params.from_dict({
-        "squareness_um_per_m": {"xz": 300.0}, "scale_ppm": {"x": 120.0, "z": -80.0},
-        "backlash": {"x": [{"at_mm": 10, "um": 30}, {"at_mm": 210, "um": 18}],
-                     "z": [{"at_mm": 0, "um": 20}, {"at_mm": 200, "um": 26}]}}),
+    errors=Params.from_dict(
+        {
+            "squareness_um_per_m": {"xz": 300.0},
+            "scale_ppm": {"x": 120.0, "z": -80.0},
+            "backlash": {
+                "x": [{"at_mm": 10, "um": 30}, {"at_mm": 210, "um": 18}],
+                "z": [{"at_mm": 0, "um": 20}, {"at_mm": 200, "um": 26}],
+            },
+        }
+    ),
     servo_lag_ms={"x": 0.0, "y": 0.0, "z": 1.0},
 )
 
@@ -46,8 +52,13 @@ def paper_trace():
 
 def test_xy_360_recovers_the_paper_errors(paper_trace):
     d = analyse(parse_csv_trace(paper_trace.to_text()))["diagnostics"]
-    check(d, -3638.6, -451.7 - 287.0, 0.62,
-          {"a_plus": 4.4, "a_minus": 37.4, "b_plus": 11.3, "b_minus": 5.4})
+    check(
+        d,
+        -3638.6,
+        -451.7 - 287.0,
+        0.62,
+        {"a_plus": 4.4, "a_minus": 37.4, "b_plus": 11.3, "b_minus": 5.4},
+    )
     assert d["simulated"] is True
     assert d["fit"]["rms_um"] < 0.7
 
@@ -85,8 +96,12 @@ def test_exact_geometry_removes_first_order_bias():
 
 def test_backlash_per_side_is_the_local_step_when_it_varies():
     # 40 um at the -X end, 10 um at the +X end; constant Y
-    truth = Truth(errors=Params.from_dict({"backlash": {
-        "x": [{"at_mm": 10, "um": 40}, {"at_mm": 210, "um": 10}], "y": 12.0}}), noise_um=0.5)
+    truth = Truth(
+        errors=Params.from_dict(
+            {"backlash": {"x": [{"at_mm": 10, "um": 40}, {"at_mm": 210, "um": 10}], "y": 12.0}}
+        ),
+        noise_um=0.5,
+    )
     d = analyse(simulate_program(generate(TestSpec()), truth))["diagnostics"]
     assert d["backlash_um"]["a_minus"] == pytest.approx(40, abs=1.0)
     assert d["backlash_um"]["a_plus"] == pytest.approx(10, abs=1.0)
@@ -95,8 +110,7 @@ def test_backlash_per_side_is_the_local_step_when_it_varies():
 
 
 def test_setup_offset_and_bar_error_do_not_leak():
-    truth = paper_truth(noise_um=0.5, setup_offset_um=(40.0, -25.0, 0.0),
-                        bar_length_error_um=30.0)
+    truth = paper_truth(noise_um=0.5, setup_offset_um=(40.0, -25.0, 0.0), bar_length_error_um=30.0)
     d = analyse(simulate_program(generate(TestSpec()), truth))["diagnostics"]
     check(d, -3638.6, -738.7, 0.62, {"a_plus": 4.4, "a_minus": 37.4})
     assert d["centre_offset_um"]["a"] == pytest.approx(40, abs=1)
@@ -114,8 +128,10 @@ def test_angle_domain_trace():
             # first-order deviation of squareness and scale mismatch
             dev = 100 * 150e-6 / 2 * math.sin(2 * t) + 100 * 100e-6 / 2 * math.cos(2 * t)
             model_rows.append((direction, float(deg), dev * 1e3 + rng.normal(0, 0.3)))
-    tr = AngleTrace(meta={"plane": "XY", "radius_mm": "100", "feed_mm_min": "1850",
-                          "centre": "110,110,10"}, rows=model_rows)
+    tr = AngleTrace(
+        meta={"plane": "XY", "radius_mm": "100", "feed_mm_min": "1850", "centre": "110,110,10"},
+        rows=model_rows,
+    )
     d = analyse(parse_csv_trace(tr.to_text()))["diagnostics"]
     assert d["squareness_um_per_m"] == pytest.approx(150, abs=3)
     assert d["scale_mismatch_ppm"] == pytest.approx(100, abs=3)
@@ -143,12 +159,19 @@ def test_mask_angles():
 
 
 def test_residual_update_is_current_plus_residual():
-    current = Params.from_dict({"squareness_um_per_m": {"xy": -3000.0},
-                                "scale_ppm": {"x": -300.0, "y": 200.0},
-                                "backlash": {"x": 20.0, "fraction": 0.5}})
-    diag = {"squareness_um_per_m": -600.0, "scale_mismatch_ppm": -100.0,
-            "backlash_um": {"a_plus": 2.0, "a_minus": 8.0, "b_plus": 1.0, "b_minus": 1.0},
-            "servo_mismatch_ms": 0.3}
+    current = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -3000.0},
+            "scale_ppm": {"x": -300.0, "y": 200.0},
+            "backlash": {"x": 20.0, "fraction": 0.5},
+        }
+    )
+    diag = {
+        "squareness_um_per_m": -600.0,
+        "scale_mismatch_ppm": -100.0,
+        "backlash_um": {"a_plus": 2.0, "a_minus": 8.0, "b_plus": 1.0, "b_minus": 1.0},
+        "servo_mismatch_ms": 0.3,
+    }
     g = Geometry("XY", 100.0, (110, 110, 10), 1850.0)
     p = propose_params(diag, g, current, [])
     assert p.squareness_um_per_m["xy"] == pytest.approx(-3600.0, abs=0.5)
@@ -163,9 +186,16 @@ def test_residual_update_is_current_plus_residual():
 
 
 def test_summary_maps_to_parameters():
-    s = parse_summary({"plane": "XY", "radius_mm": 150, "centre": "150,150,5",
-                       "squareness_um_per_m": -9.7, "scale_mismatch_ppm": 20,
-                       "backlash_um": {"a_plus": 3, "a_minus": 5}})
+    s = parse_summary(
+        {
+            "plane": "XY",
+            "radius_mm": 150,
+            "centre": "150,150,5",
+            "squareness_um_per_m": -9.7,
+            "scale_mismatch_ppm": 20,
+            "backlash_um": {"a_plus": 3, "a_minus": 5},
+        }
+    )
     out = analyse(s)
     p = Params.from_dict(out["parameters"])
     assert p.squareness_um_per_m["xy"] == pytest.approx(-9.7)
@@ -179,8 +209,14 @@ def test_cli_analyze_json(tmp_path, paper_trace, capsys):
     assert main(["analyze", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     d = out["diagnostics"]
-    for key in ("squareness_um_per_m", "scale_mismatch_ppm", "servo_mismatch_ms",
-                "backlash_um", "centre_offset_um", "circularity_um"):
+    for key in (
+        "squareness_um_per_m",
+        "scale_mismatch_ppm",
+        "servo_mismatch_ms",
+        "backlash_um",
+        "centre_offset_um",
+        "circularity_um",
+    ):
         assert key in d
     assert set(d["backlash_um"]) == {"a_plus", "a_minus", "b_plus", "b_minus"}
     assert set(d["centre_offset_um"]) == {"a", "b"}
@@ -221,11 +257,14 @@ def test_cli_simulate(tmp_path):
     prog = tmp_path / "p.gcode"
     assert main(["program", "--centre", "110,110,10", "-o", str(prog)]) == 0
     truth = tmp_path / "truth.json"
-    truth.write_text(json.dumps({"errors": {"squareness_um_per_m": {"xy": 200}},
-                                 "servo_lag_ms": {"x": 0.5}}))
+    truth.write_text(
+        json.dumps({"errors": {"squareness_um_per_m": {"xy": 200}}, "servo_lag_ms": {"x": 0.5}})
+    )
     out = tmp_path / "trace.csv"
-    assert main(["simulate", str(prog), "--truth", str(truth), "--noise-um", "0.5",
-                 "-o", str(out)]) == 0
+    assert (
+        main(["simulate", str(prog), "--truth", str(truth), "--noise-um", "0.5", "-o", str(out)])
+        == 0
+    )
     text = out.read_text()
     assert "# simulated: true" in text and "SIMULATED" in text
     d = analyse(parse_csv_trace(text))["diagnostics"]
@@ -256,8 +295,11 @@ def test_artifact_route(capsys):
 
 
 def test_optional_cyclic_error():
-    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 100}}),
-                  cyclic={"x": (3.0, 40.0, 30.0)}, noise_um=0.5)
+    truth = Truth(
+        errors=Params.from_dict({"squareness_um_per_m": {"xy": 100}}),
+        cyclic={"x": (3.0, 40.0, 30.0)},
+        noise_um=0.5,
+    )
     trace = simulate_program(generate(TestSpec()), truth)
     with_cyclic = analyse(trace, cyclic_pitch=40.0)["diagnostics"]
     assert with_cyclic["cyclic_error_um"]["a"] == pytest.approx(3.0, abs=0.3)
@@ -278,11 +320,15 @@ def test_a_trace_with_one_direction_is_refused():
     """Review finding: with the CW run missing (a capture stopped early, a truncated file)
     the servo mismatch went into the squareness (hundreds of um/m, with a 1 um/m sigma)."""
     spec = TestSpec(radius_mm=50.0)
-    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 150.0}}),
-                  servo_lag_ms={"x": 2.0, "y": 3.0}, noise_um=0.3)
+    truth = Truth(
+        errors=Params.from_dict({"squareness_um_per_m": {"xy": 150.0}}),
+        servo_lag_ms={"x": 2.0, "y": 3.0},
+        noise_um=0.3,
+    )
     text = simulate_program(generate(spec), truth).to_text()
     one = "\n".join(line for line in text.splitlines() if not line.startswith("cw,")) + "\n"
     with pytest.raises(TraceError, match="no CW run"):
         analyse(parse_csv_trace(one))
-    assert analyse(parse_csv_trace(text))["diagnostics"]["squareness_um_per_m"] == \
-        pytest.approx(150.0, abs=5.0)
+    assert analyse(parse_csv_trace(text))["diagnostics"]["squareness_um_per_m"] == pytest.approx(
+        150.0, abs=5.0
+    )

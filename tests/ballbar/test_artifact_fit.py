@@ -9,18 +9,29 @@ import numpy as np
 import pytest
 
 from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.artifact_fit import ArtifactFitError, analyse_artifact, \
-    parse_readings
-from octoprint_kincomp.ballbar.artifact_program import ArtifactSpec, generate, \
-    read_measurements, read_program_info
+from octoprint_kincomp.ballbar.artifact_fit import (
+    ArtifactFitError,
+    analyse_artifact,
+    parse_readings,
+)
+from octoprint_kincomp.ballbar.artifact_program import (
+    ArtifactSpec,
+    generate,
+    read_measurements,
+    read_program_info,
+)
 from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
 from octoprint_kincomp.ballbar.program import TestSpec
 from octoprint_kincomp.ballbar.program import generate as ballbar_program
 from octoprint_kincomp.ballbar.simulator import Truth, simulate_program
 from octoprint_kincomp.core.params import Params
 
-PAPER = Params.from_dict({"squareness_um_per_m": {"xy": -3638.6, "xz": 800.0, "yz": -600.0},
-                          "scale_ppm": {"x": -451.7, "y": 287.0, "z": 150.0}})
+PAPER = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": -3638.6, "xz": 800.0, "yz": -600.0},
+        "scale_ppm": {"x": -451.7, "y": 287.0, "z": 150.0},
+    }
+)
 PAIRS = (("x", "y"), ("x", "z"), ("y", "z"))
 
 
@@ -39,14 +50,16 @@ def truth_of(params):
 
 def errors_of(result, params):
     d = result["diagnostics"]
-    return {k: (d[k[0]][k[1]] - v, d["uncertainty"][k[0]][k[1]])
-            for k, v in truth_of(params).items()}
+    return {
+        k: (d[k[0]][k[1]] - v, d["uncertainty"][k[0]][k[1]]) for k, v in truth_of(params).items()
+    }
 
 
 def test_recovers_the_paper_errors(program):
     meas, info = program
-    readings = simulate_readings(meas, PAPER, shrinkage=0.004, line_width_mm=0.47,
-                                 rng=np.random.default_rng(3))
+    readings = simulate_readings(
+        meas, PAPER, shrinkage=0.004, line_width_mm=0.47, rng=np.random.default_rng(3)
+    )
     res = analyse_artifact(meas, readings, info=info)
     for key, (err, sigma) in errors_of(res, PAPER).items():
         assert abs(err) <= 3 * sigma, key
@@ -55,8 +68,9 @@ def test_recovers_the_paper_errors(program):
     assert d["line_width_mm"]["vertical_walls"] == pytest.approx(0.47, abs=0.005)
     assert d["line_width_mm"]["slanted_walls"] == pytest.approx(0.47, abs=0.015)
     # shrinkage and the mean scale are one number: -4000 ppm of shrinkage + the axes' mean
-    assert d["mean_scale_with_shrinkage_ppm"] == pytest.approx(-4000 + (-451.7 + 287 + 150) / 3,
-                                                               abs=60)
+    assert d["mean_scale_with_shrinkage_ppm"] == pytest.approx(
+        -4000 + (-451.7 + 287 + 150) / 3, abs=60
+    )
     assert res["trusted"] is True
     codes = {f["code"] for f in res["findings"]}
     assert {"artifact.absolute_scale", "artifact.model"} <= codes
@@ -82,16 +96,27 @@ def test_done_when_coverage(program, size):
     hits, sig = {}, {}
     for _ in range(100):
         if size == "paper":
-            sq = {"xy": -3638.6 * rng.uniform(0.5, 1.2) * float(rng.choice([-1, 1])),
-                  "xz": rng.uniform(-1500, 1500), "yz": rng.uniform(-1500, 1500)}
+            sq = {
+                "xy": -3638.6 * rng.uniform(0.5, 1.2) * float(rng.choice([-1, 1])),
+                "xz": rng.uniform(-1500, 1500),
+                "yz": rng.uniform(-1500, 1500),
+            }
             sc = {a: rng.uniform(-500, 500) for a in "xyz"}
         else:
             sq = {p: 100.0 * float(rng.choice([-1, 1])) for p in ("xy", "xz", "yz")}
-            sc = {"x": 50.0 * float(rng.choice([-1, 1])), "y": 0.0,
-                  "z": -50.0 * float(rng.choice([-1, 1]))}
+            sc = {
+                "x": 50.0 * float(rng.choice([-1, 1])),
+                "y": 0.0,
+                "z": -50.0 * float(rng.choice([-1, 1])),
+            }
         truth = Params.from_dict({"squareness_um_per_m": sq, "scale_ppm": sc})
-        readings = simulate_readings(meas, truth, shrinkage=rng.uniform(0, 0.005),
-                                     line_width_mm=rng.uniform(0.40, 0.50), rng=rng)
+        readings = simulate_readings(
+            meas,
+            truth,
+            shrinkage=rng.uniform(0, 0.005),
+            line_width_mm=rng.uniform(0.40, 0.50),
+            rng=rng,
+        )
         res = analyse_artifact(meas, readings, info=info)
         assert res["trusted"]
         assert not [f for f in res["findings"] if f["severity"] != "info"]
@@ -114,11 +139,12 @@ def test_sign_matches_the_ballbar_route(program):
     for plane, centre, key in (("XY", (110, 110, 10), "xy"), ("XZ", (110, 110, 100), "xz")):
         for value in (400.0, -400.0):
             errors = Params.from_dict({"squareness_um_per_m": {key: value}})
-            trace = simulate_program(ballbar_program(TestSpec(plane=plane, centre=centre)),
-                                     Truth(errors=errors, noise_um=0.5))
+            trace = simulate_program(
+                ballbar_program(TestSpec(plane=plane, centre=centre)),
+                Truth(errors=errors, noise_um=0.5),
+            )
             ballbar = analyse(trace)["diagnostics"]["squareness_um_per_m"]
-            readings = simulate_readings(meas, errors, noise_um=2.0,
-                                         rng=np.random.default_rng(5))
+            readings = simulate_readings(meas, errors, noise_um=2.0, rng=np.random.default_rng(5))
             art = analyse_artifact(meas, readings, info=info)["diagnostics"]
             assert ballbar == pytest.approx(value, abs=10)
             assert art["squareness_um_per_m"][key] == pytest.approx(value, abs=40)
@@ -134,7 +160,8 @@ def test_a_one_mm_typo_is_named(program):
     res = analyse_artifact(meas, typo, info=info)
     bad = [f for f in res["findings"] if f["severity"] != "info"]
     assert [(f["code"], f["evidence"]["id"], f["evidence"]["reading"]) for f in bad] == [
-        ("artifact.reading_disagrees", "A3-out", 2)]
+        ("artifact.reading_disagrees", "A3-out", 2)
+    ]
     assert "A3-out" in bad[0]["message"]
     d = res["diagnostics"]
     assert d["measurements"]["A3-out"]["readings_left_out"] == [2]
@@ -147,16 +174,19 @@ def test_a_measurement_off_in_every_repeat_is_named(program, repeats):
     """All repeats of one id 1 mm off (typed consistently wrong, jaws on a blob), or its only
     reading: the fit names the measurement and leaves it out."""
     meas, info = program
-    readings = simulate_readings(meas, PAPER, shrinkage=0.003, repeats=repeats,
-                                 rng=np.random.default_rng(9))
+    readings = simulate_readings(
+        meas, PAPER, shrinkage=0.003, repeats=repeats, rng=np.random.default_rng(9)
+    )
     readings["X2-in"] = [v - 1.0 for v in readings["X2-in"]]
     res = analyse_artifact(meas, readings, info=info)
     bad = [f for f in res["findings"] if f["severity"] != "info"]
     assert [(f["code"], f["evidence"]["id"]) for f in bad if "id" in f["evidence"]] == [
-        ("artifact.measurement_outlier", "X2-in")]
+        ("artifact.measurement_outlier", "X2-in")
+    ]
     # one reading per span: the towers' squareness is said to be poorly determined
     assert {f["code"] for f in bad} - {"artifact.measurement_outlier"} == (
-        set() if repeats == 3 else {"artifact.poorly_determined"})
+        set() if repeats == 3 else {"artifact.poorly_determined"}
+    )
     assert res["diagnostics"]["measurements"]["X2-in"]["left_out"] is True
     for key, (err, sigma) in errors_of(res, PAPER).items():
         assert abs(err) <= 3.5 * sigma, key
@@ -190,13 +220,19 @@ def test_what_cannot_be_separated_is_said(program):
     xy_only = {k: v for k, v in readings.items() if not k.startswith(("XZ", "YZ"))}
     res = analyse_artifact(meas, xy_only, info=info)
     d = res["diagnostics"]
-    assert d["squareness_um_per_m"]["xz"] is None and d["uncertainty"]["squareness_um_per_m"][
-        "xz"] is None
+    assert (
+        d["squareness_um_per_m"]["xz"] is None
+        and d["uncertainty"]["squareness_um_per_m"]["xz"] is None
+    )
     assert d["scale_mismatch_ppm"]["x-z"] is None
     assert d["squareness_um_per_m"]["xy"] is not None
     sep = [f for f in res["findings"] if f["code"] == "artifact.not_separable"]
     assert {f["evidence"]["quantity"] for f in sep} == {
-        "squareness.xz", "squareness.yz", "scale_mismatch.x-z", "scale_mismatch.y-z"}
+        "squareness.xz",
+        "squareness.yz",
+        "scale_mismatch.x-z",
+        "scale_mismatch.y-z",
+    }
     assert res["parameters"]["squareness_um_per_m"]["xz"] == 0.0  # kept as it was
     # spans along the axes only: squareness XY cannot be separated from them
     spans = {k: v for k, v in readings.items() if k[0] in "XY" and k[1].isdigit()}
@@ -225,23 +261,30 @@ def test_swapped_outside_inside_is_not_trusted(program):
 
 def test_printed_with_compensation_is_a_residual(program):
     meas, info = program
-    current = Params.from_dict({"squareness_um_per_m": {"xy": -3000.0, "xz": 500.0},
-                                "scale_ppm": {"x": -300.0, "y": 200.0}})
-    readings = simulate_readings(meas, PAPER, shrinkage=0.002, compensated_with=current,
-                                 rng=np.random.default_rng(13))
+    current = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -3000.0, "xz": 500.0},
+            "scale_ppm": {"x": -300.0, "y": 200.0},
+        }
+    )
+    readings = simulate_readings(
+        meas, PAPER, shrinkage=0.002, compensated_with=current, rng=np.random.default_rng(13)
+    )
     res = analyse_artifact(meas, readings, current=current, info=info)
     d, p = res["diagnostics"], res["parameters"]
     u = d["uncertainty"]
     # the fit sees the residual, the proposal is the whole error again
-    assert d["squareness_um_per_m"]["xy"] == pytest.approx(-638.6, abs=3 * u[
-        "squareness_um_per_m"]["xy"])
+    assert d["squareness_um_per_m"]["xy"] == pytest.approx(
+        -638.6, abs=3 * u["squareness_um_per_m"]["xy"]
+    )
     for key in ("xy", "xz", "yz"):
         assert p["squareness_um_per_m"][key] == pytest.approx(
-            PAPER.squareness_um_per_m[key], abs=3 * u["squareness_um_per_m"][key] + 5)
+            PAPER.squareness_um_per_m[key], abs=3 * u["squareness_um_per_m"][key] + 5
+        )
     for a, b in PAIRS:
         assert p["scale_ppm"][a] - p["scale_ppm"][b] == pytest.approx(
-            PAPER.scale_ppm[a] - PAPER.scale_ppm[b],
-            abs=3 * u["scale_mismatch_ppm"][f"{a}-{b}"] + 5)
+            PAPER.scale_ppm[a] - PAPER.scale_ppm[b], abs=3 * u["scale_mismatch_ppm"][f"{a}-{b}"] + 5
+        )
     assert any(f["code"] == "artifact.residual" for f in res["findings"])
 
 
@@ -273,19 +316,26 @@ def test_nearly_parallel_spans_are_ill_conditioned():
         for name, deg in spans:
             t = math.radians(deg)
             for kind in ("outside", "inside"):
-                meas.append(Measurement(f"{name}-{kind}", kind, (40.0, 80.0, 2.5),
-                                        (40.0 + 140 * math.cos(t), 80.0 + 140 * math.sin(t),
-                                         2.5)))
+                meas.append(
+                    Measurement(
+                        f"{name}-{kind}",
+                        kind,
+                        (40.0, 80.0, 2.5),
+                        (40.0 + 140 * math.cos(t), 80.0 + 140 * math.sin(t), 2.5),
+                    )
+                )
         return meas
 
     info = {"planes": "XY", "nozzle_mm": "0.4"}
     meas = contract((("X", 0.0), ("Y", 90.0), ("P", 0.5), ("N", -0.5)))
-    res = analyse_artifact(meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(14)),
-                           info=info)
+    res = analyse_artifact(
+        meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(14)), info=info
+    )
     assert "artifact.poorly_determined" in {f["code"] for f in res["findings"]}
     assert res["diagnostics"]["uncertainty"]["squareness_um_per_m"]["xy"] > 1000
     meas = contract((("X", 0.0), ("P", 20.0), ("Q", 20.5)))
-    res = analyse_artifact(meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(15)),
-                           info=info)
+    res = analyse_artifact(
+        meas, simulate_readings(meas, PAPER, rng=np.random.default_rng(15)), info=info
+    )
     cond = [f for f in res["findings"] if f["code"] == "artifact.ill_conditioned"]
     assert cond and cond[0]["evidence"]["condition"] > 100

@@ -66,8 +66,9 @@ def _dist_point_segment(c, a, b):
 
 
 def test_contract_header():
-    text = generate(ArtifactSpec(volume=VOLUME, nozzle_mm=0.6, hotend_c=240, bed_c=80,
-                                 first_layer_mm=0.3))
+    text = generate(
+        ArtifactSpec(volume=VOLUME, nozzle_mm=0.6, hotend_c=240, bed_c=80, first_layer_mm=0.3)
+    )
     meas = read_measurements(text)
     ids = [m.id for m in meas]
     assert len(ids) == len(set(ids)) == 36
@@ -91,15 +92,16 @@ def test_planes_subset_and_features():
     assert {f.plane for f in feats} == {"XY"}
     # diagonals at 45 deg in both senses, spans along X and Y
     dirs = {tuple(round(c, 3) for c in f.n) for f in feats}
-    assert {(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.707, 0.707, 0.0),
-            (0.707, -0.707, 0.0)} == dirs
+    assert {(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.707, 0.707, 0.0), (0.707, -0.707, 0.0)} == dirs
     towers = layout(ArtifactSpec(volume=VOLUME, planes=("XZ", "YZ")))
     assert {f.plane for f in towers} == {"XZ", "YZ"}
     assert all(abs(abs(f.n[2]) - math.sqrt(0.5)) < 1e-12 for f in towers)
 
 
-@pytest.mark.parametrize("volume, planes", [((0, 180, 0, 180, 0, 180), ("XY", "XZ", "YZ")),
-                                            ((0, 150, 0, 150, 0, 150), ("XY",))])
+@pytest.mark.parametrize(
+    "volume, planes",
+    [((0, 180, 0, 180, 0, 180), ("XY", "XZ", "YZ")), ((0, 150, 0, 150, 0, 150), ("XY",))],
+)
 def test_small_beds_get_shorter_diagonals(volume, planes):
     """A 180 mm bed (all parts) or 150 mm (XY alone): the diagonals are shortened until every
     wall keeps its clearance; the program still parses and stays in the volume."""
@@ -113,25 +115,31 @@ def test_small_beds_get_shorter_diagonals(volume, planes):
         assert all(volume[2 * k] <= m.end[k] <= volume[2 * k + 1] for k in range(3))
 
 
-@pytest.mark.parametrize("kwargs, word", [
-    (dict(volume=(0, 60, 0, 60, 0, 100)), "too small"),
-    (dict(volume=(0, 220, 0, 220, 0, 30), planes=("XZ",)), "no room"),
-    (dict(planes=("XW",)), "planes"),
-    (dict(nozzle_mm=5.0), "nozzle"),
-    (dict(volume=(10, 0, 0, 220, 0, 250)), "volume"),
-])
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(volume=(0, 60, 0, 60, 0, 100)), "too small"),
+        (dict(volume=(0, 220, 0, 220, 0, 30), planes=("XZ",)), "no room"),
+        (dict(planes=("XW",)), "planes"),
+        (dict(nozzle_mm=5.0), "nozzle"),
+        (dict(volume=(10, 0, 0, 220, 0, 250)), "volume"),
+    ],
+)
 def test_bad_specs_are_refused(kwargs, word):
     with pytest.raises(ArtifactProgramError) as exc:
         generate(ArtifactSpec(**kwargs))
     assert word in str(exc.value)
 
 
-@pytest.mark.parametrize("line, word", [
-    ("; kincomp measure: id=a kind=sideways from=0,0,0 to=10,0,0 hint=x", "kind"),
-    ("; kincomp measure: id=a kind=outside from=0,0 to=10,0,0 hint=x", "three numbers"),
-    ("; kincomp measure: id=a kind=outside from=0,0,0 to=0.5,0,0 hint=x", "1 mm"),
-    ("; kincomp measure: kind=outside", "malformed"),
-])
+@pytest.mark.parametrize(
+    "line, word",
+    [
+        ("; kincomp measure: id=a kind=sideways from=0,0,0 to=10,0,0 hint=x", "kind"),
+        ("; kincomp measure: id=a kind=outside from=0,0 to=10,0,0 hint=x", "three numbers"),
+        ("; kincomp measure: id=a kind=outside from=0,0,0 to=0.5,0,0 hint=x", "1 mm"),
+        ("; kincomp measure: kind=outside", "malformed"),
+    ],
+)
 def test_bad_contract_lines(line, word):
     with pytest.raises(ArtifactProgramError) as exc:
         read_measurements(line + "\n")
@@ -156,4 +164,5 @@ def test_drawing_numbers_every_measurement():
     rows = legend(meas)
     assert [r["n"] for r in rows] == list(range(1, len(meas) + 1))
     assert rows[0]["id"] == meas[0].id and rows[0]["nominal_mm"] == pytest.approx(
-        meas[0].length, abs=1e-3)
+        meas[0].length, abs=1e-3
+    )

@@ -40,8 +40,14 @@ def _hash(spec):
 @pytest.fixture(scope="module")
 def small():
     """A cheap campaign: XY R40 at two feeds, XZ and YZ R30, 200 Hz."""
-    steps = plan_campaign(VOLUME, radius_xy=40, radius_vertical=30, second_feed=3700,
-                          campaign_id="test", printer="virtual")
+    steps = plan_campaign(
+        VOLUME,
+        radius_xy=40,
+        radius_vertical=30,
+        second_feed=3700,
+        campaign_id="test",
+        printer="virtual",
+    )
     truth = volume_truth(noise_um=0.5, sample_rate_hz=200)
     items = [(s.file.replace(".gcode", ".csv"), simulate(s.spec, truth)) for s in steps]
     return steps, truth, items
@@ -49,10 +55,27 @@ def small():
 
 def test_program_campaign_writes_programs_and_manifest(tmp_path, capsys):
     out = tmp_path / "camp"
-    assert main(["program", "--campaign", "--volume", "0,220,0,220,0,250", "--max-feed",
-                 "18000,18000,2400",
-                 "--second-feed", "3700", "--second-height", "100", "--printer", "P1",
-                 "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "program",
+                "--campaign",
+                "--volume",
+                "0,220,0,220,0,250",
+                "--max-feed",
+                "18000,18000,2400",
+                "--second-feed",
+                "3700",
+                "--second-height",
+                "100",
+                "--printer",
+                "P1",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     m = load_manifest(str(out / MANIFEST_NAME))
     names = [s["name"] for s in m["steps"]]
     assert names == ["xy", "xz", "yz", "xy-z100", "xy-f3700"]
@@ -64,8 +87,10 @@ def test_program_campaign_writes_programs_and_manifest(tmp_path, capsys):
     xz = m["steps"][1]
     assert xz["radius_mm"] == 50 and xz["centre"][2] == 38  # lowest point 5 mm above Z0
     # a volume too small names the test that does not fit
-    assert main(["program", "--campaign", "--volume", "0,150,0,150,0,250", "-o",
-                 str(tmp_path / "x")]) == 1
+    assert (
+        main(["program", "--campaign", "--volume", "0,150,0,150,0,250", "-o", str(tmp_path / "x")])
+        == 1
+    )
     assert "campaign test xy" in capsys.readouterr().err
     assert main(["program", "--campaign", "-o", str(tmp_path / "y")]) == 1
     assert "--volume" in capsys.readouterr().err
@@ -85,8 +110,15 @@ def test_joint_fit_json_contract(small, tmp_path, capsys):
     assert [t["plane"] for t in d["traces"]] == ["XY", "XZ", "YZ", "XY"]
     assert [t["file"] for t in d["traces"]] == [n for n, _ in items]
     for t in d["traces"]:
-        for key in ("squareness_um_per_m", "scale_mismatch_ppm", "servo_mismatch_ms",
-                    "backlash_um", "circularity_um", "uncertainty", "fit"):
+        for key in (
+            "squareness_um_per_m",
+            "scale_mismatch_ppm",
+            "servo_mismatch_ms",
+            "backlash_um",
+            "circularity_um",
+            "uncertainty",
+            "fit",
+        ):
             assert key in t
     c = d["campaign"]
     assert set(c["squareness_um_per_m"]) == {"xy", "xz", "yz"}
@@ -113,16 +145,19 @@ def copy(trace):
     return parse_csv_trace(trace.to_text())
 
 
-@pytest.mark.parametrize("case, message", [
-    ("missing", r"incomplete: test yz missing"),
-    ("printer", r"ballbar_3_yz.csv comes from another printer than ballbar_1_xy.csv"),
-    ("params", r"ballbar_2_xz.csv comes from another parameter set"),
-    ("edited", r"ballbar_2_xz.csv: the metadata does not match its program"),
-    ("duplicate", r"ballbar_1_xy.csv and again.csv are the same test \(XY at 10 mm"),
-    ("failed", r"ballbar_3_yz.csv: the cw run is missing"),
-    ("truncated", r"ballbar_2_xz.csv: the ccw run covers"),
-    ("summary", r"summary.json: a campaign needs measured traces"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("missing", r"incomplete: test yz missing"),
+        ("printer", r"ballbar_3_yz.csv comes from another printer than ballbar_1_xy.csv"),
+        ("params", r"ballbar_2_xz.csv comes from another parameter set"),
+        ("edited", r"ballbar_2_xz.csv: the metadata does not match its program"),
+        ("duplicate", r"ballbar_1_xy.csv and again.csv are the same test \(XY at 10 mm"),
+        ("failed", r"ballbar_3_yz.csv: the cw run is missing"),
+        ("truncated", r"ballbar_2_xz.csv: the ccw run covers"),
+        ("summary", r"summary.json: a campaign needs measured traces"),
+    ],
+)
 def test_bad_campaigns_name_the_file(small, case, message):
     _, _, items = small
     items = [(n, copy(t)) for n, t in items]
@@ -141,11 +176,11 @@ def test_bad_campaigns_name_the_file(small, case, message):
     elif case == "truncated":  # the logger lost a third of the ccw run
         ccw = [r for r in items[1][1].rows if r[0] == "ccw"]
         n = len(ccw)
-        items[1][1].rows = ccw[: n // 3] + ccw[2 * n // 3:] + \
-            [r for r in items[1][1].rows if r[0] == "cw"]
+        items[1][1].rows = (
+            ccw[: n // 3] + ccw[2 * n // 3 :] + [r for r in items[1][1].rows if r[0] == "cw"]
+        )
     elif case == "summary":
-        items.append(("summary.json", parse_summary({"plane": "XY",
-                                                     "squareness_um_per_m": 3})))
+        items.append(("summary.json", parse_summary({"plane": "XY", "squareness_um_per_m": 3})))
     with pytest.raises(CampaignError, match=message):
         analyse_campaign(items)
 
@@ -153,8 +188,10 @@ def test_bad_campaigns_name_the_file(small, case, message):
 def test_params_in_force_must_match(small, tmp_path, capsys):
     _, _, items = small
     current = Params.from_dict({"squareness_um_per_m": {"xy": 100.0}})
-    with pytest.raises(CampaignError, match="measured with parameters .* the current "
-                                            "parameters are " + current.hash()):
+    with pytest.raises(
+        CampaignError,
+        match="measured with parameters .* the current parameters are " + current.hash(),
+    ):
         analyse_campaign(items, current=current)
     # on the command line: one line naming the file, nothing written
     paths = []
@@ -172,11 +209,20 @@ def test_params_in_force_must_match(small, tmp_path, capsys):
 
 def test_manifest_names_a_foreign_trace(small, tmp_path):
     steps, truth, items = small
-    other = TestSpec(plane="XY", centre=(100, 100, 10), radius_mm=40, campaign="test",
-                     campaign_step="xy", campaign_tests="xy,xz,yz,xy-f3700",
-                     printer="virtual", mount_pause=True)
-    manifest = {"kincomp_campaign": 1, "steps": [
-        {"name": s.name, "program_hash": _hash(s.spec)} for s in steps]}
+    other = TestSpec(
+        plane="XY",
+        centre=(100, 100, 10),
+        radius_mm=40,
+        campaign="test",
+        campaign_step="xy",
+        campaign_tests="xy,xz,yz,xy-f3700",
+        printer="virtual",
+        mount_pause=True,
+    )
+    manifest = {
+        "kincomp_campaign": 1,
+        "steps": [{"name": s.name, "program_hash": _hash(s.spec)} for s in steps],
+    }
     foreign = [("foreign.csv", simulate(other, truth))] + items[1:]
     with pytest.raises(CampaignError, match="foreign.csv: its program .* is not one of"):
         analyse_campaign(foreign, manifest=manifest)
@@ -197,11 +243,15 @@ def test_servo_precomp_left_off_when_the_lag_depends_on_speed(small):
 def test_unmeasured_parameters_stay_and_single_feed_keeps_precomp():
     """XY at two heights only: xz, yz, the Z scale and Z backlash are not measured and stay
     as they were; the X/Y mean scale stays; servo pre-compensation (one feed) stays on."""
-    current = Params.from_dict({
-        "squareness_um_per_m": {"xy": -3000.0, "xz": 123.0, "yz": -45.0},
-        "scale_ppm": {"x": -300.0, "y": 200.0, "z": 77.0},
-        "backlash": {"x": 20.0, "y": 5.0, "z": 9.0},
-        "servo_lag_ms": {"x": 0.5, "y": 0.0, "z": 0.2}, "servo_precomp": True})
+    current = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -3000.0, "xz": 123.0, "yz": -45.0},
+            "scale_ppm": {"x": -300.0, "y": 200.0, "z": 77.0},
+            "backlash": {"x": 20.0, "y": 5.0, "z": 9.0},
+            "servo_lag_ms": {"x": 0.5, "y": 0.0, "z": 0.2},
+            "servo_precomp": True,
+        }
+    )
     truth = volume_truth(noise_um=0.5, sample_rate_hz=200)
     specs = [TestSpec(plane="XY", centre=(110, 110, z), radius_mm=40) for z in (10, 90)]
     items = [(f"xy{i}.csv", simulate(s, truth, current)) for i, s in enumerate(specs)]
@@ -233,8 +283,7 @@ def test_joint_identification_whole_machine(accel, domain):
     truth = volume_truth(noise_um=0.5, motion=MotionSettings(accel_mm_s2=accel))
     steps = plan_campaign(VOLUME, campaign_id="ident")
     sim = simulate_program if domain == "native" else simulate_angle_trace
-    items = [(s.name, parse_csv_trace(sim(generate(s.spec), truth).to_text()))
-             for s in steps]
+    items = [(s.name, parse_csv_trace(sim(generate(s.spec), truth).to_text())) for s in steps]
     out = analyse_campaign(items)
     c = out["diagnostics"]["campaign"]
     e = truth.errors
@@ -290,21 +339,29 @@ def test_glitches_and_drift_in_a_campaign_trace_are_reported_like_a_single_trace
     """Outliers the checks leave out of a campaign trace's fit are said (data.outliers, with
     the file name), and its ISO circularity is the raw one, as for a single trace, beside the
     circularity without them (circularity_robust_um); a bar drift is said per trace too."""
-    steps = plan_campaign(VOLUME, radius_xy=40, radius_vertical=30, campaign_id="glitch",
-                          printer="virtual")
+    steps = plan_campaign(
+        VOLUME, radius_xy=40, radius_vertical=30, campaign_id="glitch", printer="virtual"
+    )
     clean = volume_truth(noise_um=0.5, sample_rate_hz=200)
-    knocked = volume_truth(noise_um=0.5, sample_rate_hz=200, glitches=(8, 200.0),
-                           bar_drift_um_per_min=10.0)
-    items = [(s.file.replace(".gcode", ".csv"),
-              simulate(s.spec, knocked if s.spec.plane == "XY" else clean)) for s in steps]
+    knocked = volume_truth(
+        noise_um=0.5, sample_rate_hz=200, glitches=(8, 200.0), bar_drift_um_per_min=10.0
+    )
+    items = [
+        (
+            s.file.replace(".gcode", ".csv"),
+            simulate(s.spec, knocked if s.spec.plane == "XY" else clean),
+        )
+        for s in steps
+    ]
     out = analyse_campaign(items, Params())
     xy = [t for t in out["diagnostics"]["traces"] if t["plane"] == "XY"][0]
     f = [x for x in out["findings"] if x["code"] == "data.outliers"]
     assert len(f) == 1 and f[0]["severity"] == "warning", out["findings"]
     assert f[0]["message"].startswith(xy["file"] + ": ")
     assert xy["circularity_um"]["bidirectional"] > 150.0
-    assert xy["circularity_robust_um"]["bidirectional"] < 0.5 * xy["circularity_um"][
-        "bidirectional"]
+    assert (
+        xy["circularity_robust_um"]["bidirectional"] < 0.5 * xy["circularity_um"]["bidirectional"]
+    )
     drift = [x for x in out["findings"] if x["code"] == "model.drift"]
     assert [x["message"].split(":")[0] for x in drift] == [xy["file"]], out["findings"]
     assert drift[0]["evidence"]["bar_drift_um_per_min"] == pytest.approx(10.0, abs=0.5)

@@ -53,8 +53,9 @@ def test_kinematic_only_leaves_just_the_servo_ellipse(rounds):
 
 
 def test_table_format(rounds):
-    text = format_table(table(rounds[True]["before"]["diagnostics"],
-                              rounds[True]["after"]["diagnostics"]), "T")
+    text = format_table(
+        table(rounds[True]["before"]["diagnostics"], rounds[True]["after"]["diagnostics"]), "T"
+    )
     assert "| Squareness | um/m |" in text and "%" in text
 
 
@@ -71,8 +72,11 @@ def test_one_campaign_over_the_whole_volume():
     assert res["params"].servo_precomp is True  # decided from the two XY feeds
     tables = campaign_tables(res)
     assert [t.split(" (")[0] for t, _, _ in tables] == [
-        "XY R100 F1850 at Z=10 mm", "XZ R50 F1850 at Y=110 mm", "YZ R50 F1850 at X=110 mm",
-        "XY R100 F3700 at Z=10 mm"]
+        "XY R100 F1850 at Z=10 mm",
+        "XZ R50 F1850 at Y=110 mm",
+        "YZ R50 F1850 at X=110 mm",
+        "XY R100 F3700 at Z=10 mm",
+    ]
     for title, kin, pre in tables:
         for variant in (kin, pre):
             r = {x["key"]: x for x in variant}
@@ -99,7 +103,7 @@ def test_a_reduction_from_a_value_within_the_noise_floor_says_at_noise_level(rou
     assert row["noise_floor"] >= 0.1  # the bar's resolution at least
     # the floor follows the fit's uncertainty where it is larger than the resolution
     sig = corrected["uncertainty"]["squareness_um_per_m"]
-    assert rows["squareness_um_per_m"]["noise_floor"] >= min(3 * sig * 2 ** 0.5, 1.0) - 1e-12
+    assert rows["squareness_um_per_m"]["noise_floor"] >= min(3 * sig * 2**0.5, 1.0) - 1e-12
     assert "at noise level" in format_table(list(rows.values()), "T")
     # a real error before is still reduced in per cent (the first round's rows)
     first = rows_by_key(rounds[True])

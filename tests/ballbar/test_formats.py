@@ -15,14 +15,24 @@ from octoprint_kincomp.ballbar.formats import (
     parse_summary,
 )
 
-META = ("# plane: XY\n# radius_mm: 100\n# feed_mm_min: 1850\n# centre: 110,110,10\n"
-        "# feed_in_mm: 1\n# overshoot_deg: 20\n# capture_deg: 360\n")
+META = (
+    "# plane: XY\n# radius_mm: 100\n# feed_mm_min: 1850\n# centre: 110,110,10\n"
+    "# feed_in_mm: 1\n# overshoot_deg: 20\n# capture_deg: 360\n"
+)
 
 
 def test_native_round_trip():
-    t = NativeTrace(meta={"plane": "XY", "radius_mm": "100", "feed_mm_min": "1850",
-                          "feed_in_mm": "1", "overshoot_deg": "20", "capture_deg": "360"},
-                    rows=[("ccw", 0.0, 1.0), ("ccw", 0.002, 0.9999995), ("cw", 5.0, 1.0)])
+    t = NativeTrace(
+        meta={
+            "plane": "XY",
+            "radius_mm": "100",
+            "feed_mm_min": "1850",
+            "feed_in_mm": "1",
+            "overshoot_deg": "20",
+            "capture_deg": "360",
+        },
+        rows=[("ccw", 0.0, 1.0), ("ccw", 0.002, 0.9999995), ("cw", 5.0, 1.0)],
+    )
     back = parse_csv_trace(t.to_text())
     assert isinstance(back, NativeTrace) and back.meta["plane"] == "XY"
     assert back.rows == [("ccw", 0.0, 1.0), ("ccw", 0.002, 0.9999995), ("cw", 5.0, 1.0)]
@@ -34,20 +44,25 @@ def test_angle_trace_parse():
     assert isinstance(t, AngleTrace) and t.rows == [("cw", 10.5, -2.25)]
 
 
-@pytest.mark.parametrize("text, msg", [
-    ("", "no header"),
-    (META + "direction,time,reading\n", "line 8: expected the header"),
-    (META + "direction,time_s,reading_mm\nccw,0.1\n", "line 9: expected 3"),
-    (META + "direction,time_s,reading_mm\nup,0.1,0.2\n", "line 9: direction must be"),
-    (META + "direction,time_s,reading_mm\nccw,abc,0.2\n", "line 9: not a number"),
-    (META + "direction,time_s,reading_mm\nccw,nan,0.2\n", "line 9: NaN"),
-    (META + "direction,time_s,reading_mm\n", "no samples"),
-    ("# plane: QQ\n# radius_mm: 100\ndirection,angle_deg,deviation_um\nccw,1,1\n", "plane"),
-    ("# plane: XY\ndirection,angle_deg,deviation_um\nccw,1,1\n", "'radius_mm' is missing"),
-    ("# plane: XY\n# radius_mm: big\ndirection,angle_deg,deviation_um\nccw,1,1\n",
-     "'radius_mm'"),
-    ("# plane: XY\n# radius_mm: 100\ndirection,time_s,reading_mm\nccw,1,1\n", "feed_mm_min"),
-])
+@pytest.mark.parametrize(
+    "text, msg",
+    [
+        ("", "no header"),
+        (META + "direction,time,reading\n", "line 8: expected the header"),
+        (META + "direction,time_s,reading_mm\nccw,0.1\n", "line 9: expected 3"),
+        (META + "direction,time_s,reading_mm\nup,0.1,0.2\n", "line 9: direction must be"),
+        (META + "direction,time_s,reading_mm\nccw,abc,0.2\n", "line 9: not a number"),
+        (META + "direction,time_s,reading_mm\nccw,nan,0.2\n", "line 9: NaN"),
+        (META + "direction,time_s,reading_mm\n", "no samples"),
+        ("# plane: QQ\n# radius_mm: 100\ndirection,angle_deg,deviation_um\nccw,1,1\n", "plane"),
+        ("# plane: XY\ndirection,angle_deg,deviation_um\nccw,1,1\n", "'radius_mm' is missing"),
+        (
+            "# plane: XY\n# radius_mm: big\ndirection,angle_deg,deviation_um\nccw,1,1\n",
+            "'radius_mm'",
+        ),
+        ("# plane: XY\n# radius_mm: 100\ndirection,time_s,reading_mm\nccw,1,1\n", "feed_mm_min"),
+    ],
+)
 def test_malformed_traces_name_the_problem(text, msg):
     with pytest.raises(TraceError, match=msg):
         parse_csv_trace(text)
@@ -92,24 +107,38 @@ def test_b5r_zx_plane_swaps_axes():
     assert d["servo_mismatch_ms"] == 0.01 and d["squareness_um_per_m"] == -9.7
 
 
-@pytest.mark.parametrize("data, msg", [
-    (b"<BALLBAR_DATA><PLANE TEST_PLANE='XY'/>", "not well-formed"),
-    (b"<BALLBAR_DATA><PLANE TEST_PLANE='QQ'/></BALLBAR_DATA>", "TEST_PLANE"),
-    (b"<BALLBAR_DATA><PLANE TEST_PLANE='XY'/></BALLBAR_DATA>", "no known FEATURE"),
-    (b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>x</FEATURE>"
-     b"</B>", "non-numeric"),
-    (b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_WHAT'>1</FEATURE></B>",
-     "unknown unit"),
-])
+@pytest.mark.parametrize(
+    "data, msg",
+    [
+        (b"<BALLBAR_DATA><PLANE TEST_PLANE='XY'/>", "not well-formed"),
+        (b"<BALLBAR_DATA><PLANE TEST_PLANE='QQ'/></BALLBAR_DATA>", "TEST_PLANE"),
+        (b"<BALLBAR_DATA><PLANE TEST_PLANE='XY'/></BALLBAR_DATA>", "no known FEATURE"),
+        (
+            b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>x</FEATURE>"
+            b"</B>",
+            "non-numeric",
+        ),
+        (
+            b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_WHAT'>1</FEATURE></B>",
+            "unknown unit",
+        ),
+    ],
+)
 def test_b5r_errors(data, msg):
     with pytest.raises(TraceError, match=msg):
         parse_b5r(data)
 
 
 def test_xml_entity_bomb_refused_quickly():
-    bomb = b'<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">' + b"".join(
-        b'<!ENTITY lol%d "&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;">'
-        % ((i + 1,) + (i,) * 10) for i in range(9)) + b']><lolz>&lol9;</lolz>'
+    bomb = (
+        b'<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">'
+        + b"".join(
+            b'<!ENTITY lol%d "&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;">'
+            % ((i + 1,) + (i,) * 10)
+            for i in range(9)
+        )
+        + b"]><lolz>&lol9;</lolz>"
+    )
     t0 = time.perf_counter()
     with pytest.raises(TraceError, match="DTD or entity"):
         parse_b5r(bomb)
@@ -122,26 +151,39 @@ def test_oversized_xml_refused():
 
 
 def test_typed_summary_json_and_lines():
-    s = parse_summary(json.dumps({"plane": "XY", "radius_mm": 100, "centre": [110, 110, 10],
-                                  "squareness_um_per_m": 120,
-                                  "backlash_um": {"a_plus": 5, "a_minus": 7}}))
+    s = parse_summary(
+        json.dumps(
+            {
+                "plane": "XY",
+                "radius_mm": 100,
+                "centre": [110, 110, 10],
+                "squareness_um_per_m": 120,
+                "backlash_um": {"a_plus": 5, "a_minus": 7},
+            }
+        )
+    )
     assert s.diagnostics["squareness_um_per_m"] == 120
     assert s.diagnostics["backlash_um"] == {"a_plus": 5.0, "a_minus": 7.0}
-    s = parse_summary("plane: XZ\nsquareness_um_per_m: -9.7  # from the PDF\n"
-                      "servo_mismatch_ms = 0.2\nbacklash_b_plus: 3\n")
+    s = parse_summary(
+        "plane: XZ\nsquareness_um_per_m: -9.7  # from the PDF\n"
+        "servo_mismatch_ms = 0.2\nbacklash_b_plus: 3\n"
+    )
     assert s.meta["plane"] == "XZ" and s.diagnostics["backlash_um"] == {"b_plus": 3.0}
 
 
-@pytest.mark.parametrize("data, msg", [
-    ('{"squareness_um_per_m": 1}', "plane"),
-    ('{"plane": "XY"}', "no diagnostic"),
-    ('{"plane": "XY", "wobble": 1}', "'wobble' is unknown"),
-    ('{"plane": "XY", "squareness_um_per_m": "abc"}', "is not a number"),
-    ('{"plane": "XY", "backlash_um": {"a_plus": -2}}', "must be >= 0"),
-    ('{"plane": "XY", "backlash_um": {"up": 2}}', "backlash_um.up"),
-    ("just some words\n", "line 1: expected"),
-    ("[1, 2]", "object"),
-])
+@pytest.mark.parametrize(
+    "data, msg",
+    [
+        ('{"squareness_um_per_m": 1}', "plane"),
+        ('{"plane": "XY"}', "no diagnostic"),
+        ('{"plane": "XY", "wobble": 1}', "'wobble' is unknown"),
+        ('{"plane": "XY", "squareness_um_per_m": "abc"}', "is not a number"),
+        ('{"plane": "XY", "backlash_um": {"a_plus": -2}}', "must be >= 0"),
+        ('{"plane": "XY", "backlash_um": {"up": 2}}', "backlash_um.up"),
+        ("just some words\n", "line 1: expected"),
+        ("[1, 2]", "object"),
+    ],
+)
 def test_typed_summary_errors(data, msg):
     with pytest.raises(TraceError, match=msg):
         parse_summary(data)

@@ -34,8 +34,10 @@ def spec_for(plane):
 
 def truth_for(plane, accel, **kw):
     t = volume_truth(noise_um=0.5, **kw)
-    own = {k: (v if k == plane.lower() else 0.0) for k, v in
-           {"xy": SQ["XY"], "xz": SQ["XZ"], "yz": SQ["YZ"]}.items()}
+    own = {
+        k: (v if k == plane.lower() else 0.0)
+        for k, v in {"xy": SQ["XY"], "xz": SQ["XZ"], "yz": SQ["YZ"]}.items()
+    }
     t.errors = t.errors.replace(squareness_um_per_m=own)
     t.motion = MotionSettings(accel_mm_s2=accel)
     return t
@@ -49,10 +51,12 @@ def expected(spec, truth):
         "squareness_um_per_m": e.squareness_um_per_m[spec.plane.lower()],
         "scale_mismatch_ppm": e.scale_ppm[A] - e.scale_ppm[B],
         "servo_mismatch_ms": truth.servo_lag_ms[A] - truth.servo_lag_ms[B],
-        "backlash_um": {"a_plus": e.backlash[A].um_at(c[a] + R),
-                        "a_minus": e.backlash[A].um_at(c[a] - R),
-                        "b_plus": e.backlash[B].um_at(c[b] + R),
-                        "b_minus": e.backlash[B].um_at(c[b] - R)},
+        "backlash_um": {
+            "a_plus": e.backlash[A].um_at(c[a] + R),
+            "a_minus": e.backlash[A].um_at(c[a] - R),
+            "b_plus": e.backlash[B].um_at(c[b] + R),
+            "b_minus": e.backlash[B].um_at(c[b] - R),
+        },
     }
 
 
@@ -79,8 +83,10 @@ def test_xz_r50_at_500_native_and_angle_agree():
     within(dn, exp)
     within(da, exp)
     # the same run, two formats: the same answer within the uncertainty
-    assert abs(dn["scale_mismatch_ppm"] - da["scale_mismatch_ppm"]) < \
-        dn["uncertainty"]["scale_mismatch_ppm"]
+    assert (
+        abs(dn["scale_mismatch_ppm"] - da["scale_mismatch_ppm"])
+        < dn["uncertainty"]["scale_mismatch_ppm"]
+    )
     assert dn["fit"]["motion"]["accel_mm_s2"] == 500.0
 
 
@@ -114,8 +120,7 @@ def test_planner_settings_estimated_when_the_trace_has_none():
     motion = d["fit"]["motion"]
     assert motion["estimated"] is True
     assert motion["accel_mm_s2"] == pytest.approx(3000.0, rel=0.25)
-    assert any("estimated from its own start-up and stop transients" in n
-               for n in out["notes"])
+    assert any("estimated from its own start-up and stop transients" in n for n in out["notes"])
 
 
 def test_uncertainties_in_json_and_text(tmp_path, capsys):
@@ -155,8 +160,9 @@ def test_reported_uncertainty_matches_the_scatter():
     program = generate(spec)
     vals, sig = [], []
     for seed in range(12):
-        d = analyse(simulate_program(program, truth_for("XZ", 1500.0, seed=40 + seed))
-                    )["diagnostics"]
+        d = analyse(simulate_program(program, truth_for("XZ", 1500.0, seed=40 + seed)))[
+            "diagnostics"
+        ]
         vals.append(d["scale_mismatch_ppm"])
         sig.append(d["uncertainty"]["scale_mismatch_ppm"])
     ratio = float(np.std(vals, ddof=1) / np.mean(sig))

@@ -40,9 +40,13 @@ from tests.ballbar.test_formats import B5R
 # runners); the example counts keep this module at a few seconds. KINCOMP_FUZZ_SCALE=N runs
 # N times the examples with fresh random seeds (deeper, not reproducible).
 SCALE = int(os.environ.get("KINCOMP_FUZZ_SCALE", "0") or 0)
-FUZZ = settings(max_examples=150 * max(1, SCALE), deadline=None, derandomize=not SCALE,
-                database=None,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+FUZZ = settings(
+    max_examples=150 * max(1, SCALE),
+    deadline=None,
+    derandomize=not SCALE,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 FEW = settings(FUZZ, max_examples=40 * max(1, SCALE))
 
 MB = 1024 * 1024
@@ -50,9 +54,9 @@ MB = 1024 * 1024
 
 # -- valid seed files ------------------------------------------------------------------------
 
+
 def _native_seed() -> bytes:
-    spec = TestSpec(radius_mm=20, feed_mm_min=3000, capture_deg=90, overshoot_deg=5,
-                    dwell_s=0.1)
+    spec = TestSpec(radius_mm=20, feed_mm_min=3000, capture_deg=90, overshoot_deg=5, dwell_s=0.1)
     trace = simulate_program(generate(spec), paper_truth(noise_um=0.3, sample_rate_hz=50))
     # keep it short: fuzzing cost grows with the file, coverage does not
     trace.rows = trace.rows[:40]
@@ -60,17 +64,29 @@ def _native_seed() -> bytes:
 
 
 def _angle_seed() -> bytes:
-    rows = [(d, a, 3.0 * math.sin(math.radians(2 * a)) + (0.5 if d == "cw" else -0.5))
-            for d in ("ccw", "cw") for a in range(0, 360, 15)]
-    return AngleTrace(meta={"plane": "XZ", "radius_mm": "150", "centre": "110,110,80"},
-                      rows=rows).to_text().encode()
+    rows = [
+        (d, a, 3.0 * math.sin(math.radians(2 * a)) + (0.5 if d == "cw" else -0.5))
+        for d in ("ccw", "cw")
+        for a in range(0, 360, 15)
+    ]
+    return (
+        AngleTrace(meta={"plane": "XZ", "radius_mm": "150", "centre": "110,110,80"}, rows=rows)
+        .to_text()
+        .encode()
+    )
 
 
-SUMMARY_DICT = {"plane": "XY", "radius_mm": 100, "centre": [110, 110, 10],
-                "feed_mm_min": 1850, "squareness_um_per_m": -3638.6,
-                "scale_mismatch_ppm": -738.7, "servo_mismatch_ms": 0.62,
-                "backlash_um": {"a_plus": 4.4, "a_minus": 37.4, "b_plus": 11.3, "b_minus": 5.4},
-                "circularity_um": {"cw": 40.1, "ccw": 41.2, "bidirectional": 55.0}}
+SUMMARY_DICT = {
+    "plane": "XY",
+    "radius_mm": 100,
+    "centre": [110, 110, 10],
+    "feed_mm_min": 1850,
+    "squareness_um_per_m": -3638.6,
+    "scale_mismatch_ppm": -738.7,
+    "servo_mismatch_ms": 0.62,
+    "backlash_um": {"a_plus": 4.4, "a_minus": 37.4, "b_plus": 11.3, "b_minus": 5.4},
+    "circularity_um": {"cw": 40.1, "ccw": 41.2, "bidirectional": 55.0},
+}
 
 SEEDS = {
     "native": (_native_seed(), "run1.csv"),
@@ -78,9 +94,11 @@ SEEDS = {
     "b5r": (B5R.replace(b"{plane}", b"XY"), "test.b5r"),
     "b5r_zx": (B5R.replace(b"{plane}", b"ZX"), ""),
     "json": (json.dumps(SUMMARY_DICT, indent=1).encode(), "summary.json"),
-    "lines": (b"plane: XZ\nradius_mm = 150\nsquareness_um_per_m: -9.7  # from the PDF\n"
-              b"servo_mismatch_ms = 0.2\nbacklash_b_plus: 3\nbacklash_a_minus: 1.5\n",
-              "summary.txt"),
+    "lines": (
+        b"plane: XZ\nradius_mm = 150\nsquareness_um_per_m: -9.7  # from the PDF\n"
+        b"servo_mismatch_ms = 0.2\nbacklash_b_plus: 3\nbacklash_a_minus: 1.5\n",
+        "summary.txt",
+    ),
 }
 
 
@@ -94,6 +112,7 @@ def test_seeds_are_valid():
 
 
 # -- checks ----------------------------------------------------------------------------------
+
 
 def _n_lines(data: bytes) -> int:
     return max(1, len(data.decode("utf-8", "replace").splitlines()))
@@ -130,16 +149,72 @@ def check_load(data: bytes, filename: str = ""):
 
 # -- mutations -------------------------------------------------------------------------------
 
-NASTY_TOKENS = [b"", b"nan", b"NaN", b"inf", b"-inf", b"1e999", b"-1e999", b"1e308", b"-1e308",
-                b"1e-320", b"abc", b"0x1F", b"1_000", b"1,5", b"--1", b"\xff\xfe", b"\x00",
-                b"9" * 400, b"9" * 5000, b"0." + b"0" * 400 + b"1", b"true", b"null",
-                b"[1]", b"{}", b'"1"', b"\xe2\x80\xa8", b"0", b"-0", b"1e-3", b"1E3"]
-NASTY_SNIPPETS = [b"\n", b"\r", b"\r\n", b",", b",,", b"#", b"# plane: QQ\n", b":", b"=",
-                  b"<", b">", b"</FEATURE>", b"<FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>",
-                  b"&amp;", b"&#0;", b"&#x110000;", b"<![CDATA[1]]>", b"<?pi x?>",
-                  b"<!-- c -->", b"]]>", b'"', b"{", b"}", b"[", b"]", b"\\u0000", b"\xef\xbb\xbf",
-                  b"\xc0\x80", b"\xed\xa0\x80", NATIVE_HEADER.encode(), ANGLE_HEADER.encode(),
-                  b"direction,time_s,reading_mm\nccw,1,1\n"]
+NASTY_TOKENS = [
+    b"",
+    b"nan",
+    b"NaN",
+    b"inf",
+    b"-inf",
+    b"1e999",
+    b"-1e999",
+    b"1e308",
+    b"-1e308",
+    b"1e-320",
+    b"abc",
+    b"0x1F",
+    b"1_000",
+    b"1,5",
+    b"--1",
+    b"\xff\xfe",
+    b"\x00",
+    b"9" * 400,
+    b"9" * 5000,
+    b"0." + b"0" * 400 + b"1",
+    b"true",
+    b"null",
+    b"[1]",
+    b"{}",
+    b'"1"',
+    b"\xe2\x80\xa8",
+    b"0",
+    b"-0",
+    b"1e-3",
+    b"1E3",
+]
+NASTY_SNIPPETS = [
+    b"\n",
+    b"\r",
+    b"\r\n",
+    b",",
+    b",,",
+    b"#",
+    b"# plane: QQ\n",
+    b":",
+    b"=",
+    b"<",
+    b">",
+    b"</FEATURE>",
+    b"<FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>",
+    b"&amp;",
+    b"&#0;",
+    b"&#x110000;",
+    b"<![CDATA[1]]>",
+    b"<?pi x?>",
+    b"<!-- c -->",
+    b"]]>",
+    b'"',
+    b"{",
+    b"}",
+    b"[",
+    b"]",
+    b"\\u0000",
+    b"\xef\xbb\xbf",
+    b"\xc0\x80",
+    b"\xed\xa0\x80",
+    NATIVE_HEADER.encode(),
+    ANGLE_HEADER.encode(),
+    b"direction,time_s,reading_mm\nccw,1,1\n",
+]
 _NUMBER = re.compile(rb"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
 
 
@@ -147,8 +222,21 @@ _NUMBER = re.compile(rb"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
 def mutations(draw, data: bytes) -> bytes:
     buf = bytearray(data)
     for _ in range(draw(st.integers(1, 4))):
-        op = draw(st.sampled_from(["flip", "insert", "snippet", "delete", "dup", "truncate",
-                                   "token", "deep", "swap_lines"]))
+        op = draw(
+            st.sampled_from(
+                [
+                    "flip",
+                    "insert",
+                    "snippet",
+                    "delete",
+                    "dup",
+                    "truncate",
+                    "token",
+                    "deep",
+                    "swap_lines",
+                ]
+            )
+        )
         pos = draw(st.integers(0, len(buf)))
         if op == "flip" and buf:
             buf[min(pos, len(buf) - 1)] = draw(st.integers(0, 255))
@@ -157,10 +245,10 @@ def mutations(draw, data: bytes) -> bytes:
         elif op == "snippet":
             buf[pos:pos] = draw(st.sampled_from(NASTY_SNIPPETS))
         elif op == "delete":
-            buf[pos:pos + draw(st.integers(1, 64))] = b""
+            buf[pos : pos + draw(st.integers(1, 64))] = b""
         elif op == "dup":
             n = draw(st.integers(1, 200))
-            buf[pos:pos] = buf[pos:pos + n]
+            buf[pos:pos] = buf[pos : pos + n]
         elif op == "truncate":
             del buf[pos:]
         elif op in ("token", "deep"):
@@ -174,7 +262,7 @@ def mutations(draw, data: bytes) -> bytes:
                 depth = draw(st.sampled_from([1, 3, 100, 5000]))
                 opener, closer = draw(st.sampled_from([(b"[", b"]"), (b'{"a":', b"}")]))
                 new = opener * depth + m.group(0) + closer * depth
-            buf[m.start():m.end()] = new
+            buf[m.start() : m.end()] = new
         elif op == "swap_lines":
             lines = bytes(buf).split(b"\n")
             i = draw(st.integers(0, len(lines) - 1))
@@ -245,27 +333,40 @@ def test_bad_csv_row_is_named_by_its_line(kind, data):
 
 
 @FUZZ
-@given(st.sampled_from(["plane", "radius_mm", "feed_mm_min", "feed_in_mm", "overshoot_deg",
-                        "capture_deg"]),
-       st.sampled_from([b"", b"abc", b"nan", b"inf", b"1e999", b"QQ", b"-"]),
-       st.booleans())
+@given(
+    st.sampled_from(
+        ["plane", "radius_mm", "feed_mm_min", "feed_in_mm", "overshoot_deg", "capture_deg"]
+    ),
+    st.sampled_from([b"", b"abc", b"nan", b"inf", b"1e999", b"QQ", b"-"]),
+    st.booleans(),
+)
 def test_bad_or_missing_metadata_is_named(key, value, drop):
     text = SEEDS["native"][0]
     line = re.search(rb"^# " + key.encode() + rb":[^\n]*\n", text, re.M)
     new = b"" if drop else b"# " + key.encode() + b": " + value + b"\n"
     with pytest.raises(TraceError, match=f"'{key}'"):
-        load_any(text[:line.start()] + new + text[line.end():], "trace.csv")
+        load_any(text[: line.start()] + new + text[line.end() :], "trace.csv")
 
 
-SUMMARY_FIELDS = ["radius_mm", "feed_mm_min", "squareness_um_per_m", "scale_mismatch_ppm",
-                  "servo_mismatch_ms", "backlash_um.a_plus", "backlash_um.b_minus",
-                  "circularity_um.cw"]
+SUMMARY_FIELDS = [
+    "radius_mm",
+    "feed_mm_min",
+    "squareness_um_per_m",
+    "scale_mismatch_ppm",
+    "servo_mismatch_ms",
+    "backlash_um.a_plus",
+    "backlash_um.b_minus",
+    "circularity_um.cw",
+]
 
 
 @FUZZ
-@given(st.sampled_from(SUMMARY_FIELDS),
-       st.sampled_from(["abc", "", None, True, [1], {"x": 1}, 1e308 * 10, "nan", "1e999",
-                        10 ** 400, "9" * 5000]))
+@given(
+    st.sampled_from(SUMMARY_FIELDS),
+    st.sampled_from(
+        ["abc", "", None, True, [1], {"x": 1}, 1e308 * 10, "nan", "1e999", 10**400, "9" * 5000]
+    ),
+)
 def test_bad_summary_field_is_named(key, value):
     doc = json.loads(json.dumps(SUMMARY_DICT))
     if "." in key:
@@ -286,16 +387,22 @@ B5R_FEATURES = re.findall(rb'NAME="(AF_[A-Z_]+)"', B5R)
 
 
 @FUZZ
-@given(st.sampled_from([n for n in B5R_FEATURES if n != b"AF_SOMETHING_ELSE"]),
-       st.sampled_from([b"", b"abc", b"nan", b"inf", b"-inf", b"1e999", b"1,5", b"&#49;x"]))
+@given(
+    st.sampled_from([n for n in B5R_FEATURES if n != b"AF_SOMETHING_ELSE"]),
+    st.sampled_from([b"", b"abc", b"nan", b"inf", b"-inf", b"1e999", b"1,5", b"&#49;x"]),
+)
 def test_bad_b5r_feature_is_named(name, value):
-    data = re.sub(rb'(NAME="' + name + rb'"[^>]*>)[^<]*<', lambda m: m.group(1) + value + b"<",
-                  B5R.replace(b"{plane}", b"XY"))
+    data = re.sub(
+        rb'(NAME="' + name + rb'"[^>]*>)[^<]*<',
+        lambda m: m.group(1) + value + b"<",
+        B5R.replace(b"{plane}", b"XY"),
+    )
     with pytest.raises(TraceError, match=name.decode()):
         load_any(data, "test.b5r")
 
 
 # -- XML attacks and oversized input ---------------------------------------------------------
+
 
 def _peak_during(fn):
     """Run fn() under tracemalloc; returns (result or exception, peak bytes allocated)."""
@@ -303,7 +410,7 @@ def _peak_during(fn):
     try:
         try:
             out = fn()
-        except BaseException as exc:  # noqa: BLE001 - returned to the caller's assertion
+        except BaseException as exc:
             out = exc
         _, peak = tracemalloc.get_traced_memory()
     finally:
@@ -319,37 +426,75 @@ def _refused(data: bytes, filename: str, limit=50 * MB) -> TraceError:
     return out
 
 
-LAUGHS = (b'<!DOCTYPE lolz [<!ENTITY lol "lol">' + b"".join(
-    b'<!ENTITY lol%d "%s">' % (i + 1, b"".join(b"&lol%d;" % i if i else b"&lol;"
-                                                for _ in range(10)))
-    for i in range(9)) + b']>')
-LAUGHS_BODY = (b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/><FEATURE NAME="AF_SQUARENESS" '
-               b'DT="UT_SQUARENESS">&lol9;</FEATURE></BALLBAR_DATA>')
-XXE = (b'<!DOCTYPE b [<!ENTITY xxe SYSTEM "file:///etc/passwd">]>'
-       b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/><TEST_SPEC NAME="&xxe;"/>'
-       b'<FEATURE NAME="AF_SQUARENESS" DT="UT_SQUARENESS">1</FEATURE></BALLBAR_DATA>')
-PARAM_XXE = (b'<!DOCTYPE b [<!ENTITY % p SYSTEM "http://127.0.0.1:9/x.dtd"> %p;]>'
-             b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/></BALLBAR_DATA>')
-EXTERNAL_DTD = (b'<!DOCTYPE BALLBAR_DATA SYSTEM "file:///etc/passwd">'
-                b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/></BALLBAR_DATA>')
-QUADRATIC = (b'<!DOCTYPE q [<!ENTITY a "' + b"x" * 50000 + b'">]><BALLBAR_DATA>'
-             + b"&a;" * 100000 + b"</BALLBAR_DATA>")
+LAUGHS = (
+    b'<!DOCTYPE lolz [<!ENTITY lol "lol">'
+    + b"".join(
+        b'<!ENTITY lol%d "%s">'
+        % (i + 1, b"".join(b"&lol%d;" % i if i else b"&lol;" for _ in range(10)))
+        for i in range(9)
+    )
+    + b"]>"
+)
+LAUGHS_BODY = (
+    b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/><FEATURE NAME="AF_SQUARENESS" '
+    b'DT="UT_SQUARENESS">&lol9;</FEATURE></BALLBAR_DATA>'
+)
+XXE = (
+    b'<!DOCTYPE b [<!ENTITY xxe SYSTEM "file:///etc/passwd">]>'
+    b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/><TEST_SPEC NAME="&xxe;"/>'
+    b'<FEATURE NAME="AF_SQUARENESS" DT="UT_SQUARENESS">1</FEATURE></BALLBAR_DATA>'
+)
+PARAM_XXE = (
+    b'<!DOCTYPE b [<!ENTITY % p SYSTEM "http://127.0.0.1:9/x.dtd"> %p;]>'
+    b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/></BALLBAR_DATA>'
+)
+EXTERNAL_DTD = (
+    b'<!DOCTYPE BALLBAR_DATA SYSTEM "file:///etc/passwd">'
+    b'<BALLBAR_DATA><PLANE TEST_PLANE="XY"/></BALLBAR_DATA>'
+)
+QUADRATIC = (
+    b'<!DOCTYPE q [<!ENTITY a "'
+    + b"x" * 50000
+    + b'">]><BALLBAR_DATA>'
+    + b"&a;" * 100000
+    + b"</BALLBAR_DATA>"
+)
 DECL = b'<?xml version="1.0" encoding="utf-8"?>\n'
 
 
-@pytest.mark.parametrize("doc", [
-    DECL + LAUGHS + LAUGHS_BODY,
-    LAUGHS + LAUGHS_BODY,  # no XML declaration
-    DECL + b"<!--" + b"c" * 10000 + b"-->" + LAUGHS + LAUGHS_BODY,  # DTD after 4 kB
-    b"\xef\xbb\xbf" + DECL + LAUGHS + LAUGHS_BODY,  # UTF-8 BOM
-    b"  \n\t" + LAUGHS + LAUGHS_BODY,  # leading whitespace
-    LAUGHS.replace(b"DOCTYPE", b"DOCTYPE\n") + LAUGHS_BODY,
-    (b'<?xml version="1.0" encoding="utf-16"?>' + LAUGHS + LAUGHS_BODY).decode().encode(
-        "utf-16"),
-    QUADRATIC,
-    DECL + XXE, XXE, PARAM_XXE, EXTERNAL_DTD,
-], ids=["laughs", "laughs-nodecl", "laughs-late", "laughs-bom", "laughs-ws", "laughs-nl",
-        "laughs-utf16", "quadratic", "xxe-decl", "xxe", "param-xxe", "external-dtd"])
+@pytest.mark.parametrize(
+    "doc",
+    [
+        DECL + LAUGHS + LAUGHS_BODY,
+        LAUGHS + LAUGHS_BODY,  # no XML declaration
+        DECL + b"<!--" + b"c" * 10000 + b"-->" + LAUGHS + LAUGHS_BODY,  # DTD after 4 kB
+        b"\xef\xbb\xbf" + DECL + LAUGHS + LAUGHS_BODY,  # UTF-8 BOM
+        b"  \n\t" + LAUGHS + LAUGHS_BODY,  # leading whitespace
+        LAUGHS.replace(b"DOCTYPE", b"DOCTYPE\n") + LAUGHS_BODY,
+        (b'<?xml version="1.0" encoding="utf-16"?>' + LAUGHS + LAUGHS_BODY)
+        .decode()
+        .encode("utf-16"),
+        QUADRATIC,
+        DECL + XXE,
+        XXE,
+        PARAM_XXE,
+        EXTERNAL_DTD,
+    ],
+    ids=[
+        "laughs",
+        "laughs-nodecl",
+        "laughs-late",
+        "laughs-bom",
+        "laughs-ws",
+        "laughs-nl",
+        "laughs-utf16",
+        "quadratic",
+        "xxe-decl",
+        "xxe",
+        "param-xxe",
+        "external-dtd",
+    ],
+)
 @pytest.mark.parametrize("filename", ["test.b5r", ""])
 def test_xml_entity_attacks_refused_without_expansion(doc, filename):
     exc = _refused(doc, filename)
@@ -370,12 +515,15 @@ def _refused_fn(fn, limit=50 * MB):
     return out
 
 
-@pytest.mark.parametrize("filler, filename", [
-    (b"#", "trace.csv"),  # looks like a comment-only CSV
-    (b" ", "trace.csv"),  # whitespace: lstrip would copy it
-    (b"a", "summary.txt"),
-    (b"<", "test.b5r"),
-])
+@pytest.mark.parametrize(
+    "filler, filename",
+    [
+        (b"#", "trace.csv"),  # looks like a comment-only CSV
+        (b" ", "trace.csv"),  # whitespace: lstrip would copy it
+        (b"a", "summary.txt"),
+        (b"<", "test.b5r"),
+    ],
+)
 def test_oversized_input_refused_before_parsing(filler, filename):
     data = filler * (formats.MAX_TRACE_BYTES + 1)
     exc = _refused(data, filename, limit=8 * MB)

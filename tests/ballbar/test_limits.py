@@ -70,8 +70,9 @@ def test_reprapfirmware_m203_is_mm_per_min():
     assert lim.max_accel_mm_s2["z"] == 20.0
     assert (lim.print_accel_mm_s2, lim.travel_accel_mm_s2) == (600.0, 2000.0)
     # without a unit in the text, the firmware's name decides; else mm/s is assumed and said
-    assert parse_limits("M203 X100 Y100 Z3", "RepRapFirmware for Duet 3").max_feed_mm_min[
-        "z"] == 3.0
+    assert (
+        parse_limits("M203 X100 Y100 Z3", "RepRapFirmware for Duet 3").max_feed_mm_min["z"] == 3.0
+    )
     bare = parse_limits("M203 X100 Y100 Z3")
     assert bare.max_feed_mm_min["z"] == 180.0 and "mm/s" in str(bare.notes[0])
     assert parse_limits("M203 X100 Y100 Z3", "Marlin 2.1.2").notes == []
@@ -166,24 +167,85 @@ def test_cli_program_reads_limits_and_refuses_without_them(tmp_path, capsys):
     m503 = tmp_path / "m503.txt"
     m503.write_text(MARLIN)
     out = tmp_path / "xz.gcode"
-    assert main(["program", "--plane", "XZ", "--centre", "110,110,60", "--radius", "50",
-                 "--limits", str(m503), "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "program",
+                "--plane",
+                "XZ",
+                "--centre",
+                "110,110,60",
+                "--radius",
+                "50",
+                "--limits",
+                str(m503),
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = out.read_text()
     assert "; ballbar feed_mm_min: 300" in text and "F300" in text and "F1850" not in text
     assert "; feed lowered from 1850 to 300 mm/min" in text
     assert "feed lowered" in capsys.readouterr().err
     # no limits: an XZ test is refused, saying what to give
-    assert main(["program", "--plane", "XZ", "--centre", "110,110,60", "--radius", "50",
-                 "-o", str(tmp_path / "no.gcode")]) == 1
+    assert (
+        main(
+            [
+                "program",
+                "--plane",
+                "XZ",
+                "--centre",
+                "110,110,60",
+                "--radius",
+                "50",
+                "-o",
+                str(tmp_path / "no.gcode"),
+            ]
+        )
+        == 1
+    )
     err = capsys.readouterr().err
     assert "Z axis' max feed is not known" in err and not (tmp_path / "no.gcode").exists()
     # --max-feed and --max-accel count too (the lower of each)
-    assert main(["program", "--plane", "XZ", "--centre", "110,110,60", "--radius", "50",
-                 "--max-feed", "6000,6000,900", "--max-accel", "1000,1000,2",
-                 "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "program",
+                "--plane",
+                "XZ",
+                "--centre",
+                "110,110,60",
+                "--radius",
+                "50",
+                "--max-feed",
+                "6000,6000,900",
+                "--max-accel",
+                "1000,1000,2",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "Z axis' max acceleration" in out.read_text()
     bad = tmp_path / "bad.txt"
     bad.write_text("nothing here")
-    assert main(["program", "--plane", "XY", "--centre", "110,110,10", "--limits", str(bad),
-                 "-o", str(out)]) == 1
+    assert (
+        main(
+            [
+                "program",
+                "--plane",
+                "XY",
+                "--centre",
+                "110,110,10",
+                "--limits",
+                str(bad),
+                "-o",
+                str(out),
+            ]
+        )
+        == 1
+    )
     assert "no motion limits found" in capsys.readouterr().err

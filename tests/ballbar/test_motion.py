@@ -20,9 +20,9 @@ def test_single_move_trapezoid_and_triangle():
     p = plan("G1 X10 F1800", accel_mm_s2=1000.0)  # 30 mm/s, reached after 0.45 mm
     assert p.duration == pytest.approx(10 / 30 + 30 / 1000)
     pos, vel = p.sample(np.array([0.01, 0.03, p.duration / 2, p.duration - 0.01]))
-    assert pos[0, 0] == pytest.approx(0.5 * 1000 * 0.01 ** 2)  # accelerating from rest
+    assert pos[0, 0] == pytest.approx(0.5 * 1000 * 0.01**2)  # accelerating from rest
     assert vel[1, 0] == pytest.approx(30.0) and vel[2, 0] == pytest.approx(30.0)
-    assert pos[3, 0] == pytest.approx(10 - 0.5 * 1000 * 0.01 ** 2)  # braking to a stop
+    assert pos[3, 0] == pytest.approx(10 - 0.5 * 1000 * 0.01**2)  # braking to a stop
     short = plan("G1 X0.2 F1800", accel_mm_s2=1000.0)  # never reaches 30 mm/s
     assert short.duration == pytest.approx(2 * math.sqrt(0.2 / 1000))
     assert short.vc[0] == pytest.approx(math.sqrt(1000 * 0.2))
@@ -33,8 +33,9 @@ def test_junction_speed_marlin_jd_and_klipper_scv():
     jd = plan(text, accel_mm_s2=1500.0, junction_deviation_mm=0.013)
     s = math.sqrt(0.5)
     assert jd.v1[0] == pytest.approx(math.sqrt(1500 * 0.013 * s / (1 - s)))
-    assert jd.v1[0] == pytest.approx(jd.v0[1]) and jd.settings.corner_speed_90 == \
-        pytest.approx(jd.v1[0])
+    assert jd.v1[0] == pytest.approx(jd.v0[1]) and jd.settings.corner_speed_90 == pytest.approx(
+        jd.v1[0]
+    )
     scv = plan(text, accel_mm_s2=1500.0, square_corner_velocity_mm_s=5.0)
     assert scv.v1[0] == pytest.approx(5.0)  # Klipper: the 90 degree corner speed itself
     # a reversal stops; a straight continuation does not slow down
@@ -78,8 +79,11 @@ def test_circle_plan_is_continuous_and_runs_at_feed():
 
 
 def test_settings_documents_round_trip():
-    s = MotionSettings(accel_mm_s2=800.0, square_corner_velocity_mm_s=6.0,
-                       max_feed_mm_min={"x": 9000, "y": 9000, "z": 600})
+    s = MotionSettings(
+        accel_mm_s2=800.0,
+        square_corner_velocity_mm_s=6.0,
+        max_feed_mm_min={"x": 9000, "y": 9000, "z": 600},
+    )
     back = MotionSettings.from_metadata(s.metadata())
     assert back.accel_mm_s2 == 800.0 and back.square_corner_velocity_mm_s == 6.0
     assert back.max_feed_mm_min == {"x": 9000, "y": 9000, "z": 600}

@@ -22,8 +22,9 @@ def moves(text, start):
     return [ev for ev in fw.run(text.splitlines()) if isinstance(ev, Move)]
 
 
-@pytest.mark.parametrize("plane, centre", [("XY", (110, 110, 10)), ("XZ", (110, 110, 100)),
-                                            ("YZ", (110, 110, 100))])
+@pytest.mark.parametrize(
+    "plane, centre", [("XY", (110, 110, 10)), ("XZ", (110, 110, 100)), ("YZ", (110, 110, 100))]
+)
 def test_program_geometry(plane, centre):
     spec = TestSpec(plane=plane, centre=centre)
     text = generate(spec, date="test")
@@ -40,7 +41,7 @@ def test_program_geometry(plane, centre):
     circ = [p for p, r in zip(pts, radii) if abs(r - 100) < 0.5]
     for p, q in zip(circ, circ[1:]):
         chord = math.hypot(p[a] - q[a], p[b] - q[b])
-        sagitta = 100.0 - math.sqrt(max(0.0, 100.0 ** 2 - (chord / 2) ** 2))
+        sagitta = 100.0 - math.sqrt(max(0.0, 100.0**2 - (chord / 2) ** 2))
         assert sagitta <= 0.5e-3 + 1e-6
     # the coordinate that is not in the plane never changes during the test
     other = 3 - a - b
@@ -102,14 +103,21 @@ def test_bounds_check_names_the_problem():
 def test_small_radius_and_feed_cap():
     assert cap_feed(1850, "XZ", {"x": 12000, "y": 12000, "z": 300}) == 300
     assert cap_feed(1850, "XY", {"x": 12000, "y": 12000, "z": 300}) == 1850
-    text = generate(TestSpec(radius_mm=25, centre=(50, 50, 5), feed_mm_min=300,
-                             requested_feed_mm_min=1850))
+    text = generate(
+        TestSpec(radius_mm=25, centre=(50, 50, 5), feed_mm_min=300, requested_feed_mm_min=1850)
+    )
     assert "feed capped from 1850 mm/min" in text
 
 
-@pytest.mark.parametrize("kw, msg", [({"plane": "XX"}, "plane"), ({"radius_mm": 0}, "radius"),
-                                      ({"feed_mm_min": -5}, "feed"),
-                                      ({"centre": (1, 2)}, "centre")])
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        ({"plane": "XX"}, "plane"),
+        ({"radius_mm": 0}, "radius"),
+        ({"feed_mm_min": -5}, "feed"),
+        ({"centre": (1, 2)}, "centre"),
+    ],
+)
 def test_bad_specs(kw, msg):
     with pytest.raises(ProgramError, match=msg):
         TestSpec(**kw)
@@ -117,9 +125,23 @@ def test_bad_specs(kw, msg):
 
 def test_cli_program(tmp_path, capsys):
     out = tmp_path / "ballbar_xy.gcode"
-    rc = main(["program", "--plane", "XY", "--centre", "110,110,10", "--radius", "100",
-               "--feed", "1850", "-o", str(out)])
+    rc = main(
+        [
+            "program",
+            "--plane",
+            "XY",
+            "--centre",
+            "110,110,10",
+            "--radius",
+            "100",
+            "--feed",
+            "1850",
+            "-o",
+            str(out),
+        ]
+    )
     assert rc == 0 and out.read_text().startswith("; KinComp ballbar test")
-    rc = main(["program", "--plane", "XZ", "--centre", "110,110,10", "--volume",
-               "0,220,0,220,0,250"])
+    rc = main(
+        ["program", "--plane", "XZ", "--centre", "110,110,10", "--volume", "0,220,0,220,0,250"]
+    )
     assert rc == 1 and "does not fit" in capsys.readouterr().err

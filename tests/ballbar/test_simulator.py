@@ -62,16 +62,25 @@ def test_stepper_quantisation_and_bar_drift():
 
 
 def test_truth_file_motion_keys():
-    t = Truth.from_dict({"errors": {}, "accel_mm_s2": 800, "square_corner_velocity_mm_s": 5,
-                         "max_feed_mm_min": {"z": 600}, "steps_per_mm": {"z": 400},
-                         "bar_drift_um_per_min": 0.5})
+    t = Truth.from_dict(
+        {
+            "errors": {},
+            "accel_mm_s2": 800,
+            "square_corner_velocity_mm_s": 5,
+            "max_feed_mm_min": {"z": 600},
+            "steps_per_mm": {"z": 400},
+            "bar_drift_um_per_min": 0.5,
+        }
+    )
     assert t.motion.accel_mm_s2 == 800 and t.motion.square_corner_velocity_mm_s == 5
     assert t.motion.max_feed_mm_min["z"] == 600 and t.motion.max_feed_mm_min["x"] > 600
     assert t.steps_per_mm == {"z": 400.0} and t.bar_drift_um_per_min == 0.5
     assert Truth.from_dict({"errors": {}, "motion": "constant_speed"}).motion.constant_speed
-    for bad, field in (({"accel_mm_s2": 0}, "accel_mm_s2"),
-                       ({"steps_per_mm": {"w": 80}}, "steps_per_mm.w"),
-                       ({"junction_deviation_mm": "x"}, "junction_deviation_mm")):
+    for bad, field in (
+        ({"accel_mm_s2": 0}, "accel_mm_s2"),
+        ({"steps_per_mm": {"w": 80}}, "steps_per_mm.w"),
+        ({"junction_deviation_mm": "x"}, "junction_deviation_mm"),
+    ):
         with pytest.raises(ParamsError, match=field):
             Truth.from_dict(dict({"errors": {}}, **bad))
 
@@ -79,14 +88,22 @@ def test_truth_file_motion_keys():
 def test_old_constant_speed_traces_stay_readable():
     """A trace written before the planner (no motion keys, no new program keys) is analysed
     as before: its ramps show constant speed, and it says so."""
-    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xy": 200}}),
-                  servo_lag_ms={"x": 0.5}, noise_um=0.3,
-                  motion=MotionSettings(constant_speed=True), sample_rate_hz=250)
+    truth = Truth(
+        errors=Params.from_dict({"squareness_um_per_m": {"xy": 200}}),
+        servo_lag_ms={"x": 0.5},
+        noise_um=0.3,
+        motion=MotionSettings(constant_speed=True),
+        sample_rate_hz=250,
+    )
     trace = parse_csv_trace(simulate_program(generate(SMALL), truth).to_text())
     for key in list(trace.meta):
-        if key in MotionSettings.KEYS or key in ("chord_error_um", "lift_mm",
-                                                  "travel_feed_mm_min", "mount_pause",
-                                                  "params_hash"):
+        if key in MotionSettings.KEYS or key in (
+            "chord_error_um",
+            "lift_mm",
+            "travel_feed_mm_min",
+            "mount_pause",
+            "params_hash",
+        ):
             del trace.meta[key]
     out = analyse(trace)
     d = out["diagnostics"]
@@ -112,15 +129,24 @@ def test_angle_output_of_a_compensated_run(tmp_path):
     params = Params.from_dict(first["parameters"])
     sent = compensate_text(generate(SMALL), params)
     native = analyse(simulate_program(sent, truth, SMALL, body_hash(SMALL)), current=params)
-    angle = analyse(simulate_angle_trace(sent, truth, SMALL, body_hash(SMALL),
-                                         compensated_with=params), current=params)
+    angle = analyse(
+        simulate_angle_trace(sent, truth, SMALL, body_hash(SMALL), compensated_with=params),
+        current=params,
+    )
     for d in (native["diagnostics"], angle["diagnostics"]):
         assert abs(d["squareness_um_per_m"]) < 5 and abs(d["scale_mismatch_ppm"]) < 5
         assert max(abs(v) for v in d["backlash_um"].values()) < 1.0
     prog, tr, out = tmp_path / "p.gcode", tmp_path / "t.json", tmp_path / "a.csv"
     prog.write_text(generate(SMALL))
-    tr.write_text(json.dumps({"errors": {"squareness_um_per_m": {"xy": 300}},
-                              "accel_mm_s2": 800, "sample_rate_hz": 100}))
+    tr.write_text(
+        json.dumps(
+            {
+                "errors": {"squareness_um_per_m": {"xy": 300}},
+                "accel_mm_s2": 800,
+                "sample_rate_hz": 100,
+            }
+        )
+    )
     assert main(["simulate", str(prog), "--truth", str(tr), "--angle", "-o", str(out)]) == 0
     trace = parse_csv_trace(out.read_text())
     assert isinstance(trace, AngleTrace) and trace.meta["accel_mm_s2"] == "800"

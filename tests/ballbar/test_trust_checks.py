@@ -22,7 +22,6 @@ from octoprint_kincomp.ballbar.simulator import (
 )
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.params import ParamsError
-
 from tests.ballbar.test_identification import within  # the issue's tolerances
 
 XY = TestSpec()
@@ -31,13 +30,17 @@ XZ = TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=50)
 
 def expected_xy(t, extra_squareness=0.0):
     e = t.errors
-    return {"squareness_um_per_m": e.squareness_um_per_m["xy"] + extra_squareness,
-            "scale_mismatch_ppm": e.scale_ppm["x"] - e.scale_ppm["y"],
-            "servo_mismatch_ms": t.servo_lag_ms["x"] - t.servo_lag_ms["y"],
-            "backlash_um": {"a_plus": e.backlash["x"].um_at(210.0),
-                            "a_minus": e.backlash["x"].um_at(10.0),
-                            "b_plus": e.backlash["y"].um_at(210.0),
-                            "b_minus": e.backlash["y"].um_at(10.0)}}
+    return {
+        "squareness_um_per_m": e.squareness_um_per_m["xy"] + extra_squareness,
+        "scale_mismatch_ppm": e.scale_ppm["x"] - e.scale_ppm["y"],
+        "servo_mismatch_ms": t.servo_lag_ms["x"] - t.servo_lag_ms["y"],
+        "backlash_um": {
+            "a_plus": e.backlash["x"].um_at(210.0),
+            "a_minus": e.backlash["x"].um_at(10.0),
+            "b_plus": e.backlash["y"].um_at(210.0),
+            "b_minus": e.backlash["y"].um_at(10.0),
+        },
+    }
 
 
 def unpinned(program):
@@ -58,8 +61,7 @@ def analysed(spec, truth, angle=False, edit=None, pinned=True, **kw):
 
 
 def codes(result, severity=None):
-    return [f["code"] for f in result["findings"]
-            if severity is None or f["severity"] == severity]
+    return [f["code"] for f in result["findings"] if severity is None or f["severity"] == severity]
 
 
 def finding(result, code):
@@ -118,8 +120,9 @@ def test_a_program_that_pins_the_speed_factor_runs_as_planned():
     assert "motion.timing" not in codes(out)
 
 
-@pytest.mark.parametrize("cap", [{"hidden_max_feed_mm_min": {"z": 600.0}},
-                                 {"hidden_max_accel_mm_s2": {"z": 200.0}}])
+@pytest.mark.parametrize(
+    "cap", [{"hidden_max_feed_mm_min": {"z": 600.0}}, {"hidden_max_accel_mm_s2": {"z": 200.0}}]
+)
 def test_a_z_axis_capped_below_the_feed_is_an_error(cap):
     """The issue's first case: XZ at F1850, the printer's Z capped at 10 mm/s (or its
     acceleration at 200 mm/s^2), which the trace's metadata does not record."""
@@ -134,13 +137,17 @@ def test_a_z_axis_capped_below_the_feed_is_an_error(cap):
 def _relabel(key, value):
     def edit(trace):
         trace.meta[key] = value
+
     return edit
 
 
-@pytest.mark.parametrize("spec,key,value,implied", [
-    (TestSpec(radius_mm=50.0), "radius_mm", "100", ("implied_radius_mm", 50.0)),
-    (TestSpec(feed_mm_min=3700.0), "feed_mm_min", "1850", ("implied_feed_mm_min", 3700.0)),
-])
+@pytest.mark.parametrize(
+    "spec,key,value,implied",
+    [
+        (TestSpec(radius_mm=50.0), "radius_mm", "100", ("implied_radius_mm", 50.0)),
+        (TestSpec(feed_mm_min=3700.0), "feed_mm_min", "1850", ("implied_feed_mm_min", 3700.0)),
+    ],
+)
 def test_a_trace_of_another_program_is_an_error(spec, key, value, implied):
     out = analysed(spec, paper_truth(noise_um=0.5), edit=_relabel(key, value))
     f = finding(out, "motion.timing")
@@ -151,8 +158,10 @@ def test_a_trace_of_another_program_is_an_error(spec, key, value, implied):
 def test_a_trace_of_another_plane_is_an_error():
     """An XZ test (220 deg arc) whose trace carries the XY program's metadata. (Only the
     plane letters swapped, XZ for YZ, is the same motion and cannot be seen in the trace.)"""
+
     def edit(trace):
         trace.meta.update(plane="XY", capture_deg="360", start_deg="0")
+
     out = analysed(XZ, paper_truth(noise_um=0.5), edit=edit)
     f = finding(out, "motion.timing")
     assert f["severity"] == "error" and out["trusted"] is False
@@ -194,15 +203,13 @@ def test_belt_cyclic_error_is_fitted_by_default_and_the_values_hold():
     assert "model.cyclic_fitted" in codes(out, "info")
     no_warning(out)
     # without the cyclic term (0: never) the servo mismatch is what the issue saw biased
-    off = analyse(parse_csv_trace(simulate_program(generate(XY), t).to_text()),
-                  cyclic_pitch=0.0)
+    off = analyse(parse_csv_trace(simulate_program(generate(XY), t).to_text()), cyclic_pitch=0.0)
     assert off["diagnostics"]["fit"]["rms_um"] > 2 * d["fit"]["rms_um"]
     assert "model.misfit" in codes(off, "warning")
 
 
 def test_corexy_motor_backlash_is_a_misfit_warning_that_names_it():
-    out = analysed(XY, paper_truth(noise_um=0.5,
-                                   corexy_motor_backlash_um={"a": 15.0, "b": 25.0}))
+    out = analysed(XY, paper_truth(noise_um=0.5, corexy_motor_backlash_um={"a": 15.0, "b": 25.0}))
     f = finding(out, "model.misfit")
     assert f["severity"] == "warning"
     assert f["evidence"]["ratio"] > 3.0
@@ -224,9 +231,11 @@ def test_glitches_dominating_the_circularity_are_flagged():
     assert d["circularity_robust_um"]["bidirectional"] < 20.0
 
 
-@pytest.mark.parametrize("spec", [TestSpec(radius_mm=40),
-                                  TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=30)],
-                         ids=["XY R40", "XZ R30"])
+@pytest.mark.parametrize(
+    "spec",
+    [TestSpec(radius_mm=40), TestSpec(plane="XZ", centre=(110, 110, 60), radius_mm=30)],
+    ids=["XY R40", "XZ R30"],
+)
 def test_a_backlash_step_is_not_an_outlier(spec):
     """Small circles at 200 Hz (the campaign tests' set-up): after a reversal the first
     sample of the backlash take-up is far from the median of its neighbours but next to the
@@ -247,7 +256,7 @@ def test_noise_while_moving_is_not_taken_for_outliers(monkeypatch):
 
     def still_quieter(*a, **kw):
         geom, runs, mapping = native(*a, **kw)
-        mapping.still_noise_um = {d: 0.5 for d in mapping.still_noise_um}
+        mapping.still_noise_um = dict.fromkeys(mapping.still_noise_um, 0.5)
         return geom, runs, mapping
 
     monkeypatch.setattr(analysis, "runs_from_native", still_quieter)
@@ -264,8 +273,9 @@ def test_reversal_spikes_reaching_past_the_mask_are_flagged():
     long = paper_truth(noise_um=0.5, spike_um=15.0, spike_decay_mm=15.0)
     f = finding(analysed(XY, long), "model.unstable")
     assert f["severity"] == "warning"
-    assert any(k.startswith("backlash_um.") and abs(v) > 0.75 for k, v in
-               f["evidence"]["shifts"].items())
+    assert any(
+        k.startswith("backlash_um.") and abs(v) > 0.75 for k, v in f["evidence"]["shifts"].items()
+    )
     short = paper_truth(noise_um=0.5, spike_um=15.0, spike_decay_mm=3.0)
     out = analysed(XY, short)
     within(out["diagnostics"], expected_xy(short))
@@ -299,10 +309,11 @@ def test_noiseless_and_coarse_readings_are_no_misfit():
 
     def dial(trace):
         trace.rows = [(d, t, round(r * 1000) / 1000) for d, t, r in trace.rows]
+
     out = analysed(XY, paper_truth(noise_um=0.2), edit=dial)
     ad = out["diagnostics"]["checks"]["adequacy"]
     assert ad["noise_floor_source"] == "still"
-    assert ad["noise_floor_um"] >= 1 / 12 ** 0.5 - 1e-6
+    assert ad["noise_floor_um"] >= 1 / 12**0.5 - 1e-6
     no_warning(out)
 
 
@@ -315,6 +326,7 @@ def _drop(frac):
         rng = np.random.default_rng(5)
         keep = rng.random(len(trace.rows)) >= frac
         return NativeTrace(meta=trace.meta, rows=[r for r, k in zip(trace.rows, keep) if k])
+
     return edit
 
 
@@ -328,18 +340,26 @@ def _gap(deg):
             mid = 0.5 * (t.min() + t.max())
             rows += [r for r in rr if abs(r[1] - mid) > half]
         return NativeTrace(meta=trace.meta, rows=rows)
+
     return edit
 
 
 CLEAN = {
     "paper": (paper_truth, {}, None, 0.0),
     "tuned": (tuned_truth, {}, None, 0.0),
-    "tuned with belt teeth": (tuned_truth, {"cyclic": {"x": (3.0, 2.0, 0.0),
-                                                      "y": (3.0, 2.0, 70.0)}}, None, 0.0),
+    "tuned with belt teeth": (
+        tuned_truth,
+        {"cyclic": {"x": (3.0, 2.0, 0.0), "y": (3.0, 2.0, 70.0)}},
+        None,
+        0.0,
+    ),
     # motor A's belt 150 ppm long, B's 150 ppm short: a shear, squareness +300 um/m
-    "corexy belt asymmetry": (paper_truth, {"corexy_motor_scale_ppm": {"a": 150.0,
-                                                                        "b": -150.0}},
-                              None, 300.0),
+    "corexy belt asymmetry": (
+        paper_truth,
+        {"corexy_motor_scale_ppm": {"a": 150.0, "b": -150.0}},
+        None,
+        300.0,
+    ),
     "5 % dropped samples": (paper_truth, {}, _drop(0.05), 0.0),
     "30 deg gap": (paper_truth, {}, _gap(30.0), 0.0),
 }
@@ -367,17 +387,25 @@ def test_tuned_printer_servo_with_belt_teeth():
 
 
 def test_truth_file_keys_for_the_faults():
-    t = Truth.from_dict({"errors": {}, "speed_factor_pct": 80,
-                         "hidden_max_feed_mm_min": {"z": 600},
-                         "glitches": {"count": 3, "amplitude_um": 100},
-                         "corexy_motor_backlash_um": {"a": 10},
-                         "corexy_motor_scale_ppm": {"b": -50}})
+    t = Truth.from_dict(
+        {
+            "errors": {},
+            "speed_factor_pct": 80,
+            "hidden_max_feed_mm_min": {"z": 600},
+            "glitches": {"count": 3, "amplitude_um": 100},
+            "corexy_motor_backlash_um": {"a": 10},
+            "corexy_motor_scale_ppm": {"b": -50},
+        }
+    )
     assert t.speed_factor_pct == 80.0 and t.hidden_max_feed_mm_min == {"z": 600.0}
     assert t.printer_motion().max_feed_mm_min["z"] == 600.0
     assert t.motion.max_feed_mm_min["z"] != 600.0  # what the trace records
     assert t.glitches == (3, 100.0)
-    for bad in ({"speed_factor_pct": 0}, {"hidden_max_feed_mm_min": {"w": 1}},
-                {"corexy_motor_backlash_um": {"x": 1}}):
+    for bad in (
+        {"speed_factor_pct": 0},
+        {"hidden_max_feed_mm_min": {"w": 1}},
+        {"corexy_motor_backlash_um": {"x": 1}},
+    ):
         with pytest.raises(ParamsError):
             Truth.from_dict(dict({"errors": {}}, **bad))
 
@@ -388,8 +416,11 @@ def test_truth_file_keys_for_the_faults():
 
 def test_cli_analyze_prints_findings_and_exits_3_when_untrusted(tmp_path, capsys):
     bad = tmp_path / "m220.csv"
-    bad.write_text(simulate_program(unpinned(generate(XY)), paper_truth(
-        noise_um=0.5, speed_factor_pct=80.0)).to_text())
+    bad.write_text(
+        simulate_program(
+            unpinned(generate(XY)), paper_truth(noise_um=0.5, speed_factor_pct=80.0)
+        ).to_text()
+    )
     assert main(["analyze", str(bad), "--json"]) == 3
     cap = capsys.readouterr()
     out = json.loads(cap.out)

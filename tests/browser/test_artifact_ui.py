@@ -12,14 +12,17 @@ import pytest
 from octoprint_kincomp.ballbar.artifact_program import read_measurements
 from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
 from octoprint_kincomp.core.params import Params
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step
-from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step, browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 
-TRUTH = Params.from_dict({"squareness_um_per_m": {"xy": 900.0, "xz": -600.0, "yz": 300.0},
-                          "scale_ppm": {"x": 250.0, "y": -150.0, "z": 0.0}})
+TRUTH = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": 900.0, "xz": -600.0, "yz": 300.0},
+        "scale_ppm": {"x": 250.0, "y": -150.0, "z": 0.0},
+    }
+)
 
 
 def _open_artifact(page):
@@ -43,8 +46,9 @@ def test_measuring_form_result_and_apply(page, server):
     assert path.startswith("kincomp/artifact_")
     with open(os.path.join(server.basedir, "uploads", path), encoding="utf-8") as f:
         meas = read_measurements(f.read())
-    readings = simulate_readings(meas, TRUTH, shrinkage=0.004, line_width_mm=0.45,
-                                 rng=np.random.default_rng(27))
+    readings = simulate_readings(
+        meas, TRUTH, shrinkage=0.004, line_width_mm=0.45, rng=np.random.default_rng(27)
+    )
     readings["B3-in"][2] += 1.0  # typed 1 mm off
     # a reading that is no number is refused, naming the field, before anything is sent
     page.fill("#kincomp_artifact_r_X1-out_1", "abc")

@@ -11,8 +11,7 @@ import time
 import pytest
 
 from octoprint_kincomp.core.params import Params
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step
-from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
+from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step, browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -39,8 +38,9 @@ def _measure_every_test(page, server, shot=None):
         page.check("#kincomp_campaign_check")
         page.click("#kincomp_campaign_print")
         # one click: the button is not offered again for this test
-        assert page.is_disabled("#kincomp_campaign_print") or \
-            not page.is_visible("#kincomp_campaign_print")
+        assert page.is_disabled("#kincomp_campaign_print") or not page.is_visible(
+            "#kincomp_campaign_print"
+        )
         for k in range(2):  # mount the bar, then unmount it
             page.wait_for_selector("#kincomp_campaign_paused", state="visible", timeout=180_000)
             _no_blocked_command_warnings(page)  # KinComp pauses at the program's M0 itself
@@ -76,10 +76,10 @@ def _no_blocked_command_warnings(page):
 
 def _analyse(page):
     page.click("#kincomp_campaign_analyse")
-    page.wait_for_selector("#kincomp_campaign_result:visible, #kincomp_campaign_error:visible",
-                           timeout=300_000)
-    assert page.is_visible("#kincomp_campaign_result"), \
-        page.inner_text("#kincomp_campaign_error")
+    page.wait_for_selector(
+        "#kincomp_campaign_result:visible, #kincomp_campaign_error:visible", timeout=300_000
+    )
+    assert page.is_visible("#kincomp_campaign_result"), page.inner_text("#kincomp_campaign_error")
     for i in range(4):
         page.wait_for_selector(f"#kincomp_campaign_plot_{i} canvas")
 
@@ -87,8 +87,9 @@ def _analyse(page):
 def _reset_params(server):
     """The whole parameter set back to none (a campaign's proposal also sets servo lags,
     servo pre-compensation and the backlash fraction, which a partial update keeps)."""
-    code, resp = server.request("POST", f"{API}/apply", {"params": Params().to_dict(),
-                                                         "enabled": False, "apply_now": True})
+    code, resp = server.request(
+        "POST", f"{API}/apply", {"params": Params().to_dict(), "enabled": False, "apply_now": True}
+    )
     assert code == 200, resp
 
 
@@ -110,7 +111,8 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
         page.fill("#kincomp_campaign_feed2", "3700")
         # planned on the volume: four tests drawn from three sides
         page.wait_for_function(
-            "document.querySelectorAll('#kincomp_campaign_table tbody tr').length == 4")
+            "document.querySelectorAll('#kincomp_campaign_table tbody tr').length == 4"
+        )
         assert page.locator("#kincomp_campaign_views polyline").count() == 12
         assert page.is_visible("#kincomp_campaign_table >> text=xy-f3700")
         page.fill("#kincomp_campaign_rxy", "120")  # does not fit the 200 mm bed
@@ -130,12 +132,12 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
         assert page.locator(".kincomp-campaign-plane").count() == 4
         shown = page.inner_text("#kincomp_campaign_proposed")
         assert f"{proposed['squareness_um_per_m']['xz']:.1f} µm/m" in shown
-        assert page.is_visible("#kincomp_campaign_servo >> text=servo pre-compensation is "
-                               "proposed")
+        assert page.is_visible("#kincomp_campaign_servo >> text=servo pre-compensation is proposed")
         assert page.is_visible("#kincomp_campaign_result >> text=SIMULATED")
         _no_popups(page)
         page.locator("#kincomp_campaign_result").screenshot(
-            path=os.path.join(SHOTS, "campaign-first.png"))
+            path=os.path.join(SHOTS, "campaign-first.png")
+        )
 
         # ONE apply: the parameters change through the API too
         page.click("#kincomp_campaign_apply")
@@ -143,8 +145,9 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
         page.wait_for_selector("#kincomp_campaign_result >> text=Applied on")
         st = status(server)
         assert st["settings"]["enabled"] is True
-        assert st["settings"]["params"]["squareness_um_per_m"] == \
-            pytest.approx(proposed["squareness_um_per_m"])
+        assert st["settings"]["params"]["squareness_um_per_m"] == pytest.approx(
+            proposed["squareness_um_per_m"]
+        )
         assert st["settings"]["params"]["scale_ppm"] == pytest.approx(proposed["scale_ppm"])
         assert st["settings"]["params"]["servo_precomp"] is True
         assert _campaign(server, cid)["state"] == "applied"
@@ -158,10 +161,13 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
         wrong = first["steps"][1]["summary"]
         code, text = server.request("GET", f"{API}/runs/{wrong['id']}/trace")
         assert code == 200
-        page.set_input_files("#kincomp_campaign_trace_file", files=[{
-            "name": "wrong.csv", "mimeType": "text/csv", "buffer": text.encode()}])
-        page.wait_for_selector("#kincomp_campaign_error >> text=wrong.csv: it belongs to "
-                               f"campaign {cid}")
+        page.set_input_files(
+            "#kincomp_campaign_trace_file",
+            files=[{"name": "wrong.csv", "mimeType": "text/csv", "buffer": text.encode()}],
+        )
+        page.wait_for_selector(
+            f"#kincomp_campaign_error >> text=wrong.csv: it belongs to campaign {cid}"
+        )
         assert _campaign(server, again["id"])["measured"] == 0
         _measure_every_test(page, server)
         _analyse(page)
@@ -176,7 +182,8 @@ def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
         time.sleep(0.5)
         _no_popups(page)
         page.locator("#kincomp_campaign_result").screenshot(
-            path=os.path.join(SHOTS, "campaign.png"))
+            path=os.path.join(SHOTS, "campaign.png")
+        )
 
         # the history groups each campaign's runs
         _step(page, "history")

@@ -24,34 +24,49 @@ from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
 
-ERROR = {"code": "motion.feed_capped", "severity": "error",
-         "message": {"text": "the run took 19.1 s longer than planned",
-                     "template": "the run took %(s)s s longer than planned",
-                     "params": {"s": "19.1"}},
-         "advice": {"text": "lower the feed to what the Z axis reaches"},
-         "evidence": {"sync_mismatch_ms": 19074.0}}
-WARNING = {"code": "model.residual", "severity": "warning",
-           "message": {"text": "the fit leaves 3 um periodic at 2 mm"},
-           "advice": {"text": "fit the cyclic term"}, "evidence": {}}
+ERROR = {
+    "code": "motion.feed_capped",
+    "severity": "error",
+    "message": {
+        "text": "the run took 19.1 s longer than planned",
+        "template": "the run took %(s)s s longer than planned",
+        "params": {"s": "19.1"},
+    },
+    "advice": {"text": "lower the feed to what the Z axis reaches"},
+    "evidence": {"sync_mismatch_ms": 19074.0},
+}
+WARNING = {
+    "code": "model.residual",
+    "severity": "warning",
+    "message": {"text": "the fit leaves 3 um periodic at 2 mm"},
+    "advice": {"text": "fit the cyclic term"},
+    "evidence": {},
+}
 
 
 def _untrusted_run(srv):
-    code, run = srv.request("POST", "/plugin/kincomp/analyze",
-                            {"summary": {"plane": "XY", "squareness_um_per_m": 400.0}})
+    code, run = srv.request(
+        "POST",
+        "/plugin/kincomp/analyze",
+        {"summary": {"plane": "XY", "squareness_um_per_m": 400.0}},
+    )
     assert code == 200, run
     path = os.path.join(srv.basedir, "data", "kincomp", "runs", run["id"] + ".json")
     with open(path, encoding="utf-8") as f:
         stored = json.load(f)
-    stored["findings"] = [run["findings"][0], WARNING, ERROR] if run["findings"] else \
-        [WARNING, ERROR]  # stored in any order: the page shows the worst first
+    stored["findings"] = (
+        [run["findings"][0], WARNING, ERROR] if run["findings"] else [WARNING, ERROR]
+    )  # stored in any order: the page shows the worst first
     stored["trusted"] = False
     with open(path, "w", encoding="utf-8") as f:
         json.dump(stored, f)
     return run
 
 
-def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(browser,  # noqa: F811
-                                                                        tmp_path):
+def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
+    browser,  # noqa: F811
+    tmp_path,
+):
     srv = DevServer(str(tmp_path / "op"))
     srv.start()
     context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
@@ -109,8 +124,10 @@ def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):  # no
         page.fill("#kincomp_limits_text", "nothing useful")
         page.click("#kincomp_save")  # the page's one Save
         page.wait_for_selector("#kincomp_limits_error >> text=no motion limits found")
-        page.fill("#kincomp_limits_text", "[printer]\nmax_velocity: 300\nmax_accel: 3000\n"
-                                          "max_z_velocity: 2\nmax_z_accel: 100")
+        page.fill(
+            "#kincomp_limits_text",
+            "[printer]\nmax_velocity: 300\nmax_accel: 3000\nmax_z_velocity: 2\nmax_z_accel: 100",
+        )
         page.click("#kincomp_save")  # the page's one Save
         page.wait_for_selector("#kincomp_limits_z >> text=Klipper max_z_velocity")
         assert "120" in page.inner_text("#kincomp_limits_z")  # 2 mm/s

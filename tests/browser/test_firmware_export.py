@@ -13,15 +13,16 @@ from tests.support.serverutil import settings
 
 pytestmark = pytest.mark.slow
 
-PARAMS = {"squareness_um_per_m": {"xy": -3638.6, "xz": 0.0, "yz": 0.0},
-          "scale_ppm": {"x": -451.7, "y": 287.0, "z": 0.0},
-          "backlash": {"x": 20.0, "y": 8.0, "z": 0.0}}
+PARAMS = {
+    "squareness_um_per_m": {"xy": -3638.6, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": -451.7, "y": 287.0, "z": 0.0},
+    "backlash": {"x": 20.0, "y": 8.0, "z": 0.0},
+}
 
 
 def test_settings_show_the_export_per_firmware_and_copy_it(page, server):  # noqa: F811
     settings(server, enabled=False, params=PARAMS)
-    page.context.grant_permissions(["clipboard-read", "clipboard-write"],
-                                   origin=server.url)
+    page.context.grant_permissions(["clipboard-read", "clipboard-write"], origin=server.url)
     _open_settings(page)
     want = export(Params.from_dict(PARAMS))
     # the version that runs and the README link
@@ -49,17 +50,18 @@ def test_settings_show_the_export_per_firmware_and_copy_it(page, server):  # noq
 
     # without the Clipboard API (OctoPrint over plain http on the LAN): the copy command
     # on a selected text area inside the settings dialog
-    page.add_init_script("window.kincompClipboard = navigator.clipboard;"
-                         "Object.defineProperty(Navigator.prototype, 'clipboard',"
-                         " {get: function () { return undefined; }});")
+    page.add_init_script(
+        "window.kincompClipboard = navigator.clipboard;"
+        "Object.defineProperty(Navigator.prototype, 'clipboard',"
+        " {get: function () { return undefined; }});"
+    )
     page.reload()
     page.wait_for_selector("#navbar_show_settings", state="visible")
     _open_settings(page)
     page.click("#kincomp_fw_tab_marlin")
     page.click("#kincomp_fw_marlin_terminal .kincomp-copy")
     page.wait_for_selector("#kincomp_fw_marlin_terminal >> text=Copied")
-    assert page.evaluate("window.kincompClipboard.readText()") == \
-        want["marlin"].sections[0].text
+    assert page.evaluate("window.kincompClipboard.readText()") == want["marlin"].sections[0].text
     settings(server, enabled=False, params=ZERO)
 
 

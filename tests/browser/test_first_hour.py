@@ -30,8 +30,7 @@ def size(request):
 @pytest.fixture
 def page(browser, server, size):  # noqa: F811
     os.makedirs(SHOTS, exist_ok=True)
-    context = browser.new_context(viewport={"width": size[0], "height": size[1]},
-                                  locale="en-US")
+    context = browser.new_context(viewport={"width": size[0], "height": size[1]}, locale="en-US")
     pg = context.new_page()
     pg.set_default_timeout(60_000)
     errors = []
@@ -51,9 +50,15 @@ def _tab_shown(page):
 
 
 def _summary_run(server, **values):
-    body = {"plane": "XY", "squareness_um_per_m": 0.0, "scale_mismatch_ppm": 0.0,
-            "backlash_a_plus": 0.0, "backlash_a_minus": 0.0, "backlash_b_plus": 0.0,
-            "backlash_b_minus": 0.0}
+    body = {
+        "plane": "XY",
+        "squareness_um_per_m": 0.0,
+        "scale_mismatch_ppm": 0.0,
+        "backlash_a_plus": 0.0,
+        "backlash_a_minus": 0.0,
+        "backlash_b_plus": 0.0,
+        "backlash_b_minus": 0.0,
+    }
     body.update(values)
     code, run = server.request("POST", f"{API}/analyze", {"summary": body})
     assert code == 200, run
@@ -99,8 +104,9 @@ def test_kincomp_is_one_click_away_from_a_fresh_login(page, server, size):
 def test_the_history_is_readable_and_never_run_campaigns_say_so(page, server, size):
     _summary_run(server, squareness_um_per_m=-1234.5, backlash_a_plus=30.0)
     _summary_run(server, squareness_um_per_m=3.25)
-    code, plan = server.request("POST", f"{API}/campaign/plan",
-                                {"radius_xy": 50, "radius_vertical": 50})
+    code, plan = server.request(
+        "POST", f"{API}/campaign/plan", {"radius_xy": 50, "radius_vertical": 50}
+    )
     assert code == 200, plan
     page.click("#kincomp_navbar_link")
     _step(page, "history")
@@ -149,10 +155,18 @@ def test_a_reduction_within_the_noise_floor_says_at_noise_level(page, server, si
 
 
 def test_settings_decimals_ports_and_one_save(page, server, size):
-    params = dict(ZERO, backlash={"x": 30.8903127, "y": [{"at_mm": 0.0, "um": 8.108757055},
-                                                         {"at_mm": 100.0, "um": 7.0},
-                                                         {"at_mm": 200.0, "um": 6.0}],
-                                  "z": 0.0})
+    params = dict(
+        ZERO,
+        backlash={
+            "x": 30.8903127,
+            "y": [
+                {"at_mm": 0.0, "um": 8.108757055},
+                {"at_mm": 100.0, "um": 7.0},
+                {"at_mm": 200.0, "um": 6.0},
+            ],
+            "z": 0.0,
+        },
+    )
     settings(server, enabled=False, params=params)
     stored = status(server)["settings"]["params"]
     try:
@@ -216,7 +230,8 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
         time.sleep(2)  # (the notices of the pause would have arrived)
         seen = page.evaluate("window.kcSeen")
         popups = page.evaluate(
-            "[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+            "[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)"
+        )
         assert "PrintPaused" in seen["events"], seen
         assert "CommandSuppressed" not in seen["events"], seen  # OctoPrint blocked no M0
         assert not any("Suppressed command" in n for n in popups), popups
@@ -233,8 +248,11 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
         assert pbox["x"] + pbox["width"] <= pane["x"] + pane["width"] + 1, (pbox, pane)
         page.screenshot(path=os.path.join(SHOTS, f"paused-test-{size[0]}.png"))
         # a proposal while the test prints: Apply is not offered, and says why
-        page.evaluate("""id => ko.dataFor(document.querySelector('#kincomp_tab'))
-                           .openRun({id: id})""", run["id"])
+        page.evaluate(
+            """id => ko.dataFor(document.querySelector('#kincomp_tab'))
+                           .openRun({id: id})""",
+            run["id"],
+        )
         page.wait_for_selector("#kincomp_apply", state="visible")
         assert page.is_disabled("#kincomp_apply")
         assert "A print is running" in page.inner_text("#kincomp_apply_why")
@@ -249,8 +267,11 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
 
 def test_a_live_capture_source_is_translated(browser, server):  # noqa: F811
     # the History's source "live capture (XZ)" is stored in English: shown in German
-    context = browser.new_context(viewport={"width": 1400, "height": 900}, locale="de-DE",
-                                  extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"})
+    context = browser.new_context(
+        viewport={"width": 1400, "height": 900},
+        locale="de-DE",
+        extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"},
+    )
     try:
         pg = context.new_page()
         pg.set_default_timeout(60_000)

@@ -9,8 +9,16 @@ import re
 
 import pytest
 
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_settings, _open_tab, _step
-from tests.browser.test_ui import browser, page  # noqa: F401 - the fixtures
+from tests.browser.test_ui import (  # noqa: F401 - the fixtures
+    SHOTS,
+    ZERO,
+    _no_popups,
+    _open_settings,
+    _open_tab,
+    _step,
+    browser,
+    page,
+)
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -26,7 +34,8 @@ def test_live_capture_from_the_calibration_tab(page, server):  # noqa: F811
         # the idle bar reads about +1 mm, with the virtual bar's 0.5 um noise
         page.wait_for_function(
             "/^\\+(0\\.99|1\\.00)/.test(document.querySelector('#kincomp_sensor_reading')"
-            ".textContent)")
+            ".textContent)"
+        )
         page.wait_for_selector("#kincomp_sensor_chart canvas")
         page.wait_for_selector("#kincomp_sensor_check_steady i.fa-check")
         page.wait_for_selector("#kincomp_sensor_check_range i.fa-check")
@@ -43,16 +52,17 @@ def test_live_capture_from_the_calibration_tab(page, server):  # noqa: F811
         # armed, then the runs stream in: the live view follows the capture
         page.wait_for_selector("#kincomp_sensor_state >> text=Capturing", timeout=60_000)
         _no_popups(page)
-        page.locator("#kincomp_sensor_live").screenshot(path=os.path.join(SHOTS,
-                                                                          "live-view.png"))
+        page.locator("#kincomp_sensor_live").screenshot(path=os.path.join(SHOTS, "live-view.png"))
         # analysed by itself: the result as for an uploaded trace
-        page.wait_for_selector("#kincomp_result_table >> text=Squareness", state="visible",
-                               timeout=120_000)
+        page.wait_for_selector(
+            "#kincomp_result_table >> text=Squareness", state="visible", timeout=120_000
+        )
         runs = server.request("GET", "/plugin/kincomp/runs")[1]["runs"]
         run = server.request("GET", f"/plugin/kincomp/runs/{runs[0]['id']}")[1]
         assert run["source"] == "live" and run["status"] == "ok" and run["simulated"]
-        assert f"{run['diagnostics']['squareness_um_per_m']:.2f}" in \
-            page.inner_text("#kincomp_result_table")
+        assert f"{run['diagnostics']['squareness_um_per_m']:.2f}" in page.inner_text(
+            "#kincomp_result_table"
+        )
         page.wait_for_selector("#kincomp_plot canvas")
         # the result can come while the program still prints its last moves: Apply is
         # offered once the print has ended (issue 25), and says why until then
@@ -98,9 +108,26 @@ def test_sensor_settings_refuse_bad_values_inline(page, server):  # noqa: F811
     page.click("#kincomp_save")  # the page's one Save
     page.wait_for_selector("#kincomp_sensor_settings >> text=Saved.")
     stored = status(server)["settings"]["sensor"]
-    assert stored == dict(stored, enabled=True, port="socket://127.0.0.1:9", baudrate=250000,
-                          protocol="pattern", units="um", scale=0.1,
-                          pattern="01A(?P<value>[+-]\\d{8})")
+    assert stored == dict(
+        stored,
+        enabled=True,
+        port="socket://127.0.0.1:9",
+        baudrate=250000,
+        protocol="pattern",
+        units="um",
+        scale=0.1,
+        pattern="01A(?P<value>[+-]\\d{8})",
+    )
     assert re.match(r"^\d+$", str(stored["baudrate"]))
-    settings(server, sensor={"enabled": False, "port": "", "protocol": "kincomp",
-                             "pattern": "", "scale": 1.0, "units": "mm", "baudrate": 115200})
+    settings(
+        server,
+        sensor={
+            "enabled": False,
+            "port": "",
+            "protocol": "kincomp",
+            "pattern": "",
+            "scale": 1.0,
+            "units": "mm",
+            "baudrate": 115200,
+        },
+    )

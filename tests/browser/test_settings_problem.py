@@ -18,9 +18,13 @@ from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
 
-GARBAGE = {"enabled": True,
-           "params": {"squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
-                      "scale_ppm": {"x": 350.0, "y": -200.0, "z": 15.0}}}
+GARBAGE = {
+    "enabled": True,
+    "params": {
+        "squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
+        "scale_ppm": {"x": 350.0, "y": -200.0, "z": 15.0},
+    },
+}
 
 
 def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_path):  # noqa: F811

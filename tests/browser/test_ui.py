@@ -14,9 +14,11 @@ pytestmark = pytest.mark.slow
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SHOTS = os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "screenshots")
-ZERO = {"squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
-        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
+ZERO = {
+    "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
+}
 
 
 @pytest.fixture(scope="module")
@@ -28,9 +30,16 @@ def browser():
     with sync_playwright() as p:
         b = p.chromium.launch(
             executable_path=CHROMIUM,
-            args=["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update",
-                  "--disable-sync"])
+            args=[
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+            ],
+        )
         try:
             yield b
         finally:
@@ -85,7 +94,7 @@ def _failure_picture(pg, name: str) -> None:
             modals: [...document.querySelectorAll('.modal.in')].map(m => m.id),
             offline: !!(document.querySelector('#offline_overlay') || {}).offsetParent})""")
         print(f"page at the failure of {name}: {shown}")
-    except Exception as exc:  # noqa: BLE001 - the picture must not hide the failure
+    except Exception as exc:
         print(f"no picture of the page at the failure of {name}: {exc}")
 
 
@@ -145,7 +154,8 @@ def test_settings_change_save_and_refuse_invalid(page, server):
     assert p["backlash"]["x"] == [{"at_mm": 10.0, "um": 30.0}, {"at_mm": 190.0, "um": 12.0}]
     # the firmware equivalents follow the saved parameters
     page.wait_for_function(
-        "document.querySelector('#kincomp_fw_marlin').textContent.indexOf('M852 I-0.001234') >= 0")
+        "document.querySelector('#kincomp_fw_marlin').textContent.indexOf('M852 I-0.001234') >= 0"
+    )
     page.locator("#settings_plugin_kincomp h3").first.scroll_into_view_if_needed()
     page.evaluate("document.querySelector('#settings_plugin_kincomp').scrollIntoView()")
     page.screenshot(path=os.path.join(SHOTS, "settings.png"))
@@ -212,8 +222,9 @@ def test_calibration_wizard_demo_loop(page, server):
         page.wait_for_selector("#kincomp_state_on", state="visible")
         st = status(server)
         assert st["settings"]["enabled"] is True
-        assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == \
-            pytest.approx(run["proposed"]["squareness_um_per_m"]["xy"])
+        assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == pytest.approx(
+            run["proposed"]["squareness_um_per_m"]["xy"]
+        )
         # re-test with compensation on: the result is compared with the run before it
         first_trace = server.request("GET", "/plugin/kincomp/demo/trace")[1]
         page.click("#kincomp_retest")
@@ -229,15 +240,17 @@ def test_calibration_wizard_demo_loop(page, server):
         server.wait_print_done()
         _step(page, "measure")
         page.click("#kincomp_use_simulated")
-        page.wait_for_selector("#kincomp_result_table >> text=Reduction", state="visible",
-                               timeout=120_000)
+        page.wait_for_selector(
+            "#kincomp_result_table >> text=Reduction", state="visible", timeout=120_000
+        )
         row = page.locator("#kincomp_result_table tr", has_text="Squareness").inner_text()
         reduction = float(row.split()[-2])
         assert reduction > 90, row
         page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
         _no_popups(page)
         page.locator("#kincomp_result").screenshot(
-            path=os.path.join(SHOTS, "plot-before-after.png"))
+            path=os.path.join(SHOTS, "plot-before-after.png")
+        )
         page.wait_for_selector("#kincomp_plot .legend >> text=fitted centre")
         # history lists both runs, with the parameters used and the measurement file
         _step(page, "history")
@@ -269,11 +282,11 @@ def test_files_compensated_with_older_parameters_are_flagged(page, server):
     skew = dict(ZERO, squareness_um_per_m={"xy": 700.0, "xz": 0.0, "yz": 0.0})
     settings(server, enabled=True, mode="on_upload", params=skew)
     try:
-        code, _ = server.upload("/api/files/local", "flagged.gcode",
-                                b"G28\nG1 X10 Y50 F3000\nG1 X20 Y60\n")
+        code, _ = server.upload(
+            "/api/files/local", "flagged.gcode", b"G28\nG1 X10 Y50 F3000\nG1 X20 Y60\n"
+        )
         assert code == 201
-        settings(server, params=dict(ZERO, squareness_um_per_m={"xy": 650.0, "xz": 0.0,
-                                                                 "yz": 0.0}))
+        settings(server, params=dict(ZERO, squareness_um_per_m={"xy": 650.0, "xz": 0.0, "yz": 0.0}))
         page.reload()
         page.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
         _open_tab(page)
@@ -285,8 +298,11 @@ def test_files_compensated_with_older_parameters_are_flagged(page, server):
 
 def test_german_browser_gets_the_german_ui(browser, server):
     """Jinja (server side) and gettext in the view models (browser side) both translate."""
-    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="de-DE",
-                                  extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"})
+    context = browser.new_context(
+        viewport={"width": 1400, "height": 1100},
+        locale="de-DE",
+        extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"},
+    )
     try:
         pg = context.new_page()
         pg.set_default_timeout(60_000)
@@ -306,8 +322,9 @@ def test_german_browser_gets_the_german_ui(browser, server):
         _open_settings(pg)
         pg.fill("#kincomp_sc_y", "900000")
         pg.click("#kincomp_save")
-        pg.wait_for_selector("#settings_plugin_kincomp .alert-error >> "
-                             "text=liegt außerhalb des zulässigen Bereichs")
+        pg.wait_for_selector(
+            "#settings_plugin_kincomp .alert-error >> text=liegt außerhalb des zulässigen Bereichs"
+        )
         assert status(server)["settings"]["params"]["scale_ppm"]["y"] == 0.0
     finally:
         context.close()

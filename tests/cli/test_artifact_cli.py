@@ -11,18 +11,40 @@ from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.params import Params
 
-TRUTH = Params.from_dict({"squareness_um_per_m": {"xy": 600.0, "xz": -900.0, "yz": 400.0},
-                          "scale_ppm": {"x": 300.0, "y": -200.0, "z": 0.0}})
+TRUTH = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": 600.0, "xz": -900.0, "yz": 400.0},
+        "scale_ppm": {"x": 300.0, "y": -200.0, "z": 0.0},
+    }
+)
 
 
 @pytest.fixture
 def artifact(tmp_path):
     prog = tmp_path / "A.gcode"
-    assert main(["artifact", "program", "--volume", "0,235,0,235,0,250", "--nozzle", "0.4",
-                 "--temps", "215,65", "--first-layer", "0.25", "-o", str(prog)]) == 0
+    assert (
+        main(
+            [
+                "artifact",
+                "program",
+                "--volume",
+                "0,235,0,235,0,250",
+                "--nozzle",
+                "0.4",
+                "--temps",
+                "215,65",
+                "--first-layer",
+                "0.25",
+                "-o",
+                str(prog),
+            ]
+        )
+        == 0
+    )
     meas = read_measurements(prog.read_text())
-    readings = simulate_readings(meas, TRUTH, shrinkage=0.004, line_width_mm=0.44,
-                                 rng=np.random.default_rng(1))
+    readings = simulate_readings(
+        meas, TRUTH, shrinkage=0.004, line_width_mm=0.44, rng=np.random.default_rng(1)
+    )
     m = tmp_path / "M.json"
     m.write_text(json.dumps(readings))
     return tmp_path, prog, m
@@ -34,8 +56,21 @@ def test_program_then_analyze_json(artifact, capsys):
     assert "M109 S215" in text and "M190 S65" in text and "G1 Z0.25" in text
     capsys.readouterr()
     out_params = tmp / "P.json"
-    assert main(["artifact", "analyze", str(m), "--program", str(prog), "--json",
-                 "--params-out", str(out_params)]) == 0
+    assert (
+        main(
+            [
+                "artifact",
+                "analyze",
+                str(m),
+                "--program",
+                str(prog),
+                "--json",
+                "--params-out",
+                str(out_params),
+            ]
+        )
+        == 0
+    )
     res = json.loads(capsys.readouterr().out)
     assert set(res) >= {"diagnostics", "parameters", "firmware", "findings", "trusted"}
     d = res["diagnostics"]
@@ -44,10 +79,12 @@ def test_program_then_analyze_json(artifact, capsys):
     for key in ("squareness_um_per_m", "scale_mismatch_ppm"):
         assert set(d["uncertainty"][key]) == set(d[key])
     u = d["uncertainty"]
-    assert d["squareness_um_per_m"]["xy"] == pytest.approx(600, abs=3 * u[
-        "squareness_um_per_m"]["xy"])
-    assert d["scale_mismatch_ppm"]["x-y"] == pytest.approx(500, abs=3 * u[
-        "scale_mismatch_ppm"]["x-y"])
+    assert d["squareness_um_per_m"]["xy"] == pytest.approx(
+        600, abs=3 * u["squareness_um_per_m"]["xy"]
+    )
+    assert d["scale_mismatch_ppm"]["x-y"] == pytest.approx(
+        500, abs=3 * u["scale_mismatch_ppm"]["x-y"]
+    )
     assert res["trusted"] is True
     p = Params.load(str(out_params))  # the proposal is a valid params file
     assert p.squareness_um_per_m["xy"] == pytest.approx(d["squareness_um_per_m"]["xy"])
@@ -58,8 +95,7 @@ def test_analyze_text_and_current(artifact, capsys):
     tmp, prog, m = artifact
     cur = tmp / "cur.json"
     cur.write_text(json.dumps({"squareness_um_per_m": {"xy": 100.0}}))
-    assert main(["artifact", "analyze", str(m), "--program", str(prog), "--current",
-                 str(cur)]) == 0
+    assert main(["artifact", "analyze", str(m), "--program", str(prog), "--current", str(cur)]) == 0
     out = capsys.readouterr().out
     assert "squareness_um_per_m" in out and "+-" in out and "trusted" in out
     assert "current + residual" in out

@@ -6,8 +6,13 @@ import os
 
 import pytest
 
-from octoprint_kincomp.tools.benchmark import (TABLE_BEGIN, TABLE_END, TABLE_FILE,
-                                               markdown_table, replace_table)
+from octoprint_kincomp.tools.benchmark import (
+    TABLE_BEGIN,
+    TABLE_END,
+    TABLE_FILE,
+    markdown_table,
+    replace_table,
+)
 
 
 def _hook(p50, p99):
@@ -15,22 +20,51 @@ def _hook(p50, p99):
 
 
 def _engine(copy, comp, p50):
-    return {"copy_s": copy, "compensate_s": comp, "ratio": comp / copy,
-            "arc_copy_s": copy, "arc_compensate_s": 2 * comp, "arc_ratio": 2 * comp / copy,
-            "rss": {"growth_mb": 4.0},
-            "hook": {"process": _hook(p50, 2 * p50), "process_arc": _hook(3 * p50, 4 * p50),
-                     "handle": _hook(p50 + 0.5, 3.0), "handle_arc": _hook(2.5, 4.0),
-                     "takeup_share": 0.3}}
+    return {
+        "copy_s": copy,
+        "compensate_s": comp,
+        "ratio": comp / copy,
+        "arc_copy_s": copy,
+        "arc_compensate_s": 2 * comp,
+        "arc_ratio": 2 * comp / copy,
+        "rss": {"growth_mb": 4.0},
+        "hook": {
+            "process": _hook(p50, 2 * p50),
+            "process_arc": _hook(3 * p50, 4 * p50),
+            "handle": _hook(p50 + 0.5, 3.0),
+            "handle_arc": _hook(2.5, 4.0),
+            "takeup_share": 0.3,
+        },
+    }
 
 
-RES = {"lines": 1000, "file_mb": 0.04, "verify": {"verified_lines": 1234},
-       "engines": {"compiled": _engine(0.16, 0.38, 0.65), "python": _engine(0.18, 0.80, 30.0)},
-       "a1": {"growth": {"200 arcs kept": {"lines": 1.024, "bytes": 1.037, "arcs_kept": 3862,
-                                            "arcs_split": 89, "arcs_linearised": 0,
-                                            "max_dev_um": 0.53}},
-              "serial": {"arcs kept": {"needed_mean": 37.0, "needed_p99": 104,
-                                       "needed_peak": 288, "mean_line_bytes": 30.0,
-                                       "capacity": {"115200": 305.0}}}}}
+RES = {
+    "lines": 1000,
+    "file_mb": 0.04,
+    "verify": {"verified_lines": 1234},
+    "engines": {"compiled": _engine(0.16, 0.38, 0.65), "python": _engine(0.18, 0.80, 30.0)},
+    "a1": {
+        "growth": {
+            "200 arcs kept": {
+                "lines": 1.024,
+                "bytes": 1.037,
+                "arcs_kept": 3862,
+                "arcs_split": 89,
+                "arcs_linearised": 0,
+                "max_dev_um": 0.53,
+            }
+        },
+        "serial": {
+            "arcs kept": {
+                "needed_mean": 37.0,
+                "needed_p99": 104,
+                "needed_peak": 288,
+                "mean_line_bytes": 30.0,
+                "capacity": {"115200": 305.0},
+            }
+        },
+    },
+}
 
 
 def test_the_table_holds_every_figure_of_the_run():

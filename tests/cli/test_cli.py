@@ -18,8 +18,7 @@ from tests.engines.test_files import write
 def test_cli_compensate_report_and_in_place(tmp_path, capsys):
     p = write(tmp_path, "in.gcode", "\n".join(edge_program()) + "\n")
     params = write(tmp_path, "p.json", json.dumps(SKEW))
-    rc = main(["compensate", p, "--params", params, "--limits", "0,200,0,200,0,180",
-               "--report"])
+    rc = main(["compensate", p, "--params", params, "--limits", "0,200,0,200,0,180", "--report"])
     assert rc == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["limit_hits"] == 1 and rep["params_hash"] == Params.from_dict(SKEW).hash()
@@ -30,13 +29,18 @@ def test_cli_compensate_report_and_in_place(tmp_path, capsys):
     assert rc == 1 and "already compensated" in err
 
 
-@pytest.mark.parametrize("args, msg", [
-    (["--params", "{P}", "--limits", "1,2,3"], "--limits: expected 6"),
-    (["--params", "{BAD}"], "invalid params file"),
-    (["--params", "{P}", "--policy", "error", "--limits", "0,200,0,200,0,180"],
-     "outside the limits"),
-    ([], "--params is required"),
-])
+@pytest.mark.parametrize(
+    "args, msg",
+    [
+        (["--params", "{P}", "--limits", "1,2,3"], "--limits: expected 6"),
+        (["--params", "{BAD}"], "invalid params file"),
+        (
+            ["--params", "{P}", "--policy", "error", "--limits", "0,200,0,200,0,180"],
+            "outside the limits",
+        ),
+        ([], "--params is required"),
+    ],
+)
 def test_cli_errors(tmp_path, capsys, args, msg):
     p = write(tmp_path, "in.gcode", "\n".join(edge_program()) + "\n")
     good = write(tmp_path, "p.json", json.dumps(SKEW))
@@ -54,25 +58,36 @@ def test_cli_missing_file(tmp_path, capsys):
 
 
 def test_cli_params_init_and_module_entry(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "octoprint_kincomp", "params", "--init"],
-                         capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "octoprint_kincomp", "params", "--init"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert changes_nothing(Params.from_json(out))
     p = write(tmp_path, "p.json", json.dumps(SKEW))
-    chk = subprocess.run([sys.executable, "-m", "octoprint_kincomp", "params", "--check", p],
-                         capture_output=True, text=True)
+    chk = subprocess.run(
+        [sys.executable, "-m", "octoprint_kincomp", "params", "--check", p],
+        capture_output=True,
+        text=True,
+    )
     assert chk.returncode == 0 and "valid" in chk.stdout
 
 
 def test_cli_firmware_equivalents(tmp_path, capsys):
-    p = write(tmp_path, "p.json", json.dumps({"squareness_um_per_m": {"xy": -3638.6},
-                                             "backlash": {"x": 20}}))
+    p = write(
+        tmp_path,
+        "p.json",
+        json.dumps({"squareness_um_per_m": {"xy": -3638.6}, "backlash": {"x": 20}}),
+    )
     assert main(["firmware", "--params", p]) == 0
     out = capsys.readouterr().out
     assert "M852 I-0.003639" in out and "M556 S100 X0.36386" in out and "M425 X0.0200" in out
 
 
 def test_cli_compensate_to_a_new_output_keeps_the_inputs_mode_and_says_what_it_wrote(
-        tmp_path, capsys):
+    tmp_path, capsys
+):
     # issue 25: the output was left 0600 (its temporary file's mode) and nothing was said
     import os
     import stat

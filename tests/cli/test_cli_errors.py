@@ -11,8 +11,22 @@ from octoprint_kincomp.cli import main
 @pytest.fixture
 def program(tmp_path):
     path = tmp_path / "xy.gcode"
-    assert main(["program", "--plane", "XY", "--centre", "100,100,10", "--radius", "50",
-                 "-o", str(path)]) == 0
+    assert (
+        main(
+            [
+                "program",
+                "--plane",
+                "XY",
+                "--centre",
+                "100,100,10",
+                "--radius",
+                "50",
+                "-o",
+                str(path),
+            ]
+        )
+        == 0
+    )
     return path
 
 

@@ -42,7 +42,8 @@ class FakeServer:
 
 
 def test_the_login_is_the_last_thing_printed_and_octoprints_output_goes_to_a_file(
-        tmp_path, monkeypatch, capsys):
+    tmp_path, monkeypatch, capsys
+):
     monkeypatch.setattr(devserver, "DevServer", FakeServer)
     monkeypatch.setattr(devserver.signal, "signal", lambda *a: None)
     base = str(tmp_path / "demo")
@@ -60,8 +61,7 @@ def test_the_login_is_the_last_thing_printed_and_octoprints_output_goes_to_a_fil
     assert "Starting OctoPrint" in open(log).read()
 
 
-def test_a_server_that_does_not_start_shows_the_end_of_its_output(tmp_path, monkeypatch,
-                                                                   capsys):
+def test_a_server_that_does_not_start_shows_the_end_of_its_output(tmp_path, monkeypatch, capsys):
     class Broken(FakeServer):
         def start(self, timeout=120.0, stdout=None):
             with open(os.path.join(self.basedir, devserver.SERVER_OUT), "w") as f:

@@ -25,8 +25,10 @@ def _files(tmp_path, moves=10):
     with open(src, "w") as f:
         f.write("G28\n")
         for i in range(moves):
-            f.write(f"G1 X{10 + i % 150} Y{10 + (i * 7) % 150} Z{0.2 + (i % 50) * 0.2:.1f} "
-                    f"E{i * 0.01:.2f} F3000 ; move {i}\n")
+            f.write(
+                f"G1 X{10 + i % 150} Y{10 + (i * 7) % 150} Z{0.2 + (i % 50) * 0.2:.1f} "
+                f"E{i * 0.01:.2f} F3000 ; move {i}\n"
+            )
     params = tmp_path / "p.json"
     params.write_text(json.dumps(SKEW))
     return str(src), str(params)
@@ -44,9 +46,12 @@ def test_an_interrupted_in_place_edit_leaves_no_temp_file(tmp_path, sig):
     env = dict(os.environ, PYTHONPATH=ROOT)
     # SIGINT as a terminal gives it: a suite started in the background (nohup, &) passes on an
     # ignored SIGINT, and Python then installs no KeyboardInterrupt handler (exit 0 here once)
-    proc = subprocess.Popen([sys.executable, "-m", "octoprint_kincomp", "compensate", src,
-                             "--params", params], env=env, stderr=subprocess.PIPE,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "octoprint_kincomp", "compensate", src, "--params", params],
+        env=env,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.time() + 120
     while not temps(tmp_path) or os.path.getsize(tmp_path / temps(tmp_path)[0]) == 0:
         assert proc.poll() is None and time.time() < deadline, "never started writing"
@@ -67,8 +72,9 @@ def test_an_interrupted_in_place_edit_leaves_no_temp_file(tmp_path, sig):
 
 def test_stale_temp_files_of_dead_runs_are_removed_and_only_those(tmp_path):
     src, params = _files(tmp_path)
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True).stdout.strip()
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    ).stdout.strip()
     stale = tmp_path / f".kincomp-{dead}-abcd1234.gcode"
     stale.write_text("half a file")
     alive = tmp_path / f".kincomp-{os.getppid()}-abcd1234.gcode"  # a running writer's
@@ -91,8 +97,7 @@ def test_in_place_through_a_link_edits_its_target(tmp_path):
 
 def test_an_unwritable_folder_names_the_users_file(tmp_path, capsys):
     src, params = _files(tmp_path)
-    denied = PermissionError(13, "Permission denied",
-                             str(tmp_path / ".kincomp-1-abcdefgh.gcode"))
+    denied = PermissionError(13, "Permission denied", str(tmp_path / ".kincomp-1-abcdefgh.gcode"))
     with mock.patch("tempfile.mkstemp", side_effect=denied):  # (root may write anywhere)
         assert main(["compensate", src, "--params", params]) == 1
     err = capsys.readouterr().err

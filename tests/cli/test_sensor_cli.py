@@ -17,8 +17,22 @@ def test_sensor_capture_and_the_same_trace_offline(tmp_path, capsys):
     player.start()
     try:
         trace, raw, again = tmp_path / "t.csv", tmp_path / "raw.csv", tmp_path / "t2.csv"
-        assert main(["sensor-capture", url, str(prog), "--preview-s", "0.5", "-o", str(trace),
-                     "--raw", str(raw)]) == 0
+        assert (
+            main(
+                [
+                    "sensor-capture",
+                    url,
+                    str(prog),
+                    "--preview-s",
+                    "0.5",
+                    "-o",
+                    str(trace),
+                    "--raw",
+                    str(raw),
+                ]
+            )
+            == 0
+        )
     finally:
         player.join()
         vs.stop()

@@ -50,8 +50,7 @@ def deviation(arc: arcs.Arc, path) -> float:
     Between two points the path is straight: it is checked at quarters of each segment too."""
     V = np.asarray(path, float)
     # the path is straight between its points: check those lines at quarters too
-    P = np.concatenate([V[:-1] + (V[1:] - V[:-1]) * t for t in (0.0, 0.25, 0.5, 0.75)]
-                       + [V[-1:]])
+    P = np.concatenate([V[:-1] + (V[1:] - V[:-1]) * t for t in (0.0, 0.25, 0.5, 0.75)] + [V[-1:]])
     order = np.concatenate([np.arange(len(V) - 1) * 4 + i for i in range(4)] + [[4 * len(V)]])
     P = P[np.argsort(order, kind="stable")]
     a = P[:, arc.ia] - arc.ca
@@ -117,14 +116,19 @@ def printed_arcs(p: Params, lines, opts: Options, play: bool):
                 pos = ends[1]
                 path.append(pos)
         arc = want_fw.last_arc
-        if arc is not None and want and out is not line and len(path) > 1 and \
-                abs(arc.dr) <= SPIRAL_MM + 1e-3 * arc.r0:
+        if (
+            arc is not None
+            and want
+            and out is not line
+            and len(path) > 1
+            and abs(arc.dr) <= SPIRAL_MM + 1e-3 * arc.r0
+        ):
             results.append((line, outs, deviation(arc, path)))
     return comp, results
 
 
 def _resolution(opts: Options) -> float:
-    return 10.0 ** -opts.decimals
+    return 10.0**-opts.decimals
 
 
 @st.composite
@@ -139,8 +143,9 @@ def arc_program(draw):
         if op == "arc":
             r = draw(st.floats(0.5, 80))
             a0 = draw(st.floats(0, 2 * math.pi))
-            sweep = draw(st.sampled_from([draw(st.floats(0.01, 1.6)), draw(st.floats(0.01, 6.28)),
-                                          0.0]))
+            sweep = draw(
+                st.sampled_from([draw(st.floats(0.01, 1.6)), draw(st.floats(0.01, 6.28)), 0.0])
+            )
             ia = draw(st.booleans())
             words = []
             # the arc starts where the head is: centre at -r (cos a0, sin a0) from it
@@ -170,9 +175,18 @@ def arc_program(draw):
             lines.append("G90")
             lines.append("G17")
         elif op == "move":
-            lines.append("G1 X{:.3f} Y{:.3f} Z{:.3f}".format(
-                *(v / u for v in (draw(st.floats(60, 140)), draw(st.floats(60, 140)),
-                                  draw(st.floats(10, 30))))))
+            lines.append(
+                "G1 X{:.3f} Y{:.3f} Z{:.3f}".format(
+                    *(
+                        v / u
+                        for v in (
+                            draw(st.floats(60, 140)),
+                            draw(st.floats(60, 140)),
+                            draw(st.floats(10, 30)),
+                        )
+                    )
+                )
+            )
         elif op == "inch":
             inch = not inch
             lines.append("G20" if inch else "G21")
@@ -181,14 +195,19 @@ def arc_program(draw):
 
 @st.composite
 def play_backlash(draw):
-    return {a: draw(st.floats(1.0, 80.0)) if draw(st.booleans()) else
-            [{"at_mm": 10.0, "um": draw(st.floats(0, 80))},
-             {"at_mm": 210.0, "um": draw(st.floats(0, 80))}] for a in "xyz"}
+    return {
+        a: draw(st.floats(1.0, 80.0))
+        if draw(st.booleans())
+        else [
+            {"at_mm": 10.0, "um": draw(st.floats(0, 80))},
+            {"at_mm": 210.0, "um": draw(st.floats(0, 80))},
+        ]
+        for a in "xyz"
+    }
 
 
 @cfg(40)
-@given(arc_program(), geometry(), st.sampled_from([0.01, 0.05, 0.002]),
-       st.sampled_from([3, 6]))
+@given(arc_program(), geometry(), st.sampled_from([0.01, 0.05, 0.002]), st.sampled_from([3, 6]))
 def test_every_written_arc_prints_within_the_tolerance(lines, geo, tol, dec):
     p = Params.from_dict(geo)
     opts = Options(chord_tol_mm=tol, decimals=dec)
@@ -242,9 +261,16 @@ def test_slicer_arcs_are_kept_as_single_arcs():
 ANGLE = st.floats(0.0, 2 * math.pi)
 
 
-@given(ANGLE, st.floats(0.01, 2 * math.pi - 0.01), st.floats(0.5, 300.0),
-       st.floats(-0.2, 0.2), st.sampled_from([17, 18, 19]), st.booleans(),
-       st.floats(0.0, 0.9), st.floats(0.05, 1.0))
+@given(
+    ANGLE,
+    st.floats(0.01, 2 * math.pi - 0.01),
+    st.floats(0.5, 300.0),
+    st.floats(-0.2, 0.2),
+    st.sampled_from([17, 18, 19]),
+    st.booleans(),
+    st.floats(0.0, 0.9),
+    st.floats(0.05, 1.0),
+)
 def test_points_by_rotation_are_the_points_by_angle(a0, sweep, r, dr, plane, cw, fa, width):
     """Arc.points (the angle stepped by a rotation: two sine/cosine pairs for a piece's
     eighths) gives Arc.point's points within 1e-12 of the radius, and exactly its start and
@@ -306,8 +332,7 @@ def test_the_check_can_fail():
     model = KinematicModel(p)
     fw = FirmwareInterpreter(arc_tol_mm=FINE)
     evs = [ev for line in lines for ev in fw.execute(line) if isinstance(ev, Move)]
-    pts = [model.forward(evs[-1].start)] + [model.forward(ev.end) for ev in evs
-                                           if ev.kind == "arc"]
+    pts = [model.forward(evs[-1].start)] + [model.forward(ev.end) for ev in evs if ev.kind == "arc"]
     assert deviation(fw.last_arc, pts) > 0.05
 
 
@@ -328,8 +353,15 @@ def test_a_helical_half_circle_is_one_arc_when_it_fits():
     (a half circle's end lies at +-180 degrees, where the angle's sign is a coin toss: the
     helix was halved into 90 degree lines at a deviation of 0.2 um)."""
     p = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}})
-    lines = ["G28", "G90", "M83", "G1 X65 Y245 Z0.4", "G2 X66.72 Y246.72 I0.86 J0.86 E0.1",
-             "G1 X65 Y245 Z0.4", "G2 X65 Y245 Z0.6 I-0.86 J-0.86 E0.1"]
+    lines = [
+        "G28",
+        "G90",
+        "M83",
+        "G1 X65 Y245 Z0.4",
+        "G2 X66.72 Y246.72 I0.86 J0.86 E0.1",
+        "G1 X65 Y245 Z0.4",
+        "G2 X65 Y245 Z0.6 I-0.86 J-0.86 E0.1",
+    ]
     opts = Options()
     comp, results = printed_arcs(p, lines, opts, play=False)
     (_, planar, d1), (_, helix, d2) = results
@@ -344,17 +376,22 @@ def test_an_r_below_half_the_chord_is_the_half_circle_marlin_prints(r):
     """Issue 28: Marlin prints an R arc whose R is below half its chord as the half circle
     over the chord (the centre's distance from the midpoint is 0 when r^2 < (chord/2)^2);
     it was refused as malformed and passed uncompensated, 65 um off under the paper's skew."""
-    p = Params.from_dict({"squareness_um_per_m": {"xy": -3638.6},
-                          "scale_ppm": {"x": -451.7, "y": 287.0}})
+    p = Params.from_dict(
+        {"squareness_um_per_m": {"xy": -3638.6}, "scale_ppm": {"x": -451.7, "y": 287.0}}
+    )
     lines = ["G28", "G90", "G1 X10 Y18", f"G2 X20 Y18 {r}"]
     opts = Options()
     comp, results = printed_arcs(p, lines, opts, play=False)
     assert comp.report.malformed == 0 and comp.report.untouched_unknown == 0
-    (line, outs, d), = results
+    ((line, outs, d),) = results
     assert d <= opts.chord_tol_mm + _resolution(opts) + FINE, (outs, d)
     # the half circle over the chord, clockwise: through (15, 23), above it
-    arc = arcs.Arc((10, 18, 0), (20, 18, 0), 17,
-                   *arcs.centre_from_words((10, 18, 0), (20, 18, 0), 17, (None, None),
-                                           float(r[1:]), True), True)
+    arc = arcs.Arc(
+        (10, 18, 0),
+        (20, 18, 0),
+        17,
+        *arcs.centre_from_words((10, 18, 0), (20, 18, 0), 17, (None, None), float(r[1:]), True),
+        True,
+    )
     assert (arc.ca, arc.cb, arc.r0) == (15.0, 18.0, 5.0)
     assert arc.point(0.5) == pytest.approx((15.0, 23.0, 0.0))

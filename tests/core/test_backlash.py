@@ -20,13 +20,28 @@ from tests.support.helpers import (
 pytestmark = pytest.mark.usefixtures("engine")
 
 BL = Params.from_dict({"backlash": {"x": 40.0, "y": 25.0}})
-PER_SIDE = Params.from_dict({
-    "backlash": {"x": [{"at_mm": 10, "um": 37.4}, {"at_mm": 210, "um": 4.4}],
-                 "y": [{"at_mm": 10, "um": 5.4}, {"at_mm": 210, "um": 11.3}]},
-    "squareness_um_per_m": {"xy": -3638.6}, "scale_ppm": {"x": -451.7, "y": 287},
-})
-ZIGZAG = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X100 Y10", "G1 X100 Y20", "G1 X10 Y20",
-          "G1 X10 Y30", "G1 X100 Y30", "G1 X55 Y5", "G1 X210 Y210", "G1 X10 Y10"]
+PER_SIDE = Params.from_dict(
+    {
+        "backlash": {
+            "x": [{"at_mm": 10, "um": 37.4}, {"at_mm": 210, "um": 4.4}],
+            "y": [{"at_mm": 10, "um": 5.4}, {"at_mm": 210, "um": 11.3}],
+        },
+        "squareness_um_per_m": {"xy": -3638.6},
+        "scale_ppm": {"x": -451.7, "y": 287},
+    }
+)
+ZIGZAG = [
+    "G28",
+    "G1 X10 Y10 Z0.3 F3000",
+    "G1 X100 Y10",
+    "G1 X100 Y20",
+    "G1 X10 Y20",
+    "G1 X10 Y30",
+    "G1 X100 Y30",
+    "G1 X55 Y5",
+    "G1 X210 Y210",
+    "G1 X10 Y10",
+]
 
 
 def xs(line):
@@ -52,8 +67,9 @@ def test_immediate_takeup_lands_on_every_point():
 
 
 def test_per_side_values_are_the_local_step():
-    p = Params.from_dict({"backlash": {"x": [{"at_mm": 10, "um": 37.4},
-                                              {"at_mm": 210, "um": 4.4}]}})
+    p = Params.from_dict(
+        {"backlash": {"x": [{"at_mm": 10, "um": 37.4}, {"at_mm": 210, "um": 4.4}]}}
+    )
     comp = make_compensator(p, Options(decimals=6))
     comp.process("G28")
     first = comp.process("G1 X210 Y0 Z1")
@@ -96,12 +112,14 @@ def test_the_default_deadband_ignores_retreats_far_below_a_step():
         with pytest.raises(ValueError):
             Options(steps_per_mm=bad)
     step80 = dict(decimals=8, steps_per_mm=80)
-    for opts, retreat, lines in ((Options(**step80), 0.000007, 1),
-                                 (Options(**step80), 0.0006, 1),
-                                 (Options(**step80), 0.001, 2),
-                                 (Options(decimals=8), 0.000007, 2),
-                                 (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
-                                 (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2)):
+    for opts, retreat, lines in (
+        (Options(**step80), 0.000007, 1),
+        (Options(**step80), 0.0006, 1),
+        (Options(**step80), 0.001, 2),
+        (Options(decimals=8), 0.000007, 2),
+        (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
+        (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2),
+    ):
         comp = make_compensator(BL, opts)
         comp.process("G28")
         comp.process("G1 X50 Y0 Z1")
@@ -143,9 +161,9 @@ def test_first_move_after_homing_under_skew_is_judged_from_the_home_command():
 
 def test_smoothing_spreads_takeup_over_following_path():
     p = Params.from_dict({"backlash": {"x": 40.0, "smoothing_mm": 2.0}})
-    comp, groups = compensate_groups(p, ["G28", "M83", "G1 X50 Y0 Z1 F3000", "G1 X40 E1",
-                                         "G1 X30 E1"],
-                                     Options(decimals=6))
+    comp, groups = compensate_groups(
+        p, ["G28", "M83", "G1 X50 Y0 Z1 F3000", "G1 X40 E1", "G1 X30 E1"], Options(decimals=6)
+    )
     outs = dict(groups)
     first = outs["G1 X40 E1"]
     # no take-up move; the reversing move is split where the 2 mm ramp ends
@@ -181,8 +199,17 @@ def test_backlash_on_arcs_reverses_at_quadrants():
 
 
 def test_backlash_in_relative_mode():
-    lines = ["G28", "G1 X50 Y50 Z1", "G91", "G1 X10", "G1 X-5", "G1 Y3", "G1 Y-8 X2", "G90",
-             "G1 X10 Y10"]
+    lines = [
+        "G28",
+        "G1 X50 Y50 Z1",
+        "G91",
+        "G1 X10",
+        "G1 X-5",
+        "G1 Y3",
+        "G1 Y-8 X2",
+        "G90",
+        "G1 X10 Y10",
+    ]
     assert_lands(PER_SIDE, lines)
 
 
@@ -209,10 +236,22 @@ def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():
     from that command: from there X continues in -X and needs no take-up, and a take-up of
     another axis must not drag X to the jumped command first (found by the property
     tests: 36 to 100 um off on a printer with play)."""
-    p = Params.from_dict({"squareness_um_per_m": {"xy": -3000.0, "xz": -3000.0},
-                          "backlash": {"x": 100.0, "y": 100.0, "z": 60.0}})
-    lines = ["G28", "G1 X50 Y100 Z10", "G1 X0 Y100 Z0", "G28 Y Z", "G1 Z30", "G1 X20",
-             "G28 X", "G1 Y0"]
+    p = Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": -3000.0, "xz": -3000.0},
+            "backlash": {"x": 100.0, "y": 100.0, "z": 60.0},
+        }
+    )
+    lines = [
+        "G28",
+        "G1 X50 Y100 Z10",
+        "G1 X0 Y100 Z0",
+        "G28 Y Z",
+        "G1 Z30",
+        "G1 X20",
+        "G28 X",
+        "G1 Y0",
+    ]
     comp, groups = compensate_groups(p, lines, Options(decimals=6))
     printer = Printer(p)
     for (line, outs), want in zip(groups, desired_positions(lines)):
@@ -224,10 +263,13 @@ def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():
     assert all("X" not in xs(o) for o in after_home[:-1])  # no take-up drags X
 
 
-@pytest.mark.parametrize("home, apart", [
-    ((0.0, 200.0, 0.0), ["G28 X", "G28 Y", "G28 Z"]),  # X homed while Y is unknown
-    ((0.0, 0.0, 0.0), ["G28 X", "G28 Y"]),
-])
+@pytest.mark.parametrize(
+    "home, apart",
+    [
+        ((0.0, 200.0, 0.0), ["G28 X", "G28 Y", "G28 Z"]),  # X homed while Y is unknown
+        ((0.0, 0.0, 0.0), ["G28 X", "G28 Y"]),
+    ],
+)
 def test_homing_axes_one_by_one_leaves_the_drives_where_one_g28_does(home, apart):
     """Review finding: a second partial G28 forgot where the first had left the drives."""
     p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}, "backlash": {"x": 100.0}})
@@ -240,10 +282,18 @@ def test_homing_axes_one_by_one_leaves_the_drives_where_one_g28_does(home, apart
 
 
 def test_the_printer_with_play_lands_after_homing_axes_one_by_one():
-    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0},
-                          "backlash": {"x": 100.0, "y": 40.0}})
-    lines = ["G28", "G1 X45.381 Y59.404", "G1 X10.303 Y122.670", "G1 X37.939 Y104.742",
-             "G28 X", "G28 Y", "G1 X0.082 Y96.494"]
+    p = Params.from_dict(
+        {"squareness_um_per_m": {"xy": 2000.0}, "backlash": {"x": 100.0, "y": 40.0}}
+    )
+    lines = [
+        "G28",
+        "G1 X45.381 Y59.404",
+        "G1 X10.303 Y122.670",
+        "G1 X37.939 Y104.742",
+        "G28 X",
+        "G28 Y",
+        "G1 X0.082 Y96.494",
+    ]
     _, groups = compensate_groups(p, lines, Options(decimals=6))
     assert dist(printed(p, groups).actual(), desired_positions(lines)[-1]) < 2e-6
 
@@ -269,8 +319,9 @@ def test_an_axis_a_passed_move_does_not_name_keeps_its_drive_and_offset():
     backlash: a Z move passes as written (X's command needs the unknown Y); X's drive is
     still at its home command and the first XY move must judge X's take-up from there (it
     landed b/2 = 25 um off)."""
-    p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0, "xz": 1000.0},
-                          "backlash": {"x": 50.0}})
+    p = Params.from_dict(
+        {"squareness_um_per_m": {"xy": 2000.0, "xz": 1000.0}, "backlash": {"x": 50.0}}
+    )
     lines = ["G28", "G1 Z10", "G1 X200 Y100", "G1 X220 Y120", "G1 X210 Y90"]
     _, groups = compensate_groups(p, lines, Options(home_mm=(250.0, None, 5.0), decimals=6))
     assert groups[1][1] == ["G1 Z10"]  # untouched: X's command needs Y

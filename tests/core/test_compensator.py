@@ -19,10 +19,12 @@ from tests.support.helpers import (
 # every test here runs once per engine (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("engine")
 
-SKEW = Params.from_dict({
-    "squareness_um_per_m": {"xy": -3638.6, "xz": 420.0, "yz": -250.0},
-    "scale_ppm": {"x": -451.7, "y": 287.0, "z": 120.0},
-})
+SKEW = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": -3638.6, "xz": 420.0, "yz": -250.0},
+        "scale_ppm": {"x": -451.7, "y": 287.0, "z": 120.0},
+    }
+)
 
 
 def words(line):
@@ -85,13 +87,23 @@ def test_e_and_f_words_unchanged_and_comment_kept():
 
 
 def test_land_on_desired_points_absolute_program():
-    assert_lands(SKEW, ["G28", "G1 X10 Y20 Z0.3 F3000", "G1 X200 Y180 E5", "G0 Z10",
-                        "G1 X5.5 Y230.25", "G1 Z0.2"])
+    assert_lands(
+        SKEW,
+        ["G28", "G1 X10 Y20 Z0.3 F3000", "G1 X200 Y180 E5", "G0 Z10", "G1 X5.5 Y230.25", "G1 Z0.2"],
+    )
 
 
 def test_g91_output_stays_relative_and_lands():
-    lines = ["G28", "G1 X50 Y50 Z1", "G91", "G1 X10 Y5", "G1 Y-20 Z0.5", "G1 X-3.3", "G90",
-             "G1 X100 Y100"]
+    lines = [
+        "G28",
+        "G1 X50 Y50 Z1",
+        "G91",
+        "G1 X10 Y5",
+        "G1 Y-20 Z0.5",
+        "G1 X-3.3",
+        "G90",
+        "G1 X100 Y100",
+    ]
     comp, outs = run(SKEW, lines, Options(decimals=8))
     rel = outs[3][0]
     w = words(rel)
@@ -108,8 +120,18 @@ def test_g91_rounding_does_not_accumulate():
 
 
 def test_g92_offsets_and_omitted_axes_and_e0():
-    lines = ["G28", "G1 X100 Y100 Z2", "G92 X0 Y0", "G1 X10 Y10", "G92 E0", "G1 X20 E3",
-             "G92", "G1 X5 Y5 Z1", "G92.1", "G1 X50 Y60 Z3"]
+    lines = [
+        "G28",
+        "G1 X100 Y100 Z2",
+        "G92 X0 Y0",
+        "G1 X10 Y10",
+        "G92 E0",
+        "G1 X20 E3",
+        "G92",
+        "G1 X5 Y5 Z1",
+        "G92.1",
+        "G1 X50 Y60 Z3",
+    ]
     comp, outs = run(SKEW, lines)
     assert outs[2] == ["G92 X0 Y0"] and outs[4] == ["G92 E0"] and outs[6] == ["G92"]
     assert_lands(SKEW, lines)
@@ -159,8 +181,9 @@ def test_relative_move_from_unknown_passes_untouched():
     assert comp.report.untouched_unknown == 1
 
 
-@pytest.mark.parametrize("cmd", ["G29", "G29.2 S0", "G30", "G38.2 Z-5", "M48", "G80", "G27",
-                                 "G380 S3 Z-5 F1200"])
+@pytest.mark.parametrize(
+    "cmd", ["G29", "G29.2 S0", "G30", "G38.2 Z-5", "M48", "G80", "G27", "G380 S3 Z-5 F1200"]
+)
 def test_probing_passes_untouched_and_forgets_position(cmd):
     comp = make_compensator(SKEW)
     comp.process("G28")
@@ -171,8 +194,14 @@ def test_probing_passes_untouched_and_forgets_position(cmd):
 def test_unknown_commands_and_tool_change():
     comp = make_compensator(SKEW)
     comp.process("G28")
-    for c in ["M104 S200", "M620.1 E F523 T240", "G2814 Z0.32", "M1002 judge_flag x", "G4 P100",
-              "M117 Hello; world"]:
+    for c in [
+        "M104 S200",
+        "M620.1 E F523 T240",
+        "G2814 Z0.32",
+        "M1002 judge_flag x",
+        "G4 P100",
+        "M117 Hello; world",
+    ]:
         assert comp.process(c) is c
     assert comp.known == (True, True, True)
     assert comp.process("T1") == "T1"
@@ -251,7 +280,8 @@ def test_arc_e_split_relative_sums_exactly():
     assert round(sum(es), 5) == 1.23457
     # E per chord is proportional to the chord's length on the desired path
     pts = desired_positions(lines)[2:3] + [
-        comp.model.forward((words(o)["X"], words(o)["Y"], 1.0)) for o in outs]
+        comp.model.forward((words(o)["X"], words(o)["Y"], 1.0)) for o in outs
+    ]
     lens = [dist(a, b) for a, b in zip(pts, pts[1:])]
     total = sum(lens)
     for e, length in zip(es, lens):
@@ -286,8 +316,16 @@ def test_arc_chords_end_where_the_skewed_commands_reverse():
         for t in (t_star, t_star + math.pi):
             d = (65 + 15 * math.cos(t), 50 + 15 * math.sin(t), 1.0)
             q = comp.model.inverse(d)
-            assert any(x is not None and y is not None and abs(x - q[0]) < 1e-7 and
-                       abs(y - q[1]) < 1e-7 for x, y in pts) or dist(d, (50, 50, 1)) < 0.01
+            assert (
+                any(
+                    x is not None
+                    and y is not None
+                    and abs(x - q[0]) < 1e-7
+                    and abs(y - q[1]) < 1e-7
+                    for x, y in pts
+                )
+                or dist(d, (50, 50, 1)) < 0.01
+            )
 
 
 def test_pure_translation_keeps_arcs():
@@ -315,11 +353,12 @@ def test_arc_chords_respect_the_chord_tolerance():
     from octoprint_kincomp.core import arcs
 
     for tol in (0.01, 0.002):
-        pts = [(50.0, 50.0, 0.0)] + arcs.linearise((50, 50, 0), (50, 50, 0), 17, 70, 50, False,
-                                                   tol, breaks=(0.3, 1.2))
+        pts = [(50.0, 50.0, 0.0)] + arcs.linearise(
+            (50, 50, 0), (50, 50, 0), 17, 70, 50, False, tol, breaks=(0.3, 1.2)
+        )
         for p, q in zip(pts, pts[1:]):
             chord = math.dist(p, q)
-            sagitta = 20 - math.sqrt(20 ** 2 - (chord / 2) ** 2)
+            sagitta = 20 - math.sqrt(20**2 - (chord / 2) ** 2)
             assert sagitta <= tol * (1 + 1e-9)
 
 
@@ -349,11 +388,14 @@ def test_g92_on_an_unknown_axis_does_not_invent_a_machine_frame():
     assert comp2.process("G1 X10 Y100 Z1") != "G1 X10 Y100 Z1"
 
 
-@pytest.mark.parametrize("run_in", [
-    ["M83", "G1 X50 Y50 Z1 F3000 E1", "G91", "G1 Z0.2 E-0.5", "G90"],  # G91 moves E too
-    ["M83", "G1 X50 Y50 Z1 F3000 E1", "G1 E-0.5", "G91", "G1 Z0.2", "G90"],
-    ["G91", "G1 X50 Y50 Z1.2 E0.25", "G1 E0.25", "G90"],  # G91 alone: E relative too
-])
+@pytest.mark.parametrize(
+    "run_in",
+    [
+        ["M83", "G1 X50 Y50 Z1 F3000 E1", "G91", "G1 Z0.2 E-0.5", "G90"],  # G91 moves E too
+        ["M83", "G1 X50 Y50 Z1 F3000 E1", "G1 E-0.5", "G91", "G1 Z0.2", "G90"],
+        ["G91", "G1 X50 Y50 Z1.2 E0.25", "G1 E0.25", "G90"],  # G91 alone: E relative too
+    ],
+)
 def test_e_is_tracked_through_g90_g91_m82_m83_as_marlin_does(run_in):
     """Issue 28: after M83, a G91 move and G90, E is absolute again (Marlin: G90 clears the
     relative flag of every axis, E's too) and its position is the sum of the relative
@@ -374,7 +416,6 @@ def test_e_is_tracked_through_g90_g91_m82_m83_as_marlin_does(run_in):
 
 
 def test_relative_e_from_an_unknown_position_leaves_it_unknown():
-    lines = ["G28", "M83", "G1 X50 Y50 Z1 F3000 E1", "G90", "M82",
-             "G2 X70 Y50 I10 J0 E3"]
+    lines = ["G28", "M83", "G1 X50 Y50 Z1 F3000 E1", "G90", "M82", "G2 X70 Y50 I10 J0 E3"]
     comp, outs = run(SKEW, lines)
     assert outs[-1] == ["G2 X70 Y50 I10 J0 E3"] and comp.report.untouched_unknown == 1

@@ -21,10 +21,17 @@ from octoprint_kincomp.core.firmware import (
 )
 from octoprint_kincomp.core.params import Params
 
-PAPER = {"squareness_um_per_m": {"xy": -3638.6, "xz": 250.0, "yz": -120.0},
-         "scale_ppm": {"x": -451.7, "y": 287.0, "z": 35.0},
-         "backlash": {"x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
-                      "y": 8.0, "z": 0.0, "fraction": 0.8, "smoothing_mm": 2.0}}
+PAPER = {
+    "squareness_um_per_m": {"xy": -3638.6, "xz": 250.0, "yz": -120.0},
+    "scale_ppm": {"x": -451.7, "y": 287.0, "z": 35.0},
+    "backlash": {
+        "x": [{"at_mm": 10.0, "um": 37.4}, {"at_mm": 210.0, "um": 4.4}],
+        "y": 8.0,
+        "z": 0.0,
+        "fraction": 0.8,
+        "smoothing_mm": 2.0,
+    },
+}
 
 
 def _words(line):
@@ -93,8 +100,13 @@ def test_klipper_set_skew_lengths_give_kincomps_factors_back():
 
 def test_klipper_blocks_config_section_profile_and_start_end_gcode():
     ex = export(Params.from_dict(PAPER))["klipper"]
-    assert [s.key for s in ex.sections] == ["printer_cfg", "console", "start_gcode",
-                                            "end_gcode", "scale"]
+    assert [s.key for s in ex.sections] == [
+        "printer_cfg",
+        "console",
+        "start_gcode",
+        "end_gcode",
+        "scale",
+    ]
     cfg = _section(ex, "printer_cfg").splitlines()
     assert cfg[0].startswith("# KinComp ") and cfg[1:] == ["[skew_correction]"]
     assert _section(ex, "start_gcode") == f"SKEW_PROFILE LOAD={KLIPPER_PROFILE}"
@@ -146,13 +158,24 @@ def test_marlin_m425_and_the_options_it_needs():
     text = _section(ex, "terminal")
     w = _words(_line(text, "M425"))
     # Marlin: the full distance (the mean of the per-side values) and the fraction F
-    assert w == {"F": 0.8, "S": 2.0, "X": pytest.approx((37.4 + 4.4) / 2e3, abs=1e-4),
-                 "Y": 0.008, "Z": 0.0}
+    assert w == {
+        "F": 0.8,
+        "S": 2.0,
+        "X": pytest.approx((37.4 + 4.4) / 2e3, abs=1e-4),
+        "Y": 0.008,
+        "Z": 0.0,
+    }
     assert text.splitlines()[-1].startswith("M500")
     options = re.search(r"built with (.*) \(", ex.notes[0]).group(1).split(", ")
-    assert options == ["SKEW_CORRECTION", "SKEW_CORRECTION_GCODE", "SKEW_CORRECTION_FOR_Z",
-                       "BACKLASH_COMPENSATION", "BACKLASH_GCODE", "BACKLASH_SMOOTHING_MM",
-                       "EEPROM_SETTINGS"]
+    assert options == [
+        "SKEW_CORRECTION",
+        "SKEW_CORRECTION_GCODE",
+        "SKEW_CORRECTION_FOR_Z",
+        "BACKLASH_COMPENSATION",
+        "BACKLASH_GCODE",
+        "BACKLASH_SMOOTHING_MM",
+        "EEPROM_SETTINGS",
+    ]
     assert any("Backlash differs along X" in n for n in ex.notes)
 
 
@@ -188,15 +211,17 @@ def test_nothing_to_export_says_so():
     # backlash only: Klipper cannot take it, says so and what to do instead
     ex = export(Params.from_dict({"backlash": {"x": 30.0}}))
     assert ex["klipper"].sections == []
-    assert ex["klipper"].notes[0] == ("Nothing to export to Klipper: it cannot take any of "
-                                      "these corrections.")
+    assert ex["klipper"].notes[0] == (
+        "Nothing to export to Klipper: it cannot take any of these corrections."
+    )
     assert "no backlash compensation" in ex["klipper"].notes[1]
     assert [s.key for s in ex["marlin"].sections] == ["terminal"]
 
 
 def test_terms_only_kincomp_applies_and_corexy_scale_are_noted():
-    p = Params.from_dict({"kinematics": "corexy", "scale_ppm": {"x": 100.0},
-                          "axis_errors": {"x": {"rz_urad": 20.0}}})
+    p = Params.from_dict(
+        {"kinematics": "corexy", "scale_ppm": {"x": 100.0}, "axis_errors": {"x": {"rz_urad": 20.0}}}
+    )
     ex = export(p)
     for fw in ("klipper", "marlin"):
         notes = " ".join(ex[fw].notes)
@@ -209,8 +234,11 @@ def test_export_is_deterministic_json_and_translatable():
     assert format_export(p) == format_export(Params.from_dict(PAPER))
     eq = equivalents(p)
     assert json.loads(json.dumps(eq))["export"] == export_json(p)
-    assert eq["about"] == {"version": __version__, "homepage": __plugin_url__,
-                           "firmware_help": __plugin_url__ + "/blob/main/docs/firmware-export.md"}
+    assert eq["about"] == {
+        "version": __version__,
+        "homepage": __plugin_url__,
+        "firmware_help": __plugin_url__ + "/blob/main/docs/firmware-export.md",
+    }
     fw = eq["export"]["marlin"]
     assert fw["name"] == "Marlin" and fw["comment"] == ";"
     assert fw["sections"][0]["title"]["template"].startswith("Send to the printer")
@@ -225,7 +253,9 @@ def test_default_output_is_the_one_line_equivalents():
     p = Params.from_dict({"squareness_um_per_m": {"xy": -3638.6}, "backlash": {"x": 20}})
     text = format_equivalents(p)
     assert text.splitlines()[:2] == [
-        "# Marlin", "M852 I-0.003639 J0.000000 K0.000000 ; skew factors (SKEW_CORRECTION_GCODE)"]
+        "# Marlin",
+        "M852 I-0.003639 J0.000000 K0.000000 ; skew factors (SKEW_CORRECTION_GCODE)",
+    ]
     assert "M556 S100 X0.36386 Y0.00000 Z0.00000" in text
 
 

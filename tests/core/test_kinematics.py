@@ -1,4 +1,3 @@
-
 import numpy as np
 import pytest
 
@@ -16,11 +15,14 @@ def test_identity():
     assert m.forward((1.5, -2.0, 3.0)) == (1.5, -2.0, 3.0)
 
 
-@pytest.mark.parametrize("pair, expect", [
-    ("xy", lambda x, y, z, f: (x + f * y, y, z)),
-    ("xz", lambda x, y, z, f: (x + f * z, y, z)),
-    ("yz", lambda x, y, z, f: (x, y + f * z, z)),
-])
+@pytest.mark.parametrize(
+    "pair, expect",
+    [
+        ("xy", lambda x, y, z, f: (x + f * y, y, z)),
+        ("xz", lambda x, y, z, f: (x + f * z, y, z)),
+        ("yz", lambda x, y, z, f: (x, y + f * z, z)),
+    ],
+)
 def test_squareness_sign_contract(pair, expect):
     m = model(squareness_um_per_m={pair: 250.0})
     p = (12.0, 34.0, 56.0)
@@ -77,8 +79,11 @@ def random_params(rng, kinematics, full):
         errs = {}
         for a in "xyz":
             errs[a] = {
-                "tx_um": [float(rng.uniform(-20, 20)), float(rng.uniform(-0.05, 0.05)),
-                          float(rng.uniform(-2e-4, 2e-4))],
+                "tx_um": [
+                    float(rng.uniform(-20, 20)),
+                    float(rng.uniform(-0.05, 0.05)),
+                    float(rng.uniform(-2e-4, 2e-4)),
+                ],
                 "ty_um": [0.0, float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-2e-4, 2e-4))],
                 "tz_um": float(rng.uniform(-10, 10)),
                 "rx_urad": [float(rng.uniform(-50, 50)), float(rng.uniform(-0.3, 0.3))],
@@ -121,8 +126,9 @@ def test_serial_chain_abbe_effect():
 
 
 def test_nozzle_offset_abbe_parallel():
-    p = Params.from_dict({"axis_errors": {"x": {"rz_urad": 200.0}},
-                          "nozzle_offset_mm": {"y": 30.0}})
+    p = Params.from_dict(
+        {"axis_errors": {"x": {"rz_urad": 200.0}}, "nozzle_offset_mm": {"y": 30.0}}
+    )
     m = KinematicModel(p)
     a = m.forward((0.0, 0.0, 0.0))
     # rz x (0, 30, 0) = (-rz*30, 0, 0)

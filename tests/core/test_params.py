@@ -59,7 +59,9 @@ def test_bad_json_is_a_clear_error():
 
 
 def test_backlash_points_interpolate_and_hold_outside():
-    p = Params.from_dict({"backlash": {"x": [{"at_mm": 210, "um": 4.4}, {"at_mm": 10, "um": 37.4}]}})
+    p = Params.from_dict(
+        {"backlash": {"x": [{"at_mm": 210, "um": 4.4}, {"at_mm": 10, "um": 37.4}]}}
+    )
     bx = p.backlash["x"]
     assert bx.points == ((10.0, 37.4), (210.0, 4.4))  # sorted
     assert bx.um_at(10) == pytest.approx(37.4)
@@ -94,7 +96,9 @@ def test_fraction_zero_disables_backlash():
 def test_meta_must_be_json():
     with pytest.raises(ParamsError, match="meta"):
         Params.from_dict({"meta": {"x": float("nan")}})
-    assert json.loads(Params.from_dict({"meta": {"note": "ok"}}).to_json())["meta"] == {"note": "ok"}
+    assert json.loads(Params.from_dict({"meta": {"note": "ok"}}).to_json())["meta"] == {
+        "note": "ok"
+    }
 
 
 def test_backlash_tables_are_bounded_by_the_kernels_limit():

@@ -52,10 +52,18 @@ from tests.support.helpers import Printer, dist
 # runners). KINCOMP_FUZZ_SCALE=N runs N times the examples with fresh random seeds (a deeper,
 # non-reproducible exploration; failures print the example to turn into an @example).
 SCALE = int(os.environ.get("KINCOMP_FUZZ_SCALE", "0") or 0)
-BASE = settings(deadline=None, derandomize=not SCALE, database=None, print_blob=False,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                       HealthCheck.filter_too_much,
-                                       HealthCheck.function_scoped_fixture])
+BASE = settings(
+    deadline=None,
+    derandomize=not SCALE,
+    database=None,
+    print_blob=False,
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+        HealthCheck.filter_too_much,
+        HealthCheck.function_scoped_fixture,
+    ],
+)
 
 # every test here runs once per engine (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("engine")
@@ -116,6 +124,7 @@ class EMode:
 
 # -- generators ------------------------------------------------------------------------------
 
+
 def _num_text(v: float, dec: int, style: str) -> str:
     t = f"{v:.{dec}f}"
     if style == "plus" and not t.startswith("-"):
@@ -128,16 +137,22 @@ def _num_text(v: float, dec: int, style: str) -> str:
 
 
 def number(lo, hi, max_dec=4):
-    return st.builds(_num_text, st.floats(lo, hi, allow_nan=False, allow_infinity=False),
-                     st.integers(0, max_dec),
-                     st.sampled_from(["", "", "", "plus", "dot", "bare"]))
+    return st.builds(
+        _num_text,
+        st.floats(lo, hi, allow_nan=False, allow_infinity=False),
+        st.integers(0, max_dec),
+        st.sampled_from(["", "", "", "plus", "dot", "bare"]),
+    )
 
 
 # Unicode whitespace as indentation: the per-line engine strips it like spaces.
 INDENTS = ["", "", "", "", " ", "  ", "\t", "\x0b", "\xa0", "\u2003", "\x1c", "\x85"]
-COMMENT_TEXT = st.text(st.characters(blacklist_categories=("Cs",),
-                                     blacklist_characters="\r\n\x1c\x1d\x1e\x85\u2028\u2029"),
-                       max_size=12)
+COMMENT_TEXT = st.text(
+    st.characters(
+        blacklist_categories=("Cs",), blacklist_characters="\r\n\x1c\x1d\x1e\x85\u2028\u2029"
+    ),
+    max_size=12,
+)
 
 
 def _checksum(text: str) -> int:
@@ -149,8 +164,11 @@ def decorate(draw, code: str, words, plain=False):
     """Render a command with the spellings firmware accepts: case, spacing, packed words,
     ``N<n> ... *<checksum>``, indentation and a trailing comment. Returns (line, info)."""
     if plain:
-        return code + "".join(" " + a + v for a, v in words), {"indent": "", "comment": "",
-                                                               "numbered": False}
+        return code + "".join(" " + a + v for a, v in words), {
+            "indent": "",
+            "comment": "",
+            "numbered": False,
+        }
     case = draw(st.sampled_from(["upper"] * 5 + ["lower", "mixed"]))
     parts = [code.lower() if case == "lower" else code]
     for a, v in words:
@@ -217,21 +235,78 @@ def motion(draw, plain=False):
     return line, info
 
 
-MODAL_LINES = ["G90", "G91", "G20", "G21", "M82", "M83", "G92 E0", "G92", "G92 X10 Y10",
-               "G92 Z0.3", "G92.1", "G28", "G28 X", "G28 X Y", "G28 Z", "G17", "G18", "G19",
-               "G90.1", "G91.1"]
-OTHER_LINES = ["M104 S200", "M106 S255", "G4 P100", "T0", "T1", "G29", "G29.2 S0", "M48",
-               "M620.1 E F523 T240", "M117 Hello; world", "G2814 Z0.32", "M1002 judge_flag x",
-               "G38.2 Z-5", "SET_SKEW CLEAR=1", "%", "M400", "G1.5 X3", "; comment", "",
-               "   ", ";", "(paren comment)", "M83.1"]
+MODAL_LINES = [
+    "G90",
+    "G91",
+    "G20",
+    "G21",
+    "M82",
+    "M83",
+    "G92 E0",
+    "G92",
+    "G92 X10 Y10",
+    "G92 Z0.3",
+    "G92.1",
+    "G28",
+    "G28 X",
+    "G28 X Y",
+    "G28 Z",
+    "G17",
+    "G18",
+    "G19",
+    "G90.1",
+    "G91.1",
+]
+OTHER_LINES = [
+    "M104 S200",
+    "M106 S255",
+    "G4 P100",
+    "T0",
+    "T1",
+    "G29",
+    "G29.2 S0",
+    "M48",
+    "M620.1 E F523 T240",
+    "M117 Hello; world",
+    "G2814 Z0.32",
+    "M1002 judge_flag x",
+    "G38.2 Z-5",
+    "SET_SKEW CLEAR=1",
+    "%",
+    "M400",
+    "G1.5 X3",
+    "; comment",
+    "",
+    "   ",
+    ";",
+    "(paren comment)",
+    "M83.1",
+]
 # Motion lines that are not G-code whatever the state: passed unchanged, counted malformed.
-MALFORMED = ["G1 X1..2", "G1 Xabc", "G1 X1 X2", "G1 X", "G1 X10 #", "G0 X1.2.3 Y2",
-             "G1 X10 Y10 (c)", "G2 X1 Y1 I1 I2", "G3 X5 J", "G1 E1.2.3", "g1 x1 x2",
-             "G1 X--1", "G1 X1 Y2 Z", "N7 G1 X1 X2*12", "G1 X1 X2 ; c ; G1 X3",
-             "G92 X1..2", "G1 X" + "9" * 400, "G2 X10 Y10 I" + "9" * 400 + " J0"]
+MALFORMED = [
+    "G1 X1..2",
+    "G1 Xabc",
+    "G1 X1 X2",
+    "G1 X",
+    "G1 X10 #",
+    "G0 X1.2.3 Y2",
+    "G1 X10 Y10 (c)",
+    "G2 X1 Y1 I1 I2",
+    "G3 X5 J",
+    "G1 E1.2.3",
+    "g1 x1 x2",
+    "G1 X--1",
+    "G1 X1 Y2 Z",
+    "N7 G1 X1 X2*12",
+    "G1 X1 X2 ; c ; G1 X3",
+    "G92 X1..2",
+    "G1 X" + "9" * 400,
+    "G2 X10 Y10 I" + "9" * 400 + " J0",
+]
 GARBAGE = st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=30)
-UNICODE_LINE = st.text(st.characters(blacklist_categories=("Cs",),
-                                     blacklist_characters="\r\n"), max_size=30)
+UNICODE_LINE = st.text(
+    st.characters(blacklist_categories=("Cs",), blacklist_characters="\r\n"), max_size=30
+)
 
 
 @st.composite
@@ -274,8 +349,10 @@ def any_line(draw, text_ok=True):
 def stream(draw, min_size=1, max_size=40):
     lines = [("G28", {"kind": "modal"})] if draw(st.integers(0, 4)) else []
     # E modes: relative extrusion, or absolute from a defined E (else arcs with E pass)
-    lines += [(m, {"kind": "modal"}) for m in draw(st.sampled_from(
-        [(), ("M83",), ("G92 E0",), ("M82", "G92 E0")]))]
+    lines += [
+        (m, {"kind": "modal"})
+        for m in draw(st.sampled_from([(), ("M83",), ("G92 E0",), ("M82", "G92 E0")]))
+    ]
     lines += draw(st.lists(any_line(), min_size=min_size, max_size=max_size))
     return lines
 
@@ -296,13 +373,18 @@ def geometry(draw, max_sq=5000.0, max_scale=5000.0):
 def backlash(draw, tables=True, fraction=True, smoothing=True):
     d = {}
     for a in "xyz":
-        kind = draw(st.sampled_from(["none", "const", "const", "table"] if tables else
-                                    ["none", "const", "const"]))
+        kind = draw(
+            st.sampled_from(
+                ["none", "const", "const", "table"] if tables else ["none", "const", "const"]
+            )
+        )
         if kind == "const":
             d[a] = draw(st.floats(0.5, 120.0))
         elif kind == "table":
-            d[a] = [{"at_mm": 10.0, "um": draw(st.floats(0.0, 80.0))},
-                    {"at_mm": 210.0, "um": draw(st.floats(0.0, 80.0))}]
+            d[a] = [
+                {"at_mm": 10.0, "um": draw(st.floats(0.0, 80.0))},
+                {"at_mm": 210.0, "um": draw(st.floats(0.0, 80.0))},
+            ]
     if fraction and draw(st.booleans()):
         d["fraction"] = draw(st.floats(0.0, 1.0))
     if smoothing and draw(st.integers(0, 3)) == 0:
@@ -320,8 +402,10 @@ def params(draw, with_backlash=True):
 
 @st.composite
 def options(draw):
-    kw = {"decimals": draw(st.integers(3, 8)),
-          "chord_tol_mm": draw(st.sampled_from([0.01, 0.05, 0.5]))}
+    kw = {
+        "decimals": draw(st.integers(3, 8)),
+        "chord_tol_mm": draw(st.sampled_from([0.01, 0.05, 0.5])),
+    }
     if draw(st.integers(0, 3)) == 0:
         kw["limits"] = (0, 200, 0, 200, 0, 250)
         kw["policy"] = draw(st.sampled_from(["warn", "clamp"]))
@@ -329,6 +413,7 @@ def options(draw):
 
 
 # -- 1. every line accounted for -------------------------------------------------------------
+
 
 def _outputs(out, line):
     assert isinstance(out, (str, list)), type(out)
@@ -344,7 +429,7 @@ def check_motion_group(line, info, outs, mode: EMode):
     indent = info["indent"]
     for o in outs:
         assert o.startswith(indent)
-        body = o[len(indent):]
+        body = o[len(indent) :]
         assert re.match(r"[Gg]0*[0-3](?![\d.])", body), (line, o)  # moves stay moves
         assert well_formed(body), (line, o)
         assert "*" not in body.split(";")[0] and not body.startswith(("N", "n")), (line, o)
@@ -371,11 +456,11 @@ def check_motion_group(line, info, outs, mode: EMode):
     # split over pieces (linearised arc, or a smoothed take-up cut): the compensator works in
     # integer units of max(5, written decimals) decimals
     dec = max(5, len(e.split(".")[1]) if "." in e else 0)
-    unit = 10.0 ** -dec
+    unit = 10.0**-dec
     vals = [float(v) for v in es]
     if mode.e_relative:
         assert abs(sum(vals) - float(e)) <= 0.5 * unit + 1e-9, (line, vals)
-        assert all(abs(v * 10 ** dec - round(v * 10 ** dec)) < 1e-6 for v in vals)
+        assert all(abs(v * 10**dec - round(v * 10**dec)) < 1e-6 for v in vals)
     else:
         assert float(es[-1]) == float(e), (line, outs)  # ends on the written position
         steps = [b - a for a, b in zip(vals, vals[1:])]
@@ -385,10 +470,19 @@ def check_motion_group(line, info, outs, mode: EMode):
 
 @cfg(120)
 @given(stream(), params(), options())
-@example([("G28", {}), ("G1 X10 Y10 Z1", {}), ("M83", {}),
-          ("G2 X30 Y10 I10 J0 E1.23457 F1200 ; arc",
-           {"kind": "arc", "e": "1.23457", "f": "1200", "indent": "", "comment": "; arc"})],
-         Params.from_dict({"squareness_um_per_m": {"xy": 3000}}), Options())
+@example(
+    [
+        ("G28", {}),
+        ("G1 X10 Y10 Z1", {}),
+        ("M83", {}),
+        (
+            "G2 X30 Y10 I10 J0 E1.23457 F1200 ; arc",
+            {"kind": "arc", "e": "1.23457", "f": "1200", "indent": "", "comment": "; arc"},
+        ),
+    ],
+    Params.from_dict({"squareness_um_per_m": {"xy": 3000}}),
+    Options(),
+)
 def test_every_line_maps_to_its_own_outputs_in_order(lines, p, opts):
     comp = make_compensator(p, opts)
     mode = EMode()
@@ -422,8 +516,13 @@ ZEROS = [
 
 
 @cfg(60)
-@given(stream(max_size=60), st.sampled_from(ZEROS), options(),
-       st.sampled_from(["\n", "\r\n"]), st.booleans())
+@given(
+    stream(max_size=60),
+    st.sampled_from(ZEROS),
+    options(),
+    st.sampled_from(["\n", "\r\n"]),
+    st.booleans(),
+)
 def test_zero_parameters_give_the_input_back(lines, zero, opts, ending, final_newline):
     p = Params.from_dict(zero)
     comp = make_compensator(p, opts)
@@ -441,6 +540,7 @@ def test_zero_parameters_give_the_input_back(lines, zero, opts, ending, final_ne
 
 
 # -- 3. the compensated program lands where the program asks ---------------------------------
+
 
 @st.composite
 def program(draw, max_ops=30, partial_home=True):
@@ -467,31 +567,44 @@ def program(draw, max_ops=30, partial_home=True):
     add("G28")
     for m in draw(st.sampled_from([(), ("G92 E0",), ("M83",), ("G92 E0", "M83")])):
         add(m)
-    add("G1 X{:.3f} Y{:.3f} Z{:.3f} F3000".format(
-        draw(st.floats(0, 200)), draw(st.floats(0, 200)), draw(st.floats(0.2, 40))))
+    add(
+        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f} Z{draw(st.floats(0.2, 40)):.3f} F3000"
+    )
 
     def val(lo, hi, rel=False):
         v = draw(st.floats(-40, 40) if rel else st.floats(lo, hi))
         dec = draw(st.integers(0, 4))
-        return _num_text(v / 25.4 if oracle.inches else v, dec + (2 if oracle.inches else 0),
-                         draw(st.sampled_from(["", "", "plus", "bare"])))
+        return _num_text(
+            v / 25.4 if oracle.inches else v,
+            dec + (2 if oracle.inches else 0),
+            draw(st.sampled_from(["", "", "plus", "bare"])),
+        )
 
     for _ in range(draw(st.integers(1, max_ops))):
-        op = draw(st.sampled_from(["move"] * 6 + ["arc"] * 3 + ["mode", "g92", "home",
-                                                                   "other"]))
+        op = draw(st.sampled_from(["move"] * 6 + ["arc"] * 3 + ["mode", "g92", "home", "other"]))
         if op in ("move", "arc"):
             rel = not oracle.absolute
-            words = [(a, val(lo, hi, rel)) for a, (lo, hi) in
-                     zip("XYZ", ((-20, 220), (-20, 220), (0, 60))) if draw(st.booleans())]
+            words = [
+                (a, val(lo, hi, rel))
+                for a, (lo, hi) in zip("XYZ", ((-20, 220), (-20, 220), (0, 60)))
+                if draw(st.booleans())
+            ]
             code = draw(st.sampled_from(["G1", "G0", "G01"]))
             inch = 25.4 if oracle.inches else 1.0
             if op == "arc":
                 code = draw(st.sampled_from(["G2", "G3"]))
                 letters = {17: "IJ", 18: "KI", 19: "JK"}[oracle.plane]
                 if draw(st.integers(0, 2)):
-                    offs = [(a, _num_text(draw(st.floats(-60, 60)) / inch,
-                                          3 + (2 if oracle.inches else 0), ""))
-                            for a in letters if draw(st.integers(0, 3))]
+                    offs = [
+                        (
+                            a,
+                            _num_text(
+                                draw(st.floats(-60, 60)) / inch, 3 + (2 if oracle.inches else 0), ""
+                            ),
+                        )
+                        for a in letters
+                        if draw(st.integers(0, 3))
+                    ]
                     words += offs or [(letters[0], "10")]
                 else:
                     r = draw(st.floats(5, 160)) * draw(st.sampled_from([1, -1]))
@@ -510,22 +623,45 @@ def program(draw, max_ops=30, partial_home=True):
                     continue  # not an arc (radius too small, centre on the start ...)
             add(line)
         elif op == "mode":
-            add(draw(st.sampled_from(["G90", "G91", "G20", "G21", "M82", "M83", "G17",
-                                      "G18", "G19"])))
+            add(
+                draw(
+                    st.sampled_from(["G90", "G91", "G20", "G21", "M82", "M83", "G17", "G18", "G19"])
+                )
+            )
         elif op == "g92":
-            add(draw(st.sampled_from(["G92 E0", "G92", "G92.1"])) if draw(st.booleans()) else
-                "G92 " + " ".join(f"{a}{val(-50, 150)}" for a in
-                                  draw(st.sampled_from(["X", "Y", "Z", "XY", "XYZ", "E"]))))
+            add(
+                draw(st.sampled_from(["G92 E0", "G92", "G92.1"]))
+                if draw(st.booleans())
+                else "G92 "
+                + " ".join(
+                    f"{a}{val(-50, 150)}"
+                    for a in draw(st.sampled_from(["X", "Y", "Z", "XY", "XYZ", "E"]))
+                )
+            )
         elif op == "home":
-            homes = draw(st.sampled_from(
-                [("G28",), ("G28 X",), ("G28 Y Z",), ("G28 X Y Z",), ("G28 X", "G28 Y"),
-                 ("G28 Y", "G28 X", "G28 Z"), ("G28 Z", "G28 X")] if partial_home
-                else [("G28",), ("G28 X Y Z",)]))
+            homes = draw(
+                st.sampled_from(
+                    [
+                        ("G28",),
+                        ("G28 X",),
+                        ("G28 Y Z",),
+                        ("G28 X Y Z",),
+                        ("G28 X", "G28 Y"),
+                        ("G28 Y", "G28 X", "G28 Z"),
+                        ("G28 Z", "G28 X"),
+                    ]
+                    if partial_home
+                    else [("G28",), ("G28 X Y Z",)]
+                )
+            )
             for h in homes:  # (axes homed one G28 at a time, too)
                 add(h)
         else:
-            add(draw(st.sampled_from(["M104 S200", "G4 P10", "; layer", "", "M106 S128",
-                                      "M117 hi"])))
+            add(
+                draw(
+                    st.sampled_from(["M104 S200", "G4 P10", "; layer", "", "M106 S128", "M117 hi"])
+                )
+            )
     return lines
 
 
@@ -533,8 +669,12 @@ def motion_info(line: str) -> dict:
     """E/F words, comment and indentation of a valid motion line, read from its text."""
     code, semi, rest = line.partition(";")
     words = dict(reversed(out_words(code.replace("*", " * "))))  # first E/F of the line
-    return {"indent": line[:len(line) - len(line.lstrip())],
-            "comment": semi + rest, "e": words.get("E"), "f": words.get("F")}
+    return {
+        "indent": line[: len(line) - len(line.lstrip())],
+        "comment": semi + rest,
+        "e": words.get("E"),
+        "f": words.get("F"),
+    }
 
 
 def replay(p, lines, opts, play=True):
@@ -565,8 +705,11 @@ def replay(p, lines, opts, play=True):
 
 @cfg(50)
 @given(program(), geometry(), st.sampled_from([0.01, 0.05]))
-@example(["G28", "G1 X10 Y10 Z1", "G92 X0 Y0", "G92.1", "G1 X5", "G1 Y20"],
-         {"squareness_um_per_m": {"xy": 5000.0}}, 0.01)  # G92.1 must not move the frame
+@example(
+    ["G28", "G1 X10 Y10 Z1", "G92 X0 Y0", "G92.1", "G1 X5", "G1 Y20"],
+    {"squareness_um_per_m": {"xy": 5000.0}},
+    0.01,
+)  # G92.1 must not move the frame
 def test_compensated_program_lands_on_the_desired_points(lines, geo, tol):
     p = Params.from_dict(geo)
     checked = 0
@@ -581,12 +724,18 @@ def test_compensated_program_lands_on_the_desired_points(lines, geo, tol):
 @example(  # a full-circle helix under XZ/YZ skew: the last piece's circle once carried X
     # 21 um past its end (where X reverses) and back, leaving the play on the wrong side
     ["G28", "G1 X0 Y0 Z26 F3000", "G2 X-0Y-0 Z+57 I-15.840f788"],
-    {"squareness_um_per_m": {"xy": 0.0, "xz": 2974.797, "yz": 4272.194},
-     "scale_ppm": {"x": 0.0, "y": 2377.635, "z": -242.385}},
-    {"x": 39.733, "z": 90.9998})
+    {
+        "squareness_um_per_m": {"xy": 0.0, "xz": 2974.797, "yz": 4272.194},
+        "scale_ppm": {"x": 0.0, "y": 2377.635, "z": -242.385},
+    },
+    {"x": 39.733, "z": 90.9998},
+)
 @example(  # a spiral (radius 8 -> 6 mm over a turn): Y turns round 0.1 deg before its end,
     # between the check points of the piece; the chords then carried Y back without take-up
-    ["G28", "G1 X0 Y0 Z1 F3000", "G2 Y2 J8 F300"], {}, {"y": 1.0})
+    ["G28", "G1 X0 Y0 Z1 F3000", "G2 Y2 J8 F300"],
+    {},
+    {"y": 1.0},
+)
 def test_with_backlash_the_printer_with_play_lands_too(lines, geo, bl):
     """The take-up moves are what make a printer with play land: replayed through the play,
     every compensated move ends on its point (the 1e-6 output resolution plus the
@@ -612,8 +761,9 @@ def test_with_backlash_endpoints_stay_within_the_takeup(lines, geo, bl):
     """Ignoring the play, each move ends within the backlash offset (+-fraction*b/2 per axis,
     at most) of its point: take-up moves come before the move, never instead of it."""
     p = Params.from_dict(dict(geo, backlash=bl))
-    half = [p.backlash_fraction * max(um_ for _, um_ in p.backlash[a].points) * 1e-3 / 2
-            for a in "xyz"]
+    half = [
+        p.backlash_fraction * max(um_ for _, um_ in p.backlash[a].points) * 1e-3 / 2 for a in "xyz"
+    ]
     # |A o| <= ||A|| ||o||; ||A|| < 1.02 for squareness and scale up to 5000 um/m and ppm
     bound = 1.02 * math.sqrt(sum(h * h for h in half)) + 1e-6
     opts = Options(decimals=6, chord_tol_mm=0.05)
@@ -635,19 +785,42 @@ def test_landing_checks_can_fail():
 
 # -- 4. nothing raises; malformed lines pass and are counted ---------------------------------
 
+
 @cfg(80)
-@given(st.lists(any_line(), max_size=20), params(), options(),
-       st.lists(st.text(max_size=40), min_size=1, max_size=10))
-@example([("G28", {}), ("G1 X1 Y1 Z1", {})], Params.from_dict({"squareness_um_per_m":
-                                                               {"xy": 100}}), Options(),
-         ["G2 X10 Y10 I5 J0 P" + "9" * 400, "G2 X10 Y10 I1" + "0" * 200 + " J0",
-          "G2 X10 Y10 I5 J0 P1" + "0" * 18, "G3 X10 Y10 R1" + "0" * 20, "G1 X\u0661\u0660",
-          "G2 X10 Y10 I5 J0 P100", "G1 X1\nM83", "\x00G1 X5", "G1 X" + "9" * 400])
-@example([("G28", {}), ("G1 X1 Y1 Z1", {}), ("G91", {})], Params.from_dict(
-    {"squareness_um_per_m": {"xy": 100}}), Options(), ["G1 X1" + "0" * 200, "G20",
-                                                       "G1 X1" + "0" * 307 + " Y5"])
-@example([("G28", {}), ("G1 X1 Y1 Z1", {})], Params.from_dict(
-    {"backlash": {"x": 10, "smoothing_mm": 1}}), Options(), ["G1 X1" + "0" * 200])
+@given(
+    st.lists(any_line(), max_size=20),
+    params(),
+    options(),
+    st.lists(st.text(max_size=40), min_size=1, max_size=10),
+)
+@example(
+    [("G28", {}), ("G1 X1 Y1 Z1", {})],
+    Params.from_dict({"squareness_um_per_m": {"xy": 100}}),
+    Options(),
+    [
+        "G2 X10 Y10 I5 J0 P" + "9" * 400,
+        "G2 X10 Y10 I1" + "0" * 200 + " J0",
+        "G2 X10 Y10 I5 J0 P1" + "0" * 18,
+        "G3 X10 Y10 R1" + "0" * 20,
+        "G1 X\u0661\u0660",
+        "G2 X10 Y10 I5 J0 P100",
+        "G1 X1\nM83",
+        "\x00G1 X5",
+        "G1 X" + "9" * 400,
+    ],
+)
+@example(
+    [("G28", {}), ("G1 X1 Y1 Z1", {}), ("G91", {})],
+    Params.from_dict({"squareness_um_per_m": {"xy": 100}}),
+    Options(),
+    ["G1 X1" + "0" * 200, "G20", "G1 X1" + "0" * 307 + " Y5"],
+)
+@example(
+    [("G28", {}), ("G1 X1 Y1 Z1", {})],
+    Params.from_dict({"backlash": {"x": 10, "smoothing_mm": 1}}),
+    Options(),
+    ["G1 X1" + "0" * 200],
+)
 def test_no_line_makes_it_raise(prefix, p, opts, texts):
     comp = make_compensator(p, opts)
     for line, _ in prefix:
@@ -693,8 +866,11 @@ def test_arc_with_a_huge_turn_count_passes_untouched():
 def test_arc_with_a_huge_radius_passes_untouched():
     """R1e20: the chord angle rounds to 0 (it divided by zero); beyond 1e100 the number is
     no coordinate at all (its square overflowed)."""
-    for line in ["G3 X10 Y10 R1" + "0" * 20, "G2 X10 Y10 I1" + "0" * 20 + " J0",
-                 "G2 X10 Y10 I1" + "0" * 200 + " J0"]:
+    for line in [
+        "G3 X10 Y10 R1" + "0" * 20,
+        "G2 X10 Y10 I1" + "0" * 20 + " J0",
+        "G2 X10 Y10 I1" + "0" * 200 + " J0",
+    ]:
         comp = make_compensator(SKEW)
         comp.process("G28")
         comp.process("G1 X1 Y1 Z1")
@@ -718,8 +894,9 @@ def test_many_turn_arc_is_linearised_with_its_forced_points():
 
 
 @cfg(60)
-@given(st.lists(st.one_of(any_line(), malformed()), max_size=30), params(), options(),
-       st.booleans())
+@given(
+    st.lists(st.one_of(any_line(), malformed()), max_size=30), params(), options(), st.booleans()
+)
 def test_malformed_motion_lines_pass_unchanged_and_are_counted(items, p, opts, homed):
     comp = make_compensator(p, opts)
     rep = comp.report

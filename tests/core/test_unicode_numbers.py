@@ -40,9 +40,12 @@ def test_such_a_line_goes_out_as_written(line):
     assert comp.process("G1 X123 Y10") != "G1 X123 Y10"  # a plain line is compensated
 
 
-FILE = ("G28\nG1 X5 Y5 Z1 F3000\n" + "".join(f"G1 X{10 + i} Y{10 + i % 7}\n" for i in range(40))
-        + "".join(line + "\n" + f"G1 X{i} Y{2 * i}\n" for i, line in enumerate(UNREADABLE))
-        + "".join(f"G1 X{50 + i} Y{20 + i % 5} E0.1\n" for i in range(40)))
+FILE = (
+    "G28\nG1 X5 Y5 Z1 F3000\n"
+    + "".join(f"G1 X{10 + i} Y{10 + i % 7}\n" for i in range(40))
+    + "".join(line + "\n" + f"G1 X{i} Y{2 * i}\n" for i, line in enumerate(UNREADABLE))
+    + "".join(f"G1 X{50 + i} Y{20 + i % 5} E0.1\n" for i in range(40))
+)
 
 
 @pytest.mark.parametrize("chunk", [None, 97])

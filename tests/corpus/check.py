@@ -55,7 +55,7 @@ def named_axes(line: str) -> bool:
 
 def is_move(line: str) -> bool:
     cmd = parse_command(line)
-    return (cmd is not None and cmd.kind == "G" and cmd.number <= 3 and cmd.sub is None)
+    return cmd is not None and cmd.kind == "G" and cmd.number <= 3 and cmd.sub is None
 
 
 def compensate(params: Params, lines: List[str], options: Options):
@@ -78,10 +78,12 @@ def check(params: Params, lines: List[str], options: Options, with_groups: bool 
     ``with_groups``)."""
     comp, groups, m_after = compensate(params, lines, options)
     f = Findings(lines=len(lines), lines_out=sum(len(g[1]) for g in groups))
-    tol = options.chord_tol_mm + 10.0 ** -options.decimals
+    tol = options.chord_tol_mm + 10.0**-options.decimals
     bl = comp.backlash
-    lag = [bl.half * max(um for _, um in bl.tables[k].points) if bl.active[k] else 0.0
-           for k in range(3)]
+    lag = [
+        bl.half * max(um for _, um in bl.tables[k].points) if bl.active[k] else 0.0
+        for k in range(3)
+    ]
     # (the play follows the drive along each written arc: cut finely enough that it turns
     # where the drive turns; the E sums and the end points do not depend on the cut)
     want = FirmwareInterpreter(home_mm=TRUE_HOME, arc_tol_mm=0.05)

@@ -28,17 +28,23 @@ from tests.support import ROOT
 
 SHARED = os.path.join(os.path.dirname(ROOT), "shared")
 DIRS = [os.path.join(SHARED, "gcode-corpus"), os.path.join(SHARED, "gcode-samples")]
-FILES = sorted(os.path.join(d, n) for d in DIRS if os.path.isdir(d)
-               for n in os.listdir(d) if n.endswith(".gcode"))
+FILES = sorted(
+    os.path.join(d, n)
+    for d in DIRS
+    if os.path.isdir(d)
+    for n in os.listdir(d)
+    if n.endswith(".gcode")
+)
 QUICK = [f for f in FILES if f.endswith("bambustudio-square-ring.gcode")]
 LINES = int(os.environ.get("KINCOMP_CORPUS_LINES", "2500"))
 
-with open(os.path.join(ROOT, "octoprint_kincomp", "examples",
-                       "paper_table1_params.json")) as _f:
+with open(os.path.join(ROOT, "octoprint_kincomp", "examples", "paper_table1_params.json")) as _f:
     PAPER = json.load(_f)
-ALL = {"squareness_um_per_m": {"xy": PAPER["squareness_um_per_m"]["xy"], "xz": 500.0,
-                               "yz": 500.0},
-       "scale_ppm": PAPER["scale_ppm"], "backlash": {"x": 50.0, "y": 30.0}}
+ALL = {
+    "squareness_um_per_m": {"xy": PAPER["squareness_um_per_m"]["xy"], "xz": 500.0, "yz": 500.0},
+    "scale_ppm": PAPER["scale_ppm"],
+    "backlash": {"x": 50.0, "y": 30.0},
+}
 PARAMS = {
     "xy1000": {"squareness_um_per_m": {"xy": 1000.0}},
     "paper": PAPER,
@@ -66,8 +72,9 @@ def engines_equal(params, lines, options, ref_text):
     for name in names:
         with select.use(name):
             comp = make_compensator(params, options)
-            per_line = "".join(compensate_lines(io.StringIO(text, newline=""), comp,
-                                                marker_line(params)))
+            per_line = "".join(
+                compensate_lines(io.StringIO(text, newline=""), comp, marker_line(params))
+            )
             dst = io.BytesIO()
             compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params, options)
             whole = dst.getvalue().decode(ENCODING, ERRORS)
@@ -86,17 +93,28 @@ def run_case(path, pname, home, limit):
     assert f.zero_length == [], (where, f.zero_length[:3])
     assert f.worst is None, (where, f.worst)
     assert f.growth <= GROWTH[pname], (where, f.growth)
-    ref_text = marker_line(params) + "\n" + "".join(o + "\n" for _, outs, _, _ in groups
-                                             for o in outs)
+    ref_text = (
+        marker_line(params) + "\n" + "".join(o + "\n" for _, outs, _, _ in groups for o in outs)
+    )
     engines_equal(params, lines, options, ref_text)
     figures = os.environ.get("KINCOMP_CORPUS_FIGURES")
     if figures:  # (for the record: one JSON line per case)
         with open(figures, "a") as out:
-            out.write(json.dumps({
-                "file": os.path.basename(path), "params": pname, "home": home,
-                "lines": f.lines, "lines_out": f.lines_out, "checked": f.checked_moves,
-                "max_dev_um": round(f.max_deviation_mm * 1000, 3),
-                "max_first_dev_um": round(f.max_first_deviation_mm * 1000, 3)}) + "\n")
+            out.write(
+                json.dumps(
+                    {
+                        "file": os.path.basename(path),
+                        "params": pname,
+                        "home": home,
+                        "lines": f.lines,
+                        "lines_out": f.lines_out,
+                        "checked": f.checked_moves,
+                        "max_dev_um": round(f.max_deviation_mm * 1000, 3),
+                        "max_first_dev_um": round(f.max_first_deviation_mm * 1000, 3),
+                    }
+                )
+                + "\n"
+            )
     return f
 
 

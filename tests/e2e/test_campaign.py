@@ -15,18 +15,20 @@ from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 
-ZERO = {"squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
-        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
+ZERO = {
+    "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
+}
 BASE = "/plugin/kincomp"
 
 
 def _reset_params(server):
     """The whole parameter set back to none (a campaign's proposal also sets servo lags,
     servo pre-compensation and the backlash fraction, which a partial update keeps)."""
-    code, resp = server.request("POST", f"{BASE}/apply", {"params": Params().to_dict(),
-                                                          "enabled": False,
-                                                          "apply_now": True})
+    code, resp = server.request(
+        "POST", f"{BASE}/apply", {"params": Params().to_dict(), "enabled": False, "apply_now": True}
+    )
     assert code == 200, resp
 
 
@@ -44,8 +46,9 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
         code, resp = server.request("POST", f"{BASE}/campaign/plan", {"radius_xy": "50"})
         assert code == 400 and "radius_xy" in resp["error"]
         for user in ("viewer", "settingsonly"):  # no KinComp admin permission
-            code, resp = server.request("POST", f"{BASE}/campaign/plan", {"radius_xy": 50},
-                                        key=user)
+            code, resp = server.request(
+                "POST", f"{BASE}/campaign/plan", {"radius_xy": 50}, key=user
+            )
             assert code == 403
         code, doc = server.request("POST", f"{BASE}/campaign/plan", {"radius_xy": 50})
         assert code == 200, doc
@@ -57,43 +60,45 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
         assert code == 200 and listed["campaigns"][0]["id"] == cid
         traces = {n: _trace(doc, n) for n in (1, 2, 3)}
         assert len(traces[2]) > 1_000_000  # beyond OctoPrint's default body size
-        code, resp = server.upload(f"{BASE}/campaigns/{cid}/steps/3/trace", "xy.csv",
-                                   traces[1].encode())
+        code, resp = server.upload(
+            f"{BASE}/campaigns/{cid}/steps/3/trace", "xy.csv", traces[1].encode()
+        )
         assert code == 400 and resp["error"].startswith("xy.csv: it is the trace of test xy")
         for n, name in ((1, "xy.csv"), (2, "xz.csv")):
-            code, resp = server.upload(f"{BASE}/campaigns/{cid}/steps/{n}/trace", name,
-                                       traces[n].encode())
+            code, resp = server.upload(
+                f"{BASE}/campaigns/{cid}/steps/{n}/trace", name, traces[n].encode()
+            )
             assert code == 200, resp
         assert resp["campaign"]["measured"] == 2 and resp["run"]["filename"] == "xz.csv"
         code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/analyze", {})
         assert code == 400 and "test 3 (yz" in resp["error"]
         # the parameters changed mid-campaign: it cannot go on
         settings(server, enabled=True, params=dict(ZERO, scale_ppm={"x": 100.0}))
-        code, resp = server.upload(f"{BASE}/campaigns/{cid}/steps/3/trace", "yz.csv",
-                                   traces[3].encode())
+        code, resp = server.upload(
+            f"{BASE}/campaigns/{cid}/steps/3/trace", "yz.csv", traces[3].encode()
+        )
         assert code == 409 and "parameters in force changed" in resp["error"]
         settings(server, enabled=False, params=ZERO)
-        code, resp = server.upload(f"{BASE}/campaigns/{cid}/steps/3/trace", "yz.csv",
-                                   traces[3].encode())
+        code, resp = server.upload(
+            f"{BASE}/campaigns/{cid}/steps/3/trace", "yz.csv", traces[3].encode()
+        )
         assert code == 200, resp
         code, done = server.request("POST", f"{BASE}/campaigns/{cid}/analyze", {})
         assert code == 200, done
         proposed = done["analysis"]["proposed"]
         assert proposed["squareness_um_per_m"]["yz"] == pytest.approx(-500, abs=10)
-        code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/apply",
-                                    {"enabled": "yes"})
+        code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/apply", {"enabled": "yes"})
         assert code == 400 and "enabled" in resp["error"]
-        code, applied = server.request("POST", f"{BASE}/campaigns/{cid}/apply",
-                                       {"enabled": True})
+        code, applied = server.request("POST", f"{BASE}/campaigns/{cid}/apply", {"enabled": True})
         assert code == 200, applied
         st = status(server)
         assert st["settings"]["enabled"] is True and st["params_hash"] == applied["params_hash"]
-        assert st["settings"]["params"]["squareness_um_per_m"] == \
-            pytest.approx(proposed["squareness_um_per_m"])
+        assert st["settings"]["params"]["squareness_um_per_m"] == pytest.approx(
+            proposed["squareness_um_per_m"]
+        )
         code, runs = server.request("GET", f"{BASE}/runs")
         mine = [r for r in runs["runs"] if r["campaign"] == cid]
-        assert sorted(r["campaign_step"] or "joint" for r in mine) == ["joint", "xy", "xz",
-                                                                        "yz"]
+        assert sorted(r["campaign_step"] or "joint" for r in mine) == ["joint", "xy", "xz", "yz"]
     finally:
         _reset_params(server)
 
@@ -115,14 +120,16 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
     and the capture becomes the test's measurement by itself, once (SIMULATED)."""
     settings(server, enabled=False, params=ZERO, demo={"enabled": True})
     try:
-        code, doc = server.request("POST", f"{BASE}/campaign/plan",
-                                   {"radius_xy": 50, "radius_vertical": 20})
+        code, doc = server.request(
+            "POST", f"{BASE}/campaign/plan", {"radius_xy": 50, "radius_vertical": 20}
+        )
         assert code == 200, doc
         cid = doc["id"]
         for step in doc["steps"]:
             n = step["n"]
-            code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/steps/{n}/program",
-                                        {"print": True})
+            code, resp = server.request(
+                "POST", f"{BASE}/campaigns/{cid}/steps/{n}/program", {"print": True}
+            )
             assert code == 200 and resp["capture"]["armed"], resp
             assert resp["capture"]["source"] == "demo"
             server.wait_state("Paused", timeout=120)  # the M0 to mount the bar
@@ -132,8 +139,8 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
             server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
 
             def measured():
-                return server.request("GET", f"{BASE}/campaigns/{cid}")[1]["steps"][n - 1][
-                    "run"]
+                return server.request("GET", f"{BASE}/campaigns/{cid}")[1]["steps"][n - 1]["run"]
+
             run_id = _wait(f"test {n} measured", measured)
             server.wait_state("Paused", timeout=120)  # the M0 to unmount it
             server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
@@ -147,7 +154,8 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
         code, done = server.request("POST", f"{BASE}/campaigns/{cid}/analyze", {})
         assert code == 200, done
         assert done["analysis"]["proposed"]["squareness_um_per_m"] == pytest.approx(
-            {"xy": -3638.6, "xz": 800.0, "yz": -500.0}, abs=20)
+            {"xy": -3638.6, "xz": 800.0, "yz": -500.0}, abs=20
+        )
     finally:
         settings(server, demo={"enabled": False})
         _reset_params(server)

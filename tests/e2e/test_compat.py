@@ -29,11 +29,25 @@ pytestmark = pytest.mark.slow
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 OLDEST = "1.10"  # the oldest OctoPrint release line KinComp supports (pyproject: >=1.10.0)
-PARAMS = {"squareness_um_per_m": {"xy": 800.0, "xz": -300.0, "yz": 200.0},
-          "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
-          "backlash": {"x": 30.0, "y": 25.0}}
-COMMANDS = ["G90", "G21", "M82", "G28", "G1 Z5 F600", "G1 X50 Y60 F3000", "G0 X120 Y30",
-            "G2 X140 Y30 I10 J0 F1200", "G91", "G1 X-5 Y5", "G90", "M18"]
+PARAMS = {
+    "squareness_um_per_m": {"xy": 800.0, "xz": -300.0, "yz": 200.0},
+    "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
+    "backlash": {"x": 30.0, "y": 25.0},
+}
+COMMANDS = [
+    "G90",
+    "G21",
+    "M82",
+    "G28",
+    "G1 Z5 F600",
+    "G1 X50 Y60 F3000",
+    "G0 X120 Y30",
+    "G2 X140 Y30 I10 J0 F1200",
+    "G91",
+    "G1 X-5 Y5",
+    "G90",
+    "M18",
+]
 
 
 def _oldest_python() -> str:
@@ -41,15 +55,24 @@ def _oldest_python() -> str:
     the test set-up runs (scripts/bootstrap.sh)."""
     venv = os.environ.get("KINCOMP_COMPAT_VENV") or os.path.join(ROOT, ".venv-op110")
     env = dict(os.environ, KINCOMP_COMPAT_VENV=venv)
-    run = subprocess.run([os.path.join(ROOT, "scripts", "compat-venv.sh")], env=env,
-                         capture_output=True, text=True, timeout=1200)
+    run = subprocess.run(
+        [os.path.join(ROOT, "scripts", "compat-venv.sh")],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
     assert run.returncode == 0, f"scripts/compat-venv.sh failed:\n{run.stderr[-3000:]}"
     return os.path.join(venv, "bin", "python")
 
 
 def _octoprint_version(python: str) -> str:
-    return subprocess.run([python, "-c", "import octoprint; print(octoprint.__version__)"],
-                          capture_output=True, text=True, check=True).stdout.strip()
+    return subprocess.run(
+        [python, "-c", "import octoprint; print(octoprint.__version__)"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
 
 
 @pytest.fixture(scope="module", params=["oldest", "newest"])
@@ -68,8 +91,11 @@ def compat_server(request, tmp_path_factory):
         srv.stop()
         keep = os.environ.get("KINCOMP_E2E_KEEP")
         if keep:
-            shutil.copytree(os.path.join(base, "logs"),
-                            os.path.join(keep, f"compat-{version}"), dirs_exist_ok=True)
+            shutil.copytree(
+                os.path.join(base, "logs"),
+                os.path.join(keep, f"compat-{version}"),
+                dirs_exist_ok=True,
+            )
 
 
 def test_plugin_loads_and_renders(compat_server):
@@ -82,8 +108,11 @@ def test_plugin_loads_and_renders(compat_server):
     log = srv.octoprint_log()
     assert f"KinComp ({__version__})" in log  # the plugin list at start-up
     assert f"KinComp {__version__} ready" in log
-    problems = [l for l in log.splitlines()
-                if "kincomp" in l.lower() and (" - ERROR - " in l or "Traceback" in l)]
+    problems = [
+        l
+        for l in log.splitlines()
+        if "kincomp" in l.lower() and (" - ERROR - " in l or "Traceback" in l)
+    ]
     assert not problems, problems
     # the settings page and the Calibration tab are in the page OctoPrint renders
     web = BrowserSession(srv).login(ADMIN, srv.logins[ADMIN]["password"])

@@ -10,11 +10,12 @@ from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 
-ZERO = {"squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
-        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
-PROGRAM = {"plane": "XY", "centre": [100, 100, 5], "radius": 60, "feed": 1850,
-           "print": True}
+ZERO = {
+    "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
+}
+PROGRAM = {"plane": "XY", "centre": [100, 100, 5], "radius": 60, "feed": 1850, "print": True}
 
 
 def _ballbar_run(server):
@@ -45,19 +46,22 @@ def test_demo_calibrate_apply_retest(server):
         diag = before["diagnostics"]
         # the demo printer's hidden errors are the paper's Table 1 Ultimaker
         assert diag["squareness_um_per_m"] == pytest.approx(-3638, abs=60)
-        code, applied = server.request("POST", "/plugin/kincomp/apply",
-                                       {"run": before["id"], "enabled": True})
+        code, applied = server.request(
+            "POST", "/plugin/kincomp/apply", {"run": before["id"], "enabled": True}
+        )
         assert code == 200, applied
         st = status(server)
         assert st["settings"]["enabled"] is True
-        assert st["settings"]["params"]["squareness_um_per_m"] == \
-            pytest.approx(before["proposed"]["squareness_um_per_m"])
+        assert st["settings"]["params"]["squareness_um_per_m"] == pytest.approx(
+            before["proposed"]["squareness_um_per_m"]
+        )
         assert st["params_hash"] == applied["params_hash"]
         # re-test: the program is now compensated on the way out
         after = _ballbar_run(server)
         assert after["params_before_hash"] == applied["params_hash"]
-        code, cmp = server.request("GET", f"/plugin/kincomp/compare?before={before['id']}"
-                                          f"&after={after['id']}")
+        code, cmp = server.request(
+            "GET", f"/plugin/kincomp/compare?before={before['id']}&after={after['id']}"
+        )
         assert code == 200
         red = {r["key"]: r["reduction_pct"] for r in cmp["table"]}
         assert red["squareness_um_per_m"] > 90

@@ -11,9 +11,11 @@ from tests.support.serverutil import marker, offline, sent, settings, status
 
 pytestmark = pytest.mark.slow
 
-SKEW = {"squareness_um_per_m": {"xy": 2000.0, "xz": 0.0, "yz": 0.0},
-        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
+SKEW = {
+    "squareness_um_per_m": {"xy": 2000.0, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
+}
 
 
 def _long_program(n=3000):
@@ -24,8 +26,12 @@ def _long_program(n=3000):
 
 
 def _upload(server, name, lines, print_=True):
-    code, body = server.upload("/api/files/local", name, ("\n".join(lines) + "\n").encode(),
-                               {"select": "true", "print": "true" if print_ else "false"})
+    code, body = server.upload(
+        "/api/files/local",
+        name,
+        ("\n".join(lines) + "\n").encode(),
+        {"select": "true", "print": "true" if print_ else "false"},
+    )
     assert code == 201, body
 
 
@@ -54,11 +60,18 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
     # after the resume are compensated only if the refused line left the position known
     # (negative: at X=0, Z=1 the X command stays inside the bed until the X0 Y100 move)
     params = dict(SKEW, squareness_um_per_m={"xy": 2000.0, "xz": -1000.0, "yz": 0.0})
-    settings(server, enabled=True, params=params, limits_policy="error",
-             pass_through_on_error=False)
+    settings(
+        server, enabled=True, params=params, limits_policy="error", pass_through_on_error=False
+    )
     try:
-        lines = ["G28", "G90", "G1 Z1 F3000", "G1 X50 Y50 F3000", "G1 X60 Y60",
-                 "G1 X0 Y100"]  # X=0 at Y=100 needs X=-0.2 mm: outside the bed -> error
+        lines = [
+            "G28",
+            "G90",
+            "G1 Z1 F3000",
+            "G1 X50 Y50 F3000",
+            "G1 X60 Y60",
+            "G1 X0 Y100",
+        ]  # X=0 at Y=100 needs X=-0.2 mm: outside the bed -> error
         lines += [f"G1 X{30 + i % 50} Y{30 + i % 20}" for i in range(2000)]
         start = marker(server)
         _upload(server, "fault.gcode", lines)
@@ -69,9 +82,9 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
         got = sent(server, after=start)
         # everything before the failing move went out compensated exactly as offline
         want = offline(server, lines[:5])
-        assert got[:len(want)] == want
+        assert got[: len(want)] == want
         # the failing move and the moves after it were not sent at all, compensated or not
-        after = got[len(want):]
+        after = got[len(want) :]
         assert "G1 X0 Y100" not in after
         assert not any(c.startswith("G1 X") for c in after), after[:5]
         held = st["held_moves"]
@@ -96,8 +109,9 @@ def test_disconnect_mid_print_and_reconnect_resets_the_state(server):
     settings(server, enabled=True, params=SKEW)
     try:
         _upload(server, "long.gcode", _long_program())
-        _wait(lambda: status(server)["compensation"]["report"]["moves_compensated"] > 50,
-              what="moves")
+        _wait(
+            lambda: status(server)["compensation"]["report"]["moves_compensated"] > 50, what="moves"
+        )
         assert status(server)["compensation"]["printing"]
         code, _ = server.request("POST", "/api/connection", {"command": "disconnect"})
         assert code == 204
@@ -135,8 +149,9 @@ def test_parameters_changed_mid_print_wait_for_the_next_print_unless_forced(serv
         assert st["params_hash"] == old_hash and st["pending_params_hash"] == body["params_hash"]
         # forced: applied at once, mid-print
         newer = dict(SKEW, squareness_um_per_m={"xy": 100.0, "xz": 0.0, "yz": 0.0})
-        code, body = server.request("POST", "/plugin/kincomp/settings",
-                                    {"params": newer, "apply_now": True})
+        code, body = server.request(
+            "POST", "/plugin/kincomp/settings", {"params": newer, "apply_now": True}
+        )
         assert code == 200
         st = status(server)["compensation"]
         assert st["params_hash"] == body["params_hash"] and st["pending_params_hash"] is None
@@ -149,10 +164,12 @@ def test_parameters_changed_mid_print_wait_for_the_next_print_unless_forced(serv
 def test_oversized_trace_upload_is_refused_before_it_is_read(server):
     """A 1 GB upload claim to the trace endpoint: refused at once, nothing buffered."""
     with socket.create_connection(("127.0.0.1", server.port), timeout=30) as s:
-        head = (f"POST /plugin/kincomp/trace HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-                f"X-Api-Key: {server.admin_key}\r\n"
-                "Content-Type: multipart/form-data; boundary=x\r\n"
-                f"Content-Length: {1 << 30}\r\n\r\n").encode()
+        head = (
+            f"POST /plugin/kincomp/trace HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            f"X-Api-Key: {server.admin_key}\r\n"
+            "Content-Type: multipart/form-data; boundary=x\r\n"
+            f"Content-Length: {1 << 30}\r\n\r\n"
+        ).encode()
         s.sendall(head + b"--x\r\n" + b"0" * 65536)
         t0 = time.time()
         reply = b""
@@ -170,18 +187,27 @@ def test_oversized_trace_upload_is_refused_before_it_is_read(server):
 
 def test_path_traversal_is_impossible(server):
     base = server.basedir
-    code, run = server.upload("/plugin/kincomp/trace", "../../../config.yaml",
-                              b"# plane: XY\n# radius_mm: 100\ndirection,angle_deg,deviation_um\n"
-                              + b"".join(f"ccw,{a},{(a % 7) * 0.1}\n".encode()
-                                         for a in range(0, 360, 2))
-                              + b"".join(f"cw,{a},{(a % 5) * 0.1}\n".encode()
-                                         for a in range(0, 360, 2)))
+    code, run = server.upload(
+        "/plugin/kincomp/trace",
+        "../../../config.yaml",
+        b"# plane: XY\n# radius_mm: 100\ndirection,angle_deg,deviation_um\n"
+        + b"".join(f"ccw,{a},{(a % 7) * 0.1}\n".encode() for a in range(0, 360, 2))
+        + b"".join(f"cw,{a},{(a % 5) * 0.1}\n".encode() for a in range(0, 360, 2)),
+    )
     assert code == 200, run
     assert "/" not in run["filename"] and not run["filename"].startswith(".")
     with open(os.path.join(base, "config.yaml"), encoding="utf-8") as f:
         assert "server:" in f.read()  # untouched
-    for path in ("../config.yaml", "../../users.yaml", "/etc/passwd", "..%2F..%2Fusers.yaml",
-                 "../uploads/x.gcode", "../x.gcode", "../../../../etc/x.gcode", {"a": 1}):
+    for path in (
+        "../config.yaml",
+        "../../users.yaml",
+        "/etc/passwd",
+        "..%2F..%2Fusers.yaml",
+        "../uploads/x.gcode",
+        "../x.gcode",
+        "../../../../etc/x.gcode",
+        {"a": 1},
+    ):
         code, _ = server.request("POST", "/plugin/kincomp/compensate", {"path": path})
         assert code == (404 if isinstance(path, str) else 400), path  # 400: not a path
         if isinstance(path, str):

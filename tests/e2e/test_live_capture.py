@@ -21,9 +21,11 @@ from tests.support.serverutil import settings
 
 pytestmark = pytest.mark.slow
 
-ZERO = {"squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
-        "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "backlash": {"x": 0.0, "y": 0.0, "z": 0.0}}
+ZERO = {
+    "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
+    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
+    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
+}
 PROGRAM = {"plane": "XY", "centre": [100, 100, 5], "radius": 40, "feed": 3000, "print": True}
 SPEC = TestSpec(plane="XY", centre=(100.0, 100.0, 5.0), radius_mm=40.0, feed_mm_min=3000.0)
 NO_SENSOR = {"enabled": False, "port": ""}
@@ -45,8 +47,9 @@ def clean(server):
     before = _last_run_id(server)
     yield before
     server.wait_print_done(timeout=300)
-    settings(server, enabled=False, params=ZERO, demo={"enabled": False, "live": True},
-             sensor=NO_SENSOR)
+    settings(
+        server, enabled=False, params=ZERO, demo={"enabled": False, "live": True}, sensor=NO_SENSOR
+    )
 
 
 def _last_run_id(server):
@@ -72,8 +75,10 @@ def _offline(server, run, spec, program_hash):
     code, raw = server.request("GET", f"/plugin/kincomp/runs/{run['id']}/raw")
     assert code == 200
     trace, _ = trace_from_stream(parse_raw_stream(raw), spec, program_hash)
-    result = analyse(load_any(trace.to_text().encode(), "offline.csv"),
-                     current=Params.from_dict(run["params_before"]))
+    result = analyse(
+        load_any(trace.to_text().encode(), "offline.csv"),
+        current=Params.from_dict(run["params_before"]),
+    )
     return trace, json.loads(json.dumps(result["diagnostics"], default=float))
 
 
@@ -81,11 +86,15 @@ def test_the_printed_test_is_captured_analysed_and_stored(server, bar, clean):
     params = settings(server, sensor={"enabled": True, "port": bar.url})["params"]
     code, prog = server.request("POST", "/plugin/kincomp/program", PROGRAM)
     assert code == 200, prog
-    assert prog["printing"] and prog["capture"] == {"armed": True, "source": "sensor",
-                                                    "port": bar.url}
+    assert prog["printing"] and prog["capture"] == {
+        "armed": True,
+        "source": "sensor",
+        "port": bar.url,
+    }
     # the printer receives the program; the bar measures it, at its own pace
-    bar.play(generate(SPEC).splitlines(), time.monotonic(), spec=SPEC,
-             program_hash=prog["program_hash"])
+    bar.play(
+        generate(SPEC).splitlines(), time.monotonic(), spec=SPEC, program_hash=prog["program_hash"]
+    )
     run = _live_run(server, clean)
     assert run["status"] == "ok" and run["source"] == "live" and run["simulated"]
     assert run["capture"]["sensor"]["timing"] == "device clock"
@@ -128,16 +137,18 @@ def test_an_unplugged_sensor_fails_the_run_not_the_print(server, bar, clean):
 
 
 def test_the_printers_own_port_is_refused(server, clean):
-    code, body = server.request("POST", "/plugin/kincomp/settings",
-                                {"sensor": {"enabled": True, "port": "VIRTUAL"}})
-    assert code == 400 and body["error"].startswith("sensor.port") and \
-        "printer's own port" in body["error"]
-    code, body = server.request("POST", "/plugin/kincomp/settings",
-                                {"sensor": {"baudrate": -5}})
+    code, body = server.request(
+        "POST", "/plugin/kincomp/settings", {"sensor": {"enabled": True, "port": "VIRTUAL"}}
+    )
+    assert (
+        code == 400
+        and body["error"].startswith("sensor.port")
+        and "printer's own port" in body["error"]
+    )
+    code, body = server.request("POST", "/plugin/kincomp/settings", {"sensor": {"baudrate": -5}})
     assert code == 400 and body["error"].startswith("sensor.baudrate")
     st = server.request("GET", "/plugin/kincomp/status")[1]
-    assert st["settings"]["sensor"]["port"] == "" and st["settings"]["sensor"]["baudrate"] == \
-        115200
+    assert st["settings"]["sensor"]["port"] == "" and st["settings"]["sensor"]["baudrate"] == 115200
 
 
 def test_demo_loop_on_the_live_path(server, clean):
@@ -152,14 +163,16 @@ def test_demo_loop_on_the_live_path(server, clean):
     assert diagnostics == before["diagnostics"]
     assert before["diagnostics"]["squareness_um_per_m"] == pytest.approx(-3638, abs=60)
     server.wait_print_done(timeout=300)
-    code, applied = server.request("POST", "/plugin/kincomp/apply",
-                                   {"run": before["id"], "enabled": True})
+    code, applied = server.request(
+        "POST", "/plugin/kincomp/apply", {"run": before["id"], "enabled": True}
+    )
     assert code == 200, applied
     code, prog = server.request("POST", "/plugin/kincomp/program", PROGRAM)
     after = _live_run(server, before["id"])
     assert after["status"] == "ok" and after["params_before_hash"] == applied["params_hash"]
-    code, cmp = server.request("GET", f"/plugin/kincomp/compare?before={before['id']}"
-                                      f"&after={after['id']}")
+    code, cmp = server.request(
+        "GET", f"/plugin/kincomp/compare?before={before['id']}&after={after['id']}"
+    )
     red = {r["key"]: r["reduction_pct"] for r in cmp["table"]}
     assert red["squareness_um_per_m"] > 90 and red["circularity_um.bidirectional"] > 80
     server.wait_print_done(timeout=300)

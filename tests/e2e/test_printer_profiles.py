@@ -18,9 +18,11 @@ def _connect(server, profile_id):
     code, _ = server.request("POST", "/api/connection", {"command": "disconnect"})
     assert code == 204
     server.wait_state("Closed")
-    code, _ = server.request("POST", "/api/connection", {
-        "command": "connect", "port": "VIRTUAL", "baudrate": 115200,
-        "printerProfile": profile_id})
+    code, _ = server.request(
+        "POST",
+        "/api/connection",
+        {"command": "connect", "port": "VIRTUAL", "baudrate": 115200, "printerProfile": profile_id},
+    )
     assert code == 204
     server.wait_state("Operational")
     deadline = time.monotonic() + 30
@@ -39,22 +41,27 @@ def _send(server, lines):
 
 
 def test_a_second_printer_profile_has_its_own_calibration(server):
-    settings(server, enabled=True, home_mm=[0, 0, 0],
-             params={"squareness_um_per_m": {"xy": 1000.0}})
+    settings(
+        server, enabled=True, home_mm=[0, 0, 0], params={"squareness_um_per_m": {"xy": 1000.0}}
+    )
     st = _connect(server, "_default")
     assert st["profile"]["calibrated"] is True and st["compensation"]["enabled"] is True
     calibrated = _send(server, LINES)
     assert calibrated == offline(server, LINES)
     assert "G1 X100 Y100 F3000" not in calibrated  # the skew moved the point
 
-    code, body = server.request("POST", "/api/printerprofiles",
-                                {"profile": dict(SECOND), "basedOn": "_default"})
+    code, body = server.request(
+        "POST", "/api/printerprofiles", {"profile": dict(SECOND), "basedOn": "_default"}
+    )
     assert code == 200, body
     try:
         st = _connect(server, SECOND["id"])
         # (its motion limits, read from the printer on connecting, are its own: known)
         assert {k: st["profile"][k] for k in ("id", "name", "calibrated")} == {
-            "id": SECOND["id"], "name": SECOND["name"], "calibrated": False}
+            "id": SECOND["id"],
+            "name": SECOND["name"],
+            "calibrated": False,
+        }
         assert st["compensation"]["enabled"] is False
         assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
         assert _send(server, LINES) == LINES  # the second printer: as written

@@ -41,9 +41,14 @@ def _write_gcode(path, lines, move, first="G1 Z0.3 F3000"):
 
 def _big_gcode(path, lines):
     """Slicer-like moves all over the bed (what a dry run chews on)."""
-    _write_gcode(path, lines, lambda i: (
-        f"G1 X{20 + (i * 37) % 180}.{i % 10} Y{20 + (i * 53) % 180}.{i % 7} "
-        f"E0.0{i % 9 + 1} F{1800 + i % 5 * 600} ; extrude {i}\n"))
+    _write_gcode(
+        path,
+        lines,
+        lambda i: (
+            f"G1 X{20 + (i * 37) % 180}.{i % 10} Y{20 + (i * 53) % 180}.{i % 7} "
+            f"E0.0{i % 9 + 1} F{1800 + i % 5 * 600} ; extrude {i}\n"
+        ),
+    )
 
 
 def _send_times(srv):
@@ -52,8 +57,7 @@ def _send_times(srv):
     for line in srv.serial_log().splitlines():
         m = _SEND_TS.match(line)
         if m:
-            out.append(datetime.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f")
-                       .timestamp())
+            out.append(datetime.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp())
     return out
 
 
@@ -90,17 +94,21 @@ def _worker(srv, sig):
 def _cancel_print(srv):
     if srv.request("GET", "/api/job")[1]["state"] != "Operational":
         srv.request("POST", "/api/job", {"command": "cancel"})
-        _wait(lambda: srv.request("GET", "/api/job")[1]["state"] == "Operational", 120,
-              "the cancel")
+        _wait(
+            lambda: srv.request("GET", "/api/job")[1]["state"] == "Operational", 120, "the cancel"
+        )
 
 
 def _fast_print(path, lines):
     """A print the virtual printer streams as fast as the CPU lets it: 0.05 mm moves at
     200 mm/s take it 25 us each (it simulates moves at ten times their speed), so the
     Send: rate measures the serial stream, not simulated motion."""
-    _write_gcode(path, lines, lambda i: (
-        f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} E0.001\n"),
-        first="G1 X100 Y20 Z0.3 F12000")
+    _write_gcode(
+        path,
+        lines,
+        lambda i: f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} E0.001\n",
+        first="G1 X100 Y20 Z0.3 F12000",
+    )
 
 
 def test_read_only_dry_runs_do_not_starve_a_print(server):
@@ -117,18 +125,19 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
         (an HTTP flood would cost OctoPrint's own request handling, whatever it asks for)."""
         i = k
         while not stop.is_set():
-            code, body = server.request("GET", f"/plugin/kincomp/dryrun?path={big[i % 3]}",
-                                        key="reader")
+            code, body = server.request(
+                "GET", f"/plugin/kincomp/dryrun?path={big[i % 3]}", key="reader"
+            )
             results.append((code, body))
             i += 1
             stop.wait({200: 0.05, 202: 1.0, 429: 2.0}.get(code, 1.0))
 
     try:
-        code, body = server.request("POST", "/api/files/local/kc-long-print.gcode",
-                                    {"command": "select", "print": True})
+        code, body = server.request(
+            "POST", "/api/files/local/kc-long-print.gcode", {"command": "select", "print": True}
+        )
         assert code == 204, body
-        _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60,
-              "the print")
+        _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60, "the print")
         time.sleep(3.0)  # past the start
         phases = []
         for _ in range(ROUNDS):
@@ -149,15 +158,20 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             stop.set()
             for t in threads:
                 t.join()
-        assert server.request("GET", "/api/job")[1]["state"] == "Printing", \
+        assert server.request("GET", "/api/job")[1]["state"] == "Printing", (
             "the print ended before the measurement did"
+        )
         times = _send_times(server)
-        rates = {kind: [_rate(times, a, b) for k, a, b in phases if k == kind]
-                 for kind in ("quiet", "load")}
+        rates = {
+            kind: [_rate(times, a, b) for k, a, b in phases if k == kind]
+            for kind in ("quiet", "load")
+        }
         quiet, load = statistics.median(rates["quiet"]), statistics.median(rates["load"])
-        print(f"\nSend: rate of the print, lines/s: without dry runs {rates['quiet']} "
-              f"(median {quiet:.0f}), with 4 read-only clients' dry runs {rates['load']} "
-              f"(median {load:.0f}): {load / quiet:.0%}")
+        print(
+            f"\nSend: rate of the print, lines/s: without dry runs {rates['quiet']} "
+            f"(median {quiet:.0f}), with 4 read-only clients' dry runs {rates['load']} "
+            f"(median {load:.0f}): {load / quiet:.0%}"
+        )
         assert load >= 0.8 * quiet, (rates, quiet, load)
         _worker(server, signal.SIGCONT)
         _cancel_print(server)  # the dry runs at nice 19 get the CPU the print leaves
@@ -177,10 +191,14 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             os.unlink(os.path.join(uploads, name))
 
 
-GARBAGE = {"enabled": True,
-           "params": {"squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
-                      "scale_ppm": {"x": 350.0, "y": -200.0, "z": 15.0},
-                      "backlash": {"x": 45.0, "y": 30.0, "z": 5.0}}}
+GARBAGE = {
+    "enabled": True,
+    "params": {
+        "squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
+        "scale_ppm": {"x": 350.0, "y": -200.0, "z": 15.0},
+        "backlash": {"x": 45.0, "y": 30.0, "z": 5.0},
+    },
+}
 
 
 def _stored(srv):
@@ -218,8 +236,9 @@ def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(t
         assert status(srv)["settings_problem_field"] == "params.squareness_um_per_m.xy"
         assert _stored(srv) == GARBAGE
         # fixed: everything else of the calibration is still there
-        code, body = srv.request("POST", "/plugin/kincomp/settings",
-                                 {"params": {"squareness_um_per_m": {"xy": 250.0}}})
+        code, body = srv.request(
+            "POST", "/plugin/kincomp/settings", {"params": {"squareness_um_per_m": {"xy": 250.0}}}
+        )
         assert code == 200, body
         kept = _stored(srv)["params"]
         assert kept["squareness_um_per_m"] == {"xy": 250.0, "xz": 120.0, "yz": -80.0}
@@ -229,8 +248,13 @@ def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(t
         code, body = srv.request("POST", "/plugin/kincomp/compensate", {"path": "big.gcode"})
         assert code == 202, body
         job_id = body["job"]["id"]
-        _wait(lambda: srv.request("GET", f"/plugin/kincomp/jobs/{job_id}")[1]["job"]
-              ["progress"] > 0.05, 120, "the job to write")
+        _wait(
+            lambda: (
+                srv.request("GET", f"/plugin/kincomp/jobs/{job_id}")[1]["job"]["progress"] > 0.05
+            ),
+            120,
+            "the job to write",
+        )
         data = os.path.join(srv.basedir, "data", "kincomp")
         assert any(n.startswith(".kincomp-") for n in os.listdir(os.path.join(data, "jobs")))
         _kill(srv)
@@ -238,8 +262,12 @@ def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(t
         code, body = srv.request("GET", f"/plugin/kincomp/jobs/{job_id}")
         assert code == 200 and body["job"]["state"] == "failed"
         assert "interrupted" in body["job"]["error"]
-        left = [os.path.join(d, n) for d, _, names in os.walk(data) for n in names
-                if n.startswith(".kincomp-") or n.endswith(".gcode")]
+        left = [
+            os.path.join(d, n)
+            for d, _, names in os.walk(data)
+            for n in names
+            if n.startswith(".kincomp-") or n.endswith(".gcode")
+        ]
         assert left == []
         assert not os.path.exists(os.path.join(uploads, "big.kincomp.gcode"))
         with open(os.path.join(uploads, "big.gcode"), "rb") as f:
@@ -280,9 +308,12 @@ def test_a_printer_homing_at_x_max_is_not_driven_across_the_bed(tmp_path):
         start = "M117 kc-homing-start"
         srv.request("POST", "/api/printer/command", {"commands": [start]})
         lines = ["G28", "G1 Z.35 F7800", "G1 X110 Y110 F9000", "G1 X120 Y110 E1"]
-        code, body = srv.upload("/api/files/local", "prusa-start.gcode",
-                                ("\n".join(lines) + "\n").encode(),
-                                {"select": "true", "print": "true"})
+        code, body = srv.upload(
+            "/api/files/local",
+            "prusa-start.gcode",
+            ("\n".join(lines) + "\n").encode(),
+            {"select": "true", "print": "true"},
+        )
         assert code == 201, body
         srv.wait_print_done(120)
         got = sent(srv, after=start, automatic=True)

@@ -33,9 +33,11 @@ from tests.support.serverutil import status
 pytestmark = pytest.mark.slow
 
 BASE = "/plugin/kincomp"
-CALIBRATION = {"squareness_um_per_m": {"xy": 420.0, "xz": -130.0, "yz": 75.0},
-               "scale_ppm": {"x": 310.0, "y": -120.0, "z": 0.0},
-               "backlash": {"x": 45.0, "y": 30.0, "z": 0.0}}
+CALIBRATION = {
+    "squareness_um_per_m": {"xy": 420.0, "xz": -130.0, "yz": 75.0},
+    "scale_ppm": {"x": 310.0, "y": -120.0, "z": 0.0},
+    "backlash": {"x": 45.0, "y": 30.0, "z": 0.0},
+}
 WANT = Params.from_dict(CALIBRATION).hash()
 
 
@@ -47,15 +49,19 @@ def _kincomp_yaml(srv):
 
 
 def _apply(srv, params, enabled):
-    code, body = srv.request("POST", f"{BASE}/apply",
-                             {"params": params, "enabled": enabled, "apply_now": True})
+    code, body = srv.request(
+        "POST", f"{BASE}/apply", {"params": params, "enabled": enabled, "apply_now": True}
+    )
     assert code == 200, body
 
 
 def _reset(srv):
     _apply(srv, Params().to_dict(), False)
-    code, body = srv.request("POST", f"{BASE}/settings", {
-        "decimals": 3, "chord_tol_mm": 0.01, "limits_policy": "warn", "apply_now": True})
+    code, body = srv.request(
+        "POST",
+        f"{BASE}/settings",
+        {"decimals": 3, "chord_tol_mm": 0.01, "limits_policy": "warn", "apply_now": True},
+    )
     assert code == 200, body
 
 
@@ -78,12 +84,21 @@ def test_concurrent_saves_keep_the_calibration(server):
 
             policy = ("warn", "clamp")[trial % 2]
             threads = [
-                threading.Thread(target=call, args=("POST", f"{BASE}/settings",
-                                                    {"decimals": 3 + trial % 4})),
-                threading.Thread(target=call, args=("POST", f"{BASE}/settings",
-                                                    {"chord_tol_mm": 0.001 * (1 + trial)})),
-                threading.Thread(target=call, args=("POST", "/api/settings", {
-                    "plugins": {"kincomp": {"limits_policy": policy}}})),
+                threading.Thread(
+                    target=call, args=("POST", f"{BASE}/settings", {"decimals": 3 + trial % 4})
+                ),
+                threading.Thread(
+                    target=call,
+                    args=("POST", f"{BASE}/settings", {"chord_tol_mm": 0.001 * (1 + trial)}),
+                ),
+                threading.Thread(
+                    target=call,
+                    args=(
+                        "POST",
+                        "/api/settings",
+                        {"plugins": {"kincomp": {"limits_policy": policy}}},
+                    ),
+                ),
             ]
             for t in threads:
                 t.start()
@@ -92,23 +107,37 @@ def test_concurrent_saves_keep_the_calibration(server):
             st = status(server)
             s = st["settings"]
             disk = _kincomp_yaml(server)
-            ok = (sorted(codes) == [200, 200, 200]
-                  and st["params_hash"] == WANT and st["compensation"]["enabled"]
-                  and disk.get("params", {}).get("squareness_um_per_m", {}).get("xy") == 420.0
-                  and s["decimals"] == 3 + trial % 4
-                  and math.isclose(s["chord_tol_mm"], 0.001 * (1 + trial))
-                  and s["limits_policy"] == policy)
+            ok = (
+                sorted(codes) == [200, 200, 200]
+                and st["params_hash"] == WANT
+                and st["compensation"]["enabled"]
+                and disk.get("params", {}).get("squareness_um_per_m", {}).get("xy") == 420.0
+                and s["decimals"] == 3 + trial % 4
+                and math.isclose(s["chord_tol_mm"], 0.001 * (1 + trial))
+                and s["limits_policy"] == policy
+            )
             if not ok:
-                failures.append((trial, codes, st["params_hash"], s["decimals"],
-                                 s["chord_tol_mm"], s["limits_policy"]))
-        print(f"\nreal server: {TRIALS - len(failures)}/{TRIALS} concurrent-save trials "
-              "kept the calibration and every save's key")
+                failures.append(
+                    (
+                        trial,
+                        codes,
+                        st["params_hash"],
+                        s["decimals"],
+                        s["chord_tol_mm"],
+                        s["limits_policy"],
+                    )
+                )
+        print(
+            f"\nreal server: {TRIALS - len(failures)}/{TRIALS} concurrent-save trials "
+            "kept the calibration and every save's key"
+        )
         assert not failures, failures[:5]
     finally:
         _reset(server)
 
 
 # -- 2. a kill during saves ------------------------------------------------------------------
+
 
 def _kill(srv):
     os.killpg(srv.proc.pid, signal.SIGKILL)
@@ -129,8 +158,7 @@ def test_a_kill_during_saves_loses_at_most_the_save_in_flight(tmp_path):
                 while not stop.is_set():
                     value = round(0.001 * (1 + (i + 50 * kill) % 200), 3)
                     try:
-                        code, _ = srv.request("POST", f"{BASE}/settings",
-                                              {"chord_tol_mm": value})
+                        code, _ = srv.request("POST", f"{BASE}/settings", {"chord_tol_mm": value})
                     except OSError:
                         return  # the server is gone
                     sent.append((code, value))
@@ -151,15 +179,21 @@ def test_a_kill_during_saves_loses_at_most_the_save_in_flight(tmp_path):
             assert answered, sent
             # the last answered save, or the one in flight when the server died
             in_flight = round(0.001 * (1 + (len(sent) + 50 * kill) % 200), 3)
-            assert st["settings"]["chord_tol_mm"] in (answered[-1], in_flight), \
-                (st["settings"]["chord_tol_mm"], answered[-3:], in_flight)
-            print(f"\nkill {kill + 1}: {len(answered)} saves answered before the kill; "
-                  f"calibration whole after the restart")
+            assert st["settings"]["chord_tol_mm"] in (answered[-1], in_flight), (
+                st["settings"]["chord_tol_mm"],
+                answered[-3:],
+                in_flight,
+            )
+            print(
+                f"\nkill {kill + 1}: {len(answered)} saves answered before the kill; "
+                f"calibration whole after the restart"
+            )
     finally:
         srv.stop()
 
 
 # -- 3. the standing probe: endpoints x bad values ---------------------------------------------
+
 
 def _nested(depth):
     v = 1
@@ -168,9 +202,33 @@ def _nested(depth):
     return v
 
 
-BAD = [None, True, False, "", "x", "1", "\u0661\u0662\u0663", "\ud800", "\u202egcode", "a" * 5000,
-       [], [1], ["mm"], {}, {"a": 1}, _nested(40), -1, 0, -1e308, 1e308, 1e-310, 2 ** 70,
-       float("nan"), float("inf"), float("-inf")]
+BAD = [
+    None,
+    True,
+    False,
+    "",
+    "x",
+    "1",
+    "\u0661\u0662\u0663",
+    "\ud800",
+    "\u202egcode",
+    "a" * 5000,
+    [],
+    [1],
+    ["mm"],
+    {},
+    {"a": 1},
+    _nested(40),
+    -1,
+    0,
+    -1e308,
+    1e308,
+    1e-310,
+    2**70,
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+]
 
 
 def _settings_fields():
@@ -217,8 +275,9 @@ def test_the_bad_value_probe_gives_no_5xx_and_stores_nothing_refused(server):
         for value in BAD:
             requests.append(("POST", f"{BASE}/settings", _body(path, value), "admin"))
             if len(path) == 1:  # OctoPrint's endpoint: the same checks (the top level)
-                requests.append(("POST", "/api/settings",
-                                 {"plugins": {"kincomp": _body(path, value)}}, "admin"))
+                requests.append(
+                    ("POST", "/api/settings", {"plugins": {"kincomp": _body(path, value)}}, "admin")
+                )
     for value in BAD:
         q = _quoted(value)
         requests += [
@@ -227,8 +286,12 @@ def test_the_bad_value_probe_gives_no_5xx_and_stores_nothing_refused(server):
             ("POST", f"{BASE}/apply", {"params": {"backlash": {"fraction": value}}}, "admin"),
             ("POST", f"{BASE}/apply", {"params": {"scale_ppm": {"x": value}}}, "admin"),
             ("POST", f"{BASE}/analyze", {"summary": value}, "admin"),
-            ("POST", f"{BASE}/analyze", {"artifact": {"plane": "XY", "ac": value, "bd": 1,
-                                                      "ad": 1}}, "admin"),
+            (
+                "POST",
+                f"{BASE}/analyze",
+                {"artifact": {"plane": "XY", "ac": value, "bd": 1, "ad": 1}},
+                "admin",
+            ),
             ("POST", f"{BASE}/campaign/plan", {"radius_xy": value, "preview": True}, "admin"),
             ("POST", f"{BASE}/compensate", {"path": value}, "admin"),
             ("POST", f"{BASE}/program", {"plane": value}, "admin"),
@@ -268,14 +331,24 @@ def test_the_bad_value_probe_gives_no_5xx_and_stores_nothing_refused(server):
 
 # -- 4. wrong types in config.yaml at start-up --------------------------------------------------
 
-GETS = ["/status", "/runs", "/files", "/sensor/status", "/campaigns", "/dryrun?path=a.gcode",
-        "/compare?before=a&after=b"]
+GETS = [
+    "/status",
+    "/runs",
+    "/files",
+    "/sensor/status",
+    "/campaigns",
+    "/dryrun?path=a.gcode",
+    "/compare?before=a&after=b",
+]
 
 
-@pytest.mark.parametrize("stored, field", [
-    ({"enabled": True, "params": CALIBRATION, "sensor": {"units": ["mm"]}}, "sensor.units"),
-    ({"enabled": True, "params": "garbage"}, "params"),
-])
+@pytest.mark.parametrize(
+    "stored, field",
+    [
+        ({"enabled": True, "params": CALIBRATION, "sensor": {"units": ["mm"]}}, "sensor.units"),
+        ({"enabled": True, "params": "garbage"}, "params"),
+    ],
+)
 def test_a_wrong_type_in_config_yaml_at_start_up(tmp_path, stored, field):
     srv = DevServer(str(tmp_path / "op"), kincomp=copy.deepcopy(stored))
     srv.start()
@@ -297,8 +370,7 @@ def test_a_wrong_type_in_config_yaml_at_start_up(tmp_path, stored, field):
             assert Params.from_dict(disk["params"]).hash() == WANT
         code, body = srv.request("POST", f"{BASE}/settings", {"decimals": 4})
         assert code == 400 and field in body["error"]
-        fix = {"sensor": {"units": "mm"}} if field == "sensor.units" else \
-            {"params": CALIBRATION}
+        fix = {"sensor": {"units": "mm"}} if field == "sensor.units" else {"params": CALIBRATION}
         code, body = srv.request("POST", f"{BASE}/settings", fix)
         assert code == 200, body
         st = status(srv)
@@ -310,6 +382,7 @@ def test_a_wrong_type_in_config_yaml_at_start_up(tmp_path, stored, field):
 
 # -- 5. a run's trace under a relative basedir -------------------------------------------------
 
+
 def test_a_runs_trace_downloads_under_a_relative_basedir(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     srv = DevServer("op")  # relative, as ./run.sh passes it
@@ -318,8 +391,9 @@ def test_a_runs_trace_downloads_under_a_relative_basedir(tmp_path, monkeypatch):
         text = generate(TestSpec())
         spec, prog_hash = spec_from_program(text)
         trace = simulate_program(text, volume_truth(noise_um=0.5), spec, prog_hash).to_text()
-        code, run = srv.request("POST", f"{BASE}/trace", raw=trace.encode(),
-                                content_type="text/csv")
+        code, run = srv.request(
+            "POST", f"{BASE}/trace", raw=trace.encode(), content_type="text/csv"
+        )
         deadline = time.time() + 120
         while code == 202 and time.time() < deadline:
             time.sleep(1.0)
@@ -333,7 +407,9 @@ def test_a_runs_trace_downloads_under_a_relative_basedir(tmp_path, monkeypatch):
         assert code == 200, run
         code, body = srv.request("GET", f"{BASE}/runs/{run['id']}/trace")
         assert code == 200, body
-        assert body.replace("\r\n", "\n") == trace.replace("\r\n", "\n") or \
-            str(body)[:200] == trace[:200]
+        assert (
+            body.replace("\r\n", "\n") == trace.replace("\r\n", "\n")
+            or str(body)[:200] == trace[:200]
+        )
     finally:
         srv.stop()

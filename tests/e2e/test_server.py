@@ -51,8 +51,7 @@ def _print_file(server, name, data):
     code, _ = server.request("POST", "/api/printer/command", {"commands": ["M220 S5000"]})
     assert code == 204
     start = marker(server)
-    code, body = server.upload("/api/files/local", name, data,
-                               {"select": "true", "print": "true"})
+    code, body = server.upload("/api/files/local", name, data, {"select": "true", "print": "true"})
     assert code == 201, body
     server.wait_print_done(timeout=1800)
     return start
@@ -64,14 +63,30 @@ def test_api_commands_and_jog_go_out_compensated_once(server):
     # test_reliability.py)
     settings(server, enabled=True, mode="on_the_fly", params=PARAMS, home_mm=[0.0, 0.0, 0.0])
     start = marker(server)
-    commands = ["G90", "G21", "M82", "G28", "G1 Z5 F600", "G1 X50 Y60 F3000",
-                "G0 X120 Y30", "g1 x80 y90", "G01 X60.5 Y70.25 E1.5",
-                "G2 X80.5 Y70.25 I10 J0 F1200", "G91", "G1 X-5 Y5", "G1 Z-1", "G90",
-                "M104 S0", "G92 X0", "G1 X10 F3000", "G92 X70.5", "M18"]
+    commands = [
+        "G90",
+        "G21",
+        "M82",
+        "G28",
+        "G1 Z5 F600",
+        "G1 X50 Y60 F3000",
+        "G0 X120 Y30",
+        "g1 x80 y90",
+        "G01 X60.5 Y70.25 E1.5",
+        "G2 X80.5 Y70.25 I10 J0 F1200",
+        "G91",
+        "G1 X-5 Y5",
+        "G1 Z-1",
+        "G90",
+        "M104 S0",
+        "G92 X0",
+        "G1 X10 F3000",
+        "G92 X70.5",
+        "M18",
+    ]
     code, _ = server.request("POST", "/api/printer/command", {"commands": commands})
     assert code == 204
-    code, _ = server.request("POST", "/api/printer/printhead",
-                             {"command": "jog", "x": 10, "y": -5})
+    code, _ = server.request("POST", "/api/printer/printhead", {"command": "jog", "x": 10, "y": -5})
     assert code == 204
     end = marker(server)
     _, profile = server.request("GET", "/api/printerprofiles/_default")
@@ -109,14 +124,16 @@ def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
     # OctoPrint itself refuses tools the printer profile does not have (the slicer's
     # T1000), with a warning in serial.log: not KinComp's doing, accounted for here
     log = server.serial_log()
-    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start):])
+    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start) :])
     missing_tools = [c for c in want if re.fullmatch(r"T\d+", c) and int(c[1:]) > 0]
     assert refused == missing_tools and refused
     want = [c for c in want if c not in refused]
     if got != want:  # a readable failure: the first difference
         i = next(i for i, (a, b) in enumerate(zip(got, want)) if a != b)
-        pytest.fail(f"line {i}: sent {got[i]!r}, expected {want[i]!r} "
-                    f"(sent {len(got)}, expected {len(want)})")
+        pytest.fail(
+            f"line {i}: sent {got[i]!r}, expected {want[i]!r} "
+            f"(sent {len(got)}, expected {len(want)})"
+        )
     non_motion = [c for c in _visible(cmds) if not _is_move(c) and c not in refused]
     assert all(c in set(got) for c in non_motion)
 
@@ -140,9 +157,13 @@ def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
 
         params, options = engine_config(st["settings"], tuple(st["limits"]))
         with open(src, encoding="utf-8", newline="") as f:
-            reference = "".join(compensate_lines(f.read().splitlines(keepends=True),
-                                                 Compensator(params, options),
-                                                 marker_line(params)))
+            reference = "".join(
+                compensate_lines(
+                    f.read().splitlines(keepends=True),
+                    Compensator(params, options),
+                    marker_line(params),
+                )
+            )
         with open(stored, encoding="utf-8", newline="") as f:
             assert f.read() == reference
         # ... and printing it sends exactly its lines: not compensated a second time
@@ -174,26 +195,33 @@ def test_bad_settings_are_refused_and_the_old_values_kept(server):
         assert code == 400, (body, resp)
         assert resp["error"]
         assert status(server)["settings"] == before
-    code, resp = server.request("POST", "/plugin/kincomp/settings",
-                                {"params": {"squareness_um_per_m": {"xy": "abc"}}})
+    code, resp = server.request(
+        "POST", "/plugin/kincomp/settings", {"params": {"squareness_um_per_m": {"xy": "abc"}}}
+    )
     assert "params.squareness_um_per_m.xy" in resp["error"]
     # OctoPrint's own settings endpoint (the settings dialog) answers 400 too
-    code, resp = server.request("POST", "/api/settings",
-                                {"plugins": {"kincomp": {"limits_policy": "explode"}}})
+    code, resp = server.request(
+        "POST", "/api/settings", {"plugins": {"kincomp": {"limits_policy": "explode"}}}
+    )
     assert code == 400 and "limits_policy" in json.dumps(resp)
     assert status(server)["settings"] == before
-    code, _ = server.request("POST", "/api/settings",
-                             {"plugins": {"kincomp": {"limits_policy": "clamp"}}})
+    code, _ = server.request(
+        "POST", "/api/settings", {"plugins": {"kincomp": {"limits_policy": "clamp"}}}
+    )
     assert code == 200 and status(server)["settings"]["limits_policy"] == "clamp"
     settings(server, limits_policy="warn")
     # OctoPrint's SETTINGS permission alone may not change the machine model
-    code, resp = server.request("POST", "/api/settings",
-                                {"plugins": {"kincomp": {"params": {"scale_ppm": {"x": 5}}}}},
-                                key="settingsonly")
+    code, resp = server.request(
+        "POST",
+        "/api/settings",
+        {"plugins": {"kincomp": {"params": {"scale_ppm": {"x": 5}}}}},
+        key="settingsonly",
+    )
     assert code == 403, resp
     assert status(server)["settings"]["params"] == before["params"]
-    code, _ = server.request("POST", "/api/settings", {"appearance": {"name": "kc"}},
-                             key="settingsonly")
+    code, _ = server.request(
+        "POST", "/api/settings", {"appearance": {"name": "kc"}}, key="settingsonly"
+    )
     assert code == 200  # their other settings are theirs to change
 
 
@@ -220,19 +248,16 @@ def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
         assert code in (401, 403), (path, code)
         # non-admin API keys: a plain user, and one with OctoPrint's SETTINGS permission
         for user in ("viewer", "settingsonly"):
-            code, _ = server.request("POST", path, body, key=user, raw=raw,
-                                     content_type="text/csv")
+            code, _ = server.request("POST", path, body, key=user, raw=raw, content_type="text/csv")
             assert code == 403, (path, user, code)
         # no credentials at all and no CSRF token
-        code, _ = server.request("POST", path, body, key=None, raw=raw,
-                                 content_type="text/csv")
+        code, _ = server.request("POST", path, body, key=None, raw=raw, content_type="text/csv")
         assert code in (400, 401, 403), (path, code)
     code, _ = anon.open("GET", "/plugin/kincomp/status")
     assert code in (401, 403)
     # a logged-in admin browser session still needs the CSRF header
     admin = BrowserSession(server).login("admin", server.logins["admin"]["password"])
-    code, text = admin.open("POST", "/plugin/kincomp/settings", {"enabled": False},
-                            csrf=False)
+    code, text = admin.open("POST", "/plugin/kincomp/settings", {"enabled": False}, csrf=False)
     assert code == 400 and "CSRF" in text
     assert status(server)["settings"] == before
     code, _ = admin.open("POST", "/plugin/kincomp/settings", {"enabled": before["enabled"]})
@@ -269,9 +294,13 @@ def test_background_mode_writes_a_compensated_copy_with_progress(server):
         assert file_marker(copy) == st["params_hash"]
         params, options = engine_config(st["settings"], tuple(st["limits"]))
         with open(src, encoding="utf-8", newline="") as f:
-            reference = "".join(compensate_lines(f.read().splitlines(keepends=True),
-                                                 Compensator(params, options),
-                                                 marker_line(params)))
+            reference = "".join(
+                compensate_lines(
+                    f.read().splitlines(keepends=True),
+                    Compensator(params, options),
+                    marker_line(params),
+                )
+            )
         with open(copy, encoding="utf-8", newline="") as f:
             assert f.read() == reference
     finally:

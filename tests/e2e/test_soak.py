@@ -24,9 +24,11 @@ from tests.support.serverutil import (
 
 pytestmark = pytest.mark.slow
 
-PARAMS = {"squareness_um_per_m": {"xy": 800.0, "xz": -300.0, "yz": 200.0},
-          "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
-          "backlash": {"x": 30.0, "y": 25.0, "z": 0.0}}
+PARAMS = {
+    "squareness_um_per_m": {"xy": 800.0, "xz": -300.0, "yz": 200.0},
+    "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
+    "backlash": {"x": 30.0, "y": 25.0, "z": 0.0},
+}
 MIN_LINES = 200_000
 
 
@@ -37,7 +39,7 @@ def _soak_file():
         lines = f.read().splitlines()
     layers = [i for i, l in enumerate(lines) if l.startswith("; CHANGE_LAYER")]
     end = next(i for i, l in enumerate(lines) if l.startswith("; filament end gcode"))
-    head, body, tail = lines[:layers[1]], lines[layers[1]:end], lines[end:]
+    head, body, tail = lines[: layers[1]], lines[layers[1] : end], lines[end:]
     out = head + body * 11 + tail
     assert len(out) >= MIN_LINES
     return out
@@ -60,14 +62,22 @@ def test_soak_200k_lines(server):
     def sample():
         while not stop.is_set():
             _, job = server.request("GET", "/api/job")
-            samples.append((time.time(), (job.get("progress") or {}).get("completion") or 0.0,
-                            _rss_kb(server.proc.pid)))
+            samples.append(
+                (
+                    time.time(),
+                    (job.get("progress") or {}).get("completion") or 0.0,
+                    _rss_kb(server.proc.pid),
+                )
+            )
             stop.wait(2.0)
 
     t0 = time.time()
-    code, body = server.upload("/api/files/local", "soak.gcode",
-                               ("\n".join(lines) + "\n").encode(),
-                               {"select": "true", "print": "true"})
+    code, body = server.upload(
+        "/api/files/local",
+        "soak.gcode",
+        ("\n".join(lines) + "\n").encode(),
+        {"select": "true", "print": "true"},
+    )
     assert code == 201, body
     th = threading.Thread(target=sample, daemon=True)
     th.start()
@@ -79,10 +89,13 @@ def test_soak_200k_lines(server):
     elapsed = time.time() - t0
 
     cmds = [c for c in (strip_comment(l).strip() for l in lines) if c]
-    want = [c for c in offline(server, cmds, home_reports(server, start))
-            if c.split(" ", 1)[0] not in AUTOMATIC]
+    want = [
+        c
+        for c in offline(server, cmds, home_reports(server, start))
+        if c.split(" ", 1)[0] not in AUTOMATIC
+    ]
     log = server.serial_log()
-    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start):])
+    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start) :])
     want = [c for c in want if c not in refused]
     got = sent(server, after=start)
     assert len(got) == len(want)
@@ -100,7 +113,9 @@ def test_soak_200k_lines(server):
     rss_max = max(s[2] for s in during)
     growth_mb = (rss_max - rss_early) / 1024
     figures = {
-        "lines_in_file": len(lines), "commands": len(cmds), "sent_checked": len(got),
+        "lines_in_file": len(lines),
+        "commands": len(cmds),
+        "sent_checked": len(got),
         "print_seconds": round(elapsed, 1),
         "server_rss_mb_at_10pct": round(rss_early / 1024, 1),
         "server_rss_mb_max": round(rss_max / 1024, 1),
@@ -108,10 +123,12 @@ def test_soak_200k_lines(server):
         "rss_growth_mb": round(growth_mb, 1),
         "moves_compensated": status(server)["compensation"]["report"]["moves_compensated"],
     }
-    os.makedirs(os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts"),
-                exist_ok=True)
-    with open(os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts",
-                           "soak.json"), "w") as f:
+    os.makedirs(
+        os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts"), exist_ok=True
+    )
+    with open(
+        os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "soak.json"), "w"
+    ) as f:
         json.dump(figures, f, indent=1)
     print("soak:", figures)
     assert growth_mb < 40, figures

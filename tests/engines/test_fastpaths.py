@@ -30,8 +30,13 @@ from tests.support.gcodegen import random_program
 
 PARAMS = [
     Params.from_dict(BENCH_PARAMS),
-    Params.from_dict({"squareness_um_per_m": {"xy": 300, "xz": -120},
-                      "scale_ppm": {"x": 100, "z": -50}, "backlash": {"y": 12.0}}),
+    Params.from_dict(
+        {
+            "squareness_um_per_m": {"xy": 300, "xz": -120},
+            "scale_ppm": {"x": 100, "z": -50},
+            "backlash": {"y": 12.0},
+        }
+    ),
     Params.from_dict({"backlash": {"x": 30.0, "z": 5.0, "fraction": 0.7}}),
 ]
 OPTIONS = [
@@ -63,8 +68,7 @@ def whole_file(text: str, params, options, chunk=None):
         fastfile.CHUNK_BYTES = chunk
     try:
         dst = io.BytesIO()
-        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
-                                options)
+        rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params, options)
     finally:
         if chunk:
             fastfile.CHUNK_BYTES = old
@@ -120,8 +124,9 @@ def test_benchmark_style_file_with_arcs(tmp_path, engine):
         w = {t[0]: float(t[1:]) for t in line.split()[1:] if t[0] in "XYIJ"}
         if line.startswith(("G2 ", "G3 ")):
             cx, cy = x + w["I"], y + w["J"]
-            worst = max(worst, abs(math.hypot(w["I"], w["J"])
-                                   - math.hypot(w["X"] - cx, w["Y"] - cy)))
+            worst = max(
+                worst, abs(math.hypot(w["I"], w["J"]) - math.hypot(w["X"] - cx, w["Y"] - cy))
+            )
         if line.startswith("G"):
             x, y = w.get("X", x), w.get("Y", y)
     assert worst < 0.005
@@ -131,8 +136,12 @@ def test_benchmark_style_file_with_arcs(tmp_path, engine):
 
 def test_trailing_space_on_the_last_line_of_a_block(engine):
     # review finding: the tokeniser's word sums indexed past the block's end
-    for text in ("G28\nG1 X1 Y1 \n", "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
-                 "G28\n" + "G1 X5 Y5\n" * 40 + "G1 X1 Y1 \n", "G28\nG1 X1 Y1 \r\n"):
+    for text in (
+        "G28\nG1 X1 Y1 \n",
+        "G28\nG2 X10 Y10 I5 J0\nG1 X1 Y1 \n",
+        "G28\n" + "G1 X5 Y5\n" * 40 + "G1 X1 Y1 \n",
+        "G28\nG1 X1 Y1 \r\n",
+    ):
         check(text, PARAMS[0], Options())
 
 
@@ -164,13 +173,43 @@ def test_a_malformed_number_is_reported_on_every_engine(engine):
 
 
 TRICKY_FAST_LINES = [
-    "G1 X Y2", "G1 X+ Y2", "G1 X- Y2", "G1 X. Y2", "G1 X1-2 Y2", "G1 X1+ Y2", "G1 X--1 Y2",
-    "G1 X1.2.3", "G1 X1 Y2 E", "G1 X1 Y2 F", "G1 F1 X1 F2", "G1 X1  Y2", "G1 X1 Y2 ",
-    "G1 Y2 X1", "G1 X1 X2", "G1 X1e3 Y2", "G1 X1_0 Y2", "G1 Xinf", "G1 Xnan Y1",
-    "G1 X1 Y2\u2003", "G1 X1\u00a0Y2", "G1 X\u0661 Y2", "G1 X1 Y2 E0.5 F1200",
-    "G0 F9000 X12.5 Y-3", "G1 X" + "9" * 95, "G1 X" + "9" * 99 + " Y1", "G1 E-0.8 F2400",
-    "G1 F600", "G1 Z.4", "G1 X+.5 Y-.5 Z+0", "G1 X5. Y6.", "G1 X1 Y2 Z3 E4 F5",
-    "G1 X1 Y2 *12", "G1 X1 Y2;c", "G1 X1 Y2 \udcff", "G1 x1 y2", "G1 X1 Y2 A3",
+    "G1 X Y2",
+    "G1 X+ Y2",
+    "G1 X- Y2",
+    "G1 X. Y2",
+    "G1 X1-2 Y2",
+    "G1 X1+ Y2",
+    "G1 X--1 Y2",
+    "G1 X1.2.3",
+    "G1 X1 Y2 E",
+    "G1 X1 Y2 F",
+    "G1 F1 X1 F2",
+    "G1 X1  Y2",
+    "G1 X1 Y2 ",
+    "G1 Y2 X1",
+    "G1 X1 X2",
+    "G1 X1e3 Y2",
+    "G1 X1_0 Y2",
+    "G1 Xinf",
+    "G1 Xnan Y1",
+    "G1 X1 Y2\u2003",
+    "G1 X1\u00a0Y2",
+    "G1 X\u0661 Y2",
+    "G1 X1 Y2 E0.5 F1200",
+    "G0 F9000 X12.5 Y-3",
+    "G1 X" + "9" * 95,
+    "G1 X" + "9" * 99 + " Y1",
+    "G1 E-0.8 F2400",
+    "G1 F600",
+    "G1 Z.4",
+    "G1 X+.5 Y-.5 Z+0",
+    "G1 X5. Y6.",
+    "G1 X1 Y2 Z3 E4 F5",
+    "G1 X1 Y2 *12",
+    "G1 X1 Y2;c",
+    "G1 X1 Y2 \udcff",
+    "G1 x1 y2",
+    "G1 X1 Y2 A3",
 ]
 
 
@@ -193,8 +232,10 @@ def test_odd_lines_inside_long_runs_of_moves(params, engine):
     path reads it."""
     lines = ["G28", "G1 X10 Y10 Z1 E0"]
     for i, odd in enumerate(TRICKY_FAST_LINES):
-        lines += [f"G1 X{10 + (i + j) % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i}.{j}"
-                  for j in range(30)]
+        lines += [
+            f"G1 X{10 + (i + j) % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i}.{j}"
+            for j in range(30)
+        ]
         lines.append(odd)
     for ending in ("\n", "\r\n"):
         check(ending.join(lines) + ending, params, Options())
@@ -205,8 +246,11 @@ def test_m_codes_with_leading_zeros_inside_long_runs(engine):
     # M048 (positions unknown) and M082/M083 (extruder mode), as int() reads them, passed
     # as inert lines
     def run(i):
-        return [f"G1 X{10 + j % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i + j * 0.01:.2f}"
-                for j in range(30)]
+        return [
+            f"G1 X{10 + j % 13}.{j * 37 % 1000:03d} Y{20 + j % 7}.5 E{i + j * 0.01:.2f}"
+            for j in range(30)
+        ]
+
     for code in ("M048", "M082", "M083", "M0083", "M083 ; relative", "M00", "M0106 S1"):
         lines = ["G28", "G1 X10 Y10 Z1 E0"] + run(0) + [code] + run(1)
         lines += ["G2 X30 Y25 I5 J0 E3.5", "G1 X5 Y20", "G28"] + run(2)
@@ -259,10 +303,21 @@ def rows_program(seed: int) -> list:
 
 
 # backlash that changes along the axis in three pieces (a table of four points)
-TABLE_PARAMS = Params.from_dict({
-    "squareness_um_per_m": {"xy": -900.0}, "scale_ppm": {"x": 200.0},
-    "backlash": {"x": [{"at_mm": 10, "um": 30}, {"at_mm": 60, "um": 12},
-                       {"at_mm": 110, "um": 25}, {"at_mm": 200, "um": 5}], "y": 8.0}})
+TABLE_PARAMS = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": -900.0},
+        "scale_ppm": {"x": 200.0},
+        "backlash": {
+            "x": [
+                {"at_mm": 10, "um": 30},
+                {"at_mm": 60, "um": 12},
+                {"at_mm": 110, "um": 25},
+                {"at_mm": 200, "um": 5},
+            ],
+            "y": 8.0,
+        },
+    }
+)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -364,7 +419,8 @@ def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path(engine
     lines = ["G28", "G1 X120 Y100 Z0.3"] + [
         f"G3 X{100 + 20 * __import__('math').cos(a / 10):.3f} "
         f"Y{100 + 20 * __import__('math').sin(a / 10):.3f} I-20 J0 E{a:.5f}"
-        for a in range(1, 40)]
+        for a in range(1, 40)
+    ]
     text = "\n".join(lines) + "\n"
     for params in ARC_PARAMS:
         assert whole_file(text, params, Options()) == general(text, params, Options())
@@ -375,8 +431,9 @@ def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker(engine):
     step < -db where the tracker compares q < anchor - db; they round differently there."""
     p = Params.from_dict({"backlash": {"x": 30.0}})
     for lines, opts in (
-            (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
-            (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002))):
+        (["G28", "G1 X0.0001 Y10 Z1", "G1 X0.0004", "G1 X0.000399"], Options()),
+        (["G28", "G1 X1 Y10 Z1", "G1 X2", "G1 X1.998"], Options(deadband_mm=0.002)),
+    ):
         text = "\n".join(lines + [f"G1 X{3 + i}" for i in range(30)]) + "\n"
         check(text, p, opts)
 
@@ -387,9 +444,11 @@ def test_limit_examples_of_arc_chords_come_in_emission_order(engine):
     p = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
     t = math.pi - 0.04
     sx, sy = 1000 + 1000 * math.cos(t), 100 + 1000 * math.sin(t)
-    lines = ["G28", f"G1 X{sx:.3f} Y{sy:.3f} Z1",
-             f"G3 X0 Y100 I{1000 - sx:.3f} J{100 - sy:.3f}"] + [f"G1 X{3 + i} Y100"
-                                                              for i in range(30)]
+    lines = [
+        "G28",
+        f"G1 X{sx:.3f} Y{sy:.3f} Z1",
+        f"G3 X0 Y100 I{1000 - sx:.3f} J{100 - sy:.3f}",
+    ] + [f"G1 X{3 + i} Y100" for i in range(30)]
     text = "\n".join(lines) + "\n"
     for policy in ("warn", "clamp"):
         opts = Options(limits=(0, 300, 0, 300, 0, 300), policy=policy)
@@ -402,11 +461,16 @@ def test_relative_e_adds_up_in_long_runs_like_the_reference(engine):
     """Issue 28: relative E is summed into the E position (Marlin); the file engine sums a
     run of moves as the reference path does line by line, and the absolute-E arc after
     M83, G91 and G90 is split from that sum on every engine."""
-    moves = [f"G1 X{50 + (i % 7) * 3.1:.3f} Y{60 + (i % 5) * 2.3:.3f} E0.0{i % 9 + 1}"
-             for i in range(60)]
-    text = "\n".join(["G28", "G90", "G92 E0", "M83", "G1 X50 Y50 Z1 F3000"] + moves
-                     + ["G91", "G1 Z0.2 E-0.5", "G90", "G2 X70 Y50 I10 J0 E9.5"]
-                     + moves[:30] + ["G90", "G3 X50 Y50 I-10 J0 E12.25", ""])
+    moves = [
+        f"G1 X{50 + (i % 7) * 3.1:.3f} Y{60 + (i % 5) * 2.3:.3f} E0.0{i % 9 + 1}" for i in range(60)
+    ]
+    text = "\n".join(
+        ["G28", "G90", "G92 E0", "M83", "G1 X50 Y50 Z1 F3000"]
+        + moves
+        + ["G91", "G1 Z0.2 E-0.5", "G90", "G2 X70 Y50 I10 J0 E9.5"]
+        + moves[:30]
+        + ["G90", "G3 X50 Y50 I-10 J0 E12.25", ""]
+    )
     for params in PARAMS:
         check(text, params, Options())
     ref, rep = general(text, PARAMS[1], Options())

@@ -23,12 +23,12 @@ from tests.core.test_properties import any_line, cfg, params
 
 # -- the file engines are the per-line reference path ------------------------------------
 
+
 @st.composite
 def plain_run(draw):
     """A run of plain slicer-style moves (what the vectorised engine takes)."""
     n = draw(st.integers(1, 60))
-    x, y, z, e = (draw(st.floats(0, 200)), draw(st.floats(0, 200)),
-                  draw(st.floats(0.2, 5)), 0.0)
+    x, y, z, e = (draw(st.floats(0, 200)), draw(st.floats(0, 200)), draw(st.floats(0.2, 5)), 0.0)
     dec = draw(st.sampled_from([3, 3, 2, 4, 0, 1]))
     out = []
     for _ in range(n):
@@ -104,20 +104,33 @@ def engine_options(draw):
     return Options(**kw)
 
 
-UNICODE_INDENT_FILE = ("G28\nG1 X10 Y10 Z1\n" + "".join(f"G1 X{i} Y{i}\n" for i in range(10, 40))
-                       + "\xa0G1 X50 Y50\n" + "".join(f"G1 X{i} Y1\n" for i in range(30)))
+UNICODE_INDENT_FILE = (
+    "G28\nG1 X10 Y10 Z1\n"
+    + "".join(f"G1 X{i} Y{i}\n" for i in range(10, 40))
+    + "\xa0G1 X50 Y50\n"
+    + "".join(f"G1 X{i} Y1\n" for i in range(30))
+)
 
 
 @cfg(80)
 @given(gcode_file(), params(), engine_options(), st.sampled_from([None, None, 97, 1000]))
-@example(UNICODE_INDENT_FILE, Params.from_dict({"squareness_um_per_m": {"xy": 3000}}),
-         Options(), None)
-@example(UNICODE_INDENT_FILE.replace("\xa0", "\x1c").replace("\n", "\r\n"),
-         Params.from_dict({"squareness_um_per_m": {"xy": 3000}}), Options(), None)
+@example(
+    UNICODE_INDENT_FILE, Params.from_dict({"squareness_um_per_m": {"xy": 3000}}), Options(), None
+)
+@example(
+    UNICODE_INDENT_FILE.replace("\xa0", "\x1c").replace("\n", "\r\n"),
+    Params.from_dict({"squareness_um_per_m": {"xy": 3000}}),
+    Options(),
+    None,
+)
 # a last line ending in a lone CR that expands into a take-up and a move (and a CR-only file
 # of one line): the pieces are joined with that CR, not CRLF
-@example("G28\nG1 X1 Y1\r", Params.from_dict({"backlash": {"y": 0.5, "smoothing_mm": 0.1}}),
-         Options(), None)
+@example(
+    "G28\nG1 X1 Y1\r",
+    Params.from_dict({"backlash": {"y": 0.5, "smoothing_mm": 0.1}}),
+    Options(),
+    None,
+)
 @example("G28\rG1 X1 Y1\r", Params.from_dict({"backlash": {"y": 20.0}}), Options(), 3)
 @example("\r", Params.from_dict({"backlash": {"y": 20.0}}), Options(), None)
 def test_file_engine_matches_the_per_line_reference(engine, text, p, opts, chunk):
@@ -127,8 +140,12 @@ def test_file_engine_matches_the_per_line_reference(engine, text, p, opts, chunk
     if ref[0] != "error" and got[0] != "error" and got[0] != ref[0]:
         a, b = ref[0], got[0]
         i = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
-        assert a == b, ("first difference at byte", i, a[max(0, i - 60):i + 60],
-                        b[max(0, i - 60):i + 60])
+        assert a == b, (
+            "first difference at byte",
+            i,
+            a[max(0, i - 60) : i + 60],
+            b[max(0, i - 60) : i + 60],
+        )
     assert got == ref
     if ref[0] != "error":
         # line structure: the marker line, then one or more lines per input line, each with

@@ -18,11 +18,16 @@ from octoprint_kincomp.engines import select
 from octoprint_kincomp.engines.files import compensate_binary
 from octoprint_kincomp.engines.select import make_compensator
 
-SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1500.0, "xz": -200.0},
-                         "scale_ppm": {"x": 300.0, "y": -120.0},
-                         "backlash": {"x": [{"at_mm": 0, "um": 40.0},
-                                            {"at_mm": 100, "um": 10.0},
-                                            {"at_mm": 200, "um": 25.0}], "y": 12.0}})
+SKEW = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": 1500.0, "xz": -200.0},
+        "scale_ppm": {"x": 300.0, "y": -120.0},
+        "backlash": {
+            "x": [{"at_mm": 0, "um": 40.0}, {"at_mm": 100, "um": 10.0}, {"at_mm": 200, "um": 25.0}],
+            "y": 12.0,
+        },
+    }
+)
 BACKLASH_ONLY = Params.from_dict({"backlash": {"x": 30.0}})  # identity model: q == p
 
 
@@ -32,8 +37,17 @@ def state(comp, caches=True):
     st = comp.state
     bl = st.backlash
     own = (st.q_last, list(st.limit_recheck)) if caches else ()
-    return (list(st.m), list(st.fw), list(st.fw_text), list(bl.dir), list(bl.anchor),
-            st.lineno, st.e_pos, st.feed, st.report.to_dict()) + own
+    return (
+        list(st.m),
+        list(st.fw),
+        list(st.fw_text),
+        list(bl.dir),
+        list(bl.anchor),
+        st.lineno,
+        st.e_pos,
+        st.feed,
+        st.report.to_dict(),
+    ) + own
 
 
 def run(lines, params, options=None, compiled=True):
@@ -58,8 +72,15 @@ def test_the_kernel_is_built_in_the_test_environment():
 
 
 def test_the_kernel_takes_the_plain_moves():
-    lines = ["G28", "G1 X10 Y10 Z0.3 F3000", "G1 X20 Y12 E0.5", "G1 X5 Y12 E1.0",
-             "G0 F9000 X50 Y60", "G1 Z0.5", "G1 E-0.8 F2400"]
+    lines = [
+        "G28",
+        "G1 X10 Y10 Z0.3 F3000",
+        "G1 X20 Y12 E0.5",
+        "G1 X5 Y12 E1.0",
+        "G0 F9000 X50 Y60",
+        "G1 Z0.5",
+        "G1 E-0.8 F2400",
+    ]
     ref = run(lines, SKEW, compiled=False)
     seen = []
     real = Compensator._dispatch
@@ -96,22 +117,47 @@ def test_a_line_the_kernel_leaves_changes_nothing():
 # parser's fast path), and ties at the output resolution (x.xxx5, 0.0625 exactly)
 digits = st.text("0123456789", min_size=1, max_size=18)
 number = st.one_of(
-    st.builds(lambda s, i, f: f"{s}{i}.{f}", st.sampled_from(["", "-", "+"]), digits,
-              st.text("0123456789", max_size=24)),
+    st.builds(
+        lambda s, i, f: f"{s}{i}.{f}",
+        st.sampled_from(["", "-", "+"]),
+        digits,
+        st.text("0123456789", max_size=24),
+    ),
     st.builds(lambda s, f: f"{s}.{f}", st.sampled_from(["", "-"]), digits),
-    st.builds(lambda i, d: f"{i}.{d}5", st.integers(0, 250), st.text("0123456789", min_size=2,
-                                                                       max_size=8)),
-    st.sampled_from(["0.0625", "-0.0625", "0.0005", "-0.0004", "1e3", "1.2.3", "-", ".",
-                     "00012.5000", "-0", "+0.0", "9" * 40]),
+    st.builds(
+        lambda i, d: f"{i}.{d}5", st.integers(0, 250), st.text("0123456789", min_size=2, max_size=8)
+    ),
+    st.sampled_from(
+        [
+            "0.0625",
+            "-0.0625",
+            "0.0005",
+            "-0.0004",
+            "1e3",
+            "1.2.3",
+            "-",
+            ".",
+            "00012.5000",
+            "-0",
+            "+0.0",
+            "9" * 40,
+        ]
+    ),
     st.floats(-300, 300).map(repr),
 )
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
-@given(st.lists(st.tuples(number, number, st.sampled_from(["", " E1.5", " E-0.25 F1800"])),
-                min_size=1, max_size=12),
-       st.sampled_from([SKEW, BACKLASH_ONLY]), st.integers(3, 8),
-       st.sampled_from(["G21", "G20"]))
+@given(
+    st.lists(
+        st.tuples(number, number, st.sampled_from(["", " E1.5", " E-0.25 F1800"])),
+        min_size=1,
+        max_size=12,
+    ),
+    st.sampled_from([SKEW, BACKLASH_ONLY]),
+    st.integers(3, 8),
+    st.sampled_from(["G21", "G20"]),
+)
 def test_the_kernel_and_the_reference_path_write_the_same(moves, params, decimals, units):
     lines = ["G28", units, "G1 X10 Y10 Z1"]
     lines += [f"G1 X{x} Y{y}{tail}" for x, y, tail in moves] + ["G1 X1 Y1"]
@@ -123,21 +169,23 @@ def test_the_kernel_and_the_reference_path_write_the_same(moves, params, decimal
     for name in select.ENGINES:
         dst = io.BytesIO()
         with select.use(name):
-            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params,
-                                    options)
+            rep = compensate_binary(io.BytesIO(text.encode(ENCODING, ERRORS)), dst, params, options)
         outs.append((dst.getvalue(), rep.to_dict()))
     assert outs[0] == outs[1]
 
 
-@pytest.mark.parametrize("text,want", [
-    ("0.0625", "X0.062"),     # an exact tie: to even, as Python writes it
-    ("0.1875", "X0.188"),     # an exact tie: to even (up)
-    ("0.0635", "X0.064"),     # 0.06350000000000000005... in binary: up
-    ("1.0005", "X1"),         # 1.000499999999999989... in binary: down (zeros not written)
-    ("-0.0004", "X0"),        # no negative zero
-    ("2.0996", "X2.1"),       # rounded up to trailing zeros: written as slicers do
-    ("-12.0001", "X-12"),
-])
+@pytest.mark.parametrize(
+    "text,want",
+    [
+        ("0.0625", "X0.062"),  # an exact tie: to even, as Python writes it
+        ("0.1875", "X0.188"),  # an exact tie: to even (up)
+        ("0.0635", "X0.064"),  # 0.06350000000000000005... in binary: up
+        ("1.0005", "X1"),  # 1.000499999999999989... in binary: down (zeros not written)
+        ("-0.0004", "X0"),  # no negative zero
+        ("2.0996", "X2.1"),  # rounded up to trailing zeros: written as slicers do
+        ("-12.0001", "X-12"),
+    ],
+)
 def test_rounding_at_ties_is_pythons(text, want):
     z_only = Params.from_dict({"backlash": {"z": 30.0}})  # X and Y are written as given
     lines = ["G28", "G1 X10 Y10 Z1", f"G1 X{text} Y10"]
@@ -212,10 +260,15 @@ def test_the_kernel_reads_only_the_declared_state_classes():
     # classes that have every slot but in another order, and a report without its last one:
     # a layout taken in part would leave the real classes' slots read at the wrong places
     Shuffled = type("Shuffled", (), {"__slots__": tuple(reversed(StreamState.__slots__))})
-    Partial = type("Partial", (), {"__slots__": tuple(
-        n for n in Report.__slots__ if n != "max_correction_um")})
-    for classes in ((Plain, BacklashState, Report), (StreamState, BacklashState, Annotated),
-                    (StreamState, Report, BacklashState), (Shuffled, BacklashState, Partial)):
+    Partial = type(
+        "Partial", (), {"__slots__": tuple(n for n in Report.__slots__ if n != "max_correction_um")}
+    )
+    for classes in (
+        (Plain, BacklashState, Report),
+        (StreamState, BacklashState, Annotated),
+        (StreamState, Report, BacklashState),
+        (Shuffled, BacklashState, Partial),
+    ):
         with pytest.raises(TypeError):
             kernel_mod._ext.layout(*classes)
     # a refused layout leaves the one before in place
@@ -285,18 +338,35 @@ def test_the_kernel_changes_in_place_only_what_nobody_else_holds(hold):
     if hold == "containers":
         held = {"m": st.m, "q_last": st.q_last}
     else:  # (the lists and tuples themselves not held: they may be reused)
-        held = {"m[0]": st.m[0], "q_last[0]": st.q_last[0], "fw[0]": st.fw[0],
-                "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos, "feed": st.feed,
-                "lines": rep.lines, "lineno": st.lineno,
-                "max_correction_um[0]": rep.max_correction_um[0], "anchor[0]": bl.anchor[0]}
+        held = {
+            "m[0]": st.m[0],
+            "q_last[0]": st.q_last[0],
+            "fw[0]": st.fw[0],
+            "fw_text[0]": st.fw_text[0],
+            "e_pos": st.e_pos,
+            "feed": st.feed,
+            "lines": rep.lines,
+            "lineno": st.lineno,
+            "max_correction_um[0]": rep.max_correction_um[0],
+            "anchor[0]": bl.anchor[0],
+        }
     values = {k: repr(v) for k, v in held.items()}
     out = comp.fast.line(st, NEXT)
     assert out is not None and out != NEXT
     for k, v in held.items():
         assert repr(v) == values[k], k
-    now = {"m": st.m, "q_last": st.q_last, "m[0]": st.m[0], "q_last[0]": st.q_last[0],
-           "fw[0]": st.fw[0], "fw_text[0]": st.fw_text[0], "e_pos": st.e_pos,
-           "feed": st.feed, "lines": rep.lines, "lineno": st.lineno}
+    now = {
+        "m": st.m,
+        "q_last": st.q_last,
+        "m[0]": st.m[0],
+        "q_last[0]": st.q_last[0],
+        "fw[0]": st.fw[0],
+        "fw_text[0]": st.fw_text[0],
+        "e_pos": st.e_pos,
+        "feed": st.feed,
+        "lines": rep.lines,
+        "lineno": st.lineno,
+    }
     for k in set(held) & set(now):  # (the line did change them: written, not left)
         assert repr(now[k]) != values[k], k
     assert len(st.fw_text[0]) == len(held.get("fw_text[0]", st.fw_text[0]))

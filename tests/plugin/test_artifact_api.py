@@ -7,14 +7,14 @@ import os
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.artifact_program import ArtifactSpec, generate, \
-    read_measurements
+from octoprint_kincomp.ballbar.artifact_program import ArtifactSpec, generate, read_measurements
 from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
 from octoprint_kincomp.core.params import Params
 from tests.support.blueprint import PREFIX, blueprint_client
 
-TRUTH = Params.from_dict({"squareness_um_per_m": {"xy": 800.0, "xz": -500.0},
-                          "scale_ppm": {"x": 200.0, "y": -100.0}})
+TRUTH = Params.from_dict(
+    {"squareness_um_per_m": {"xy": 800.0, "xz": -500.0}, "scale_ppm": {"x": 200.0, "y": -100.0}}
+)
 
 
 @pytest.fixture
@@ -30,14 +30,16 @@ def api(tmp_path):
 
 
 def post(api, path, body):
-    resp = api.client.post(PREFIX + path, data=json.dumps(body),
-                           content_type="application/json")
+    resp = api.client.post(PREFIX + path, data=json.dumps(body), content_type="application/json")
     return resp.status_code, resp.get_json(silent=True) or {}
 
 
 def test_program_writes_the_artifact_for_the_profile(api):
-    code, out = post(api, "/artifact/program", {"planes": ["XY", "XZ"], "nozzle": 0.4,
-                                                "temps": [205, 55], "first_layer": 0.25})
+    code, out = post(
+        api,
+        "/artifact/program",
+        {"planes": ["XY", "XZ"], "nozzle": 0.4, "temps": [205, 55], "first_layer": 0.25},
+    )
     assert code == 200, out
     assert out["path"].startswith("kincomp/artifact_") and out["printing"] is False
     assert out["info"]["planes"] == "XY,XZ" and out["info"]["temperatures_c"] == "205,55"
@@ -49,10 +51,17 @@ def test_program_writes_the_artifact_for_the_profile(api):
     assert add.call_args[0][1] == out["path"]
 
 
-@pytest.mark.parametrize("body, field", [
-    ({"planes": ["XW"]}, "planes"), ({"planes": 5}, "planes"), ({"nozzle": "big"}, "nozzle"),
-    ({"temps": [200]}, "temps"), ({"print": "yes"}, "print"), ({"nozzle": 9.0}, "nozzle"),
-])
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ({"planes": ["XW"]}, "planes"),
+        ({"planes": 5}, "planes"),
+        ({"nozzle": "big"}, "nozzle"),
+        ({"temps": [200]}, "temps"),
+        ({"print": "yes"}, "print"),
+        ({"nozzle": 9.0}, "nozzle"),
+    ],
+)
 def test_program_bad_fields(api, body, field):
     code, out = post(api, "/artifact/program", body)
     assert code == 400 and field in out["error"], out
@@ -63,17 +72,20 @@ def test_sheet_and_analyze_store_a_run_that_applies(api):
     assert resp.status_code == 200
     sheet = resp.get_json()
     assert len(sheet["measurements"]) == 36 and sheet["svg"].startswith("<svg")
-    readings = simulate_readings(read_measurements(api.text), TRUTH, shrinkage=0.003,
-                                 rng=np.random.default_rng(4))
+    readings = simulate_readings(
+        read_measurements(api.text), TRUTH, shrinkage=0.003, rng=np.random.default_rng(4)
+    )
     readings["A2-out"][0] += 1.0  # a typo
     readings["YZ1-in"] = []  # not measured
-    code, run = post(api, "/artifact/analyze", {"path": "kincomp/artifact_test.gcode",
-                                                "readings": readings})
+    code, run = post(
+        api, "/artifact/analyze", {"path": "kincomp/artifact_test.gcode", "readings": readings}
+    )
     assert code == 200, run
     assert run["source"] == "artifact"
     d = run["diagnostics"]
-    assert d["squareness_um_per_m"]["xy"] == pytest.approx(800, abs=4 * d["uncertainty"][
-        "squareness_um_per_m"]["xy"])
+    assert d["squareness_um_per_m"]["xy"] == pytest.approx(
+        800, abs=4 * d["uncertainty"]["squareness_um_per_m"]["xy"]
+    )
     found = {(f["code"], f["evidence"].get("id")) for f in run["findings"]}
     assert ("artifact.reading_disagrees", "A2-out") in found
     assert run["trusted"] is True
@@ -86,20 +98,27 @@ def test_sheet_and_analyze_store_a_run_that_applies(api):
     code, out = post(api, "/apply", {"run": run["id"]})
     assert code == 200, out
     assert out["params"]["squareness_um_per_m"]["xy"] == pytest.approx(
-        run["proposed"]["squareness_um_per_m"]["xy"])
+        run["proposed"]["squareness_um_per_m"]["xy"]
+    )
     raw = api.client.get(PREFIX + f"/runs/{run['id']}/trace")
     assert raw.status_code == 200 and json.loads(raw.data)["A2-out"][0] > 140
 
 
-@pytest.mark.parametrize("body, status, word", [
-    ({"path": "kincomp/nothing.gcode", "readings": {}}, 404, "No such"),
-    ({"path": 5, "readings": {}}, 400, "path"),
-    ({"path": "kincomp/artifact_test.gcode", "readings": []}, 400, "readings"),
-    ({"path": "kincomp/artifact_test.gcode", "readings": {"X1-out": ["a"]}}, 400, "X1-out"),
-    ({"path": "kincomp/artifact_test.gcode", "readings": {"Q-out": [1.0]}}, 400, "Q-out"),
-    ({"path": "kincomp/artifact_test.gcode", "readings": {"X1-out": [1.0] * 30}}, 400,
-     "readings"),
-])
+@pytest.mark.parametrize(
+    "body, status, word",
+    [
+        ({"path": "kincomp/nothing.gcode", "readings": {}}, 404, "No such"),
+        ({"path": 5, "readings": {}}, 400, "path"),
+        ({"path": "kincomp/artifact_test.gcode", "readings": []}, 400, "readings"),
+        ({"path": "kincomp/artifact_test.gcode", "readings": {"X1-out": ["a"]}}, 400, "X1-out"),
+        ({"path": "kincomp/artifact_test.gcode", "readings": {"Q-out": [1.0]}}, 400, "Q-out"),
+        (
+            {"path": "kincomp/artifact_test.gcode", "readings": {"X1-out": [1.0] * 30}},
+            400,
+            "readings",
+        ),
+    ],
+)
 def test_analyze_bad_input(api, body, status, word):
     code, out = post(api, "/artifact/analyze", body)
     assert code == status and word in out["error"], out

@@ -41,22 +41,24 @@ def test_dryrun_of_a_path_octoprint_cannot_sanitize_is_400_naming_it(api):
     assert resp.get_json()["report"]["moves"] == 2
 
 
-@pytest.mark.parametrize("route", ["/settings", "/program", "/analyze", "/apply",
-                                   "/compensate"])
+@pytest.mark.parametrize("route", ["/settings", "/program", "/analyze", "/apply", "/compensate"])
 def test_json_nested_5000_deep_is_400(api, route):
     for body in (deep(5000), '{"a": ' + deep(5000) + "}", '{"params": ' + deep(40) + "}"):
         code, resp = post(api, route, raw=body)
         assert code == 400, (route, code, resp)
 
 
-@pytest.mark.parametrize("body, field", [
-    ({"plane": "../../x"}, "plane"),
-    ({"plane": 5}, "plane"),
-    ({"centre": "abc"}, "centre"),
-    ({"centre": [1, 2]}, "centre"),
-    ({"radius": "big"}, "radius"),
-    ({"feed": None}, "feed"),
-])
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ({"plane": "../../x"}, "plane"),
+        ({"plane": 5}, "plane"),
+        ({"centre": "abc"}, "centre"),
+        ({"centre": [1, 2]}, "centre"),
+        ({"radius": "big"}, "radius"),
+        ({"feed": None}, "feed"),
+    ],
+)
 def test_program_names_the_bad_field(api, body, field):
     code, resp = post(api, "/program", body)
     assert code == 400 and field in resp["error"], resp
@@ -65,22 +67,28 @@ def test_program_names_the_bad_field(api, body, field):
 GOOD_ARTIFACT = {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}
 
 
-@pytest.mark.parametrize("change, field", [
-    ({"plane": "QQ"}, "plane"),
-    ({"lengths": "abc"}, "lengths"),
-    ({"lengths": {"x": "abc"}}, "lengths.x"),
-    ({"lengths": {"q": [[100, 100.1]]}}, "lengths"),
-    ({"lengths": {"x": [[100]]}}, "lengths.x"),
-    ({"ac": "1"}, "ac"),
-    ({"ac": 1e308}, "finite"),
-    ({"lengths": {"x": [[100, 1e308]]}}, "finite"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        ({"plane": "QQ"}, "plane"),
+        ({"lengths": "abc"}, "lengths"),
+        ({"lengths": {"x": "abc"}}, "lengths.x"),
+        ({"lengths": {"q": [[100, 100.1]]}}, "lengths"),
+        ({"lengths": {"x": [[100]]}}, "lengths.x"),
+        ({"ac": "1"}, "ac"),
+        ({"ac": 1e308}, "finite"),
+        ({"lengths": {"x": [[100, 1e308]]}}, "finite"),
+    ],
+)
 def test_artifact_measurements_are_checked_and_nothing_absurd_is_stored(api, change, field):
     code, resp = post(api, "/analyze", {"artifact": dict(GOOD_ARTIFACT, **change)})
     assert code == 400 and field in resp["error"], resp
     assert api.plugin.runs.list() == []
-    code, run = post(api, "/analyze", {"artifact": dict(GOOD_ARTIFACT, lengths={
-        "x": [[100, 100.05], [50, 50.02]]})})
+    code, run = post(
+        api,
+        "/analyze",
+        {"artifact": dict(GOOD_ARTIFACT, lengths={"x": [[100, 100.05], [50, 50.02]]})},
+    )
     assert code == 200 and run["diagnostics"]["scale_ppm"]["x"] > 0
 
 
@@ -89,8 +97,9 @@ def test_non_finite_numbers_are_refused_naming_the_field(api):
     assert code == 400 and "chord_tol_mm" in resp["error"]
     code, resp = post(api, "/settings", raw='{"params": {"scale_ppm": {"x": 1e400}}}')
     assert code == 400 and "params.scale_ppm.x" in resp["error"]
-    code, resp = post(api, "/analyze", raw='{"summary": {"plane": "XY", '
-                                             '"squareness_um_per_m": Infinity}}')
+    code, resp = post(
+        api, "/analyze", raw='{"summary": {"plane": "XY", "squareness_um_per_m": Infinity}}'
+    )
     assert code == 400 and "summary.squareness_um_per_m" in resp["error"]
     assert api.plugin.runs.list() == []
 
@@ -99,8 +108,10 @@ def test_a_stored_run_with_infinity_can_still_be_read(api):
     run_id = api.plugin.runs.new_id()
     path = os.path.join(api.plugin.runs.folder, run_id + ".json")
     with open(path, "w") as f:  # as an older version stored it
-        f.write('{"id": "%s", "diagnostics": {"scale_ppm": {"x": Infinity}}, '
-                '"proposed": {}, "applied": null}' % run_id)
+        f.write(
+            '{"id": "%s", "diagnostics": {"scale_ppm": {"x": Infinity}}, '
+            '"proposed": {}, "applied": null}' % run_id
+        )
     resp = api.client.get(f"{PREFIX}/runs/{run_id}")
     assert resp.status_code == 200
     assert resp.get_json()["diagnostics"]["scale_ppm"]["x"] is None
@@ -134,34 +145,81 @@ def test_a_link_out_of_the_uploads_is_not_followed(api, tmp_path):
 
 
 # ~~ random bodies against every POST route -----------------------------------------------
-FIELDS = ["path", "plane", "centre", "radius", "feed", "print", "mount_pause", "summary",
-          "artifact", "ac", "bd", "ad", "lengths", "x", "run", "params", "enabled",
-          "apply_now", "squareness_um_per_m", "scale_ppm", "backlash", "mode", "demo",
-          "home_mm", "decimals", "chord_tol_mm", "limits_policy", "xy", "um", "at_mm"]
-scalars = (st.none() | st.booleans() | st.integers(-10**20, 10**20)
-           | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=12)
-           | st.sampled_from(["XY", "QQ", "../../x", "ok.gcode", "./ok.gcode"]))
+FIELDS = [
+    "path",
+    "plane",
+    "centre",
+    "radius",
+    "feed",
+    "print",
+    "mount_pause",
+    "summary",
+    "artifact",
+    "ac",
+    "bd",
+    "ad",
+    "lengths",
+    "x",
+    "run",
+    "params",
+    "enabled",
+    "apply_now",
+    "squareness_um_per_m",
+    "scale_ppm",
+    "backlash",
+    "mode",
+    "demo",
+    "home_mm",
+    "decimals",
+    "chord_tol_mm",
+    "limits_policy",
+    "xy",
+    "um",
+    "at_mm",
+]
+scalars = (
+    st.none()
+    | st.booleans()
+    | st.integers(-(10**20), 10**20)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12)
+    | st.sampled_from(["XY", "QQ", "../../x", "ok.gcode", "./ok.gcode"])
+)
 keys = st.sampled_from(FIELDS) | st.text(max_size=6)
-bodies = st.recursive(scalars, lambda inner: st.lists(inner, max_size=4)
-                      | st.dictionaries(keys, inner, max_size=5), max_leaves=16)
+bodies = st.recursive(
+    scalars,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(keys, inner, max_size=5),
+    max_leaves=16,
+)
 
 
 def post_routes(app):
-    return sorted({r.rule for r in app.url_map.iter_rules()
-                   if r.rule.startswith(PREFIX) and "POST" in r.methods
-                   and "<" not in r.rule})
+    return sorted(
+        {
+            r.rule
+            for r in app.url_map.iter_rules()
+            if r.rule.startswith(PREFIX) and "POST" in r.methods and "<" not in r.rule
+        }
+    )
 
 
 def test_the_property_test_reaches_every_post_route(api):
     routes = post_routes(api.app)
-    assert {"/plugin/kincomp/settings", "/plugin/kincomp/program", "/plugin/kincomp/analyze",
-            "/plugin/kincomp/apply", "/plugin/kincomp/compensate",
-            "/plugin/kincomp/trace"} <= set(routes)
+    assert {
+        "/plugin/kincomp/settings",
+        "/plugin/kincomp/program",
+        "/plugin/kincomp/analyze",
+        "/plugin/kincomp/apply",
+        "/plugin/kincomp/compensate",
+        "/plugin/kincomp/trace",
+    } <= set(routes)
 
 
-@settings(max_examples=40, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                 HealthCheck.too_slow])
+@settings(
+    max_examples=40,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 @given(body=st.dictionaries(keys, bodies, max_size=6) | bodies)
 def test_random_json_bodies_never_give_a_500(api, body):
     raw = json.dumps(body)  # (NaN and Infinity as JSON's non-standard tokens)

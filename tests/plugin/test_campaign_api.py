@@ -18,9 +18,12 @@ from octoprint_kincomp.ballbar.simulator import simulate_program
 from octoprint_kincomp.core.params import Params
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
-PROFILE = {"id": "_default", "name": "Virtual P1",
-           "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
-           "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}}}
+PROFILE = {
+    "id": "_default",
+    "name": "Virtual P1",
+    "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
+    "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}},
+}
 PLAN = {"radius_xy": 50}
 SKEW = {"squareness_um_per_m": {"xy": 500.0, "xz": 0.0, "yz": 0.0}}
 # the demo's virtual bar streams at 20 times the feed (its 500 Hz: 10,000 lines/s)
@@ -69,13 +72,17 @@ def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv"):
     """The test's trace as OctoPrint hands an upload to a view (a temporary file)."""
     path = tmp_path / f"upload-{n}-{name}"
     path.write_text(text)
-    return call(app, plugin.api_campaign_trace, cid, n,
-                data={"file.path": str(path), "file.name": name})
+    return call(
+        app, plugin.api_campaign_trace, cid, n, data={"file.path": str(path), "file.name": name}
+    )
 
 
 def messages(plugin, kind):
-    return [c[0][1] for c in plugin._plugin_manager.send_plugin_message.call_args_list
-            if c[0][1].get("type") == kind]
+    return [
+        c[0][1]
+        for c in plugin._plugin_manager.send_plugin_message.call_args_list
+        if c[0][1].get("type") == kind
+    ]
 
 
 def print_in_demo_mode(plugin, path, live=True):
@@ -100,8 +107,9 @@ def run_campaign(app, plugin, doc, live=True):
     """Every test printed and measured: by the live capture of the demo's virtual bar
     (``live``) or by collecting the demo's simulated trace; returns the campaign analysed."""
     for step in doc["steps"]:
-        code, resp = call(app, plugin.api_campaign_program, doc["id"], step["n"],
-                          json={"print": True})
+        code, resp = call(
+            app, plugin.api_campaign_program, doc["id"], step["n"], json={"print": True}
+        )
         assert code == 200 and resp["printing"], resp
         assert resp["path"] == f"kincomp/{doc['id']}_{step['n']}_{step['name']}.gcode"
         assert bool(resp["capture"]) == live and (not live or resp["capture"]["armed"])
@@ -111,18 +119,20 @@ def run_campaign(app, plugin, doc, live=True):
             assert told["test_of"] == {"campaign": doc["id"], "campaign_step": step["name"]}
             run = plugin.runs.get(told["id"])
             assert run["source"] == "live" and run["capture"]["source"] == "demo"
-            assert plugin.campaign._campaigns.get(doc["id"])["steps"][step["n"] - 1][
-                "run"] == run["id"]
+            assert (
+                plugin.campaign._campaigns.get(doc["id"])["steps"][step["n"] - 1]["run"]
+                == run["id"]
+            )
         else:
-            code, resp = call(app, plugin.api_campaign_trace, doc["id"], step["n"],
-                              json={"demo": True})
+            code, resp = call(
+                app, plugin.api_campaign_trace, doc["id"], step["n"], json={"demo": True}
+            )
             assert code == 200, resp
             run = resp["run"]
         assert run["campaign"] == doc["id"] and run["campaign_step"] == step["name"]
         assert run["simulated"] and run["diagnostics"]["plane"] == step["plane"]
     if live:  # measured once: the UI is not told to collect the recorded trace too
-        assert not [m for m in messages(plugin, "demo_trace")
-                    if m.get("campaign") == doc["id"]]
+        assert not [m for m in messages(plugin, "demo_trace") if m.get("campaign") == doc["id"]]
     code, done = call(app, plugin.api_campaign_analyze, doc["id"])
     assert code == 200, done
     return done
@@ -131,9 +141,11 @@ def run_campaign(app, plugin, doc, live=True):
 def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     slow_z = dict(PROFILE, axes=dict(PROFILE["axes"], z={"speed": 1200}))
     plugin._printer_profile_manager.get_current_or_default.return_value = slow_z
-    code, dry = call(app, plugin.api_campaign_plan, json=dict(PLAN, dry_run=True,
-                                                                 second_feed=3700,
-                                                                 second_height=100))
+    code, dry = call(
+        app,
+        plugin.api_campaign_plan,
+        json=dict(PLAN, dry_run=True, second_feed=3700, second_height=100),
+    )
     assert code == 200 and dry["stored"] is False
     assert [s["name"] for s in dry["steps"]] == ["xy", "xz", "yz", "xy-z100", "xy-f3700"]
     assert [s["plane"] for s in dry["steps"]] == ["XY", "XZ", "YZ", "XY", "XY"]
@@ -154,22 +166,27 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
             listed = plugin.api_campaigns().get_json()["campaigns"]
             assert [c["id"] for c in listed] == [doc["id"]]
-            assert plugin.api_campaign(doc["id"]).get_json()["steps"][0]["program_hash"] \
+            assert (
+                plugin.api_campaign(doc["id"]).get_json()["steps"][0]["program_hash"]
                 == doc["steps"][0]["program_hash"]
+            )
             assert plugin.api_campaign("c20990101-000000-abcdef").status_code == 404
             assert plugin.api_campaign("../../etc/passwd").status_code == 404
 
 
-@pytest.mark.parametrize("body, field", [
-    ({"radius_xy": "100"}, "radius_xy"),
-    ({"radius_xy": True}, "radius_xy"),
-    ({"radius_vertical": 2}, "radius_vertical"),
-    ({"feed": None}, "feed"),
-    ({"second_feed": "fast"}, "second_feed"),
-    ({"second_height": [1]}, "second_height"),
-    ({"dry_run": "true"}, "dry_run"),
-    ({"retest_of": "c20990101-000000-abcdef"}, "retest_of"),
-])
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ({"radius_xy": "100"}, "radius_xy"),
+        ({"radius_xy": True}, "radius_xy"),
+        ({"radius_vertical": 2}, "radius_vertical"),
+        ({"feed": None}, "feed"),
+        ({"second_feed": "fast"}, "second_feed"),
+        ({"second_height": [1]}, "second_height"),
+        ({"dry_run": "true"}, "dry_run"),
+        ({"retest_of": "c20990101-000000-abcdef"}, "retest_of"),
+    ],
+)
 def test_bad_plan_requests_are_refused_naming_the_field(app, plugin, body, field):
     code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, **body))
     assert code == 400 and field in resp["error"], resp
@@ -177,25 +194,25 @@ def test_bad_plan_requests_are_refused_naming_the_field(app, plugin, body, field
 
 def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
     code, resp = call(app, plugin.api_campaign_plan, json={"radius_xy": 100})
-    assert code == 400 and "campaign test xy" in resp["error"] and "does not fit" in \
-        resp["error"]
-    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, feed=6000,
-                                                               second_feed=9000))
+    assert code == 400 and "campaign test xy" in resp["error"] and "does not fit" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, feed=6000, second_feed=9000))
     assert code == 400 and "second XY feed is capped" in resp["error"]
     code, resp = call(app, plugin.api_campaign_plan, json=["radius_xy"])
     assert code == 400
     assert os.listdir(plugin.campaign._campaigns.folder) == []
 
 
-@pytest.mark.parametrize("live", [pytest.param(True, marks=pytest.mark.slow), False],
-                         ids=["live", "recorded"])
+@pytest.mark.parametrize(
+    "live", [pytest.param(True, marks=pytest.mark.slow), False], ids=["live", "recorded"]
+)
 @QUICKER
 def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, live):
     # demo mode measures each test by the live capture of its virtual bar, exactly as a real
     # sensor's (the live path: on by default); with it off, by collecting the simulated
     # trace of the printed commands
-    plugin.on_settings_save({"demo": {"enabled": True} if live else {"enabled": True,
-                                                                     "live": False}})
+    plugin.on_settings_save(
+        {"demo": {"enabled": True} if live else {"enabled": True, "live": False}}
+    )
     assert plugin.demo.live == live
     doc = plan(app, plugin)
     done = run_campaign(app, plugin, doc, live)
@@ -206,8 +223,9 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     assert len(a["plots"]) == 3 and a["campaign_steps"] == ["xy", "xz", "yz"]
     # one parameter set for the whole volume: the demo printer's hidden errors
     p = a["proposed"]
-    assert p["squareness_um_per_m"] == pytest.approx({"xy": -3638.6, "xz": 800.0,
-                                                      "yz": -500.0}, abs=10)
+    assert p["squareness_um_per_m"] == pytest.approx(
+        {"xy": -3638.6, "xz": 800.0, "yz": -500.0}, abs=10
+    )
     # the first campaign has nothing to compare with: the rows hold the measured values
     xz = a["comparison"][1]
     assert xz["step"] == "xz" and xz["before_plot"] is None
@@ -218,8 +236,12 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     assert servo["reason_i18n"]["template"].startswith("XY ran at one feed only")
     # the campaign's runs: one per test, grouped by the campaign id in the history
     runs = plugin.runs.list()
-    assert sorted(r["campaign_step"] or "" for r in runs if r["campaign"] == doc["id"]) == \
-        ["", "xy", "xz", "yz"]
+    assert sorted(r["campaign_step"] or "" for r in runs if r["campaign"] == doc["id"]) == [
+        "",
+        "xy",
+        "xz",
+        "yz",
+    ]
     assert sum(r["has_trace"] for r in runs) == 3
     # analysed: closed to more measurements
     code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={})
@@ -229,8 +251,9 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     code, applied = call(app, plugin.api_campaign_apply, doc["id"], json={"enabled": True})
     assert code == 200, applied
     assert plugin.queue.enabled and plugin.queue.params.hash() == applied["params_hash"]
-    assert plugin.queue.params.squareness_um_per_m["xz"] == \
-        pytest.approx(p["squareness_um_per_m"]["xz"])
+    assert plugin.queue.params.squareness_um_per_m["xz"] == pytest.approx(
+        p["squareness_um_per_m"]["xz"]
+    )
     assert plugin.runs.get(a["id"])["applied"]
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
@@ -264,13 +287,13 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     lines = text.splitlines()
     mount = next(i for i, ln in enumerate(lines) if ln.startswith("M0 "))
     plugin.on_event("PrintStarted", {"origin": "local", "path": resp["path"]})
-    queue_lines(plugin, lines[:mount + 1])
+    queue_lines(plugin, lines[: mount + 1])
     time.sleep(1.0)
     status = plugin.sensor._status(plugin.sensor._cap)
     assert status["state"] == "armed" and status["reading_mm"] == pytest.approx(1.0, abs=0.01)
     assert plugin.demo.stream_end() == float("inf")  # (its end not known yet)
     # the user goes on: the test is played, captured and taken as its measurement
-    queue_lines(plugin, lines[mount + 1:])
+    queue_lines(plugin, lines[mount + 1 :])
     plugin.on_event("PrintDone", {"origin": "local", "path": resp["path"]})
     wait_for(lambda: messages(plugin, "sensor_run"), 60)
     told = messages(plugin, "sensor_run")[-1]["run"]
@@ -282,16 +305,16 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     assert not messages(plugin, "demo_trace")  # not measured a second time
     # the recorded trace stays an API fallback (it replaces the capture as the measurement)
     code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": True})
-    assert code == 200 and resp["campaign"]["steps"][0]["run"] == resp["run"]["id"] != \
-        told["id"]
+    assert code == 200 and resp["campaign"]["steps"][0]["run"] == resp["run"]["id"] != told["id"]
 
     # test 2: the virtual bar is unplugged mid-test: a failed run, the test left unmeasured
     plugin._plugin_manager.send_plugin_message.reset_mock()
     code, resp = call(app, plugin.api_campaign_program, cid, 2, json={"print": True})
     assert resp["capture"]["armed"]
     plugin.on_event("PrintStarted", {"origin": "local", "path": resp["path"]})
-    queue_lines(plugin, plugin._file_manager.add_file.call_args[0][2].stream().read()
-                .decode().splitlines())
+    queue_lines(
+        plugin, plugin._file_manager.add_file.call_args[0][2].stream().read().decode().splitlines()
+    )
     wait_for(lambda: plugin.sensor._cap.state == "capturing", 30)
     plugin.demo._sensor.unplug()
     wait_for(lambda: messages(plugin, "sensor_run"), 30)
@@ -320,9 +343,11 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
     code, _ = upload(app, plugin, tmp_path, doc["id"], 1, trace)
     assert code == 200
     plugin.on_settings_save({"enabled": True, "params": SKEW})
-    for view, args, body in ((plugin.api_campaign_program, (doc["id"], 2), {"print": True}),
-                             (plugin.api_campaign_trace, (doc["id"], 2), {"demo": True}),
-                             (plugin.api_campaign_analyze, (doc["id"],), {})):
+    for view, args, body in (
+        (plugin.api_campaign_program, (doc["id"], 2), {"print": True}),
+        (plugin.api_campaign_trace, (doc["id"], 2), {"demo": True}),
+        (plugin.api_campaign_analyze, (doc["id"],), {}),
+    ):
         code, resp = call(app, view, *args, json=body)
         assert code == 409 and "parameters in force changed" in resp["error"], resp
         assert doc["params_hash"] in resp["error"]
@@ -337,7 +362,8 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
     assert code == 200 and resp["printing"] is False
     # another printer profile: refused too
     plugin._printer_profile_manager.get_current_or_default.return_value = dict(
-        PROFILE, name="Other")
+        PROFILE, name="Other"
+    )
     code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
     assert code == 409 and "printer profile changed" in resp["error"]
 
@@ -345,8 +371,12 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
 def _edited(text, key, value):
     """``text`` (a trace) with its metadata line ``key`` set to ``value``."""
     assert f"# {key}: " in text
-    return "\n".join(f"# {key}: {value}" if ln.startswith(f"# {key}: ") else ln
-                     for ln in text.splitlines()) + "\n"
+    return (
+        "\n".join(
+            f"# {key}: {value}" if ln.startswith(f"# {key}: ") else ln for ln in text.splitlines()
+        )
+        + "\n"
+    )
 
 
 def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
@@ -357,12 +387,24 @@ def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
     cases = [
         (2, xy, "xy.csv", "it is the trace of test xy, not of test 2 (xz)"),
         (1, offline_trace(other, 1), "other.csv", f"belongs to campaign {other['id']}"),
-        (1, _edited(xy, "program_hash", "0123456789ab"), "edited.csv",
-         "the metadata does not match the program"),
-        (1, _edited(xy, "params_hash", "ffffffffffff"), "params.csv",
-         "measured with parameters ffffffffffff"),
-        (1, _edited(xy, "printer", "Other printer"), "printer.csv",
-         "comes from printer Other printer"),
+        (
+            1,
+            _edited(xy, "program_hash", "0123456789ab"),
+            "edited.csv",
+            "the metadata does not match the program",
+        ),
+        (
+            1,
+            _edited(xy, "params_hash", "ffffffffffff"),
+            "params.csv",
+            "measured with parameters ffffffffffff",
+        ),
+        (
+            1,
+            _edited(xy, "printer", "Other printer"),
+            "printer.csv",
+            "comes from printer Other printer",
+        ),
         (1, "plane: XY\nsquareness_um_per_m: 5\n", "summary.json", "not a summary"),
         (1, "direction,time_s,reading_mm\nccw,zero,1\n", "broken.csv", "broken.csv: "),
     ]
@@ -398,7 +440,7 @@ def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_
     # the YZ test failed: the bar slipped half-way (a 30 um jump in every reading after it)
     lines = offline_trace(doc, 3).splitlines()
     rows = [i for i, ln in enumerate(lines) if ln.startswith("ccw,")]
-    for i in rows[len(rows) // 2:]:
+    for i in rows[len(rows) // 2 :]:
         d, t, r = lines[i].split(",")
         lines[i] = f"{d},{t},{float(r) + 0.03:.7f}"
     code, resp = upload(app, plugin, tmp_path, cid, 3, "\n".join(lines) + "\n", "slipped.csv")
@@ -424,8 +466,14 @@ def _live_run(plugin, text, name="live_XZ_R50.csv"):
     text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("# params_hash:"))
     data = (text + "\n").encode()
     result = analyse(load_any(data, name), current=plugin.queue.params)
-    run = plugin.calibration.record_run(result, name, "live", data, result.get("plot"),
-                                        extra={"status": "ok", "capture": {"samples": 1}})
+    run = plugin.calibration.record_run(
+        result,
+        name,
+        "live",
+        data,
+        result.get("plot"),
+        extra={"status": "ok", "capture": {"samples": 1}},
+    )
     plugin.runs.save_raw(run["id"], b"time_s,reading_mm,line\n0.0,1.0,1.0\n")
     return run
 
@@ -443,8 +491,9 @@ def test_a_live_capture_of_a_test_becomes_its_measurement(app, plugin):
     assert [r["id"] for r in plugin.runs.list()] == [taken["id"]]
     assert plugin.campaign._campaigns.get(doc["id"])["steps"][1]["run"] == taken["id"]
     # a capture that is no campaign's test stays as it was
-    single = _live_run(plugin, offline_trace(doc, 1).replace(f"# campaign: {doc['id']}",
-                                                             "# campaign: "))
+    single = _live_run(
+        plugin, offline_trace(doc, 1).replace(f"# campaign: {doc['id']}", "# campaign: ")
+    )
     assert recorder.on_recorded(single) is single
     # once the parameters changed, the campaign does not take it; the user is told
     plugin.on_settings_save({"enabled": True, "params": SKEW})
@@ -510,8 +559,9 @@ def test_each_route_asks_for_its_permissions(app, plugin):
         with mock.patch("octoprint_kincomp.plugin.campaign_api.Permissions") as perms:
             perms.STATUS, perms.PLUGIN_KINCOMP_ADMIN, perms.PRINT = "STATUS", "ADMIN", "PRINT"
             with mock.patch("octoprint_kincomp.plugin.http.require", side_effect=asked.append):
-                with app.test_request_context("/", method="POST" if body is not None
-                                              else "GET", json=body):
+                with app.test_request_context(
+                    "/", method="POST" if body is not None else "GET", json=body
+                ):
                     view(*args)
         assert set(asked) == wanted, (view.__name__, asked)
 

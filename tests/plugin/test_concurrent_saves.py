@@ -18,10 +18,13 @@ from octoprint_kincomp.core.params import Params
 from tests.support.blueprint import PREFIX, blueprint_client
 
 TRIALS = 200
-CALIBRATION = {"squareness_um_per_m": {"xy": 420.0, "xz": -130.0, "yz": 75.0},
-               "scale_ppm": {"x": 310.0, "y": -120.0, "z": 0.0},
-               "backlash": {"x": 45.0, "y": 30.0, "z": 0.0},
-               "servo_lag_ms": {"x": 0.5, "y": 0.0, "z": 0.0}, "servo_precomp": True}
+CALIBRATION = {
+    "squareness_um_per_m": {"xy": 420.0, "xz": -130.0, "yz": 75.0},
+    "scale_ppm": {"x": 310.0, "y": -120.0, "z": 0.0},
+    "backlash": {"x": 45.0, "y": 30.0, "z": 0.0},
+    "servo_lag_ms": {"x": 0.5, "y": 0.0, "z": 0.0},
+    "servo_precomp": True,
+}
 
 
 def _on_disk(config):
@@ -33,9 +36,11 @@ def _calibrated(tmp_path):
     """A plugin (and its config.yaml path) with CALIBRATION applied through the API."""
     ns = blueprint_client(str(tmp_path))
     try:
-        resp = ns.client.post(PREFIX + "/apply", data=json.dumps(
-            {"params": CALIBRATION, "enabled": True, "apply_now": True}),
-            content_type="application/json")
+        resp = ns.client.post(
+            PREFIX + "/apply",
+            data=json.dumps({"params": CALIBRATION, "enabled": True, "apply_now": True}),
+            content_type="application/json",
+        )
         assert resp.status_code == 200, resp.get_json()
     except BaseException:
         ns.stop()
@@ -58,8 +63,9 @@ def test_concurrent_partial_saves_keep_the_calibration(tmp_path):
 
             def plugin_api(body):
                 barrier.wait()
-                r = client.post(PREFIX + "/settings", data=json.dumps(body),
-                                content_type="application/json")
+                r = client.post(
+                    PREFIX + "/settings", data=json.dumps(body), content_type="application/json"
+                )
                 codes.append(r.status_code)
 
             def octoprint_api(body):
@@ -67,10 +73,11 @@ def test_concurrent_partial_saves_keep_the_calibration(tmp_path):
                 plugin.on_settings_save(body)  # OctoPrint's /api/settings: the plugin's part
                 plugin._settings.save()  # ... then OctoPrint writes config.yaml
 
-            threads = [threading.Thread(target=plugin_api, args=({"decimals": decimals},)),
-                       threading.Thread(target=plugin_api, args=({"chord_tol_mm": chord},)),
-                       threading.Thread(target=octoprint_api,
-                                        args=({"demo": {"live": trial % 2 == 0}},))]
+            threads = [
+                threading.Thread(target=plugin_api, args=({"decimals": decimals},)),
+                threading.Thread(target=plugin_api, args=({"chord_tol_mm": chord},)),
+                threading.Thread(target=octoprint_api, args=({"demo": {"live": trial % 2 == 0}},)),
+            ]
             for t in threads:
                 t.start()
             for t in threads:
@@ -84,12 +91,23 @@ def test_concurrent_partial_saves_keep_the_calibration(tmp_path):
                 lost.append("stored params")
             if plugin.queue.params.hash() != want:
                 lost.append("live compensator")
-            if disk.get("params", {}).get("squareness_um_per_m", {}).get("xy") != 420.0 or \
-                    disk.get("params", {}).get("servo_lag_ms", {}).get("x") != 0.5:
+            if (
+                disk.get("params", {}).get("squareness_um_per_m", {}).get("xy") != 420.0
+                or disk.get("params", {}).get("servo_lag_ms", {}).get("x") != 0.5
+            ):
                 lost.append("config.yaml params")
-            if (s["decimals"], s["chord_tol_mm"], s["demo"]["live"]) != \
-                    (decimals, chord, trial % 2 == 0):
-                lost.append(("a save's own key", (s["decimals"], s["chord_tol_mm"], s["demo"]["live"]), (decimals, chord, trial % 2 == 0)))
+            if (s["decimals"], s["chord_tol_mm"], s["demo"]["live"]) != (
+                decimals,
+                chord,
+                trial % 2 == 0,
+            ):
+                lost.append(
+                    (
+                        "a save's own key",
+                        (s["decimals"], s["chord_tol_mm"], s["demo"]["live"]),
+                        (decimals, chord, trial % 2 == 0),
+                    )
+                )
             if not s["enabled"]:
                 lost.append("enabled")
             if lost:
@@ -114,12 +132,15 @@ def test_a_failed_write_changes_nothing(tmp_path, monkeypatch):
             raise OSError(errno.ENOSPC, "No space left on device")
 
         monkeypatch.setattr(plugin._settings.settings, "save", full)
-        resp = client.post(PREFIX + "/settings", data=json.dumps(
-            {"decimals": 5, "params": {"scale_ppm": {"x": 0.0}}}),
-            content_type="application/json")
+        resp = client.post(
+            PREFIX + "/settings",
+            data=json.dumps({"decimals": 5, "params": {"scale_ppm": {"x": 0.0}}}),
+            content_type="application/json",
+        )
         assert resp.status_code == 507 and "disk is full" in resp.get_json()["error"]
-        resp = client.post(PREFIX + "/apply", data=json.dumps({"params": {}}),
-                           content_type="application/json")
+        resp = client.post(
+            PREFIX + "/apply", data=json.dumps({"params": {}}), content_type="application/json"
+        )
         assert resp.status_code == 507
         assert plugin.store.current() == before and _on_disk(config) == disk_before
         assert plugin.queue.params.hash() == Params.from_dict(CALIBRATION).hash()

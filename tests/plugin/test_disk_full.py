@@ -25,8 +25,11 @@ def api(tmp_path):
 
 
 def _files(folder):
-    return sorted(os.path.relpath(os.path.join(d, n), folder)
-                  for d, _, names in os.walk(folder) for n in names)
+    return sorted(
+        os.path.relpath(os.path.join(d, n), folder)
+        for d, _, names in os.walk(folder)
+        for n in names
+    )
 
 
 @pytest.fixture
@@ -36,6 +39,7 @@ def disk_full(monkeypatch):
     @contextlib.contextmanager
     def full(target, suffix=".tmp"):
         with real(target, suffix) as f:
+
             class Full:
                 def write(self, data):
                     f.write(data[:10])
@@ -76,8 +80,7 @@ def test_every_writing_endpoint_answers_507_and_keeps_nothing(api, disk_full):
     trace = _trace().encode()
     calls = [
         ("/analyze", {"summary": {"plane": "XY", "squareness_um_per_m": 40.0}}, None),
-        ("/analyze", {"artifact": {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}},
-         None),
+        ("/analyze", {"artifact": {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}}, None),
         ("/campaign/plan", {"radius_xy": 50}, None),
         ("/trace", None, trace),
         (f"/campaigns/{cid}/steps/1/trace", None, step_trace),

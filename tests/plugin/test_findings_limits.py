@@ -12,9 +12,12 @@ from octoprint_kincomp.ballbar.analysis import analyse
 from octoprint_kincomp.core.messages import Msg
 from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
 
-PROFILE = {"id": "_default", "name": "Virtual P1",
-           "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"},
-           "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}}}
+PROFILE = {
+    "id": "_default",
+    "name": "Virtual P1",
+    "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"},
+    "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}},
+}
 SUMMARY = {"summary": {"plane": "XY", "squareness_um_per_m": 400.0}}
 MARLIN_M503 = [
     "echo:; Maximum feedrates (units/s):",
@@ -51,9 +54,15 @@ def call(app, view, *args, json=None, method="POST"):
 def _with_error(trace, current=None, **kw):
     """The real analysis, with an error finding as issue 23's motion check gives one."""
     result = analyse(trace, current=current, **kw)
-    found = [F.info("note", "said for the record"), F.error(
-        "motion.feed_capped", Msg("the run took %(s)s s longer than planned", s="19.1"),
-        Msg("lower the feed to what the Z axis reaches"), sync_mismatch_ms=19074.0)]
+    found = [
+        F.info("note", "said for the record"),
+        F.error(
+            "motion.feed_capped",
+            Msg("the run took %(s)s s longer than planned", s="19.1"),
+            Msg("lower the feed to what the Z axis reaches"),
+            sync_mismatch_ms=19074.0,
+        ),
+    ]
     # (the analysis's own shapes: English dicts and the translatable wire form)
     result["findings"] = [f.to_dict() for f in found]
     result["findings_i18n"] = [f.to_wire() for f in found]
@@ -97,8 +106,9 @@ def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
     assert code == 400  # a flag is a boolean
     code, body = call(app, plugin.api_apply, json={"run": run["id"], "force": True})
     assert code == 200
-    assert plugin.store.current()["params"]["squareness_um_per_m"]["xy"] != \
-        before.get("squareness_um_per_m", {}).get("xy")
+    assert plugin.store.current()["params"]["squareness_um_per_m"]["xy"] != before.get(
+        "squareness_um_per_m", {}
+    ).get("xy")
     code, stored = call(app, plugin.api_run, run["id"], method="GET")
     assert stored["applied"]
 
@@ -131,8 +141,11 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     _read_m503(plugin)
     wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
     stated = plugin.store.current()["motion_limits"]
-    assert "M203 X500.00 Y500.00 Z10.00" in stated["text"] and stated["firmware"] == \
-        "Marlin 2.1.2" and stated["captured"]
+    assert (
+        "M203 X500.00 Y500.00 Z10.00" in stated["text"]
+        and stated["firmware"] == "Marlin 2.1.2"
+        and stated["captured"]
+    )
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
             status = plugin.api_status().get_json()["motion_limits"]
@@ -140,11 +153,12 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     assert status["effective"]["max_feed_mm_min"] == {"x": 6000.0, "y": 6000.0, "z": 600.0}
     assert status["effective"]["sources"]["max_feed_mm_min.x"] == "printer profile"
     # the program keeps within them and says why
-    code, prog = call(app, plugin.api_program, json={"plane": "XZ", "radius": 50,
-                                                     "centre": [110, 110, 70]})
+    code, prog = call(
+        app, plugin.api_program, json={"plane": "XZ", "radius": 50, "centre": [110, 110, 70]}
+    )
     assert code == 200 and prog["spec"]["feed_mm_min"] == 600.0
     assert "Z axis' max feed is 600 mm/min" in prog["feed_lowered"][0]["text"]
-    (args, _), = [c for c in plugin._file_manager.add_file.call_args_list]
+    ((args, _),) = [c for c in plugin._file_manager.add_file.call_args_list]
     text = args[2].stream().read().decode() if hasattr(args[2], "stream") else ""
     assert "M220 S100" in text and "F1850" not in text
     # and so does a campaign plan
@@ -154,8 +168,15 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
 
 
 def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
-    code, body = call(app, plugin.api_settings, json={"motion_limits": {
-        "text": "[printer]\nmax_velocity: 300\nmax_accel: 3000\nmax_z_velocity: 8"}})
+    code, body = call(
+        app,
+        plugin.api_settings,
+        json={
+            "motion_limits": {
+                "text": "[printer]\nmax_velocity: 300\nmax_accel: 3000\nmax_z_velocity: 8"
+            }
+        },
+    )
     assert code == 200 and body["settings"]["motion_limits"]["source"] == "pasted"
     _read_m503(plugin)  # e.g. the firmware check's M503 on connecting
     assert plugin.limits.store("\n".join(MARLIN_M503[:2]), replace=False) is False
@@ -171,12 +192,15 @@ def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
     assert call(app, plugin.api_limits_read)[0] == 409
 
 
-@pytest.mark.parametrize("value, field", [
-    ({"text": "hello"}, "motion_limits.text"),
-    ({"text": 5}, "motion_limits.text"),
-    ({"source": "guess"}, "motion_limits.source"),
-    ({"speed": 1}, "motion_limits.speed"),
-])
+@pytest.mark.parametrize(
+    "value, field",
+    [
+        ({"text": "hello"}, "motion_limits.text"),
+        ({"text": 5}, "motion_limits.text"),
+        ({"source": "guess"}, "motion_limits.source"),
+        ({"speed": 1}, "motion_limits.speed"),
+    ],
+)
 def test_bad_limits_are_refused_naming_the_field(app, plugin, value, field):
     code, body = call(app, plugin.api_settings, json={"motion_limits": value})
     assert code == 400 and field in body["error"]
@@ -185,8 +209,9 @@ def test_bad_limits_are_refused_naming_the_field(app, plugin, value, field):
 
 def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
     call(app, plugin.api_settings, json={"motion_limits": {"text": "M203 X200 Y200 Z0.5 ; mm/s"}})
-    code, body = call(app, plugin.api_program, json={"plane": "YZ", "radius": 50,
-                                                     "centre": [110, 110, 70]})
+    code, body = call(
+        app, plugin.api_program, json={"plane": "YZ", "radius": 50, "centre": [110, 110, 70]}
+    )
     assert code == 400 and "Z axis' max feed is 30 mm/min" in body["error"]
     assert not plugin._file_manager.add_file.called
 
@@ -204,8 +229,11 @@ def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
     (_, msg), _ = plugin._plugin_manager.send_plugin_message.call_args
     assert msg["severity"] == "warning" and msg["params"]["command"] == "M220 S80"
     # the program's own line, a query and S100 pass
-    for cmd, tags in (("M220 S100", {"source:file", "fileline:3"}), ("M220", ui),
-                      ("M220 S100", ui)):
+    for cmd, tags in (
+        ("M220 S100", {"source:file", "fileline:3"}),
+        ("M220", ui),
+        ("M220 S100", ui),
+    ):
         assert plugin.queuing_hook(None, "queuing", cmd, None, "M220", tags=tags) != (None,)
     # any other print: the user's speed factor is theirs
     plugin._printer.get_current_job.return_value = {"file": {"path": "benchy.gcode"}}

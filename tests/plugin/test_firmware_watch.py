@@ -29,4 +29,3 @@ def test_firmware_watch():
     w.sent("M579 X1 Y1")
     assert w.scale is None
     assert FirmwareWatcher.relevant("m425 x0.1") and not FirmwareWatcher.relevant("G1 X5")
-

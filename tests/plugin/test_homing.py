@@ -10,8 +10,9 @@ from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.plugin.queue import QueueCompensator, command_of
 from octoprint_kincomp.plugin.settings import defaults, engine_config
 
-SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 800.0, "xz": 1500.0, "yz": -1200.0},
-                         "backlash": {"x": 40.0}})
+SKEW = Params.from_dict(
+    {"squareness_um_per_m": {"xy": 800.0, "xz": 1500.0, "yz": -1200.0}, "backlash": {"x": 40.0}}
+)
 
 
 def words(line):
@@ -89,8 +90,17 @@ def test_lines_queued_ahead_of_the_report_that_leave_the_homed_axis_alone():
     the answer to the M114 is read (OctoPrint queues the next file line on the G28's "ok"
     if the M114 has already left the queue). The report still gives X's home: the output
     from there on is the one of a printer whose home was known all along."""
-    lines = ["G28 X", "G91", "G1 Z5 F1200", "G90", "G0 X128 F30000", "G0 Y254 F3000",
-             "G1 X20 Y200 Z3", "G1 X25", "G1 X-0.2 Y5"]
+    lines = [
+        "G28 X",
+        "G91",
+        "G1 Z5 F1200",
+        "G90",
+        "G0 X128 F30000",
+        "G0 Y254 F3000",
+        "G1 X20 Y200 Z3",
+        "G1 X25",
+        "G1 X-0.2 Y5",
+    ]
     q = queue()
     sent, asked = home(q, lines[0], {"source:file"})
     assert sent == ["G28 X", "M114"]

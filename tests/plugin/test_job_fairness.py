@@ -34,8 +34,10 @@ def test_read_only_users_have_a_quota_and_leave_places_for_admins():
         with pytest.raises(QueueFull) as exc:
             q.submit("dryrun", "c", _blocked(gate), owner="ro4", admin=False)
         assert not exc.value.mine
-        admin_jobs = [q.submit("compensate", f"d{i}", _blocked(gate), owner="admin",
-                               admin=True) for i in range(3)]
+        admin_jobs = [
+            q.submit("compensate", f"d{i}", _blocked(gate), owner="admin", admin=True)
+            for i in range(3)
+        ]
         with pytest.raises(QueueFull):
             q.submit("compensate", "e", _blocked(gate), owner="admin", admin=True)
         # the same file is the same job, whoever asks
@@ -86,13 +88,17 @@ def test_a_queued_job_is_cancelled_at_once_a_running_one_at_its_next_step():
 
 def test_cancelling_a_job_in_the_worker_process_ends_it_and_the_next_runs(tmp_path):
     src = tmp_path / "big.gcode"
-    src.write_text("G28\n" + "".join(f"G1 X{i % 200}.{i % 7} Y{i % 190}.{i % 3}\n"
-                                     for i in range(400_000)))
+    src.write_text(
+        "G28\n" + "".join(f"G1 X{i % 200}.{i % 7} Y{i % 190}.{i % 3}\n" for i in range(400_000))
+    )
     worker = WorkerProcess()
     q = JobQueue(lambda job: None, worker=worker)
-    args = {"src": str(src), "dst": str(tmp_path / "out.gcode"),
-            "params": {"scale_ppm": {"x": 100.0}},
-            "options": {"chord_tol_mm": 0.01}}
+    args = {
+        "src": str(src),
+        "dst": str(tmp_path / "out.gcode"),
+        "params": {"scale_ppm": {"x": 100.0}},
+        "options": {"chord_tol_mm": 0.01},
+    }
 
     def run(job, progress):
         job.report = worker.call(job.id, "compensate", args, progress)
@@ -109,9 +115,11 @@ def test_cancelling_a_job_in_the_worker_process_ends_it_and_the_next_runs(tmp_pa
         small = tmp_path / "small.gcode"
         small.write_text("G28\nG1 X10 Y10\n")
         args2 = dict(args, src=str(small), dst=None, dry_run=True)
-        nxt = q.submit("dryrun", "small.gcode",
-                       lambda j, p: setattr(j, "report", worker.call(j.id, "compensate",
-                                                                     args2, p)))
+        nxt = q.submit(
+            "dryrun",
+            "small.gcode",
+            lambda j, p: setattr(j, "report", worker.call(j.id, "compensate", args2, p)),
+        )
         wait_for(lambda: nxt.state in ("done", "failed"), timeout=60)
         assert nxt.state == "done", nxt.error
     finally:
@@ -152,8 +160,7 @@ def api(tmp_path):
 
 
 def _as(user, admin):
-    return mock.patch("octoprint_kincomp.plugin.http.current_user",
-                      return_value=(user, admin))
+    return mock.patch("octoprint_kincomp.plugin.http.current_user", return_value=(user, admin))
 
 
 def test_one_job_per_file_whatever_the_spelling(api):
@@ -169,13 +176,17 @@ def test_one_job_per_file_whatever_the_spelling(api):
 
 def test_a_read_only_user_cannot_block_an_admin_and_jobs_can_be_cancelled(api):
     with _as("ro", False):
-        codes = [api.client.get(PREFIX + f"/dryrun?path=big{i}.gcode").status_code
-                 for i in range(3)]
+        codes = [
+            api.client.get(PREFIX + f"/dryrun?path=big{i}.gcode").status_code for i in range(3)
+        ]
     assert codes == [202, 202, 429]
     jobs = [j for j in api.plugin.jobs.jobs.values() if j.active]
     with _as("admin", True):
-        resp = api.client.post(PREFIX + "/compensate", data=json.dumps({"path": "big3.gcode"}),
-                               content_type="application/json")
+        resp = api.client.post(
+            PREFIX + "/compensate",
+            data=json.dumps({"path": "big3.gcode"}),
+            content_type="application/json",
+        )
         assert resp.status_code == 202, resp.get_json()
     ro_job = jobs[1]
     with _as("other", False):  # someone else's job: no

@@ -29,8 +29,14 @@ def test_a_job_runs_and_reports_progress_in_steps():
     wait_for(lambda: job.state == "done")
     wait_for(lambda: seen and seen[-1][0] == "done")
     d = job.to_dict()
-    assert (d["kind"], d["path"], d["progress"], d["state"], d["result"], d["error"]) == \
-        ("compensate", "a.gcode", 1.0, "done", "a.gcode.out", None)
+    assert (d["kind"], d["path"], d["progress"], d["state"], d["result"], d["error"]) == (
+        "compensate",
+        "a.gcode",
+        1.0,
+        "done",
+        "a.gcode.out",
+        None,
+    )
     assert [s for s, _ in seen[:2]] == ["queued", "running"]
     steps = [p for s, p in seen if s == "running"][1:]
     assert 10 <= len(steps) <= 21 and steps == sorted(steps)  # every ~5 %, not every call
@@ -74,8 +80,7 @@ def test_compensations_wait_while_printing_dry_runs_do_not_and_none_runs_twice()
 def test_the_queue_has_a_limit():
     gate = threading.Event()
     queue = JobQueue(lambda job: None, limit=3)
-    jobs = [queue.submit("dryrun", f"{i}.gcode", lambda j, p: gate.wait(10))
-            for i in range(3)]
+    jobs = [queue.submit("dryrun", f"{i}.gcode", lambda j, p: gate.wait(10)) for i in range(3)]
     with pytest.raises(QueueFull):
         queue.submit("dryrun", "3.gcode", lambda j, p: None)
     assert queue.submit("dryrun", "1.gcode", lambda j, p: None) is jobs[1]  # same file: 202
@@ -111,16 +116,29 @@ def test_the_worker_process_runs_a_dry_run_at_low_priority(tmp_path):
     try:
         steps = []
         params = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}}).to_dict()
-        result = worker.call("j1", "compensate", {
-            "src": str(src), "dst": None, "params": params, "options": {"home_mm": (0, 0, 0)},
-            "dry_run": True}, steps.append)
+        result = worker.call(
+            "j1",
+            "compensate",
+            {
+                "src": str(src),
+                "dst": None,
+                "params": params,
+                "options": {"home_mm": (0, 0, 0)},
+                "dry_run": True,
+            },
+            steps.append,
+        )
         assert result["report"]["moves_compensated"] == 2 and result["precompensated"] is None
         with open(f"/proc/{worker.pid}/stat") as f:
             assert int(f.read().rsplit(")", 1)[1].split()[16]) == 19  # nice
         # an error in the child comes back as the exception it is
         with pytest.raises(FileNotFoundError):
-            worker.call("j2", "compensate", {"src": str(tmp_path / "none.gcode"), "dst": None,
-                                             "params": params, "options": {}}, steps.append)
+            worker.call(
+                "j2",
+                "compensate",
+                {"src": str(tmp_path / "none.gcode"), "dst": None, "params": params, "options": {}},
+                steps.append,
+            )
     finally:
         worker.stop()
     assert worker.pid is None
@@ -141,8 +159,12 @@ def test_a_killed_worker_fails_the_job_and_leaves_no_temp_file(tmp_path):
             os.kill(worker.pid, 9)  # SIGKILL: nothing in the child can clean up
 
     with pytest.raises(WorkerDied):
-        worker.call("j", "compensate", {"src": str(src), "dst": str(out), "params": params,
-                                        "options": {}}, progress)
+        worker.call(
+            "j",
+            "compensate",
+            {"src": str(src), "dst": str(out), "params": params, "options": {}},
+            progress,
+        )
     from octoprint_kincomp.core.atomic import clean_stale
 
     left = os.listdir(out.parent)

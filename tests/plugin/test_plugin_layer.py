@@ -13,15 +13,13 @@ from tests.support.mocked_plugin import api_app, mocked_plugin
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
 
 
-
 @pytest.fixture
 def plugin(tmp_path):
     return mocked_plugin(str(tmp_path))
 
 
 def test_settings_save_applies_and_rejects(plugin):
-    plugin.on_settings_save({"enabled": True,
-                             "params": {"squareness_um_per_m": {"xy": 500.0}}})
+    plugin.on_settings_save({"enabled": True, "params": {"squareness_um_per_m": {"xy": 500.0}}})
     assert plugin.queue.enabled and plugin.queue.params.squareness_um_per_m["xy"] == 500.0
     plugin._event_bus.fire.assert_called()
     assert plugin._event_bus.fire.call_args[0][0] == "plugin_kincomp_params_applied"
@@ -59,8 +57,9 @@ def test_compensation_error_pauses_the_print(plugin):
 
 
 def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
-    plugin.on_settings_save({"enabled": True, "mode": "on_upload",
-                             "params": {"squareness_um_per_m": {"xy": 1000.0}}})
+    plugin.on_settings_save(
+        {"enabled": True, "mode": "on_upload", "params": {"squareness_um_per_m": {"xy": 1000.0}}}
+    )
     src = b"G28\nG1 X10 Y50 Z1 F3000 ; first\nM104 S200\n"
     fo = mock.MagicMock()
     fo.filename = "part.gcode"
@@ -70,8 +69,9 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     out = wrapped.stream().read().decode()
     lines = out.splitlines()
     assert lines[0].startswith("; kincomp: compensated params=")
-    assert lines[1] == "G28" and lines[2].startswith("G1 X9.95 Y50 ") and \
-        lines[2].endswith("; first")
+    assert (
+        lines[1] == "G28" and lines[2].startswith("G1 X9.95 Y50 ") and lines[2].endswith("; first")
+    )
     assert lines[3] == "M104 S200"
     # an already compensated upload goes through untouched
     fo.stream.return_value = io.BytesIO(out.encode())
@@ -119,8 +119,10 @@ def test_print_events_drive_the_state(plugin, tmp_path):
     plugin._file_manager.path_on_disk.return_value = str(marked)
     plugin.on_event("PrintStarted", {"origin": "local", "path": "m.gcode"})
     assert plugin.queue.skip_file and plugin.queue.printing
-    assert "other KinComp parameters" in \
-        plugin._plugin_manager.send_plugin_message.call_args[0][1]["text"]
+    assert (
+        "other KinComp parameters"
+        in plugin._plugin_manager.send_plugin_message.call_args[0][1]["text"]
+    )
     plugin.on_event("PrintDone", {})
     assert not plugin.queue.printing and not plugin.queue.skip_file
 
@@ -142,11 +144,11 @@ def test_print_state_is_set_up_by_the_first_file_line(plugin, tmp_path):
     comm = object()
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags={"source:api"})
     marked = tmp_path / "m.gcode"
-    marked.write_text(f"; kincomp: compensated params={plugin.queue.params.hash()} "
-                      "kincomp=0\nG1 X10 Y50\n")
+    marked.write_text(
+        f"; kincomp: compensated params={plugin.queue.params.hash()} kincomp=0\nG1 X10 Y50\n"
+    )
     plugin._file_manager.path_on_disk.return_value = str(marked)
-    plugin._printer.get_current_job.return_value = {
-        "file": {"origin": "local", "path": "m.gcode"}}
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": "m.gcode"}}
     tags = {"source:file", "fileline:1", "filepos:60"}
     assert plugin.queuing_hook(comm, "queuing", "G1 X10 Y50", None, "G1", tags=tags) is None
     assert plugin.queue.printing and plugin.queue.skip_file
@@ -158,8 +160,9 @@ def test_print_state_is_set_up_by_the_first_file_line(plugin, tmp_path):
 
 
 def test_new_connection_forgets_positions_synchronously(plugin):
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
-                             "home_mm": [0.0, 0.0, 0.0]})  # a known home: G28 makes X, Y, Z known
+    plugin.on_settings_save(
+        {"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]}
+    )  # a known home: G28 makes X, Y, Z known
     first, second = object(), object()
     plugin.queuing_hook(first, "queuing", "G28", None, "G28", tags={"source:api"})
     assert plugin.queuing_hook(first, "queuing", "G1 X10 Y50", None, "G1") is not None
@@ -179,23 +182,24 @@ def _printing_plain_file(plugin, tmp_path, job=True):
     plain.write_text("G28\n")
     plugin._file_manager.path_on_disk.return_value = str(plain)
     if job:
-        plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
-                                                                 "path": "p.gcode"}}
+        plugin._printer.get_current_job.return_value = {
+            "file": {"origin": "local", "path": "p.gcode"}
+        }
 
 
 def test_print_start_is_counted_once_whichever_comes_first(plugin, tmp_path):
     """PRINT_STARTED before or after the first file line: one print begins; a PrintDone of
     the previous print that arrives after the next print's first line is ignored."""
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
-                             "home_mm": [0.0, 0.0, 0.0]})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]})
     _printing_plain_file(plugin, tmp_path)
     comm = object()
     line = {"source:file", "fileline:1"}
     # print A: the event first, then its first line
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
-    plugin.queuing_hook(comm, "queuing", "G1 X10 Y10", None, "G1",
-                        tags={"source:file", "fileline:2"})
+    plugin.queuing_hook(
+        comm, "queuing", "G1 X10 Y10", None, "G1", tags={"source:file", "fileline:2"}
+    )
     assert plugin.prints.begun == 1 and plugin.queue.comp.known == (True, True, True)
     # print B starts before A's PrintDone is processed
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags=line)
@@ -216,8 +220,7 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
     import threading
     import time
 
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
-                             "mode": "background"})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "mode": "background"})
     _printing_plain_file(plugin, tmp_path, job=False)
     in_lookup = threading.Event()
 
@@ -227,9 +230,11 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
         return {"file": {"origin": "local", "path": "p.gcode"}}
 
     plugin._printer.get_current_job.side_effect = slow_job
-    hook = threading.Thread(target=plugin.queuing_hook,
-                            args=(object(), "queuing", "G28", None, "G28"),
-                            kwargs={"tags": {"source:file", "fileline:1"}})
+    hook = threading.Thread(
+        target=plugin.queuing_hook,
+        args=(object(), "queuing", "G28", None, "G28"),
+        kwargs={"tags": {"source:file", "fileline:1"}},
+    )
     hook.start()
     assert in_lookup.wait(5)
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
@@ -240,8 +245,7 @@ def test_print_start_race_between_the_hook_and_the_event_thread(plugin, tmp_path
 
 
 def test_plugin_enables_only_at_the_next_print(plugin):
-    plugin._printer.get_current_job.return_value = {"file": {"origin": "local",
-                                                             "path": "p.gcode"}}
+    plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": "p.gcode"}}
     plugin._file_manager.path_on_disk.return_value = "/nonexistent"
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
@@ -254,11 +258,13 @@ def test_limits_follow_the_printer_profile(plugin):
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
     assert plugin.queue.comp.options.limits == (0.0, 200.0, 0.0, 200.0, 0.0, 200.0)
     plugin._printer_profile_manager.get_current_or_default.return_value = {
-        "volume": {"width": 300, "depth": 250, "height": 400, "origin": "center"}}
+        "volume": {"width": 300, "depth": 250, "height": 400, "origin": "center"}
+    }
     plugin.on_event("PrinterProfileModified", {"identifier": "_default"})
     assert plugin.queue.comp.options.limits == (-150.0, 150.0, -125.0, 125.0, 0.0, 400.0)
     plugin._printer_profile_manager.get_current_or_default.return_value = {
-        "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"}}
+        "volume": {"width": 220, "depth": 220, "height": 250, "origin": "lowerleft"}
+    }
     plugin.on_event("Connected", {"port": "VIRTUAL"})
     assert plugin.queue.comp.options.limits == (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
 
@@ -266,10 +272,11 @@ def test_limits_follow_the_printer_profile(plugin):
 def test_request_flags_must_be_booleans(plugin):
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
-        for path, view, body in (("/settings", plugin.api_settings, {"apply_now": "false"}),
-                                 ("/program", plugin.api_program, {"print": "no"}),
-                                 ("/apply", plugin.api_apply, {"params": {},
-                                                               "apply_now": 1})):
+        for path, view, body in (
+            ("/settings", plugin.api_settings, {"apply_now": "false"}),
+            ("/program", plugin.api_program, {"print": "no"}),
+            ("/apply", plugin.api_apply, {"params": {}, "apply_now": 1}),
+        ):
             with app.test_request_context(path, method="POST", json=body):
                 resp = view()
             assert resp.status_code == 400 and b"must be true or false" in resp.data, path
@@ -279,8 +286,7 @@ def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_pa
     """Should the start/end counts ever drift (a print begun by the hook whose start event
     never came), the next end event with nothing printing still ends the print."""
     _printing_plain_file(plugin, tmp_path)
-    plugin.queuing_hook(object(), "queuing", "G28", None, "G28",
-                        tags={"source:file", "fileline:1"})
+    plugin.queuing_hook(object(), "queuing", "G28", None, "G28", tags={"source:file", "fileline:1"})
     plugin.prints.begun += 1  # drifted
     plugin._printer.is_printing.return_value = False
     plugin.on_event("PrintFailed", {"origin": "local", "path": "p.gcode"})
@@ -290,7 +296,7 @@ def test_an_end_event_with_nothing_printing_always_ends_the_print(plugin, tmp_pa
 
 def test_marlin_is_asked_for_its_settings_after_m115(plugin):
     plugin.on_event("FirmwareData", {"name": "Marlin 2.1.2", "data": {}})
-    (args, kwargs), = plugin._printer.commands.call_args_list
+    ((args, kwargs),) = plugin._printer.commands.call_args_list
     assert args[0] == ["M503"] and "plugin:kincomp" in kwargs["tags"]
     plugin._printer.commands.reset_mock()
     plugin.on_event("FirmwareData", {"name": "Klipper", "data": {}})
@@ -305,8 +311,7 @@ def test_marlin_is_asked_for_its_settings_after_m115(plugin):
 
 def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
     run_id = plugin.runs.new_id()
-    plugin.runs.save({"id": run_id, "filename": "../../etc/passwd trace.csv",
-                      "diagnostics": {}})
+    plugin.runs.save({"id": run_id, "filename": "../../etc/passwd trace.csv", "diagnostics": {}})
     plugin.runs.save_trace(run_id, b"direction,angle_deg,deviation_um\nccw,0,1.5\n")
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
@@ -336,18 +341,17 @@ def test_a_print_resumed_from_a_file_position_begins_at_its_first_line(plugin, t
     """A print started from a later line (OctoPrint's "print from here", no ``fileline:1``)
     after an earlier print ended (or the printer was disconnected): its first line through the hook begins it, before its
     PRINT_STARTED; the lines after that change nothing."""
-    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(),
-                             "home_mm": [0.0, 0.0, 0.0]})
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]})
     _printing_plain_file(plugin, tmp_path)
     comm = object()
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
-    plugin.queuing_hook(comm, "queuing", "G28", None, "G28",
-                        tags={"source:file", "fileline:1"})
+    plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags={"source:file", "fileline:1"})
     plugin.on_event(end, {"origin": "local", "path": "p.gcode"})
     assert plugin.prints.begun == 1 and not plugin.queue.printing
     for n in (40, 41):
-        plugin.queuing_hook(comm, "queuing", "G1 X10 Y10", None, "G1",
-                            tags={"source:file", "fileline:%d" % n})
+        plugin.queuing_hook(
+            comm, "queuing", "G1 X10 Y10", None, "G1", tags={"source:file", "fileline:%d" % n}
+        )
         assert plugin.prints.begun == 2 and plugin.queue.printing
     plugin.on_event("PrintStarted", {"origin": "local", "path": "p.gcode"})
     assert plugin.prints.begun == 2 and plugin.prints.start_events == 2
@@ -364,4 +368,3 @@ def test_a_late_end_event_does_not_end_a_paused_next_print(plugin, tmp_path):
     plugin._printer.is_paused.return_value = True
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # A's, late
     assert plugin.queue.printing
-

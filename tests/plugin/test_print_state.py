@@ -41,8 +41,9 @@ class Comm:
 
 @pytest.fixture
 def t():
-    queue = QueueCompensator(SKEW, Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                             enabled=True)
+    queue = QueueCompensator(
+        SKEW, Options(limits=(0, 200, 0, 200, 0, 200), policy="error"), enabled=True
+    )
     printer, files, plugin_manager = mock.MagicMock(), mock.MagicMock(), mock.MagicMock()
     printer.is_printing.return_value = True
     printer.is_pausing.return_value = printer.is_paused.return_value = False
@@ -50,12 +51,27 @@ def t():
     files.path_on_disk.side_effect = OSError("not on disk")  # never marked
     begun, ended = [], []
     watch = FirmwareWatcher()
-    state = PrintState(queue, watch, printer, files, Notifier(plugin_manager, None, "kincomp"),
-                       mock.MagicMock(), on_begin=begun.append, on_end=ended.append)
+    state = PrintState(
+        queue,
+        watch,
+        printer,
+        files,
+        Notifier(plugin_manager, None, "kincomp"),
+        mock.MagicMock(),
+        on_begin=begun.append,
+        on_end=ended.append,
+    )
     queue.on_error = state.compensation_failed
     queue.on_untouched = state.sent_as_written
-    return SimpleNamespace(queue=queue, printer=printer, state=state, begun=begun,
-                           ended=ended, watch=watch, plugin_manager=plugin_manager)
+    return SimpleNamespace(
+        queue=queue,
+        printer=printer,
+        state=state,
+        begun=begun,
+        ended=ended,
+        watch=watch,
+        plugin_manager=plugin_manager,
+    )
 
 
 def texts(t):

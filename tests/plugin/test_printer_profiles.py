@@ -20,8 +20,10 @@ CALIBRATED = {
     "enabled": True,
     "params": {"squareness_um_per_m": {"xy": 1000.0, "xz": 0.0, "yz": 0.0}},
     "home_mm": [0.0, 0.0, 0.0],
-    "motion_limits": {"text": "M203 X500 Y500 Z12 E120\nM201 X3000 Y3000 Z100 E5000",
-                      "firmware": "Marlin"},
+    "motion_limits": {
+        "text": "M203 X500 Y500 Z12 E120\nM201 X3000 Y3000 Z100 E5000",
+        "firmware": "Marlin",
+    },
 }
 MOVE = "G1 X100 Y100 F3000"
 
@@ -50,13 +52,17 @@ def connect(api, profile):
 
 def sent(api, comm, line):
     """What KinComp sends for ``line`` (None: the line as written)."""
-    return api.plugin.queuing_hook(comm, "queuing", line, None, line.split()[0],
-                                   tags={"source:file"})
+    return api.plugin.queuing_hook(
+        comm, "queuing", line, None, line.split()[0], tags={"source:file"}
+    )
 
 
 def messages(api):
-    return [c[0][1] for c in api.plugin._plugin_manager.send_plugin_message.call_args_list
-            if c[0][1].get("type") == "notify"]
+    return [
+        c[0][1]
+        for c in api.plugin._plugin_manager.send_plugin_message.call_args_list
+        if c[0][1].get("type") == "notify"
+    ]
 
 
 def stored(api):
@@ -72,8 +78,12 @@ def test_the_settings_from_before_profiles_move_onto_the_active_profile(api):
     assert kept["home_mm"] == [0.0, 0.0, 0.0]
     assert kept["motion_limits"]["text"].startswith("M203 X500")
     st = status(api)
-    assert st["profile"] == {"id": "printer_a", "name": "Printer A", "calibrated": True,
-                             "known": ["printer_a"]}
+    assert st["profile"] == {
+        "id": "printer_a",
+        "name": "Printer A",
+        "calibrated": True,
+        "known": ["printer_a"],
+    }
     assert st["compensation"]["enabled"] is True
 
 
@@ -101,12 +111,12 @@ def test_a_switch_that_cannot_be_stored_leaves_compensation_off(api):
     comm = connect(api, A)
     assert api.plugin.queue.enabled
     api.plugin._plugin_manager.send_plugin_message.reset_mock()
-    with mock.patch.object(api.plugin.store, "_store",
-                           side_effect=OSError(28, "No space left on device")):
+    with mock.patch.object(
+        api.plugin.store, "_store", side_effect=OSError(28, "No space left on device")
+    ):
         comm = connect(api, B)  # (raises nothing)
     assert not api.plugin.queue.enabled
-    assert any(m["severity"] == "error" and "could not switch" in m["text"]
-               for m in messages(api))
+    assert any(m["severity"] == "error" and "could not switch" in m["text"] for m in messages(api))
     sent(api, comm, "G28")
     assert sent(api, comm, MOVE) is None  # A's skew is not applied to B
 
@@ -130,9 +140,13 @@ def test_switching_profiles_switches_the_calibration_in_force(api):
     assert sent(api, comm, MOVE) is None  # B prints as written: A's skew is not applied
 
     # B gets its own parameters; A's are kept
-    resp = api.client.post(PREFIX + "/settings", data=json.dumps(
-        {"params": {"scale_ppm": {"x": 500.0}}, "home_mm": [0, 0, 0], "apply_now": True}),
-        content_type="application/json")
+    resp = api.client.post(
+        PREFIX + "/settings",
+        data=json.dumps(
+            {"params": {"scale_ppm": {"x": 500.0}}, "home_mm": [0, 0, 0], "apply_now": True}
+        ),
+        content_type="application/json",
+    )
     assert resp.status_code == 200, resp.get_json()
     st = status(api)
     assert st["profile"]["calibrated"] is True and st["compensation"]["enabled"] is True
@@ -153,8 +167,11 @@ def test_switching_profiles_switches_the_calibration_in_force(api):
 
 
 def test_a_request_cannot_name_the_profile_in_force(api):
-    resp = api.client.post(PREFIX + "/settings", data=json.dumps(
-        {"profile": "printer_b", "profiles": {}}), content_type="application/json")
+    resp = api.client.post(
+        PREFIX + "/settings",
+        data=json.dumps({"profile": "printer_b", "profiles": {}}),
+        content_type="application/json",
+    )
     assert resp.status_code == 200
     doc = stored(api)
     assert doc["profile"] == "printer_a" and "printer_a" in doc["profiles"]
@@ -196,24 +213,37 @@ def test_a_run_of_another_printer_is_not_applied(api):
     ``force`` included; B's set unchanged."""
     runs = api.plugin.runs
     on_a = runs.new_id()
-    runs.save({"id": on_a, "source": "trace", "trusted": True,
-               "proposed": {"squareness_um_per_m": {"xy": 500.0}}})
+    runs.save(
+        {
+            "id": on_a,
+            "source": "trace",
+            "trusted": True,
+            "proposed": {"squareness_um_per_m": {"xy": 500.0}},
+        }
+    )
     connect(api, B)
     for force in (False, True):
-        resp = api.client.post(PREFIX + "/apply", data=json.dumps(
-            {"run": on_a, "enabled": True, "force": force}), content_type="application/json")
+        resp = api.client.post(
+            PREFIX + "/apply",
+            data=json.dumps({"run": on_a, "enabled": True, "force": force}),
+            content_type="application/json",
+        )
         assert resp.status_code == 409 and "printer_a" in resp.get_json()["error"]
     assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
     connect(api, A)
-    resp = api.client.post(PREFIX + "/apply", data=json.dumps({"run": on_a}),
-                           content_type="application/json")
+    resp = api.client.post(
+        PREFIX + "/apply", data=json.dumps({"run": on_a}), content_type="application/json"
+    )
     assert resp.status_code == 200, resp.get_json()
     assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 500.0
 
 
 def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
-    bad = dict(CALIBRATED, profile="printer_a",
-               profiles={"printer_a": {"params": {"scale_ppm": {"x": "garbage"}}}})
+    bad = dict(
+        CALIBRATED,
+        profile="printer_a",
+        profiles={"printer_a": {"params": {"scale_ppm": {"x": "garbage"}}}},
+    )
     ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
     try:
         st = status(ns)
@@ -224,16 +254,23 @@ def test_a_bad_stored_profile_set_is_reported_and_compensation_is_off(tmp_path):
 
 
 def test_a_fix_of_bad_stored_settings_on_another_printer_never_applies_the_first_ones(tmp_path):
-    bad = dict(CALIBRATED, profile="printer_a", decimals="garbage",
-               profiles={"printer_a": {"params": CALIBRATED["params"]}})
+    bad = dict(
+        CALIBRATED,
+        profile="printer_a",
+        decimals="garbage",
+        profiles={"printer_a": {"params": CALIBRATED["params"]}},
+    )
     ns = blueprint_client(str(tmp_path), stored=bad, profile=A)
     try:
         pm = ns.plugin._printer_profile_manager
         pm.get_current.return_value = pm.get_current_or_default.return_value = B
         ns.plugin.on_event("Connected", {})  # B connected while the settings are invalid
         assert not ns.plugin.queue.enabled
-        resp = ns.client.post(PREFIX + "/settings", data=json.dumps(
-            {"decimals": 3, "apply_now": True}), content_type="application/json")
+        resp = ns.client.post(
+            PREFIX + "/settings",
+            data=json.dumps({"decimals": 3, "apply_now": True}),
+            content_type="application/json",
+        )
         assert resp.status_code == 200, resp.get_json()
         st = status(ns)
         assert st["profile"]["id"] == "printer_b" and st["profile"]["calibrated"] is False

@@ -44,7 +44,8 @@ def _printing(plugin, tmp_path, text):
         f.write(text)
     plugin._file_manager.path_on_disk.return_value = path
     plugin._printer.get_current_job.return_value = {
-        "file": {"origin": "local", "path": "printed.gcode"}}
+        "file": {"origin": "local", "path": "printed.gcode"}
+    }
     return path
 
 
@@ -81,8 +82,9 @@ def plugin(tmp_path):
 
 
 def _program():
-    spec = TestSpec(plane="XY", centre=(100.0, 100.0, 5.0), radius_mm=50.0,
-                    feed_mm_min=1000.0, mount_pause=True)
+    spec = TestSpec(
+        plane="XY", centre=(100.0, 100.0, 5.0), radius_mm=50.0, feed_mm_min=1000.0, mount_pause=True
+    )
     return generate(spec, volume=(0, 200, 0, 200, 0, 200))
 
 
@@ -111,13 +113,13 @@ def test_a_test_programs_pauses_pause_the_print_without_the_blocked_warning(plug
 
 
 def test_pauses_of_other_files_and_of_a_firmware_that_pauses_itself_are_left_to_octoprint(
-        plugin, tmp_path):
+    plugin, tmp_path
+):
     # not a KinComp program: OctoPrint handles its M0 as before
     _printing(plugin, tmp_path, "G28\nG1 X10 Y10 F3000\nM0 change the filament\nG1 X20\n")
     comm = Comm()
     sent = _play(plugin, comm, ["G28", "G1 X10 Y10 F3000", "M0 change the filament"])
-    assert sent[3] == [("M0 change the filament", None, "M0", None,
-                        {"source:file", "fileline:3"})]
+    assert sent[3] == [("M0 change the filament", None, "M0", None, {"source:file", "fileline:3"})]
     assert comm.pauses == []
     # a KinComp program, but the user took M0 out of OctoPrint's blocked commands (the
     # firmware pauses with its own button): sent to the printer, OctoPrint decides

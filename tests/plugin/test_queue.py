@@ -13,7 +13,6 @@ from octoprint_kincomp.plugin.queue import QueueCompensator
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
 
 
-
 def normalize(result, cmd="X", cmd_type=None, tags=None):
     """What OctoPrint's comm layer makes of a queuing-hook result."""
     from octoprint.util.comm import _normalize_command_handler_result
@@ -57,9 +56,12 @@ def test_precompensated_file_lines_are_not_touched():
 
 def test_failure_suppresses_and_reports():
     errors = []
-    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
-                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                         enabled=True, on_error=lambda c, e: errors.append((c, e)))
+    q = QueueCompensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+        Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+        enabled=True,
+        on_error=lambda c, e: errors.append((c, e)),
+    )
     q.print_started(precompensated=False)
     f = {"source:file"}
     q.handle("G28", f)
@@ -85,8 +87,9 @@ def test_after_a_refused_line_the_resumed_print_is_compensated_from_where_it_was
     later move as written until the next Z move. The refused line leaves the state as it was
     (take-up direction included), so the resumed print goes on compensated, exactly as a
     stream that never contained the refused line."""
-    p = Params.from_dict({"squareness_um_per_m": {"xz": 3000.0, "xy": 1000.0},
-                          "backlash": {"x": 20.0, "y": 10.0}})
+    p = Params.from_dict(
+        {"squareness_um_per_m": {"xz": 3000.0, "xy": 1000.0}, "backlash": {"x": 20.0, "y": 10.0}}
+    )
     opts = Options(limits=(0, 200, 0, 200, 0, 200), policy="error")
     q = QueueCompensator(p, opts, enabled=True, on_error=lambda c, e: None)
     ref = QueueCompensator(p, opts, enabled=True)
@@ -107,9 +110,12 @@ def test_after_a_refused_line_the_resumed_print_is_compensated_from_where_it_was
 
 
 def test_failure_outside_a_print_suppresses_only_that_command():
-    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
-                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                         enabled=True, on_error=lambda c, e: None)
+    q = QueueCompensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+        Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+        enabled=True,
+        on_error=lambda c, e: None,
+    )
     q.handle("G28")
     assert q.handle("G1 X0 Y100 Z1") == []
     assert not q.status()["halted"]
@@ -119,8 +125,9 @@ def test_failure_outside_a_print_suppresses_only_that_command():
 
 def test_malformed_move_passes_but_is_reported_and_forgets_the_position():
     seen = []
-    q = QueueCompensator(SKEW, Options(), enabled=True,
-                         on_untouched=lambda c, why: seen.append((c, why)))
+    q = QueueCompensator(
+        SKEW, Options(), enabled=True, on_untouched=lambda c, why: seen.append((c, why))
+    )
     q.handle("G28")
     q.handle("G1 X50 Y50")
     assert q.handle("G1 X80 Y80 Q") is None  # sent as written: the firmware may run it
@@ -130,10 +137,13 @@ def test_malformed_move_passes_but_is_reported_and_forgets_the_position():
 
 
 def test_failure_pass_through_when_chosen():
-    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
-                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                         enabled=True, pass_through_on_error=True,
-                         on_error=lambda c, e: None)
+    q = QueueCompensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+        Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+        enabled=True,
+        pass_through_on_error=True,
+        on_error=lambda c, e: None,
+    )
     q.handle("G28")
     assert q.handle("G1 X0 Y100 Z1") is None
     assert q.status()["passed_on_error"] == 1
@@ -206,9 +216,13 @@ def test_a_failing_notification_never_lets_the_raw_move_out():
     def boom(*args):
         raise RuntimeError("notification failed")
 
-    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
-                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                         enabled=True, on_error=boom, on_untouched=boom)
+    q = QueueCompensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}}),
+        Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+        enabled=True,
+        on_error=boom,
+        on_untouched=boom,
+    )
     assert q.handle("G1 X5") is None  # unknown position: sent as written, as reported
     q.handle("G28")
     assert q.handle("G1 X0 Y100 Z1") == []  # refused, and still refused
@@ -218,15 +232,17 @@ def test_a_line_sent_as_written_after_an_error_forgets_the_position():
     """With "send as written on error" the refused line does go out: the head is where the
     program put it, not where the compensator left it (review finding: the next Y-only move
     drove X back by 100 mm)."""
-    q = QueueCompensator(Params.from_dict({"squareness_um_per_m": {"xy": 1000}}),
-                         Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
-                         enabled=True, pass_through_on_error=True)
+    q = QueueCompensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": 1000}}),
+        Options(limits=(0, 200, 0, 200, 0, 200), policy="error"),
+        enabled=True,
+        pass_through_on_error=True,
+    )
     for cmd in ("G28", "G1 X100 Y100 Z1"):
         q.handle(cmd, {"source:file"})
     assert q.handle("G1 X0.05 Y150", {"source:file"}) is None  # sent as written
     assert q.comp.known == (False, False, False)
     assert q.handle("G1 Y160", {"source:file"}) is None  # no X move the program never made
-
 
 
 @pytest.mark.parametrize("home_mm", [(0.0, 0.0, 0.0), (None, None, 0.0)])
@@ -236,9 +252,23 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
     from octoprint_kincomp.engines.select import make_compensator
     from octoprint_kincomp.plugin.queue import FILE_TAG, command_of
 
-    lines = ["G28", "G1 X10 Y10 Z1 F3000", "G1 X20 Y5 E1", "G2 X30 Y15 I10 J0 E2",
-             "G1 X5 Y5 E3", "M400", "G1 X-0 Y0", "G91", "G1 X2", "G90", "G1 X8 Y3",
-             "G1 X10 Y10 Z1 ; comment", "G0 X12", "G1 X128 Y28", "G1 X12 Y8"]
+    lines = [
+        "G28",
+        "G1 X10 Y10 Z1 F3000",
+        "G1 X20 Y5 E1",
+        "G2 X30 Y15 I10 J0 E2",
+        "G1 X5 Y5 E3",
+        "M400",
+        "G1 X-0 Y0",
+        "G91",
+        "G1 X2",
+        "G90",
+        "G1 X8 Y3",
+        "G1 X10 Y10 Z1 ; comment",
+        "G0 X12",
+        "G1 X128 Y28",
+        "G1 X12 Y8",
+    ]
     options = Options(home_mm=home_mm)
     q = QueueCompensator(SKEW, options, enabled=True)
     comp = make_compensator(SKEW, options)

@@ -28,8 +28,12 @@ def plugin(tmp_path):
     p = mocked_plugin(str(tmp_path))
     p._printer.is_printing.return_value = False
     p._printer.is_operational.return_value = True
-    p._printer.get_current_connection.return_value = ("Operational", "/dev/ttyPRINTER",
-                                                      115200, None)
+    p._printer.get_current_connection.return_value = (
+        "Operational",
+        "/dev/ttyPRINTER",
+        115200,
+        None,
+    )
     yield p
     p.sensor._preview = False
     p.sensor._release()
@@ -56,6 +60,7 @@ def call(plugin):
                 resp.direct_passthrough = False
                 body = resp.get_json(silent=True)
                 return status, body if body is not None else resp.get_data()
+
     return do
 
 
@@ -65,8 +70,9 @@ def messages(plugin, kind=None):
 
 
 def use_sensor(plugin, call, port):
-    status, body = call(plugin.api_settings, "/settings", "POST",
-                        {"sensor": {"enabled": True, "port": port}})
+    status, body = call(
+        plugin.api_settings, "/settings", "POST", {"sensor": {"enabled": True, "port": port}}
+    )
     assert status == 200, body
 
 
@@ -77,25 +83,40 @@ def finished_run(plugin, timeout=30.0):
 
 
 def test_sensor_settings_are_checked_and_the_printers_port_refused(plugin, call):
-    status, body = call(plugin.api_settings, "/settings", "POST",
-                        {"sensor": {"port": "socket://127.0.0.1:9", "baudrate": 250000,
-                                    "protocol": "plain", "units": "um", "positive": "shorter"}})
+    status, body = call(
+        plugin.api_settings,
+        "/settings",
+        "POST",
+        {
+            "sensor": {
+                "port": "socket://127.0.0.1:9",
+                "baudrate": 250000,
+                "protocol": "plain",
+                "units": "um",
+                "positive": "shorter",
+            }
+        },
+    )
     assert status == 200, body
     stored = plugin.store.current()["sensor"]
     assert stored["baudrate"] == 250000 and stored["units"] == "um" and not stored["enabled"]
-    for bad, field in (({"baudrate": "fast"}, "sensor.baudrate"),
-                       ({"protocol": "pattern", "pattern": "(\\d+)"}, "sensor.pattern"),
-                       ({"scale": 0}, "sensor.scale"), ({"range": "2,1"}, "sensor.range"),
-                       ({"enabled": True, "port": ""}, "sensor.port"),
-                       ({"port": "/dev/ttyPRINTER"}, "sensor.port"),
-                       ({"speed": 1}, "sensor.speed")):
+    for bad, field in (
+        ({"baudrate": "fast"}, "sensor.baudrate"),
+        ({"protocol": "pattern", "pattern": "(\\d+)"}, "sensor.pattern"),
+        ({"scale": 0}, "sensor.scale"),
+        ({"range": "2,1"}, "sensor.range"),
+        ({"enabled": True, "port": ""}, "sensor.port"),
+        ({"port": "/dev/ttyPRINTER"}, "sensor.port"),
+        ({"speed": 1}, "sensor.speed"),
+    ):
         status, body = call(plugin.api_settings, "/settings", "POST", {"sensor": bad})
         assert status == 400 and body["error"].startswith(field), (bad, body)
         assert plugin.store.current()["sensor"] == stored  # the old values are kept
     # the printer's configured port counts too (not only the connected one)
     plugin._settings.global_set(["serial", "port"], "/dev/ttyACM7")
-    status, body = call(plugin.api_settings, "/settings", "POST",
-                        {"sensor": {"port": "/dev/ttyACM7"}})
+    status, body = call(
+        plugin.api_settings, "/settings", "POST", {"sensor": {"port": "/dev/ttyACM7"}}
+    )
     assert status == 400 and "printer's own port" in body["error"]
     status, body = call(plugin.api_sensor_ports, "/sensor/ports")
     assert status == 200 and "/dev/ttyACM7" in body["printer_ports"]
@@ -117,8 +138,13 @@ def test_live_preview_shows_the_reading_noise_and_chart(plugin, call, bar):
     use_sensor(plugin, call, bar.url)
     status, body = call(plugin.api_sensor_open, "/sensor/open", "POST")
     assert status == 200, body
-    wait_for(lambda: plugin.sensor._cap.state == "preview" and
-             plugin.sensor._cap.status()["noise_um"] is not None, 10)
+    wait_for(
+        lambda: (
+            plugin.sensor._cap.state == "preview"
+            and plugin.sensor._cap.status()["noise_um"] is not None
+        ),
+        10,
+    )
     time.sleep(0.6)
     status, live = call(plugin.api_sensor_live, "/sensor/live?seconds=5")
     assert status == 200 and live["state"] == "preview" and live["port_open"]
@@ -150,8 +176,12 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
     assert plugin.sensor.waiting
     plugin._printer.select_file.assert_called_once()
     with mock.patch("octoprint_kincomp.plugin.sensor_runs.analyse", spy):
-        bar.play(generate(SPEC).splitlines(), time.monotonic(), spec=SPEC,
-                 program_hash=prog["program_hash"])
+        bar.play(
+            generate(SPEC).splitlines(),
+            time.monotonic(),
+            spec=SPEC,
+            program_hash=prog["program_hash"],
+        )
         run = finished_run(plugin)
     bar.stop()  # the test's own analysis below need not share the CPU with it
     assert threads == ["kincomp-sensor-ui"]  # not the capture's thread, not the comm thread
@@ -166,8 +196,10 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
     trace, _ = trace_from_stream(parse_raw_stream(raw.decode()), SPEC, prog["program_hash"])
     status, stored = call(plugin.api_run_trace, "/runs/x/trace", "GET", None, run["id"])
     assert stored.decode() == trace.to_text()
-    offline = analyse(load_any(trace.to_text().encode(), "offline.csv"),
-                      current=Params.from_dict(run["params_before"]))
+    offline = analyse(
+        load_any(trace.to_text().encode(), "offline.csv"),
+        current=Params.from_dict(run["params_before"]),
+    )
     assert json.loads(json.dumps(offline["diagnostics"], default=float)) == run["diagnostics"]
     assert run["diagnostics"]["squareness_um_per_m"] == pytest.approx(-3638, abs=60)
     assert plugin.store.current()["params"] == params_before  # nothing applied
@@ -288,10 +320,8 @@ def test_demo_captures_a_slow_vertical_test_live(plugin, call):
     are shorter than the step windows: the capture waits for the simulated stream's end
     (not for a guess made before it was known) and finds both runs."""
     call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
-    program = {"plane": "XZ", "radius": 40, "centre": [110, 110, 60], "feed": 200,
-               "print": True}
-    spec = TestSpec(plane="XZ", centre=(110.0, 110.0, 60.0), radius_mm=40.0,
-                    feed_mm_min=200.0)
+    program = {"plane": "XZ", "radius": 40, "centre": [110, 110, 60], "feed": 200, "print": True}
+    spec = TestSpec(plane="XZ", centre=(110.0, 110.0, 60.0), radius_mm=40.0, feed_mm_min=200.0)
     prog = print_program(plugin, call, program, spec)
     assert prog["capture"]["source"] == "demo"
     run = finished_run(plugin, timeout=120)

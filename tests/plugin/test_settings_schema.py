@@ -24,8 +24,27 @@ from octoprint_kincomp.plugin.settings import (
 )
 from tests.support.blueprint import PREFIX, blueprint_client
 
-BAD = [None, True, "1", "x", "\u0661\u0662\u0663", [1], ["mm"], {"a": 1}, [[[[]]]], -1, 0,
-       1e308, -1e308, 1e-310, float("nan"), float("inf"), 10 ** 30, "", {}]
+BAD = [
+    None,
+    True,
+    "1",
+    "x",
+    "\u0661\u0662\u0663",
+    [1],
+    ["mm"],
+    {"a": 1},
+    [[[[]]]],
+    -1,
+    0,
+    1e308,
+    -1e308,
+    1e-310,
+    float("nan"),
+    float("inf"),
+    10**30,
+    "",
+    {},
+]
 
 
 def _paths(doc, prefix=()):
@@ -72,28 +91,36 @@ def test_any_value_anywhere_is_checked_or_refused_naming_its_field():
     assert tried > 800  # (44 fields x 19 values)
 
 
-@pytest.mark.parametrize("body, field", [
-    ({"sensor": {"units": [1]}}, "sensor.units"),
-    ({"sensor": {"units": ["mm"]}}, "sensor.units"),
-    ({"sensor": {"positive": {"a": 1}}}, "sensor.positive"),
-    ({"sensor": {"protocol": ["pattern"]}}, "sensor.protocol"),
-    ({"sensor": {"scale": True}}, "sensor.scale"),
-    ({"sensor": {"scale": "1"}}, "sensor.scale"),
-    ({"sensor": {"scale": 1e308}}, "sensor.scale"),
-    ({"sensor": {"baudrate": "9600"}}, "sensor.baudrate"),
-    ({"params": "garbage"}, "params"),
-    ({"params": {"backlash": {"fraction": 1.5}}}, "params.backlash.fraction"),
-    ({"demo": []}, "demo"),
-])
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ({"sensor": {"units": [1]}}, "sensor.units"),
+        ({"sensor": {"units": ["mm"]}}, "sensor.units"),
+        ({"sensor": {"positive": {"a": 1}}}, "sensor.positive"),
+        ({"sensor": {"protocol": ["pattern"]}}, "sensor.protocol"),
+        ({"sensor": {"scale": True}}, "sensor.scale"),
+        ({"sensor": {"scale": "1"}}, "sensor.scale"),
+        ({"sensor": {"scale": 1e308}}, "sensor.scale"),
+        ({"sensor": {"baudrate": "9600"}}, "sensor.baudrate"),
+        ({"params": "garbage"}, "params"),
+        ({"params": {"backlash": {"fraction": 1.5}}}, "params.backlash.fraction"),
+        ({"demo": []}, "demo"),
+    ],
+)
 def test_wrong_types_are_refused_naming_the_field(body, field):
     with pytest.raises(SettingsError) as exc:
         validate_settings(body, defaults())
     assert exc.value.field == field
 
 
-CALIBRATED = {"enabled": True,
-              "params": {"squareness_um_per_m": {"xy": 250.0},
-                         "scale_ppm": {"x": 350.0}, "backlash": {"x": 45.0}}}
+CALIBRATED = {
+    "enabled": True,
+    "params": {
+        "squareness_um_per_m": {"xy": 250.0},
+        "scale_ppm": {"x": 350.0},
+        "backlash": {"x": 45.0},
+    },
+}
 
 
 def _stored(config):
@@ -101,19 +128,33 @@ def _stored(config):
         return ((yaml.safe_load(f) or {}).get("plugins") or {}).get("kincomp")
 
 
-GETS = ["/status", "/runs", "/files", "/sensor/status", "/sensor/ports", "/campaigns",
-        "/demo/trace", "/dryrun?path=ok.gcode", "/compare?before=x&after=y"]
+GETS = [
+    "/status",
+    "/runs",
+    "/files",
+    "/sensor/status",
+    "/sensor/ports",
+    "/campaigns",
+    "/demo/trace",
+    "/dryrun?path=ok.gcode",
+    "/compare?before=x&after=y",
+]
 
 
-@pytest.mark.parametrize("bad, field", [
-    ({"sensor": {"units": ["mm"]}}, "sensor.units"),
-    ({"params": "garbage"}, "params"),
-    ({"params": {"backlash": {"x": 45.0, "fraction": "1", "smoothing_mm": 2.0}}},
-     "params.backlash.fraction"),
-    ({"sensor": {"scale": True}}, "sensor.scale"),
-    ({"decimals": [4]}, "decimals"),
-    ({"software_update": "x"}, "software_update"),
-])
+@pytest.mark.parametrize(
+    "bad, field",
+    [
+        ({"sensor": {"units": ["mm"]}}, "sensor.units"),
+        ({"params": "garbage"}, "params"),
+        (
+            {"params": {"backlash": {"x": 45.0, "fraction": "1", "smoothing_mm": 2.0}}},
+            "params.backlash.fraction",
+        ),
+        ({"sensor": {"scale": True}}, "sensor.scale"),
+        ({"decimals": [4]}, "decimals"),
+        ({"software_update": "x"}, "software_update"),
+    ],
+)
 def test_a_wrong_stored_value_is_reported_and_can_be_repaired(tmp_path, bad, field):
     stored = dict(copy.deepcopy(CALIBRATED), **bad)
     if "params" not in bad:
@@ -131,20 +172,28 @@ def test_a_wrong_stored_value_is_reported_and_can_be_repaired(tmp_path, bad, fie
         st = client.get(PREFIX + "/status").get_json()
         assert st["settings_problem_field"] == field, st["settings_problem"]
         assert st["compensation"]["enabled"] is False and not plugin.queue.enabled
-        texts = [c[0][1].get("text", "") for c in
-                 plugin._plugin_manager.send_plugin_message.call_args_list]
+        texts = [
+            c[0][1].get("text", "")
+            for c in plugin._plugin_manager.send_plugin_message.call_args_list
+        ]
         assert any("compensation is off" in t for t in texts)  # loudly, not silently
         assert _stored(config) == stored  # nothing rewritten behind the user's back
         # a save that does not fix it is refused, naming the field; nothing changes
-        resp = client.post(PREFIX + "/settings", data=json.dumps({"chord_tol_mm": 0.02}),
-                           content_type="application/json")
+        resp = client.post(
+            PREFIX + "/settings",
+            data=json.dumps({"chord_tol_mm": 0.02}),
+            content_type="application/json",
+        )
         assert resp.status_code == 400 and field in resp.get_json()["error"]
         assert _stored(config) == stored
         # the settings page sends the field fixed (as the form shows it: its default)
         fix = {field.split(".")[0]: copy.deepcopy(defaults()[field.split(".")[0]])}
         if field.startswith("params"):
-            fix["params"] = {"backlash": {"fraction": 1.0}} if "fraction" in field else \
-                dict(CALIBRATED["params"])
+            fix["params"] = (
+                {"backlash": {"fraction": 1.0}}
+                if "fraction" in field
+                else dict(CALIBRATED["params"])
+            )
         plugin.on_settings_save(fix)
         st = client.get(PREFIX + "/status").get_json()
         assert st["settings_problem"] is None, st["settings_problem"]
@@ -159,8 +208,11 @@ def test_the_api_repairs_a_wrong_stored_value(tmp_path):
     stored = dict(copy.deepcopy(CALIBRATED), sensor={"units": ["mm"], "port": "/dev/ttyX"})
     ns = blueprint_client(str(tmp_path), stored=stored)
     try:
-        resp = ns.client.post(PREFIX + "/settings", data=json.dumps(
-            {"sensor": {"units": "um"}}), content_type="application/json")
+        resp = ns.client.post(
+            PREFIX + "/settings",
+            data=json.dumps({"sensor": {"units": "um"}}),
+            content_type="application/json",
+        )
         assert resp.status_code == 200, resp.get_json()
         s = resp.get_json()["settings"]
         assert s["sensor"]["units"] == "um" and s["sensor"]["port"] == "/dev/ttyX"
@@ -173,8 +225,10 @@ def test_the_api_repairs_a_wrong_stored_value(tmp_path):
 def test_a_tiny_stored_value_breaks_nothing(tmp_path):
     """``backlash.fraction: 1e-310`` (accepted: finite, within 0..1) made every /status a
     500 (OverflowError in the firmware equivalents), restart included."""
-    stored = {"enabled": True, "params": {"backlash": {"x": 45.0, "fraction": 1e-310,
-                                                       "smoothing_mm": 2.0}}}
+    stored = {
+        "enabled": True,
+        "params": {"backlash": {"x": 45.0, "fraction": 1e-310, "smoothing_mm": 2.0}},
+    }
     ns = blueprint_client(str(tmp_path), stored=stored)
     try:
         for path in GETS:
@@ -194,12 +248,12 @@ def test_a_lone_surrogate_is_refused_and_the_next_save_still_works(tmp_path):
     try:
         before = _stored(config)
         for body in ('{"sensor": {"port": "\\ud800"}}', '{"sensor": {"\\ud800": 1}}'):
-            resp = ns.client.post(PREFIX + "/settings", data=body,
-                                  content_type="application/json")
+            resp = ns.client.post(PREFIX + "/settings", data=body, content_type="application/json")
             assert resp.status_code == 400 and "surrogate" in resp.get_json()["error"]
         assert _stored(config) == before
-        resp = ns.client.post(PREFIX + "/settings", data=json.dumps({"decimals": 5}),
-                              content_type="application/json")
+        resp = ns.client.post(
+            PREFIX + "/settings", data=json.dumps({"decimals": 5}), content_type="application/json"
+        )
         assert resp.status_code == 200 and _stored(config)["decimals"] == 5
     finally:
         ns.stop()

@@ -22,8 +22,10 @@ from octoprint_kincomp.plugin.settings import (
 )
 from octoprint_kincomp.plugin.settings_store import SettingsStore
 
-BED = {"volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
-       "axes": {"x": {"speed": 6000}, "y": {"speed": 5000}, "z": {"speed": 200}}}
+BED = {
+    "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
+    "axes": {"x": {"speed": 6000}, "y": {"speed": 5000}, "z": {"speed": 200}},
+}
 
 
 def make_store(tmp_path, stored=None):
@@ -39,11 +41,24 @@ def make_store(tmp_path, stored=None):
     plugin_manager, event_bus, profiles = mock.MagicMock(), mock.MagicMock(), mock.MagicMock()
     profiles.get_current_or_default.return_value = BED
     applied = []
-    store = SettingsStore(settings, "kincomp", profiles, queue,
-                          Notifier(plugin_manager, event_bus, "kincomp"), mock.MagicMock(),
-                          on_applied=applied.append)
-    return SimpleNamespace(store=store, settings=settings, queue=queue, profiles=profiles,
-                           plugin_manager=plugin_manager, event_bus=event_bus, applied=applied)
+    store = SettingsStore(
+        settings,
+        "kincomp",
+        profiles,
+        queue,
+        Notifier(plugin_manager, event_bus, "kincomp"),
+        mock.MagicMock(),
+        on_applied=applied.append,
+    )
+    return SimpleNamespace(
+        store=store,
+        settings=settings,
+        queue=queue,
+        profiles=profiles,
+        plugin_manager=plugin_manager,
+        event_bus=event_bus,
+        applied=applied,
+    )
 
 
 def sent(t):
@@ -51,8 +66,7 @@ def sent(t):
 
 
 def test_migration_moves_flat_keys_into_params_and_drops_unknown_ones(tmp_path):
-    t = make_store(tmp_path, {"enabled": True, "skew_xy": 250.0, "scale_x": -100.0,
-                              "obsolete": 3})
+    t = make_store(tmp_path, {"enabled": True, "skew_xy": 250.0, "scale_x": -100.0, "obsolete": 3})
     t.store.migrate(SETTINGS_VERSION, None)
     raw = t.settings.get_all_data(merged=False)
     assert "obsolete" not in raw and raw["params"]["squareness_um_per_m"]["xy"] == 250.0
@@ -79,8 +93,12 @@ def test_nothing_stored_or_current_version_migrates_nothing(tmp_path):
 
 def test_saving_replaces_the_params_document_and_reports_the_change(tmp_path):
     t = make_store(tmp_path)
-    first = validate_settings({"enabled": True, "params": {
-        "squareness_um_per_m": {"xy": 500.0}, "servo_lag_ms": {"x": 0.5}}})
+    first = validate_settings(
+        {
+            "enabled": True,
+            "params": {"squareness_um_per_m": {"xy": 500.0}, "servo_lag_ms": {"x": 0.5}},
+        }
+    )
     t.store.save(first)
     assert t.store.current()["params"]["servo_lag_ms"]["x"] == 0.5
     assert t.queue.enabled and t.queue.params.hash() == Params.from_dict(first["params"]).hash()
@@ -89,8 +107,9 @@ def test_saving_replaces_the_params_document_and_reports_the_change(tmp_path):
     assert payload["pending_until_next_print"] is False
     assert payload["previous_hash"] == Params().hash()
     # a complete document without the optional term: the stored one loses it too
-    second = validate_settings({"params": {"squareness_um_per_m": {"xy": 400.0}}}, first,
-                               replace_params=True)
+    second = validate_settings(
+        {"params": {"squareness_um_per_m": {"xy": 400.0}}}, first, replace_params=True
+    )
     t.store.save(second)
     assert "servo_lag_ms" not in t.store.current()["params"]
     assert t.applied == [first, second]

@@ -26,16 +26,25 @@ def messages(plugin_manager):
 
 # -- notify ---------------------------------------------------------------------------------
 
+
 def test_a_notification_carries_its_message_id_parameters_and_english_text():
     pm, bus = mock.MagicMock(), mock.MagicMock()
     n = Notifier(pm, bus, "kincomp")
-    n.notify("warning", "%(kind)s at %(where)s", tr_params=("kind",), kind="skew",
-             where=Msg("line %(n)s", n=3))
+    n.notify(
+        "warning",
+        "%(kind)s at %(where)s",
+        tr_params=("kind",),
+        kind="skew",
+        where=Msg("line %(n)s", n=3),
+    )
     (ident, msg), _ = pm.send_plugin_message.call_args
     assert ident == "kincomp" and msg["type"] == "notify" and msg["severity"] == "warning"
     assert msg["msgid"] == "%(kind)s at %(where)s" and msg["translate"] == ["kind"]
-    assert msg["params"]["where"] == {"text": "line 3", "template": "line %(n)s",
-                                      "params": {"n": 3}}
+    assert msg["params"]["where"] == {
+        "text": "line 3",
+        "template": "line %(n)s",
+        "params": {"n": 3},
+    }
     assert msg["text"] == "skew at line 3"
     n.notify("info", "100% done")  # no parameters: the text is the id, not %-formatted
     assert messages(pm)[-1]["text"] == "100% done"
@@ -44,6 +53,7 @@ def test_a_notification_carries_its_message_id_parameters_and_english_text():
 
 
 # -- http -----------------------------------------------------------------------------------
+
 
 def test_request_helpers():
     app = api_app()
@@ -71,11 +81,13 @@ def test_request_helpers():
 
 # -- firmware check -------------------------------------------------------------------------
 
+
 def firmware_check():
     queue = QueueCompensator(SKEW, Options(), enabled=True)
     printer, pm = mock.MagicMock(), mock.MagicMock()
-    check = FirmwareCheck(FirmwareWatcher(), queue, printer, Notifier(pm, None, "kincomp"),
-                          mock.MagicMock())
+    check = FirmwareCheck(
+        FirmwareWatcher(), queue, printer, Notifier(pm, None, "kincomp"), mock.MagicMock()
+    )
     return check, queue, printer, pm
 
 
@@ -106,6 +118,7 @@ def test_only_marlin_is_asked_for_its_settings():
 
 
 # -- demo mode ------------------------------------------------------------------------------
+
 
 def test_demo_mode_records_only_the_program_it_wrote_and_simulates_when_done():
     pm = mock.MagicMock()

@@ -55,11 +55,19 @@ class _Version(http.server.BaseHTTPRequestHandler):
 
 
 def test_a_plain_archive_source_is_checked_by_octoprints_jsondata_check():
-    s = validate_settings({"software_update": {
-        "type": "jsondata", "version_url": "https://example.org/kincomp.json",
-        "archive_url": "https://example.org/kincomp-{target_version}.zip"}})
-    assert check_config(s["software_update"])["kincomp"]["jsondata"] == \
-        "https://example.org/kincomp.json"
+    s = validate_settings(
+        {
+            "software_update": {
+                "type": "jsondata",
+                "version_url": "https://example.org/kincomp.json",
+                "archive_url": "https://example.org/kincomp-{target_version}.zip",
+            }
+        }
+    )
+    assert (
+        check_config(s["software_update"])["kincomp"]["jsondata"]
+        == "https://example.org/kincomp.json"
+    )
     server = http.server.HTTPServer(("127.0.0.1", 0), _Version)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
@@ -74,19 +82,46 @@ def test_a_plain_archive_source_is_checked_by_octoprints_jsondata_check():
         server.shutdown()
 
 
-@pytest.mark.parametrize("value, field", [
-    ({"type": "svn"}, "software_update.type"),
-    ({"type": "jsondata", "version_url": "ftp://x/y", "archive_url": "https://a/{target_version}"},
-     "software_update.version_url"),
-    ({"type": "jsondata", "version_url": "http://x/v.json",
-      "archive_url": "https://a/{target_version}"}, "software_update.version_url"),
-    ({"type": "jsondata", "version_url": "https://x/v.json",
-      "archive_url": "http://a/{target_version}"}, "software_update.archive_url"),
-    ({"type": "jsondata", "version_url": "https://x/v.json", "archive_url": "https://a/b.zip"},
-     "software_update.archive_url"),
-    ({"type": "github_release", "branch": "x"}, "software_update"),
-    ("github", "software_update"),
-])
+@pytest.mark.parametrize(
+    "value, field",
+    [
+        ({"type": "svn"}, "software_update.type"),
+        (
+            {
+                "type": "jsondata",
+                "version_url": "ftp://x/y",
+                "archive_url": "https://a/{target_version}",
+            },
+            "software_update.version_url",
+        ),
+        (
+            {
+                "type": "jsondata",
+                "version_url": "http://x/v.json",
+                "archive_url": "https://a/{target_version}",
+            },
+            "software_update.version_url",
+        ),
+        (
+            {
+                "type": "jsondata",
+                "version_url": "https://x/v.json",
+                "archive_url": "http://a/{target_version}",
+            },
+            "software_update.archive_url",
+        ),
+        (
+            {
+                "type": "jsondata",
+                "version_url": "https://x/v.json",
+                "archive_url": "https://a/b.zip",
+            },
+            "software_update.archive_url",
+        ),
+        ({"type": "github_release", "branch": "x"}, "software_update"),
+        ("github", "software_update"),
+    ],
+)
 def test_a_bad_update_source_is_refused_naming_the_field(value, field):
     with pytest.raises(SettingsError) as exc:
         validate_settings({"software_update": value})
@@ -100,12 +135,18 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
     from tests.support.mocked_plugin import api_app
 
     plugin = mocked_plugin(str(tmp_path))
-    body = {"software_update": {"type": "jsondata", "version_url": "https://e.org/v.json",
-                                "archive_url": "https://e.org/k-{target_version}.zip"}}
+    body = {
+        "software_update": {
+            "type": "jsondata",
+            "version_url": "https://e.org/v.json",
+            "archive_url": "https://e.org/k-{target_version}.zip",
+        }
+    }
     app = api_app()
     for allowed, status in ((False, 403), (True, 200)):
-        with mock.patch("octoprint_kincomp.plugin.http.require"), \
-                mock.patch("octoprint.access.permissions.Permissions") as perms:
+        with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
+            "octoprint.access.permissions.Permissions"
+        ) as perms:
             perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = allowed
             with app.test_request_context("/settings", method="POST", json=body):
                 resp = plugin.api_settings()
@@ -113,8 +154,9 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
         stored = plugin.store.current()["software_update"]["type"]
         assert stored == ("jsondata" if allowed else "github_release")
     # the rest of the settings needs no more than before
-    with mock.patch("octoprint_kincomp.plugin.http.require"), \
-            mock.patch("octoprint.access.permissions.Permissions") as perms:
+    with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
+        "octoprint.access.permissions.Permissions"
+    ) as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = False
         with app.test_request_context("/settings", method="POST", json={"enabled": True}):
             assert getattr(plugin.api_settings(), "status_code", 200) == 200
@@ -140,18 +182,24 @@ def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp
     from tests.support.mocked_plugin import api_app
 
     plugin = mocked_plugin(str(tmp_path))
-    body = {"software_update": {"type": "jsondata", "version_url": "https://e.org/v.json",
-                                "archive_url": "https://e.org/k-{target_version}.zip"}}
+    body = {
+        "software_update": {
+            "type": "jsondata",
+            "version_url": "https://e.org/v.json",
+            "archive_url": "https://e.org/k-{target_version}.zip",
+        }
+    }
     app = api_app()
-    with mock.patch("octoprint_kincomp.plugin.http.require"), \
-            mock.patch("octoprint.access.permissions.Permissions") as perms:
+    with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
+        "octoprint.access.permissions.Permissions"
+    ) as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE = _UnknownPermission()
         with app.test_request_context("/settings", method="POST", json=body):
             resp = plugin.api_settings()
         assert resp.status_code == 409 and "disabled" in resp.get_json()["error"]
-        with app.test_request_context("/api/settings", method="POST",
-                                      json={"plugins": {"kincomp": body}}), \
-                mock.patch("octoprint_kincomp.plugin.settings_store.Permissions"):
+        with app.test_request_context(
+            "/api/settings", method="POST", json={"plugins": {"kincomp": body}}
+        ), mock.patch("octoprint_kincomp.plugin.settings_store.Permissions"):
             resp = plugin.store.check_settings_request()
         assert resp.status_code == 409
     assert plugin.store.current()["software_update"]["type"] == "github_release"

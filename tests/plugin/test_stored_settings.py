@@ -13,9 +13,11 @@ from tests.support.blueprint import PREFIX, blueprint_client
 
 CALIBRATED = {
     "enabled": True,
-    "params": {"squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
-               "scale_ppm": {"x": 350.0, "y": -200.0, "z": 0.0},
-               "backlash": {"x": 45.0, "y": 30.0, "z": 0.0}},
+    "params": {
+        "squareness_um_per_m": {"xy": "garbage", "xz": 120.0, "yz": -80.0},
+        "scale_ppm": {"x": 350.0, "y": -200.0, "z": 0.0},
+        "backlash": {"x": 45.0, "y": 30.0, "z": 0.0},
+    },
     "demo": {"enabled": True},
 }
 
@@ -36,8 +38,7 @@ def stored(api):
 
 
 def post(api, path, body):
-    resp = api.client.post(PREFIX + path, data=json.dumps(body),
-                           content_type="application/json")
+    resp = api.client.post(PREFIX + path, data=json.dumps(body), content_type="application/json")
     return resp.status_code, resp.get_json(silent=True) or {}
 
 
@@ -52,8 +53,11 @@ def test_an_invalid_value_is_reported_and_compensation_is_off(api):
     assert p["scale_ppm"]["x"] == 350.0 and p["backlash"]["x"] == 45.0
     logged = [c[0][0] for c in api.plugin._logger.error.call_args_list]
     assert any("invalid" in m for m in logged)
-    texts = [c[0][1]["text"] for c in api.plugin._plugin_manager.send_plugin_message
-             .call_args_list if "text" in c[0][1]]
+    texts = [
+        c[0][1]["text"]
+        for c in api.plugin._plugin_manager.send_plugin_message.call_args_list
+        if "text" in c[0][1]
+    ]
     assert any("compensation is off" in t for t in texts)
 
 
@@ -64,8 +68,11 @@ def test_a_partial_save_is_refused_until_the_value_is_fixed_and_keeps_everything
     assert stored(api) == before  # nothing lost, nothing written
     api.plugin.on_settings_save({"limits_policy": "clamp"})  # OctoPrint's dialog: the same
     assert stored(api) == before
-    code, resp = post(api, "/settings", {"params": {"squareness_um_per_m": {"xy": 250.0}},
-                                         "limits_policy": "clamp"})
+    code, resp = post(
+        api,
+        "/settings",
+        {"params": {"squareness_um_per_m": {"xy": 250.0}}, "limits_policy": "clamp"},
+    )
     assert code == 200, resp
     p = stored(api)["params"]
     assert p["squareness_um_per_m"] == {"xy": 250.0, "xz": 120.0, "yz": -80.0}

@@ -16,14 +16,17 @@ TEMPLATES = os.path.join(ROOT, "octoprint_kincomp", "templates")
 def _render(name):
     # (OctoPrint finds a plugin's templates as plugin_<id>/<name>, as the includes say)
     files = jinja2.FileSystemLoader(TEMPLATES)
-    env = jinja2.Environment(loader=jinja2.ChoiceLoader(
-        [files, jinja2.PrefixLoader({"plugin_kincomp": files})]), autoescape=True)
+    env = jinja2.Environment(
+        loader=jinja2.ChoiceLoader([files, jinja2.PrefixLoader({"plugin_kincomp": files})]),
+        autoescape=True,
+    )
     env.globals["_"] = lambda text, **kw: text
     return env.get_template(name).render()
 
 
-@pytest.mark.parametrize("name", ["kincomp_wizard.jinja2", "kincomp_settings.jinja2",
-                                  "kincomp_navbar.jinja2"])
+@pytest.mark.parametrize(
+    "name", ["kincomp_wizard.jinja2", "kincomp_settings.jinja2", "kincomp_navbar.jinja2"]
+)
 def test_the_page_links_the_calibration_tab(name):
     html = _render(name)
     links = re.findall(r'<a [^>]*href="#tab_plugin_kincomp"[^>]*>', html)

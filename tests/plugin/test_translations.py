@@ -18,8 +18,24 @@ PO = os.path.join(ROOT, "translations", "de", "LC_MESSAGES", "messages.po")
 BUNDLED = os.path.join(ROOT, "octoprint_kincomp", "translations", "de", "LC_MESSAGES")
 PLACEHOLDER = re.compile(r"%\([a-z_]+\)s")
 # what templates may show without gettext: axis/plane names, units' symbols, firmware names
-ALLOWED_BARE = {"XY", "XZ", "YZ", "X", "Y", "Z", "AC", "BD", "AD", "+A", "−A", "+B", "−B",
-                "Marlin", "Klipper", "RepRapFirmware"}
+ALLOWED_BARE = {
+    "XY",
+    "XZ",
+    "YZ",
+    "X",
+    "Y",
+    "Z",
+    "AC",
+    "BD",
+    "AD",
+    "+A",
+    "−A",
+    "+B",
+    "−B",
+    "Marlin",
+    "Klipper",
+    "RepRapFirmware",
+}
 
 
 def _ids(path, reader=read_po):
@@ -29,9 +45,30 @@ def _ids(path, reader=read_po):
 
 def test_template_catalog_is_current(tmp_path):
     out = tmp_path / "fresh.pot"
-    subprocess.run([sys.executable, "-m", "babel.messages.frontend", "extract", "-F",
-                    "babel.cfg", "-k", "N_", "-k", "gettext", "-k", "Msg", "-o", str(out),
-                    "--no-location", "--omit-header", "."], cwd=ROOT, check=True, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "babel.messages.frontend",
+            "extract",
+            "-F",
+            "babel.cfg",
+            "-k",
+            "N_",
+            "-k",
+            "gettext",
+            "-k",
+            "Msg",
+            "-o",
+            str(out),
+            "--no-location",
+            "--omit-header",
+            ".",
+        ],
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+    )
     fresh = _ids(out)
     assert len(fresh) > 100
     assert fresh == _ids(POT), "run scripts/translations.sh"
@@ -70,9 +107,11 @@ def test_jinja_renders_german():
     assert t.gettext("Save KinComp settings") != "Save KinComp settings"
 
 
-@pytest.mark.parametrize("template", sorted(glob.glob(
-    os.path.join(ROOT, "octoprint_kincomp", "templates", "*.jinja2"))),
-    ids=os.path.basename)
+@pytest.mark.parametrize(
+    "template",
+    sorted(glob.glob(os.path.join(ROOT, "octoprint_kincomp", "templates", "*.jinja2"))),
+    ids=os.path.basename,
+)
 def test_templates_have_no_bare_text(template):
     with open(template, encoding="utf-8") as f:
         text = f.read()
@@ -100,8 +139,10 @@ def test_core_messages_reach_the_user_in_german():
         validate_settings({"params": {"scale_ppm": {"y": 900000}}})
     assert str(exc.value).startswith("params.scale_ppm.y: 900000 is out of range")
     german = translate(error_message(exc.value), de.gettext)
-    assert german == "params.scale_ppm.y: 900000 liegt außerhalb des zulässigen Bereichs " \
-                     "(|Wert| <= 50000)"
+    assert (
+        german == "params.scale_ppm.y: 900000 liegt außerhalb des zulässigen Bereichs "
+        "(|Wert| <= 50000)"
+    )
     with pytest.raises(ProgramError) as exc:
         check_bounds(TestSpec(centre=(20, 100, 10), radius_mm=60), (0, 200, 0, 200, 0, 200))
     german = translate(error_message(exc.value), de.gettext)

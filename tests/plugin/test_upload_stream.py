@@ -12,10 +12,13 @@ from octoprint_kincomp.engines.files import compensate_binary, marker_line
 from octoprint_kincomp.plugin.upload import CompensatingStream
 from tests.support import DATA as DATA
 
-PARAMS = Params.from_dict({"squareness_um_per_m": {"xy": -3638.6, "xz": 120.0},
-                           "scale_ppm": {"x": -451.7, "y": 287.0},
-                           "backlash": {"x": 20.0, "y": [{"at_mm": 10, "um": 5},
-                                                         {"at_mm": 200, "um": 11}]}})
+PARAMS = Params.from_dict(
+    {
+        "squareness_um_per_m": {"xy": -3638.6, "xz": 120.0},
+        "scale_ppm": {"x": -451.7, "y": 287.0},
+        "backlash": {"x": 20.0, "y": [{"at_mm": 10, "um": 5}, {"at_mm": 200, "um": 11}]},
+    }
+)
 
 
 def stream(data: bytes, read_size=-1) -> bytes:
@@ -53,8 +56,12 @@ def test_odd_endings_and_bytes():
 def test_a_marked_file_passes_untouched_wherever_the_marker_is_in_the_head():
     marker = marker_line(PARAMS).encode()
     for before in (0, 3, MARKER_SCAN_LINES - 1):
-        data = (b"; added by another preprocessor\n" * before + marker + b"\n"
-                + b"G28\nG1 X10 Y100 Z1\n")
+        data = (
+            b"; added by another preprocessor\n" * before
+            + marker
+            + b"\n"
+            + b"G28\nG1 X10 Y100 Z1\n"
+        )
         assert stream(data, 5) == data, before
     # beyond the scanned head a marker is just a comment: the file is compensated
     data = b"; pad\n" * MARKER_SCAN_LINES + marker + b"\nG28\nG1 X10 Y100 Z1\n"

@@ -11,10 +11,25 @@ import pytest
 from tests.support import ROOT
 
 DOCS = os.path.join(ROOT, "docs")
-PAGES = ["user-guide", "calibration", "live-capture", "command-line", "http-api",
-         "firmware-export", "how-compensation-works", "architecture", "tests", "performance",
-         "trust-checks", "motion-limits", "untrusted-results", "artifact", "reliability", "compensation-details",
-         "printer-profiles"]
+PAGES = [
+    "user-guide",
+    "calibration",
+    "live-capture",
+    "command-line",
+    "http-api",
+    "firmware-export",
+    "how-compensation-works",
+    "architecture",
+    "tests",
+    "performance",
+    "trust-checks",
+    "motion-limits",
+    "untrusted-results",
+    "artifact",
+    "reliability",
+    "compensation-details",
+    "printer-profiles",
+]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -41,8 +56,11 @@ def test_the_readme_is_short_and_has_what_a_new_user_needs():
     assert len(text.splitlines()) <= 250
     assert "./run.sh      # the main job" in text
     assert "./test.sh     # the whole test suite" in text
-    steps = re.findall(r"^(\d+)\. ", text.split("## Your first calibration in 5 minutes")[1]
-                       .split("\n## ")[0], re.M)
+    steps = re.findall(
+        r"^(\d+)\. ",
+        text.split("## Your first calibration in 5 minutes")[1].split("\n## ")[0],
+        re.M,
+    )
     assert steps == [str(n) for n in range(1, len(steps) + 1)] and len(steps) >= 4
     assert len(re.findall(r"!\[[^\]]*\]\(docs/[^)]+\.png\)", text)) == 2  # picture + shot
     nxt = text.split("## What to read next")[1]

@@ -14,9 +14,23 @@ import octoprint_kincomp
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ENTRY = os.path.join(ROOT, "extras", "kincomp.md")
-REQUIRED = ("layout", "id", "title", "description", "authors", "license", "date", "homepage",
-            "source", "archive", "tags", "screenshots", "featuredimage", "compatibility",
-            "attributes")
+REQUIRED = (
+    "layout",
+    "id",
+    "title",
+    "description",
+    "authors",
+    "license",
+    "date",
+    "homepage",
+    "source",
+    "archive",
+    "tags",
+    "screenshots",
+    "featuredimage",
+    "compatibility",
+    "attributes",
+)
 OS_VALUES = {"linux", "windows", "macos", "freebsd"}
 ATTRIBUTES = {"cloud", "commercial", "free-tier", "ai-developed"}  # the repository's badges
 
@@ -69,19 +83,24 @@ def test_compatibility_is_what_the_package_claims_and_tests(entry):
     assert f'"OctoPrint>={low}"' in _pyproject()
     # the oldest line the compatibility test runs (tests/e2e/test_compat.py)
     from tests.e2e.test_compat import OLDEST
+
     assert low.startswith(OLDEST + ".")
     assert set(compat["os"]) <= OS_VALUES
 
 
 def test_screenshots_exist_in_docs(entry):
     meta, _ = entry
-    raw = octoprint_kincomp.__plugin_url__.replace(
-        "https://github.com/", "https://raw.githubusercontent.com/") + "/main/"
+    raw = (
+        octoprint_kincomp.__plugin_url__.replace(
+            "https://github.com/", "https://raw.githubusercontent.com/"
+        )
+        + "/main/"
+    )
     urls = []
     for shot in meta["screenshots"]:
         assert set(shot) == {"url", "alt", "caption"} and shot["alt"] and shot["caption"]
         assert shot["url"].startswith(raw + "docs/") and shot["url"].endswith(".png")
-        path = os.path.join(ROOT, shot["url"][len(raw):])
+        path = os.path.join(ROOT, shot["url"][len(raw) :])
         assert os.path.isfile(path), path
         with open(path, "rb") as f:
             assert f.read(8) == b"\x89PNG\r\n\x1a\n"

@@ -14,9 +14,11 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 MODULES = sorted(glob.glob(os.path.join(ROOT, "octoprint_kincomp", "**", "*.py"), recursive=True))
 # 3.9+ APIs that 3.8 lacks (str/bytes methods, functools, math, zoneinfo, ...)
-NEWER = re.compile(r"\.removeprefix\(|\.removesuffix\(|functools\.cache\b|\bfrom functools "
-                   r"import .*\bcache\b|math\.lcm\(|\bzoneinfo\b|\bgraphlib\b|\btomllib\b|"
-                   r"\bstrict=True\)|\bkw_only=|\bslots=True")
+NEWER = re.compile(
+    r"\.removeprefix\(|\.removesuffix\(|functools\.cache\b|\bfrom functools "
+    r"import .*\bcache\b|math\.lcm\(|\bzoneinfo\b|\bgraphlib\b|\btomllib\b|"
+    r"\bstrict=True\)|\bkw_only=|\bslots=True"
+)
 
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: os.path.relpath(p, ROOT))
@@ -26,12 +28,19 @@ def test_module_parses_as_python_38(path):
     tree = ast.parse(source, filename=path, feature_version=(3, 8))
     assert not NEWER.search(source), NEWER.search(source).group(0)
     # PEP 604/585 annotations (X | None, list[int]) only with postponed evaluation
-    postponed = any(isinstance(n, ast.ImportFrom) and n.module == "__future__"
-                    and any(a.name == "annotations" for a in n.names) for n in tree.body)
+    postponed = any(
+        isinstance(n, ast.ImportFrom)
+        and n.module == "__future__"
+        and any(a.name == "annotations" for a in n.names)
+        for n in tree.body
+    )
     if not postponed:
         for node in ast.walk(tree):
             ann = getattr(node, "annotation", None) or getattr(node, "returns", None)
             if ann is not None:
                 text = ast.get_source_segment(source, ann) or ""
-                assert "|" not in text and not re.search(r"\b(list|dict|tuple|set)\[", text), \
-                    (path, node.lineno, text)
+                assert "|" not in text and not re.search(r"\b(list|dict|tuple|set)\[", text), (
+                    path,
+                    node.lineno,
+                    text,
+                )

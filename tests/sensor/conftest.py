@@ -69,7 +69,11 @@ def xz_stream():
     from octoprint_kincomp.ballbar.simulator import Truth
     from octoprint_kincomp.core.params import Params
 
-    truth = Truth(errors=Params.from_dict({"squareness_um_per_m": {"xz": 300.0},
-                                           "scale_ppm": {"x": 120.0, "z": -80.0}}),
-                  servo_lag_ms={"x": 0.0, "y": 0.0, "z": 1.0}, noise_um=0.5)
+    truth = Truth(
+        errors=Params.from_dict(
+            {"squareness_um_per_m": {"xz": 300.0}, "scale_ppm": {"x": 120.0, "z": -80.0}}
+        ),
+        servo_lag_ms={"x": 0.0, "y": 0.0, "z": 1.0},
+        noise_um=0.5,
+    )
     return SimStream(TestSpec(plane="XZ", centre=(110, 110, 100), dwell_s=2.0), truth)

@@ -74,13 +74,13 @@ def run_program(vs, cap, timeout=30.0, spec=SPEC, program=PROGRAM):
     return played
 
 
-def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offline,
-                                                        offline_trace):
+def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offline, offline_trace):
     vs = sensors(transport="pty", clock_start_us=(1 << 32) - 2_000_000)  # wraps in the test
     states = []
-    cap = captures(SensorConfig(port=vs.url),
-                   listener=lambda kind, st: states.append(st["state"]) if kind == "state"
-                   else None)
+    cap = captures(
+        SensorConfig(port=vs.url),
+        listener=lambda kind, st: states.append(st["state"]) if kind == "state" else None,
+    )
     cap.open()
     assert cap.wait(("preview",), 5) == "preview"
     time.sleep(0.3)
@@ -97,8 +97,7 @@ def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offli
     assert res.trace.meta["program_hash"] == "h1" and res.trace.meta["simulated"] == "true"
     assert res.trace.meta["source"].startswith("SIMULATED live capture")
     assert res.diagnostics["bad_lines"] == 0 and len(res.stream) > len(res.trace.rows)
-    same_result(res.trace, offline, square=0.05, ppm=0.05, ms=0.001,
-                um=0.02)
+    same_result(res.trace, offline, square=0.05, ppm=0.05, ms=0.001, um=0.02)
     assert cap.status()["port_open"]  # the live view goes on after the capture
 
 
@@ -108,8 +107,11 @@ def test_capture_over_a_socket_with_plain_readings(sensors, captures):
     program = generate(spec).splitlines()
     offline = analyse(simulate_program(generate(spec), demo_truth(), spec))["diagnostics"]
     vs = sensors(transport="tcp", protocol="plain", units="um", longer_positive=False)
-    cap = captures(SensorConfig(port=vs.url, protocol="plain", units="um", positive="shorter",
-                                sample_rate_hz=500.0))
+    cap = captures(
+        SensorConfig(
+            port=vs.url, protocol="plain", units="um", positive="shorter", sample_rate_hz=500.0
+        )
+    )
     cap.open()
     assert cap.wait(("preview",), 5) == "preview"
     run_program(vs, cap, spec=spec, program=program)
@@ -225,8 +227,9 @@ def test_open_errors_are_clear(captures):
         holder.close()
         os.close(master)
         os.close(slave)
-    denied = serial.SerialException(13, "could not open port /dev/ttyUSB9: [Errno 13] "
-                                        "Permission denied: '/dev/ttyUSB9'")
+    denied = serial.SerialException(
+        13, "could not open port /dev/ttyUSB9: [Errno 13] Permission denied: '/dev/ttyUSB9'"
+    )
     assert "dialout" in open_error("/dev/ttyUSB9", denied).message
     for url, text in (("bogus://x", "not a serial port"), ("socket://127.0.0.1:1", "nothing")):
         cap = captures(SensorConfig(port=url))
@@ -239,12 +242,12 @@ def test_loop_url_and_an_opener_that_hangs_never_block_the_caller(captures):
     def slow_opener(port, baudrate):
         time.sleep(1.0)
         ser = serial.serial_for_url("loop://", timeout=0.1)
-        ser.write(b"KINCOMP-BALLBAR 1\n" + b"".join(b"%d,0.25\n" % (k * 1000)
-                                                     for k in range(50)))
+        ser.write(b"KINCOMP-BALLBAR 1\n" + b"".join(b"%d,0.25\n" % (k * 1000) for k in range(50)))
         return ser
 
-    cap = captures(SensorConfig(port="loop://"), opener=slow_opener,
-                   listener=lambda kind, st: 1 / 0)  # a listener's bug is contained
+    cap = captures(
+        SensorConfig(port="loop://"), opener=slow_opener, listener=lambda kind, st: 1 / 0
+    )  # a listener's bug is contained
     t0 = time.monotonic()
     cap.open()
     cap.arm(SPEC)

@@ -8,17 +8,27 @@ from octoprint_kincomp.sensor.virtual import VirtualSensor
 
 
 def status(**kw):
-    st = {"port_open": True, "last_data_age_s": 0.05, "reading_mm": 0.4, "noise_um": 0.6,
-          "sensor": {"sensor_range": "-2,2", "sensor_units": "mm",
-                     "sensor_positive": "longer"}}
+    st = {
+        "port_open": True,
+        "last_data_age_s": 0.05,
+        "reading_mm": 0.4,
+        "noise_um": 0.6,
+        "sensor": {"sensor_range": "-2,2", "sensor_units": "mm", "sensor_positive": "longer"},
+    }
     st.update(kw)
     return st
 
 
 def test_a_quiet_bar_inside_its_range_passes():
     c = bar_check(status())
-    assert c == {"data": True, "steady": True, "in_range": True, "range_mm": [-2.0, 2.0],
-                 "margin_mm": 1.6, "steady_max_um": STEADY_UM}
+    assert c == {
+        "data": True,
+        "steady": True,
+        "in_range": True,
+        "range_mm": [-2.0, 2.0],
+        "margin_mm": 1.6,
+        "steady_max_um": STEADY_UM,
+    }
 
 
 def test_each_check_can_fail_or_be_unknown():
@@ -33,10 +43,10 @@ def test_each_check_can_fail_or_be_unknown():
 
 
 def test_the_range_follows_the_sensors_units_and_sign():
-    assert range_mm({"sensor_range": "-500,1500", "sensor_units": "um",
-                     "sensor_positive": "shorter"}) == pytest.approx((-1.5, 0.5))
-    assert range_mm({"sensor_range": "0,0.5", "sensor_units": "inch"}) == \
-        pytest.approx((0.0, 12.7))
+    assert range_mm(
+        {"sensor_range": "-500,1500", "sensor_units": "um", "sensor_positive": "shorter"}
+    ) == pytest.approx((-1.5, 0.5))
+    assert range_mm({"sensor_range": "0,0.5", "sensor_units": "inch"}) == pytest.approx((0.0, 12.7))
     assert range_mm({"sensor_range": "garbage"}) is None
 
 

@@ -21,11 +21,12 @@ def feed_all(parser, data: bytes, t=0.0, chunk=7):
     """Feed in small chunks (lines split across reads, as from a real port)."""
     out = []
     for i in range(0, len(data), chunk):
-        out += parser.feed(data[i:i + chunk], t)
+        out += parser.feed(data[i : i + chunk], t)
     return out
 
 
 # ---- line splitting ------------------------------------------------------------------------
+
 
 def test_lines_end_with_lf_cr_or_crlf_across_chunks():
     sp = LineSplitter()
@@ -50,10 +51,13 @@ def test_a_stream_without_line_end_stays_bounded_and_is_reported():
 
 # ---- KinComp protocol ----------------------------------------------------------------------
 
+
 def test_kincomp_header_meta_and_samples():
     p = KinCompParser()
-    data = HEADER + b"# units: um\n# positive: shorter\n# range: -2500,2500\n# x_temp: 21.5\n" \
+    data = (
+        HEADER + b"# units: um\n# positive: shorter\n# range: -2500,2500\n# x_temp: 21.5\n"
         b"1000,12.5\n3000,-7.25,extra-field\n"
+    )
     s = feed_all(p, data, t=99.0)
     assert [(round(x.t, 6), x.mm) for x in s] == [(0.001, -0.0125), (0.003, 0.00725)]
     info = p.info()
@@ -113,9 +117,17 @@ def test_kincomp_unsupported_version_is_refused():
     assert p.version == "1.3" and p.diagnostics.samples == 1
 
 
-@pytest.mark.parametrize("line", [b"KINCOMP-BALLBAR one", b"# units: furlong",
-                                  b"# positive: sideways", b"# range: 5,1",
-                                  b"# sample_rate_hz: -3", b"# resolution_um: abc"])
+@pytest.mark.parametrize(
+    "line",
+    [
+        b"KINCOMP-BALLBAR one",
+        b"# units: furlong",
+        b"# positive: sideways",
+        b"# range: 5,1",
+        b"# sample_rate_hz: -3",
+        b"# resolution_um: abc",
+    ],
+)
 def test_kincomp_bad_header_lines_are_counted(line):
     p = KinCompParser()
     feed_all(p, HEADER + line + b"\n")
@@ -128,17 +140,29 @@ def test_kincomp_convention_change_mid_stream_fails():
     with pytest.raises(SensorError, match="units"):
         feed_all(p, b"# units: um\n")
     same = KinCompParser()
-    feed_all(same, HEADER + b"# range: -2,2\n1000,0.5\n" + HEADER + b"# units: mm\n"
-             b"# positive: LONGER\n# range: -2.0, 2\n3000,0.5\n")
+    feed_all(
+        same,
+        HEADER + b"# range: -2,2\n1000,0.5\n" + HEADER + b"# units: mm\n"
+        b"# positive: LONGER\n# range: -2.0, 2\n3000,0.5\n",
+    )
     assert same.diagnostics.samples == 2  # the same (or the default) again is fine
 
 
-@pytest.mark.parametrize("line,kind", [
-    (b"1000,nan", "not_finite"), (b"1000,-inf", "not_finite"), (b"1000,1e999", "not_finite"),
-    (b"1000,abc", "garbage"), (b"hello world", "garbage"), (b"-5,1.0", "garbage"),
-    (b"1000,3.5", "out_of_range"), (b"1000,-1e6", "out_of_range"),
-    (b"1000,\x00\x01", "unreadable"), (b"\xc3\xa9\xff\xfe", "unreadable"),
-])
+@pytest.mark.parametrize(
+    "line,kind",
+    [
+        (b"1000,nan", "not_finite"),
+        (b"1000,-inf", "not_finite"),
+        (b"1000,1e999", "not_finite"),
+        (b"1000,abc", "garbage"),
+        (b"hello world", "garbage"),
+        (b"-5,1.0", "garbage"),
+        (b"1000,3.5", "out_of_range"),
+        (b"1000,-1e6", "out_of_range"),
+        (b"1000,\x00\x01", "unreadable"),
+        (b"\xc3\xa9\xff\xfe", "unreadable"),
+    ],
+)
 def test_kincomp_fault_lines(line, kind):
     p = KinCompParser()
     assert feed_all(p, HEADER + b"# range: -2.5,2.5\n" + line + b"\n2000,0.1\n")[-1].mm == 0.1
@@ -146,6 +170,7 @@ def test_kincomp_fault_lines(line, kind):
 
 
 # ---- plain and pattern ---------------------------------------------------------------------
+
 
 def test_plain_readings_are_host_timed_and_converted():
     p = PlainParser(convention=Convention("inch", longer_positive=False))
@@ -163,12 +188,15 @@ def test_plain_range_is_in_the_sensors_own_units():
     assert p.diagnostics.counts["out_of_range"] == 1
 
 
-@pytest.mark.parametrize("pattern,scale,line,mm", [
-    (r"(?P<value>[+-]\d+\.\d+)", 1.0, b"+00.0123", 0.0123),
-    (r"01A(?P<value>[+-]\d{8})", 0.0001, b"01A+00001234", 0.1234),
-    (r"01A(?P<value>[+-]\d{8})", 0.0001, b"01A-00012345", -1.2345),
-    (r"ST,(?P<value>[+-] *\d+\.\d+) ?mm", 1.0, b"  ST,- 1.500 mm  ", -1.5),
-])
+@pytest.mark.parametrize(
+    "pattern,scale,line,mm",
+    [
+        (r"(?P<value>[+-]\d+\.\d+)", 1.0, b"+00.0123", 0.0123),
+        (r"01A(?P<value>[+-]\d{8})", 0.0001, b"01A+00001234", 0.1234),
+        (r"01A(?P<value>[+-]\d{8})", 0.0001, b"01A-00012345", -1.2345),
+        (r"ST,(?P<value>[+-] *\d+\.\d+) ?mm", 1.0, b"  ST,- 1.500 mm  ", -1.5),
+    ],
+)
 def test_pattern_examples(pattern, scale, line, mm):
     p = PatternParser(pattern, scale)
     s = p.feed(line + b"\r\n", 3.0)
@@ -181,15 +209,18 @@ def test_pattern_mismatch_is_garbage():
     assert p.diagnostics.counts["garbage"] == 3
 
 
-@pytest.mark.parametrize("pattern,scale,field,text", [
-    ("", 1, "pattern", "needed"),
-    ("(?P<value>[0-9", 1, "pattern", "not a valid regular expression"),
-    (r"(\d+)", 1, "pattern", "named group"),
-    ("x" * 201, 1, "pattern", "longer than"),
-    (r"(?P<value>\d+)", 0, "scale", "not zero"),
-    (r"(?P<value>\d+)", float("nan"), "scale", "finite"),
-    (r"(?P<value>\d+)", "ten", "scale", "a number"),
-])
+@pytest.mark.parametrize(
+    "pattern,scale,field,text",
+    [
+        ("", 1, "pattern", "needed"),
+        ("(?P<value>[0-9", 1, "pattern", "not a valid regular expression"),
+        (r"(\d+)", 1, "pattern", "named group"),
+        ("x" * 201, 1, "pattern", "longer than"),
+        (r"(?P<value>\d+)", 0, "scale", "not zero"),
+        (r"(?P<value>\d+)", float("nan"), "scale", "finite"),
+        (r"(?P<value>\d+)", "ten", "scale", "a number"),
+    ],
+)
 def test_pattern_settings_are_validated(pattern, scale, field, text):
     with pytest.raises(SensorError, match=text) as exc:
         PatternParser(pattern, scale)
@@ -197,6 +228,7 @@ def test_pattern_settings_are_validated(pattern, scale, field, text):
 
 
 # ---- limits --------------------------------------------------------------------------------
+
 
 def test_a_bounded_number_of_bad_lines_is_tolerated():
     p = PlainParser(diagnostics=Diagnostics(max_bad=5))
@@ -239,26 +271,46 @@ def test_diagnostics_keep_only_a_few_short_examples():
 
 # ---- settings ------------------------------------------------------------------------------
 
+
 def test_config_defaults_and_parsers():
     cfg = SensorConfig.from_dict({"port": "loop://"})
     assert isinstance(cfg.make_parser(), KinCompParser)
-    cfg = SensorConfig.from_dict({"port": "/dev/ttyACM0", "protocol": "pattern",
-                                  "pattern": r"(?P<value>\d+)", "scale": "0.001",
-                                  "units": "um", "positive": "shorter", "range": "0,12700"})
+    cfg = SensorConfig.from_dict(
+        {
+            "port": "/dev/ttyACM0",
+            "protocol": "pattern",
+            "pattern": r"(?P<value>\d+)",
+            "scale": "0.001",
+            "units": "um",
+            "positive": "shorter",
+            "range": "0,12700",
+        }
+    )
     p = cfg.make_parser()
     assert isinstance(p, PatternParser) and p.feed(b"5000\n", 0.0)[0].mm == pytest.approx(-0.005)
     assert SensorConfig.from_dict(cfg.to_dict()) == cfg
 
 
-@pytest.mark.parametrize("d,field", [
-    ({"speed": 1}, "speed"), ({"protocol": "modbus"}, "protocol"),
-    ({"baudrate": 0}, "baudrate"), ({"baudrate": "fast"}, "baudrate"),
-    ({"baudrate": 9600.5}, "baudrate"), ({"units": "cm"}, "units"),
-    ({"positive": "up"}, "positive"), ({"range": "1"}, "range"), ({"range": "3,1"}, "range"),
-    ({"sample_rate_hz": -1}, "sample_rate_hz"), ({"sample_rate_hz": 0.5}, "sample_rate_hz"),
-    ({"protocol": "pattern"}, "pattern"), ({"no_data_timeout_s": 0}, "no_data_timeout_s"),
-    ({"max_bad_lines": True}, "max_bad_lines"), ({"port": 5}, "port"),
-])
+@pytest.mark.parametrize(
+    "d,field",
+    [
+        ({"speed": 1}, "speed"),
+        ({"protocol": "modbus"}, "protocol"),
+        ({"baudrate": 0}, "baudrate"),
+        ({"baudrate": "fast"}, "baudrate"),
+        ({"baudrate": 9600.5}, "baudrate"),
+        ({"units": "cm"}, "units"),
+        ({"positive": "up"}, "positive"),
+        ({"range": "1"}, "range"),
+        ({"range": "3,1"}, "range"),
+        ({"sample_rate_hz": -1}, "sample_rate_hz"),
+        ({"sample_rate_hz": 0.5}, "sample_rate_hz"),
+        ({"protocol": "pattern"}, "pattern"),
+        ({"no_data_timeout_s": 0}, "no_data_timeout_s"),
+        ({"max_bad_lines": True}, "max_bad_lines"),
+        ({"port": 5}, "port"),
+    ],
+)
 def test_config_errors_name_the_setting(d, field):
     with pytest.raises(SensorError) as exc:
         SensorConfig.from_dict(d)

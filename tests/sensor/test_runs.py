@@ -24,13 +24,11 @@ from .conftest import SimStream, same_result
 
 
 def device_stream(t, r, meta=None):
-    return RawStream(dict(meta or {"timing": "device clock"}), t - t[0], r,
-                     np.arange(len(t)) + 40)
+    return RawStream(dict(meta or {"timing": "device clock"}), t - t[0], r, np.arange(len(t)) + 40)
 
 
 def host_stream(t_host, r):
-    return RawStream({"timing": "host arrival"}, t_host - t_host[0], r,
-                     np.arange(len(t_host)) + 40)
+    return RawStream({"timing": "host arrival"}, t_host - t_host[0], r, np.arange(len(t_host)) + 40)
 
 
 def ftdi_arrival(t, seed=3, latency_s=0.016):
@@ -47,7 +45,10 @@ def test_runs_and_dwells_found_in_a_stream_with_junk_around(xy_stream):
     assert det.complete and [run.direction for run in det.runs] == ["ccw", "cw"]
     ccw, cw = det.runs
     # each run starts and ends still, at its dwell level, and the runs meet in the gap
-    assert abs(s.r[ccw.i0] - ccw.dwell_mm) < 0.01 and abs(s.r[cw.i1 - 1] - s.r[s.last_run_sample - 1]) < 0.01
+    assert (
+        abs(s.r[ccw.i0] - ccw.dwell_mm) < 0.01
+        and abs(s.r[cw.i1 - 1] - s.r[s.last_run_sample - 1]) < 0.01
+    )
     assert ccw.i1 == cw.i0 and ccw.t_out < s.t[ccw.i1] < cw.t_in
     assert s.first_run_sample - 800 <= ccw.i0 <= s.first_run_sample + 10  # junk left out
     assert s.last_run_sample - 10 <= cw.i1 <= s.last_run_sample + 510
@@ -243,10 +244,12 @@ def test_fast_re_test_with_take_ups_is_not_mapped_at_constant_speed():
     The ramp shapes alone show the speed-up."""
 
     truth = demo_truth()
-    p = Params.from_dict(dict(truth.errors.to_dict(), servo_precomp=True,
-                              servo_lag_ms={"x": 0.62, "y": 0.0, "z": 0.0}))
-    spec = TestSpec(radius_mm=50, feed_mm_min=3700, centre=(100, 100, 10),
-                    params_hash=p.hash())
+    p = Params.from_dict(
+        dict(
+            truth.errors.to_dict(), servo_precomp=True, servo_lag_ms={"x": 0.62, "y": 0.0, "z": 0.0}
+        )
+    )
+    spec = TestSpec(radius_mm=50, feed_mm_min=3700, centre=(100, 100, 10), params_hash=p.hash())
     s = SimStream(spec, truth, params=p)
     trace, _ = trace_from_stream(device_stream(s.t, s.r), spec)
     d = analyse(trace, current=p)["diagnostics"]

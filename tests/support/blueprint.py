@@ -10,8 +10,10 @@ from unittest import mock
 from tests.support.mocked_plugin import api_app, mocked_plugin
 
 PREFIX = "/plugin/kincomp"
-PROFILE = {"volume": {"width": 220, "depth": 220, "height": 200, "origin": "lowerleft"},
-           "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}}}
+PROFILE = {
+    "volume": {"width": 220, "depth": 220, "height": 200, "origin": "lowerleft"},
+    "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}},
+}
 
 
 def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
@@ -21,9 +23,13 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     ``connected`` False: no printer connected at the start."""
     from octoprint.filemanager.storage import LocalFileStorage
 
-    patches = [mock.patch("octoprint_kincomp.plugin.http.require"),
-               mock.patch("octoprint_kincomp.plugin.files_api.valid_file_type",
-                          side_effect=lambda p, type=None: str(p).endswith(".gcode"))]
+    patches = [
+        mock.patch("octoprint_kincomp.plugin.http.require"),
+        mock.patch(
+            "octoprint_kincomp.plugin.files_api.valid_file_type",
+            side_effect=lambda p, type=None: str(p).endswith(".gcode"),
+        ),
+    ]
     for p in patches:
         p.start()
     plugin = mocked_plugin(basedir, stored=stored, profile=profile, connected=connected)
@@ -48,5 +54,11 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
         for p in patches:
             p.stop()
 
-    return SimpleNamespace(plugin=plugin, client=app.test_client(), app=app,
-                           uploads=uploads, storage=storage, stop=stop)
+    return SimpleNamespace(
+        plugin=plugin,
+        client=app.test_client(),
+        app=app,
+        uploads=uploads,
+        storage=storage,
+        stop=stop,
+    )

@@ -60,8 +60,10 @@ class Printer:
         return out
 
     def actual(self):
-        y = [self.play.pos[k] if self.play.pos[k] is not None else self.fw.machine[k]
-             for k in range(3)]
+        y = [
+            self.play.pos[k] if self.play.pos[k] is not None else self.fw.machine[k]
+            for k in range(3)
+        ]
         return self.model.forward(y)
 
 
@@ -83,7 +85,7 @@ def dist_to_polyline(p, pts) -> float:
     return float(np.min(np.linalg.norm(closest - np.asarray(p), axis=1)))
 
 
-def printed(truth: Params, groups) -> "Printer":
+def printed(truth: Params, groups) -> Printer:
     """A printer with the errors of ``truth`` after running every output line of
     ``groups`` ([(input line, [output lines])], as compensate_groups gives them)."""
     printer = Printer(truth)
@@ -101,8 +103,9 @@ def zero_length_extrusions(groups, **kw) -> List[Tuple[str, str]]:
     fw_out = FirmwareInterpreter(**kw)
     found = []
     for line, outs in groups:
-        had_length = any(isinstance(ev, Move) and dist(ev.start, ev.end) > 0
-                         for ev in fw_in.execute(line))
+        had_length = any(
+            isinstance(ev, Move) and dist(ev.start, ev.end) > 0 for ev in fw_in.execute(line)
+        )
         for o in outs:
             if had_length and still_extruding(o, fw_out.execute(o), len(outs)):
                 found.append((line, o))

@@ -9,8 +9,7 @@ from unittest import mock
 from octoprint_kincomp.plugin.settings import defaults
 
 
-def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None,
-                  connected=True):
+def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None, connected=True):
     """A started plugin (initialize + on_after_startup) keeping its files under ``basedir``;
     the printer prints, the profile's bed is ``bed_mm`` square and high. ``stored``:
     KinComp's settings in config.yaml before the start (as a user may have edited them).
@@ -33,8 +32,9 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None
     p._plugin_version = "test"
     p._basefolder = basedir
     p._logger = mock.MagicMock()
-    p._settings = PluginSettings(Settings(basedir=os.path.join(basedir, "base")), "kincomp",
-                                 defaults=defaults())
+    p._settings = PluginSettings(
+        Settings(basedir=os.path.join(basedir, "base")), "kincomp", defaults=defaults()
+    )
     p._plugin_manager = mock.MagicMock()
     p._event_bus = mock.MagicMock()
     p._printer = mock.MagicMock()
@@ -47,7 +47,8 @@ def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None
     p._file_manager.path_on_disk.return_value = os.path.join(basedir, "no-such-file.gcode")
     p._printer_profile_manager = mock.MagicMock()
     p._printer_profile_manager.get_current_or_default.return_value = {
-        "volume": {"width": bed_mm, "depth": bed_mm, "height": bed_mm, "origin": "lowerleft"}}
+        "volume": {"width": bed_mm, "depth": bed_mm, "height": bed_mm, "origin": "lowerleft"}
+    }
     if profile is not None:
         p._printer_profile_manager.get_current.return_value = profile
         p._printer_profile_manager.get_current_or_default.return_value = profile
@@ -87,5 +88,4 @@ def queue_lines(plugin, lines, comm=None) -> None:
     for line in lines:
         cmd = line.split(";")[0].strip()
         if cmd:
-            plugin.queuing_hook(comm, "queuing", cmd, None, cmd.split()[0],
-                                tags={"source:file"})
+            plugin.queuing_hook(comm, "queuing", cmd, None, cmd.split()[0], tags={"source:file"})

@@ -19,8 +19,7 @@ _SEND_N = re.compile(r" - Send: N(\d+) ")
 
 def settings(srv, **values):
     """POST /plugin/kincomp/settings (admin), applied at once; returns the new settings."""
-    status, body = srv.request("POST", "/plugin/kincomp/settings",
-                               dict(values, apply_now=True))
+    status, body = srv.request("POST", "/plugin/kincomp/settings", dict(values, apply_now=True))
     assert status == 200, body
     return body["settings"]
 
@@ -40,12 +39,12 @@ def home_reports(srv, after: str):
     printer homes at once, without waiting for the moves it still simulates, so the answer
     after a ``G28`` right behind a move can be that move's end, not 0.)"""
     log = srv.serial_log()
-    lines = log[log.rindex("Send: " + after):].splitlines()
+    lines = log[log.rindex("Send: " + after) :].splitlines()
     out = []
     for i, line in enumerate(lines):
         send = _SEND.search(line)
         if send and send.group(1) == "M114":
-            found = next((m for m in map(_POSITION.search, lines[i + 1:i + 40]) if m), None)
+            found = next((m for m in map(_POSITION.search, lines[i + 1 : i + 40]) if m), None)
             assert found is not None, line
             out.append(tuple(float(v) for v in found.groups()))
     return out
@@ -61,8 +60,9 @@ def offline(srv, lines, reports=None):
     limits = tuple(st["limits"]) if st["limits"] else None
     params, options = engine_config(st["settings"], limits)
     if reports is None:
-        options = dataclasses.replace(options, home_mm=tuple(
-            0.0 if h is None else h for h in options.home_mm))
+        options = dataclasses.replace(
+            options, home_mm=tuple(0.0 if h is None else h for h in options.home_mm)
+        )
     queue = QueueCompensator(params, options, enabled=True)
     answers = iter(reports or ())
     out = []
@@ -113,9 +113,9 @@ def sent(srv, after: str = None, until: str = None, automatic=False):
             seen_n.add(n.group(1))
         out.append(cmd)
     if after is not None:
-        out = out[len(out) - out[::-1].index(after):]
+        out = out[len(out) - out[::-1].index(after) :]
     if until is not None:
-        out = out[:out.index(until)]
+        out = out[: out.index(until)]
     if not automatic:
         out = [c for c in out if c.split(" ", 1)[0] not in AUTOMATIC]
     return out
@@ -151,8 +151,7 @@ class BrowserSession:
         token = self.csrf()
         if csrf and token:
             headers["X-CSRF-Token"] = token
-        req = urllib.request.Request(self.srv.url + path, data=data, method=method,
-                                     headers=headers)
+        req = urllib.request.Request(self.srv.url + path, data=data, method=method, headers=headers)
         try:
             with self.opener.open(req, timeout=60) as resp:
                 return resp.status, resp.read().decode("utf-8", "replace")
@@ -160,7 +159,8 @@ class BrowserSession:
             return exc.code, exc.read().decode("utf-8", "replace")
 
     def login(self, user, password):
-        code, text = self.open("POST", "/api/login",
-                               {"user": user, "pass": password, "remember": False})
+        code, text = self.open(
+            "POST", "/api/login", {"user": user, "pass": password, "remember": False}
+        )
         assert code == 200, text
         return self

@@ -52,10 +52,14 @@ class FileEngine:
         self.vector_ok = comp.accelerable
 
     # -- driver --------------------------------------------------------------------------
-    def run(self, read: Callable[[int], bytes], write: Callable[[bytes], object],
-            header: Optional[str] = None,
-            check_first: Optional[Callable[[str], None]] = None,
-            progress: Optional[Callable[[int], None]] = None) -> None:
+    def run(
+        self,
+        read: Callable[[int], bytes],
+        write: Callable[[bytes], object],
+        header: Optional[str] = None,
+        check_first: Optional[Callable[[str], None]] = None,
+        progress: Optional[Callable[[int], None]] = None,
+    ) -> None:
         """Compensate everything ``read`` yields into ``write``.
 
         ``header`` is written before the first line (with that line's ending), as the line
@@ -96,7 +100,7 @@ class FileEngine:
                 rest += data
                 continue
             block = rest + data[: cut + 1] if rest else data[: cut + 1]
-            rest = data[cut + 1:]
+            rest = data[cut + 1 :]
             yield block
         if rest:
             yield _Unterminated(rest + b"\n")
@@ -124,7 +128,7 @@ class FileEngine:
             write((header + (ending or "\n")).encode(_ENC, _ERR))
 
     # -- one block of complete lines ------------------------------------------------------
-    def chunk(self, buf: bytes, tk: Optional["Tokens"] = None) -> bytes:
+    def chunk(self, buf: bytes, tk: Optional[Tokens] = None) -> bytes:
         """Compensate one block of complete lines (``tk``: its tokens, if already made)."""
         if not self._vectorised(buf):
             if self.kernel is not None:
@@ -179,7 +183,7 @@ class FileEngine:
                 out.append(join_output(res, ending))
         return "".join(out).encode(_ENC, _ERR)
 
-    def _segment(self, tk: "Tokens", i0: int, i1: int, pieces: List[bytes]) -> None:
+    def _segment(self, tk: Tokens, i0: int, i1: int, pieces: List[bytes]) -> None:
         """Lines [i0, i1) of the block: no line among them changes the modal state."""
         comp = self.comp
         buf = tk.buf
@@ -193,8 +197,13 @@ class FileEngine:
             return
         j0, j1 = np.searchsorted(tk.move_lines, [i0, i1]).tolist()
         result = None
-        if not (i1 - i0 < MIN_VECTOR_LINES or not comp.state.absolute or None in comp.state.m
-                or comp.state.q_drive is not None or tk.move_bad_number[j0:j1].any()):
+        if not (
+            i1 - i0 < MIN_VECTOR_LINES
+            or not comp.state.absolute
+            or None in comp.state.m
+            or comp.state.q_drive is not None
+            or tk.move_bad_number[j0:j1].any()
+        ):
             result = self._vector(tk, i0, i1, cand, j0, j1)
         # short runs, or a limit error (the line path raises at its line)
         if result is not None:
@@ -203,8 +212,9 @@ class FileEngine:
             pieces.append(self._lines(buf, start, end))
 
     # -- runs of plain moves ---------------------------------------------------------------
-    def _vector(self, tk: "Tokens", i0: int, i1: int, cand: np.ndarray, j0: int,
-                j1: int) -> Optional[List[bytes]]:
+    def _vector(
+        self, tk: Tokens, i0: int, i1: int, cand: np.ndarray, j0: int, j1: int
+    ) -> Optional[List[bytes]]:
         """Lines [i0, i1) with no state-changing line among them, vectorised: the output
         in pieces (buffers), or None where the line path has to write them."""
         comp = self.comp
@@ -224,9 +234,18 @@ class FileEngine:
         pre_s = np.empty(nm, np.int64)
         pre_s[0] = 0
         pre_s[1:] = xyz_end[:-1]
-        rows = Rows(P, g3, moves, tk.crlf[moves], pre_s, ls - pre_s, ls,
-                    tk.fpre_start[j0:j1] - seg_start, tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1],
-                    int(xyz_end[-1]))
+        rows = Rows(
+            P,
+            g3,
+            moves,
+            tk.crlf[moves],
+            pre_s,
+            ls - pre_s,
+            ls,
+            tk.fpre_start[j0:j1] - seg_start,
+            tk.fpre_end[j0:j1] - tk.fpre_start[j0:j1],
+            int(xyz_end[-1]),
+        )
         res = emit_rows(self.comp, i0, rows, tk.a[seg_start:seg_end])
         if res is None:
             return None
@@ -262,4 +281,4 @@ class FileEngine:
 
     def _finish_inert(self, tk, i0, i1, cand) -> bytes:
         self._finish_counts(tk, i0, i1, cand, 0, 0)
-        return tk.buf[int(tk.ls[i0]): int(tk.le[i1 - 1]) + 1]
+        return tk.buf[int(tk.ls[i0]) : int(tk.le[i1 - 1]) + 1]

@@ -46,9 +46,18 @@ def _layout(pre_l: np.ndarray, n_rows: int, rest: int) -> Tuple[int, int]:
     return best[1], best[2]
 
 
-def assemble(seg: np.ndarray, rows, fmtr: Formatter, N: np.ndarray, NEG: np.ndarray,
-             W: np.ndarray, order_pos: np.ndarray, pre_rows: np.ndarray, takeups: np.ndarray,
-             take_crlf: np.ndarray) -> List[np.ndarray]:
+def assemble(
+    seg: np.ndarray,
+    rows,
+    fmtr: Formatter,
+    N: np.ndarray,
+    NEG: np.ndarray,
+    W: np.ndarray,
+    order_pos: np.ndarray,
+    pre_rows: np.ndarray,
+    takeups: np.ndarray,
+    take_crlf: np.ndarray,
+) -> List[np.ndarray]:
     """The output of a run (rows.Rows: its moves' spans of ``seg``, the segment's input
     bytes): the emitted lines are the moves (at ``order_pos``) and their take-ups, of which
     those at ``takeups`` are written (``take_crlf``: their line ending is CRLF); the input
@@ -107,7 +116,7 @@ def assemble(seg: np.ndarray, rows, fmtr: Formatter, N: np.ndarray, NEG: np.ndar
         lead = np.flatnonzero(rows.fpre_l)
         copy = sliding_window_view(src, F)[rows.fpre_s[lead]]
         copy *= np.arange(F) < rows.fpre_l[lead][:, None]  # (rare: not made faster)
-        R[order_pos[lead] if direct else at[order_pos[lead]], tail:tail + F] = copy
+        R[order_pos[lead] if direct else at[order_pos[lead]], tail : tail + F] = copy
     R[t_rows, tail] = np.where(take_crlf, 13, 10)
     R[t_rows[take_crlf], tail + 1] = 10
     # the text: the rows without their 0 bytes, a spliced span before its move's rows
@@ -116,12 +125,11 @@ def assemble(seg: np.ndarray, rows, fmtr: Formatter, N: np.ndarray, NEG: np.ndar
     pieces = []
     prev = 0
     first = pre_rows[spliced] if direct else at[pre_rows[spliced]]
-    for row, start, n in zip(first.tolist(), rows.pre_s[spliced].tolist(),
-                             pre_l[spliced].tolist()):
+    for row, start, n in zip(first.tolist(), rows.pre_s[spliced].tolist(), pre_l[spliced].tolist()):
         cut, end = prev * width, row * width
         pieces.append(np.compress(written[cut:end], flat[cut:end]))
-        pieces.append(seg[start:start + n])
+        pieces.append(seg[start : start + n])
         prev = row
-    pieces.append(np.compress(written[prev * width:], flat[prev * width:]))
-    pieces.append(seg[rows.resume:])
+    pieces.append(np.compress(written[prev * width :], flat[prev * width :]))
+    pieces.append(seg[rows.resume :])
     return pieces

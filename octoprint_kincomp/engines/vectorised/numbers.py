@@ -103,10 +103,16 @@ class Numbers:
         digit_lo, digit_hi = _digits(self.lo) & number_lo, _digits(self.hi) & number_hi
         self.dot_lo = _bytes_equal(self.lo, 46) & number_lo
         self.dot_hi = _bytes_equal(self.hi, 46) & number_hi
-        other = (number_lo & ~(digit_lo | self.dot_lo | sign_lo)) | \
-            (number_hi & ~(digit_hi | self.dot_hi | sign_hi))
-        self.ok = (size >= 1) & (size <= WORD_WIDTH) & ((other & _HIGH) == 0) & \
-            ((digit_lo | digit_hi) != 0) & _at_most_one(self.dot_lo, self.dot_hi)
+        other = (number_lo & ~(digit_lo | self.dot_lo | sign_lo)) | (
+            number_hi & ~(digit_hi | self.dot_hi | sign_hi)
+        )
+        self.ok = (
+            (size >= 1)
+            & (size <= WORD_WIDTH)
+            & ((other & _HIGH) == 0)
+            & ((digit_lo | digit_hi) != 0)
+            & _at_most_one(self.dot_lo, self.dot_hi)
+        )
 
     def values(self, which: np.ndarray) -> np.ndarray:
         """Exact float values of the numbers ``which`` (checked, at most NUM_WIDTH
@@ -123,12 +129,14 @@ class Numbers:
         # bytes up to the dot: ((the dot's lowest bit) << 8) - 1 in its half, all of lo if
         # the dot is in hi (a dot in the last byte of a half gives 0 - 1: the whole half)
         upto_hi = np.where(in_hi, ((dot_hi >> _U(7)) << _U(8)) - _U(1), _U(0))
-        upto_lo = np.where(in_hi, _ALL,
-                           np.where(in_lo, ((dot_lo >> _U(7)) << _U(8)) - _U(1), _U(0)))
+        upto_lo = np.where(
+            in_hi, _ALL, np.where(in_lo, ((dot_lo >> _U(7)) << _U(8)) - _U(1), _U(0))
+        )
         hi = (((hi << _U(8)) | (lo >> _U(56))) & upto_hi) | (hi & ~upto_hi)
         lo = ((lo << _U(8)) & upto_lo) | (lo & ~upto_lo) | _U(0x30)  # (byte 0 shifted in)
         digits = (_eight_digits(lo) * _U(100000000) + _eight_digits(hi)).astype(np.float64)
-        dot_col = np.where(in_hi, 8 + _flag_byte(dot_hi),
-                           np.where(in_lo, _flag_byte(dot_lo), WORD_WIDTH - 1))
+        dot_col = np.where(
+            in_hi, 8 + _flag_byte(dot_hi), np.where(in_lo, _flag_byte(dot_lo), WORD_WIDTH - 1)
+        )
         v = digits / _P10F[WORD_WIDTH - 1 - dot_col]
         return np.where(self.first[which] == 45, -v, v)

@@ -32,9 +32,9 @@ def _ffill(values: np.ndarray, given: np.ndarray, start) -> np.ndarray:
     # less than a quarter given (Z, say): each given value is repeated up to the next
     at = np.flatnonzero(given)
     out = np.empty(n, values.dtype)
-    out[:at[0] if len(at) else n] = start
+    out[: at[0] if len(at) else n] = start
     if len(at):
-        out[at[0]:] = np.repeat(values[at], np.diff(at, append=n))
+        out[at[0] :] = np.repeat(values[at], np.diff(at, append=n))
     return out
 
 
@@ -72,8 +72,7 @@ class Rows(NamedTuple):
     resume: int
 
 
-def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
-              ) -> Optional[Tuple[List[np.ndarray], int]]:
+def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray) -> Optional[Tuple[List[np.ndarray], int]]:
     """Compensate and render ``rows`` (desired machine points, in order); the output
     (pieces, buffers) and the number of take-up moves, or None when the line path has to
     decide (a limit error under the policy 'error', a coordinate the tables do not write).
@@ -196,8 +195,18 @@ def emit_rows(comp, i0: int, rows: Rows, seg: np.ndarray
             W[k] |= g3[k]
     take_emit = (W[0, tpos] | W[1, tpos] | W[2, tpos]) if len(tups) else np.zeros(0, bool)
     # (a move's input before it comes before its take-up)
-    out = assemble(seg, rows, fmtr, N, NEG, W, order_pos, order_pos - rev_any,
-                   tpos[take_emit], rows.crlf[tups[take_emit]])
+    out = assemble(
+        seg,
+        rows,
+        fmtr,
+        N,
+        NEG,
+        W,
+        order_pos,
+        order_pos - rev_any,
+        tpos[take_emit],
+        rows.crlf[tups[take_emit]],
+    )
     # state handover
     for k in range(3):
         text = fmtr.text(int(N[k, -1]), bool(NEG[k, -1]))
@@ -234,8 +243,7 @@ def check_limits(comp, C, P, Pp, Ct, Pt, tups, order_pos, tpos, moves):
                     return None
                 idx = np.flatnonzero(hit)
                 line_rows = moves[rows[idx]] if rows is not None else moves[idx]
-                for p, li, v in zip(pos[idx].tolist(), line_rows.tolist(),
-                                    arr_c[k, idx].tolist()):
+                for p, li, v in zip(pos[idx].tolist(), line_rows.tolist(), arr_c[k, idx].tolist()):
                     events.append((p, k, li, v))
                 if comp.options.policy == "clamp":
                     arr_c[k, idx] = np.clip(arr_c[k, idx], lo, hi)

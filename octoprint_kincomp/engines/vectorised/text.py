@@ -30,7 +30,7 @@ _FRAC_TABLES: Tuple[np.ndarray, np.ndarray] = ()  # type: ignore[assignment]
 
 
 def _int_table(letter: int) -> np.ndarray:
-    """" <letter>[-]<integer part>" for 0..9999 (index + INT_LIMIT: negative); the last
+    """ " <letter>[-]<integer part>" for 0..9999 (index + INT_LIMIT: negative); the last
     entry is blank."""
     table = _INT_TABLES.get(letter)
     if table is None:
@@ -50,8 +50,10 @@ def _frac_tables() -> Tuple[np.ndarray, np.ndarray]:
         full = [b"%03d" % v for v in range(1000)]
         last = [t.rstrip(b"0") for t in full]
         first = [b"." + t if t else b"" for t in last] + [b"." + t for t in full]
-        _FRAC_TABLES = (_texts_to_table(first, 4, np.uint32),
-                        _texts_to_table(last + full, 4, np.uint32))
+        _FRAC_TABLES = (
+            _texts_to_table(first, 4, np.uint32),
+            _texts_to_table(last + full, 4, np.uint32),
+        )
     return _FRAC_TABLES
 
 
@@ -60,7 +62,7 @@ class Formatter:
 
     def __init__(self, dec: int):
         self.dec = dec
-        self.scale = 10.0 ** dec
+        self.scale = 10.0**dec
         self.groups = (dec + 2) // 3  # groups of three decimals
         self.width = (8 + 4 * self.groups + 7) // 8 * 8  # bytes of one axis word in a row
 
@@ -76,25 +78,33 @@ class Formatter:
                 text = fmt % float(v[i])
                 n[i] = float(int(text.lstrip("-").replace(".", "")))
         # (beyond the tables, or NaN: fits() then refuses them, and the cast stays defined)
-        n = np.where(n <= 2.0 ** 62, n, -1.0).astype(np.int64)
+        n = np.where(n <= 2.0**62, n, -1.0).astype(np.int64)
         return n, (v < 0) & (n > 0)
 
     def text(self, n: int, neg: bool) -> str:
         s = str(n).rjust(self.dec + 1, "0")
         if self.dec:
-            s = (s[: -self.dec] + "." + s[-self.dec:]).rstrip("0").rstrip(".")
+            s = (s[: -self.dec] + "." + s[-self.dec :]).rstrip("0").rstrip(".")
         return "-" + s if neg else s
 
     def fits(self, n: np.ndarray) -> bool:
         """Whether every magnitude has an integer part the tables write."""
-        return n.size == 0 or (int(n.min()) >= 0 and int(n.max()) < INT_LIMIT * 10 ** self.dec)
+        return n.size == 0 or (int(n.min()) >= 0 and int(n.max()) < INT_LIMIT * 10**self.dec)
 
-    def put(self, rows: np.ndarray, col: int, letter: int, n: np.ndarray, neg: np.ndarray,
-            written: np.ndarray, at=slice(None)) -> None:
+    def put(
+        self,
+        rows: np.ndarray,
+        col: int,
+        letter: int,
+        n: np.ndarray,
+        neg: np.ndarray,
+        written: np.ndarray,
+        at=slice(None),
+    ) -> None:
         """Write " <letter><number>" where ``written`` into rows ``at`` of ``rows`` (a byte
         matrix whose width is a multiple of 8), ``width`` bytes from byte ``col`` (a
         multiple of 8); 0 bytes elsewhere."""
-        unit = 10 ** self.dec
+        unit = 10**self.dec
         whole, frac = np.divmod(n, unit)
         idx = np.where(written, whole + INT_LIMIT * neg, _BLANK_INT)
         rows.view(np.uint64)[at, col // 8] = _int_table(letter)[idx]

@@ -90,8 +90,9 @@ class Tokens:
         # any with a leading zero (M082 is M82 to the reference path's int())
         brk = _BREAK_FIRST[c0] & ~cand
         mline = (c0 == 77) & ~((c1 >= 49) & (c1 <= 57))
-        m_state = (c0 == 77) & (((c1 == 56) & ((c2 == 50) | (c2 == 51)))
-                                | ((c1 == 52) & (c2 == 56)))
+        m_state = (c0 == 77) & (
+            ((c1 == 56) & ((c2 == 50) | (c2 == 51))) | ((c1 == 52) & (c2 == 56))
+        )
         return cand, brk | mline | m_state
 
     def _command_ends(self, cand: np.ndarray, bad: np.ndarray) -> np.ndarray:
@@ -146,8 +147,14 @@ class Tokens:
         bad[tline[is_xyz & ~(first_in_line | prev_xyz | after_lead_f)]] = True
         return lead_f, is_xyz
 
-    def _moves(self, xi: np.ndarray, tline: np.ndarray, letter: np.ndarray, te: np.ndarray,
-               numbers: Numbers) -> None:
+    def _moves(
+        self,
+        xi: np.ndarray,
+        tline: np.ndarray,
+        letter: np.ndarray,
+        te: np.ndarray,
+        numbers: Numbers,
+    ) -> None:
         """The move lines, from their X/Y/Z words ``xi`` (in order)."""
         xl = tline[xi]
         newline = np.ones(len(xi), bool)
@@ -169,8 +176,9 @@ class Tokens:
             last_of_line[:-1] = newline[1:]
             self.xyz_end[move_of[last_of_line]] = te[xi[last_of_line]]
 
-    def _leading_f(self, lf: np.ndarray, tpos: np.ndarray, tline: np.ndarray,
-                   te: np.ndarray) -> None:
+    def _leading_f(
+        self, lf: np.ndarray, tpos: np.ndarray, tline: np.ndarray, te: np.ndarray
+    ) -> None:
         """A leading F word of a move line (the output moves it after X/Y/Z)."""
         nm = len(self.move_lines)
         self.fpre_start = np.zeros(nm, np.int64)
@@ -187,7 +195,7 @@ class Tokens:
         j0 = int(np.searchsorted(self._tline, i0, side="left"))
         j1 = int(np.searchsorted(self._tline, i1, side="left"))
         hits = np.flatnonzero(self._letter[j0:j1] == which) + j0
-        return [float(self.buf[int(self._ts[j]) + 1: int(self._te[j])]) for j in hits.tolist()]
+        return [float(self.buf[int(self._ts[j]) + 1 : int(self._te[j])]) for j in hits.tolist()]
 
     def last_value(self, which: int, i0: int, i1: int) -> Optional[Tuple[int, float]]:
         """(line, value) of the last word ``which`` (4: E, 5: F) of the candidate lines in
@@ -198,4 +206,4 @@ class Tokens:
         if len(hits) == 0:
             return None
         j = j0 + int(hits[-1])
-        return int(self._tline[j]), float(self.buf[int(self._ts[j]) + 1: int(self._te[j])])
+        return int(self._tline[j]), float(self.buf[int(self._ts[j]) + 1 : int(self._te[j])])
