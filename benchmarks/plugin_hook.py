@@ -4,11 +4,11 @@
 ``QueueCompensator.handle``) without OctoPrint. This script measures the plugin's hook
 function itself, as OctoPrint's comm layer calls it for the lines of a print (tags
 ``source:file`` and ``fileline:N``), on a plugin instance with a real OctoPrint settings
-object and mocks for the printer, event bus and file manager (tests/support/mocked_plugin.py), compensation on with the
-benchmark's parameters (squareness + scale + position-dependent backlash) and the bed as
-limits. Prints p50/p99 in us over the G1 X/Y lines and the G2/G3 lines of a 200,000-line
-slicer-like stream with 20 % arcs (the benchmark's arc file).
-
+object and mocks for the printer, event bus and file manager
+(tests/support/mocked_plugin.py), compensation on with the benchmark's parameters
+(squareness + scale + position-dependent backlash) and the bed as limits. Prints p50/p99 in
+us over the G1 X/Y lines and the G2/G3 lines of a 200,000-line slicer-like stream with 20 % arcs
+(the benchmark's arc file).
     .venv/bin/python benchmarks/plugin_hook.py [--lines N] [--python]
 
 ``--python`` runs it on the pure-Python paths (no compiled kernel).

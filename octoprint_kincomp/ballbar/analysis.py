@@ -393,17 +393,18 @@ def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = "") -
             warning(
                 "data.outliers",
                 Msg(
-                    "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor glitch, a "
-                    "knock): the circularity G(b) is %(g)s um with them and %(gr)s um without. They "
-                    "dominate G(b) and any before/after comparison of it; the fit left them out.",
+                    "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor "
+                    "glitch, a knock): the circularity G(b) is %(g)s um with them and %(gr)s um "
+                    "without. They dominate G(b) and any before/after comparison of it; the fit "
+                    "left them out.",
                     pre=pre,
                     n=n,
                     g=f"{g:.1f}",
                     gr=f"{gr:.1f}",
                 ),
                 Msg(
-                    "Compare circularity without the outliers (circularity_robust_um), or repeat the "
-                    "test with the sensor's cable and mount secured."
+                    "Compare circularity without the outliers (circularity_robust_um), or repeat "
+                    "the test with the sensor's cable and mount secured."
                 ),
                 **ev,
             )

@@ -224,7 +224,7 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
     for o in obs:
         L = o.meas.length
         limit = max(GROSS_MM, GROSS_FRACTION * L)
-        for i, v in _left_out(o, lambda v: abs(v - L) > limit):
+        for i, v in _left_out(o, lambda v, L=L, limit=limit: abs(v - L) > limit):
             found.append(
                 fnd.warning(
                     "artifact.reading_far_from_nominal",
@@ -250,7 +250,7 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
     for o in obs:
         if len(o.values) >= 3:
             med = float(np.median(o.values))
-            for i, v in _left_out(o, lambda v: abs(v - med) > limit):
+            for i, v in _left_out(o, lambda v, med=med: abs(v - med) > limit):
                 found.append(
                     fnd.warning(
                         "artifact.reading_disagrees",

@@ -337,7 +337,7 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
                     name=name,
                     value=repr(text[:30]),
                 )
-            )
+            ) from None
         if not math.isfinite(value):
             raise TraceError(Msg(".b5r: FEATURE %(name)s is not finite", name=name))
         key, sub = _B5R_NAMES[name]
@@ -446,8 +446,8 @@ def parse_summary(data) -> Summary:
                 if ":" not in line and "=" not in line:
                     raise TraceError(
                         Msg("summary line %(line)s: expected 'key: value'", line=lineno)
-                    )
-                k, v = re.split(r"[:=]", line, 1)
+                    ) from None
+                k, v = re.split(r"[:=]", line, maxsplit=1)
                 obj[k.strip()] = v.strip()
         except ValueError as exc:
             # valid JSON syntax that json still refuses (an integer of more than 4300

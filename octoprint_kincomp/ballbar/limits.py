@@ -399,7 +399,7 @@ def circle_feed(
                 ),
             )
         )
-    for cap, why in candidates:
+    for cap, _why in candidates:
         if cap < best - 1e-9:
             best = cap
     for cap, why in candidates:

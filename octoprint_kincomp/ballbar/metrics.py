@@ -172,7 +172,11 @@ def plot_data(
         which = np.clip(np.searchsorted(edges, deg, side="right") - 1, 0, len(edges) - 2)
         cnt = np.bincount(which, minlength=len(edges) - 1)
         ok = cnt > 0
-        mean = lambda v: np.bincount(which, weights=v, minlength=len(edges) - 1)[ok] / cnt[ok]
+        nbins = len(edges) - 1
+
+        def mean(v, which=which, ok=ok, cnt=cnt, nbins=nbins):
+            return np.bincount(which, weights=v, minlength=nbins)[ok] / cnt[ok]
+
         out["directions"][run.direction] = {
             "angle_deg": np.round(mean(deg), 3).tolist(),
             "dev_um": np.round(mean(d), 3).tolist(),

@@ -77,7 +77,10 @@ class Run:
         if self.capture is None or self.capture.all():
             return self
         k = self.capture
-        pick = lambda x: None if x is None else x[k]
+
+        def pick(x):
+            return None if x is None else x[k]
+
         return Run(
             self.direction,
             self.theta[k],

@@ -188,7 +188,7 @@ class Truth:
                         error=exc.msg,
                         line=exc.lineno,
                     ),
-                )
+                ) from None
 
 
 def paper_truth(**overrides) -> Truth:

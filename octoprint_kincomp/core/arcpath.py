@@ -16,8 +16,8 @@ largest deviation of these smooth residuals can lie between two samples) plus
 Otherwise the piece is halved, up to 3 times; a piece that still does not fit is linearised
 into chords within the tolerance. A piece whose rounded end equals its start in the plane is a
 ``G1`` (a G2/G3 with equal ends would be a full circle), and so is a sliver (its sagitta at
-most a tenth of the output resolution: where a reversal falls next to an end). E is split in proportion to the path
-length from the arc's start (:meth:`Arc.length_to`).
+most a tenth of the output resolution: where a reversal falls next to an end). E is split in
+proportion to the path length from the arc's start (:meth:`Arc.length_to`).
 
 With backlash the command of each piece moves every backlash axis one way only, so the
 take-up offset of a piece has one direction: the compensated path is the geometric command

@@ -12,7 +12,7 @@ UNIVERSAL = re.compile(r"[^\r\n]*(?:\r\n|\r|\n)|[^\r\n]+\Z")
 def split_ending(raw: str) -> Tuple[str, str]:
     if raw.endswith("\r\n"):
         return raw[:-2], "\r\n"
-    if raw.endswith("\n") or raw.endswith("\r"):
+    if raw.endswith(("\n", "\r")):
         return raw[:-1], raw[-1]
     return raw, ""
 

@@ -9,8 +9,8 @@
   its report if that is ready within a few seconds, else 202 with the job (poll
   ``/jobs/<id>``, cancel ``POST /jobs/<id>/cancel``, see :mod:`.job_api`); 429 when too
   many jobs wait, or too many of the user's own (:mod:`.jobs`). A job's path is the file's
-  canonical one (below the uploads folder), whatever spelling the request used. A compensation answers
-  202 with its job.
+  canonical one (below the uploads folder), whatever spelling the request used. A
+  compensation answers 202 with its job.
 * Background mode (setting ``mode = background``): every G-code file added is queued for a
   job, unless it already carries KinComp's marker. Job changes go to the UI as plugin
   messages ``{"type": "job", "job": ...}`` (compensations only).

@@ -9,7 +9,8 @@ type it in the terminal; ``POST /limits/read`` asks on request). Lines stating M
 M204 or M205 (and the unit headers above them) are collected until the firmware's ``ok``;
 then, off the serial thread, they are stored unless the user pasted limits of their own
 (an explicit request replaces those too), through the settings store's one save. A
-Klipper printer does not answer M503 with limits: its users paste their ``printer.cfg`` ``[printer]`` section on the settings page.
+Klipper printer does not answer M503 with limits: its users paste their ``printer.cfg``
+``[printer]`` section on the settings page.
 
 The limits a test must respect (:func:`effective_limits`) are the lower of the stated
 limits and the printer profile's axis speeds (mm/min).

@@ -11,9 +11,9 @@
   compensation is off then, ``settings`` shows the invalid value as its default).
 * ``POST /settings``: a partial settings document, merged into the stored one and validated
   whole (400 naming the field, nothing stored), saved and applied in one step under the
-  store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed); ``"apply_now": true`` applies it mid-print. ``check``
-  (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
-  printer's own).
+  store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed);
+  ``"apply_now": true`` applies it mid-print. ``check`` (set by the plugin) adds what needs
+  OctoPrint's state (the sensor port must not be the printer's own).
 """
 
 from __future__ import annotations

@@ -127,7 +127,7 @@ def child_main() -> int:
             return 0
         last = [0.0]
 
-        def progress(frac: float, job_id=job_id) -> None:
+        def progress(frac: float, job_id=job_id, last=last) -> None:
             if os.getppid() != parent:
                 raise SystemExit(1)  # orphaned: nobody wants the result
             now = time.monotonic()

@@ -91,12 +91,12 @@ class Parser:
 
     def __init__(
         self,
-        convention: Convention = Convention(),
+        convention: Optional[Convention] = None,
         range_raw: Optional[Tuple[float, float]] = None,
         diagnostics: Optional[Diagnostics] = None,
         max_line: int = DEFAULT_MAX_LINE,
     ):
-        self.convention = convention
+        self.convention = convention if convention is not None else Convention()
         self.range_raw = range_raw  # in the units the sensor sends, before the sign
         self.diagnostics = diagnostics or Diagnostics()
         self.meta: Dict[str, str] = {}  # what the sensor says about itself

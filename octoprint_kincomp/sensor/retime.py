@@ -12,9 +12,9 @@ the true times lie on the **lower envelope** of the arrival times against the li
 
 If the residuals after that show the device's rate was not steady (lines lost in transit, a
 paused device: spread over 50 ms), the times follow the arrival times locally instead: the
-running minimum of the residual (against the median local rate) over about 0.5 s, smoothed. All times in s; the returned
-``jitter_ms`` is the 95th percentile of the arrival delay over the envelope.
-"""
+running minimum of the residual (against the median local rate) over about 0.5 s, smoothed.
+All times in s; the returned ``jitter_ms`` is the 95th percentile of the arrival delay over the
+envelope."""
 
 from __future__ import annotations
 

@@ -7,9 +7,10 @@ in real time or ``speedup`` times faster, so that KinComp reads it exactly as a 
 ``play(lines, start_time)`` gives it the G-code lines the virtual printer executes (as the
 printer receives them: comments stripped, line numbers, compensated or not) and the host time
 (``time.monotonic()``) at which the printer starts on them (a time that passed while the
-simulator ran is replaced by the next sample: the program starts late rather than skipping). The readings come from the
-ballbar simulator (``ballbar/simulator.py``, with the printer's hidden errors of ``truth``):
-sample ``n`` of the simulated program goes out at ``start_time + n / (rate * speedup)`` with
+simulator ran is replaced by the next sample: the program starts late rather than
+skipping). The readings come from the ballbar simulator (``ballbar/simulator.py``, with the
+printer's hidden errors of ``truth``): sample ``n`` of the simulated program goes out at
+``start_time + n / (rate * speedup)`` with
 device clock ``n / rate`` after the program start. Before the program and after it, the bar
 holds its reading (with fresh noise); before any program it reads ``idle_mm``. Readings are
 mm, positive = bar longer, unless ``units``/``longer_positive`` ask for another convention.

@@ -79,7 +79,10 @@ def test_spikes_bias_the_fit_without_mask():
     g, runs = load_runs(trace)
     unmasked = fit(g, runs, mask_deg=0.0).values
     masked = fit(g, runs, mask_deg=15.0).values
-    err = lambda v: abs(v["bBm"] * 1e3 - 20.0)
+
+    def err(v):
+        return abs(v["bBm"] * 1e3 - 20.0)
+
     assert err(unmasked) > 1.5 and err(masked) < 1.0
 
 
@@ -122,7 +125,7 @@ def test_angle_domain_trace():
     and 100 ppm scale mismatch is fitted back to them."""
     model_rows = []
     rng = np.random.default_rng(4)
-    for direction, w in (("ccw", 1), ("cw", -1)):
+    for direction, _w in (("ccw", 1), ("cw", -1)):
         for deg in np.arange(0, 360, 0.5):
             t = math.radians(deg)
             # first-order deviation of squareness and scale mismatch

@@ -114,12 +114,13 @@ def test_b5r_zx_plane_swaps_axes():
         (b"<BALLBAR_DATA><PLANE TEST_PLANE='QQ'/></BALLBAR_DATA>", "TEST_PLANE"),
         (b"<BALLBAR_DATA><PLANE TEST_PLANE='XY'/></BALLBAR_DATA>", "no known FEATURE"),
         (
-            b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>x</FEATURE>"
-            b"</B>",
+            b"<B><PLANE TEST_PLANE='XY'/>"
+            b"<FEATURE NAME='AF_SQUARENESS' DT='UT_SQUARENESS'>x</FEATURE></B>",
             "non-numeric",
         ),
         (
-            b"<B><PLANE TEST_PLANE='XY'/><FEATURE NAME='AF_SQUARENESS' DT='UT_WHAT'>1</FEATURE></B>",
+            b"<B><PLANE TEST_PLANE='XY'/>"
+            b"<FEATURE NAME='AF_SQUARENESS' DT='UT_WHAT'>1</FEATURE></B>",
             "unknown unit",
         ),
     ],
@@ -132,11 +133,7 @@ def test_b5r_errors(data, msg):
 def test_xml_entity_bomb_refused_quickly():
     bomb = (
         b'<?xml version="1.0"?><!DOCTYPE lolz [<!ENTITY lol "lol">'
-        + b"".join(
-            b'<!ENTITY lol%d "&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;&lol%d;">'
-            % ((i + 1,) + (i,) * 10)
-            for i in range(9)
-        )
+        + b"".join(b'<!ENTITY lol%d "' % (i + 1) + b"&lol%d;" % i * 10 + b'">' for i in range(9))
         + b"]><lolz>&lol9;</lolz>"
     )
     t0 = time.perf_counter()

@@ -104,7 +104,10 @@ def test_constant_speed_mapping_of_an_accelerating_printer_is_biased():
     wrong.meta["motion"] = "constant_speed"
     naive = analyse(wrong)["diagnostics"]
     exp = expected(spec, truth)
-    err = lambda d: abs(d["scale_mismatch_ppm"] - exp["scale_mismatch_ppm"])
+
+    def err(d):
+        return abs(d["scale_mismatch_ppm"] - exp["scale_mismatch_ppm"])
+
     assert err(planned) < 1.0
     assert err(naive) > 5.0
 

@@ -99,7 +99,7 @@ def _campaign(server, cid):
     return doc
 
 
-def test_a_whole_campaign_in_demo_mode(page, server):  # noqa: F811
+def test_a_whole_campaign_in_demo_mode(page, server):
     # the live path: each printed test is captured from the demo's virtual bar through a
     # pseudo-terminal and becomes the test's measurement by itself (the recorded path, where
     # the page collects each test's simulated trace, is tests/plugin/test_campaign_api.py's)

@@ -64,7 +64,7 @@ def _untrusted_run(srv):
 
 
 def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
-    browser,  # noqa: F811
+    browser,
     tmp_path,
 ):
     srv = DevServer(str(tmp_path / "op"))
@@ -111,7 +111,7 @@ def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
         srv.stop()
 
 
-def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):  # noqa: F811
+def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):
     srv = DevServer(str(tmp_path / "op"))
     srv.start()
     context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")

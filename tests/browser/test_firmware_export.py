@@ -20,7 +20,7 @@ PARAMS = {
 }
 
 
-def test_settings_show_the_export_per_firmware_and_copy_it(page, server):  # noqa: F811
+def test_settings_show_the_export_per_firmware_and_copy_it(page, server):
     settings(server, enabled=False, params=PARAMS)
     page.context.grant_permissions(["clipboard-read", "clipboard-write"], origin=server.url)
     _open_settings(page)
@@ -65,7 +65,7 @@ def test_settings_show_the_export_per_firmware_and_copy_it(page, server):  # noq
     settings(server, enabled=False, params=ZERO)
 
 
-def test_calibration_tab_shows_version_and_readme(page, server):  # noqa: F811
+def test_calibration_tab_shows_version_and_readme(page, server):
     _open_tab(page)
     page.wait_for_function("document.querySelector('#kincomp_tab_version').textContent !== ''")
     assert page.inner_text("#kincomp_tab_version") == __version__

@@ -28,7 +28,7 @@ def size(request):
 
 
 @pytest.fixture
-def page(browser, server, size):  # noqa: F811
+def page(browser, server, size):
     os.makedirs(SHOTS, exist_ok=True)
     context = browser.new_context(viewport={"width": size[0], "height": size[1]}, locale="en-US")
     pg = context.new_page()
@@ -265,7 +265,7 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
     assert not page.is_visible("#kincomp_apply_why")
 
 
-def test_a_live_capture_source_is_translated(browser, server):  # noqa: F811
+def test_a_live_capture_source_is_translated(browser, server):
     # the History's source "live capture (XZ)" is stored in English: shown in German
     context = browser.new_context(
         viewport={"width": 1400, "height": 900},

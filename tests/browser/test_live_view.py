@@ -24,7 +24,7 @@ from tests.support.serverutil import settings, status
 pytestmark = pytest.mark.slow
 
 
-def test_live_capture_from_the_calibration_tab(page, server):  # noqa: F811
+def test_live_capture_from_the_calibration_tab(page, server):
     settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": True})
     try:
         _open_tab(page)
@@ -83,7 +83,7 @@ def test_live_capture_from_the_calibration_tab(page, server):  # noqa: F811
         settings(server, demo={"enabled": False, "live": True}, params=ZERO, enabled=False)
 
 
-def test_sensor_settings_refuse_bad_values_inline(page, server):  # noqa: F811
+def test_sensor_settings_refuse_bad_values_inline(page, server):
     settings(server, sensor={"enabled": False, "port": ""})
     _open_settings(page)
     page.locator("#kincomp_sensor_settings").scroll_into_view_if_needed()

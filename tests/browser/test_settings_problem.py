@@ -27,7 +27,7 @@ GARBAGE = {
 }
 
 
-def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_path):  # noqa: F811
+def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_path):
     srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE)
     srv.start()
     context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")

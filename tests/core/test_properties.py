@@ -568,7 +568,8 @@ def program(draw, max_ops=30, partial_home=True):
     for m in draw(st.sampled_from([(), ("G92 E0",), ("M83",), ("G92 E0", "M83")])):
         add(m)
     add(
-        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f} Z{draw(st.floats(0.2, 40)):.3f} F3000"
+        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f}"
+        f" Z{draw(st.floats(0.2, 40)):.3f} F3000"
     )
 
     def val(lo, hi, rel=False):

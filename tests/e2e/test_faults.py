@@ -97,7 +97,7 @@ def test_compensation_error_pauses_and_sends_nothing_uncompensated(server):
         assert not st["halted"] and st["held_moves"] == held
         later = [c for c in sent(server, after=start)[resume_mark:] if c.startswith("G1 X")]
         assert len(later) > 1000
-        raw = {l for l in lines[6:]}
+        raw = set(lines[6:])
         assert not any(c in raw for c in later), [c for c in later if c in raw][:3]
         assert st["report"]["untouched_unknown_position"] == 0
     finally:

@@ -158,7 +158,7 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     )
     assert code == 200 and prog["spec"]["feed_mm_min"] == 600.0
     assert "Z axis' max feed is 600 mm/min" in prog["feed_lowered"][0]["text"]
-    ((args, _),) = [c for c in plugin._file_manager.add_file.call_args_list]
+    ((args, _),) = list(plugin._file_manager.add_file.call_args_list)
     text = args[2].stream().read().decode() if hasattr(args[2], "stream") else ""
     assert "M220 S100" in text and "F1850" not in text
     # and so does a campaign plan

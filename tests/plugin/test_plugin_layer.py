@@ -339,8 +339,8 @@ def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
 @pytest.mark.parametrize("end", ["PrintDone", "Disconnected"])
 def test_a_print_resumed_from_a_file_position_begins_at_its_first_line(plugin, tmp_path, end):
     """A print started from a later line (OctoPrint's "print from here", no ``fileline:1``)
-    after an earlier print ended (or the printer was disconnected): its first line through the hook begins it, before its
-    PRINT_STARTED; the lines after that change nothing."""
+    after an earlier print ended (or the printer was disconnected): its first line through the
+    hook begins it, before its PRINT_STARTED; the lines after that change nothing."""
     plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]})
     _printing_plain_file(plugin, tmp_path)
     comm = object()

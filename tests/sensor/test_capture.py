@@ -130,6 +130,9 @@ def test_unplugged_mid_test_fails_and_keeps_the_partial_data(sensors, captures):
     assert cap.wait(("armed",), 5) == "armed"
     vs.play(PROGRAM, time.monotonic(), spec=SPEC)
     assert cap.wait(("capturing",), 15) == "capturing"
+    deadline = time.monotonic() + 15  # some data first (a loaded machine reads late)
+    while cap.status()["samples"] <= 500 and time.monotonic() < deadline:
+        time.sleep(0.05)
     vs.unplug()
     assert cap.wait(("failed",), 5) == "failed"
     res, st = cap.result, cap.status()
