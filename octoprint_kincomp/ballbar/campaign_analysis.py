@@ -102,7 +102,7 @@ def analyse_campaign(
         )
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
-        found += outlier_findings(cf, diag, t.name)
+        found += outlier_findings(cf, diag, t.name, t.geom.radius)
         drift = checks.drift_finding(diag, raw, t.name)
         if drift is not None:
             found.append(drift)

@@ -8,10 +8,12 @@ Each check turns evidence the analysis already has into :mod:`.findings`:
   :data:`SYNC_TOLERANCE_SHARE` of the run) the printer did not run the program as planned:
   an error naming the likely cause. Angle-domain traces carry no time: an info finding says
   what the angle mapping assumed and that the timing was not checked;
-* **noise floor and model adequacy** (:func:`noise_floor`, :func:`adequacy_findings`): the fit's
-  residual rms against the sensor's noise floor (the scatter of the readings while the head
-  stands still, or of the residual's second differences); above
-  :data:`ADEQUACY_RATIO` times the floor a warning says what the residual looks like;
+* **noise floor and model adequacy** (:func:`noise_floor`, :func:`misfit_floor`,
+  :func:`adequacy_findings`): the fit's residual rms against the larger of the sensor's noise
+  floor (the scatter of the readings while the head stands still, or of the residual's second
+  differences) and the residual's own sample-to-sample scatter while moving; above
+  :data:`ADEQUACY_RATIO` times that floor a warning says what the residual looks like.
+  Scatter only while moving (vibration) is an info finding: it biases nothing;
 * **cyclic error** (:func:`scan_cyclic`): the residual's strongest periodic term in axis
   position (pitch 1..50 mm); a clear one is fitted by default (:data:`CYCLIC_MIN_UM`);
 * **outliers** (:func:`find_outliers`): isolated samples far from their neighbours are left out
@@ -391,8 +393,8 @@ def residual_looks(
     look-alike explains: ``motor_backlash`` (steps where a CoreXY/H-bot motor reverses, XY),
     ``reversal_spikes`` (a tail decaying over 8 deg after each reversal point),
     ``odd_harmonics`` (3, 5, 7, 9 theta, lateral play), ``time_trend`` (a non-linear drift),
-    ``periodic`` (the strongest cyclic term), ``high_frequency`` (the residual's sample-to-
-    sample level above the still floor: vibration)."""
+    ``periodic`` (the strongest cyclic term). Scatter from sample to sample (vibration) is
+    not among them: it is part of ``floor_um`` (see :func:`misfit_floor`)."""
     theta = np.concatenate([r.theta for r in runs])[keep]
     w = np.concatenate([np.full(len(r.theta), r.w, dtype=float) for r in runs])[keep]
     res = np.concatenate([f.residuals[r.direction][1] for r in runs])[keep]
@@ -438,9 +440,6 @@ def residual_looks(
         out["time_trend"] = _explained(res, cols) / excess
     if cyclic:
         out["periodic"] = min(1.0, cyclic["dsse_mm2"] / excess)
-    hf = residual_floor(f, runs) * 1e3
-    if floor_um > 0 and hf > 1.5 * floor_um:
-        out["high_frequency"] = min(1.0, n * ((hf * 1e-3) ** 2 - noise / n) / excess)
     return out
 
 
@@ -462,10 +461,46 @@ LOOK_MESSAGES = {
         "a slow change in time that is not linear: the bar or the printer warming up"
     ),
     "periodic": Msg("a periodic error along an axis"),
-    "high_frequency": Msg(
-        "fast sample-to-sample scatter above the sensor's noise while moving: vibration"
-    ),
 }
+
+
+def misfit_floor(
+    f: FitResult, runs: Sequence[Run], floor_um: float, floor_source: str, label: str = ""
+) -> Tuple[float, str, List[Finding], Dict[str, object]]:
+    """(um, source, findings, evidence): the floor the misfit check compares the residual with:
+    the larger of the sensor's floor (``floor_um``: still, or the residual's own) and the
+    residual's sample-to-sample level while moving (:func:`residual_floor`, second
+    differences: white scatter, not smooth structure). Scatter that appears only while the
+    head moves (vibration, a rough guide) does not bias the fitted values (their
+    uncertainties grow with it), so it is no misfit: above ADEQUACY_RATIO times the still
+    reading it is an info finding instead."""
+    moving = max(residual_floor(f, runs) * 1e3, FLOOR_MIN_UM)
+    ev: Dict[str, object] = {"moving_floor_um": round(moving, 3)}
+    if floor_source == "still":
+        ev["still_floor_um"] = round(floor_um, 3)
+    found: List[Finding] = []
+    if floor_source == "still" and moving > ADEQUACY_RATIO * floor_um:
+        pre = (label + ": ") if label else ""
+        found.append(
+            info(
+                "data.vibration",
+                Msg(
+                    "%(pre)sThe reading scatters %(moving)s um from sample to sample while the "
+                    "head moves and %(still)s um while it stands still (%(ratio)s times): "
+                    "vibration or a rough guide. Scatter like this does not bias the fitted "
+                    "values; their uncertainties include it.",
+                    pre=pre,
+                    moving=_fmt(moving, 2),
+                    still=_fmt(floor_um, 2),
+                    ratio=_fmt(moving / floor_um, 1),
+                ),
+                Msg("Check the bar's mounts and the printer's belts if it is much larger."),
+                **ev,
+            )
+        )
+    if floor_source == "still" and moving > floor_um:
+        return moving, "moving", found, ev
+    return floor_um, floor_source, found, ev
 
 
 def adequacy_findings(
