@@ -331,6 +331,9 @@ def analyse(
         drift = checks.drift_finding(diag, runs)
         if drift is not None:
             found.append(drift)
+        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m)
+        if oop is not None:
+            found.append(oop)
         plot = plot_data(geom, runs, f, diag)
         for n in mapping_notes(mapping):
             notes.append(n)
