@@ -644,10 +644,10 @@ def out_of_plane_finding(plane: str, squareness_um_per_m: Dict[str, float]) -> O
     return info(
         "model.out_of_plane",
         Msg(
-            "A single %(plane)s test cannot see the squareness %(keys)s: it moves the third "
-            "axis out of the plane, which the fit takes for a scale mismatch of "
-            "(s^2)/2 and a squareness of the product (0.5 ppm at 1000 um/m; the 5 ppm "
-            "tolerance at %(tol)s um/m). The parameters in force do not correct it.",
+            "A single %(plane)s test cannot see the squareness %(keys)s, and the parameters in "
+            "force do not correct it: it moves the third axis out of the plane, which the fit "
+            "takes for a scale mismatch of half its square (0.5 ppm at 1000 um/m; the 5 ppm "
+            "tolerance at %(tol)s um/m) and for a squareness of the product of the two.",
             plane=plane,
             keys=", ".join(unknown),
             tol=f"{tol_um_per_m:.0f}",
