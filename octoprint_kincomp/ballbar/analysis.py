@@ -195,17 +195,22 @@ def checked_fit(
             out.cyclic_pitch = cyclic_pitch
             found.append(checks.cyclic_finding(scan, label))
             scan = checks.scan_cyclic(geom, runs, f, keep)
+    misfit_floor, misfit_source, vibration, moving_ev = checks.misfit_floor(
+        f, runs, floor, source, label
+    )
+    found += vibration
     adequacy, ev = checks.adequacy_findings(
         geom,
         runs,
         f,
         keep,
-        floor,
-        source,
+        misfit_floor,
+        misfit_source,
         scan if checks.cyclic_detected(scan, floor) else None,
         label,
     )
     found += adequacy
+    ev.update(moving_ev)
     out.checks["adequacy"] = ev
     wider = mask_deg + checks.STABILITY_EXTRA_DEG
     try:
@@ -321,11 +326,14 @@ def analyse(
             geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping
         )
         found += cf.findings
-        found += outlier_findings(cf, diag)
+        found += outlier_findings(cf, diag, radius=geom.radius)
         diag["checks"] = cf.checks
         drift = checks.drift_finding(diag, runs)
         if drift is not None:
             found.append(drift)
+        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m)
+        if oop is not None:
+            found.append(oop)
         plot = plot_data(geom, runs, f, diag)
         for n in mapping_notes(mapping):
             notes.append(n)
@@ -376,14 +384,17 @@ def analyse(
     }
 
 
-def outlier_findings(cf: CheckedFit, diag: Dict[str, object], label: str = "") -> List[Finding]:
+def outlier_findings(
+    cf: CheckedFit, diag: Dict[str, object], label: str = "", radius: float = 0.0
+) -> List[Finding]:
     """The circularity without the outliers the checks left out of the fit, and a finding
     saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
-    message (a campaign's file name)."""
+    message (a campaign's file name); ``radius`` (mm): the nominal radius (see
+    :func:`.metrics.circularity`)."""
     if not cf.robust_runs:
         return []
     pre = (label + ": ") if label else ""
-    robust = circularity([r.captured() for r in cf.robust_runs])
+    robust = circularity([r.captured() for r in cf.robust_runs], radius)
     diag["circularity_robust_um"] = robust
     g, gr = diag["circularity_um"]["bidirectional"], robust["bidirectional"]
     n = cf.checks.get("outliers", 0)

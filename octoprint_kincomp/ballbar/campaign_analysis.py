@@ -91,6 +91,11 @@ def analyse_campaign(
             for t in fits
         ]
     res = joint_fit(fits, mask_deg, calibrated, cyclic_pitch)
+    joint_found, joint_ev = checks.joint_findings(
+        [_joint_row(t, res, cf) for t, (_, _, cf, _) in zip(fits, maps)],
+        sum(len(t.model.names) for t in fits) - len(res.names),
+    )
+    found += joint_found
     for i, (t, (meta, mapping, cf, raw)) in enumerate(zip(fits, maps)):
         # each test on its own, with the out-of-plane motion the other planes' squareness
         # causes (from the joint fit) taken into account
@@ -102,7 +107,7 @@ def analyse_campaign(
         )
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
-        found += outlier_findings(cf, diag, t.name)
+        found += outlier_findings(cf, diag, t.name, t.geom.radius)
         drift = checks.drift_finding(diag, raw, t.name)
         if drift is not None:
             found.append(drift)
@@ -145,6 +150,7 @@ def analyse_campaign(
     heights = _xy_heights(per_trace, notes)
     if heights:
         camp["squareness_xy_by_height"] = heights
+    camp["checks"] = {"joint": joint_ev}
     camp["fit"] = {
         "rms_um": res.rms_um,
         "samples": res.samples,
@@ -176,6 +182,18 @@ def analyse_campaign(
         "notes": notes,
         "plot": None,
         "plots": plots,
+    }
+
+
+def _joint_row(t: TraceFit, res, cf) -> Dict[str, float]:
+    """What :func:`.checks.joint_findings` needs of one trace."""
+    return {
+        "file": t.name,
+        "own_rms_um": t.fit.rms_um,
+        "joint_rms_um": res.rms_um[t.name],
+        "samples": int(t.keep.sum()),
+        "inflation": t.fit.correlation_inflation,
+        "floor_um": float(cf.checks["adequacy"]["noise_floor_um"]),
     }
 
 

@@ -8,10 +8,12 @@ Each check turns evidence the analysis already has into :mod:`.findings`:
   :data:`SYNC_TOLERANCE_SHARE` of the run) the printer did not run the program as planned:
   an error naming the likely cause. Angle-domain traces carry no time: an info finding says
   what the angle mapping assumed and that the timing was not checked;
-* **noise floor and model adequacy** (:func:`noise_floor`, :func:`adequacy_findings`): the fit's
-  residual rms against the sensor's noise floor (the scatter of the readings while the head
-  stands still, or of the residual's second differences); above
-  :data:`ADEQUACY_RATIO` times the floor a warning says what the residual looks like;
+* **noise floor and model adequacy** (:func:`noise_floor`, :func:`misfit_floor`,
+  :func:`adequacy_findings`): the fit's residual rms against the larger of the sensor's noise
+  floor (the scatter of the readings while the head stands still, or of the residual's second
+  differences) and the residual's own sample-to-sample scatter while moving; above
+  :data:`ADEQUACY_RATIO` times that floor a warning says what the residual looks like.
+  Scatter only while moving (vibration) is an info finding: it biases nothing;
 * **cyclic error** (:func:`scan_cyclic`): the residual's strongest periodic term in axis
   position (pitch 1..50 mm); a clear one is fitted by default (:data:`CYCLIC_MIN_UM`);
 * **outliers** (:func:`find_outliers`): isolated samples far from their neighbours are left out
@@ -30,7 +32,7 @@ import numpy as np
 
 from ..core.messages import Msg, joined
 from .findings import Finding, error, info, warning
-from .model import FitResult, Geometry, Run, fit_mask
+from .model import OUT_OF_PLANE, FitResult, Geometry, Run, fit_mask
 
 # -- motion ------------------------------------------------------------------------------
 # A clean run's feed-out comes within 1 ms of the plan (measured: 108 simulated runs, 54
@@ -391,8 +393,8 @@ def residual_looks(
     look-alike explains: ``motor_backlash`` (steps where a CoreXY/H-bot motor reverses, XY),
     ``reversal_spikes`` (a tail decaying over 8 deg after each reversal point),
     ``odd_harmonics`` (3, 5, 7, 9 theta, lateral play), ``time_trend`` (a non-linear drift),
-    ``periodic`` (the strongest cyclic term), ``high_frequency`` (the residual's sample-to-
-    sample level above the still floor: vibration)."""
+    ``periodic`` (the strongest cyclic term). Scatter from sample to sample (vibration) is
+    not among them: it is part of ``floor_um`` (see :func:`misfit_floor`)."""
     theta = np.concatenate([r.theta for r in runs])[keep]
     w = np.concatenate([np.full(len(r.theta), r.w, dtype=float) for r in runs])[keep]
     res = np.concatenate([f.residuals[r.direction][1] for r in runs])[keep]
@@ -438,9 +440,6 @@ def residual_looks(
         out["time_trend"] = _explained(res, cols) / excess
     if cyclic:
         out["periodic"] = min(1.0, cyclic["dsse_mm2"] / excess)
-    hf = residual_floor(f, runs) * 1e3
-    if floor_um > 0 and hf > 1.5 * floor_um:
-        out["high_frequency"] = min(1.0, n * ((hf * 1e-3) ** 2 - noise / n) / excess)
     return out
 
 
@@ -462,10 +461,46 @@ LOOK_MESSAGES = {
         "a slow change in time that is not linear: the bar or the printer warming up"
     ),
     "periodic": Msg("a periodic error along an axis"),
-    "high_frequency": Msg(
-        "fast sample-to-sample scatter above the sensor's noise while moving: vibration"
-    ),
 }
+
+
+def misfit_floor(
+    f: FitResult, runs: Sequence[Run], floor_um: float, floor_source: str, label: str = ""
+) -> Tuple[float, str, List[Finding], Dict[str, object]]:
+    """(um, source, findings, evidence): the floor the misfit check compares the residual with:
+    the larger of the sensor's floor (``floor_um``: still, or the residual's own) and the
+    residual's sample-to-sample level while moving (:func:`residual_floor`, second
+    differences: white scatter, not smooth structure). Scatter that appears only while the
+    head moves (vibration, a rough guide) does not bias the fitted values (their
+    uncertainties grow with it), so it is no misfit: above ADEQUACY_RATIO times the still
+    reading it is an info finding instead."""
+    moving = max(residual_floor(f, runs) * 1e3, FLOOR_MIN_UM)
+    ev: Dict[str, object] = {"moving_floor_um": round(moving, 3)}
+    if floor_source == "still":
+        ev["still_floor_um"] = round(floor_um, 3)
+    found: List[Finding] = []
+    if floor_source == "still" and moving > ADEQUACY_RATIO * floor_um:
+        pre = (label + ": ") if label else ""
+        found.append(
+            info(
+                "data.vibration",
+                Msg(
+                    "%(pre)sThe reading scatters %(moving)s um from sample to sample while the "
+                    "head moves and %(still)s um while it stands still (%(ratio)s times): "
+                    "vibration or a rough guide. Scatter like this does not bias the fitted "
+                    "values; their uncertainties include it.",
+                    pre=pre,
+                    moving=_fmt(moving, 2),
+                    still=_fmt(floor_um, 2),
+                    ratio=_fmt(moving / floor_um, 1),
+                ),
+                Msg("Check the bar's mounts and the printer's belts if it is much larger."),
+                **ev,
+            )
+        )
+    if floor_source == "still" and moving > floor_um:
+        return moving, "moving", found, ev
+    return floor_um, floor_source, found, ev
 
 
 def adequacy_findings(
@@ -522,6 +557,109 @@ def adequacy_findings(
         "Apply only if the values agree with a repeat."
     )
     return [warning("model.misfit", msg, advice, **ev)], ev
+
+
+# -- a campaign's joint fit ----------------------------------------------------------------
+# The joint fit ties the planes together (one squareness per plane, one scale, lag and
+# backlash per axis); each trace's own fit is free. What the ties cost is the rise of the
+# chi-square, sum over traces of n_eff (J^2 - O^2) / O^2 (J, O: the joint and the own rms,
+# n_eff the samples over the squared correlation inflation). With consistent tests it is a
+# chi-square of as many degrees of freedom as the ties (the own fits' parameters less the
+# joint ones: 8-10 for three planes); a campaign is called inconsistent beyond that plus
+# JOINT_CHI2_SIGMAS of its standard deviation, and at least JOINT_CHI2_MIN. Measured on the
+# simulator (docs/trust-checks.md): clean campaigns 0.2-12; the YZ test of a printer whose Z
+# scale differs by 20 ppm from the XZ test's (closure 20 ppm, 7 sigma) 90, by 50 ppm 540.
+JOINT_CHI2_SIGMAS = 6.0
+JOINT_CHI2_MIN = 50.0
+
+
+def joint_findings(rows: Sequence[Dict[str, float]], dof: int) -> Tuple[List[Finding], dict]:
+    """(findings, evidence) on the joint fit of a campaign. ``rows``: per trace ``file``,
+    ``own_rms_um``, ``joint_rms_um``, ``samples``, ``inflation`` and ``floor_um`` (the
+    sensor's floor the trace's misfit check used); ``dof``: the number of ties.
+
+    A warning ``campaign.inconsistent`` when the ties raise the chi-square beyond what noise
+    explains, or when the joint model leaves a trace more than ADEQUACY_RATIO times its
+    noise floor where its own fit did not (that trace's own misfit is already a warning)."""
+    limit = max(JOINT_CHI2_MIN, dof + JOINT_CHI2_SIGMAS * math.sqrt(2.0 * max(dof, 1)))
+    per, total, misfit = {}, 0.0, []
+    for r in rows:
+        own, joint = max(r["own_rms_um"], 1e-9), r["joint_rms_um"]
+        n_eff = r["samples"] / max(r["inflation"], 1.0) ** 2
+        d = n_eff * (joint * joint - own * own) / (own * own)
+        total += d
+        floor = max(r["floor_um"], FLOOR_MIN_UM)
+        per[r["file"]] = {
+            "own_rms_um": round(own, 3),
+            "joint_rms_um": round(joint, 3),
+            "delta_chi2": round(d, 1),
+            "joint_ratio_to_floor": round(joint / floor, 3),
+        }
+        if joint / floor > ADEQUACY_RATIO >= own / floor:
+            misfit.append(r["file"])
+    ev = {
+        "delta_chi2": round(total, 1),
+        "limit": round(limit, 1),
+        "ties": dof,
+        "traces": per,
+    }
+    if total <= limit and not misfit:
+        return [], ev
+    worst = sorted(per, key=lambda k: -per[k]["delta_chi2"])
+    named = misfit or [k for k in worst if per[k]["delta_chi2"] > 0.2 * total][:3]
+    msg = Msg(
+        "The tests of this campaign disagree about the errors they share (a squareness, an "
+        "axis's scale, lag or backlash seen in two planes): one parameter set fits them worse "
+        "than each test fits itself (chi-square up by %(chi2)s, noise explains up to "
+        "%(limit)s), most in %(files)s. The bar moved or slipped between tests, a test ran "
+        "with other settings, or the printer has an error the model does not describe (a "
+        "scale that changes along the axis). The joint values are a compromise.",
+        chi2=f"{total:.0f}",
+        limit=f"{limit:.0f}",
+        files=", ".join(named),
+    )
+    advice = Msg(
+        "Compare each test's own values (per trace) with the joint ones; repeat the tests "
+        "named and apply only when a repeat agrees."
+    )
+    return [warning("campaign.inconsistent", msg, advice, files=named, **ev)], ev
+
+
+def out_of_plane_finding(plane: str, squareness_um_per_m: Dict[str, float]) -> Optional[Finding]:
+    """Info for a single test of a vertical plane whose out-of-plane squareness (the other
+    planes' that move the third axis, :data:`.model.OUT_OF_PLANE`) the parameters in force do
+    not correct (zero in ``squareness_um_per_m``, the current parameters).
+
+    The third axis then moves by ``oA A + oB B``: the bar is longer by
+    ``(oA A + oB B)^2 / 2R``, whose ``cos 2t`` and ``sin 2t`` parts the fit takes for a scale
+    mismatch of ``(oA^2 - oB^2) / 2`` and a squareness of ``oA oB`` (rad). 0.5 ppm at
+    1000 um/m, the 5 ppm tolerance at 3162 um/m: a re-test of a very out-of-square printer
+    (the simulated paper's xy -3638.6 um/m read +6.6 ppm in YZ) is biased by it; a campaign's
+    joint fit is not."""
+    keys = [k for k in OUT_OF_PLANE.get(plane, ()) if k]
+    unknown = [k for k in keys if not squareness_um_per_m.get(k)]
+    if not unknown:
+        return None
+    tol_um_per_m = math.sqrt(2 * 5e-6) * 1e6
+    return info(
+        "model.out_of_plane",
+        Msg(
+            "A single %(plane)s test cannot see the squareness %(keys)s, and the parameters in "
+            "force do not correct it: it moves the third axis out of the plane, which the fit "
+            "takes for a scale mismatch of half its square (0.5 ppm at 1000 um/m; the 5 ppm "
+            "tolerance at %(tol)s um/m) and for a squareness of the product of the two.",
+            plane=plane,
+            keys=", ".join(unknown),
+            tol=f"{tol_um_per_m:.0f}",
+        ),
+        Msg(
+            "On a printer far out of square, measure XY first and test this plane with its "
+            "result in force, or run a campaign (its joint fit includes this motion)."
+        ),
+        uncorrected=unknown,
+        bias_ppm_at_1000_um_per_m=0.5,
+        squareness_at_tolerance_um_per_m=round(tol_um_per_m),
+    )
 
 
 def cyclic_finding(scan: Dict[str, float], label: str = "") -> Finding:

@@ -36,6 +36,7 @@ from ..core.messages import Msg
 from ..core.params import AXES
 from .formats import TraceError
 from .model import (
+    OUT_OF_PLANE,
     FitResult,
     Geometry,
     Model,
@@ -178,11 +179,9 @@ class Layout:
             p: float(g[self.index[f"sq_{p}"]]) if f"sq_{p}" in self.index else 0.0
             for p in ("xy", "xz", "yz")
         }
-        if plane == "YZ":
-            return {"oA": sq["xy"], "oB": sq["xz"]}
-        if plane == "XZ":
-            return {"oA": 0.0, "oB": sq["yz"]}
-        return {}
+        if plane not in OUT_OF_PLANE:
+            return {}
+        return {o: sq[k] if k else 0.0 for o, k in zip(("oA", "oB"), OUT_OF_PLANE[plane])}
 
 
 def _reversal_positions(traces: Sequence[TraceFit], axis: str) -> List[float]:

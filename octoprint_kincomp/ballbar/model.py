@@ -43,6 +43,12 @@ from .formats import TraceError
 from .program import PLANES as PROGRAM_PLANES
 
 DEFAULT_MASK_DEG = 15.0
+# per plane, the squareness (KinComp's key) that moves the third axis with A and with B
+# (``oA``, ``oB``): YZ: X = xy*Y + xz*Z; XZ: Y = yz*Z; XY: none
+OUT_OF_PLANE: Dict[str, Tuple[Optional[str], Optional[str]]] = {
+    "YZ": ("xy", "xz"),
+    "XZ": (None, "yz"),
+}
 BASE = ("r0", "dA", "dB", "ds", "alpha", "dT", "bAp", "bAm", "bBp", "bBm", "kA", "kB")
 
 

@@ -111,13 +111,63 @@ def test_a_reduction_from_a_value_within_the_noise_floor_says_at_noise_level(rou
     assert first["squareness_um_per_m"]["reduction_pct"] >= 99.0
 
 
-def test_servo_precompensation_round_at_1um_noise_filtered_gb_down_98_percent():
-    """Issue 23, item 6: at 1 um of sensor noise the raw G(b) after the round is mostly the
-    noise's own range (8 sigma over 36,000 samples: about 8 um), which kept its reduction at
-    97.9 %; the filtered G(b) (1 deg moving average) shows what the compensation left."""
-    res = run_round(paper_truth(noise_um=1.0), servo_precomp=True)
+def _perfect_gb(noise_um: float, seed: int) -> float:
+    """G(b) (um) of a machine without errors measured at ``noise_um`` with the same noise
+    seed: the floor no compensation can go below."""
+    from octoprint_kincomp.ballbar.analysis import analyse
+    from octoprint_kincomp.ballbar.formats import parse_csv_trace
+    from octoprint_kincomp.ballbar.program import TestSpec, generate
+    from octoprint_kincomp.ballbar.simulator import Truth, simulate_program
+
+    trace = simulate_program(generate(TestSpec()), Truth(noise_um=noise_um, seed=seed))
+    return analyse(parse_csv_trace(trace.to_text()))["diagnostics"]["circularity_um"][
+        "bidirectional"
+    ]
+
+
+def test_noiseless_round_with_servo_precompensation_leaves_a_fraction_of_a_micron():
+    """Issue 23, item 6: without noise the round leaves 0.25 um of G(b) (before: 407 um).
+    The re-test's pivot sits 0.4 mm off the compensated circle's centre (squareness
+    -3638.6 um/m x 110 mm); the second order of that offset (e^2 / 2R = 0.8 um) is the pivot's,
+    not the path's, and G(b) no longer counts it (metrics.about_path_centre)."""
+    res = run_round(paper_truth(noise_um=0.0), servo_precomp=True)
     rows = rows_by_key(res)
-    assert rows["circularity_filtered_um.bidirectional"]["reduction_pct"] >= 98.0
-    assert rows["circularity_um.bidirectional"]["reduction_pct"] >= 97.0
+    assert rows["circularity_um.bidirectional"]["after"] < 0.5
+    assert rows["circularity_um.bidirectional"]["reduction_pct"] >= 99.8
+    assert abs(res["after"]["diagnostics"]["centre_offset_um"]["a"]) > 300.0
+
+
+@pytest.mark.parametrize("seed", [1, 3, 4])
+def test_servo_precompensation_round_at_1um_noise_raw_gb_down_98_percent(seed):
+    """Issue 23, item 6 at 1 um of sensor noise: the raw G(b) is a range of ~20,000 samples,
+    so the noise alone gives ~8 sigma (a machine without errors: 7.6..8.5 um over seeds 1-8).
+    The round leaves G(b) within 0.5 um of that perfect machine's at the same noise and seed,
+    i.e. it removes all but 0.2 % of what can be removed; the raw reduction from ~412 um is
+    >= 98 % for seeds 1, 3, 4. Seeds 2, 6, 7 give 97.96-98.02 %: there a PERFECT machine's
+    G(b) is itself 97.94-97.99 % below the before value (the noise floor, not the
+    compensation; see test_raw_gb_98_percent_is_the_noise_floor_at_1um)."""
+    res = run_round(paper_truth(noise_um=1.0, seed=seed), servo_precomp=True)
+    rows = rows_by_key(res)
+    g = rows["circularity_um.bidirectional"]
+    assert g["reduction_pct"] >= 98.0
+    perfect = _perfect_gb(1.0, seed)
+    assert g["after"] <= perfect + 0.5
+    assert (g["before"] - g["after"]) / (g["before"] - perfect) >= 0.998
+    assert rows["circularity_filtered_um.bidirectional"]["reduction_pct"] >= 99.5
     assert res["after"]["trusted"] is True
     assert not [f for f in res["after"]["findings"] if f["severity"] != "info"]
+
+
+def test_raw_gb_98_percent_is_the_noise_floor_at_1um():
+    """Where the raw reduction stays below 98 % (seed 2) a machine without errors does too:
+    the limit is the noise's own range, and the round reaches it within 0.5 um."""
+    res = run_round(paper_truth(noise_um=1.0, seed=2), servo_precomp=True)
+    g = rows_by_key(res)["circularity_um.bidirectional"]
+    perfect = _perfect_gb(1.0, 2)
+    assert perfect > 7.0  # ~8 sigma of 1 um noise
+    assert reduction_of(g["before"], perfect) < 98.0  # a perfect compensation misses it too
+    assert g["after"] <= perfect + 0.5
+
+
+def reduction_of(before, after):
+    return (1.0 - after / before) * 100.0
