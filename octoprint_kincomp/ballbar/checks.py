@@ -267,7 +267,10 @@ def without(runs: Sequence[Run], drop: Dict[str, np.ndarray]) -> List[Run]:
     out = []
     for run in runs:
         k = ~drop.get(run.direction, np.zeros(len(run.theta), dtype=bool))
-        pick = lambda x: None if x is None else x[k]
+
+        def pick(x, k=k):
+            return None if x is None else x[k]
+
         out.append(
             Run(
                 run.direction,
