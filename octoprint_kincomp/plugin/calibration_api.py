@@ -61,6 +61,7 @@ from .findings_view import findings_of, refusal
 from .job_api import JobApi
 from .motion_limits import effective_limits
 from .notify import Notifier
+from .printer_profiles import other_profile
 from .queue import QueueCompensator
 from .runs import RunNotFound, RunNotStorable, RunStore
 from .settings import SettingsError
@@ -462,19 +463,20 @@ class CalibrationApi:
             params_doc, apply_now, run, {"enabled": data["enabled"]} if "enabled" in data else None
         )
 
-    def other_printers(self, run: Dict[str, Any]):
-        """409 when ``run`` was recorded for another printer profile than the one in force
-        (a stale page or another user's switch: printer A's result must never be applied to
-        printer B; ``force`` does not override it); None to go on."""
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
+        """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
+        printer profile than the one in force (a stale page or another user's switch:
+        printer A's result must never be applied to printer B; ``force`` does not override
+        it); None to go on."""
         s = self._store.current()
-        mine = run.get("profile") or s.get("legacy_profile") or ""
-        if not s.get("profile") or not mine or mine == s["profile"]:
+        if not other_profile(run.get("profile"), s):
             return None
         return http.error(
             gettext(
-                "This run belongs to printer profile %(run)s, but %(current)s "
+                "%(what)s belongs to printer profile %(run)s, but %(current)s "
                 "is in force: connect that printer to apply it.",
-                run=mine,
+                what=what or gettext("This run"),
+                run=run.get("profile") or s["legacy_profile"],
                 current=s["profile"],
             ),
             409,

@@ -18,7 +18,7 @@ profile id in the settings' ``profiles``; the top-level keys hold the set in for
 from __future__ import annotations
 
 import copy
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 from .settings import PER_PROFILE, defaults
 
@@ -40,6 +40,23 @@ def calibrated(s: Dict[str, Any]) -> bool:
     """Whether the profile in force has a calibration (a parameter set of its own); a set
     not yet adopted by a profile (settings from before profiles) counts as one."""
     return not s["profile"] or "params" in s["profiles"].get(s["profile"], {})
+
+
+def deleted(kept: Dict[str, Any], existing: Optional[Dict[str, str]]) -> List[str]:
+    """The ids of the profiles KinComp keeps something of (``kept``: ids as keys) that
+    OctoPrint no longer has (``existing``: its profiles' ids; None: unknown, so none).
+    Their sets and runs stay stored: a profile made again with the same id gets them back."""
+    if existing is None:
+        return []
+    return sorted(pid for pid in kept if pid and pid != DEFAULT_ID and pid not in existing)
+
+
+def other_profile(owner: Optional[str], s: Dict[str, Any]) -> bool:
+    """Whether something recorded for printer profile ``owner`` (a run, a campaign; empty:
+    from before profiles, i.e. ``legacy_profile``'s) belongs to another printer than the
+    one whose set is in force in ``s``: it must never be applied there."""
+    mine = owner or s.get("legacy_profile") or ""
+    return bool(s.get("profile")) and bool(mine) and mine != s["profile"]
 
 
 def recorded(stored: Dict[str, Any], new: Dict[str, Any]) -> Dict[str, Any]:

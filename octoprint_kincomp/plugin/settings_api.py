@@ -11,9 +11,14 @@
   compensation is off then, ``settings`` shows the invalid value as its default).
 * ``POST /settings``: a partial settings document, merged into the stored one and validated
   whole (400 naming the field, nothing stored), saved and applied in one step under the
-  store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed); ``"apply_now": true`` applies it mid-print. ``check``
+  store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed);
+  ``"apply_now": true`` applies it mid-print. ``check``
   (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
-  printer's own).
+  printer's own). ``"expected_profile": "<id>"`` (the settings page sends the printer
+  profile it was loaded for) makes the save conditional: 409 with ``profile_changed``
+  (``expected``, ``current``) and nothing stored when another profile's set is in force
+  now (a page opened for printer A and saved after a switch to B must not write A's values
+  into B's set). Without it the save goes to the profile in force (scripts, the API).
 """
 
 from __future__ import annotations
@@ -89,8 +94,13 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
+        expected = data.pop("expected_profile", None)
+        if expected is not None and not isinstance(expected, str):
+            return http.error(gettext("'%(key)s' must be a string", key="expected_profile"), 400)
 
         def vet(stored, new):
+            if expected is not None and expected != stored["profile"]:
+                raise http.Refused(self.profile_changed(expected, stored["profile"]))
             if self.check is not None:
                 self.check(new)
             refused = http.update_source_refused(stored, new)
@@ -108,3 +118,19 @@ class SettingsApi:
             params_hash=Params.from_dict(new["params"]).hash(),
             compensation=self._queue.status(),
         )
+
+    def profile_changed(self, expected: str, current: str):
+        """409: the page was loaded for printer profile ``expected`` but ``current``'s set
+        is in force now; nothing was saved."""
+        names = self._store.profile_names() or {}
+        resp = flask.jsonify(
+            error=gettext(
+                "Not saved: this page shows the settings of printer profile %(expected)s, "
+                "but printer profile %(current)s is in force now. Reload the page to see "
+                "and change %(current)s's settings.",
+                expected=names.get(expected) or expected or "-",
+                current=names.get(current) or current or "-",
+            ),
+            profile_changed={"expected": expected, "current": current},
+        )
+        return flask.make_response(resp, 409)

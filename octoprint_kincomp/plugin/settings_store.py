@@ -42,7 +42,14 @@ from ..core.messages import error_message
 from ..core.params import Params
 from . import http
 from .notify import N_, Notifier
-from .printer_profiles import calibrated, profile_id, profile_name, recorded, switch
+from .printer_profiles import (
+    calibrated,
+    deleted,
+    profile_id,
+    profile_name,
+    recorded,
+    switch,
+)
 from .queue import QueueCompensator
 from .settings import (
     INTERNAL_KEYS,
@@ -354,14 +361,27 @@ class SettingsStore:
         except Exception:
             return {}
 
+    def profile_names(self) -> Optional[Dict[str, str]]:
+        """OctoPrint's printer profiles as {id: name}; None when OctoPrint does not say."""
+        try:
+            profiles = self._profiles.get_all()
+        except Exception:
+            return None
+        if not isinstance(profiles, dict):
+            return None
+        return {pid: profile_name(dict(p or {}, id=pid)) for pid, p in profiles.items()}
+
     def profile_status(self, s: Dict[str, Any]) -> Dict[str, Any]:
-        """Which printer profile's calibration is in force (for /status and the UI)."""
+        """Which printer profile's calibration is in force (for /status and the UI), and
+        the profiles KinComp keeps a set of that OctoPrint no longer has (``deleted``)."""
         profile = self.active_profile(connected=True) or self.active_profile()
+        names = self.profile_names()
         return {
             "id": s["profile"],
             "name": profile_name(profile) if profile_id(profile) == s["profile"] else s["profile"],
             "calibrated": calibrated(s),
             "known": sorted(s["profiles"]),
+            "deleted": deleted(s["profiles"], names),
         }
 
     def follow_profile(self) -> None:

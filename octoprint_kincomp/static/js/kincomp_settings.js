@@ -46,6 +46,13 @@ $(function () {
         // what is wrong with the stored settings (compensation is off until it is fixed)
         self.settingsProblem = ko.observable("");
         self.saving = ko.observable(false);
+        // the printer profile whose settings the page shows (sent with a save: the server
+        // refuses it when another profile's are in force by then) and its name; whether a
+        // save was refused for that reason (the page offers to reload)
+        self.profileId = null;
+        self.profileName = ko.observable("");
+        self.deletedProfiles = ko.observableArray([]);
+        self.staleProfile = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
 
         // a stored value as the form shows it (at most 3 decimals: 30.8903127 -> "30.89");
@@ -106,6 +113,11 @@ $(function () {
         self.fromStatus = function (status) {
             var s = status.settings;
             self.loaded = s;
+            var profile = status.profile || {};
+            self.profileId = profile.id === undefined ? null : profile.id;
+            self.profileName(profile.name || "");
+            self.deletedProfiles(profile.deleted || []);
+            self.staleProfile(false);
             self.enabled(s.enabled);
             self.mode(s.mode);
             self.chordTol(String(s.chord_tol_mm));
@@ -257,7 +269,9 @@ $(function () {
             self.savedMessage("");
             if (!self.loaded) return $.Deferred().reject().promise();
             // the server names the field first: "params.scale_ppm.x: ..."
-            return K.saveSettings(self, self.collect(), function (path) {
+            var collected = self.collect();
+            if (self.profileId !== null) collected.data.expected_profile = self.profileId;
+            return K.saveSettings(self, collected, function (path) {
                 return _.find(self.allPaths(), function (p) {
                     return path === p || path.indexOf(p + ".") === 0 || path.indexOf(p + "[") === 0;
                 });
