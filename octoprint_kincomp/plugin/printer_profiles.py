@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 from typing import Any, Dict, List, Optional
 
+from ..core.params import Params
 from .settings import PER_PROFILE, defaults
 
 DEFAULT_ID = "_default"  # OctoPrint's own default profile id
@@ -57,6 +58,19 @@ def other_profile(owner: Optional[str], s: Dict[str, Any]) -> bool:
     one whose set is in force in ``s``: it must never be applied there."""
     mine = owner or s.get("legacy_profile") or ""
     return bool(s.get("profile")) and bool(mine) and mine != s["profile"]
+
+
+def owners(s: Dict[str, Any], params_hash: str) -> List[str]:
+    """The ids of the other printer profiles (not the one in force in ``s``) whose parameter
+    set has the hash ``params_hash`` (a compensated file's marker: which printer it was
+    compensated for)."""
+    return sorted(
+        pid
+        for pid, entry in s["profiles"].items()
+        if pid != s["profile"]
+        and "params" in entry
+        and Params.from_dict(entry["params"]).hash() == params_hash
+    )
 
 
 def recorded(stored: Dict[str, Any], new: Dict[str, Any]) -> Dict[str, Any]:

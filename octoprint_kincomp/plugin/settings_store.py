@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import copy
 import threading
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -45,6 +45,7 @@ from .notify import N_, Notifier
 from .printer_profiles import (
     calibrated,
     deleted,
+    owners,
     profile_id,
     profile_name,
     recorded,
@@ -383,6 +384,12 @@ class SettingsStore:
             "known": sorted(s["profiles"]),
             "deleted": deleted(s["profiles"], names),
         }
+
+    def compensated_for(self, params_hash: str) -> List[str]:
+        """The names of the other printer profiles whose parameters have the hash
+        ``params_hash`` (a marked file: which printer it was compensated for)."""
+        names = self.profile_names() or {}
+        return [names.get(pid, pid) for pid in owners(self.current(), params_hash)]
 
     def follow_profile(self) -> None:
         """Puts the current printer profile's set in force if another one is (a profile

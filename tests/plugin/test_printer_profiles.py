@@ -399,3 +399,36 @@ def test_a_profile_deleted_in_octoprint_keeps_its_set_and_is_reported(api):
     assert status(api)["profile"]["deleted"] == []
     connect(api, A)
     assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+
+
+def test_a_file_compensated_for_another_printer_prints_as_it_is_and_says_so(api, tmp_path):
+    """A file compensated while A was in force, printed on B (calibrated with its own set):
+    passed through as written (never compensated twice, B's skew not added), and a warning
+    names printer A, in the UI and the log."""
+    from octoprint_kincomp.core.marker import marker_line
+    from octoprint_kincomp.core.params import Params
+
+    a_hash = Params.from_dict(status(api)["settings"]["params"]).hash()
+    gcode = tmp_path / "uploads" / "part.gcode"  # (the test storage's folder)
+    gcode.write_text(marker_line(a_hash, "0") + "\nG28\n" + MOVE + "\n")
+    api.plugin._printer_profile_manager.get_all.return_value = {"printer_a": A, "printer_b": B}
+    comm = connect(api, B)
+    post_settings(api, {"params": {"squareness_um_per_m": {"xy": -800.0}}, "apply_now": True})
+    assert api.plugin.queue.enabled
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+    with mock.patch.object(api.plugin._logger, "warning") as log:
+        api.plugin.on_event("PrintStarted", {"origin": "local", "path": "part.gcode"})
+    warned = [m for m in messages(api) if m["severity"] == "warning"]
+    assert len(warned) == 1 and "compensated for printer profile Printer A" in warned[0]["text"]
+    assert any("Printer A" in str(c) for c in log.call_args_list)
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None  # as written: A's corrections only, not B's too
+
+    # the same file on A: no warning, and still never compensated twice
+    api.plugin.on_event("PrintDone", {"origin": "local", "path": "part.gcode"})
+    comm = connect(api, A)
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+    api.plugin.on_event("PrintStarted", {"origin": "local", "path": "part.gcode"})
+    assert not [m for m in messages(api) if m["severity"] == "warning"]
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None
