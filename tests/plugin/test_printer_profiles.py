@@ -209,19 +209,26 @@ def test_the_history_shows_the_runs_of_the_profile_in_force(api):
     assert listed() == {old, on_a}
 
 
+def trusted_run(api, source, xy):
+    """A trusted run recorded now (for the profile in force) proposing XY squareness
+    ``xy`` um/m; its id."""
+    runs = api.plugin.runs
+    run_id = runs.new_id()
+    runs.save(
+        {
+            "id": run_id,
+            "source": source,
+            "trusted": True,
+            "proposed": {"squareness_um_per_m": {"xy": xy}},
+        }
+    )
+    return run_id
+
+
 def test_a_run_of_another_printer_is_not_applied(api):
     """A stale page (or the API) applying printer A's run while B is in force: refused,
     ``force`` included; B's set unchanged."""
-    runs = api.plugin.runs
-    on_a = runs.new_id()
-    runs.save(
-        {
-            "id": on_a,
-            "source": "trace",
-            "trusted": True,
-            "proposed": {"squareness_um_per_m": {"xy": 500.0}},
-        }
-    )
+    on_a = trusted_run(api, "trace", 500.0)
     connect(api, B)
     for force in (False, True):
         resp = api.client.post(
@@ -337,16 +344,7 @@ def test_campaigns_belong_to_the_printer_they_were_planned_on(api):
     cid = resp.get_json()["id"]
     campaigns = api.plugin.campaign._campaigns
     assert campaigns.get(cid)["profile"] == "printer_a"
-    runs = api.plugin.runs
-    result = runs.new_id()
-    runs.save(
-        {
-            "id": result,
-            "source": "campaign",
-            "trusted": True,
-            "proposed": {"squareness_um_per_m": {"xy": 400.0}},
-        }
-    )
+    result = trusted_run(api, "campaign", 400.0)
     campaigns.save(dict(campaigns.get(cid), result=result))
 
     def listed():
