@@ -125,9 +125,9 @@ class SettingsApi:
         names = self._store.profile_names() or {}
         resp = flask.jsonify(
             error=gettext(
-                "Not saved: this page shows the settings of printer profile %(expected)s, "
-                "but printer profile %(current)s is in force now. Reload the page to see "
-                "and change %(current)s's settings.",
+                "This page shows the settings of printer profile %(expected)s, but "
+                "printer profile %(current)s is in force now. Reload the page to see and "
+                "change %(current)s's settings.",
                 expected=names.get(expected) or expected or "-",
                 current=names.get(current) or current or "-",
             ),

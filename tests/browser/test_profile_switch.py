@@ -57,7 +57,7 @@ def test_a_stale_settings_page_is_refused_and_offers_reload(two_printers):
     page.click("#kincomp_save")
     page.wait_for_selector("#kincomp_settings_reload", state="visible")
     assert "Not saved" in page.inner_text("#kincomp_settings_error")
-    assert SECOND["id"] in page.inner_text("#kincomp_settings_error")
+    assert SECOND["name"] in page.inner_text("#kincomp_settings_error")
     st = status(srv)
     assert st["profile"]["id"] == SECOND["id"] and st["profile"]["calibrated"] is False
     assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0  # A's not in B
