@@ -65,7 +65,7 @@ from .printer_profiles import other_profile
 from .queue import QueueCompensator
 from .runs import RunNotFound, RunNotStorable, RunStore
 from .settings import SettingsError
-from .settings_store import SettingsStore
+from .settings_store import ProfileChanged, SettingsStore
 
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
 TRACE_WAIT_S = 20.0  # an analysis done within this many seconds comes in the response
@@ -437,6 +437,7 @@ class CalibrationApi:
         data = http.json_object() or {}
         try:
             apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
+            expected = http.expected_profile(data)
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         run = None
@@ -460,7 +461,11 @@ class CalibrationApi:
         else:
             return http.error(gettext("Give 'run' or 'params'"), 400)
         return self.apply_params(
-            params_doc, apply_now, run, {"enabled": data["enabled"]} if "enabled" in data else None
+            params_doc,
+            apply_now,
+            run,
+            {"enabled": data["enabled"]} if "enabled" in data else None,
+            expected,
         )
 
     def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
@@ -497,13 +502,22 @@ class CalibrationApi:
         apply_now: bool,
         run: Optional[Dict[str, Any]] = None,
         settings: Optional[Dict[str, Any]] = None,
+        expected_profile: Optional[str] = None,
     ):
         """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
-        whole (400 naming the field, nothing saved); marks ``run`` applied."""
+        whole (400 naming the field, nothing saved); marks ``run`` applied. 409, nothing
+        saved, when ``expected_profile`` is given and another profile's set is in force."""
         new = {"params": params_doc}
         new.update(settings or {})
         try:
-            new, _ = self._store.update(new, replace_params=True, immediately=apply_now or None)
+            new, _ = self._store.update(
+                new,
+                replace_params=True,
+                immediately=apply_now or None,
+                expected_profile=expected_profile,
+            )
+        except ProfileChanged as exc:
+            return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         if run is not None:

@@ -354,6 +354,7 @@ class CampaignApi:
         data = http.json_object() or {}
         try:
             apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
+            expected = http.expected_profile(data)
             doc = self._campaigns.get(cid)
             run = self._runs.get(doc.get("result") or "")
         except http.BadRequest as exc:
@@ -377,6 +378,7 @@ class CampaignApi:
             apply_now,
             run,
             {"enabled": data["enabled"]} if "enabled" in data else None,
+            expected,
         )
         if resp.status_code == 200:
             doc["applied"] = now()

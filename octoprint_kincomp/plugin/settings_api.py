@@ -38,7 +38,7 @@ from .jobs import JobQueue
 from .motion_limits import status as limits_status
 from .queue import QueueCompensator
 from .settings import SettingsError
-from .settings_store import SettingsStore
+from .settings_store import ProfileChanged, SettingsStore
 
 
 class SettingsApi:
@@ -94,13 +94,12 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
-        expected = data.pop("expected_profile", None)
-        if expected is not None and not isinstance(expected, str):
-            return http.error(gettext("'%(key)s' must be a string", key="expected_profile"), 400)
+        try:
+            expected = http.expected_profile(data)
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
 
         def vet(stored, new):
-            if expected is not None and expected != stored["profile"]:
-                raise http.Refused(self.profile_changed(expected, stored["profile"]))
             if self.check is not None:
                 self.check(new)
             refused = http.update_source_refused(stored, new)
@@ -108,7 +107,11 @@ class SettingsApi:
                 raise http.Refused(refused)
 
         try:
-            new, _ = self._store.update(data, immediately=immediately or None, vet=vet)
+            new, _ = self._store.update(
+                data, immediately=immediately or None, vet=vet, expected_profile=expected
+            )
+        except ProfileChanged as exc:
+            return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         except http.Refused as exc:
@@ -118,19 +121,3 @@ class SettingsApi:
             params_hash=Params.from_dict(new["params"]).hash(),
             compensation=self._queue.status(),
         )
-
-    def profile_changed(self, expected: str, current: str):
-        """409: the page was loaded for printer profile ``expected`` but ``current``'s set
-        is in force now; nothing was saved."""
-        names = self._store.profile_names() or {}
-        resp = flask.jsonify(
-            error=gettext(
-                "This page shows the settings of printer profile %(expected)s, but "
-                "printer profile %(current)s is in force now. Reload the page to see and "
-                "change %(current)s's settings.",
-                expected=names.get(expected) or expected or "-",
-                current=names.get(current) or current or "-",
-            ),
-            profile_changed={"expected": expected, "current": current},
-        )
-        return flask.make_response(resp, 409)

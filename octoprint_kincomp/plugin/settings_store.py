@@ -67,6 +67,16 @@ from .settings import (
 )
 
 
+class ProfileChanged(Exception):
+    """A change meant for printer profile ``expected`` while ``current``'s set is in force
+    (a page loaded before a switch): refused, nothing stored."""
+
+    def __init__(self, expected: str, current: str):
+        super().__init__(f"expected printer profile {expected!r}, {current!r} is in force")
+        self.expected = expected
+        self.current = current
+
+
 class SettingsStore:
     """The stored settings of the plugin ``identifier``.
 
@@ -251,6 +261,7 @@ class SettingsStore:
         vet: Optional[Callable] = None,
         write: bool = True,
         internal: bool = False,
+        expected_profile: Optional[str] = None,
     ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """The one way a change is saved: under ``lock``, the stored document with ``data``
         merged in (``replace_params``: its ``params`` replace the stored ones whole),
@@ -258,16 +269,20 @@ class SettingsStore:
         what it changes of the printer's own set recorded for the profile in force
         (:func:`.printer_profiles.recorded`), stored in one step, written to config.yaml
         (``write``) and applied. The profile keys (``INTERNAL_KEYS``) are KinComp's own:
-        dropped from ``data`` unless ``internal`` (a profile switch). Raises
-        :class:`SettingsError` (nothing changed) or what ``vet`` or the write raise (an
-        OSError: the stored document is put back, nothing changed). Returns (the new
-        settings, the diff stored)."""
+        dropped from ``data`` unless ``internal`` (a profile switch). ``expected_profile``
+        (a page sends the profile it was loaded for): :class:`ProfileChanged` (nothing
+        changed) when another profile's set is in force. Raises :class:`SettingsError`
+        (nothing changed) or what ``vet`` or the write raise (an OSError: the stored
+        document is put back, nothing changed). Returns (the new settings, the diff
+        stored)."""
         if not internal:
             data = {k: v for k, v in data.items() if k not in INTERNAL_KEYS}
         with self.lock:
             old = self.current()
             with self._config_lock:
                 stored = self.stored()
+                if expected_profile is not None and expected_profile != stored["profile"]:
+                    raise ProfileChanged(expected_profile, stored["profile"])
                 new = validate_settings(data, stored, replace_params=replace_params)
                 if vet is not None:
                     vet(stored, new)

@@ -312,6 +312,14 @@ def test_a_stale_settings_page_does_not_write_one_printers_values_into_another(a
         assert doc["profile_changed"] == {"expected": "printer_a", "current": "printer_b"}
         assert "printer_a" in doc["error"] and "printer_b" in doc["error"]
         assert stored(api) == before  # nothing stored
+    # the same for parameters applied through the API (POST /apply with "params")
+    resp = api.client.post(
+        PREFIX + "/apply",
+        data=json.dumps({"params": page["params"], "expected_profile": loaded}),
+        content_type="application/json",
+    )
+    assert resp.status_code == 409 and resp.get_json()["profile_changed"]["current"] == "printer_b"
+    assert stored(api) == before
     st = status(api)
     assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
     assert st["profile"]["calibrated"] is False and not api.plugin.queue.enabled
