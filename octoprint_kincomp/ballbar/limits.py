@@ -292,6 +292,45 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
     return out
 
 
+_M92 = re.compile(r"(?:^|[\s:])M92((?:\s+[A-Za-z]-?\d*\.?\d+)+)")
+_STEPPER = re.compile(r"^\s*(rotation_distance|microsteps|full_steps_per_rotation)\s*[:=]\s*(\S+)")
+
+
+def steps_per_mm(text: str) -> Dict[str, float]:
+    """The drives' resolution (steps per mm, by axis ``x``, ``y``, ``z``) that ``text``
+    states, if any: Marlin's ``M92`` line (its answer to M503, the last one counts) or
+    Klipper's ``[stepper_x]``..``[stepper_z]`` sections (``full_steps_per_rotation``
+    (default 200) times ``microsteps`` over ``rotation_distance`` mm). Never raises: what
+    is missing or unreadable is left out."""
+    out: Dict[str, float] = {}
+    if not isinstance(text, str):
+        return out
+    section: Optional[str] = None
+    stepper: Dict[str, Dict[str, float]] = {}
+    for raw in text.splitlines():
+        m = _SECTION.match(raw)
+        if m:
+            section = m.group(1).strip().lower()
+            continue
+        m = _STEPPER.match(raw.split("#")[0])
+        if m and section in ("stepper_x", "stepper_y", "stepper_z"):
+            v = _number(m.group(2))
+            if v is not None and v > 0:
+                stepper.setdefault(section[-1], {})[m.group(1)] = v
+            continue
+        m = _M92.search(raw.split(";")[0])
+        if m:
+            for k, v in _WORD.findall(m.group(1)):
+                value = _number(v)
+                if k.lower() in AXES and value is not None and value > 0:
+                    out[k.lower()] = value
+    for axis, cfg in stepper.items():
+        if "rotation_distance" in cfg and "microsteps" in cfg:
+            full = cfg.get("full_steps_per_rotation", 200.0)
+            out.setdefault(axis, full * cfg["microsteps"] / cfg["rotation_distance"])
+    return out
+
+
 def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:
     """Klipper's limits: ``max_velocity`` bounds the toolhead's speed (so each axis too),
     ``max_z_velocity`` the Z component (default: max_velocity); the same for accel."""

@@ -10,6 +10,7 @@ import os
 import sys
 
 from ..core.atomic import Interrupted, clean_stale, signals_raise
+from ..core.backlash import deadband_steps
 from ..core.compensator import CompensationError, Options
 from ..core.firmware import FIRMWARES, format_equivalents, format_export
 from ..core.params import Params
@@ -26,9 +27,21 @@ def _options(args) -> Options:
             policy=args.policy,
             decimals=args.decimals,
             home_mm=_home(args.home),
+            steps_per_mm=_steps(args.steps_per_mm),
         )
     except ValueError as exc:
         raise CliError(str(exc)) from None
+
+
+def _steps(text):
+    """--steps-per-mm N or X,Y,Z: the drives' steps per mm (the reversal deadband is a
+    twentieth of a step; from X,Y,Z the finer of X and Y counts); None: not given."""
+    if text is None:
+        return None
+    vals = floats(text, 3 if "," in text else 1, "--steps-per-mm")
+    if not all(math.isfinite(v) and v > 0.0 for v in vals):
+        raise CliError(f"--steps-per-mm: expected positive numbers, got {text!r}")
+    return vals[0] if len(vals) == 1 else deadband_steps(dict(zip("xyz", vals)))
 
 
 def _home(text):
@@ -191,6 +204,12 @@ def add_file_commands(sub) -> None:
         help="position after G28 in mm, '?' for an axis whose home is not known "
         "(default: none known; homed axes are then compensated from their "
         "first absolute move on)",
+    )
+    c.add_argument(
+        "--steps-per-mm",
+        metavar="N|X,Y,Z",
+        help="the printer's steps per mm (M92): the reversal deadband is a twentieth of a "
+        "step (default 80 steps/mm: 0.625 um)",
     )
     c.add_argument("--report", action="store_true", help="print the report as JSON")
     c.add_argument("--dry-run", action="store_true", help="only print the report, write nothing")

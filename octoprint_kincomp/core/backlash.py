@@ -14,8 +14,9 @@ A carriage command that retreats by more than ``deadband_mm`` from the farthest 
 reached in the current direction (the *anchor*) is a reversal. The deadband is a hysteresis
 around that anchor, not a per-move threshold, so steps below it can never add up to an untaken
 reversal (per-move, a slow creep of tiny steps, e.g. an X command drifting with Z under XZ
-skew, could). Given the printer's step size it is a twentieth of a full step
-(:func:`deadband_for`: 0.625 um at 80 steps/mm; without one it is 1 nm): a retreat that small mostly moves the drive by no step at all
+skew, could). It is a twentieth of the drive's step (:func:`deadband_for`: 0.625 um at 80
+steps/mm, the default when the printer's step size is not known): a retreat that small
+mostly moves the drive by no step at all
 (the firmware rounds positions to steps), and taking it up as a reversal costs a take-up, a
 sliver to the extreme and a take-up back (issue 28: a BambuStudio helix gave three needless
 lines for an X retreat of 7 nm). Left untaken, such a retreat leaves the carriage at most the
@@ -27,7 +28,7 @@ was last put (the home position after G28).
 
 from __future__ import annotations
 
-from typing import List, Optional, Sequence, Tuple
+from typing import List, Mapping, Optional, Sequence, Tuple
 
 from .params import AXES, Params
 from .state import BacklashState
@@ -42,10 +43,20 @@ def deadband_for(steps_per_mm: float) -> float:
     return DEADBAND_STEPS / steps_per_mm
 
 
-# Without a step size the deadband stays 1 nm (float noise only): the step-derived one is
-# opt-in (``Options.steps_per_mm``) until the arc writer judges its breaks with it (a half
-# circle starting at a skewed X extreme then landed b off on the printer with play).
-DEFAULT_DEADBAND_MM = 1e-6
+def deadband_steps(steps: Mapping[str, float]) -> Optional[float]:
+    """The one steps-per-mm value the deadband is derived from, given the drives' steps
+    per mm by axis (``x``, ``y``, ``z``): the finer of X and Y (the smaller deadband);
+    None when neither is given. Z is left out: its lead screw (400 steps/mm and more) would
+    make the deadband a fifth of the X/Y one, and a Z retreat below the X/Y deadband is
+    still under a quarter of a Z step."""
+    planar = [float(v) for a, v in steps.items() if a in ("x", "y")]
+    return max(planar) if planar else None
+
+
+# Without the printer's step size: that of a typical belt-driven X/Y at 80 steps/mm, 0.625 um.
+# A printer with finer drives (160 steps/mm at 32 microsteps) moves a step for a retreat of
+# 0.625 um more often: give its steps/mm (Options.steps_per_mm) and the deadband follows.
+DEFAULT_DEADBAND_MM = deadband_for(DEFAULT_STEPS_PER_MM)
 
 
 def reversal(

@@ -61,10 +61,11 @@ from .findings_view import findings_of, refusal
 from .job_api import JobApi
 from .motion_limits import effective_limits
 from .notify import Notifier
+from .printer_profiles import other_profile
 from .queue import QueueCompensator
 from .runs import RunNotFound, RunNotStorable, RunStore
 from .settings import SettingsError
-from .settings_store import SettingsStore
+from .settings_store import ProfileChanged, SettingsStore
 
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
 TRACE_WAIT_S = 20.0  # an analysis done within this many seconds comes in the response
@@ -436,6 +437,7 @@ class CalibrationApi:
         data = http.json_object() or {}
         try:
             apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
+            expected = http.expected_profile(data)
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         run = None
@@ -459,22 +461,27 @@ class CalibrationApi:
         else:
             return http.error(gettext("Give 'run' or 'params'"), 400)
         return self.apply_params(
-            params_doc, apply_now, run, {"enabled": data["enabled"]} if "enabled" in data else None
+            params_doc,
+            apply_now,
+            run,
+            {"enabled": data["enabled"]} if "enabled" in data else None,
+            expected,
         )
 
-    def other_printers(self, run: Dict[str, Any]):
-        """409 when ``run`` was recorded for another printer profile than the one in force
-        (a stale page or another user's switch: printer A's result must never be applied to
-        printer B; ``force`` does not override it); None to go on."""
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
+        """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
+        printer profile than the one in force (a stale page or another user's switch:
+        printer A's result must never be applied to printer B; ``force`` does not override
+        it); None to go on."""
         s = self._store.current()
-        mine = run.get("profile") or s.get("legacy_profile") or ""
-        if not s.get("profile") or not mine or mine == s["profile"]:
+        if not other_profile(run.get("profile"), s):
             return None
         return http.error(
             gettext(
-                "This run belongs to printer profile %(run)s, but %(current)s "
+                "%(what)s belongs to printer profile %(run)s, but %(current)s "
                 "is in force: connect that printer to apply it.",
-                run=mine,
+                what=what or gettext("This run"),
+                run=run.get("profile") or s["legacy_profile"],
                 current=s["profile"],
             ),
             409,
@@ -495,13 +502,22 @@ class CalibrationApi:
         apply_now: bool,
         run: Optional[Dict[str, Any]] = None,
         settings: Optional[Dict[str, Any]] = None,
+        expected_profile: Optional[str] = None,
     ):
         """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
-        whole (400 naming the field, nothing saved); marks ``run`` applied."""
+        whole (400 naming the field, nothing saved); marks ``run`` applied. 409, nothing
+        saved, when ``expected_profile`` is given and another profile's set is in force."""
         new = {"params": params_doc}
         new.update(settings or {})
         try:
-            new, _ = self._store.update(new, replace_params=True, immediately=apply_now or None)
+            new, _ = self._store.update(
+                new,
+                replace_params=True,
+                immediately=apply_now or None,
+                expected_profile=expected_profile,
+            )
+        except ProfileChanged as exc:
+            return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         if run is not None:

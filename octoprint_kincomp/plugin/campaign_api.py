@@ -8,7 +8,9 @@ volume, printed test by test with the same parameters in force, fitted jointly
   XY test in mm or null, ``second_feed`` mm/min or null, ``retest_of`` an earlier campaign
   whose options are the defaults and whose result is the "before"); ``"dry_run": true``
   only answers the plan (for the drawing), else it is stored.
-* ``GET /campaigns``, ``GET /campaigns/<id>``  the campaigns, newest first; one campaign with
+* ``GET /campaigns``, ``GET /campaigns/<id>``  the campaigns of the printer profile in force
+  (each is tagged with the profile it was planned on; the others stay stored, and one of
+  them is never applied: 409), newest first; one campaign with
   its progress and, once analysed, the joint result and per test the comparison with the
   campaign it re-tests (the paper's Table 2 per plane).
 * ``POST /campaigns/<id>/steps/<n>/program``  writes test n's program (n from 1) into
@@ -167,9 +169,9 @@ class CampaignApi:
     # ~~ reading -------------------------------------------------------------------------------
     def list(self):
         http.require(Permissions.STATUS)
-        return flask.jsonify(
-            campaigns=[self._view(d, analysis=False) for d in self._campaigns.list()]
-        )
+        s = self._store.current()  # the campaigns of the printer profile in force
+        docs = self._campaigns.documents(s["profile"] or None, s["legacy_profile"])
+        return flask.jsonify(campaigns=[self._view(d, analysis=False) for d in docs])
 
     def get(self, cid: str):
         http.require(Permissions.STATUS)
@@ -352,6 +354,7 @@ class CampaignApi:
         data = http.json_object() or {}
         try:
             apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
+            expected = http.expected_profile(data)
             doc = self._campaigns.get(cid)
             run = self._runs.get(doc.get("result") or "")
         except http.BadRequest as exc:
@@ -363,7 +366,11 @@ class CampaignApi:
                 gettext("Campaign %(id)s has no joint analysis to apply: analyse it first", id=cid),
                 409,
             )
-        refused = self._calibration.other_printers(run) or self._calibration.untrusted(run, force)
+        refused = (
+            self._calibration.other_printers(doc, gettext("This campaign"))
+            or self._calibration.other_printers(run)
+            or self._calibration.untrusted(run, force)
+        )
         if refused is not None:
             return refused
         resp = self._calibration.apply_params(
@@ -371,6 +378,7 @@ class CampaignApi:
             apply_now,
             run,
             {"enabled": data["enabled"]} if "enabled" in data else None,
+            expected,
         )
         if resp.status_code == 200:
             doc["applied"] = now()

@@ -6,7 +6,9 @@ options, and per test: its name, plane, centre mm, radius mm, feed mm/min, the w
 spec and its program hash), the parameters in force when it began (``params_hash``: every
 test must be measured with them), and how far it got: per test the program written
 (``path``), when it was printed, the run of its measurement (``run``); then the run of the
-joint analysis (``result``) and when it was applied. Ids are generated here and checked on
+joint analysis (``result``) and when it was applied. A new campaign is tagged with the printer
+profile in force (``profile``, as runs are); :meth:`CampaignStore.documents` lists those of
+one profile. Ids are generated here and checked on
 every lookup (the run store's rules): a request cannot name a path outside the folder.
 
 ``new_campaign`` makes the document from the planned steps (``ballbar.campaign.Step``);
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, Optional, Sequence
 
 from ..ballbar.closedloop import table
 from ..ballbar.program import body_hash, spec_dict
@@ -39,16 +41,6 @@ class CampaignStore(RunStore):
     ID = re.compile(r"c[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
     PREFIX = "c"
     NotFound = CampaignNotFound
-
-    def list(self) -> List[Dict[str, Any]]:
-        """The campaign documents, newest first."""
-        out = []
-        for cid in self.ids():
-            try:
-                out.append(self.get(cid))
-            except CampaignNotFound:
-                continue
-        return out
 
 
 def new_campaign(

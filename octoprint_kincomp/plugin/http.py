@@ -67,6 +67,33 @@ class Refused(Exception):
         self.response = response
 
 
+def expected_profile(data: Dict[str, Any]) -> Optional[str]:
+    """``expected_profile`` taken out of a request ``data`` (the printer profile the page
+    was loaded for; None: not given); BadRequest when it is not a text."""
+    expected = data.pop("expected_profile", None)
+    if expected is not None and not isinstance(expected, str):
+        raise BadRequest(gettext("'%(key)s' must be a string", key="expected_profile"))
+    return expected
+
+
+def profile_changed(exc, names: Optional[Dict[str, str]]):
+    """409 for a :class:`.settings_store.ProfileChanged`: the page was loaded for printer
+    profile ``exc.expected`` but ``exc.current``'s set is in force now; nothing was saved.
+    ``names``: the profiles' names by id, if known."""
+    names = names or {}
+    resp = flask.jsonify(
+        error=gettext(
+            "This page shows the settings of printer profile %(expected)s, but "
+            "printer profile %(current)s is in force now. Reload the page to see and "
+            "change %(current)s's settings.",
+            expected=names.get(exc.expected) or exc.expected or "-",
+            current=names.get(exc.current) or exc.current or "-",
+        ),
+        profile_changed={"expected": exc.expected, "current": exc.current},
+    )
+    return flask.make_response(resp, 409)
+
+
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 

@@ -127,7 +127,9 @@ class KinCompPlugin(
         )
         self.calibration.on_print = self.sensor.program_printing
         self.settings_api.check = self.sensor.check_settings
+        self.prints.compensated_for = self.store.compensated_for
         campaigns = CampaignStore(self.data_folder())
+        campaigns.profile = self.runs.profile  # a campaign belongs to its printer too
         measurements = CampaignMeasurements(
             queue, self.runs, campaigns, self.calibration, notifier, self._printer_profile_manager
         )

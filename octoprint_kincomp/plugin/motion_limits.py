@@ -6,9 +6,10 @@ stores (settings key ``motion_limits``) and combines.
 Capture: every answer to ``M503`` is read, whoever asked (KinComp's firmware check asks a
 Marlin firmware after its ``M115`` reply; a RepRapFirmware one is asked here; the user may
 type it in the terminal; ``POST /limits/read`` asks on request). Lines stating M201, M203,
-M204 or M205 (and the unit headers above them) are collected until the firmware's ``ok``;
-then, off the serial thread, they are stored unless the user pasted limits of their own
-(an explicit request replaces those too), through the settings store's one save. A
+M204 or M205 (and the unit headers above them) and the steps per mm (M92: the reversal dead
+band follows them, see ``settings.steps_for_deadband``) are collected until the firmware's
+``ok``; then, off the serial thread, they are stored unless the user pasted limits of their
+own (an explicit request replaces those too), through the settings store's one save. A
 Klipper printer does not answer M503 with limits: its users paste their ``printer.cfg``
 ``[printer]`` section on the settings page.
 
@@ -28,7 +29,8 @@ from ..core.messages import as_dict
 from .notify import N_
 from .settings import SettingsError
 
-_LIMIT_LINE = re.compile(r"(?:^|[\s:])M20[1345]\s+[A-Za-z]")
+# the lines of M503's answer kept: the limits (M201, M203-M205) and the steps per mm (M92)
+_LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M92)\s+[A-Za-z]")
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
 MAX_LINES = 200  # lines kept of one answer (Marlin's whole M503 is ~60)
 TAGS = {"plugin:kincomp", "kincomp:motion-limits"}
@@ -109,7 +111,7 @@ class LimitsCapture:
 
     # ~~ listening (the serial thread: no I/O here) -------------------------------------------
     def received(self, line: str) -> None:
-        if "M20" in line and _LIMIT_LINE.search(line):
+        if ("M20" in line or "M92" in line) and _LIMIT_LINE.search(line):
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())

@@ -6,7 +6,8 @@
   when PRINT_STARTED arrives (event thread), whichever comes first; both are counted under
   one lock, so that one print begins once and an end event of the previous print that
   arrives after the next print's first line is recognised as late. At the beginning the
-  file's KinComp marker decides whether its lines are passed through (pre-compensated).
+  file's KinComp marker decides whether its lines are passed through (pre-compensated); a
+  file compensated with other parameters (another printer profile's) is said, not refused.
 * After a compensation error the print is paused and its moves are held back until the user
   resumes; PRINT_RESUMED comes only after OctoPrint has started sending again, so the hook
   follows the printer state (paused once, then printing again means resumed).
@@ -24,7 +25,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable, Dict
+from typing import Any, Callable, Dict, List, Optional
 
 from octoprint.events import Events
 from octoprint.filemanager import FileDestinations
@@ -90,6 +91,8 @@ class PrintState:
         # OctoPrint's serial settings: the commands it pauses at and does not send
         self.pausing_commands: frozenset = frozenset()
         self.blocked_commands: frozenset = frozenset()
+        # (params hash) -> names of the printer profiles with those parameters (None: unknown)
+        self.compensated_for: Optional[Callable[[str], List[str]]] = None
 
     # ~~ the connection ------------------------------------------------------------------------
     def connection_changed(self, comm_instance) -> None:
@@ -339,14 +342,51 @@ class PrintState:
             h = file_marker(disk)
         except Exception:
             return False
-        if h is not None and h != self._queue.params.hash():
+        now = self._queue.params.hash()
+        if h is not None and h != now:
+            self._other_parameters(payload["path"], h, now)
+        return h is not None
+
+    def _other_parameters(self, path: str, old: str, now: str) -> None:
+        """A marked file compensated with other parameters than those in force: said (a
+        warning in the UI and the log), naming the printer profile it was compensated for
+        when one has those parameters. It prints as it is (never compensated twice)."""
+        printers = self.compensated_for(old) if self.compensated_for is not None else []
+        if printers:
+            self._logger.warning(
+                "KinComp: %s was compensated for printer profile %s (parameters %s), not "
+                "for the one in force (%s): it prints with that printer's corrections",
+                path,
+                ", ".join(printers),
+                old,
+                now,
+            )
             self._notifier.notify(
                 "warning",
                 N_(
-                    "This file was compensated with other KinComp parameters (%(old)s, now "
-                    "%(new)s); it prints as compensated then."
+                    "This file was compensated for printer profile %(printer)s (parameters "
+                    "%(old)s), not for the printer in force (%(new)s): it prints as it is, "
+                    "with that printer's corrections and without this one's. Compensate "
+                    "the original file for this printer instead."
                 ),
-                old=h,
-                new=self._queue.params.hash(),
+                printer=", ".join(printers),
+                old=old,
+                new=now,
             )
-        return h is not None
+            return
+        self._logger.warning(
+            "KinComp: %s was compensated with other parameters (%s, now %s); it prints as "
+            "compensated then",
+            path,
+            old,
+            now,
+        )
+        self._notifier.notify(
+            "warning",
+            N_(
+                "This file was compensated with other KinComp parameters (%(old)s, now "
+                "%(new)s); it prints as compensated then."
+            ),
+            old=old,
+            new=now,
+        )

@@ -18,8 +18,9 @@ profile id in the settings' ``profiles``; the top-level keys hold the set in for
 from __future__ import annotations
 
 import copy
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
+from ..core.params import Params
 from .settings import PER_PROFILE, defaults
 
 DEFAULT_ID = "_default"  # OctoPrint's own default profile id
@@ -40,6 +41,36 @@ def calibrated(s: Dict[str, Any]) -> bool:
     """Whether the profile in force has a calibration (a parameter set of its own); a set
     not yet adopted by a profile (settings from before profiles) counts as one."""
     return not s["profile"] or "params" in s["profiles"].get(s["profile"], {})
+
+
+def deleted(kept: Dict[str, Any], existing: Optional[Dict[str, str]]) -> List[str]:
+    """The ids of the profiles KinComp keeps something of (``kept``: ids as keys) that
+    OctoPrint no longer has (``existing``: its profiles' ids; None: unknown, so none).
+    Their sets and runs stay stored: a profile made again with the same id gets them back."""
+    if existing is None:
+        return []
+    return sorted(pid for pid in kept if pid and pid != DEFAULT_ID and pid not in existing)
+
+
+def other_profile(owner: Optional[str], s: Dict[str, Any]) -> bool:
+    """Whether something recorded for printer profile ``owner`` (a run, a campaign; empty:
+    from before profiles, i.e. ``legacy_profile``'s) belongs to another printer than the
+    one whose set is in force in ``s``: it must never be applied there."""
+    mine = owner or s.get("legacy_profile") or ""
+    return bool(s.get("profile")) and bool(mine) and mine != s["profile"]
+
+
+def owners(s: Dict[str, Any], params_hash: str) -> List[str]:
+    """The ids of the other printer profiles (not the one in force in ``s``) whose parameter
+    set has the hash ``params_hash`` (a compensated file's marker: which printer it was
+    compensated for)."""
+    return sorted(
+        pid
+        for pid, entry in s["profiles"].items()
+        if pid != s["profile"]
+        and "params" in entry
+        and Params.from_dict(entry["params"]).hash() == params_hash
+    )
 
 
 def recorded(stored: Dict[str, Any], new: Dict[str, Any]) -> Dict[str, Any]:

@@ -115,20 +115,24 @@ class RunStore:
         )
         return [n for n in names if self.ID.fullmatch(n)][:MAX_RUNS_LISTED]
 
-    def list(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
-        """Summaries, newest first; with ``profile``, only the runs of that printer profile
-        (a run recorded before profiles counts as ``legacy``'s: the profile in force when
-        the settings moved onto profiles)."""
+    def documents(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
+        """The stored documents, newest first; with ``profile``, only those of that printer
+        profile (one recorded before profiles counts as ``legacy``'s: the profile in force
+        when the settings moved onto profiles). The others stay stored."""
         out = []
-        for run_id in self.ids():
+        for doc_id in self.ids():
             try:
-                run = self.get(run_id)
-            except RunNotFound:
+                doc = self.get(doc_id)
+            except self.NotFound:
                 continue
-            if profile is not None and run.get("profile", legacy) != profile:
+            if profile is not None and (doc.get("profile") or legacy) != profile:
                 continue
-            out.append(self.summary(run))
+            out.append(doc)
         return out
+
+    def list(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
+        """Summaries of :meth:`documents`."""
+        return [self.summary(run) for run in self.documents(profile, legacy)]
 
     def summary(self, run: Dict[str, Any]) -> Dict[str, Any]:
         """What the history shows of ``run``."""

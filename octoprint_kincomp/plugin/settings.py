@@ -14,7 +14,8 @@ import math
 import re
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
-from ..ballbar.limits import MAX_TEXT, LimitsError, parse_limits
+from ..ballbar.limits import MAX_TEXT, LimitsError, parse_limits, steps_per_mm
+from ..core.backlash import deadband_steps
 from ..core.compensator import POLICIES, Options
 from ..core.messages import Msg
 from ..core.params import Params, ParamsError
@@ -61,6 +62,10 @@ def defaults() -> Dict[str, Any]:
         "linearise_arcs": False,
         "decimals": 3,
         "home_mm": None,  # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
+        # the X/Y drives' steps per mm (the reversal dead band is a twentieth of a step);
+        # None: read from the printer (M92 in its M503 answer, Klipper's [stepper_x/y]),
+        # else a typical 80 (steps_for_deadband)
+        "steps_per_mm": None,
         "pass_through_on_error": False,
         "apply_changes": "next_print",
         # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
@@ -79,7 +84,7 @@ def defaults() -> Dict[str, Any]:
 
 
 # what belongs to one printer: kept per printer profile, swapped when the profile changes
-PER_PROFILE = ("params", "home_mm", "motion_limits")
+PER_PROFILE = ("params", "home_mm", "motion_limits", "steps_per_mm")
 # set only by KinComp itself (a profile switch), dropped from what a request sends
 INTERNAL_KEYS = ("profile", "profiles", "legacy_profile")
 
@@ -260,6 +265,11 @@ def _home(home: Any, field: str) -> Optional[List[Optional[float]]]:
     ]
 
 
+def _steps(value: Any, field: str) -> Optional[float]:
+    """The drives' steps per mm, or None (from the printer, else the default)."""
+    return None if value is None else _number(value, field, 1.0, 100000.0)
+
+
 def _demo(demo: Any, field: str) -> Dict[str, bool]:
     if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
         raise SettingsError(field, Msg("must be an object with 'enabled' and 'live'"))
@@ -381,6 +391,7 @@ CHECKS: Dict[str, Callable[[Any, str], Any]] = {
     "linearise_arcs": _bool,
     "decimals": _decimals,
     "home_mm": _home,
+    "steps_per_mm": _steps,
     "pass_through_on_error": _bool,
     "apply_changes": lambda v, f: _choice(v, f, APPLY_CHANGES),
     "demo": _demo,
@@ -406,8 +417,20 @@ def engine_config(
         policy=settings["limits_policy"],
         decimals=int(settings["decimals"]),
         home_mm=home_position(settings),
+        steps_per_mm=steps_for_deadband(settings),
     )
     return params, options
+
+
+def steps_for_deadband(settings: Dict[str, Any]) -> Optional[float]:
+    """The steps per mm the reversal dead band is derived from: the setting, else what the
+    printer states (M92 in the stored M503 answer, Klipper's ``[stepper_x]``/``[stepper_y]``;
+    :func:`..core.backlash.deadband_steps` picks the value); None when neither says (the
+    compensator then takes a typical 80 steps/mm)."""
+    if settings.get("steps_per_mm") is not None:
+        return float(settings["steps_per_mm"])
+    text = (settings.get("motion_limits") or {}).get("text") or ""
+    return deadband_steps(steps_per_mm(text))
 
 
 def home_position(settings: Dict[str, Any]) -> Tuple[Optional[float], ...]:

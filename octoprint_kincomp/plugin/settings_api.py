@@ -12,8 +12,13 @@
 * ``POST /settings``: a partial settings document, merged into the stored one and validated
   whole (400 naming the field, nothing stored), saved and applied in one step under the
   store's lock (:meth:`SettingsStore.update`; 507 if the disk is full, nothing changed);
-  ``"apply_now": true`` applies it mid-print. ``check`` (set by the plugin) adds what needs
-  OctoPrint's state (the sensor port must not be the printer's own).
+  ``"apply_now": true`` applies it mid-print. ``check``
+  (set by the plugin) adds what needs OctoPrint's state (the sensor port must not be the
+  printer's own). ``"expected_profile": "<id>"`` (the settings page sends the printer
+  profile it was loaded for) makes the save conditional: 409 with ``profile_changed``
+  (``expected``, ``current``) and nothing stored when another profile's set is in force
+  now (a page opened for printer A and saved after a switch to B must not write A's values
+  into B's set). Without it the save goes to the profile in force (scripts, the API).
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ from .jobs import JobQueue
 from .motion_limits import status as limits_status
 from .queue import QueueCompensator
 from .settings import SettingsError
-from .settings_store import SettingsStore
+from .settings_store import ProfileChanged, SettingsStore
 
 
 class SettingsApi:
@@ -89,6 +94,10 @@ class SettingsApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         data.pop("apply_now", None)
+        try:
+            expected = http.expected_profile(data)
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
 
         def vet(stored, new):
             if self.check is not None:
@@ -98,7 +107,11 @@ class SettingsApi:
                 raise http.Refused(refused)
 
         try:
-            new, _ = self._store.update(data, immediately=immediately or None, vet=vet)
+            new, _ = self._store.update(
+                data, immediately=immediately or None, vet=vet, expected_profile=expected
+            )
+        except ProfileChanged as exc:
+            return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
         except http.Refused as exc:

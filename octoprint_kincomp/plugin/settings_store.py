@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import copy
 import threading
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -42,7 +42,15 @@ from ..core.messages import error_message
 from ..core.params import Params
 from . import http
 from .notify import N_, Notifier
-from .printer_profiles import calibrated, profile_id, profile_name, recorded, switch
+from .printer_profiles import (
+    calibrated,
+    deleted,
+    owners,
+    profile_id,
+    profile_name,
+    recorded,
+    switch,
+)
 from .queue import QueueCompensator
 from .settings import (
     INTERNAL_KEYS,
@@ -57,6 +65,16 @@ from .settings import (
     repaired,
     validate_settings,
 )
+
+
+class ProfileChanged(Exception):
+    """A change meant for printer profile ``expected`` while ``current``'s set is in force
+    (a page loaded before a switch): refused, nothing stored."""
+
+    def __init__(self, expected: str, current: str):
+        super().__init__(f"expected printer profile {expected!r}, {current!r} is in force")
+        self.expected = expected
+        self.current = current
 
 
 class SettingsStore:
@@ -243,6 +261,7 @@ class SettingsStore:
         vet: Optional[Callable] = None,
         write: bool = True,
         internal: bool = False,
+        expected_profile: Optional[str] = None,
     ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """The one way a change is saved: under ``lock``, the stored document with ``data``
         merged in (``replace_params``: its ``params`` replace the stored ones whole),
@@ -250,16 +269,20 @@ class SettingsStore:
         what it changes of the printer's own set recorded for the profile in force
         (:func:`.printer_profiles.recorded`), stored in one step, written to config.yaml
         (``write``) and applied. The profile keys (``INTERNAL_KEYS``) are KinComp's own:
-        dropped from ``data`` unless ``internal`` (a profile switch). Raises
-        :class:`SettingsError` (nothing changed) or what ``vet`` or the write raise (an
-        OSError: the stored document is put back, nothing changed). Returns (the new
-        settings, the diff stored)."""
+        dropped from ``data`` unless ``internal`` (a profile switch). ``expected_profile``
+        (a page sends the profile it was loaded for): :class:`ProfileChanged` (nothing
+        changed) when another profile's set is in force. Raises :class:`SettingsError`
+        (nothing changed) or what ``vet`` or the write raise (an OSError: the stored
+        document is put back, nothing changed). Returns (the new settings, the diff
+        stored)."""
         if not internal:
             data = {k: v for k, v in data.items() if k not in INTERNAL_KEYS}
         with self.lock:
             old = self.current()
             with self._config_lock:
                 stored = self.stored()
+                if expected_profile is not None and expected_profile != stored["profile"]:
+                    raise ProfileChanged(expected_profile, stored["profile"])
                 new = validate_settings(data, stored, replace_params=replace_params)
                 if vet is not None:
                     vet(stored, new)
@@ -354,15 +377,34 @@ class SettingsStore:
         except Exception:
             return {}
 
+    def profile_names(self) -> Optional[Dict[str, str]]:
+        """OctoPrint's printer profiles as {id: name}; None when OctoPrint does not say."""
+        try:
+            profiles = self._profiles.get_all()
+        except Exception:
+            return None
+        if not isinstance(profiles, dict):
+            return None
+        return {pid: profile_name(dict(p or {}, id=pid)) for pid, p in profiles.items()}
+
     def profile_status(self, s: Dict[str, Any]) -> Dict[str, Any]:
-        """Which printer profile's calibration is in force (for /status and the UI)."""
+        """Which printer profile's calibration is in force (for /status and the UI), and
+        the profiles KinComp keeps a set of that OctoPrint no longer has (``deleted``)."""
         profile = self.active_profile(connected=True) or self.active_profile()
+        names = self.profile_names()
         return {
             "id": s["profile"],
             "name": profile_name(profile) if profile_id(profile) == s["profile"] else s["profile"],
             "calibrated": calibrated(s),
             "known": sorted(s["profiles"]),
+            "deleted": deleted(s["profiles"], names),
         }
+
+    def compensated_for(self, params_hash: str) -> List[str]:
+        """The names of the other printer profiles whose parameters have the hash
+        ``params_hash`` (a marked file: which printer it was compensated for)."""
+        names = self.profile_names() or {}
+        return [names.get(pid, pid) for pid in owners(self.current(), params_hash)]
 
     def follow_profile(self) -> None:
         """Puts the current printer profile's set in force if another one is (a profile

@@ -13,6 +13,7 @@ from octoprint_kincomp.ballbar.limits import (
     circle_feed,
     parse_limits,
     require_known,
+    steps_per_mm,
 )
 from octoprint_kincomp.ballbar.program import ProgramError, TestSpec, generate
 from octoprint_kincomp.cli import main
@@ -87,6 +88,22 @@ def test_klipper_printer_cfg_only_the_printer_section():
     assert parse_limits("max_velocity: 200\nmax_accel: 2000").max_feed_mm_min["z"] == 12000.0
     svl = parse_limits("SET_VELOCITY_LIMIT VELOCITY=250 ACCEL=4000")
     assert svl.max_feed_mm_min["x"] == 15000.0 and svl.print_accel_mm_s2 == 4000.0
+
+
+def test_steps_per_mm_from_m92_and_klipper_steppers():
+    """The drives' resolution (the reversal dead band follows it): Marlin's and
+    RepRapFirmware's M92 (E left out), Klipper's [stepper_x/y/z] (200 full steps a turn unless
+    said); nothing stated: nothing, never an error."""
+    assert steps_per_mm(MARLIN) == {"x": 80.0, "y": 80.0, "z": 400.0}
+    assert steps_per_mm(RRF) == {"x": 80.0, "y": 80.0, "z": 400.0}
+    cfg = (
+        "[stepper_x]\nrotation_distance: 40\nmicrosteps: 16\n"
+        "[stepper_y]\nrotation_distance: 40 # GT2 20T\nmicrosteps: 32\n"
+        "full_steps_per_rotation: 400\n[extruder]\nrotation_distance: 7\nmicrosteps: 16\n"
+    )
+    assert steps_per_mm(cfg) == {"x": 80.0, "y": 320.0}
+    for text in (KLIPPER, "", "M92 X0 Yabc", None):
+        assert steps_per_mm(text) == {}
 
 
 @pytest.mark.parametrize("text", ["", "hello\nok", "M203", "M203 X-5 Y0", "[printer]\nfoo: 1"])

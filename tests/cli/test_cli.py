@@ -29,6 +29,24 @@ def test_cli_compensate_report_and_in_place(tmp_path, capsys):
     assert rc == 1 and "already compensated" in err
 
 
+def test_cli_steps_per_mm_sets_the_reversal_deadband(tmp_path, capsys):
+    """A retreat of 0.4 um is below the deadband at 80 steps/mm (0.625 um, the default) and
+    gets no take-up; at 400 steps/mm (0.125 um) it does. X,Y,Z: the finer of X and Y."""
+    params = write(tmp_path, "p.json", json.dumps({"backlash": {"x": 40.0}}))
+    program = "G28\nG1 X50 Y0 Z1\nG1 X49.9996\n"
+    lines = {}
+    for steps in (None, "80", "400", "80,400,4000"):
+        p = write(tmp_path, "in.gcode", program)
+        args = ["compensate", p, "--params", params, "--decimals", "6"]
+        args += ["--steps-per-mm", steps] if steps else []
+        assert main(args) == 0
+        lines[steps] = [ln for ln in open(p).read().splitlines() if not ln.startswith(";")]
+    assert len(lines[None]) == len(lines["80"]) == 3
+    assert len(lines["400"]) == len(lines["80,400,4000"]) == 4  # the take-up
+    assert main(["compensate", p, "--params", params, "--steps-per-mm", "0"]) == 1
+    assert "--steps-per-mm" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "args, msg",
     [

@@ -2,7 +2,7 @@
 
 import pytest
 
-from octoprint_kincomp.core.backlash import BacklashTracker, Play
+from octoprint_kincomp.core.backlash import BacklashTracker, Play, deadband_steps
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
@@ -102,9 +102,9 @@ def test_deadband_ignores_float_noise_but_not_real_reversals():
 
 def test_the_default_deadband_ignores_retreats_far_below_a_step():
     """Issue 28: an X retreat of 7 nm (a BambuStudio helix) cost a take-up, a sliver and a
-    take-up back; given the step size the deadband is a twentieth of a step (0.625 um at
-    80 steps/mm). A 1 um retreat is still taken up. (Without a step size it stays 1 nm.)"""
-    assert Options().deadband_mm == 1e-6
+    take-up back; the deadband is a twentieth of a step, of the printer's step size when
+    given, else of a typical 80 steps/mm (0.625 um). A 1 um retreat is still taken up."""
+    assert Options().deadband_mm == pytest.approx(0.000625)
     assert Options(steps_per_mm=80).deadband_mm == pytest.approx(0.000625)
     assert Options(steps_per_mm=100).deadband_mm == pytest.approx(0.0005)
     assert Options(steps_per_mm=400, deadband_mm=0.002).deadband_mm == 0.002
@@ -116,7 +116,8 @@ def test_the_default_deadband_ignores_retreats_far_below_a_step():
         (Options(**step80), 0.000007, 1),
         (Options(**step80), 0.0006, 1),
         (Options(**step80), 0.001, 2),
-        (Options(decimals=8), 0.000007, 2),
+        (Options(decimals=8), 0.000007, 1),
+        (Options(decimals=8), 0.001, 2),
         (Options(decimals=8, steps_per_mm=1000), 0.0006, 2),
         (Options(decimals=8, deadband_mm=1e-6), 0.000007, 2),
     ):
@@ -124,6 +125,12 @@ def test_the_default_deadband_ignores_retreats_far_below_a_step():
         comp.process("G28")
         comp.process("G1 X50 Y0 Z1")
         assert len(comp.process(f"G1 X{50 - retreat:.6f}")) == lines, (opts, retreat)
+
+
+def test_the_deadband_is_derived_from_the_finer_of_the_x_and_y_drives():
+    assert deadband_steps({"x": 80.0, "y": 160.0, "z": 400.0}) == 160.0
+    assert deadband_steps({"x": 100.0}) == 100.0
+    assert deadband_steps({"z": 400.0}) is None and deadband_steps({}) is None
 
 
 def test_sub_deadband_steps_cannot_add_up_to_an_untaken_reversal():

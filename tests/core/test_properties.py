@@ -568,8 +568,8 @@ def program(draw, max_ops=30, partial_home=True):
     for m in draw(st.sampled_from([(), ("G92 E0",), ("M83",), ("G92 E0", "M83")])):
         add(m)
     add(
-        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f}"
-        f" Z{draw(st.floats(0.2, 40)):.3f} F3000"
+        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f} "
+        f"Z{draw(st.floats(0.2, 40)):.3f} F3000"
     )
 
     def val(lo, hi, rel=False):
@@ -737,17 +737,22 @@ def test_compensated_program_lands_on_the_desired_points(lines, geo, tol):
     {},
     {"y": 1.0},
 )
+@example(  # a half circle from a skewed X extreme: X retreats ~25 nm next to its start, below
+    # the step-derived deadband (the default since issue 28); the arc must not be cut there
+    ["G28", "G1 X33.255 Y0 Z0.5 F3000", "G2 X0 I-16.6275 J0", "G3 X33.255 I16.6275 J0"],
+    {"squareness_um_per_m": {"xy": -1766.0}},
+    {"x": 24.6},
+)
 def test_with_backlash_the_printer_with_play_lands_too(lines, geo, bl):
     """The take-up moves are what make a printer with play land: replayed through the play,
     every compensated move ends on its point (the 1e-6 output resolution plus the
     compensator's reversal deadband, a hysteresis, so sub-deadband steps cannot add up, and
-    a retreat below it, not taken up, leaves the carriage at most that far off (1 nm by
-    default, 0.625 um given 80 steps/mm, through a model of norm < 1.02); after an arc 1.5e-6
-    more: its
-    written centre is rounded, so the firmware's circle may turn an axis up to that much
-    before the piece's end where the axis reverses, and the play then stays on the other
-    side). Partial homing included: the first move after it is judged from the home
-    command."""
+    a retreat below it, not taken up, leaves the carriage at most that far off (0.625 um by
+    default, a twentieth of a step at 80 steps/mm, through a model of norm < 1.02); after an
+    arc 1.5e-6 more: its written centre is rounded, so the firmware's circle may turn an
+    axis up to that much before the piece's end where the axis reverses, and the play then
+    stays on the other side). Partial homing included: the first move after it is judged
+    from the home command."""
     p = Params.from_dict(dict(geo, backlash=bl))
     opts = Options(decimals=6, chord_tol_mm=0.05)
     lines_bound = 1e-6 + 1.02 * opts.deadband_mm

@@ -12,7 +12,9 @@ Per input line of a program compensated line by line on the reference path:
   with the errors, within ``chord_tol_mm`` plus the output resolution of its commanded point
   (plus, for an axis whose backlash direction is not known when the move starts, which is
   the first move from an unknown position, half its backlash: no take-up can be judged
-  there, the carriage lags wherever the play happened to be);
+  there, the carriage lags wherever the play happened to be; and, after its direction was
+  judged from such a state, half its backlash less what the axis has travelled since, until
+  it has travelled that far or reversed: see :func:`unsettled_lag`);
 * no output move of no length extrudes (or carries F alone) where the input move had length;
 * the output has at most ``growth`` times the lines of the input.
 """
@@ -73,6 +75,22 @@ def compensate(params: Params, lines: List[str], options: Options):
     return comp, groups, m_after
 
 
+def unsettled_lag(lag: float, travelled: float) -> float:
+    """How far (mm) a carriage may still be from its point when its axis' backlash direction
+    was unknown and has since been judged (a take-up of ``lag``, half the backlash, mm) and
+    the axis has travelled ``travelled`` mm from where it was then, without reversing.
+
+    The play's side was unknown: the carriage was anywhere within ``lag`` of the drive. The
+    compensator, judging direction +1 (say) on a retreat of L, commands the point plus
+    ``lag``: the drive moves L + ``lag``, which pushes the carriage onto the point unless the
+    play sat on the other side, where the carriage stays up to ``lag - L`` beyond it (any
+    other choice leaves up to ``lag``). It stays there while the axis stands still (a Z move
+    under XZ skew nudging X by 0.3 um, then moves of other axes: BambuStudio's nozzle load
+    line); travel of ``lag`` in that direction or a reversal (a take-up of the whole
+    backlash) puts it on its point."""
+    return max(0.0, lag - travelled)
+
+
 def check(params: Params, lines: List[str], options: Options, with_groups: bool = False):
     """The :class:`Findings` of ``lines`` (and the reference path's groups if
     ``with_groups``)."""
@@ -88,11 +106,28 @@ def check(params: Params, lines: List[str], options: Options, with_groups: bool 
     # where the drive turns; the E sums and the end points do not depend on the cut)
     want = FirmwareInterpreter(home_mm=TRUE_HOME, arc_tol_mm=0.05)
     printer = Printer(params, home_mm=TRUE_HOME, arc_tol_mm=0.001)
+    # per axis judged from an unknown direction and not yet settled (see unsettled_lag):
+    # [where it was when its direction was unknown (mm), travelled since (mm), direction]
+    unsettled: List[Optional[List[float]]] = [None, None, None]
     for i, (line, outs, compensated, dirs) in enumerate(groups):
         move = is_move(line)
         if not move and outs != [line]:
             f.reordered.append((i + 1, line, outs))
+        for k in range(3):
+            u = unsettled[k]
+            if dirs[k] == 0:
+                unsettled[k] = [want.machine[k], 0.0, 0]
+            elif u is not None and u[2] == 0:
+                u[2] = dirs[k]
+            elif u is not None and dirs[k] != u[2]:
+                unsettled[k] = None  # reversed: the take-up of the whole play settles it
         asked = [ev for ev in want.execute(line) if isinstance(ev, Move)]
+        for k in range(3):
+            u = unsettled[k]
+            if u is not None:
+                u[1] = max(u[1], abs(want.machine[k] - u[0]))
+                if u[1] >= lag[k]:
+                    unsettled[k] = None
         e_want = sum(ev.e for ev in asked)
         had_length = any(dist(ev.start, ev.end) > 0 for ev in asked)
         e_got = 0.0
@@ -106,7 +141,14 @@ def check(params: Params, lines: List[str], options: Options, with_groups: bool 
         if move and compensated and named_axes(line) and None not in m_after[i]:
             d = dist(printer.actual(), want.machine)
             f.checked_moves += 1
-            first = sum(lag[k] ** 2 for k in range(3) if dirs[k] == 0) ** 0.5
+            first = (
+                sum(
+                    (lag[k] if dirs[k] == 0 else unsettled_lag(lag[k], unsettled[k][1])) ** 2
+                    for k in range(3)
+                    if dirs[k] == 0 or unsettled[k] is not None
+                )
+                ** 0.5
+            )
             if first > 0.0:
                 f.max_first_deviation_mm = max(f.max_first_deviation_mm, d)
             elif d > f.max_deviation_mm:

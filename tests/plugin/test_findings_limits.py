@@ -251,3 +251,22 @@ def test_a_campaign_test_is_refused_when_the_limits_changed_since_the_plan(app, 
     assert not plugin._file_manager.add_file.called
     code, _ = call(app, plugin.api_campaign_program, doc["id"], 1, json={})  # XY: still fine
     assert code == 200
+
+
+def test_the_reversal_deadband_follows_the_printers_steps_per_mm(app, plugin):
+    """Issue 28: M92 in the M503 answer is kept with the limits and the compensator's
+    reversal deadband is a twentieth of the finer X/Y step (160 steps/mm: 0.3125 um); the
+    setting ``steps_per_mm`` overrides it; with neither, 80 steps/mm (0.625 um)."""
+    assert plugin.queue.comp.options.deadband_mm == pytest.approx(0.000625)
+    plugin.on_event("FirmwareData", {"name": "Marlin 2.1.2", "data": {}})
+    _read_m503(
+        plugin, ["echo:; Steps per unit:", "echo:  M92 X80.00 Y160.00 Z400.00 E93.00"] + MARLIN_M503
+    )
+    wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
+    assert "M92 X80.00 Y160.00" in plugin.store.current()["motion_limits"]["text"]
+    assert plugin.queue.comp.options.deadband_mm == pytest.approx(0.0003125)
+    code, body = call(app, plugin.api_settings, json={"steps_per_mm": 100, "apply_now": True})
+    assert code == 200, body
+    assert plugin.queue.comp.options.deadband_mm == pytest.approx(0.0005)
+    code, body = call(app, plugin.api_settings, json={"steps_per_mm": 0})
+    assert code == 400 and "steps_per_mm" in body["error"]

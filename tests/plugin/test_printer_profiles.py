@@ -83,6 +83,7 @@ def test_the_settings_from_before_profiles_move_onto_the_active_profile(api):
         "name": "Printer A",
         "calibrated": True,
         "known": ["printer_a"],
+        "deleted": [],
     }
     assert st["compensation"]["enabled"] is True
 
@@ -208,19 +209,26 @@ def test_the_history_shows_the_runs_of_the_profile_in_force(api):
     assert listed() == {old, on_a}
 
 
+def trusted_run(api, source, xy):
+    """A trusted run recorded now (for the profile in force) proposing XY squareness
+    ``xy`` um/m; its id."""
+    runs = api.plugin.runs
+    run_id = runs.new_id()
+    runs.save(
+        {
+            "id": run_id,
+            "source": source,
+            "trusted": True,
+            "proposed": {"squareness_um_per_m": {"xy": xy}},
+        }
+    )
+    return run_id
+
+
 def test_a_run_of_another_printer_is_not_applied(api):
     """A stale page (or the API) applying printer A's run while B is in force: refused,
     ``force`` included; B's set unchanged."""
-    runs = api.plugin.runs
-    on_a = runs.new_id()
-    runs.save(
-        {
-            "id": on_a,
-            "source": "trace",
-            "trusted": True,
-            "proposed": {"squareness_um_per_m": {"xy": 500.0}},
-        }
-    )
+    on_a = trusted_run(api, "trace", 500.0)
     connect(api, B)
     for force in (False, True):
         resp = api.client.post(
@@ -279,3 +287,154 @@ def test_a_fix_of_bad_stored_settings_on_another_printer_never_applies_the_first
         assert ns.plugin.queue.comp.params.squareness_um_per_m["xy"] == 0.0
     finally:
         ns.stop()
+
+
+def post_settings(api, body):
+    return api.client.post(
+        PREFIX + "/settings", data=json.dumps(body), content_type="application/json"
+    )
+
+
+def test_a_stale_settings_page_does_not_write_one_printers_values_into_another(api):
+    """The page was loaded while A was in force and saved after a switch to B: refused
+    (409 naming both, ``profile_changed``), nothing stored; the same save for the profile
+    in force goes through, and a save that names no profile (a script) goes to it."""
+    connect(api, A)
+    loaded = status(api)["profile"]["id"]
+    assert loaded == "printer_a"
+    connect(api, B)
+    before = stored(api)
+    page = {"params": {"squareness_um_per_m": {"xy": 1000.0}}, "expected_profile": loaded}
+    for body in (page, {"motion_limits": {"text": "M203 X9", "source": "pasted"}, **page}):
+        resp = post_settings(api, body)
+        assert resp.status_code == 409, resp.get_json()
+        doc = resp.get_json()
+        assert doc["profile_changed"] == {"expected": "printer_a", "current": "printer_b"}
+        assert "printer_a" in doc["error"] and "printer_b" in doc["error"]
+        assert stored(api) == before  # nothing stored
+    # the same for parameters applied through the API (POST /apply with "params")
+    resp = api.client.post(
+        PREFIX + "/apply",
+        data=json.dumps({"params": page["params"], "expected_profile": loaded}),
+        content_type="application/json",
+    )
+    assert resp.status_code == 409 and resp.get_json()["profile_changed"]["current"] == "printer_b"
+    assert stored(api) == before
+    st = status(api)
+    assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    assert st["profile"]["calibrated"] is False and not api.plugin.queue.enabled
+
+    resp = post_settings(api, dict(page, expected_profile="printer_b"))
+    assert resp.status_code == 200, resp.get_json()
+    assert stored(api)["profiles"]["printer_b"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+    assert post_settings(api, {"decimals": 4}).status_code == 200
+    assert post_settings(api, {"expected_profile": 3}).status_code == 400
+    # A's set untouched all along
+    assert stored(api)["profiles"]["printer_a"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+
+
+def test_the_stale_page_check_names_profiles_by_their_names(api):
+    api.plugin._printer_profile_manager.get_all.return_value = {"printer_a": A, "printer_b": B}
+    connect(api, B)
+    resp = post_settings(api, {"decimals": 4, "expected_profile": "printer_a"})
+    assert resp.status_code == 409
+    assert "Printer A" in resp.get_json()["error"] and "Printer B" in resp.get_json()["error"]
+
+
+def test_campaigns_belong_to_the_printer_they_were_planned_on(api):
+    """Planned on A: tagged A, listed for A only (kept while B is in force); its joint result
+    is not applied to B (409, force or not), and is to A."""
+    connect(api, A)
+    resp = api.client.post(
+        PREFIX + "/campaign/plan", data=json.dumps({}), content_type="application/json"
+    )
+    assert resp.status_code == 200, resp.get_json()
+    cid = resp.get_json()["id"]
+    campaigns = api.plugin.campaign._campaigns
+    assert campaigns.get(cid)["profile"] == "printer_a"
+    result = trusted_run(api, "campaign", 400.0)
+    campaigns.save(dict(campaigns.get(cid), result=result))
+
+    def listed():
+        return [c["id"] for c in api.client.get(PREFIX + "/campaigns").get_json()["campaigns"]]
+
+    assert listed() == [cid]
+    connect(api, B)
+    assert listed() == []
+    for force in (False, True):
+        resp = api.client.post(
+            PREFIX + f"/campaigns/{cid}/apply",
+            data=json.dumps({"force": force}),
+            content_type="application/json",
+        )
+        assert resp.status_code == 409 and "printer_a" in resp.get_json()["error"]
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    assert campaigns.get(cid)["applied"] is None
+    connect(api, A)
+    assert listed() == [cid]
+    resp = api.client.post(
+        PREFIX + f"/campaigns/{cid}/apply", data=json.dumps({}), content_type="application/json"
+    )
+    assert resp.status_code == 200, resp.get_json()
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 400.0
+
+
+def test_a_campaign_from_before_profiles_belongs_to_the_legacy_profile(api):
+    campaigns = api.plugin.campaign._campaigns
+    old = campaigns.new_id()
+    with open(os.path.join(campaigns.folder, old + ".json"), "w") as f:
+        json.dump({"id": old, "steps": [], "params_hash": "x", "result": None}, f)
+
+    def listed():
+        return [c["id"] for c in api.client.get(PREFIX + "/campaigns").get_json()["campaigns"]]
+
+    assert listed() == [old]
+    connect(api, B)
+    assert listed() == []
+
+
+def test_a_profile_deleted_in_octoprint_keeps_its_set_and_is_reported(api):
+    connect(api, B)
+    post_settings(api, {"params": {"scale_ppm": {"x": 10.0}}})
+    pm = api.plugin._printer_profile_manager
+    pm.get_all.return_value = {"printer_b": B}  # A deleted in OctoPrint
+    st = status(api)
+    assert st["profile"]["deleted"] == ["printer_a"]
+    assert stored(api)["profiles"]["printer_a"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+    pm.get_all.return_value = {"printer_a": A, "printer_b": B}  # made again
+    assert status(api)["profile"]["deleted"] == []
+    connect(api, A)
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+
+
+def test_a_file_compensated_for_another_printer_prints_as_it_is_and_says_so(api, tmp_path):
+    """A file compensated while A was in force, printed on B (calibrated with its own set):
+    passed through as written (never compensated twice, B's skew not added), and a warning
+    names printer A, in the UI and the log."""
+    from octoprint_kincomp.core.marker import marker_line
+    from octoprint_kincomp.core.params import Params
+
+    a_hash = Params.from_dict(status(api)["settings"]["params"]).hash()
+    gcode = tmp_path / "uploads" / "part.gcode"  # (the test storage's folder)
+    gcode.write_text(marker_line(a_hash, "0") + "\nG28\n" + MOVE + "\n")
+    api.plugin._printer_profile_manager.get_all.return_value = {"printer_a": A, "printer_b": B}
+    comm = connect(api, B)
+    post_settings(api, {"params": {"squareness_um_per_m": {"xy": -800.0}}, "apply_now": True})
+    assert api.plugin.queue.enabled
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+    with mock.patch.object(api.plugin._logger, "warning") as log:
+        api.plugin.on_event("PrintStarted", {"origin": "local", "path": "part.gcode"})
+    warned = [m for m in messages(api) if m["severity"] == "warning"]
+    assert len(warned) == 1 and "compensated for printer profile Printer A" in warned[0]["text"]
+    assert any("Printer A" in str(c) for c in log.call_args_list)
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None  # as written: A's corrections only, not B's too
+
+    # the same file on A: no warning, and still never compensated twice
+    api.plugin.on_event("PrintDone", {"origin": "local", "path": "part.gcode"})
+    comm = connect(api, A)
+    api.plugin._plugin_manager.send_plugin_message.reset_mock()
+    api.plugin.on_event("PrintStarted", {"origin": "local", "path": "part.gcode"})
+    assert not [m for m in messages(api) if m["severity"] == "warning"]
+    sent(api, comm, "G28")
+    assert sent(api, comm, MOVE) is None

@@ -227,6 +227,13 @@
     // formError, savedMessage and saving; ``collected`` is {errors (fields that are not
     // numbers), data}; ``fieldOf(path)`` gives the form's key of the field the server names
     // first in its message ("params.scale_ppm.x: ..."), or nothing
+    // whether a save was refused because another printer profile's settings are in force
+    // now than the page was loaded for (409 with "profile_changed": reload to go on)
+    var profileChanged = function (jqXHR) {
+        var response = jqXHR && jqXHR.responseJSON;
+        return !!(jqXHR && jqXHR.status === 409 && response && response.profile_changed);
+    };
+
     var saveSettings = function (vm, collected, fieldOf) {
         vm.savedMessage("");
         if (!_.isEmpty(collected.errors)) {
@@ -243,6 +250,7 @@
             })
             .fail(function (jqXHR) {
                 var msg = errorText(jqXHR);
+                if (vm.staleProfile) vm.staleProfile(profileChanged(jqXHR));
                 var path = msg.split(":")[0];
                 var errs = {};
                 var field = fieldOf(path);
@@ -283,6 +291,7 @@
         pick: pick,
         proposedRows: proposedRows,
         NICE: NICE,
-        saveSettings: saveSettings
+        saveSettings: saveSettings,
+        profileChanged: profileChanged
     };
 })();

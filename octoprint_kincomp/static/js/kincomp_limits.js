@@ -18,6 +18,8 @@ $(function () {
         self.error = ko.observable("");
         self.saved = ko.observable("");
         self.busy = ko.observable(false);
+        self.profileId = null;
+        self.staleProfile = ko.observable(false);  // a save refused: another profile in force
 
         self.canWrite = ko.pureComputed(function () {
             return K.canAdmin(self);
@@ -58,6 +60,9 @@ $(function () {
         self.storedText = "";
         self.load = function () {
             return OctoPrint.get(API("status")).done(function (status) {
+                // the printer profile these limits are of (a save names it: see settings)
+                self.profileId = status.profile ? status.profile.id : null;
+                self.staleProfile(false);
                 self.status(status.motion_limits || null);
                 var stated = (status.motion_limits && status.motion_limits.stated) || {};
                 self.storedText = stated.text || "";
@@ -74,6 +79,7 @@ $(function () {
             self.saved("");
             self.busy(true);
             var body = {motion_limits: {text: text, source: text ? "pasted" : "", captured: null}};
+            if (self.profileId !== null && self.profileId !== undefined) body.expected_profile = self.profileId;
             return OctoPrint.postJson(API("settings"), body)
                 .done(function () {
                     self.saved(message);
@@ -81,6 +87,7 @@ $(function () {
                 })
                 .fail(function (xhr) {
                     self.error(K.errorText(xhr));
+                    self.staleProfile(K.profileChanged(xhr));
                 })
                 .always(function () {
                     self.busy(false);

@@ -23,6 +23,7 @@ $(function () {
         self.enabled = ko.observable(false);
         self.mode = ko.observable("on_the_fly");
         self.chordTol = ko.observable("0.01");
+        self.stepsPerMm = ko.observable("");  // empty: from the printer (M92), else 80
         self.limitsPolicy = ko.observable("warn");
         self.applyChanges = ko.observable("next_print");
         self.passThrough = ko.observable(false);
@@ -46,6 +47,13 @@ $(function () {
         // what is wrong with the stored settings (compensation is off until it is fixed)
         self.settingsProblem = ko.observable("");
         self.saving = ko.observable(false);
+        // the printer profile whose settings the page shows (sent with a save: the server
+        // refuses it when another profile's are in force by then) and its name; whether a
+        // save was refused for that reason (the page offers to reload)
+        self.profileId = null;
+        self.profileName = ko.observable("");
+        self.deletedProfiles = ko.observableArray([]);
+        self.staleProfile = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
 
         // a stored value as the form shows it (at most 3 decimals: 30.8903127 -> "30.89");
@@ -106,9 +114,15 @@ $(function () {
         self.fromStatus = function (status) {
             var s = status.settings;
             self.loaded = s;
+            var profile = status.profile || {};
+            self.profileId = profile.id === undefined ? null : profile.id;
+            self.profileName(profile.name || "");
+            self.deletedProfiles(profile.deleted || []);
+            self.staleProfile(false);
             self.enabled(s.enabled);
             self.mode(s.mode);
             self.chordTol(String(s.chord_tol_mm));
+            self.stepsPerMm(s.steps_per_mm === null || s.steps_per_mm === undefined ? "" : String(s.steps_per_mm));
             self.limitsPolicy(s.limits_policy);
             self.applyChanges(s.apply_changes);
             self.passThrough(s.pass_through_on_error);
@@ -244,6 +258,8 @@ $(function () {
                     mode: self.mode(),
                     params: params,
                     chord_tol_mm: number("chord_tol_mm", self.chordTol()),
+                    steps_per_mm: String(self.stepsPerMm() || "").trim() === "" ? null
+                        : number("steps_per_mm", kept(String(self.stepsPerMm()).trim(), self.loaded.steps_per_mm)),
                     limits_policy: self.limitsPolicy(),
                     apply_changes: self.applyChanges(),
                     pass_through_on_error: self.passThrough(),
@@ -257,7 +273,9 @@ $(function () {
             self.savedMessage("");
             if (!self.loaded) return $.Deferred().reject().promise();
             // the server names the field first: "params.scale_ppm.x: ..."
-            return K.saveSettings(self, self.collect(), function (path) {
+            var collected = self.collect();
+            if (self.profileId !== null) collected.data.expected_profile = self.profileId;
+            return K.saveSettings(self, collected, function (path) {
                 return _.find(self.allPaths(), function (p) {
                     return path === p || path.indexOf(p + ".") === 0 || path.indexOf(p + "[") === 0;
                 });
@@ -295,7 +313,7 @@ $(function () {
             return _.pluck(self.squareness, "path")
                 .concat(_.pluck(self.scale, "path"))
                 .concat(_.pluck(self.backlash, "path"))
-                .concat(["params.backlash.fraction", "params.backlash.smoothing_mm", "chord_tol_mm"]);
+                .concat(["params.backlash.fraction", "params.backlash.smoothing_mm", "chord_tol_mm", "steps_per_mm"]);
         };
 
         self.onSettingsShown = function () {
@@ -310,7 +328,9 @@ $(function () {
             var now = JSON.stringify(self.collect().data);
             var before = JSON.stringify({
                 enabled: self.loaded.enabled, mode: self.loaded.mode, params: self.loaded.params,
-                chord_tol_mm: self.loaded.chord_tol_mm, limits_policy: self.loaded.limits_policy,
+                chord_tol_mm: self.loaded.chord_tol_mm,
+                steps_per_mm: self.loaded.steps_per_mm === undefined ? null : self.loaded.steps_per_mm,
+                limits_policy: self.loaded.limits_policy,
                 apply_changes: self.loaded.apply_changes,
                 pass_through_on_error: self.loaded.pass_through_on_error,
                 linearise_arcs: !!self.loaded.linearise_arcs,
