@@ -35,9 +35,9 @@ from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..core.gcode import parse_command
-from ..core.machine import Dwell, FirmwareInterpreter, Home, Move
 from ..core.messages import Msg
 from ..core.params import AXES, ParamsError
+from .sim.machine import Dwell, FirmwareInterpreter, Home, Move
 
 DEFAULT_ACCEL = 1500.0  # mm/s^2, a typical desktop printer's print acceleration
 DEFAULT_JD = 0.013  # mm, Marlin's default junction deviation

@@ -13,8 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable, Iterator, List, Optional, Tuple, Union
 
-from . import arcs
-from .gcode import parse_command, parse_words
+from ...core import arcs
+from ...core.gcode import parse_command, parse_words
 
 MM_PER_INCH = 25.4
 Vec = Tuple[float, float, float]
