@@ -36,6 +36,8 @@ SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 500.0}, "backlash": {"x":
         ("G1.1", gt.VARIANT, None),
         ("G92.2", gt.VARIANT, None),
         ("G4", gt.DWELL, None),
+        ("M400", gt.STOP, None),
+        ("M0.2", gt.STOP, None),
         ("M104", gt.INERT, None),
         ("G28.1", gt.INERT, None),
         ("M82.1", gt.INERT, None),
@@ -84,11 +86,11 @@ def _after(code):
     return before, _state(comp), out
 
 
-@pytest.mark.parametrize("code", [*gt.PROBES, "G4", "M104", "M220"])
+@pytest.mark.parametrize("code", [*gt.PROBES, "G4", "M104", "M220", "M400", "M1.1"])
 def test_the_reference_path_leaves_inert_and_variant_codes_alone(code):
     cls = gt.classify_code(code)
     before, after, out = _after(code)
-    if cls in (gt.INERT, gt.DWELL, gt.VARIANT):
+    if cls in (gt.INERT, gt.DWELL, gt.STOP, gt.VARIANT):
         assert after == before and out == f"{code} X5"
     elif cls in (gt.LOSES, gt.TOOL) and code != "T0":
         assert after[0] == [None, None, None]  # positions forgotten
