@@ -13,42 +13,25 @@ from octoprint_kincomp.core.params import Params
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 500.0}, "backlash": {"x": 40.0}})
 
 
-@pytest.mark.parametrize(
-    "code, cls, value",
-    [
-        ("G1", gt.LINEAR, None),
-        ("g01", gt.LINEAR, None),
-        ("G2", gt.ARC, True),
-        ("G3", gt.ARC, False),
-        ("G90", gt.DISTANCE, True),
-        ("G91", gt.DISTANCE, False),
-        ("G90.1", gt.ARC_CENTRE, True),
-        ("G20", gt.UNITS, True),
-        ("G18", gt.PLANE, 18),
-        ("M083", gt.EXTRUDER, False),
-        ("G92", gt.SET_POSITION, None),
-        ("G92.1", gt.DROP_OFFSETS, None),
-        ("G28", gt.HOME, None),
-        ("G29", gt.LOSES, None),
-        ("G38.2", gt.LOSES, None),  # every sub-code of a probing code
-        ("M48", gt.LOSES, None),
-        ("T3", gt.TOOL, None),
-        ("G1.1", gt.VARIANT, None),
-        ("G92.2", gt.VARIANT, None),
-        ("G4", gt.DWELL, None),
-        ("M400", gt.STOP, None),
-        ("M0.2", gt.STOP, None),
-        ("M104", gt.INERT, None),
-        ("G28.1", gt.INERT, None),
-        ("M82.1", gt.INERT, None),
-        ("G5", gt.INERT, None),  # not listed: inert
-    ],
-)
-def test_classify(code, cls, value):
+# each class and codes the table must give it (as written at the start of a line)
+EXPECTED = """linear G1 g01 G0; arc G2 G3; distance G90 G91; arc_centre G90.1 G91.1; units G20
+G21; plane G17 G18 g19; extruder M82 M083; set_position G92; drop_offsets G92.1; home G28;
+loses_position G29 G38.2 M48 G80.5; tool T3 t0; variant G1.1 G92.2 G0.0; dwell G4; stop M400
+M0.2; inert M104 G28.1 M82.1 G5 G4.1"""
+CASES = [(code, part.split()[0]) for part in EXPECTED.split(";") for code in part.split()[1:]]
+
+
+@pytest.mark.parametrize("code, cls", CASES)
+def test_classify(code, cls):
     cmd = parse_command(code)
-    entry = gt.classify(cmd.kind, cmd.number, cmd.sub)
-    assert (entry.cls, entry.value) == (cls, value)
+    assert gt.classify(cmd.kind, cmd.number, cmd.sub).cls == cls
     assert gt.classify_code(code) == cls
+
+
+def test_the_values_of_mode_switches_and_arcs():
+    values = {c: gt.classify(c[0], int(c[1:])).value for c in ("G2", "G3", "G18", "M83", "G20")}
+    assert values == {"G2": True, "G3": False, "G18": 18, "M83": False, "G20": True}
+    assert gt.classify("G", 90, 1).value is True and gt.classify("G", 91, 1).value is False
 
 
 def test_every_class_belongs_to_a_group():
