@@ -5,11 +5,11 @@ works without it. OctoPrint loads the plugin through :func:`__plugin_load__`, wh
 only place that imports the OctoPrint glue.
 """
 
-__version__ = "0.1.0"
+from .core.version import HOMEPAGE, VERSION
 
-# the project's homepage (its README); also the plugin repository entry's homepage and source
-# (extras/kincomp.md) and the GitHub repository of releases (software update)
-__plugin_url__ = "https://github.com/kincomp/OctoPrint-KinComp"
+__version__ = VERSION
+__plugin_url__ = HOMEPAGE  # (written in core/version.py, which core and plugin/ import)
+
 __plugin_author__ = "KinComp developers"
 __plugin_license__ = "AGPL-3.0-or-later"  # as setup.py
 

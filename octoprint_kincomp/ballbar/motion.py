@@ -35,14 +35,14 @@ from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..core.gcode import parse_command
-from ..core.machine import Dwell, FirmwareInterpreter, Home, Move
+from ..core.gcode_table import STOP, classify
 from ..core.messages import Msg
 from ..core.params import AXES, ParamsError
+from .sim.machine import Dwell, FirmwareInterpreter, Home, Move
 
 DEFAULT_ACCEL = 1500.0  # mm/s^2, a typical desktop printer's print acceleration
 DEFAULT_JD = 0.013  # mm, Marlin's default junction deviation
 DEFAULT_MAX_FEED = {"x": 18000.0, "y": 18000.0, "z": 2400.0}  # mm/min (300, 300, 40 mm/s)
-STOP_M_CODES = (0, 1, 400)
 SQRT2_1 = math.sqrt(2.0) - 1.0
 
 
@@ -241,7 +241,7 @@ def program_events(lines: Iterable[str], start: Sequence[float]) -> Iterator[obj
             yield from evs
             continue
         cmd = parse_command(line)
-        if cmd is not None and cmd.kind == "M" and cmd.number in STOP_M_CODES:
+        if cmd is not None and classify(cmd.kind, cmd.number, cmd.sub).cls == STOP:
             yield Stop(fw.lineno)
 
 

@@ -1,6 +1,6 @@
 """A printer with known ("true") errors and a virtual ballbar. All output is SIMULATED.
 
-The printer executes G-code like a firmware (:class:`~..machine.FirmwareInterpreter`) and
+The printer executes G-code like a firmware (:class:`~.sim.machine.FirmwareInterpreter`) and
 moves the way its planner makes it move (:mod:`.motion`: trapezoidal velocity with
 acceleration, junction speeds, full stops at ``M400``/``G4``, per-axis feed caps; the former
 constant-speed motion only when the truth asks for ``"motion": "constant_speed"``). Then, per
@@ -37,13 +37,13 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from ..core.backlash import Play
 from ..core.kinematics import KinematicModel
 from ..core.messages import Msg
 from ..core.params import AXES, Params, ParamsError
 from .formats import AngleTrace, NativeTrace
 from .motion import MotionSettings, Plan, plan_program, program_blocks_of
 from .program import END_MARKER, RUN_MARKER, ProgramError, run_angles, spec_from_program
+from .sim.play import Play
 from .timing import nominal_positions
 
 SIMULATED_LABEL = "SIMULATED data (KinComp printer + ballbar simulator), not a measurement"

@@ -1,9 +1,10 @@
 """Backlash state machine: per-axis travel direction and the take-up offset to command.
 
-Physical model (shared with the simulator): an axis with lost motion ``b`` (um) behaves like a
-play of width ``b``; while the drive moves in +direction the carriage lags ``b/2`` behind it,
-while it moves in -direction the carriage is ``b/2`` ahead. ``b`` may depend on the axis
-position (the ballbar's per-side values), so the lag is ``b(q)/2`` at the current position.
+Physical model (the simulator's play, ``ballbar/sim/play.py``, is the same): an axis with
+lost motion ``b`` (um) behaves like a play of width ``b``; while the drive moves in
++direction the carriage lags ``b/2`` behind it, while it moves in -direction the carriage is
+``b/2`` ahead. ``b`` may depend on the axis position (the ballbar's per-side values), so the
+lag is ``b(q)/2`` at the current position.
 
 Compensation therefore commands ``offset = dir * fraction * b(q) / 2`` (mm) on top of the
 geometric correction, where ``dir`` is the direction the axis is travelling (+1/-1; 0 when
@@ -228,39 +229,3 @@ def hysteresis(q: List[float], d: int, a: Optional[float], q_start: float, db: f
         dirs.append(d)
         revs.append(new != 0)
     return dirs, revs, a
-
-
-class Play:
-    """The physical backlash of a printer (simulator side): a play of width ``b(q)`` per axis.
-
-    ``carriage(k, u)`` returns where the carriage of axis k is when its drive has been moved
-    to ``u`` (mm): the carriage stays put until the drive has crossed the play, then follows it
-    ``b(y)/2`` behind, ``b`` taken at the carriage position ``y`` (as the compensator does).
-    After :meth:`reset` the carriage sits in the middle of the play, which is
-    the state the compensator assumes after homing (direction unknown, offset 0).
-    """
-
-    def __init__(self, params: Params):
-        self.tables = [params.backlash[a] for a in AXES]
-        self.pos: List[Optional[float]] = [None, None, None]
-
-    def reset(self, axes: Sequence[int] = (0, 1, 2)) -> None:
-        for k in axes:
-            self.pos[k] = None
-
-    def carriage(self, k: int, u: float) -> float:
-        y = self.pos[k]
-        if y is None:
-            y = u
-        else:
-            table = self.tables[k]
-            lo = u - table.um_at(y) * 5e-4
-            hi = u + table.um_at(y) * 5e-4
-            if y < lo or y > hi:
-                # The carriage is dragged along; the play width is that at the carriage
-                # position, y = u -/+ b(y)/2 (solved by a few fixed-point steps).
-                sign = 1.0 if y < lo else -1.0
-                for _ in range(4):
-                    y = u - sign * table.um_at(y) * 5e-4
-        self.pos[k] = y
-        return y

@@ -39,6 +39,21 @@ from .arcpath import ArcWriter
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker, deadband_for
 from .errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
+from .gcode_table import (
+    ARC,
+    ARC_CENTRE,
+    DISTANCE,
+    DROP_OFFSETS,
+    EXTRUDER,
+    HOME,
+    LINEAR,
+    LOSES,
+    PLANE,
+    SET_POSITION,
+    TOOL,
+    UNITS,
+    classify,
+)
 from .kinematics import KinematicModel, changes_nothing
 from .modal import home, homed_axes, reset_offsets, set_position
 from .moves import MoveHandler
@@ -50,11 +65,6 @@ __all__ = ["Compensator", "CompensationError", "LimitError", "Options", "Report"
 
 MM_PER_INCH = 25.4
 POLICIES = ("warn", "clamp", "error")
-
-# G/M codes after which the head is somewhere we cannot know: probing, leveling, parking,
-# nozzle cleaning, restore-saved-position, Bambu's probe move.
-INVALIDATING_G = frozenset({12, 27, 29, 30, 31, 32, 33, 34, 35, 38, 61, 80, 380, 425})
-INVALIDATING_M = frozenset({48})
 
 
 @dataclass
@@ -316,55 +326,42 @@ class Compensator:
         return line
 
     def _dispatch(self, cmd, line: str):
-        kind, num, sub = cmd.kind, cmd.number, cmd.sub
+        """A command line's effect on the state, by its class in the G-code table."""
+        entry = classify(cmd.kind, cmd.number, cmd.sub)
+        cls = entry.cls
         st = self.state
-        if kind == "G":
-            if num <= 3 and sub is None:
-                st.report.moves += 1
-                words = parse_words(cmd.body)
-                if words is None:
-                    return self.malformed(line)
-                if num <= 1:
-                    return self.moves.linear(cmd, words, line)
-                return self.moves.arc(cmd, words, line)
-            if sub is None:
-                if num == 90 or num == 91:
-                    st.absolute = num == 90
-                    if self.options.g90_influences_extruder:
-                        st.e_absolute_mode = None
-                elif num in (20, 21):
-                    st.inches = num == 20
-                    st.fw_text = [None, None, None]
-                elif num in (17, 18, 19):
-                    st.plane = num
-                elif num == 92:
-                    unit = MM_PER_INCH if st.inches else 1.0
-                    if set_position(st, self.backlash, cmd.body, unit) is None:
-                        return self.malformed(line)
-                elif num == 28:
-                    self._home(cmd.body)
-                elif num in INVALIDATING_G:
-                    self.invalidate()
-            else:
-                if num == 90 and sub == 1:
-                    st.ij_absolute = True
-                elif num == 91 and sub == 1:
-                    st.ij_absolute = False
-                elif num == 92 and sub == 1:
-                    reset_offsets(st)
-                elif num in INVALIDATING_G:
-                    self.invalidate()
-            return line
-        if kind == "M":
-            if num == 82 and sub is None:
-                st.e_absolute_mode = True
-            elif num == 83 and sub is None:
-                st.e_absolute_mode = False
-            elif num in INVALIDATING_M:
-                self.invalidate()
-            return line
-        # T<n>: tool change; hotend offsets may shift the logical frame, so forget positions.
-        if num != st.tool:
-            st.tool = num
+        if cls == LINEAR or cls == ARC:
+            st.report.moves += 1
+            words = parse_words(cmd.body)
+            if words is None:
+                return self.malformed(line)
+            if cls == LINEAR:
+                return self.moves.linear(cmd, words, line)
+            return self.moves.arc(cmd, words, line)
+        if cls == DISTANCE:
+            st.absolute = entry.value
+            if self.options.g90_influences_extruder:
+                st.e_absolute_mode = None
+        elif cls == UNITS:
+            st.inches = entry.value
+            st.fw_text = [None, None, None]
+        elif cls == PLANE:
+            st.plane = entry.value
+        elif cls == ARC_CENTRE:
+            st.ij_absolute = entry.value
+        elif cls == EXTRUDER:
+            st.e_absolute_mode = entry.value
+        elif cls == SET_POSITION:
+            unit = MM_PER_INCH if st.inches else 1.0
+            if set_position(st, self.backlash, cmd.body, unit) is None:
+                return self.malformed(line)
+        elif cls == DROP_OFFSETS:
+            reset_offsets(st)
+        elif cls == HOME:
+            self._home(cmd.body)
+        elif cls == LOSES:
+            self.invalidate()
+        elif cls == TOOL and cmd.number != st.tool:
+            st.tool = cmd.number
             self.invalidate()
         return line

@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 from typing import Any, Dict, List, NamedTuple, Optional, Sequence
 
-from .. import __plugin_url__, __version__
 from .messages import Msg, as_dict
 from .params import AXES, PLANE_PAIRS, Params
+from .version import HOMEPAGE, VERSION
 
 M556_LENGTH_MM = 100.0
 KLIPPER_PROFILE = "kincomp"  # the SKEW_PROFILE the export creates and loads
@@ -33,7 +33,7 @@ FIRMWARES = ("klipper", "marlin", "reprapfirmware")
 FIRMWARE_NAMES = {"klipper": "Klipper", "marlin": "Marlin", "reprapfirmware": "RepRapFirmware"}
 COMMENT = {"klipper": "#", "marlin": ";", "reprapfirmware": ";"}  # comment mark of each
 # where the documentation explains the export (the settings page links it)
-FIRMWARE_HELP_URL = __plugin_url__ + "/blob/main/docs/firmware-export.md"
+FIRMWARE_HELP_URL = HOMEPAGE + "/blob/main/docs/firmware-export.md"
 
 
 def klipper_skew_lengths(factor: float):
@@ -134,8 +134,8 @@ def equivalents(params: Params) -> Dict[str, Any]:
         "notes": notes,
         "export": export_json(params),
         "about": {
-            "version": __version__,
-            "homepage": __plugin_url__,
+            "version": VERSION,
+            "homepage": HOMEPAGE,
             "firmware_help": FIRMWARE_HELP_URL,
         },
     }
@@ -196,7 +196,7 @@ def _ppm(params: Params, axis: str) -> str:
 
 
 def _header(params: Params, comment: str) -> str:
-    return f"{comment} KinComp {__version__}, parameters {params.hash()}"
+    return f"{comment} KinComp {VERSION}, parameters {params.hash()}"
 
 
 def _skew_factors(params: Params) -> Dict[str, float]:

@@ -15,6 +15,7 @@ from typing import List, Optional, Sequence, Tuple
 
 from . import arcs
 from .gcode import Word
+from .gcode_table import classify
 
 MM_PER_INCH = 25.4
 
@@ -175,7 +176,7 @@ class MoveHandler:
     def arc(self, cmd, words: List[Word], line: str):
         st = self.state
         comp = self.comp
-        clockwise = cmd.number == 2
+        clockwise = classify(cmd.kind, cmd.number, cmd.sub).value  # (G2: True)
         plane = st.plane
         ia, ib, il, la, lb = arcs.PLANES[plane]
         wd = {w.letter: w for w in words}

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 from typing import IO, Iterable, Iterator, Optional
 
-from .. import __version__
 from ..core.atomic import replacing
 from ..core.compensator import Compensator, Options, Report
 from ..core.lines import join_output, split_ending
 from ..core.marker import MARKER_SCAN_LINES, file_marker, find_marker, marker_hash
 from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
+from ..core.version import VERSION
 from .select import make_compensator
 
 
@@ -37,7 +37,7 @@ class _NullSink:
 
 
 def marker_line(params: Params) -> str:
-    return make_marker_line(params.hash(), __version__)
+    return make_marker_line(params.hash(), VERSION)
 
 
 def compensate_lines(

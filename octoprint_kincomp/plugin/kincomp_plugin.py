@@ -32,9 +32,9 @@ from flask_babel import gettext
 from octoprint.events import Events
 from octoprint.util.comm import parse_position_line
 
-from .. import __version__
 from ..core.compensator import Options
 from ..core.params import Params
+from ..core.version import VERSION
 from ..engines.select import engine
 from . import http
 from .artifact_api import ArtifactApi
@@ -153,7 +153,7 @@ class KinCompPlugin(
         self.store.follow_profile()  # settings from before profiles: adopted by this one
         self._logger.info(
             "KinComp %s ready (compensation %s, %s engine)",
-            __version__,
+            VERSION,
             "on" if self.queue.enabled else "off",
             engine(),
         )

@@ -45,8 +45,19 @@ import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
 
-from ..core.compensator import INVALIDATING_G, INVALIDATING_M, LimitError, Options
+from ..core.compensator import LimitError, Options
 from ..core.gcode import parse_command
+from ..core.gcode_table import (
+    ARC,
+    DROP_OFFSETS,
+    HOME,
+    LINEAR,
+    LOSES,
+    SET_POSITION,
+    TOOL,
+    VARIANT,
+    classify,
+)
 from ..core.modal import g92_axes, homed_axes, named_axes
 from ..core.params import Params
 from ..engines.select import make_compensator
@@ -56,6 +67,8 @@ JOB_TAG = "source:job"
 _MOTION = re.compile(r"\s*[Gg]0*[0-3](?![0-9.])")
 HOME_QUERY = "M114"  # sent after a G28 whose home position is not known
 HOME_QUERY_TAG = "kincomp:home_query:"  # + its number: which question is being sent
+# the classes of lines that may move or re-frame any axis (for a pending home question)
+_STALE_FOR_ALL = frozenset({ARC, DROP_OFFSETS, LOSES, TOOL, VARIANT})
 
 
 _log = logging.getLogger(__name__)
@@ -229,8 +242,7 @@ class QueueCompensator:
         parsed = parse_command(cmd) if cmd.lstrip()[:1] in "GgTtMm" else None
         if parsed is None:
             return ()
-        kind, num = parsed.kind, parsed.number
-        if kind == "G" and num == 28 and parsed.sub is None:
+        if classify(parsed.kind, parsed.number, parsed.sub).cls == HOME:
             home_mm = self.comp.options.home_mm
             new = {k for k in homed_axes(parsed.body) if home_mm[k] is None}
             # (an axis still awaiting an answer is asked for again: homing others may move
@@ -245,20 +257,16 @@ class QueueCompensator:
     @staticmethod
     def _moved_axes(parsed) -> Tuple[int, ...]:
         """The axes (0 X, 1 Y, 2 Z) whose position or frame a line changes as the printer
-        runs it: a position report read after it is stale for them. A move that names
-        none of them leaves their drives alone (no line the compensator writes carries a
-        word for an axis whose position it does not know)."""
-        kind, num = parsed.kind, parsed.number
-        if (
-            kind == "T"
-            or (kind == "M" and num in INVALIDATING_M)
-            or (kind == "G" and (num in (2, 3) or num in INVALIDATING_G))
-        ):
-            return (0, 1, 2)
-        if kind == "G" and num in (0, 1):
+        runs it (by its class in the G-code table): a position report read after it is stale
+        for them. A move that names none of them leaves their drives alone (no line the
+        compensator writes carries a word for an axis whose position it does not know)."""
+        cls = classify(parsed.kind, parsed.number, parsed.sub).cls
+        if cls == LINEAR:
             return tuple(named_axes(parsed.body))
-        if kind == "G" and num == 92:
-            return (0, 1, 2) if parsed.sub is not None else tuple(g92_axes(parsed.body))
+        if cls == SET_POSITION:
+            return tuple(g92_axes(parsed.body))
+        if cls in _STALE_FOR_ALL:
+            return (0, 1, 2)
         return ()
 
     def home_query_sent(self, tags) -> None:

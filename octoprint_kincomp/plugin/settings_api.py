@@ -27,9 +27,9 @@ import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
-from .. import __version__
 from ..core.firmware import equivalents
 from ..core.params import Params
+from ..core.version import VERSION
 from ..engines.select import engine
 from . import http
 from .demo_mode import DemoMode
@@ -63,7 +63,7 @@ class SettingsApi:
         s = store.editable()
         params = Params.from_dict(s["params"])
         return flask.jsonify(
-            version=__version__,
+            version=VERSION,
             settings=s,
             profile=store.profile_status(s),
             params_hash=params.hash(),

@@ -2,14 +2,14 @@
 ``octoprint.plugin.softwareupdate.check_config`` hook), from the ``software_update`` setting:
 
 * ``{"type": "github_release"}`` (default): the releases of the project's GitHub repository
-  (``__plugin_url__``), installed from the release's source archive;
+  (``core.version.HOMEPAGE``), installed from the release's source archive;
 * ``{"type": "jsondata", "version_url": ..., "archive_url": ...}``: a plain archive URL for
   mirrors and forks: ``version_url`` answers ``{"version": "x.y.z"}``, ``archive_url`` names
   the archive to install, with ``{target_version}`` where the version goes. Both https only;
   changing the source needs OctoPrint's permission to configure software updates (pip
   installs the archive as the user OctoPrint runs as), not only KinComp's admin permission.
 
-The running version is the package's own ``__version__``. No OctoPrint import here.
+The running version is ``core.version.VERSION``. No OctoPrint import here.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from __future__ import annotations
 from typing import Any, Dict
 from urllib.parse import urlsplit
 
-from .. import __plugin_url__, __version__
 from ..core.messages import Msg
+from ..core.version import HOMEPAGE, VERSION
 
 TYPES = ("github_release", "jsondata")
 
@@ -72,18 +72,18 @@ def validate(value: Any) -> Dict[str, Any]:
 
 def check_config(setting: Dict[str, Any], identifier: str = "kincomp") -> Dict[str, Any]:
     """The software update plugin's configuration for KinComp (``{identifier: {...}}``)."""
-    common = {"displayName": "KinComp", "displayVersion": __version__, "current": __version__}
+    common = {"displayName": "KinComp", "displayVersion": VERSION, "current": VERSION}
     if setting.get("type") == "jsondata":
         config = dict(
             common, type="jsondata", jsondata=setting["version_url"], pip=setting["archive_url"]
         )
     else:
-        user, repo = __plugin_url__.rstrip("/").split("/")[-2:]
+        user, repo = HOMEPAGE.rstrip("/").split("/")[-2:]
         config = dict(
             common,
             type="github_release",
             user=user,
             repo=repo,
-            pip=__plugin_url__ + "/archive/{target_version}.zip",
+            pip=HOMEPAGE + "/archive/{target_version}.zip",
         )
     return {identifier: config}

@@ -306,9 +306,9 @@ def serial_estimate(path: str, params: Params, options) -> dict:
     time the lines sent (the busiest second and the 99th percentile), and the link's
     lines/s for the file's mean line length (8N1: baud / 10 bytes/s, plus the sender's
     line number and checksum)."""
+    from ..ballbar.sim.machine import FirmwareInterpreter, Move
     from ..core.compensator import Compensator
     from ..core.gcode import split_comment
-    from ..core.machine import FirmwareInterpreter, Move
 
     fw = FirmwareInterpreter()
     comp = Compensator(params, options)

@@ -13,7 +13,7 @@ from octoprint_kincomp.ballbar.artifact_program import (
     read_measurements,
     read_program_info,
 )
-from octoprint_kincomp.core.machine import FirmwareInterpreter, Home, Move
+from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter, Home, Move
 
 VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
 

@@ -13,8 +13,8 @@ from octoprint_kincomp.ballbar.program import (
     run_angles,
     spec_from_program,
 )
+from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter, Move
 from octoprint_kincomp.cli import main
-from octoprint_kincomp.core.machine import FirmwareInterpreter, Move
 
 
 def moves(text, start):

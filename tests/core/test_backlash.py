@@ -2,7 +2,7 @@
 
 import pytest
 
-from octoprint_kincomp.core.backlash import BacklashTracker, Play, deadband_steps
+from octoprint_kincomp.core.backlash import BacklashTracker, deadband_steps
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.gcode import parse_command, parse_words
 from octoprint_kincomp.core.params import Params
@@ -226,15 +226,6 @@ def test_homing_resets_direction():
     assert t.dir[0] == 1
     t.reset([0])
     assert t.dir[0] == 0 and t.target(0, 5.0) == 0.0
-
-
-def test_play_operator():
-    pl = Play(Params.from_dict({"backlash": {"x": 100.0}}))
-    assert pl.carriage(0, 0.0) == 0.0
-    assert pl.carriage(0, 1.0) == pytest.approx(1.0 - 0.05)
-    assert pl.carriage(0, 0.95) == pytest.approx(0.95)  # inside the play: carriage stays
-    assert pl.carriage(0, 0.92) == pytest.approx(0.95)
-    assert pl.carriage(0, 0.5) == pytest.approx(0.55)
 
 
 def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():

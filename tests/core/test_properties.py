@@ -19,7 +19,7 @@ Every property runs on each engine (the ``engine`` fixture: the compiled kernel 
 pure-Python paths).
 
 The oracle for "where the program asks the head to go" is the firmware-like interpreter
-(:mod:`octoprint_kincomp.core.machine`); the printer replays the output with the true errors
+(:mod:`octoprint_kincomp.ballbar.sim.machine`); the printer replays the output with the true errors
 (:class:`tests.support.helpers.Printer`). Everything is derandomised for reproducible CI runs.
 """
 
@@ -34,11 +34,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter
+from octoprint_kincomp.ballbar.sim.play import Play
 from octoprint_kincomp.core import arcs
-from octoprint_kincomp.core.backlash import Play
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import changes_nothing
-from octoprint_kincomp.core.machine import FirmwareInterpreter
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.files import (

@@ -1,10 +1,12 @@
 """A firmware-like G-code executor: what an ideal printer would command, move by move.
 
 It reads G-code the way Marlin does (G90/G91, G92 offsets, G20/G21, M82/M83, G28 homing to
-``home_mm``, G2/G3 in G17/G18/G19 with IJK/R/P, G4 dwell) and yields the commanded path in
-the homed machine frame (mm). It knows nothing about errors: the simulator applies the
-printer's true errors to this path, and the tests use it as the oracle of where a program
-tells the head to go. Unknown commands are ignored; malformed lines are skipped and counted.
+``home_mm``, G2/G3 in G17/G18/G19 with IJK/R/P, G4 dwell), each code as the G-code table
+(``core/gcode_table.py``) classifies it, and yields the commanded path in the homed machine
+frame (mm). It knows nothing about errors: the simulator applies the printer's true errors to
+this path, and the tests use it as the oracle of where a program tells the head to go. Other
+codes (probing, tool changes, inert ones) are ignored; a move, homing or G92 with malformed
+words is skipped and counted.
 Arcs are cut into chords of at most ``arc_tol_mm`` sagitta (an ideal firmware by default).
 """
 
@@ -13,11 +15,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable, Iterator, List, Optional, Tuple, Union
 
-from . import arcs
-from .gcode import parse_command, parse_words
+from ...core import arcs, gcode_table
+from ...core.gcode import parse_command, parse_words
 
 MM_PER_INCH = 25.4
 Vec = Tuple[float, float, float]
+# the classes whose words this firmware runs: homing, G92 and the moves
+_RUN = frozenset({gcode_table.HOME, gcode_table.SET_POSITION, gcode_table.LINEAR, gcode_table.ARC})
 
 
 @dataclass(frozen=True)
@@ -90,52 +94,47 @@ class FirmwareInterpreter:
         cmd = parse_command(line)
         if cmd is None:
             return []
+        entry = gcode_table.classify(cmd.kind, cmd.number, cmd.sub)
+        cls = entry.cls
         u = MM_PER_INCH if self.inches else 1.0
-        if cmd.kind == "M":
-            if cmd.number == 82:
-                self.e_abs_mode = True
-            elif cmd.number == 83:
-                self.e_abs_mode = False
-            return []
-        if cmd.kind != "G":
-            return []
-        num, sub = cmd.number, cmd.sub
-        if sub is not None:
-            if (num, sub) == (90, 1):
-                self.ij_absolute = True
-            elif (num, sub) == (91, 1):
-                self.ij_absolute = False
-            elif (num, sub) == (92, 1):
-                self.g = [0.0, 0.0, 0.0]
-            return []
-        if num in (90, 91):
-            self.absolute = num == 90
+        if cls == gcode_table.EXTRUDER:
+            self.e_abs_mode = entry.value
+        elif cls == gcode_table.ARC_CENTRE:
+            self.ij_absolute = entry.value
+        elif cls == gcode_table.DROP_OFFSETS:
+            self.g = [0.0, 0.0, 0.0]
+        elif cls == gcode_table.DISTANCE:
+            self.absolute = entry.value
             if self.g90_e:
                 self.e_abs_mode = None
-            return []
-        if num in (20, 21):
-            self.inches = num == 20
-            return []
-        if num in (17, 18, 19):
-            self.plane = num
-            return []
-        if num == 4:
+        elif cls == gcode_table.UNITS:
+            self.inches = entry.value
+        elif cls == gcode_table.PLANE:
+            self.plane = entry.value
+        elif cls == gcode_table.DWELL:
             words = parse_words(cmd.body) or []
             wd = {w.letter: w.value for w in words}
             secs = wd.get("S", 0.0) + wd.get("P", 0.0) / 1000.0
             return [Dwell(secs, self.lineno)]
-        words = parse_words(cmd.body, allow_bare=(num == 28))
+        elif cls in _RUN:
+            return self._run(cmd, entry, u)
+        return []  # (no other code changes what this ideal firmware commands)
+
+    def _run(self, cmd, entry: gcode_table.Entry, u: float) -> List[Event]:
+        """A homing, G92 or a move (``u``: mm per program unit)."""
+        cls = entry.cls
+        words = parse_words(cmd.body, allow_bare=(cls == gcode_table.HOME))
         if words is None:
             self.malformed += 1
             return []
         wd = {w.letter: w.value for w in words}
-        if num == 28:
+        if cls == gcode_table.HOME:
             axes = tuple(k for k, a in enumerate("XYZ") if a in wd) or (0, 1, 2)
             for k in axes:
                 self.machine[k] = self.home[k]
                 self.g[k] = 0.0
             return [Home(axes, self.lineno)]
-        if num == 92:
+        if cls == gcode_table.SET_POSITION:
             if not any(a in wd for a in "XYZE"):
                 wd = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
             for k, a in enumerate("XYZ"):
@@ -143,8 +142,6 @@ class FirmwareInterpreter:
                     self.g[k] = wd[a] * u - self.machine[k]
             if "E" in wd:
                 self.e = wd["E"]
-            return []
-        if num > 3:
             return []
         if wd.get("F", 0.0) > 0.0:  # (Marlin, RRF: a feed of 0 or less is ignored)
             self.feed = wd["F"] * u
@@ -165,10 +162,10 @@ class FirmwareInterpreter:
                 self.e = wd["E"]
         start = tuple(self.machine)
         end = tuple(target)
-        if num <= 1:
+        if cls == gcode_table.LINEAR:
             self.machine = target
-            return [Move(start, end, self.feed, f"G{num}", self.lineno, de)]
-        return self._arc(num == 2, wd, start, end, u, de)
+            return [Move(start, end, self.feed, f"G{cmd.number}", self.lineno, de)]
+        return self._arc(entry.value, wd, start, end, u, de)
 
     def _arc(self, clockwise, wd, start, end, u, de) -> List[Event]:
         ia, ib, _, la, lb = arcs.PLANES[self.plane]
