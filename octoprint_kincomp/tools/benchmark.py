@@ -214,7 +214,6 @@ def _child_rss(src: str, dst: str, params_json: str, engine: str) -> dict:
         "import json,sys\n"
         "from octoprint_kincomp.core.params import Params\n"
         "from octoprint_kincomp.engines.files import compensate_file\n"
-        "import octoprint_kincomp.engines.vectorised, numpy\n"
         "p=Params.from_json(sys.argv[3])\n"
         "def status(key):\n"
         "    for l in open('/proc/self/status'):\n"
