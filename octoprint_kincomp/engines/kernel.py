@@ -6,23 +6,16 @@ kept as arcs, of an affine model exactly as the reference path (``core/path.py``
 rules, so the same text; where it does not decide (a limit touched, anything unusual) it
 returns None having changed nothing, and the reference path takes the line.
 ``Kernel.feed(buf, pos)`` runs it over the complete lines of a block of a file, with blank
-lines and ``;`` comments, up to the first line it does not take.
+lines and ``;`` comments, up to the first line it does not take (``contract.py``).
 
-The kernel owns the stream state while it takes lines: a typed C record (``csrc/kernel.h``
-``State``) inside the Kernel object. It crosses to Python only as a tuple of plain values
-(:data:`RECORD`): the kernel takes it from the compensator's :class:`StreamState`
-(:func:`record`) when it is offered a line it may take while Python holds the state, and
-hands it back (:func:`adopt`) before it declines a line, when ``feed`` stops, and when the
-state is read (``Kernel.release()``, which ``Compensator.state`` calls). So a run of lines
-it takes costs no crossing at all, and a run of lines it declines one hand-back. C never
-touches a Python object's internals, so it holds on any CPython 3.8+, the free-threaded
-build included.
-
-Threads: a Kernel (like its Compensator) is used by one thread at a time; the queuing hook
-holds ``QueueCompensator._lock`` around every call, and a file job owns its compensator.
-The module keeps no global state; it does not declare that it runs without the GIL
-(``Py_mod_gil``), so a free-threaded CPython turns the GIL on when it loads it (a warning,
-not an error): no speed is lost, since nothing here runs in parallel.
+It owns the stream state while it takes lines: a typed C record (``csrc/kernel.h`` ``State``)
+in the Kernel object, which crosses to Python only as a tuple of plain values (:data:`RECORD`;
+:func:`record` to take it, :func:`adopt` to hand it back, ``release()`` when
+``Compensator.state`` is read). C never touches a Python object's internals, so it holds on
+any CPython 3.8+, the free-threaded build included. Threads: one at a time uses a Kernel
+(the queuing hook holds its lock around every call; a file job owns its compensator); the
+module keeps no global state and does not declare ``Py_mod_gil``, so a free-threaded CPython
+turns the GIL on when it loads it (a warning): nothing here runs in parallel anyway.
 
 The extension is optional: the package installs and works without it (no compiler, e.g.),
 only slower. Before it is used it must write, on a fixed program full of rounding traps,

@@ -280,11 +280,14 @@ def test_consecutive_declined_lines_hand_the_state_over_once():
     calls = []
     real = kernel_mod.adopt
     with mock.patch.object(kernel_mod, "adopt", lambda st, rec: calls.append(1) or real(st, rec)):
-        for line in ("G1 X20 Y15 E1", "G1 X21 Y15 E2", "M106 S255", "M107", "G92 E0", "M400"):
+        for line in ("G1 X20 Y15 E1", "G1 X21 Y15 E2", "; a comment", ""):
+            assert comp.process(line) is not None
+        assert calls == []  # (the comment and the blank line taken while held)
+        for line in ("M106 S255", "M107", "G92 E0", "M400"):
             comp.process(line)
         assert calls == [1]  # the four declined lines: one hand-back
         comp.process("G1 X22 Y15 E1")
-        assert comp.report.lines == 9 and calls == [1, 1]
+        assert comp.report.lines == 11 and calls == [1, 1]
 
 
 def _flip_x_direction(st):

@@ -103,8 +103,8 @@ static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out
     return kk_do_line(K, s, ln, n, out);
 }
 
-/* The text of a str the kernel may take (ASCII, 4..MAX_LINE characters, a G first), else
- * NULL (with no error set). */
+/* The text of a str the kernel may take (ASCII, at most MAX_LINE characters), else NULL
+ * (with no error set). */
 static const char *line_text(PyObject *line, Py_ssize_t *n)
 {
     const char *c;
@@ -115,12 +115,20 @@ static const char *line_text(PyObject *line, Py_ssize_t *n)
         PyErr_Clear();  /* (lone surrogates: not a line the kernel takes) */
         return NULL;
     }
-    if (*n < 4 || c[0] != 'G')
-        return NULL;
     for (i = 0; i < *n; i++)
         if ((unsigned char)c[i] > 127)
             return NULL;
     return c;
+}
+
+/* A line that is no command (blank, or a ';' comment), as the reference path counts it. */
+static void no_command(Kernel *K)
+{
+    State *s = &K->st;
+    s->lineno++, s->lines++, s->lines_out++;
+    s->q_last_known = 0;
+    s->recheck[0] = s->recheck[1] = s->recheck[2] = 1;
+    K->dirty = 1;
 }
 
 /* Kernel.line(line) -> None (the reference path takes it: the state is handed back to
@@ -133,7 +141,12 @@ static PyObject *Kernel_line(Kernel *self, PyObject *line)
     Lines out;
     int r, i;
 
-    if ((c = line_text(line, &n)) == NULL || (r = kk_take(self)) > 0) {
+    if ((c = line_text(line, &n)) != NULL && self->holds && (n == 0 || c[0] == ';')) {
+        no_command(self);  /* (taken while held: no hand-over for a comment) */
+        Py_INCREF(line);
+        return line;
+    }
+    if (c == NULL || n < 4 || c[0] != 'G' || (r = kk_take(self)) > 0) {
         if (kk_give(self) < 0)
             return NULL;
         Py_RETURN_NONE;
@@ -239,13 +252,7 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
         if (memchr(ln, '\r', n) != NULL)
             break;
         if (n == 0 || ln[0] == ';') {
-            /* the reference path on a line that is no command */
-            s->lineno++;
-            s->lines++;
-            s->lines_out++;
-            s->q_last_known = 0;
-            s->recheck[0] = s->recheck[1] = s->recheck[2] = 1;
-            self->dirty = 1;
+            no_command(self);
             if (buf_put(&o, ln, raw) < 0)
                 goto fail;
             pos += raw;
