@@ -133,11 +133,11 @@ def by_queue(params: Params, options: Options, text: str) -> dict:
     }
 
 
-def run(limit: int, bench_lines: int) -> dict:
+def run(limit: int, bench_lines: int, part=(0, 1)) -> dict:
     res = {"lines": limit, "bench_lines": bench_lines, "cases": {}}
     names = select.ENGINES if select.available() == "compiled" else ("python",)
     with tempfile.TemporaryDirectory() as tmp:
-        for path in files(bench_lines, tmp):
+        for path in files(bench_lines, tmp)[part[0] :: part[1]]:
             text = read(path, limit)
             for pname, pdict in PARAMS.items():
                 params = Params.from_dict(pdict)
@@ -156,9 +156,10 @@ def run(limit: int, bench_lines: int) -> dict:
     return res
 
 
-def compare(old: dict, new: dict) -> list:
+def compare(old: dict, new: dict, whole: bool = True) -> list:
     diffs = []
-    for key in sorted(set(old["cases"]) | set(new["cases"])):
+    keys = set(old["cases"]) | set(new["cases"]) if whole else set(new["cases"])
+    for key in sorted(keys):
         a, b = old["cases"].get(key), new["cases"].get(key)
         if a is None or b is None:
             diffs.append(f"{key}: only in {'new' if a is None else 'old'}")
@@ -175,15 +176,17 @@ def main(argv=None) -> int:
     ap.add_argument("--bench-lines", type=int, default=30000)
     ap.add_argument("--out", help="write the hashes to this JSON file")
     ap.add_argument("--compare", help="compare with the hashes of this JSON file")
+    ap.add_argument("--part", default="0/1", help="I/N: only every N-th file from the I-th")
     args = ap.parse_args(argv)
-    res = run(args.lines, args.bench_lines)
+    part = tuple(int(v) for v in args.part.split("/"))
+    res = run(args.lines, args.bench_lines, part)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(res, f, indent=1, sort_keys=True)
     if args.compare:
         with open(args.compare) as f:
             old = json.load(f)
-        diffs = compare(old, res)
+        diffs = compare(old, res, whole=part == (0, 1))
         for d in diffs:
             print(d)
         n = sum(len(c) for c in res["cases"].values())
