@@ -17,8 +17,8 @@ The engine owns the stream state while it takes lines, and hands it back (once, 
 many lines follow that it declines) before it declines one, when ``feed`` stops, and when
 ``Compensator.state`` is read; it takes it again with the next line it may take. Its output
 and report are the reference path's, byte for byte (the tests and its start-up self-check
-compare them). One thread at a time uses a compensator and its engine (the queuing hook
-holds its lock around each line; a file job owns its compensator).
+compare them). One thread at a time uses a compensator and its engine, reading its state
+included (that hands the state over): the queue holds its lock; a file job owns its own.
 """
 
 from __future__ import annotations
