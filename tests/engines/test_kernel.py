@@ -228,6 +228,10 @@ def test_a_state_the_kernel_cannot_hold_is_left_to_python():
     comp.state.fw_text[0] = "1" + "0" * 60
     assert comp.fast.line("G1 X20 Y20") is None
     assert comp.fast.get_state() is None  # (not held)
+    # a value of a type the record does not take (a float plane): declined, not an error
+    comp.state.fw_text[0] = None
+    comp.state.plane = 17.0
+    assert comp.fast.line("G1 X20 Y20") is None and comp.fast.get_state() is None
     comp = make_compensator(SKEW)
     comp.process("G28 X")  # (under XY skew: Y's drive is not at its command)
     assert comp.state.q_drive is not None

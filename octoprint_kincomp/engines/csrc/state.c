@@ -11,8 +11,7 @@
  * the [3]s and q_last tuples (q_last None: not known), None where a value is unknown. */
 #include "kernel.h"
 
-#define RECORD_FORMAT \
-    "ppOip(OOO)(OOO)(OOO)(ddd)(ddd)O(ppp)(lll)(OOO)LOO(LLLLLLLLL)d(ddd)"
+#define RECORD_FORMAT "ppOip(OOO)(OOO)(OOO)(ddd)(ddd)O(ppp)(lll)(OOO)LOO(LLLLLLLLL)d(ddd)"
 
 static PyObject *none_ref(void)
 {
@@ -93,8 +92,7 @@ int kk_state_set(State *s, PyObject *t)
 
 static PyObject *text_or_none(const State *s, int k)
 {
-    return s->fwt_len[k] < 0 ? none_ref()
-                             : PyUnicode_FromStringAndSize(s->fwt[k], s->fwt_len[k]);
+    return s->fwt_len[k] < 0 ? none_ref() : PyUnicode_FromStringAndSize(s->fwt[k], s->fwt_len[k]);
 }
 
 /* The tuple of the record (a new reference; NULL: error). */
@@ -124,7 +122,7 @@ PyObject *kk_state_get(const State *s)
 }
 
 /* Take the state from Python (``get()``) unless the kernel holds it: 0 held, 1 not one the
- * kernel holds (no ``get``, or Python's state is outside the record), -1 error. */
+ * kernel holds (no ``get``, or Python's state outside the record), -1 error (of ``get``). */
 int kk_take(Kernel *K)
 {
     PyObject *t;
@@ -137,6 +135,8 @@ int kk_take(Kernel *K)
         return -1;
     r = t == Py_None ? 1 : kk_state_set(&K->st, t);
     Py_DECREF(t);
+    if (r < 0)  /* a value of a type the record does not take: the reference path decides */
+        PyErr_Clear(), r = 1;
     if (r == 0)
         K->holds = 1, K->dirty = 0;
     return r;
