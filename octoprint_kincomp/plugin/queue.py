@@ -162,7 +162,7 @@ class QueueCompensator:
         lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
         try:
             route = self._route
-            offered = route is not None
+            offered = route is not None and cmd != ""  # (an empty command is not counted)
             if offered:
                 # most moves: the compiled kernel, as Compensator.process would offer them
                 try:

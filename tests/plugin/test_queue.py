@@ -343,3 +343,13 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
         assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
     q.handle("G1 X20 Y15", {FILE_TAG})
     assert q._kernel.call_count == 1  # offered again
+
+
+def test_an_empty_command_is_neither_compensated_nor_counted(engine):
+    # (the kernel takes a blank line as Compensator.process does, counting it: the hook
+    # must not offer it one, as it does not hand it to the reference path either)
+    params = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}})
+    q = QueueCompensator(params, Options(home_mm=(0.0, 0.0, 0.0)), enabled=True)
+    out = [q.handle(line, {"source:file"}) for line in ("G28", "G1 X10 Y10", "", "G1 X20", "")]
+    assert out[2] is None and out[4] is None  # (sent as it is)
+    assert q.comp.report.lines == 3 and q.comp.report.lines_out == 3
