@@ -17,6 +17,12 @@ new run against an old one and lists every difference.
 
     PYTHONPATH=$PWD .venv/bin/python scripts/engine_baseline.py --out base.json
     PYTHONPATH=$PWD .venv/bin/python scripts/engine_baseline.py --compare base.json
+
+Issue 24 (the kernel owning its state, the numpy engine retired) was proven so: the hashes
+of a copy of the tree at ad45ca6 (its kernel built), ``--lines 3000 --bench-lines 30000``,
+against those of the change (``--part 0/2`` and ``--part 1/2`` side by side): 300 cases,
+2,100 paths, no difference. The whole-file comparison of every engine with the reference
+path on the corpus is the slow test ``tests/corpus/test_corpus.py``.
 """
 
 from __future__ import annotations
