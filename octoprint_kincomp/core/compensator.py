@@ -19,8 +19,8 @@ untouched and is counted in the report (``untouched_unknown``). Homing (G28) mak
 axes known at ``home_mm`` (None for an axis: where the firmware homes it is not known, so it
 stays unknown until :meth:`Compensator.homed_at` learns it or an absolute move names it; a Z
 move right after G28 then goes out as written instead of dragging X and Y to an assumed
-home: the plugin and the command line default to that); probing and other commands that move the head on their own make
-positions unknown again; tool changes too (hotend offsets).
+home: the plugin and the command line default to that); probing and other commands that move
+the head on their own make positions unknown again; tool changes too (hotend offsets).
 
 Absent other information the firmware frame is taken as the homed frame (``g == 0``): an
 absolute move from an unknown position has a known target. A G92 on an axis whose position is
@@ -141,16 +141,19 @@ class Compensator:
 
     ``fast``: an accelerated line engine for this model (``engines.select`` makes it), or
     None. It is offered every line first and either writes exactly what this reference path
-    would write (updating the same :class:`~.state.StreamState`) or declines with the state
-    untouched; the tests prove every engine equal to this path, byte for byte.
+    would write or declines with the state untouched. While it takes lines it holds the
+    stream state itself; it hands it back into :attr:`state` before it declines one and
+    whenever :attr:`state` is read (``release()``). The tests prove every engine equal to
+    this path, byte for byte.
     """
 
     def __init__(self, params: Params, options: Optional[Options] = None, fast=None):
         self.params = params
         self.options = options or Options()
+        self.fast = fast
         self.model = KinematicModel(params)
-        self.state = StreamState()
-        self.backlash = BacklashTracker(params, self.state.backlash, self.options.deadband_mm)
+        self._state = StreamState()
+        self.backlash = BacklashTracker(params, self._state.backlash, self.options.deadband_mm)
         self.servo_s = (
             [params.servo_lag_ms[a] * 1e-3 for a in AXES] if params.has_servo_precomp else None
         )
@@ -168,13 +171,12 @@ class Compensator:
             frozenset({j} | {k for k in range(3) if inv_coupling[k][j]}) for j in range(3)
         )
         self.writer = PathWriter(
-            self.model, self.backlash, self.options, self.state, self.needs, self.servo_s
+            self.model, self.backlash, self.options, self._state, self.needs, self.servo_s
         )
         self.moves = MoveHandler(self)
         self.arc_writer = ArcWriter(self.writer, self)
         # policy "error": lines are processed so that a refused one changes nothing
         self._guarded = self.options.policy == "error" and self.options.limits is not None
-        self.fast = fast
 
     @property
     def accelerable(self) -> bool:
@@ -186,6 +188,17 @@ class Compensator:
             and self.backlash.smoothing == 0
             and self.servo_s is None
         )
+
+    @property
+    def state(self) -> StreamState:
+        """The stream state, current: an accelerated engine that holds it while it takes
+        lines (the compiled kernel) hands it back first. Read it here each time: a reference
+        kept across lines the engine takes is stale, and a change made through it while the
+        engine holds the state is lost."""
+        fast = self.fast
+        if fast is not None:
+            fast.release()
+        return self._state
 
     @property
     def report(self) -> Report:
@@ -229,27 +242,24 @@ class Compensator:
         return not st.absolute if self.options.g90_influences_extruder else False
 
     # -- entry point ---------------------------------------------------------------------
-    def first_offer(self):
-        """The accelerated engine's line function, ``f(state, line)``, for a caller that
-        offers it a line itself and, where it declines (None), hands the line to
-        :meth:`process_declined`; None where there is no such engine, or under the limits
-        policy "error" (there ``process`` runs the engine inside its snapshot: use
-        ``process``). A line it takes is what ``process`` would return, and leaves the
-        report's malformed and unknown-position counts as they were."""
-        return None if self.fast is None or self._guarded else self.fast.line
+    @property
+    def guarded(self) -> bool:
+        """The limits policy "error" is in force: ``process`` keeps a snapshot of the state
+        around each line, so that a refused line changes nothing."""
+        return self._guarded
 
     def process(self, line: str) -> Union[str, List[str]]:
         if self._guarded:
             return self._process_guarded(line)
         fast = self.fast
         if fast is not None:
-            out = fast.line(self.state, line)
+            out = fast.line(line)
             if out is not None:
                 return out
         return self.process_declined(line)
 
     def process_declined(self, line: str) -> Union[str, List[str]]:
-        """``process`` for a line the accelerated engine declined (see :meth:`first_offer`):
+        """``process`` for a line the accelerated engine declined (``engines/contract.py``):
         the reference path alone."""
         st = self.state
         st.q_last = None

@@ -12,8 +12,8 @@ from typing import List, NamedTuple, Optional, Tuple
 
 # ASCII only (re.ASCII): a firmware reads bytes, and "X١٢٣" (Arabic-Indic digits) or a
 # no-break space is no number or separator to it, though Python's \d, \s and float() take
-# them. Such a line is malformed and passes as written, as in the compiled and vectorised
-# engines, which work on the bytes.
+# them. Such a line is malformed and passes as written, as in the compiled kernel, which
+# works on the bytes.
 _LINENO = re.compile(r"\s*[Nn]\s*\d+\s*", re.ASCII)
 _CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?", re.ASCII)
 _WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))", re.ASCII)

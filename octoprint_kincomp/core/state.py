@@ -1,12 +1,13 @@
-"""The stream state: the one record that the reference compensator and every accelerated
-engine (the compiled kernel, the vectorised file engine) read and write.
+"""The stream state: the one record of where a G-code stream stands, which the reference
+compensator reads and writes.
 
-It is declared here, field by field, because it is a contract: the classes are slotted and
-the C kernel (``engines/csrc/state.c``) reads and writes the slots it needs (found by name
-once, ``layout``), in place where the Python code changes a list in place. A new field, a
-renamed one or a list replaced by a tuple must be mirrored there (the kernel leaves any
-state it cannot read to the Python path, and its self-check against the reference path
-catches a mismatch at start-up).
+It is declared here, field by field, because it is a contract: the compiled kernel keeps
+its own typed copy of the fields it needs while it takes lines (``engines/csrc/kernel.h``
+``State``) and takes them from here, or writes them back here, only as a tuple of plain
+values in the order of ``engines/kernel.py`` ``RECORD`` (``record`` and ``adopt`` there:
+the one place to mirror a new or renamed field; the kernel's self-check against the
+reference path catches a mismatch at start-up). ``Compensator.state`` hands it back from
+the kernel before anyone reads it.
 
 Frames (mm): logical ``L`` is what the program writes (after G20 inch conversion); the
 desired machine position ``m = L - w`` (``w``: the program's G92 offset) is the homed frame
@@ -33,7 +34,6 @@ class Report:
     compensated path (core/arcpath.py). ``max_correction_um``: the largest correction per
     axis, [X, Y, Z] in um (a dict by axis name in :meth:`to_dict`)."""
 
-    # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
     __slots__ = (
         "lines",
         "moves",
@@ -111,7 +111,7 @@ class BacklashState:
     """
 
     FIELDS = ("dir", "anchor", "ramping", "ramp_from", "ramp_done")
-    __slots__ = FIELDS  # (the compiled kernel reads and writes them in place)
+    __slots__ = FIELDS
 
     def __init__(self) -> None:
         self.dir: List[int] = [0, 0, 0]
@@ -149,10 +149,10 @@ class StreamState:
     ``q_drive``: per axis, the geometric carriage command (mm) a drive is at where that is
     not the command of the desired position ``m`` (after G28: a homed drive at the home
     command, and under skew an axis that was not homed but whose command depends on the
-    homed ones), None elsewhere; None as a whole when there is none. The next compensated move starts from there (and the
-    accelerated engines leave it to the reference path).
+    homed ones), None elsewhere; None as a whole when there is none. The next compensated
+    move starts from there (and the compiled kernel leaves it to the reference path).
 
-    Accelerated engines only (the reference path resets them on every line it handles):
+    The compiled kernel only (the reference path resets them on every line it handles):
     ``q_last``: the carriage command (mm) of the point the last line ended on, as a tuple,
     None: recompute it; ``limit_recheck``: per axis, re-evaluate its text even if its
     command did not change (it touched a limit).
@@ -160,7 +160,6 @@ class StreamState:
     ``backlash``: :class:`BacklashState`; ``report``: :class:`Report`.
     """
 
-    # slots: the compiled kernel reads and writes them in place (engines/csrc/state.c)
     __slots__ = (
         "report",
         "lineno",

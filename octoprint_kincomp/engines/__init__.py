@@ -1,3 +1,3 @@
-"""The engines: the accelerated paths of the transform (compiled kernel, vectorised file
-engine) and whole-file compensation, the one interface through which the queue, uploads and
-the command line reach an engine."""
+"""The engines: the compiled kernel of the transform, the contract it keeps (``contract.py``)
+and the one file loop (``files.py``), the interface through which the queue, uploads and the
+command line reach an engine."""

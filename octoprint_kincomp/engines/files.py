@@ -1,25 +1,33 @@
-"""Whole-file compensation on top of the streaming engine (CLI and upload preprocessing).
+"""The one file loop: whole-file compensation (the command line, background jobs) and
+upload preprocessing (``plugin/upload.py``) run :class:`FileEngine`.
 
 A compensated file starts with a marker line naming the parameter hash::
 
     ; kincomp: compensated params=<hash> kincomp=<version>
 
-and compensating a marked file again is refused (:class:`AlreadyCompensated`). Line endings
-and any bytes that are not UTF-8 are preserved; memory use does not grow with file size.
+and compensating a marked file again is refused (:class:`AlreadyCompensated`; an upload
+passes it through). Line endings and any bytes that are not UTF-8 are preserved; memory use
+does not grow with file size.
 """
 
 from __future__ import annotations
 
-from typing import IO, Iterable, Iterator, Optional
+import functools
+import types
+from typing import IO, Callable, Iterable, Iterator, Optional
 
 from ..core.atomic import replacing
 from ..core.compensator import Compensator, Options, Report
-from ..core.lines import join_output, split_ending
-from ..core.marker import MARKER_SCAN_LINES, file_marker, find_marker, marker_hash
+from ..core.lines import UNIVERSAL, join_output, split_ending
+from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, file_marker, find_marker
 from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
 from ..core.version import VERSION
+from .contract import block_route
 from .select import make_compensator
+
+CHUNK_BYTES = 1 << 19  # a block of the file loop (512 KB of complete lines)
+_NULL_SINK = types.SimpleNamespace(write=len)  # (a dry run's output)
 
 
 class AlreadyCompensated(ValueError):
@@ -31,11 +39,6 @@ class AlreadyCompensated(ValueError):
         )
 
 
-class _NullSink:
-    def write(self, data) -> int:
-        return len(data)
-
-
 def marker_line(params: Params) -> str:
     return make_marker_line(params.hash(), VERSION)
 
@@ -45,13 +48,13 @@ def compensate_lines(
 ) -> Iterator[str]:
     """Yield output lines (with endings) for input lines (with endings)."""
     process = comp.process
-    for raw in lines:
+    for i, raw in enumerate(lines):
         body, ending = split_ending(raw)
         if header is not None:
             yield header + (ending or "\n")
             header = None
-        if comp.lineno < MARKER_SCAN_LINES:
-            found = marker_hash(body)
+        if i < MARKER_SCAN_LINES:
+            found = find_marker((body,))
             if found is not None:
                 raise AlreadyCompensated(found)
         out = process(body)
@@ -71,22 +74,123 @@ def compensate_stream(
     return comp.report
 
 
-def _check_head(text: str) -> None:
-    found = find_marker(text.splitlines())
-    if found is not None:
+def head_marker(text: str, refuse: bool = False) -> Optional[str]:
+    """The parameter hash of a marker among the first lines of ``text``, or None (``refuse``:
+    raise :class:`AlreadyCompensated` if there is one)."""
+    found = find_marker(UNIVERSAL.findall(text))
+    if found is not None and refuse:
         raise AlreadyCompensated(found)
+    return found
+
+
+class _Unterminated(bytes):
+    """The last block of a file that did not end with a newline (one was added)."""
+
+
+class FileEngine:
+    """Feeds a file's bytes through one Compensator, a block of complete lines at a time:
+    with the compiled kernel, ``Kernel.feed`` takes the lines it takes and every other line
+    goes through ``Compensator.process`` in order (the state handed over between them by the
+    kernel, see engines/contract.py); without it, every line takes the reference path.
+    Either way the text and report are those of ``Compensator.process`` line by line."""
+
+    def __init__(self, comp: Compensator):
+        self.comp = comp
+        self.feed = block_route(comp)
+
+    def run(
+        self,
+        read: Callable[[int], bytes],
+        write: Callable[[bytes], object],
+        header: Optional[str] = None,
+        check_first: Optional[Callable[[str], None]] = None,
+        progress: Optional[Callable[[int], None]] = None,
+    ) -> None:
+        """Compensate everything ``read`` yields into ``write``. ``header`` is written
+        before the first line (with that line's ending), ``check_first`` sees the first
+        lines of text (the marker check), ``progress(bytes_read)`` is called per block."""
+        done = 0
+        for block in self._blocks(read):
+            first = not done
+            done += len(block)
+            if progress is not None:
+                progress(done)
+            if first:
+                head = block[:-1] if isinstance(block, _Unterminated) else block
+                if check_first is not None:
+                    check_first(head[:16384].decode(ENCODING, ERRORS))
+                if header is not None:
+                    write(self.header(header, head))
+            if isinstance(block, _Unterminated) and block.endswith(b"\r\n"):
+                # the file ended with a lone CR (its last line is terminated after all): the
+                # virtual newline would make that ending CRLF
+                write(self._lines(block, 0, len(block) - 1))
+                continue
+            out = self.chunk(block)
+            write(out[:-1] if isinstance(block, _Unterminated) and out.endswith(b"\n") else out)
+
+    @staticmethod
+    def header(line: str, head: bytes) -> bytes:
+        """``line`` with the ending of the first line of ``head`` (``\\n`` if none)."""
+        first = UNIVERSAL.match(head[:16384].decode(ENCODING, ERRORS))
+        ending = split_ending(first.group(0))[1] if first else ""
+        return (line + (ending or "\n")).encode(ENCODING, ERRORS)
+
+    @staticmethod
+    def _blocks(read: Callable[[int], bytes]):
+        """Blocks of complete lines; a last line without its newline is completed with a
+        virtual one, in a block marked as ``_Unterminated``."""
+        rest = b""
+        while True:
+            data = read(CHUNK_BYTES)
+            if not data:
+                break
+            cut = data.rfind(b"\n")
+            if cut < 0:
+                rest += data
+                continue
+            block = rest + data[: cut + 1] if rest else data[: cut + 1]
+            rest = data[cut + 1 :]
+            yield block
+        if rest:
+            yield _Unterminated(rest + b"\n")
+
+    def chunk(self, buf: bytes) -> bytes:
+        """Compensate ``buf``: lines (the last one may lack its ending)."""
+        feed = self.feed
+        if feed is None:
+            return self._lines(buf, 0, None)
+        pieces = []
+        pos, size = 0, len(buf)
+        while pos < size:
+            out, stop = feed(buf, pos)
+            pieces.append(out)
+            if stop >= size:
+                break
+            pos = buf.find(b"\n", stop) + 1 or size
+            pieces.append(self._lines(buf, stop, pos))
+        return b"".join(pieces)
+
+    def _lines(self, buf: bytes, start: int, end: Optional[int]) -> bytes:
+        """buf[start:end] through ``Compensator.process`` line by line."""
+        process = self.comp.process
+        out = []
+        for raw in UNIVERSAL.findall(buf[start:end].decode(ENCODING, ERRORS)):
+            body, ending = split_ending(raw)
+            res = process(body)
+            out.append(raw if res is body else join_output(res, ending))
+        return "".join(out).encode(ENCODING, ERRORS)
 
 
 def compensate_binary(
     src: IO[bytes], dst: IO[bytes], params: Params, options: Optional[Options] = None, progress=None
 ) -> Report:
-    """Compensate a binary stream with the vectorised engine (same output as the line path).
+    """Compensate a binary stream (the same output as the line path, :func:`compensate_lines`).
 
     ``progress(bytes_read)`` is called as the input is consumed."""
-    from .vectorised import FileEngine
-
     comp = make_compensator(params, options)
-    FileEngine(comp).run(src.read, dst.write, marker_line(params), _check_head, progress)
+    refuse = functools.partial(head_marker, refuse=True)
+    FileEngine(comp).run(src.read, dst.write, marker_line(params), refuse, progress)
     return comp.report
 
 
@@ -105,7 +209,6 @@ def compensate_file(
     target = out_path or in_path
     if dry_run:
         with open(in_path, "rb") as src:
-            return compensate_binary(src, _NullSink(), params, options, progress)
+            return compensate_binary(src, _NULL_SINK, params, options, progress)
     with open(in_path, "rb") as src, replacing(target, ".gcode") as dst:
-        report = compensate_binary(src, dst, params, options, progress)
-    return report
+        return compensate_binary(src, dst, params, options, progress)

@@ -1,13 +1,21 @@
 """The compiled kernel of the transform (``csrc/``), where it could be built.
 
-``Kernel.line(state, line)`` compensates one plain absolute ``G0``/``G1`` line, or a ``G2``/
-``G3`` kept as arcs, of an affine model exactly as the reference path (``core/path.py``,
-``core/arcpath.py``) would: the same arithmetic in the
-same order, Python's own number rules, so the same text and the same stream state
-(``core/state.py``, which it reads and writes); where it does not decide (a limit touched,
-anything unusual) it returns None having changed nothing, and the reference path takes the
-line. ``Kernel.feed(state, buf, pos)`` runs it over the complete lines of a block of a
-file, with blank lines and ``;`` comments, up to the first line it does not take.
+``Kernel.line(line)`` compensates one plain absolute ``G0``/``G1`` line, or a ``G2``/``G3``
+kept as arcs, of an affine model exactly as the reference path (``core/path.py``,
+``core/arcpath.py``) would: the same arithmetic in the same order, Python's own number
+rules, so the same text; where it does not decide (a limit touched, anything unusual) it
+returns None having changed nothing, and the reference path takes the line.
+``Kernel.feed(buf, pos)`` runs it over the complete lines of a block of a file, with blank
+lines and ``;`` comments, up to the first line it does not take (``contract.py``).
+
+It owns the stream state while it takes lines: a typed C record (``csrc/kernel.h`` ``State``)
+in the Kernel object, which crosses to Python only as a tuple of plain values (:data:`RECORD`;
+:func:`record` to take it, :func:`adopt` to hand it back, ``release()`` when
+``Compensator.state`` is read). C never touches a Python object's internals, so it holds on
+any CPython 3.8+, the free-threaded build included. Threads: one at a time uses a Kernel
+(the queuing hook holds its lock around every call; a file job owns its compensator); the
+module keeps no global state and does not declare ``Py_mod_gil``, so a free-threaded CPython
+turns the GIL on when it loads it (a warning): nothing here runs in parallel anyway.
 
 The extension is optional: the package installs and works without it (no compiler, e.g.),
 only slower. Before it is used it must write, on a fixed program full of rounding traps,
@@ -25,7 +33,7 @@ from typing import Callable, List, Optional
 
 from ..core.compensator import Compensator, Options
 from ..core.params import Params
-from ..core.state import BacklashState, Report, StreamState
+from ..core.state import StreamState
 
 _log = logging.getLogger(__name__)
 
@@ -33,14 +41,42 @@ try:  # built by setup.py when a C compiler is there
     from . import _kernel as _ext
 except ImportError:  # pragma: no cover - depends on the installation
     _ext = None
-else:
-    try:  # where it finds the state's fields (slots)
-        _ext.layout(StreamState, BacklashState, Report)
-    except (AttributeError, TypeError):  # an extension built for other state classes
-        _log.exception("KinComp: the compiled kernel does not fit this version; not used")
-        _ext = None
 
 MAX_POINTS = _ext.MAX_POINTS if _ext is not None else 64  # backlash table points it takes
+
+# The record's fields, in the order of its tuple (csrc/state.c): StreamState's, its backlash
+# state's, and the report's counters that the kernel keeps.
+MODES = ("absolute", "inches", "e_absolute_mode", "plane", "ij_absolute")
+COUNTS = ("lines", "moves", "moves_compensated", "lines_out", "takeup_moves", "arcs_kept")
+COUNTS += ("arcs_split", "arcs_linearised", "arc_segments")
+RECORD = MODES + ("m", "fw", "fw_text", "w", "g", "q_last", "limit_recheck", "backlash.dir")
+RECORD += ("backlash.anchor", "lineno", "e_pos", "feed", "report.COUNTS")
+RECORD += ("report.arc_max_deviation_um", "report.max_correction_um")
+
+
+def record(st: StreamState) -> Optional[tuple]:
+    """``st`` as the kernel's record (:data:`RECORD`), or None where the kernel does not
+    hold such a state (drives away from the desired position's command: ``q_drive``)."""
+    if st.q_drive is not None:
+        return None
+    bl, rep = st.backlash, st.report
+    head = tuple(getattr(st, a) for a in MODES) + (st.m, st.fw, st.fw_text, st.w, st.g)
+    tail = (st.q_last, st.limit_recheck, bl.dir, bl.anchor, st.lineno, st.e_pos, st.feed)
+    report = (rep.arc_max_deviation_um, rep.max_correction_um)
+    return head + tail + (tuple(getattr(rep, a) for a in COUNTS),) + report
+
+
+def adopt(st: StreamState, rec: tuple) -> None:
+    """Write the kernel's record ``rec`` into ``st``: the fields the kernel changes (never the
+    modes nor the G92 offsets); lists the reference path changes in place, in place."""
+    m, st.fw[:], st.fw_text[:], _, _, st.q_last, recheck, st.backlash.dir[:] = rec[5:13]
+    st.m, st.limit_recheck = list(m), list(recheck)
+    st.backlash.anchor[:], st.lineno, st.e_pos, st.feed, counts, dev, maxc = rec[13:]
+    rep = st.report
+    for a, v in zip(COUNTS, counts):
+        setattr(rep, a, v)
+    rep.arc_max_deviation_um = dev
+    rep.max_correction_um[:] = maxc
 
 
 def built() -> bool:
@@ -72,8 +108,17 @@ def build(comp: Compensator) -> Optional[object]:
             aw.max_offset,
             tuple(float(v) for v in aw.breaks[17]),
         )
+    st = comp._state  # (the object itself: not through ``state``, which asks the kernel)
     return _ext.Kernel(
-        affine, tables, bl.half, bl.deadband, comp.options.limits, comp.options.decimals, arcs
+        affine,
+        tables,
+        bl.half,
+        bl.deadband,
+        comp.options.limits,
+        comp.options.decimals,
+        arcs,
+        get=lambda: record(st),
+        put=lambda rec: adopt(st, rec),
     )
 
 
@@ -84,20 +129,8 @@ def _check_program() -> List[str]:
     and an inch section."""
     rnd = random.Random(20261124)
     lines = ["G28", "G1 X10 Y10 Z0.3 F3000"]
-    traps = [
-        "0.0625",
-        "0.1875",
-        "1.0005",
-        "0.002877",
-        "-0",
-        "+0.0",
-        "12.3456789012345678",
-        "123.4565",
-        "0.0635",
-        "199.9995",
-        "7.",
-        ".5",
-    ]
+    traps = "0.0625 0.1875 1.0005 0.002877 -0 +0.0 12.3456789012345678 123.4565 0.0635"
+    traps = traps.split() + ["199.9995", "7.", ".5"]
     for i in range(240):
         if i % 3 == 0:
             x, y = rnd.choice(traps), rnd.choice(traps)
@@ -165,11 +198,11 @@ def self_check(make: Optional[Callable] = None) -> bool:
     try:
         ref = Compensator(params, options)
         got = Compensator(params, options)
-        kernel = (make or build)(got)
+        kernel = got.fast = (make or build)(got)
         if kernel is None:
             return False
         for line in program:
-            out = kernel.line(got.state, line)
+            out = kernel.line(line)
             if out is None:
                 out = got.process_declined(line)
             else:

@@ -1,10 +1,10 @@
 """Which engine runs, decided once, here: the compiled kernel where it was built and passed
-its self-check (``engines/kernel.py``), otherwise the pure-Python paths (the reference
-compensator per line, the vectorised numpy engine for whole files). ``KINCOMP_KERNEL=0`` in
-the environment turns the kernel off. Everything that compensates (the queuing hook,
-uploads, background jobs, the command line, the closed loop, the benchmark) gets its
-compensator from :func:`make_compensator`; tests and the benchmark run each engine with
-:func:`use`.
+its self-check (``engines/kernel.py``), otherwise the reference path (the reference
+compensator, line by line, for the hook and for whole files). ``KINCOMP_KERNEL=0`` in the
+environment turns the kernel off; which lines go to it: ``engines/contract.py``. Everything
+that compensates (the queuing hook, uploads, background jobs, the command line, the closed
+loop, the benchmark) gets its compensator from :func:`make_compensator`; tests and the
+benchmark run each engine with :func:`use`.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Iterator, Optional
 from ..core.compensator import Compensator, Options
 from ..core.params import Params
 from . import kernel
+from .contract import attach
 
 ENGINES = ("compiled", "python")
 _log = logging.getLogger(__name__)
@@ -51,9 +52,7 @@ def available() -> str:
 def make_compensator(params: Params, options: Optional[Options] = None) -> Compensator:
     """A compensator for ``params`` on the engine in use."""
     comp = Compensator(params, options)
-    if _engine == "compiled":
-        comp.fast = kernel.build(comp)
-    return comp
+    return attach(comp, kernel.build(comp) if _engine == "compiled" else None)
 
 
 @contextlib.contextmanager

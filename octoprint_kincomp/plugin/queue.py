@@ -60,6 +60,7 @@ from ..core.gcode_table import (
 )
 from ..core.modal import g92_axes, homed_axes, named_axes
 from ..core.params import Params
+from ..engines.contract import line_route
 from ..engines.select import make_compensator
 
 FILE_TAG = "source:file"
@@ -143,21 +144,17 @@ class QueueCompensator:
     awaiting_home = _Gated()  # homed axes (0 X, 1 Y, 2 Z) whose position is asked for
 
     def _use(self, comp) -> None:
-        """Compensate with ``comp`` from now on (and offer its kernel each line first)."""
+        """Compensate with ``comp`` from now on (and offer its engine each line first)."""
         self.comp = comp
-        self._kernel = comp.first_offer()
-        self._state = comp.state
         self._reroute()
 
     def _reroute(self) -> None:
-        """``_route``: the kernel's line function while any line but a G28 goes to it first
-        (compensation on, no file passed through, not halted, no home question open), else
-        None; the hook then tests this one attribute for most lines."""
-        self._route = (
-            self._kernel
-            if (self.enabled and not self.skip_file and not self.halted and not self.awaiting_home)
-            else None
-        )
+        """``_route``: the engine's line function while lines go to it first, as the engine
+        contract decides (not while compensation is off, a file is passed through, the
+        print is halted or a home question is open), else None; the hook then tests this
+        one attribute for most lines."""
+        bypass = not self.enabled or self.skip_file or self.halted or bool(self.awaiting_home)
+        self._route = line_route(self.comp, bypass)
 
     @property
     def params(self) -> Params:
@@ -178,12 +175,11 @@ class QueueCompensator:
         lock.acquire()  # (not ``with``: this runs for every line, and that costs twice as much)
         try:
             route = self._route
-            offered = route is not None and "28" not in cmd
+            offered = route is not None and cmd != ""  # (an empty command is not counted)
             if offered:
                 # most moves: the compiled kernel, as Compensator.process would offer them
-                # (not a line that may home, nor while the home question is open)
                 try:
-                    out = route(self._state, cmd)
+                    out = route(cmd)
                 except Exception as exc:
                     return self._failed(cmd, exc)
                 if out is not None:

@@ -1,15 +1,14 @@
 """Upload-time file compensation: the stream OctoPrint's preprocessor hook saves an upload
-through, compensated line by line (OctoPrint glue around the core compensator)."""
+through, compensated by the file loop (``engines/files.py`` FileEngine) as it passes."""
 
 from __future__ import annotations
 
 from octoprint.filemanager.util import LineProcessorStream
 
 from ..core.compensator import Options
-from ..core.lines import UNIVERSAL, join_output, split_ending
-from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, marker_hash
+from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES
 from ..core.params import Params
-from ..engines.files import marker_line
+from ..engines.files import FileEngine, head_marker, marker_line
 from ..engines.select import make_compensator
 
 
@@ -26,6 +25,7 @@ class CompensatingStream(LineProcessorStream):
         super().__init__(input_stream)
         self.params = params
         self.comp = make_compensator(params, options)
+        self.engine = FileEngine(self.comp)
         self.started = False
         self.passthrough = False
 
@@ -41,24 +41,10 @@ class CompensatingStream(LineProcessorStream):
             return self._head(b"".join(head))
         if self.passthrough:
             return line
-        return self._lines(line.decode(ENCODING, ERRORS)).encode(ENCODING, ERRORS)
+        return self.engine.chunk(line)
 
     def _head(self, data: bytes) -> bytes:
-        text = data.decode(ENCODING, ERRORS)
-        raws = UNIVERSAL.findall(text) or [text]
-        bodies = [split_ending(raw)[0] for raw in raws[:MARKER_SCAN_LINES]]
-        if any(marker_hash(b) is not None for b in bodies):
+        if head_marker(data.decode(ENCODING, ERRORS)) is not None:
             self.passthrough = True
             return data
-        first_ending = split_ending(raws[0])[1]
-        return (marker_line(self.params) + (first_ending or "\n") + self._lines(text)).encode(
-            ENCODING, ERRORS
-        )
-
-    def _lines(self, text: str) -> str:
-        out = []
-        for raw in UNIVERSAL.findall(text) or [text]:
-            body, ending = split_ending(raw)
-            res = self.comp.process(body)
-            out.append(raw if res is body else join_output(res, ending))
-        return "".join(out)
+        return self.engine.header(marker_line(self.params), data) + self.engine.chunk(data)

@@ -1,4 +1,4 @@
-"""Property tests (hypothesis) for the streaming compensator and the vectorised file engine.
+"""Property tests (hypothesis) for the streaming compensator and the file loop.
 
 Generated G-code streams mix G0/G1/G2/G3 (IJ and R forms, P turns), G90/G91, G92 (with and
 without axes, G92 E0, G92.1), G20/G21, M82/M83, G28, planes, comments, blank lines, odd
@@ -567,10 +567,8 @@ def program(draw, max_ops=30, partial_home=True):
     add("G28")
     for m in draw(st.sampled_from([(), ("G92 E0",), ("M83",), ("G92 E0", "M83")])):
         add(m)
-    add(
-        f"G1 X{draw(st.floats(0, 200)):.3f} Y{draw(st.floats(0, 200)):.3f} "
-        f"Z{draw(st.floats(0.2, 40)):.3f} F3000"
-    )
+    x, y, z = draw(st.floats(0, 200)), draw(st.floats(0, 200)), draw(st.floats(0.2, 40))
+    add(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F3000")
 
     def val(lo, hi, rel=False):
         v = draw(st.floats(-40, 40) if rel else st.floats(lo, hi))

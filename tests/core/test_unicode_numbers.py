@@ -1,7 +1,7 @@
 """Issue 26, case 7: a number a firmware cannot read is no number. Python's float() and the
 regex ``\\d`` take Unicode digits (``X١٢٣`` is 123 to them), a firmware reading bytes sees
 no number there: the line is malformed and passes as written, in the reference parser and
-in the file engines (compiled kernel, vectorised), which must agree byte for byte."""
+in the file loop (compiled kernel, reference path), which must agree byte for byte."""
 
 import pytest
 

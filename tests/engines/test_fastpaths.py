@@ -1,10 +1,10 @@
 """Every engine gives exactly what the reference path gives (issue 5).
 
-The engines: the compiled kernel per line (the queuing hook) and over blocks of a file, and
-the vectorised numpy file engine (blocks with slicer arcs, and everything without the
-kernel). Each must produce the same text and report as the reference compensator, line by
-line, on real slicer files and on awkward generated programs. Tests that take the
-``engine`` fixture run once per engine."""
+The engines: the compiled kernel per line (the queuing hook) and over blocks of a file (the
+file loop, engines/files.py), and without it the reference path over the same file loop
+(the shapes below were once the retired numpy engine's hard cases). Each must produce the
+same text and report as the reference compensator, line by line, on real slicer files and on
+awkward generated programs. Tests that take the ``engine`` fixture run once per engine."""
 
 import io
 import math
@@ -16,8 +16,8 @@ import pytest
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.engines import files as fastfile
 from octoprint_kincomp.engines import select
-from octoprint_kincomp.engines import vectorised as fastfile
 from octoprint_kincomp.engines.files import (
     compensate_binary,
     compensate_lines,
@@ -227,7 +227,7 @@ def test_odd_line_shapes_agree_with_the_reference_path(params, engine):
 
 @pytest.mark.parametrize("params", PARAMS[:2], ids=["bench", "skew"])
 def test_odd_lines_inside_long_runs_of_moves(params, engine):
-    """The vectorised engine classifies a whole block at once: each odd spelling, in the
+    """The retired numpy engine classified a whole block at once: each odd spelling, in the
     middle of runs of plain moves long enough to be vectorised, is read as the reference
     path reads it."""
     lines = ["G28", "G1 X10 Y10 Z1 E0"]
@@ -242,7 +242,7 @@ def test_odd_lines_inside_long_runs_of_moves(params, engine):
 
 
 def test_m_codes_with_leading_zeros_inside_long_runs(engine):
-    # review finding: the vectorised engine read M codes by their first three bytes, so
+    # review finding: the retired numpy engine read M codes by their first three bytes, so
     # M048 (positions unknown) and M082/M083 (extruder mode), as int() reads them, passed
     # as inert lines
     def run(i):
@@ -275,7 +275,7 @@ def test_limits_counted_once_when_a_run_leaves_the_number_tables(policy, engine)
 
 
 def rows_program(seed: int) -> list:
-    """Runs of plain moves in the shapes the vectorised engine's rows take: input of every
+    """Runs of plain moves in the shapes the retired numpy engine's rows took: input of every
     length before a move (comment lines up to 300 bytes: copied into its row, a row of its
     own, spliced in), leading F words, reversals (take-up moves), coordinates from negative
     to beyond its number tables (10,000 mm), and a part in inches."""
@@ -427,7 +427,7 @@ def test_arcs_with_absolute_e_from_an_unknown_position_take_the_line_path(engine
 
 
 def test_reversal_at_the_deadband_edge_is_decided_like_the_tracker(engine):
-    """A retreat of the deadband plus an ulp (review finding): the vectorised shortcut used
+    """A retreat of the deadband plus an ulp (review finding): the numpy engine's shortcut used
     step < -db where the tracker compares q < anchor - db; they round differently there."""
     p = Params.from_dict({"backlash": {"x": 30.0}})
     for lines, opts in (

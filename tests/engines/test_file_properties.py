@@ -1,6 +1,6 @@
 """Property tests (hypothesis) for the file engines: over generated G-code files (runs of
 plain slicer moves, arcs, modal changes, odd line endings, chunk boundaries), the file engine
-of each engine (the compiled kernel over blocks, the vectorised numpy engine) writes the
+of each engine (the compiled kernel over blocks, the reference path over blocks) writes the
 same bytes and report as the per-line reference path (``Compensator.process`` alone)."""
 
 import io
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines import vectorised as fastfile
+from octoprint_kincomp.engines import files as fastfile
 from octoprint_kincomp.engines.files import (
     compensate_binary,
     compensate_lines,
@@ -26,7 +26,7 @@ from tests.core.test_properties import any_line, cfg, params
 
 @st.composite
 def plain_run(draw):
-    """A run of plain slicer-style moves (what the vectorised engine takes)."""
+    """A run of plain slicer-style moves (what the kernel takes)."""
     n = draw(st.integers(1, 60))
     x, y, z, e = (draw(st.floats(0, 200)), draw(st.floats(0, 200)), draw(st.floats(0.2, 5)), 0.0)
     dec = draw(st.sampled_from([3, 3, 2, 4, 0, 1]))

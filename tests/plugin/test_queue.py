@@ -247,8 +247,9 @@ def test_a_line_sent_as_written_after_an_error_forgets_the_position():
 
 @pytest.mark.parametrize("home_mm", [(0.0, 0.0, 0.0), (None, None, 0.0)])
 def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
-    # the hook offers most moves to the compiled kernel without Compensator.process (one
-    # call less per line): the same lines, the same report, whichever takes each line
+    # the hook offers every line to the compiled kernel without Compensator.process (one
+    # call less per line; the engine contract decides): the same lines, the same report,
+    # whichever takes each line
     from octoprint_kincomp.engines.select import make_compensator
     from octoprint_kincomp.plugin.queue import FILE_TAG, command_of
 
@@ -272,10 +273,10 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
     options = Options(home_mm=home_mm)
     q = QueueCompensator(SKEW, options, enabled=True)
     comp = make_compensator(SKEW, options)
-    kernel = q._kernel
+    kernel = q.comp.fast
     if comp.fast is not None:  # the compiled engine: count what the kernel is offered
-        assert kernel is not None
-        kernel = q._kernel = mock.Mock(wraps=kernel)
+        assert q._route is not None
+        kernel = q.comp.fast = mock.Mock(wraps=kernel)
         q._reroute()
     for line in lines:
         raw = q.handle(line, {FILE_TAG})
@@ -292,8 +293,8 @@ def test_the_kernel_offered_first_writes_what_the_compensator_writes(home_mm):
         assert got == want, line
     assert q.comp.report.to_dict() == comp.report.to_dict()
     assert q.comp.report.moves_compensated >= 10
-    if comp.fast is not None:  # every line but the G28s and "X128 Y28" was offered
-        assert kernel.call_count == len(lines) - 2
+    if comp.fast is not None:  # every line was offered (the G28 before its question)
+        assert kernel.line.call_count == len(lines)
 
 
 @pytest.mark.parametrize("gate", ["off", "precompensated file", "halted", "home asked"])
@@ -315,11 +316,12 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
         return q, asked
 
     (q, asked), (ref, _) = queue(), queue()
-    if q._kernel is None:
+    if q.comp.fast is None:
         pytest.skip("no compiled kernel here")
-    ref._kernel = None  # the reference path alone
+    assert ref.comp.state is not None  # (the state back from its kernel: Python's alone)
+    ref.comp.fast = None  # the reference path alone
     ref._reroute()
-    q._kernel = mock.Mock(wraps=q._kernel)
+    q.comp.fast = mock.Mock(wraps=q.comp.fast)
     q._reroute()
     lines = ["G1 X20 Y15 Z2 E1", "G2 X30 Y25 I10 J0 E2", "G1 Z3 F600"]
     if gate == "home asked":  # (lines that leave the question open: X and Y stay put)
@@ -331,7 +333,11 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
             assert got is None  # sent as written
         elif gate == "halted":
             assert got == []  # held back
-    assert q._kernel.call_count == 0
+    assert q._route is None
+    # (with the home question open Compensator.process still offers the kernel each move:
+    # the hook only does not offer it first)
+    offered = q.comp.fast.line.call_count
+    assert offered == (3 if gate == "home asked" else 0)
     if gate == "off":
         q.set_enabled(True)
     elif gate == "precompensated file":
@@ -342,4 +348,15 @@ def test_no_line_goes_to_the_kernel_first_while_the_gate_is_closed(gate):
         q.home_query_sent(asked[-1][2])
         assert q.home_reported({"x": 0.0, "y": 0.0, "z": 0.0})
     q.handle("G1 X20 Y15", {FILE_TAG})
-    assert q._kernel.call_count == 1  # offered again
+    assert q._route is not None
+    assert q.comp.fast.line.call_count == offered + 1  # offered again
+
+
+def test_an_empty_command_is_neither_compensated_nor_counted(engine):
+    # (the kernel takes a blank line as Compensator.process does, counting it: the hook
+    # must not offer it one, as it does not hand it to the reference path either)
+    params = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}})
+    q = QueueCompensator(params, Options(home_mm=(0.0, 0.0, 0.0)), enabled=True)
+    out = [q.handle(line, {"source:file"}) for line in ("G28", "G1 X10 Y10", "", "G1 X20", "")]
+    assert out[2] is None and out[4] is None  # (sent as it is)
+    assert q.comp.report.lines == 3 and q.comp.report.lines_out == 3

@@ -469,7 +469,7 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
         int e_rel = s.e_abs_mode == 0;
         if (present[6]) {
             s.feed = val[6] * u;
-            s.f_set = 1;
+            s.f_known = 1;
         }
         s.lineno++;
         s.lines++;
@@ -562,7 +562,6 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
             kk_track_e(&s, e_rel, val[5]);
         memcpy(s.q_last, qa, sizeof qa);
         s.q_last_known = 1;
-        s.moved = 1;
         s.moves_comp++;
         s.lines_out += out->n;
         *s0 = s;

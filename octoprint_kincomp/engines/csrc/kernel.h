@@ -7,12 +7,15 @@
  * reference path's byte for byte. Whatever it does not decide (a limit touched, a value it
  * cannot hold, any other line) it leaves alone, with the stream state untouched.
  *
- * Files: state.c reads and writes the stream state (core/state.py, the declared record),
- * numbers.c parses and formats numbers, transform.c does one line, module.c is the Python
- * type. Units: positions mm (inches only in the G-code text), backlash tables um, ``half``:
- * the fraction of the backlash applied per side, um -> mm. Backlash direction +1: the
- * carriage command last moved towards +, the take-up offset is + (half the backlash there).
- */
+ * It owns its stream state while it takes lines: the record ``State`` below, in the Kernel
+ * object, which crosses to Python only as a tuple of plain values (state.c; the order of
+ * engines/kernel.py RECORD). No line here touches a Python object's internals.
+ *
+ * Files: state.c the record's tuple and its handing over, numbers.c numbers, transform.c one
+ * line, arc.c/arcgeo.c arcs, module.c the Python type. Units: positions mm (inches only in
+ * the G-code text), backlash tables um, ``half``: the fraction of the backlash applied per
+ * side, um -> mm. Backlash direction +1: the carriage command last moved towards +, the
+ * take-up offset is + (half the backlash there). */
 #ifndef KINCOMP_KERNEL_H
 #define KINCOMP_KERNEL_H
 
@@ -21,13 +24,6 @@
 #include <float.h>
 #include <math.h>
 #include <string.h>
-
-#if PY_VERSION_HEX < 0x030A0000  /* (Python 3.8, 3.9) */
-static inline PyObject *Py_NewRef(PyObject *o) { Py_INCREF(o); return o; }
-#endif
-#ifndef Py_IS_TYPE
-#define Py_IS_TYPE(o, t) (Py_TYPE(o) == (t))
-#endif
 
 /* Doubles must round as Python's do: no excess precision (x87 on 32-bit x86). Where that is
  * not so the extension is not built and the pure-Python paths run (setup.py: optional). */
@@ -42,7 +38,6 @@ static inline PyObject *Py_NewRef(PyObject *o) { Py_INCREF(o); return o; }
 #define OUT_BUF 16384    /* the output of one input line (more: Python decides) */
 #define MAX_OUT 128      /* lines written for one input line (more: Python decides) */
 #define MAX_BREAKS 3
-
 #define MM_PER_INCH 25.4
 
 typedef struct {
@@ -50,6 +45,35 @@ typedef struct {
     double pos[MAX_PTS];
     double um[MAX_PTS];
 } Table;
+
+/* The stream state (core/state.py StreamState, its backlash directions and the report's
+ * counters that the kernel keeps): mm, um for max correction, flags 0/1. */
+typedef struct {
+    int absolute, inches, e_abs_mode; /* e_abs_mode: -1 None, 0 False, 1 True */
+    int plane, ij_absolute;
+    int m_known;                      /* all three of m known */
+    int m_has[3];
+    double m[3];
+    int fw_known[3];
+    double fw[3];
+    int fwt_len[3];                   /* -1: None */
+    char fwt[3][MAX_TEXT + 1];
+    double w[3], g[3];
+    int q_last_known;
+    double q_last[3];
+    int recheck[3];
+    long dir[3];
+    int anchor_known[3];
+    double anchor[3];
+    long long lineno, lines, moves, moves_comp, lines_out, takeup;
+    long long arcs_kept, arcs_split, arcs_lin, arc_segments;
+    double arc_dev;
+    double maxc[3];
+    int e_known;                      /* e_pos is a number (else None) */
+    double e_pos;
+    int f_known;                      /* feed is a number (else None) */
+    double feed;
+} State;
 
 typedef struct {
     PyObject_HEAD
@@ -80,6 +104,12 @@ typedef struct {
         double arg[3], value[3];   /* kk_format_value's argument and value */
         char text[3][MAX_TEXT + 1];
     } memo;
+    /* the stream state: held (the record is the truth, Python's copy is stale once a line
+     * was taken: ``dirty``) or not (Python's StreamState is the truth) */
+    State st;
+    int holds, dirty;
+    PyObject *get, *put;  /* get() -> the record's tuple (None: not one the kernel holds),
+                           * put(tuple): Python's StreamState from the record */
 } Kernel;
 
 /* The lines written for one input line, without endings. */
@@ -89,65 +119,26 @@ typedef struct {
     char buf[OUT_BUF];
 } Lines;
 
-/* The stream state (core/state.py) as the kernel holds it during a call. */
-typedef struct {
-    int absolute, inches, e_abs_mode; /* e_abs_mode: -1 None, 0 False, 1 True */
-    int plane, ij_absolute;
-    int m_known;
-    double m[3];
-    int fw_known[3];
-    double fw[3];
-    int fwt_len[3];                   /* -1: None */
-    char fwt[3][MAX_TEXT + 1];
-    int fwt_dirty[3];
-    double w[3], g[3];
-    int q_last_known;
-    double q_last[3];
-    int recheck[3];
-    long dir[3];
-    int anchor_known[3];
-    double anchor[3];
-    long long lineno, lines, moves, moves_comp, lines_out, takeup;
-    long long arcs_kept, arcs_split, arcs_lin, arc_segments;
-    double arc_dev;
-    double maxc[3];
-    int e_set, e_none;                /* an E word was seen: e_pos written (None if e_none) */
-    int e_known;                      /* e_pos as loaded/updated is a number */
-    double e_pos;
-    int f_set;
-    double feed;
-    int moved;                        /* a move committed: m, fw, backlash to write */
-} State;
-
 /* MoveHandler.track_e: an E word ``v`` (program units) seen on a move; absolute E sets the
    position, relative E (``relative``) adds to it, from an unknown position it stays unknown */
 static inline void kk_track_e(State *s, int relative, double v)
 {
-    s->e_set = 1;
     if (relative) {
-        s->e_none = !s->e_known;
         if (s->e_known)
             s->e_pos = s->e_pos + v;
     } else {
-        s->e_none = 0;
         s->e_known = 1;
         s->e_pos = v;
     }
 }
 
-/* The state's three objects (strong references during a call): the stream state, its
- * backlash state and its report, slotted classes read and written in their slots. */
-typedef struct {
-    PyObject *st, *bl, *rep;
-} Objs;
-
 enum { LINE_OUT, LINE_SAME, LINE_PYTHON };
 
 /* state.c */
-PyObject *kk_layout(PyObject *mod, PyObject *const *args, Py_ssize_t nargs);
-int kk_load(PyObject *state, State *s, Objs *D);
-int kk_store(const Objs *D, const State *s, const State *before);
-void kk_objs_release(Objs *d);
+int kk_take(Kernel *K);
+int kk_give(Kernel *K);
+int kk_state_set(State *s, PyObject *t);
+PyObject *kk_state_get(const State *s);
 /* numbers.c */
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
 int kk_format_num(double v, int dec, char *out);

@@ -2,8 +2,6 @@
  * (the queuing hook: one line) and ``feed`` (files: a block of lines). */
 #include "kernel.h"
 
-/* -- Python interface ------------------------------------------------------------------ */
-
 static int read_table(PyObject *seq, Table *t)
 {
     Py_ssize_t i, n;
@@ -31,13 +29,21 @@ static int read_table(PyObject *seq, Table *t)
 static int Kernel_init(Kernel *self, PyObject *args, PyObject *kwds)
 {
     static char *kwlist[] = {"affine", "tables", "half", "deadband", "limits", "decimals",
-                             "arcs", NULL};
-    PyObject *affine, *tables, *limits, *arcs = Py_None, *breaks;
+                             "arcs", "get", "put", NULL};
+    PyObject *affine, *tables, *limits, *arcs = Py_None, *breaks, *get = NULL, *put = NULL;
     int k;
-    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOddOi|O", kwlist, &affine, &tables,
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "OOddOi|OOO", kwlist, &affine, &tables,
                                      &self->half, &self->deadband, &limits, &self->dec,
-                                     &arcs))
+                                     &arcs, &get, &put))
         return -1;
+    /* get() and put(tuple): Python's StreamState as the record and back (kernel.py) */
+    Py_CLEAR(self->get);
+    Py_CLEAR(self->put);
+    Py_XINCREF(get);
+    Py_XINCREF(put);
+    self->get = get;
+    self->put = put;
+    self->holds = self->dirty = 0;
     /* arcs: None (left to Python), or (pure_translation, tol, k_dev, (budget mm, budget
      * inch), (sliver mm, sliver inch), (overshoot mm, overshoot inch), max_offset, G17
      * breaks) */
@@ -97,68 +103,78 @@ static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out
     return kk_do_line(K, s, ln, n, out);
 }
 
-/* a str of ASCII text (every output line is: ASCII input, numbers, letters) */
-static PyObject *make_str(const char *c, int len)
+/* The text of a str the kernel may take (ASCII, at most MAX_LINE characters), else NULL
+ * (with no error set). */
+static const char *line_text(PyObject *line, Py_ssize_t *n)
 {
-    PyObject *o = PyUnicode_New(len, 127);
-    if (o != NULL)
-        memcpy(PyUnicode_1BYTE_DATA(o), c, len);
-    return o;
+    const char *c;
+    Py_ssize_t i;
+    if (!PyUnicode_Check(line) || PyUnicode_GET_LENGTH(line) > MAX_LINE)
+        return NULL;
+    if ((c = PyUnicode_AsUTF8AndSize(line, n)) == NULL) {
+        PyErr_Clear();  /* (lone surrogates: not a line the kernel takes) */
+        return NULL;
+    }
+    for (i = 0; i < *n; i++)
+        if ((unsigned char)c[i] > 127)
+            return NULL;
+    return c;
 }
 
-/* Kernel.line(state, line) -> None (the Python path decides) | line | [str, ...] */
-static PyObject *Kernel_line(Kernel *self, PyObject *const *args, Py_ssize_t nargs)
+/* A line that is no command (blank, or a ';' comment), as the reference path counts it. */
+static void no_command(Kernel *K)
 {
-    PyObject *state, *line, *res = NULL;
-    const char *c;
+    State *s = &K->st;
+    s->lineno++, s->lines++, s->lines_out++;
+    s->q_last_known = 0;
+    s->recheck[0] = s->recheck[1] = s->recheck[2] = 1;
+    K->dirty = 1;
+}
+
+/* Kernel.line(line) -> None (the reference path takes it: the state is handed back to
+ * Python first) | line | [str, ...] */
+static PyObject *Kernel_line(Kernel *self, PyObject *line)
+{
+    PyObject *res;
+    const char *c = NULL;
     Py_ssize_t n;
-    State s, before;
-    Objs D;
     Lines out;
     int r, i;
 
-    if (nargs != 2) {
-        PyErr_SetString(PyExc_TypeError, "line(state, line)");
+    if ((c = line_text(line, &n)) != NULL && self->holds && (n == 0 || c[0] == ';')) {
+        no_command(self);  /* (taken while held: no hand-over for a comment) */
+        Py_INCREF(line);
+        return line;
+    }
+    if (c == NULL || n < 4 || c[0] != 'G' || (r = kk_take(self)) > 0) {
+        if (kk_give(self) < 0)
+            return NULL;
+        Py_RETURN_NONE;
+    }
+    if (r < 0)
         return NULL;
-    }
-    state = args[0];
-    line = args[1];
-    if (!PyUnicode_Check(line) || !PyUnicode_IS_ASCII(line))
-        Py_RETURN_NONE;
-    c = (const char *)PyUnicode_DATA(line);
-    n = PyUnicode_GET_LENGTH(line);
-    if (n > MAX_LINE || n < 4 || c[0] != 'G')
-        Py_RETURN_NONE;  /* (do_line would say so too, after the costly load) */
-    if (kk_load(state, &s, &D) > 0)
-        Py_RETURN_NONE;
-    before = s;
-    r = do_line(self, &s, c, n, &out);
+    r = do_line(self, &self->st, c, n, &out);
     if (r == LINE_PYTHON) {
-        kk_objs_release(&D);
+        if (kk_give(self) < 0)
+            return NULL;
         Py_RETURN_NONE;
     }
+    self->dirty = 1;
     if (r == LINE_SAME) {
-        res = line;
-        Py_INCREF(res);
-    } else {
-        res = PyList_New(out.n);
-        if (res == NULL) {
-            kk_objs_release(&D);
+        Py_INCREF(line);
+        return line;
+    }
+    if ((res = PyList_New(out.n)) == NULL)
+        return NULL;
+    for (i = 0; i < out.n; i++) {
+        PyObject *o = PyUnicode_FromStringAndSize(out.buf + out.start[i],
+                                                  out.start[i + 1] - out.start[i]);
+        if (o == NULL) {
+            Py_DECREF(res);
             return NULL;
         }
-        for (i = 0; i < out.n; i++) {
-            PyObject *o = make_str(out.buf + out.start[i], out.start[i + 1] - out.start[i]);
-            if (o == NULL) {
-                Py_DECREF(res);
-                kk_objs_release(&D);
-                return NULL;
-            }
-            PyList_SET_ITEM(res, i, o);
-        }
+        PyList_SET_ITEM(res, i, o);
     }
-    if (kk_store(&D, &s, &before) < 0)
-        Py_CLEAR(res);
-    kk_objs_release(&D);
     return res;
 }
 
@@ -184,48 +200,43 @@ static int buf_put(Buf *b, const char *c, Py_ssize_t n)
     return 0;
 }
 
-/* Kernel.feed(state, buf, pos) -> (out, stop): complete lines of buf from pos on, as
- * the reference path gives them, up to the first line the kernel does not take (stop: its
- * start; len(buf) if none). Taken: blank lines and ';' comments (unchanged), and the fast
- * path's move lines. A line with a lone CR is not taken (universal newlines are Python's). */
+/* Kernel.feed(buf, pos) -> (out, stop): complete lines of buf (bytes) from pos on, as the
+ * reference path gives them, up to the first line the kernel does not take (stop: its
+ * start, the state then handed back to Python; len(buf) if none). Taken: blank lines and
+ * ';' comments (unchanged), and the move lines of ``line``. A line with a lone CR is not
+ * taken (universal newlines are Python's). */
 static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    PyObject *state, *data, *res = NULL, *out = NULL;
-    const char *buf;
+    PyObject *res = NULL, *out;
+    char *buf;
     Py_ssize_t size, pos;
-    State s, before;
-    Objs D;
     Buf o = {NULL, 0, 0};
     Lines *lines = NULL;
+    State *s = &self->st;
     int r;
 
-    if (nargs != 3) {
-        PyErr_SetString(PyExc_TypeError, "feed(state, buf, pos)");
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "feed(buf, pos)");
         return NULL;
     }
-    state = args[0];
-    data = args[1];
-    if (!PyBytes_Check(data)) {
+    if (!PyBytes_Check(args[0])) {
         PyErr_SetString(PyExc_TypeError, "feed: buf must be bytes");
         return NULL;
     }
-    pos = PyLong_AsSsize_t(args[2]);
-    if (pos == -1 && PyErr_Occurred())
+    if (PyBytes_AsStringAndSize(args[0], &buf, &size) < 0)
         return NULL;
-    buf = PyBytes_AS_STRING(data);
-    size = PyBytes_GET_SIZE(data);
+    if ((pos = PyLong_AsSsize_t(args[1])) == -1 && PyErr_Occurred())
+        return NULL;
     if (pos < 0 || pos > size) {
         PyErr_SetString(PyExc_ValueError, "feed: pos outside buf");
         return NULL;
     }
-    lines = PyMem_Malloc(sizeof(Lines));
-    if (lines == NULL)
-        return PyErr_NoMemory();
-    if (kk_load(state, &s, &D) > 0) {
-        PyMem_Free(lines);
+    if ((r = kk_take(self)) < 0)
+        return NULL;
+    if (r > 0)
         return Py_BuildValue("(y#n)", "", (Py_ssize_t)0, pos);
-    }
-    before = s;
+    if ((lines = PyMem_Malloc(sizeof(Lines))) == NULL)
+        return PyErr_NoMemory();
     while (pos < size) {
         const char *ln = buf + pos;
         const char *nl = memchr(ln, '\n', size - pos);
@@ -241,49 +252,91 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
         if (memchr(ln, '\r', n) != NULL)
             break;
         if (n == 0 || ln[0] == ';') {
-            /* the reference path on a line that is no command */
-            s.lineno++;
-            s.lines++;
-            s.lines_out++;
-            s.q_last_known = 0;
-            s.recheck[0] = s.recheck[1] = s.recheck[2] = 1;
-            if (buf_put(&o, ln, raw) < 0) goto fail;
+            no_command(self);
+            if (buf_put(&o, ln, raw) < 0)
+                goto fail;
             pos += raw;
             continue;
         }
-        r = do_line(self, &s, ln, n, lines);
+        r = do_line(self, s, ln, n, lines);
         if (r == LINE_PYTHON)
             break;
+        self->dirty = 1;
         if (r == LINE_SAME) {
-            if (buf_put(&o, ln, raw) < 0) goto fail;
+            if (buf_put(&o, ln, raw) < 0)
+                goto fail;
         } else {
             const char *end = crlf ? "\r\n" : "\n";
             for (i = 0; i < lines->n; i++)
                 if (buf_put(&o, lines->buf + lines->start[i],
-                            lines->start[i + 1] - lines->start[i]) < 0
-                    || buf_put(&o, end, crlf + 1) < 0)
+                            lines->start[i + 1] - lines->start[i]) < 0 ||
+                    buf_put(&o, end, crlf + 1) < 0)
                     goto fail;
         }
         pos += raw;
     }
-    if (kk_store(&D, &s, &before) < 0)
+    if (pos < size && kk_give(self) < 0)
         goto fail;
-    out = PyBytes_FromStringAndSize(o.data ? o.data : "", o.len);
-    if (out == NULL)
-        goto fail;
-    res = Py_BuildValue("(Nn)", out, pos);
+    if ((out = PyBytes_FromStringAndSize(o.data ? o.data : "", o.len)) != NULL)
+        res = Py_BuildValue("(Nn)", out, pos);
 fail:
-    kk_objs_release(&D);
     PyMem_Free(o.data);
     PyMem_Free(lines);
     return res;
 }
 
+/* Kernel.get_state() -> the record's tuple while the kernel holds the state, else None */
+static PyObject *Kernel_get_state(Kernel *self, PyObject *unused)
+{
+    (void)unused;
+    if (!self->holds)
+        Py_RETURN_NONE;
+    return kk_state_get(&self->st);
+}
+
+/* Kernel.set_state(tuple) -> True (the kernel holds it), False (a state the kernel does not
+ * hold: Python's stays the truth) */
+static PyObject *Kernel_set_state(Kernel *self, PyObject *t)
+{
+    State s;
+    int r = kk_state_set(&s, t);
+    if (r < 0)
+        return NULL;
+    if (r == 0) {
+        self->st = s;
+        self->holds = 1;
+        self->dirty = 0;
+    }
+    return PyBool_FromLong(r == 0);
+}
+
+/* Kernel.release(): the state back to Python (put) if the kernel holds it */
+static PyObject *Kernel_release(Kernel *self, PyObject *unused)
+{
+    (void)unused;
+    if (kk_give(self) < 0)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+static void Kernel_dealloc(Kernel *self)
+{
+    Py_CLEAR(self->get);
+    Py_CLEAR(self->put);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
 static PyMethodDef Kernel_methods[] = {
-    {"line", (PyCFunction)(void (*)(void))Kernel_line, METH_FASTCALL,
-     "line(state, line): one line compensated as the reference path does (None: it decides)"},
+    {"line", (PyCFunction)Kernel_line, METH_O,
+     "line(line): one line compensated as the reference path does (None: it decides)"},
     {"feed", (PyCFunction)(void (*)(void))Kernel_feed, METH_FASTCALL,
-     "feed(state, buf, pos) -> (out, stop): the lines of buf from pos the kernel takes"},
+     "feed(buf, pos) -> (out, stop): the lines of buf from pos the kernel takes"},
+    {"get_state", (PyCFunction)Kernel_get_state, METH_NOARGS,
+     "get_state(): the state record as a tuple while the kernel holds it, else None"},
+    {"set_state", (PyCFunction)Kernel_set_state, METH_O,
+     "set_state(tuple) -> bool: the kernel holds this state (False: not one it holds)"},
+    {"release", (PyCFunction)Kernel_release, METH_NOARGS,
+     "release(): the state back to Python (put) if the kernel holds it"},
     {NULL}
 };
 
@@ -295,18 +348,13 @@ static PyTypeObject KernelType = {
     .tp_doc = "The kernel of one model: the transform of plain moves (see engines/kernel.py).",
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Kernel_init,
+    .tp_dealloc = (destructor)Kernel_dealloc,
     .tp_methods = Kernel_methods,
-};
-
-static PyMethodDef module_methods[] = {
-    {"layout", (PyCFunction)(void (*)(void))kk_layout, METH_FASTCALL,
-     "layout(StreamState, BacklashState, Report): the slotted classes of the state"},
-    {NULL}
 };
 
 static struct PyModuleDef kernel_module = {
     PyModuleDef_HEAD_INIT, "_kernel", "Compiled kernel of the transform (see engines/kernel.py).", -1,
-    module_methods,
+    NULL,
 };
 
 PyMODINIT_FUNC PyInit__kernel(void)
@@ -318,11 +366,8 @@ PyMODINIT_FUNC PyInit__kernel(void)
     if (mod == NULL)
         return NULL;
     Py_INCREF(&KernelType);
-    if (PyModule_AddIntConstant(mod, "MAX_POINTS", MAX_PTS) < 0) {
-        Py_DECREF(mod);
-        return NULL;
-    }
-    if (PyModule_AddObject(mod, "Kernel", (PyObject *)&KernelType) < 0) {
+    if (PyModule_AddIntConstant(mod, "MAX_POINTS", MAX_PTS) < 0 ||
+        PyModule_AddObject(mod, "Kernel", (PyObject *)&KernelType) < 0) {
         Py_DECREF(&KernelType);
         Py_DECREF(mod);
         return NULL;

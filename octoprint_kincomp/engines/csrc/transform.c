@@ -115,7 +115,6 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
             s->fw_known[k] = 1;
             memcpy(s->fwt[k], text, len + 1);
             s->fwt_len[k] = len;
-            s->fwt_dirty[k] = 1;
         }
         if (append) {
             if (*out_len + 2 + len >= OUT_LINE)
@@ -228,7 +227,7 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         int f_first = present[0], fslot = present[0] ? 0 : 5;
         if (present[fslot]) {
             s.feed = val[fslot] * u;
-            s.f_set = 1;
+            s.f_known = 1;
         }
         if (present[4])
             kk_track_e(&s, s.e_abs_mode == 0, val[4]);
@@ -299,7 +298,6 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         memcpy(s.m, p1, sizeof p1);
         memcpy(s.q_last, q1, sizeof q1);
         s.q_last_known = 1;
-        s.moved = 1;
         s.moves_comp++;
         s.lines_out += take_len >= 0 ? 2 : 1;
         *s0 = s;
