@@ -24,6 +24,7 @@ from .campaign_analysis import analyse_campaign
 from .formats import parse_csv_trace
 from .program import TestSpec, generate
 from .simulator import Truth, paper_truth, simulate_program, volume_truth
+from .timing import CONTINUOUS_DEADBAND_MM  # (the simulated printer has no steps)
 
 VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)  # mm, the paper's Ultimaker-sized volume
 
@@ -31,7 +32,7 @@ VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)  # mm, the paper's Ultimaker-sized
 def compensate_text(program: str, params: Params) -> str:
     src = io.StringIO(program)
     dst = io.StringIO()
-    compensate_stream(src, dst, params, Options(decimals=4))
+    compensate_stream(src, dst, params, Options(decimals=4, deadband_mm=CONTINUOUS_DEADBAND_MM))
     return dst.getvalue()
 
 

@@ -90,8 +90,18 @@ def spec_from_meta(meta: Dict[str, str]) -> TestSpec:
     return TestSpec(**kw)
 
 
+# The dead band (mm) of the take-ups in the compensated test programs of the simulated
+# printer (the closed loop) and of the analysis's model of what a printer received: the
+# simulated printer moves continuously (it has no steps), so a dead band derived from a step
+# size (0.625 um at 80 steps/mm) would show there as an error of up to its size at each
+# reversal that a stepping printer does not resolve; on a real printer the two differ by less
+# than a step.
+CONTINUOUS_DEADBAND_MM = 1e-6
+
+
 def program_text(spec: TestSpec, current: Optional[Params]) -> str:
-    """The program as the printer received it: generated, then compensated with ``current``."""
+    """The program as the printer received it: generated, then compensated with ``current``
+    (every retreat taken up: :data:`CONTINUOUS_DEADBAND_MM`)."""
     text = generate(spec, date="-")
     if current is None or changes_nothing(current):
         return text
@@ -99,7 +109,9 @@ def program_text(spec: TestSpec, current: Optional[Params]) -> str:
     from ..engines.files import compensate_stream
 
     dst = io.StringIO()
-    compensate_stream(io.StringIO(text), dst, current, Options(decimals=4))
+    compensate_stream(
+        io.StringIO(text), dst, current, Options(decimals=4, deadband_mm=CONTINUOUS_DEADBAND_MM)
+    )
     return dst.getvalue()
 
 

@@ -13,13 +13,14 @@ does not grow with file size.
 from __future__ import annotations
 
 import functools
+import io
 import types
-from typing import IO, Callable, Iterable, Iterator, Optional
+from typing import IO, Callable, Optional
 
 from ..core.atomic import replacing
 from ..core.compensator import Compensator, Options, Report
 from ..core.lines import UNIVERSAL, join_output, split_ending
-from ..core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, file_marker, find_marker
+from ..core.marker import ENCODING, ERRORS, file_marker, find_marker
 from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
 from ..core.version import VERSION
@@ -43,35 +44,17 @@ def marker_line(params: Params) -> str:
     return make_marker_line(params.hash(), VERSION)
 
 
-def compensate_lines(
-    lines: Iterable[str], comp: Compensator, header: Optional[str] = None
-) -> Iterator[str]:
-    """Yield output lines (with endings) for input lines (with endings)."""
-    process = comp.process
-    for i, raw in enumerate(lines):
-        body, ending = split_ending(raw)
-        if header is not None:
-            yield header + (ending or "\n")
-            header = None
-        if i < MARKER_SCAN_LINES:
-            found = find_marker((body,))
-            if found is not None:
-                raise AlreadyCompensated(found)
-        out = process(body)
-        if out is body:
-            yield raw
-        else:
-            yield join_output(out, ending)
-
-
 def compensate_stream(
     src: IO[str], dst: IO[str], params: Params, options: Optional[Options] = None
 ) -> Report:
-    comp = make_compensator(params, options)
-    write = dst.write
-    for out in compensate_lines(src, comp, marker_line(params)):
-        write(out)
-    return comp.report
+    """Compensate a text stream (a program in memory: the closed loop, the timing check)
+    through the same file loop as :func:`compensate_binary`."""
+    out = io.BytesIO()
+    report = compensate_binary(
+        io.BytesIO(src.read().encode(ENCODING, ERRORS)), out, params, options
+    )
+    dst.write(out.getvalue().decode(ENCODING, ERRORS))
+    return report
 
 
 def head_marker(text: str, refuse: bool = False) -> Optional[str]:

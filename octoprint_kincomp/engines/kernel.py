@@ -31,6 +31,7 @@ import math
 import random
 from typing import Callable, List, Optional
 
+from ..core import gcode_table as gt
 from ..core.compensator import Compensator, Options
 from ..core.params import Params
 from ..core.state import StreamState
@@ -172,6 +173,32 @@ def _check_program() -> List[str]:
     return lines + ["G21", "G1 X1 Y1", "G1 X-0.75 Y-0.25"]  # (ends below zero: the sign of fw)
 
 
+def classifier(comp: Compensator) -> Callable[[str], Optional[str]]:
+    """The kernel's own classification of a code (the question of ``gcode_table.
+    check_engine``), asked by behaviour: from a known position, a line opening with the code
+    and carrying X/Y (then X/Y/I/J) words is offered to ``comp``'s kernel; declined: None;
+    taken and the desired position moved: ``linear`` (``arc`` for the line with I/J); taken
+    and nothing moved nor re-framed: ``inert``; anything else: ``changes state``."""
+    for line in ("G90", "G21", "M82", "G1 X50 Y50 Z5"):
+        comp.process(line)
+    kernel = comp.fast
+    kernel.set_state(record(comp.state))
+    start = kernel.get_state()  # (as the kernel writes it: tuples)
+    frame = lambda rec: rec[:5] + rec[8:10]  # noqa: E731 - (modes, G92 offsets)
+
+    def classify(code: str) -> Optional[str]:
+        for words, moved in ((" X60 Y55", gt.LINEAR), (" X60 Y50 I5 J0", gt.ARC)):
+            kernel.set_state(start)
+            if kernel.line(code + words) is not None:
+                after = kernel.get_state()
+                if after[5] != start[5]:
+                    return moved
+                return gt.INERT if frame(after) == frame(start) else "changes state"
+        return None
+
+    return classify
+
+
 def self_check(make: Optional[Callable] = None) -> bool:
     """True if a kernel (made by ``make``, default :func:`build`) writes on the check
     program exactly what the reference path writes (every line, the report and the state)
@@ -209,8 +236,14 @@ def self_check(make: Optional[Callable] = None) -> bool:
                 taken += 1
             if ref.process(line) != out:
                 return False
+        checker = Compensator(params, options)
+        checker.fast = (make or build)(checker)
+        problems = gt.check_engine(classifier(checker))
     except Exception:
         _log.exception("KinComp: the compiled kernel failed its self-check")
+        return False
+    if problems:
+        _log.warning("KinComp: the compiled kernel reads G-code unlike the table: %s", problems)
         return False
     a, b = ref.state, got.state
     return (

@@ -157,7 +157,8 @@ def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional
     """The straightforward path: every line through the reference compensator."""
     from ..core.compensator import Compensator
     from ..core.marker import ENCODING, ERRORS
-    from ..engines.files import compensate_lines, marker_line
+    from ..engines.files import marker_line
+    from .line_path import compensate_lines
 
     comp = Compensator(params)  # no accelerated engine: the reference path
     with open(src, encoding=ENCODING, errors=ERRORS, newline="") as f, open(

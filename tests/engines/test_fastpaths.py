@@ -20,11 +20,11 @@ from octoprint_kincomp.engines import files as fastfile
 from octoprint_kincomp.engines import select
 from octoprint_kincomp.engines.files import (
     compensate_binary,
-    compensate_lines,
     marker_line,
 )
 from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
+from octoprint_kincomp.tools.line_path import compensate_lines
 from tests.support import DATA as SAMPLES
 from tests.support.gcodegen import random_program
 

@@ -15,10 +15,10 @@ from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import files as fastfile
 from octoprint_kincomp.engines.files import (
     compensate_binary,
-    compensate_lines,
     marker_line,
 )
 from octoprint_kincomp.engines.select import make_compensator
+from octoprint_kincomp.tools.line_path import compensate_lines
 from tests.core.test_properties import any_line, cfg, params
 
 # -- the file engines are the per-line reference path ------------------------------------

@@ -219,6 +219,32 @@ def test_the_self_check_passes_here_and_catches_a_kernel_that_rounds_otherwise()
     assert not kernel_mod.self_check(make=lambda comp: Declining())
 
 
+def test_the_kernel_reads_g_code_as_the_table_does_and_the_self_check_holds_it_to_that():
+    from octoprint_kincomp.core import gcode_table as gt
+
+    ask = kernel_mod.classifier(make_compensator(SKEW))
+    assert [ask(c) for c in ("G0", "G1", "G2", "G3")] == [gt.LINEAR, gt.LINEAR, gt.ARC, gt.ARC]
+    assert {ask(c) for c in ("M82", "G92", "G28", "T0", "G1.1", "G91", "G20")} == {None}
+    assert gt.check_engine(ask) == []
+
+    class M83AsInert:  # the real kernel, but it passes M83 as written (the table: extruder)
+        def __init__(self, comp):
+            self.k = kernel_mod.build(comp)
+
+        def line(self, line):
+            return line if line.startswith("M83") else self.k.line(line)
+
+        def __getattr__(self, name):
+            return getattr(self.k, name)
+
+    comp = Compensator(SKEW)
+    comp.fast = M83AsInert(comp)
+    assert gt.check_engine(kernel_mod.classifier(comp)) == [
+        "M83: the engine takes it as inert, the table says extruder"
+    ]
+    assert not kernel_mod.self_check(make=M83AsInert)
+
+
 def test_a_state_the_kernel_cannot_hold_is_left_to_python():
     # drives away from the desired position's command (q_drive), or a number text longer
     # than the record holds: the reference path takes the line, and the state stays Python's
