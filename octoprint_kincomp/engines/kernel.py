@@ -184,14 +184,18 @@ def classifier(comp: Compensator) -> Callable[[str], Optional[str]]:
     kernel = comp.fast
     kernel.set_state(record(comp.state))
     start = kernel.get_state()  # (as the kernel writes it: tuples)
-    frame = lambda rec: rec[:5] + rec[8:10]  # noqa: E731 - (modes, G92 offsets)
+
+    m, w, g = (RECORD.index(name) for name in ("m", "w", "g"))
+
+    def frame(rec: tuple) -> tuple:  # (the modes and the G92 offsets)
+        return rec[: len(MODES)] + (rec[w], rec[g])
 
     def classify(code: str) -> Optional[str]:
         for words, moved in ((" X60 Y55", gt.LINEAR), (" X60 Y50 I5 J0", gt.ARC)):
             kernel.set_state(start)
             if kernel.line(code + words) is not None:
                 after = kernel.get_state()
-                if after[5] != start[5]:
+                if after[m] != start[m]:
                     return moved
                 return gt.INERT if frame(after) == frame(start) else "changes state"
         return None
