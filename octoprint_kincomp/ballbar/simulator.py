@@ -47,15 +47,7 @@ from .sim.play import Play
 from .timing import nominal_positions
 
 SIMULATED_LABEL = "SIMULATED data (KinComp printer + ballbar simulator), not a measurement"
-MOTION_KEYS = (
-    "motion",
-    "accel_mm_s2",
-    "junction_deviation_mm",
-    "square_corner_velocity_mm_s",
-    "max_feed_mm_min",
-    "max_accel_mm_s2",
-    "constant_speed",
-)
+MOTION_KEYS = MotionSettings.KEYS + ("constant_speed",)  # (a simulator-only switch)
 
 
 @dataclass
