@@ -398,85 +398,70 @@ static int piece(Job *j, double fa, double fb, const double *pb, const double *q
 }
 
 /* One G2/G3 line (ln[0..2] = "G2 " or "G3 "); as kk_do_line */
-static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);
+static int do_arc(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out);
 
 int kk_do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
 {
+    State saved = *s0;  /* (put back where Python decides after all) */
     int r;
     memset(K->memo.len, 0, sizeof K->memo.len);
     K->memo.on = 1;
     r = do_arc(K, s0, ln, n, out);
     K->memo.on = 0;
+    if (r == LINE_PYTHON)
+        *s0 = saved;
     return r;
 }
 
-static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
+static int do_arc(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out)
 {
     /* slots: 0 X, 1 Y, 2 Z, 3 I, 4 J, 5 E, 6 F */
     static const char LETTERS[] = "XYZIJEF";
-    Py_ssize_t ts[7], te[7], i = 3;
-    int present[7] = {0, 0, 0, 0, 0, 0, 0}, k, ntail = 0, nc, c, is_kept;
+    Py_ssize_t ts[7], te[7];
+    int present[7] = {0, 0, 0, 0, 0, 0, 0}, k, ntail = 0, nc, c, is_kept, nw, t;
     Eighths kept[MAX_CUTS];
     double val[7], start[3], end[3], ca, cb, oa, ob, cuts[MAX_CUTS], fa, pa[3], qa[3];
+    Word w[7];
     Geo a;
     Job j;
-    State s;
 
-    if (!K->keep_arcs || K->pure_translation || !s0->absolute || !s0->m_known ||
-        s0->plane != 17 || s0->ij_absolute)
+    if (!K->keep_arcs || K->pure_translation || !s->absolute || !s->m_known ||
+        s->plane != 17 || s->ij_absolute || (nw = kk_words(ln, 3, n, w, 7)) < 0)
         return LINE_PYTHON;
     for (k = 0; k < 3; k++)
-        if (!s0->fw_known[k])
+        if (!s->fw_known[k])
             return LINE_PYTHON;
     memset(&j, 0, sizeof j);
-    while (i <= n) {
-        Py_ssize_t st = i, e;
-        const char *L;
-        int slot;
-        while (i < n && ln[i] != ' ')
-            i++;
-        e = i;
-        i++;
-        if (e - st < 2)
-            return LINE_PYTHON;
-        L = strchr(LETTERS, ln[st]);
-        if (L == NULL || ln[st] == 0)
-            return LINE_PYTHON;
-        slot = (int)(L - LETTERS);
-        if (present[slot])
-            return LINE_PYTHON;
-        for (Py_ssize_t q = st + 1; q < e; q++) {
-            char ch = ln[q];
-            if (!((ch >= '0' && ch <= '9') || ch == '.' || ch == '+' || ch == '-'))
-                return LINE_PYTHON;
-        }
-        if (kk_parse_num(ln + st + 1, e - st - 1, &val[slot]) < 0)
+    for (t = 0; t < nw; t++) {
+        const char *L = w[t].letter ? strchr(LETTERS, w[t].letter) : NULL;
+        int slot = L != NULL ? (int)(L - LETTERS) : 0;
+        if (L == NULL || present[slot])
             return LINE_PYTHON;
         present[slot] = 1;
-        ts[slot] = st;
-        te[slot] = e;
+        val[slot] = w[t].value;
+        ts[slot] = w[t].start;
+        te[slot] = w[t].end;
         if (slot >= 5) {
-            j.tail[ntail] = ln + st;
-            j.tail_len[ntail++] = (int)(e - st);
+            j.tail[ntail] = ln + ts[slot];
+            j.tail_len[ntail++] = (int)(te[slot] - ts[slot]);
         }
     }
     if (!present[3] && !present[4])
         return LINE_PYTHON;
-    s = *s0;
     {
-        double u = s.inches ? MM_PER_INCH : 1.0;
+        double u = s->inches ? MM_PER_INCH : 1.0;
         int given[3] = {present[0], present[1], present[2]};
-        int e_rel = s.e_abs_mode == 0;
+        int e_rel = s->e_abs_mode == 0;
         if (present[6]) {
-            s.feed = val[6] * u;
-            s.f_known = 1;
+            s->feed = val[6] * u;
+            s->f_known = 1;
         }
-        s.lineno++;
-        s.lines++;
-        s.moves++;
+        s->lineno++;
+        s->lines++;
+        s->moves++;
         for (k = 0; k < 3; k++) {
-            start[k] = s.m[k];
-            end[k] = given[k] ? val[k] * u - s.w[k] : s.m[k];
+            start[k] = s->m[k];
+            end[k] = given[k] ? val[k] * u - s->w[k] : s->m[k];
         }
         oa = present[3] ? val[3] * u : 0.0;
         ob = present[4] ? val[4] * u : 0.0;
@@ -494,16 +479,16 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
         if (nc < 0 || !kk_monotone(K, &a, cuts, nc, kept, &is_kept))
             return LINE_PYTHON;
         j.K = K;
-        j.s = &s;
+        j.s = s;
         j.a = &a;
         j.cw = ln[1] == '2';
         j.given = given;
         j.code = ln;
         j.first = 1;
         j.out = out;
-        memcpy(j.m_old, s0->m, sizeof j.m_old);
+        memcpy(j.m_old, s->m, sizeof j.m_old);
         if (edist_init(&j.ed, present[5] ? ln + ts[5] : NULL, present[5] ? (int)(te[5] - ts[5]) : 0,
-                       present[5] ? val[5] : 0.0, e_rel, s.e_known, s.e_pos,
+                       present[5] ? val[5] : 0.0, e_rel, s->e_known, s->e_pos,
                        kk_length_to(&a, 1.0)) < 0)
             return LINE_PYTHON;
         fa = 0.0;
@@ -519,7 +504,7 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
                 int r;
                 if (!K->active[k])
                     continue;
-                r = kk_reversal(K, &s, k, qb[k], qa[k]);
+                r = kk_reversal(K, s, k, qb[k], qa[k]);
                 if (r < 0)
                     return LINE_PYTHON;
                 if (r == 0)
@@ -534,13 +519,13 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
                     return LINE_PYTHON;
                 o[0] = 'G';
                 o[1] = '1';
-                r = kk_point(K, &s, pa, qa, NONE, qa, ALL, s0->m, o, &tl);
+                r = kk_point(K, s, pa, qa, NONE, qa, ALL, j.m_old, o, &tl);
                 if (r < 0)
                     return LINE_PYTHON;
-                memcpy(s.m, pa, sizeof pa);
+                memcpy(s->m, pa, sizeof pa);
                 if (r > 0) {
                     kk_line_end(out, tl);
-                    s.takeup++;
+                    s->takeup++;
                 }
             }
             if (piece(&j, fa, fb, pb, qb, is_kept ? (const double (*)[3])kept[c] : NULL, 0) < 0)
@@ -550,21 +535,20 @@ static int do_arc(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out
             memcpy(qa, qb, sizeof qa);
         }
         if (j.arcs == 0)
-            s.arcs_lin++;
+            s->arcs_lin++;
         else if (j.segments == 1)
-            s.arcs_kept++;
+            s->arcs_kept++;
         else
-            s.arcs_split++;
-        s.arc_segments += j.segments;
-        if (j.dev > s.arc_dev)
-            s.arc_dev = j.dev;
+            s->arcs_split++;
+        s->arc_segments += j.segments;
+        if (j.dev > s->arc_dev)
+            s->arc_dev = j.dev;
         if (present[5])
-            kk_track_e(&s, e_rel, val[5]);
-        memcpy(s.q_last, qa, sizeof qa);
-        s.q_last_known = 1;
-        s.moves_comp++;
-        s.lines_out += out->n;
-        *s0 = s;
+            kk_track_e(s, e_rel, val[5]);
+        memcpy(s->q_last, qa, sizeof qa);
+        s->q_last_known = 1;
+        s->moves_comp++;
+        s->lines_out += out->n;
         return LINE_OUT;
     }
 }

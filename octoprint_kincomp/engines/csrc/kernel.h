@@ -140,7 +140,13 @@ int kk_give(Kernel *K);
 int kk_state_set(State *s, PyObject *t);
 PyObject *kk_state_get(const State *s);
 /* numbers.c */
+typedef struct {
+    char letter;
+    Py_ssize_t start, end;  /* the letter's index, the word's end */
+    double value;
+} Word;
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
+int kk_words(const char *ln, Py_ssize_t i, Py_ssize_t n, Word *w, int max);
 int kk_format_num(double v, int dec, char *out);
 int kk_format_value(double v, int dec, char *out, double *value);
 /* transform.c */

@@ -235,8 +235,11 @@ static PyObject *Kernel_feed(Kernel *self, PyObject *const *args, Py_ssize_t nar
         return NULL;
     if (r > 0)
         return Py_BuildValue("(y#n)", "", (Py_ssize_t)0, pos);
-    if ((lines = PyMem_Malloc(sizeof(Lines))) == NULL)
+    o.cap = (size - pos) + (size - pos) / 4 + 4096;  /* (room for the usual output) */
+    if ((o.data = PyMem_Malloc(o.cap)) == NULL || (lines = PyMem_Malloc(sizeof(Lines))) == NULL) {
+        PyMem_Free(o.data);
         return PyErr_NoMemory();
+    }
     while (pos < size) {
         const char *ln = buf + pos;
         const char *nl = memchr(ln, '\n', size - pos);

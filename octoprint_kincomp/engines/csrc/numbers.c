@@ -23,16 +23,15 @@ int kk_parse_num(const char *text, Py_ssize_t len, double *out)
         i = 1;
     }
     for (; i < len; i++) {
-        char c = text[i];
-        if (c >= '0' && c <= '9') {
-            digits++;
-            if (mant > (1ULL << 53) / 10) {
+        unsigned d = (unsigned)(unsigned char)text[i] - '0';
+        if (d <= 9) {
+            if (++digits > 15 && mant > (1ULL << 53) / 10) {
                 digits = -1000;  /* too many digits for the fast path */
                 break;
             }
-            mant = mant * 10 + (unsigned long long)(c - '0');
+            mant = mant * 10 + d;
             decimals += dot;
-        } else if (c == '.' && !dot) {
+        } else if (text[i] == '.' && !dot) {
             dot = 1;
         } else {
             return -1;  /* a second sign or dot: no number */
@@ -52,6 +51,8 @@ int kk_parse_num(const char *text, Py_ssize_t len, double *out)
             return -1;
         memcpy(buf, text, len);
         buf[len] = 0;
+        if (strspn(buf, "0123456789.+-") < (size_t)len)
+            return -1;  /* (the fast loop stopped early: no exponent, no letters) */
         v = PyOS_string_to_double(buf, &end, NULL);
         if (v == -1.0 && PyErr_Occurred()) {
             PyErr_Clear();
@@ -61,6 +62,26 @@ int kk_parse_num(const char *text, Py_ssize_t len, double *out)
             return -1;
         *out = v;
         return 0;
+    }
+}
+
+/* The words of ln[i..n): "<letter><number>", single-spaced, each number as kk_parse_num
+ * reads it (w[].start: the letter's index, .end: the word's end). Their count, -1: more than
+ * max, an empty or bare-letter word, or no number (Python decides). */
+int kk_words(const char *ln, Py_ssize_t i, Py_ssize_t n, Word *w, int max)
+{
+    int count = 0;
+    for (;;) {
+        const char *sp = memchr(ln + i, ' ', n - i);
+        Py_ssize_t e = sp != NULL ? sp - ln : n;
+        if (e - i < 2 || count == max || kk_parse_num(ln + i + 1, e - i - 1, &w[count].value) < 0)
+            return -1;
+        w[count].letter = ln[i];
+        w[count].start = i;
+        w[count++].end = e;
+        if (sp == NULL)
+            return count;
+        i = e + 1;
     }
 }
 
@@ -99,7 +120,7 @@ int kk_format_value(double v, int dec, char *out, double *value)
     double r = fabs(v) * P10[dec];
     int len;
     if (r <= 1e9) {
-        double fl = floor(r), frac = r - fl;
+        double fl = (double)(unsigned long long)r, frac = r - fl;  /* (floor: r >= 0) */
         if (fabs(frac - 0.5) >= 1e-6) {
             unsigned long long n = (unsigned long long)fl + (frac > 0.5);
             unsigned long long ip = n / (unsigned long long)P10[dec];

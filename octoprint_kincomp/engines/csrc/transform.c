@@ -137,11 +137,6 @@ void kk_inverse(const Kernel *K, const double *p, double *q)
     q[2] = K->A[6] * x + K->A[7] * y + K->A[8] * z;
 }
 
-static int is_num_char(char c)
-{
-    return (c >= '0' && c <= '9') || c == '.' || c == '+' || c == '-';
-}
-
 /* The output lines of one input line: kk_line_begin gives where the next line goes (room
  * for OUT_LINE bytes; NULL: no room, Python decides), kk_line_end records its length. */
 char *kk_line_begin(Lines *o)
@@ -162,8 +157,8 @@ int kk_line_end(Lines *o, int len)
 
 /* One line (without its ending). LINE_OUT: the lines in ``out`` (a take-up line, then the
  * move); LINE_SAME: the line as it is; LINE_PYTHON: nothing changed, the Python path
- * decides. ``s`` is changed only for LINE_OUT and LINE_SAME. */
-int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
+ * decides (``s`` as it was). */
+int kk_do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out)
 {
     char *take, *main_out;
     int take_len = -1, main_len = 0;
@@ -171,54 +166,37 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
     Py_ssize_t tok_start[6], tok_end[6];
     int present[6] = {0, 0, 0, 0, 0, 0};
     double val[6];
-    int last = -1, ntok = 0, k;
-    Py_ssize_t i;
-    State s;
+    int last = -1, nw, t, k;
+    Word w[6];
+    State saved;
 
     out->n = out->len = 0;
     if (n > MAX_LINE || n < 4 || ln[0] != 'G' || (ln[1] != '0' && ln[1] != '1') ||
         ln[2] != ' ')
         return LINE_PYTHON;
-    if (!s0->absolute || !s0->m_known)
+    if (!s->absolute || !s->m_known || (nw = kk_words(ln, 3, n, w, 6)) < 0)
         return LINE_PYTHON;
-    i = 3;
-    while (i <= n) {
-        Py_ssize_t st = i, e;
+    for (t = 0; t < nw; t++) {
         int slot;
-        char L;
-        while (i < n && ln[i] != ' ')
-            i++;
-        e = i;  /* token [st, e) */
-        i++;    /* past the space (or the end) */
-        if (e == st)
-            return LINE_PYTHON;  /* empty token: two spaces or a trailing one */
-        L = ln[st];
-        switch (L) {
+        switch (w[t].letter) {
         case 'X': slot = 1; break;
         case 'Y': slot = 2; break;
         case 'Z': slot = 3; break;
         case 'E': slot = 4; break;
-        case 'F': slot = ntok == 0 ? 0 : 5; break;
+        case 'F': slot = t == 0 ? 0 : 5; break;
         default: return LINE_PYTHON;
         }
         if (slot <= last || (slot == 5 && present[0]))
             return LINE_PYTHON;
-        for (Py_ssize_t j = st + 1; j < e; j++)
-            if (!is_num_char(ln[j]))
-                return LINE_PYTHON;
         present[slot] = 1;
-        tok_start[slot] = st;
-        tok_end[slot] = e;
+        tok_start[slot] = w[t].start;
+        tok_end[slot] = w[t].end;
+        val[slot] = w[t].value;
         last = slot;
-        ntok++;
     }
-    for (k = 0; k < 6; k++)
-        if (present[k] && kk_parse_num(ln + tok_start[k] + 1, tok_end[k] - tok_start[k] - 1,
-                                    &val[k]) < 0)
-            return LINE_PYTHON;
-    s = *s0;
+    saved = *s;  /* (put back where Python decides after all) */
     {
-        double u = s.inches ? MM_PER_INCH : 1.0;
+        double u = s->inches ? MM_PER_INCH : 1.0;
         int given[3] = {present[1], present[2], present[3]};
         int none[3] = {0, 0, 0};
         int redo[3], rev = 0;
@@ -226,35 +204,34 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
         Py_ssize_t tail_from = -1;
         int f_first = present[0], fslot = present[0] ? 0 : 5;
         if (present[fslot]) {
-            s.feed = val[fslot] * u;
-            s.f_known = 1;
+            s->feed = val[fslot] * u;
+            s->f_known = 1;
         }
         if (present[4])
-            kk_track_e(&s, s.e_abs_mode == 0, val[4]);
-        s.lineno++;
-        s.lines++;
-        s.moves++;
+            kk_track_e(s, s->e_abs_mode == 0, val[4]);
+        s->lineno++;
+        s->lines++;
+        s->moves++;
         if (!given[0] && !given[1] && !given[2]) {
-            s.lines_out++;
-            *s0 = s;
+            s->lines_out++;
             return LINE_SAME;
         }
         for (k = 0; k < 3; k++)
-            p1[k] = given[k] ? val[k + 1] * u - s.w[k] : s.m[k];
+            p1[k] = given[k] ? val[k + 1] * u - s->w[k] : s->m[k];
         kk_inverse(K, p1, q1);
-        if (s.q_last_known)
-            memcpy(q0, s.q_last, sizeof q0);
+        if (s->q_last_known)
+            memcpy(q0, s->q_last, sizeof q0);
         else
-            kk_inverse(K, s.m, q0);
-        memcpy(redo, s.recheck, sizeof redo);
+            kk_inverse(K, s->m, q0);
+        memcpy(redo, s->recheck, sizeof redo);
         for (k = 0; k < 3; k++) {
             /* backlash.reversal: a hysteresis of ``deadband`` around the anchor */
             int r;
             if (!K->active[k])
                 continue;
-            r = kk_reversal(K, &s, k, q1[k], q0[k]);
+            r = kk_reversal(K, s, k, q1[k], q0[k]);
             if (r < 0)
-                return LINE_PYTHON;
+                goto python;
             if (r == 0)
                 continue;
             rev = redo[k] = 1;
@@ -264,21 +241,21 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             take = kk_line_begin(out);
             take[0] = 'G';
             take[1] = '1';
-            r = kk_point(K, &s, s.m, q0, none, q0, redo, s0->m, take, &tl);
+            r = kk_point(K, s, s->m, q0, none, q0, redo, saved.m, take, &tl);
             if (r < 0)
-                return LINE_PYTHON;
+                goto python;
             if (r > 0) {
                 take_len = tl;
                 kk_line_end(out, tl);
-                s.takeup++;
+                s->takeup++;
             }
         }
         main_out = kk_line_begin(out);
         main_out[0] = 'G';
         main_out[1] = ln[1];
         main_len = 2;
-        if (kk_point(K, &s, p1, q1, given, q0, redo, s0->m, main_out, &main_len) < 0)
-            return LINE_PYTHON;
+        if (kk_point(K, s, p1, q1, given, q0, redo, saved.m, main_out, &main_len) < 0)
+            goto python;
         /* the E/F words after X/Y/Z as written; a leading F word goes after them */
         if (present[4])
             tail_from = tok_start[4] - 1;
@@ -295,13 +272,15 @@ int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out)
             main_len += (int)(n - tail_from);
         }
         kk_line_end(out, main_len);
-        memcpy(s.m, p1, sizeof p1);
-        memcpy(s.q_last, q1, sizeof q1);
-        s.q_last_known = 1;
-        s.moves_comp++;
-        s.lines_out += take_len >= 0 ? 2 : 1;
-        *s0 = s;
+        memcpy(s->m, p1, sizeof p1);
+        memcpy(s->q_last, q1, sizeof q1);
+        s->q_last_known = 1;
+        s->moves_comp++;
+        s->lines_out += take_len >= 0 ? 2 : 1;
         return LINE_OUT;
     }
+python:
+    *s = saved;
+    return LINE_PYTHON;
 }
 
