@@ -22,6 +22,7 @@ from ..ballbar.analysis import analyse
 from ..ballbar.formats import TraceError, load_any
 from ..core.messages import as_dict, error_message
 from ..sensor import CaptureResult
+from .known_squareness import for_trace
 from .notify import N_, Notifier
 from .queue import QueueCompensator
 from .runs import RunStore
@@ -54,7 +55,13 @@ class CaptureRecorder:
         data = res.trace.to_text().encode()
         try:
             trace = load_any(data, filename)
-            result = analyse(trace, current=self._queue.in_force)
+            values, sources = for_trace(self._calibration.known_squareness(), trace)
+            result = analyse(
+                trace,
+                current=self._queue.in_force,
+                known_squareness_um_per_m=values,
+                known_sources=sources,
+            )
         except TraceError as exc:
             return self._failed(error_message(exc), capture, res)
         run = self._calibration.record_run(
