@@ -3,9 +3,10 @@ the capture's listener or OctoPrint's comm thread; no request context needed).
 
 * Done: the native trace is analysed exactly as an uploaded file of it would be (its text is
   read back, so that the stored trace, an upload of it and an offline re-run of the stored
-  raw stream all give the same result) with the parameters in force, and stored as a run of
-  source ``live`` (trace, raw stream, the sensor's and the capture's metadata under
-  ``capture``). Nothing is applied.
+  raw stream all give the same result) with the parameters in force and, for a vertical test,
+  the squareness the profile's history knows (:mod:`.known_squareness`; offline:
+  ``analyze --out-of-plane``), and stored as a run of source ``live`` (trace, raw stream, the
+  sensor's and the capture's metadata under ``capture``). Nothing is applied.
 * Failed (unplugged, no data, garbage, flood, stopped, the runs not found ...): a run with
   ``status: failed``, the message (English and as a translatable template) and the partial
   raw stream for inspection; the UI is told.
