@@ -18,7 +18,10 @@ Each check turns evidence the analysis already has into :mod:`.findings`:
   position (pitch 1..50 mm); a clear one is fitted by default (:data:`CYCLIC_MIN_UM`);
 * **outliers** (:func:`find_outliers`): isolated samples far from their neighbours are left out
   of the fit; the circularity is reported with and without them and flagged when they
-  dominate it.
+  dominate it;
+* **out of the plane** (:func:`out_of_plane_used`, :func:`out_of_plane_finding`): a vertical
+  test alone cannot see the squareness that moves its third axis; known, it becomes fixed
+  terms of the fit (an info finding with the bias removed), unknown an info finding.
 
 Units: um and ms in findings and evidence, mm and s inside.
 """
