@@ -287,13 +287,23 @@ def analyse(
     mask_deg: float = DEFAULT_MASK_DEG,
     calibrated: bool = False,
     cyclic_pitch: Optional[float] = None,
+    known_squareness_um_per_m: Optional[Dict[str, float]] = None,
+    known_sources: Optional[Dict[str, str]] = None,
 ) -> Dict[str, object]:
     """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes",
     "plot"}. ``current``: the parameters active during the test (the fit is then a residual
-    and the program the printer ran is the compensated one)."""
+    and the program the printer ran is the compensated one).
+
+    ``known_squareness_um_per_m``: the printer's squareness (um/m, keys ``xy``, ``xz``,
+    ``yz``, as KinComp's parameters state it: e.g. an XY result's proposal) that a vertical
+    test cannot see but that moves its third axis (:data:`.model.OUT_OF_PLANE`); less what
+    ``current`` corrects, it is fitted as a fixed motion (as the joint fit does) instead of
+    biasing the scale mismatch and squareness; ``known_sources``: per key, where the value
+    came from (said in the ``model.out_of_plane_used`` finding)."""
     from ..core.firmware import equivalents
 
     current = current or Params()
+    known = checked_known_squareness(known_squareness_um_per_m)
     notes: List[str] = []
     found: List[Finding] = []
     plot = None
@@ -320,7 +330,12 @@ def analyse(
     else:
         geom, runs, mapping = load_runs_mapped(trace, current)
         _check_both_directions(runs)
-        cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch)
+        fixed, used = checks.out_of_plane_used(
+            geom.plane, known, current.squareness_um_per_m, known_sources or {}
+        )
+        cf = checked_fit(
+            geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, fixed=fixed or None
+        )
         f = cf.fit
         diag = analyse_runs(
             geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping
@@ -331,9 +346,13 @@ def analyse(
         drift = checks.drift_finding(diag, runs)
         if drift is not None:
             found.append(drift)
-        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m)
+        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m, list(known))
         if oop is not None:
             found.append(oop)
+        if used is not None:
+            found.append(used)
+        if fixed:
+            diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
         plot = plot_data(geom, runs, f, diag)
         for n in mapping_notes(mapping):
             notes.append(n)
@@ -382,6 +401,23 @@ def analyse(
         "notes": notes,
         "plot": plot,
     }
+
+
+def checked_known_squareness(values: Optional[Dict[str, float]]) -> Dict[str, float]:
+    """``values`` (um/m by KinComp's squareness key) checked: ValueError naming a key that is
+    not ``xy``, ``xz`` or ``yz`` or a value that is not a finite number."""
+    out: Dict[str, float] = {}
+    for k, v in (values or {}).items():
+        if k not in PLANE_KEYS.values():
+            raise ValueError(Msg("known squareness: %(key)s is not one of xy, xz, yz", key=str(k)))
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            f = math.nan
+        if not math.isfinite(f) or isinstance(v, bool):
+            raise ValueError(Msg("known squareness: %(key)s must be a finite number (um/m)", key=k))
+        out[k] = f
+    return out
 
 
 def outlier_findings(

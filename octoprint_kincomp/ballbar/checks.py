@@ -18,7 +18,10 @@ Each check turns evidence the analysis already has into :mod:`.findings`:
   position (pitch 1..50 mm); a clear one is fitted by default (:data:`CYCLIC_MIN_UM`);
 * **outliers** (:func:`find_outliers`): isolated samples far from their neighbours are left out
   of the fit; the circularity is reported with and without them and flagged when they
-  dominate it.
+  dominate it;
+* **out of the plane** (:func:`out_of_plane_used`, :func:`out_of_plane_finding`): a vertical
+  test alone cannot see the squareness that moves its third axis; known, it becomes fixed
+  terms of the fit (an info finding with the bias removed), unknown an info finding.
 
 Units: um and ms in findings and evidence, mm and s inside.
 """
@@ -32,7 +35,15 @@ import numpy as np
 
 from ..core.messages import Msg, joined
 from .findings import Finding, error, info, warning
-from .model import OUT_OF_PLANE, FitResult, Geometry, Run, fit_mask
+from .model import (
+    OUT_OF_PLANE,
+    FitResult,
+    Geometry,
+    Run,
+    fit_mask,
+    out_of_plane_bias,
+    out_of_plane_terms,
+)
 
 # -- motion ------------------------------------------------------------------------------
 # A clean run's feed-out comes within 1 ms of the plan (measured: 108 simulated runs, 54
@@ -628,10 +639,15 @@ def joint_findings(rows: Sequence[Dict[str, float]], dof: int) -> Tuple[List[Fin
     return [warning("campaign.inconsistent", msg, advice, files=named, **ev)], ev
 
 
-def out_of_plane_finding(plane: str, squareness_um_per_m: Dict[str, float]) -> Optional[Finding]:
+def out_of_plane_finding(
+    plane: str,
+    squareness_um_per_m: Dict[str, float],
+    known: Sequence[str] = (),
+) -> Optional[Finding]:
     """Info for a single test of a vertical plane whose out-of-plane squareness (the other
     planes' that move the third axis, :data:`.model.OUT_OF_PLANE`) the parameters in force do
-    not correct (zero in ``squareness_um_per_m``, the current parameters).
+    not correct (zero in ``squareness_um_per_m``, the current parameters) and that is not
+    ``known`` (keys given to the analysis and fitted as fixed terms: :func:`out_of_plane_used`).
 
     The third axis then moves by ``oA A + oB B``: the bar is longer by
     ``(oA A + oB B)^2 / 2R``, whose ``cos 2t`` and ``sin 2t`` parts the fit takes for a scale
@@ -640,7 +656,7 @@ def out_of_plane_finding(plane: str, squareness_um_per_m: Dict[str, float]) -> O
     (the simulated paper's xy -3638.6 um/m read +6.6 ppm in YZ) is biased by it; a campaign's
     joint fit is not."""
     keys = [k for k in OUT_OF_PLANE.get(plane, ()) if k]
-    unknown = [k for k in keys if not squareness_um_per_m.get(k)]
+    unknown = [k for k in keys if not squareness_um_per_m.get(k) and k not in known]
     if not unknown:
         return None
     tol_um_per_m = math.sqrt(2 * 5e-6) * 1e6
@@ -663,6 +679,51 @@ def out_of_plane_finding(plane: str, squareness_um_per_m: Dict[str, float]) -> O
         bias_ppm_at_1000_um_per_m=0.5,
         squareness_at_tolerance_um_per_m=round(tol_um_per_m),
     )
+
+
+def out_of_plane_used(
+    plane: str,
+    known_um_per_m: Dict[str, float],
+    in_force_um_per_m: Dict[str, float],
+    sources: Dict[str, str],
+) -> Tuple[Dict[str, float], Optional[Finding]]:
+    """The fixed out-of-plane terms (``{"oA", "oB"}``, rad, for :func:`.model.fit`'s
+    ``fixed``) of a single test in ``plane`` from the squareness ``known_um_per_m`` (um/m,
+    KinComp's keys: the machine's own, e.g. an XY result's proposal) less what the parameters
+    in force correct (``in_force_um_per_m``), and the info finding that says which values
+    were used, where they came from (``sources``: key -> text) and the bias they removed.
+    ({}, None) when the plane has no out-of-plane squareness or none of it is known."""
+    keys = [k for k in OUT_OF_PLANE.get(plane, ()) if k and k in known_um_per_m]
+    if not keys:
+        return {}, None
+    known = {k: float(known_um_per_m[k]) for k in keys}
+    in_force = {k: float(in_force_um_per_m.get(k, 0.0)) for k in keys}
+    residual = {k: known[k] - in_force[k] for k in keys}
+    fixed = out_of_plane_terms(plane, {k: v * 1e-6 for k, v in residual.items()})
+    ppm, sq = (round(v, 3) + 0.0 for v in out_of_plane_bias(fixed["oA"], fixed["oB"]))
+    values = ", ".join(f"{k} {known[k]:+.1f}" for k in keys)
+    where = "; ".join(f"{k}: {sources.get(k) or '?'}" for k in keys)
+    found = info(
+        "model.out_of_plane_used",
+        Msg(
+            "The squareness %(values)s um/m (from %(where)s), less what the parameters in "
+            "force correct, moves the third axis out of this %(plane)s test: it was fitted as "
+            "a known motion, which removed a predicted bias of %(ppm)s ppm of scale mismatch "
+            "and %(sq)s um/m of squareness.",
+            values=values,
+            where=where,
+            plane=plane,
+            ppm=f"{ppm:+.2f}",
+            sq=f"{sq:+.2f}",
+        ),
+        known_um_per_m=known,
+        in_force_um_per_m=in_force,
+        out_of_plane_um_per_m=residual,
+        sources={k: str(sources.get(k) or "") for k in keys},
+        bias_removed_scale_mismatch_ppm=ppm,
+        bias_removed_squareness_um_per_m=sq,
+    )
+    return (fixed if any(fixed.values()) else {}), found
 
 
 def cyclic_finding(scan: Dict[str, float], label: str = "") -> Finding:

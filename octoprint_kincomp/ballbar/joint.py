@@ -36,13 +36,13 @@ from ..core.messages import Msg
 from ..core.params import AXES
 from .formats import TraceError
 from .model import (
-    OUT_OF_PLANE,
     FitResult,
     Geometry,
     Model,
     Run,
     diagnostic_values,
     fit_mask,
+    out_of_plane_terms,
     uncertainty_values,
 )
 
@@ -179,9 +179,7 @@ class Layout:
             p: float(g[self.index[f"sq_{p}"]]) if f"sq_{p}" in self.index else 0.0
             for p in ("xy", "xz", "yz")
         }
-        if plane not in OUT_OF_PLANE:
-            return {}
-        return {o: sq[k] if k else 0.0 for o, k in zip(("oA", "oB"), OUT_OF_PLANE[plane])}
+        return out_of_plane_terms(plane, sq)
 
 
 def _reversal_positions(traces: Sequence[TraceFit], axis: str) -> List[float]:

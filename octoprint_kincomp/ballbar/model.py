@@ -49,6 +49,28 @@ OUT_OF_PLANE: Dict[str, Tuple[Optional[str], Optional[str]]] = {
     "YZ": ("xy", "xz"),
     "XZ": (None, "yz"),
 }
+
+
+def out_of_plane_terms(plane: str, squareness: Dict[str, float]) -> Dict[str, float]:
+    """The fixed out-of-plane terms ``{"oA", "oB"}`` (rad) of a test in ``plane`` for the
+    squareness ``squareness`` (rad, KinComp's keys; a missing key counts as 0) that moves the
+    third axis: what the model adds with ``fixed`` ({} for XY). The one map from squareness to
+    those terms: the joint fit and a single test given known squareness both use it."""
+    if plane not in OUT_OF_PLANE:
+        return {}
+    return {
+        o: float(squareness.get(k, 0.0)) if k else 0.0
+        for o, k in zip(("oA", "oB"), OUT_OF_PLANE[plane])
+    }
+
+
+def out_of_plane_bias(oA: float, oB: float) -> Tuple[float, float]:
+    """What a fit without the out-of-plane terms ``oA``, ``oB`` (rad) reads that is not
+    there: (scale mismatch ppm, squareness um/m) = ((oA^2 - oB^2) / 2, oA oB), from the
+    bar's second-order lengthening ``(oA A + oB B)^2 / 2R``."""
+    return (oA * oA - oB * oB) / 2 * 1e6, oA * oB * 1e6
+
+
 BASE = ("r0", "dA", "dB", "ds", "alpha", "dT", "bAp", "bAm", "bBp", "bBm", "kA", "kB")
 
 

@@ -168,6 +168,7 @@ def cmd_analyze(args) -> int:
     from ..ballbar.formats import TraceError
 
     current = load_params(args.current) if args.current else Params()
+    known = out_of_plane_option(args.out_of_plane)
     if len(args.trace) == 1 and not args.manifest:
         path = args.trace[0]
         trace = _read_trace(path)
@@ -178,10 +179,17 @@ def cmd_analyze(args) -> int:
                 mask_deg=args.mask_deg,
                 calibrated=args.calibrated_bar,
                 cyclic_pitch=args.cyclic_pitch,
+                known_squareness_um_per_m=known,
+                known_sources=dict.fromkeys(known, "--out-of-plane"),
             )
         except TraceError as exc:
             raise CliError(f"{path}: {exc}") from None
     else:
+        if known:
+            raise CliError(
+                "--out-of-plane is for one trace: a campaign's joint fit measures the "
+                "squareness of every plane itself"
+            )
         from ..ballbar.campaign import load_manifest
         from ..ballbar.campaign_analysis import analyse_campaign
 
@@ -217,6 +225,28 @@ def cmd_analyze(args) -> int:
         file=sys.stderr,
     )
     return EXIT_UNTRUSTED
+
+
+def out_of_plane_option(items) -> dict:
+    """``--out-of-plane KEY=UM_PER_M`` (repeatable, or comma-separated: ``xy=-3638.6,xz=800``)
+    -> {key: um/m}; a CliError names what is wrong."""
+    out = {}
+    for item in items or ():
+        for part in item.split(","):
+            key, sep, value = part.strip().partition("=")
+            key = key.strip().lower()
+            if not sep or key not in ("xy", "xz", "yz"):
+                raise CliError(
+                    f"--out-of-plane: expected KEY=UM_PER_M with KEY xy, xz or yz, got {part!r}"
+                )
+            try:
+                v = float(value)
+            except ValueError:
+                v = float("nan")
+            if v != v or v in (float("inf"), float("-inf")):
+                raise CliError(f"--out-of-plane: {key} must be a finite number (um/m)")
+            out[key] = v
+    return out
 
 
 def _pm(value, sigma, decimals: int = 2) -> str:
@@ -596,6 +626,15 @@ def add_ballbar_commands(sub) -> None:
         type=float,
         help="fit a cyclic error of this pitch, mm (default: fitted when the "
         "residual shows one; 0: never)",
+    )
+    a.add_argument(
+        "--out-of-plane",
+        action="append",
+        metavar="KEY=UM_PER_M",
+        help="the printer's squareness that a vertical test cannot see but that moves its "
+        "third axis (YZ: xy, xz; XZ: yz), um/m as the params state it, e.g. an XY "
+        "result's xy=-3638.6 (repeatable or comma-separated); the part --current corrects "
+        "is taken off, the rest fitted as a known motion",
     )
     a.add_argument("--params-out", help="write the proposed params file here")
     a.set_defaults(func=cmd_analyze)

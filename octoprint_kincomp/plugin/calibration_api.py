@@ -59,6 +59,7 @@ from . import http
 from .demo_mode import DemoMode
 from .findings_view import findings_of, refusal
 from .job_api import JobApi
+from .known_squareness import known_squareness
 from .motion_limits import effective_limits
 from .notify import Notifier
 from .printer_profiles import other_profile
@@ -242,7 +243,12 @@ class CalibrationApi:
         except UploadRefused as exc:
             return http.error(exc.message, exc.status)
         safe = safe_name(os.path.basename(str(filename)))
-        args = {"data": data, "name": safe, "current": self._queue.in_force.to_dict()}
+        args = {
+            "data": data,
+            "name": safe,
+            "current": self._queue.in_force.to_dict(),
+            "known": self.known_squareness(),
+        }
 
         def run(job, progress) -> None:
             result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
@@ -530,6 +536,13 @@ class CalibrationApi:
         )
 
     # ~~ the run history -----------------------------------------------------------------------
+    def known_squareness(self) -> Dict[str, Any]:
+        """The printer's squareness as the history of the printer profile in force knows it
+        (:func:`.known_squareness.known_squareness`): what a vertical test analysed alone
+        takes as its out-of-plane motion."""
+        s = self._store.current()
+        return known_squareness(self._runs.documents(s["profile"] or None, s["legacy_profile"]))
+
     def runs(self):
         http.require(Permissions.STATUS)
         s = self._store.current()  # the history of the printer profile in force

@@ -3,9 +3,10 @@ the capture's listener or OctoPrint's comm thread; no request context needed).
 
 * Done: the native trace is analysed exactly as an uploaded file of it would be (its text is
   read back, so that the stored trace, an upload of it and an offline re-run of the stored
-  raw stream all give the same result) with the parameters in force, and stored as a run of
-  source ``live`` (trace, raw stream, the sensor's and the capture's metadata under
-  ``capture``). Nothing is applied.
+  raw stream all give the same result) with the parameters in force and, for a vertical test,
+  the squareness the profile's history knows (:mod:`.known_squareness`; offline:
+  ``analyze --out-of-plane``), and stored as a run of source ``live`` (trace, raw stream, the
+  sensor's and the capture's metadata under ``capture``). Nothing is applied.
 * Failed (unplugged, no data, garbage, flood, stopped, the runs not found ...): a run with
   ``status: failed``, the message (English and as a translatable template) and the partial
   raw stream for inspection; the UI is told.
@@ -22,6 +23,7 @@ from ..ballbar.analysis import analyse
 from ..ballbar.formats import TraceError, load_any
 from ..core.messages import as_dict, error_message
 from ..sensor import CaptureResult
+from .known_squareness import for_trace
 from .notify import N_, Notifier
 from .queue import QueueCompensator
 from .runs import RunStore
@@ -54,7 +56,13 @@ class CaptureRecorder:
         data = res.trace.to_text().encode()
         try:
             trace = load_any(data, filename)
-            result = analyse(trace, current=self._queue.in_force)
+            values, sources = for_trace(self._calibration.known_squareness(), trace)
+            result = analyse(
+                trace,
+                current=self._queue.in_force,
+                known_squareness_um_per_m=values,
+                known_sources=sources,
+            )
         except TraceError as exc:
             return self._failed(error_message(exc), capture, res)
         run = self._calibration.record_run(

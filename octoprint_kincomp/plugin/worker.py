@@ -66,16 +66,28 @@ def task_compensate(
 
 
 def task_analyse(
-    data: bytes, name: str, current: Dict[str, Any], progress: Callable[[float], None]
+    data: bytes,
+    name: str,
+    current: Dict[str, Any],
+    progress: Callable[[float], None],
+    known: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
-    """A trace, .b5r or summary file analysed (ballbar.analysis); its kind added."""
+    """A trace, .b5r or summary file analysed (ballbar.analysis); its kind added. ``known``:
+    the printer's squareness from its run history (:mod:`.known_squareness`)."""
     from ..ballbar.analysis import analyse
     from ..ballbar.formats import load_any
     from ..core.params import Params
+    from .known_squareness import for_trace
 
     trace = load_any(data, name)
     progress(0.3)
-    result = analyse(trace, current=Params.from_dict(current))
+    values, sources = for_trace(known or {}, trace)
+    result = analyse(
+        trace,
+        current=Params.from_dict(current),
+        known_squareness_um_per_m=values,
+        known_sources=sources,
+    )
     result["kind"] = getattr(trace, "kind", None)
     return result
 
