@@ -8,9 +8,6 @@
 #define MAX_DEPTH 3
 
 static const int SAMPLES[6] = {1, 2, 3, 5, 6, 7};  /* the eighths checked (4: the middle) */
-static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
-                               1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
-                               1e22};
 
 /* EDistribution (core/path.py) */
 typedef struct {
@@ -70,7 +67,7 @@ static int edist_init(EDist *e, const char *text, int len, double value, int rel
         e->dec = 5;
     if (e->dec > 12)  /* (the fast formatter's integer range) */
         return -1;
-    e->scale = P10[e->dec];
+    e->scale = kk_P10[e->dec];
     if (relative) {
         double x = value * e->scale;
         if (!(fabs(x) < 4503599627370496.0))  /* 2**52: Python's round() is exact there */
@@ -86,8 +83,6 @@ static int edist_init(EDist *e, const char *text, int len, double value, int rel
 /* EDistribution.take: appends " E..." to out; -1: Python decides */
 static int edist_take(EDist *e, double s_end, int last, char *out, int *len)
 {
-    char text[MAX_TEXT + 1];
-    int n;
     double v;
     if (last && (!e->relative || e->done == 0)) {
         out[(*len)++] = ' ';
@@ -111,14 +106,7 @@ static int edist_take(EDist *e, double s_end, int last, char *out, int *len)
             v = e->e0 + (e->value - e->e0) * f;
         }
     }
-    n = kk_format_num(v, e->dec, text);
-    if (n < 0)
-        return -1;
-    out[(*len)++] = ' ';
-    out[(*len)++] = 'E';
-    memcpy(out + *len, text, n);
-    *len += n;
-    return 0;
+    return kk_put_word(out, len, 'E', v, e->dec);
 }
 
 /* -- pieces ------------------------------------------------------------------------------ */
@@ -229,12 +217,11 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     const State *s = j->s;
     const Geo *a = j->a;
     double u = s->inches ? MM_PER_INCH : 1.0;
-    int dec = K->dec + (s->inches ? 2 : 0), k, i, n;
+    int dec = K->dec + (s->inches ? 2 : 0), k, i;
     const double *S = s->fw;
     double E[3], M[3], T[3], ps[9][3];
     double bx, by, cx, cy, d, b2, c2, ux, uy, radius, ka, kb, sa, sb, lin0, dlin;
     double sweep = 0.0, dev = 0.0, budget = K->budget[s->inches];
-    char text[MAX_TEXT + 1];
     for (k = 0; k < 3; k++)
         if (fw_after(j->K, s, dec, u, k, with_offset(K, s, k, qb[k]), &E[k]) < 0)
             return -1;
@@ -296,20 +283,9 @@ static int fit(Job *j, double fa, double fb, const double *qb, const double (*ei
     if (K->any_active && overshoots(j, S, E, ka, kb, radius, sa, sb))
         return 0;
     *ij_len = 0;
-    n = kk_format_num(ux / u, dec, text);
-    if (n < 0)
+    if (kk_put_word(ij, ij_len, 'I', ux / u, dec) < 0 ||
+        kk_put_word(ij, ij_len, 'J', uy / u, dec) < 0)
         return -1;
-    ij[(*ij_len)++] = ' ';
-    ij[(*ij_len)++] = 'I';
-    memcpy(ij + *ij_len, text, n);
-    *ij_len += n;
-    n = kk_format_num(uy / u, dec, text);
-    if (n < 0)
-        return -1;
-    ij[(*ij_len)++] = ' ';
-    ij[(*ij_len)++] = 'J';
-    memcpy(ij + *ij_len, text, n);
-    *ij_len += n;
     *dev_out = dev;
     return 1;
 }

@@ -147,7 +147,8 @@ typedef struct {
 } Word;
 int kk_parse_num(const char *text, Py_ssize_t len, double *out);
 int kk_words(const char *ln, Py_ssize_t i, Py_ssize_t n, Word *w, int max);
-int kk_format_num(double v, int dec, char *out);
+extern const double kk_P10[23];  /* 1e0 .. 1e22 */
+int kk_put_word(char *out, int *len, char letter, double v, int dec);
 int kk_format_value(double v, int dec, char *out, double *value);
 /* transform.c */
 int kk_do_line(Kernel *K, State *s0, const char *ln, Py_ssize_t n, Lines *out);

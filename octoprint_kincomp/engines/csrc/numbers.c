@@ -4,9 +4,10 @@
 
 static int format_slow(double v, int dec, char *out);
 
-static const double P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
-                               1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
-                               1e22};
+const double kk_P10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
+                           1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21,
+                           1e22};
+#define P10 kk_P10
 
 /* float(text) for a number text of [0-9.+-] (text[len] need not be 0). Exact where the
  * digits make an integer below 2**53 and there are at most 22 decimals: then the value is
@@ -106,15 +107,10 @@ static int trim_zeros(char *text, int len, int dec)
 /* "%.{dec}f" % v, trimmed as gcode.fmt. Returns the length, -1: Python decides.
  * Where |v| * 10**dec is at most 1e9 and not within 1e-6 of a half, rounding the scaled
  * value (off the exact one by less than 2.5e-7) gives the correctly rounded digits that
- * Python's formatter writes; elsewhere Python's formatter does it. */
-int kk_format_num(double v, int dec, char *out)
-{
-    return kk_format_value(v, dec, out, NULL);
-}
-
-/* kk_format_num, and (value != NULL) float() of the text written: from the fast path's
- * digits, as an integer below 2**53 divided by a power of ten, one correctly rounded IEEE
- * division, as kk_parse_num would compute it from the text; else by parsing the text. */
+ * Python's formatter writes; elsewhere Python's formatter does it. With ``value``: float()
+ * of the text written, from the fast path's digits, as an integer below 2**53 divided by a
+ * power of ten, one correctly rounded IEEE division, as kk_parse_num would compute it from
+ * the text; else by parsing the text. */
 int kk_format_value(double v, int dec, char *out, double *value)
 {
     double r = fabs(v) * P10[dec];
@@ -155,6 +151,18 @@ int kk_format_value(double v, int dec, char *out, double *value)
     if (len >= 0 && value != NULL && kk_parse_num(out, len, value) < 0)
         return -1;
     return len;
+}
+
+/* " <letter><v as kk_format_value writes it>" appended at out[*len]; 0, -1: Python decides */
+int kk_put_word(char *out, int *len, char letter, double v, int dec)
+{
+    int n = kk_format_value(v, dec, out + *len + 2, NULL);
+    if (n < 0)
+        return -1;
+    out[*len] = ' ';
+    out[*len + 1] = letter;
+    *len += n + 2;
+    return 0;
 }
 
 static int format_slow(double v, int dec, char *out)

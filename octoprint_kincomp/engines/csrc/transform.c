@@ -106,7 +106,7 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
                 int ol;
                 if (!s->fw_known[k])
                     return -1;
-                ol = kk_format_num(s->fw[k] / u, dec, oldfmt);
+                ol = kk_format_value(s->fw[k] / u, dec, oldfmt, NULL);
                 if (ol < 0)
                     return -1;
                 append = !(ol == len && memcmp(text, oldfmt, len) == 0);
