@@ -104,21 +104,17 @@ static int do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out
 }
 
 /* The text of a str the kernel may take (ASCII, at most MAX_LINE characters), else NULL
- * (with no error set). */
+ * (with no error set). ASCII: as many UTF-8 bytes as characters. */
 static const char *line_text(PyObject *line, Py_ssize_t *n)
 {
     const char *c;
-    Py_ssize_t i;
     if (!PyUnicode_Check(line) || PyUnicode_GET_LENGTH(line) > MAX_LINE)
         return NULL;
     if ((c = PyUnicode_AsUTF8AndSize(line, n)) == NULL) {
         PyErr_Clear();  /* (lone surrogates: not a line the kernel takes) */
         return NULL;
     }
-    for (i = 0; i < *n; i++)
-        if ((unsigned char)c[i] > 127)
-            return NULL;
-    return c;
+    return *n == PyUnicode_GET_LENGTH(line) ? c : NULL;
 }
 
 /* A line that is no command (blank, or a ';' comment), as the reference path counts it. */
@@ -167,8 +163,8 @@ static PyObject *Kernel_line(Kernel *self, PyObject *line)
     if ((res = PyList_New(out.n)) == NULL)
         return NULL;
     for (i = 0; i < out.n; i++) {
-        PyObject *o = PyUnicode_FromStringAndSize(out.buf + out.start[i],
-                                                  out.start[i + 1] - out.start[i]);
+        PyObject *o = PyUnicode_FromKindAndData(PyUnicode_1BYTE_KIND, out.buf + out.start[i],
+                                                out.start[i + 1] - out.start[i]);
         if (o == NULL) {
             Py_DECREF(res);
             return NULL;
