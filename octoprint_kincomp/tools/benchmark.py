@@ -170,13 +170,24 @@ def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional
     return comp.report
 
 
-def engines() -> list:
-    """The engines measured: "compiled" (if the kernel was built) and "python"."""
-    return (["compiled"] if select.available() == "compiled" else []) + ["python"]
+def engines(only: Optional[str] = None) -> list:
+    """The engines measured: "compiled" (if the kernel was built) and "python", or ``only``
+    that one (the compiled kernel where it is not built: an error, not a silent fallback)."""
+    names = (["compiled"] if select.available() == "compiled" else []) + ["python"]
+    if only is not None and only not in names:
+        raise ValueError(f"engine {only!r} is not available here (available: {names})")
+    return names if only is None else [only]
 
 
-def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = None) -> dict:
-    """Compare each file engine with the reference path line for line."""
+def verify(
+    src: str,
+    params: Params,
+    workdir: str,
+    max_lines: Optional[int] = None,
+    only: Optional[str] = None,
+) -> dict:
+    """Compare each file engine (or ``only`` that one) with the reference path line for
+    line."""
     from ..engines.files import compensate_file
 
     part = src
@@ -190,7 +201,7 @@ def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = No
     ref_out = os.path.join(workdir, "ref.gcode")
     fast_out = os.path.join(workdir, "fast.gcode")
     ref_rep = reference_compensate(part, ref_out, params)
-    for name in engines():
+    for name in engines(only):
         with select.use(name):
             fast_rep = compensate_file(part, fast_out, params)
         lines = 0
@@ -206,7 +217,7 @@ def verify(src: str, params: Params, workdir: str, max_lines: Optional[int] = No
                 raise AssertionError(f"{name} engine and reference differ in length")
         if ref_rep.to_dict() != fast_rep.to_dict():
             raise AssertionError(f"{name} engine and reference reports differ")
-    return {"verified_lines": lines, "identical": True, "engines": engines()}
+    return {"verified_lines": lines, "identical": True, "engines": engines(only)}
 
 
 def _child_rss(src: str, dst: str, params_json: str, engine: str) -> dict:
@@ -391,7 +402,9 @@ def run(
     workdir: Optional[str] = None,
     quick: bool = False,
     verify_lines: Optional[int] = None,
+    only: Optional[str] = None,
 ) -> dict:
+    """The figures of every engine (or of ``only`` that one: ``"compiled"``, ``"python"``)."""
     from ..engines.files import compensate_file
 
     params = Params.from_dict(BENCH_PARAMS)
@@ -403,12 +416,12 @@ def run(
     res["lines"] = generate(src, n_lines)
     res["arc_lines"] = generate(arc_src, n_lines, arc_fraction=0.2)
     res["file_mb"] = os.path.getsize(src) / 1e6
-    res["verify"] = verify(src, params, tmp, verify_lines)
+    res["verify"] = verify(src, params, tmp, verify_lines, only)
     repeat = 1 if quick else 5
     with open(arc_src) as f:
         sample = [next(f).rstrip("\n") for _ in range(min(200000, res["arc_lines"]))]
     res["engines"] = {}
-    for name in engines():
+    for name in engines(only):
         with select.use(name):
             t_copy, t_comp = _paired(
                 lambda: plain_copy(src, dst), lambda: compensate_file(src, dst, params), repeat
@@ -550,6 +563,11 @@ def main(argv=None) -> int:
         type=int,
         help="verify only this many lines against the reference (default: all)",
     )
+    ap.add_argument(
+        "--engine",
+        choices=select.ENGINES,
+        help="measure this engine only (the pure-Python one takes half an hour at full size)",
+    )
     ap.add_argument("--json", action="store_true")
     ap.add_argument(
         "--table",
@@ -560,7 +578,7 @@ def main(argv=None) -> int:
         "(or of PAGE), between its bench markers",
     )
     args = ap.parse_args(argv)
-    res = run(args.lines, quick=args.quick, verify_lines=args.verify_lines)
+    res = run(args.lines, quick=args.quick, verify_lines=args.verify_lines, only=args.engine)
     if args.table:
         replace_table(args.table, markdown_table(res, time.strftime("%Y-%m-%d")))
         print(f"table written to {args.table}")

@@ -105,3 +105,21 @@ def test_the_docs_page_has_one_table_between_the_markers():
     assert inside.count("| measure | target |") == 1
     assert "| measure" not in outside  # the figures are in that one table only
     assert os.path.basename(TABLE_FILE) == "performance.md"
+
+
+@pytest.mark.slow
+def test_a_run_of_one_engine_measures_and_verifies_that_engine_only(tmp_path):
+    """``bench --engine NAME`` (a refresh of the compiled figures without the pure-Python
+    path's half hour): that engine alone is verified against the reference path and timed."""
+    from octoprint_kincomp.engines import select
+    from octoprint_kincomp.tools import benchmark
+
+    name = select.available()
+    res = benchmark.run(3000, workdir=str(tmp_path), quick=True, only=name)
+    assert list(res["engines"]) == [name] and res["verify"]["engines"] == [name]
+    assert res["verify"]["identical"] and res["verify"]["verified_lines"] > 3000
+    assert res["engines"][name]["hook"]["process"]["lines"] > 100
+    table = markdown_table(res, "2026-11-28")
+    assert table.count(" | ") > 10 and ("pure Python" in table) == (name == "python")
+    with pytest.raises(ValueError):
+        benchmark.engines("numpy")
