@@ -8,7 +8,7 @@ object and mocks for the printer, event bus and file manager
 (tests/support/mocked_plugin.py), compensation on with the benchmark's parameters
 (squareness + scale + position-dependent backlash) and the bed as limits. Prints p50/p99 in
 us over the G1 X/Y lines and the G2/G3 lines of a 200,000-line slicer-like stream with 20 % arcs
-(the benchmark's arc file).
+(the benchmark's arc file), the best of ``--repeat`` passes (as the bench's figures are).
     .venv/bin/python benchmarks/plugin_hook.py [--lines N] [--python]
 
 ``--python`` runs it on the pure-Python paths (no compiled kernel).
@@ -25,6 +25,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--lines", type=int, default=200_000)
     ap.add_argument("--python", action="store_true", help="without the compiled kernel")
+    ap.add_argument("--repeat", type=int, default=5, help="passes; each figure is the best")
     args = ap.parse_args()
     if args.python:
         os.environ["KINCOMP_KERNEL"] = "0"
@@ -47,26 +48,32 @@ def main() -> int:
     comm = object()
     hook = p.queuing_hook
     clock = time.perf_counter_ns
-    samples = {"G1": [], "G2": []}
-    for line, t in zip(lines, tags):
-        t0 = clock()
-        hook(comm, "queuing", line, None, None, None, t)
-        dt = clock() - t0
-        if line.startswith("G1 X"):
-            samples["G1"].append(dt)
-        elif line.startswith(("G2 ", "G3 ")):
-            samples["G2"].append(dt)
+    best = {}
+    for _ in range(args.repeat):  # (the stream starts with G28: each pass starts afresh)
+        samples = {"G1": [], "G2": []}
+        for line, t in zip(lines, tags):
+            t0 = clock()
+            hook(comm, "queuing", line, None, None, None, t)
+            dt = clock() - t0
+            if line.startswith("G1 X"):
+                samples["G1"].append(dt)
+            elif line.startswith(("G2 ", "G3 ")):
+                samples["G2"].append(dt)
+        for kind, got in samples.items():
+            got.sort()
+            p50, p99 = got[len(got) // 2] / 1000, got[int(len(got) * 0.99)] / 1000
+            if kind not in best or p50 < best[kind][0]:
+                best[kind] = (p50, p99, len(got))
     rep = p.queue.comp.report
     print(
         f"engine: {select.engine()}; "
         f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups, "
         f"{rep.arcs_kept} arcs kept, {rep.arcs_split} split"
     )
-    for kind, got in samples.items():
-        got.sort()
+    for kind, (p50, p99, n) in best.items():
         print(
-            f"KinCompPlugin.queuing_hook, {kind} line: p50 {got[len(got) // 2] / 1000:.2f} us"
-            f"  p99 {got[int(len(got) * 0.99)] / 1000:.2f} us ({len(got)} lines)"
+            f"KinCompPlugin.queuing_hook, {kind} line: p50 {p50:.2f} us  p99 {p99:.2f} us "
+            f"({n} lines; best of {args.repeat} passes)"
         )
     return 0
 
