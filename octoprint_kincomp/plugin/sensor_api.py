@@ -496,8 +496,8 @@ class SensorApi:
             )
         try:
             exists = self._file_manager.file_exists(FileDestinations.LOCAL, path)
-        except ValueError:  # OctoPrint's storage refuses the name (a lone "\\", ..)
-            exists = False
+        except (ValueError, IndexError):  # OctoPrint's storage refuses the name (a lone
+            exists = False  # "\\", ..) or trips over it ("./": IndexError in sanitize_path)
         if not exists:
             return http.error(gettext("No such file: %(path)s", path=path), 404)
         try:
