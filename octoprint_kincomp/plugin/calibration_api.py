@@ -213,6 +213,15 @@ class CalibrationApi:
         """Whether a program can be started now (connected, not printing)."""
         return self._printer.is_operational() and not self._printer.is_printing()
 
+    def job_path(self) -> Optional[str]:
+        """The path of the file printing now (also paused or pausing); None when none is."""
+        p = self._printer
+        if not (p.is_printing() or p.is_paused() or p.is_pausing()):
+            return None
+        job = p.get_current_job() or {}
+        path = (job.get("file") or {}).get("path") if isinstance(job, dict) else None
+        return path if isinstance(path, str) and path else None
+
     def start_print(self, path: str) -> None:
         """Selects the stored file ``path`` and prints it, tagged as KinComp's."""
         self._printer.select_file(

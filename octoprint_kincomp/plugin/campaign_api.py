@@ -20,11 +20,18 @@ volume, printed test by test with the same parameters in force, fitted jointly
   ``file``) or ``{"demo": true}`` for demo mode's SIMULATED trace of the printed commands
   (the measurement without the live path, ``demo.live`` off, and a fallback with it); it
   must be this test's trace (campaign, test, program and parameters in its metadata);
-  analysed on its own and stored as a run of the campaign. (A live sensor's capture of a
-  test needs no request: that is also the demo's virtual bar with ``demo.live`` on.)
+  analysed on its own and stored as a run of the campaign. While another printer profile is
+  in force than the campaign's it is refused (409, nothing stored) unless ``force`` is true
+  (JSON field, or form field / query ``force=true`` with a file): then the run carries the
+  warning finding ``campaign.other_profile``. (A live sensor's capture of a test needs no
+  request: that is also the demo's virtual bar with ``demo.live`` on.)
 * ``POST /campaigns/<id>/analyze``  the joint fit over all tests, stored as a run (source
   ``campaign``): ONE parameter set; nothing applied. Refused (400 naming the file) for a
   missing or failed test or traces that are not one campaign.
+* ``DELETE /campaigns/<id>``  deletes the campaign (its document; the runs of its tests and
+  of its joint analysis stay in the history): 404 for an unknown id, 409 for a campaign of
+  another printer profile than the one in force, and 409 while one of its tests is being
+  measured (its program printing or paused, or a live capture armed for it).
 * ``POST /campaigns/<id>/apply``  that parameter set into the settings (``enabled``,
   ``apply_now`` and, for an untrusted result, ``force`` as for ``/apply``). The joint
   result, as every run, carries ``findings`` and ``trusted``.
@@ -39,12 +46,13 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
+from ..ballbar import findings as fnd
 from ..ballbar.campaign import plan_campaign
 from ..ballbar.campaign_analysis import analyse_campaign
 from ..ballbar.formats import TraceError, load_any
@@ -53,9 +61,10 @@ from ..ballbar.program import ProgramError, TestSpec, generate
 from ..core.messages import Msg, as_dict, joined
 from . import http
 from .calibration_api import CalibrationApi, UploadRefused, safe_name
-from .campaign_measure import CampaignMeasurements, Refused, campaign_keys
+from .campaign_measure import CampaignMeasurements, Refused, campaign_keys, with_findings
 from .campaigns import CampaignNotFound, CampaignStore, new_campaign, now, view
 from .demo_mode import DemoMode
+from .printer_profiles import other_profile
 from .runs import RunNotFound, RunStore
 from .settings_store import SettingsStore
 
@@ -68,6 +77,42 @@ PLAN_FIELDS = {
     "second_height": (None, -10000.0, 10000.0),  # mm, absolute Z
     "second_feed": (None, 10.0, 60000.0),  # mm/min
 }
+
+
+def _form_flag(key: str) -> bool:
+    """A flag of a multipart request (form field or query): "true" or "false", False when
+    absent; anything else is refused (http.BadRequest naming ``key``)."""
+    value = flask.request.values.get(key)
+    if value is None or value == "false":
+        return False
+    if value == "true":
+        return True
+    raise http.BadRequest(gettext("'%(key)s' must be true or false", key=key))
+
+
+def _forced_steps(doc: Dict[str, Any]) -> List[fnd.Finding]:
+    """A warning for the joint result when tests of campaign ``doc`` were measured while
+    another printer profile was in force (taken with ``force``)."""
+    forced = [s for s in doc["steps"] if s.get("other_profile")]
+    if not forced:
+        return []
+    return [
+        fnd.warning(
+            "campaign.other_profile",
+            Msg(
+                "Tests %(tests)s were measured while another printer profile was in force "
+                "(%(other)s), not the campaign's (%(profile)s); they were taken anyway (force).",
+                tests=", ".join(str(s["n"]) for s in forced),
+                other=", ".join(sorted({str(s["other_profile"]) for s in forced})),
+                profile=doc.get("profile") or "-",
+            ),
+            Msg(
+                "Make sure these measurements come from the campaign's printer; if not, "
+                "measure the tests again on it."
+            ),
+            tests=[s["n"] for s in forced],
+        )
+    ]
 
 
 def number(
@@ -96,6 +141,9 @@ def number(
 
 
 class CampaignApi:
+    # () -> the campaign id a live capture is armed for (None: none); set by the plugin
+    armed_campaign: Optional[Callable[[], Optional[str]]] = None
+
     def __init__(
         self,
         store: SettingsStore,
@@ -259,14 +307,17 @@ class CampaignApi:
         body = http.json_object()
         try:
             demo = http.flag(body or {}, "demo")
-            doc, step = self.measure.open_step(cid, n)
+            force = http.flag(body, "force") if body is not None else _form_flag("force")
+            doc, step = self.measure.open_step(cid, n, force)
             if body is not None and not demo:
                 raise Refused(Msg("Give the trace file (multipart field 'file') or \"demo\": true"))
             if demo:
                 data, filename = self._simulated(cid, step)
             else:
                 data, filename = self._calibration.read_upload()
-            run = self.measure.measure(doc, step, data, safe_name(os.path.basename(filename)))
+            run = self.measure.measure(
+                doc, step, data, safe_name(os.path.basename(filename)), force=force
+            )
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         except UploadRefused as exc:
@@ -301,7 +352,9 @@ class CampaignApi:
         try:
             doc = self._campaigns.get(cid)
             self.measure.check_unchanged(doc)
-            result = analyse_campaign(self._traces(doc), current=current)
+            result = with_findings(
+                analyse_campaign(self._traces(doc), current=current), _forced_steps(doc)
+            )
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)
         except Refused as exc:
@@ -348,6 +401,53 @@ class CampaignApi:
             with open(path, "rb") as f:
                 items.append((run["filename"], load_any(f.read(), run["filename"])))
         return items
+
+    # ~~ deleting ---------------------------------------------------------------------------------
+    def delete(self, cid: str):
+        """Deletes campaign ``cid`` of the printer profile in force (the runs of its tests and
+        of its joint analysis stay in the history)."""
+        http.require(Permissions.PLUGIN_KINCOMP_ADMIN)
+        try:
+            doc = self._campaigns.get(cid)
+        except CampaignNotFound:
+            return http.error(gettext("No such campaign"), 404)
+        s = self._store.current()
+        if other_profile(doc.get("profile"), s):
+            return http.error(
+                gettext(
+                    "Campaign %(id)s belongs to printer profile %(profile)s, not to the one in "
+                    "force: connect that printer to delete it.",
+                    id=cid,
+                    profile=doc.get("profile") or s["legacy_profile"],
+                ),
+                409,
+            )
+        busy = self._measuring(doc)
+        if busy is not None:
+            return http.error(http.tr(busy), 409)
+        self._campaigns.delete(cid)
+        return flask.jsonify(deleted=cid)
+
+    def _measuring(self, doc: Dict[str, Any]) -> Optional[Msg]:
+        """Why campaign ``doc`` is being measured right now (None: it is not): one of its
+        test programs is printing or paused, or a live capture is armed for it."""
+        printing = self._calibration.job_path()
+        for step in doc["steps"]:
+            if step.get("path") and step["path"] == printing:
+                return Msg(
+                    "Test %(n)s (%(name)s) of campaign %(id)s is being printed and measured "
+                    "now: cancel the print or let it finish before deleting the campaign.",
+                    n=step["n"],
+                    name=step["name"],
+                    id=doc["id"],
+                )
+        if self.armed_campaign is not None and self.armed_campaign() == doc["id"]:
+            return Msg(
+                "A live capture is armed for a test of campaign %(id)s: let it finish or stop "
+                "it before deleting the campaign.",
+                id=doc["id"],
+            )
+        return None
 
     def apply(self, cid: str):
         http.require(Permissions.PLUGIN_KINCOMP_ADMIN)

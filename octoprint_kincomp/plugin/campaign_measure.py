@@ -4,8 +4,15 @@ hands its runs here too).
 
 "In force" are the parameters the printed programs are compensated with: the current ones
 while compensation is on, none (zero) while it is off. A campaign keeps the hash of those it
-began with and its printer profile's name; when either changes it cannot go on (a joint fit
-of tests measured under different parameters, or on another printer, would be wrong).
+began with and the OctoPrint printer profile it was planned on (its id, ``profile``, and its
+name, ``printer``); when either changes it cannot go on (a joint fit of tests measured under
+different parameters, or on another printer, would be wrong). The profile id decides
+(:func:`.printer_profiles.other_profile`, a campaign from before profiles belonging to
+``legacy_profile``); only when there is no id to compare (settings from before profiles) the
+name does. A test's measurement taken while another profile is in force is refused unless
+the request says ``force``: then its run carries the warning finding
+``campaign.other_profile`` (and the campaign's joint result too); a profile renamed since
+the plan (same id, other name) is said as an info finding.
 
 A trace is a test's measurement when its metadata names the campaign and the test, its
 program hash is the test's program, and the parameter hash (when the trace has one: a live
@@ -19,8 +26,9 @@ that every trace stays one run. Refusals are :class:`Refused` with a translatabl
 
 from __future__ import annotations
 
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
+from ..ballbar import findings as fnd
 from ..ballbar.analysis import analyse
 from ..ballbar.formats import AngleTrace, NativeTrace, TraceError, load_any
 from ..ballbar.program import ProgramError
@@ -28,6 +36,7 @@ from ..core.messages import Msg, error_message
 from ..core.params import Params
 from .campaigns import CampaignNotFound, CampaignStore, now
 from .notify import N_, Notifier
+from .printer_profiles import other_profile, profile_id
 from .queue import QueueCompensator
 from .runs import RunStore
 
@@ -50,6 +59,7 @@ class CampaignMeasurements:
         calibration,
         notifier: Notifier,
         profiles,
+        store,
     ):
         self._queue = queue
         self._runs = runs
@@ -57,6 +67,7 @@ class CampaignMeasurements:
         self._calibration = calibration  # CalibrationApi: record_run
         self._notifier = notifier
         self._profiles = profiles
+        self._store = store  # SettingsStore: the printer profile in force (current())
 
     # ~~ what is in force ----------------------------------------------------------------------
     def in_force(self) -> Params:
@@ -64,20 +75,26 @@ class CampaignMeasurements:
         off)."""
         return self._queue.in_force
 
-    def printer(self) -> Optional[str]:
-        """The printer profile's name (the traces' ``printer``)."""
+    def _current_profile(self) -> Dict[str, Any]:
+        """OctoPrint's current printer profile (or its default); {} when it cannot say."""
         try:
             profile = self._profiles.get_current_or_default() or {}
         except Exception:
-            return None
+            return {}
+        return profile if isinstance(profile, dict) else {}
+
+    def printer(self) -> Optional[str]:
+        """The printer profile's name (the traces' ``printer``)."""
+        profile = self._current_profile()
         name = profile.get("name") or profile.get("id")
         return str(name) if name else None
 
-    def check_unchanged(self, doc: Dict[str, Any]) -> None:
-        """Raises Refused (409) when the parameters in force or the printer profile changed
-        since the campaign began."""
-        force = self.in_force().hash()
-        if force != doc["params_hash"]:
+    def check_unchanged(self, doc: Dict[str, Any], force: bool = False) -> None:
+        """Raises Refused (409) when the parameters in force changed since the campaign
+        began, or when another printer profile is in force (unless ``force``: a test's
+        measurement taken anyway, see :meth:`other_printer`)."""
+        in_force = self.in_force().hash()
+        if in_force != doc["params_hash"]:
             raise Refused(
                 Msg(
                     "The parameters in force changed since campaign %(id)s began (%(then)s, now "
@@ -85,25 +102,87 @@ class CampaignMeasurements:
                     "Start a new campaign.",
                     id=doc["id"],
                     then=doc["params_hash"],
-                    now=force,
+                    now=in_force,
                 ),
                 409,
             )
-        printer = self.printer()
-        if doc.get("printer") and printer != doc["printer"]:
-            raise Refused(
-                Msg(
-                    "The printer profile changed since campaign %(id)s began (%(then)s, now "
-                    "%(now)s): a campaign is measured on one printer. Start a new campaign.",
-                    id=doc["id"],
-                    then=doc["printer"],
-                    now=printer or "-",
-                ),
-                409,
-            )
+        wrong = self.other_printer(doc)
+        if wrong is not None and not force:
+            raise Refused(wrong, 409)
 
-    def open_step(self, cid: str, n: int):
-        """(campaign, its test n) when the campaign can still measure it; else Refused."""
+    def other_printer(self, doc: Dict[str, Any]) -> Optional[Msg]:
+        """Why the printer in force is not campaign ``doc``'s (None: it is). Decided by the
+        printer profile id in force against the one the campaign was planned on; by the
+        profile's name only when either has no id (from before profiles)."""
+        s = self._store.current()
+        owner = doc.get("profile") or s.get("legacy_profile") or ""
+        printer = self.printer()
+        if other_profile(doc.get("profile"), s):
+            names = self._store.profile_names() or {}
+            if printer and profile_id(self._current_profile()) == s["profile"]:
+                names.setdefault(s["profile"], printer)
+            return Msg(
+                "Campaign %(id)s was planned for printer profile %(then)s (%(then_id)s), but "
+                "printer profile %(now)s (%(now_id)s) is in force: a campaign is measured on "
+                "the printer it was planned for. Connect that printer, or start a new campaign.",
+                id=doc["id"],
+                then=doc.get("printer") or names.get(owner) or owner,
+                then_id=owner,
+                now=names.get(s["profile"]) or s["profile"],
+                now_id=s["profile"],
+            )
+        if (not owner or not s.get("profile")) and doc.get("printer") and printer != doc["printer"]:
+            return Msg(
+                "The printer profile changed since campaign %(id)s began (%(then)s, now "
+                "%(now)s): a campaign is measured on one printer. Start a new campaign.",
+                id=doc["id"],
+                then=doc["printer"],
+                now=printer or "-",
+            )
+        return None
+
+    def profile_findings(self, doc: Dict[str, Any]) -> List[fnd.Finding]:
+        """What a test's measurement says of its printer: a warning when it was taken while
+        another profile is in force (the request said ``force``), an info when the
+        campaign's profile was renamed since the plan."""
+        wrong = self.other_printer(doc)
+        if wrong is not None:
+            s = self._store.current()
+            return [
+                fnd.warning(
+                    "campaign.other_profile",
+                    Msg("Measured while another printer profile was in force: %(why)s", why=wrong),
+                    Msg(
+                        "Taken anyway (force). Make sure this measurement comes from the "
+                        "campaign's printer; if not, measure the test again on it."
+                    ),
+                    campaign_profile=doc.get("profile") or s.get("legacy_profile") or None,
+                    profile_in_force=s.get("profile") or None,
+                    campaign_printer=doc.get("printer"),
+                    printer_in_force=self.printer(),
+                )
+            ]
+        printer = self.printer()
+        if doc.get("printer") and printer and printer != doc["printer"]:
+            return [
+                fnd.info(
+                    "campaign.profile_renamed",
+                    Msg(
+                        "The printer profile of campaign %(id)s is named %(now)s now "
+                        "(%(then)s when the campaign was planned); it is the same profile.",
+                        id=doc["id"],
+                        now=printer,
+                        then=doc["printer"],
+                    ),
+                    campaign_printer=doc["printer"],
+                    printer_in_force=printer,
+                )
+            ]
+        return []
+
+    def open_step(self, cid: str, n: int, force: bool = False):
+        """(campaign, its test n) when the campaign can still measure it; else Refused
+        (``force``: also while another printer profile is in force)."""
         try:
             doc = self._campaigns.get(cid)
         except CampaignNotFound:
@@ -119,7 +198,7 @@ class CampaignMeasurements:
                 ),
                 409,
             )
-        self.check_unchanged(doc)
+        self.check_unchanged(doc, force)
         return doc, doc["steps"][n - 1]
 
     # ~~ a trace as a test's measurement --------------------------------------------------------
@@ -130,23 +209,33 @@ class CampaignMeasurements:
         data: bytes,
         name: str,
         extra: Optional[Dict[str, Any]] = None,
+        force: bool = False,
     ) -> Dict[str, Any]:
         """The trace ``data`` (file ``name``) as ``step``'s measurement: checked, analysed,
         stored as a run of the campaign (``extra``: more fields) and linked to the test;
         returns the run. Refused (400) naming the file when it is not this test's trace or
-        its analysis fails."""
+        its analysis fails; (409) while another printer profile is in force, unless
+        ``force`` (then the run carries the warning finding and belongs to the campaign's
+        profile, as the campaign does)."""
+        self.check_unchanged(doc, force)
+        said = self.profile_findings(doc)
         current = self.in_force()
         try:
             trace = load_any(data, name)
             wrong = not_this_test(trace, doc, step)
             if wrong is not None:
                 raise Refused(Msg("%(name)s: %(reason)s", name=name, reason=wrong))
-            result = analyse(trace, current=current)
+            result = with_findings(analyse(trace, current=current), said)
         except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
             raise Refused(
                 Msg("%(name)s: %(reason)s", name=name, reason=error_message(exc))
             ) from None
         fields = campaign_keys(doc["id"], step["name"], current)
+        step.pop("other_profile", None)
+        if any(f.code == "campaign.other_profile" for f in said):  # taken anyway (force)
+            s = self._store.current()
+            fields["profile"] = doc.get("profile") or s.get("legacy_profile")
+            step["other_profile"] = s.get("profile")
         fields.update(extra or {})
         run = self._calibration.record_run(
             result, name, trace.kind, data, result.get("plot"), fields
@@ -256,6 +345,20 @@ def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[
             want=doc["printer"],
         )
     return None
+
+
+def with_findings(result: Dict[str, Any], found: List[fnd.Finding]) -> Dict[str, Any]:
+    """An analysis ``result`` with the findings ``found`` added (both forms, worst first;
+    an error among them makes it untrusted)."""
+    if not found:
+        return result
+    out = dict(result)
+    for key, form in (("findings", fnd.Finding.to_dict), ("findings_i18n", fnd.Finding.to_wire)):
+        if key in result or key == "findings":
+            out[key] = list(result.get(key) or []) + [form(f) for f in found]
+    if any(f.severity == "error" for f in found):
+        out["trusted"] = False
+    return out
 
 
 def campaign_keys(cid: str, step: Optional[str], current: Params) -> Dict[str, Any]:

@@ -135,9 +135,7 @@ def _summary(runs: RunStore, run_id: Optional[str]) -> Optional[Dict[str, Any]]:
         run = runs.get(run_id)
     except RunNotFound:
         return None
-    out = runs.summary(run)
-    out["scale_mismatch_ppm"] = (run.get("diagnostics") or {}).get("scale_mismatch_ppm")
-    return out
+    return runs.summary(run)
 
 
 def _analysis(

@@ -131,12 +131,19 @@ class KinCompPlugin(
         campaigns = CampaignStore(self.data_folder())
         campaigns.profile = self.runs.profile  # a campaign belongs to its printer too
         measurements = CampaignMeasurements(
-            queue, self.runs, campaigns, self.calibration, notifier, self._printer_profile_manager
+            queue,
+            self.runs,
+            campaigns,
+            self.calibration,
+            notifier,
+            self._printer_profile_manager,
+            self.store,
         )
         recorder.on_recorded = measurements.take_capture  # a live capture of a campaign test
         self.campaign = CampaignApi(
             self.store, self.runs, campaigns, self.calibration, self.demo, measurements
         )
+        self.campaign.armed_campaign = self.sensor.armed_campaign
         self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files)
 
     def data_folder(self) -> str:
@@ -467,6 +474,10 @@ class KinCompPlugin(
     @route("/campaigns/<cid>/analyze", methods=["POST"])
     def api_campaign_analyze(self, cid):
         return self.campaign.analyze(cid)
+
+    @route("/campaigns/<cid>", methods=["DELETE"])
+    def api_campaign_delete(self, cid):
+        return self.campaign.delete(cid)
 
     @route("/campaigns/<cid>/apply", methods=["POST"])
     def api_campaign_apply(self, cid):

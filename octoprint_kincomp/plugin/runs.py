@@ -145,7 +145,11 @@ class RunStore:
             "simulated": bool(d.get("simulated") or run.get("simulated")),
             "plane": d.get("plane"),
             "filename": run.get("filename"),
+            # a ballbar test: its plane's numbers; a printed artifact: {xy, xz, yz} um/m and
+            # {"x-y", "x-z", "y-z"} ppm (null where not measured), ``planes`` those it made
+            "planes": d.get("planes"),
             "squareness_um_per_m": d.get("squareness_um_per_m"),
+            "scale_mismatch_ppm": d.get("scale_mismatch_ppm"),
             "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
             "applied": run.get("applied"),
             "trusted": run.get("trusted") is not False,  # runs from before findings: True

@@ -208,6 +208,12 @@ class SensorApi:
             }
         return {"armed": True, "source": self._source, "port": self._cap.config.port}
 
+    def armed_campaign(self) -> Optional[str]:
+        """The campaign id of the test a capture is armed for now (None: none, or not a
+        campaign's test)."""
+        armed = self._armed
+        return (armed.spec.campaign or None) if armed is not None else None
+
     def _arm(self, spec: TestSpec, program_hash: str, path: str) -> None:
         with self._open_lock:
             cap = self._capture()
@@ -490,8 +496,8 @@ class SensorApi:
             )
         try:
             exists = self._file_manager.file_exists(FileDestinations.LOCAL, path)
-        except ValueError:  # OctoPrint's storage refuses the name (a lone "\\", ..)
-            exists = False
+        except (ValueError, IndexError):  # OctoPrint's storage refuses the name (a lone
+            exists = False  # "\\", ..) or trips over it ("./": IndexError in sanitize_path)
         if not exists:
             return http.error(gettext("No such file: %(path)s", path=path), 404)
         try:

@@ -92,6 +92,10 @@ def test_measuring_form_result_and_apply(page, server):
     page.wait_for_selector("#kincomp_history tbody tr")
     first_row = page.locator("#kincomp_history tbody tr").first
     assert path.rsplit("/", 1)[-1] in first_row.inner_text()
+    # its own figures, not dashes: squareness per plane, the mismatches, no circularity
+    shown = first_row.locator(".kincomp-history-squareness").inner_text()
+    assert f"XY {value:.1f}" in shown and "XZ " in shown and "scale mismatch X-Y " in shown
+    assert first_row.locator(".kincomp-history-circularity").inner_text() == "no circle (artifact)"
     first_row.locator("button").click()
     page.wait_for_selector("#kincomp_artifact_result", state="visible")
     page.wait_for_selector("#kincomp_artifact_result >> text=Applied on")

@@ -195,3 +195,28 @@ def test_a_whole_campaign_in_demo_mode(page, server):
     finally:
         settings(server, demo={"enabled": False, "live": True})
         _reset_params(server)
+
+
+def test_a_campaign_is_deleted_from_the_history(page, server):
+    code, doc = server.request("POST", f"{API}/campaign/plan", {"radius_xy": 50})
+    assert code == 200, doc
+    cid = doc["id"]
+    _open_tab(page)
+    _step(page, "history")
+    group = page.locator(f"#kincomp_campaign_group_{cid}")
+    group.wait_for()
+    assert "not run" in group.inner_text()
+    # asked first: cancelled, it stays
+    group.locator(".kincomp-campaign-delete").click()
+    dialog = page.locator(".kincomp-campaign-delete-dialog")
+    dialog.wait_for(state="visible")
+    assert cid in dialog.inner_text()
+    dialog.locator("a.btn", has_text="Cancel").click()
+    dialog.wait_for(state="hidden")
+    assert _campaign(server, cid)["id"] == cid
+    # confirmed: gone from the list and from the server
+    group.locator(".kincomp-campaign-delete").click()
+    page.locator(".kincomp-campaign-delete-dialog .btn-danger").click()
+    group.wait_for(state="detached")
+    assert server.request("GET", f"{API}/campaigns/{cid}")[0] == 404
+    assert not page.is_visible("#kincomp_campaign_history_error")

@@ -95,6 +95,15 @@ def test_sheet_and_analyze_store_a_run_that_applies(api):
     # the history has it, and it applies like any run
     runs = api.client.get(PREFIX + "/runs").get_json()["runs"]
     assert runs[0]["id"] == run["id"] and runs[0]["source"] == "artifact"
+    # with the figures its row shows: the squareness of each plane it made, the mismatches
+    # (the ballbar's circularity has no meaning for it: none)
+    entry = runs[0]
+    assert entry["planes"] == d["planes"] and "XY" in entry["planes"]
+    assert entry["squareness_um_per_m"] == d["squareness_um_per_m"]
+    assert entry["squareness_um_per_m"]["xy"] == pytest.approx(800, abs=50)
+    assert entry["scale_mismatch_ppm"] == d["scale_mismatch_ppm"]
+    assert entry["scale_mismatch_ppm"]["x-y"] == pytest.approx(300, abs=60)
+    assert entry["circularity_um"] is None
     code, out = post(api, "/apply", {"run": run["id"]})
     assert code == 200, out
     assert out["params"]["squareness_um_per_m"]["xy"] == pytest.approx(

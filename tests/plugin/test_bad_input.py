@@ -41,6 +41,15 @@ def test_dryrun_of_a_path_octoprint_cannot_sanitize_is_400_naming_it(api):
     assert resp.get_json()["report"]["moves"] == 2
 
 
+@pytest.mark.parametrize("path", ["./", ".", "\\"])
+def test_arming_for_a_path_octoprint_cannot_sanitize_is_404_naming_it(api, path):
+    # ("./" made OctoPrint's sanitize_path raise IndexError: a 500, found by the property test)
+    resp = api.client.post(
+        PREFIX + "/sensor/arm", data=json.dumps({"path": path}), content_type="application/json"
+    )
+    assert resp.status_code == 404 and path in resp.get_json()["error"], resp.get_data()[:300]
+
+
 @pytest.mark.parametrize("route", ["/settings", "/program", "/analyze", "/apply", "/compensate"])
 def test_json_nested_5000_deep_is_400(api, route):
     for body in (deep(5000), '{"a": ' + deep(5000) + "}", '{"params": ' + deep(40) + "}"):

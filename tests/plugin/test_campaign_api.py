@@ -24,6 +24,8 @@ PROFILE = {
     "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},
     "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 3000}},
 }
+# another printer (profile id and name), without a calibration of its own
+OTHER = dict(PROFILE, id="printer_b", name="Printer B")
 PLAN = {"radius_xy": 50}
 SKEW = {"squareness_um_per_m": {"xy": 500.0, "xz": 0.0, "yz": 0.0}}
 # the demo's virtual bar streams at 20 times the feed (its 500 Hz: 10,000 lines/s)
@@ -53,6 +55,14 @@ def call(app, view, *args, json=None, data=None, path="/"):
     return resp.status_code, resp.get_json()
 
 
+def switch_profile(plugin, profile):
+    """A printer connected with ``profile``: its set comes into force."""
+    pm = plugin._printer_profile_manager
+    pm.get_current.return_value = pm.get_current_or_default.return_value = profile
+    plugin.store.follow_profile()
+    assert plugin.store.current()["profile"] == profile["id"]
+
+
 def plan(app, plugin, **options):
     code, doc = call(app, plugin.api_campaign_plan, json=dict(PLAN, **options))
     assert code == 200, doc
@@ -68,12 +78,17 @@ def offline_trace(doc, n, truth=None):
     return simulate_program(text, truth or demo_truth(), spec, prog_hash).to_text()
 
 
-def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv"):
-    """The test's trace as OctoPrint hands an upload to a view (a temporary file)."""
+def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv", **fields):
+    """The test's trace as OctoPrint hands an upload to a view (a temporary file; ``fields``:
+    more form fields)."""
     path = tmp_path / f"upload-{n}-{name}"
     path.write_text(text)
     return call(
-        app, plugin.api_campaign_trace, cid, n, data={"file.path": str(path), "file.name": name}
+        app,
+        plugin.api_campaign_trace,
+        cid,
+        n,
+        data=dict(fields, **{"file.path": str(path), "file.name": name}),
     )
 
 
@@ -360,12 +375,16 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
     plugin.on_settings_save({"enabled": False})
     code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
     assert code == 200 and resp["printing"] is False
-    # another printer profile: refused too
+    # the same profile renamed: it goes on (the profile id decides, not the name)
     plugin._printer_profile_manager.get_current_or_default.return_value = dict(
         PROFILE, name="Other"
     )
     code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
-    assert code == 409 and "printer profile changed" in resp["error"]
+    assert code == 200, resp
+    # another printer profile in force: refused too
+    switch_profile(plugin, OTHER)
+    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    assert code == 409 and "planned for printer profile Virtual P1" in resp["error"], resp
 
 
 def _edited(text, key, value):
@@ -553,6 +572,7 @@ def test_each_route_asks_for_its_permissions(app, plugin):
         (plugin.api_campaign_trace, (cid, 1), {"demo": True}, {"ADMIN"}),
         (plugin.api_campaign_analyze, (cid,), {}, {"ADMIN"}),
         (plugin.api_campaign_apply, (cid,), {}, {"ADMIN"}),
+        (plugin.api_campaign_delete, (cid,), None, {"ADMIN"}),
     ]
     for view, args, body, wanted in routes:
         asked = []
@@ -572,3 +592,159 @@ def test_the_trace_upload_route_may_carry_a_large_trace():
     sizes = plugin_hooks(KinCompPlugin())["octoprint.server.http.bodysize"]([])
     route = [r for m, r, s in sizes if m == "POST" and "campaigns" in r]
     assert route and re.match(route[0], "/campaigns/c20990101-000000-abcdef/steps/2/trace")
+
+
+def _findings(run, code):
+    return [f for f in run["findings"] if f["code"] == code]
+
+
+def test_a_test_is_measured_on_the_printer_profile_it_was_planned_for(app, plugin, tmp_path):
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    assert plugin.campaign._campaigns.get(cid)["profile"] == "_default"
+    # the profile it was planned on: taken, nothing said of the printer
+    code, resp = upload(app, plugin, tmp_path, cid, 1, offline_trace(doc, 1), "t1.csv")
+    assert code == 200, resp
+    assert not _findings(resp["run"], "campaign.other_profile")
+    assert resp["run"]["profile"] == "_default"
+    # another profile in force (the same name would not matter: the id decides): refused,
+    # naming both, and nothing stored
+    before = [r["id"] for r in plugin.runs.list()]
+    t2 = offline_trace(doc, 2)
+    switch_profile(plugin, dict(OTHER, name="Virtual P1"))
+    code, resp = upload(app, plugin, tmp_path, cid, 2, t2, "t2.csv")
+    assert code == 409 and "(printer_b) is in force" in resp["error"], resp
+    switch_profile(plugin, OTHER)
+    code, resp = upload(app, plugin, tmp_path, cid, 2, t2, "t2.csv")
+    assert code == 409, resp
+    assert "planned for printer profile Virtual P1 (_default)" in resp["error"]
+    assert "Printer B (printer_b) is in force" in resp["error"]
+    assert [r["id"] for r in plugin.runs.list()] == before
+    assert plugin.campaign._campaigns.get(cid)["steps"][1]["run"] is None
+    code, resp = upload(app, plugin, tmp_path, cid, 2, t2, "t2.csv", force="yes")
+    assert code == 400 and "'force'" in resp["error"]
+    code, resp = call(app, plugin.api_campaign_trace, cid, 2, json={"demo": True, "force": 1})
+    assert code == 400 and "'force'" in resp["error"]
+    assert [r["id"] for r in plugin.runs.list()] == before
+    # a live capture of the test is not taken either (it stays a single run, the user told)
+    live = _live_run(plugin, t2)
+    assert plugin.sensor._recorder.on_recorded(live) is live
+    msg = plugin._plugin_manager.send_plugin_message.call_args[0][1]
+    assert msg["severity"] == "error" and "Printer B (printer_b) is in force" in msg["text"]
+    plugin.runs.delete(live["id"])
+    # taken anyway (force): the run says so in a warning finding and belongs to the campaign's
+    # profile; the campaign remembers the test was measured under another one
+    code, resp = upload(app, plugin, tmp_path, cid, 2, t2, "t2.csv", force="true")
+    assert code == 200, resp
+    run = resp["run"]
+    (warned,) = _findings(run, "campaign.other_profile")
+    assert warned["severity"] == "warning" and run["trusted"] is True
+    assert warned["message"]["text"].startswith(
+        "Measured while another printer profile was in force: Campaign " + cid
+    )
+    assert warned["evidence"]["profile_in_force"] == "printer_b"
+    assert warned["evidence"]["campaign_profile"] == "_default"
+    assert run["profile"] == "_default" and resp["campaign"]["steps"][1]["run"] == run["id"]
+    assert plugin.campaign._campaigns.get(cid)["steps"][1]["other_profile"] == "printer_b"
+    # printing and the joint analysis stay refused while another profile is in force
+    code, resp = call(app, plugin.api_campaign_program, cid, 3, json={})
+    assert code == 409 and "Printer B" in resp["error"]
+    # back on the campaign's printer: the last test, and the joint result repeats the warning
+    switch_profile(plugin, PROFILE)
+    code, resp = upload(app, plugin, tmp_path, cid, 3, offline_trace(doc, 3), "t3.csv")
+    assert code == 200 and not _findings(resp["run"], "campaign.other_profile")
+    code, done = call(app, plugin.api_campaign_analyze, cid)
+    assert code == 200, done
+    (joint,) = _findings(done["analysis"], "campaign.other_profile")
+    assert joint["evidence"]["tests"] == [2] and "(printer_b)" in joint["message"]["text"]
+
+
+def test_the_refusal_for_another_printer_comes_in_german(app, plugin):
+    from babel.support import Translations
+
+    from octoprint_kincomp.core.messages import translate
+
+    doc = plugin.campaign._campaigns.get(plan(app, plugin)["id"])
+    switch_profile(plugin, OTHER)
+    de = Translations.load(os.path.join(os.path.dirname(plugin_dir()), "translations"), ["de"])
+    german = translate(plugin.campaign.measure.other_printer(doc), de.gettext)
+    assert german.startswith(f"Die Kampagne {doc['id']} wurde für das Druckerprofil Virtual P1")
+    (found,) = plugin.campaign.measure.profile_findings(doc)
+    assert translate(found.message, de.gettext).startswith("Gemessen, während")
+
+
+def plugin_dir():
+    import octoprint_kincomp.plugin as pkg
+
+    return os.path.dirname(pkg.__file__)
+
+
+def delete(app, plugin, cid):
+    with app.test_request_context("/", method="DELETE"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            resp = plugin.api_campaign_delete(cid)
+    return resp.status_code, resp.get_json()
+
+
+def test_a_campaign_is_deleted_its_runs_stay_in_the_history(app, plugin, tmp_path):
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    code, resp = upload(app, plugin, tmp_path, cid, 1, offline_trace(doc, 1), "t1.csv")
+    assert code == 200
+    measured = resp["run"]["id"]
+    kept = plan(app, plugin)["id"]
+    assert delete(app, plugin, "c20990101-000000-abcdef") == (404, {"error": "No such campaign"})
+    assert delete(app, plugin, "../../etc/passwd")[0] == 404
+    code, resp = delete(app, plugin, cid)
+    assert code == 200 and resp == {"deleted": cid}
+    with app.test_request_context("/campaigns"):
+        with mock.patch("octoprint_kincomp.plugin.http.require"):
+            assert [c["id"] for c in plugin.api_campaigns().get_json()["campaigns"]] == [kept]
+            assert plugin.api_campaign(cid).status_code == 404
+    assert plugin.runs.get(measured)["campaign"] == cid  # the measurement is kept
+    assert delete(app, plugin, cid)[0] == 404
+    # the measurement of a deleted campaign's test is refused, not stored
+    code, resp = upload(app, plugin, tmp_path, cid, 2, offline_trace(doc, 2), "t2.csv")
+    assert code == 404 and [r["id"] for r in plugin.runs.list()] == [measured]
+
+
+def test_another_printers_campaign_is_not_deleted(app, plugin):
+    cid = plan(app, plugin)["id"]
+    switch_profile(plugin, OTHER)
+    code, resp = delete(app, plugin, cid)
+    assert code == 409 and "belongs to printer profile _default" in resp["error"], resp
+    assert plugin.campaign._campaigns.get(cid)
+    switch_profile(plugin, PROFILE)
+    assert delete(app, plugin, cid)[0] == 200
+
+
+def test_a_campaign_being_measured_is_not_deleted(app, plugin):
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    code, resp = call(app, plugin.api_campaign_program, cid, 2, json={"print": True})
+    assert code == 200 and resp["printing"], resp
+    # its test 2 printing (and paused at the mount pause): refused, saying why
+    plugin._printer.get_current_job.return_value = {
+        "file": {"origin": "local", "path": resp["path"]}
+    }
+    for printing, paused in ((True, False), (False, True)):
+        plugin._printer.is_printing.return_value = printing
+        plugin._printer.is_paused.return_value = paused
+        code, out = delete(app, plugin, cid)
+        assert code == 409, out
+        assert out["error"].startswith(f"Test 2 (xz) of campaign {cid} is being printed")
+    # another file printing: the campaign may go
+    other = plan(app, plugin)["id"]
+    code, out = delete(app, plugin, other)
+    assert code == 200, out
+    # a live capture armed for one of its tests (the demo's virtual bar, waiting for the
+    # print to start): refused too
+    plugin._printer.is_printing.return_value = plugin._printer.is_paused.return_value = False
+    assert plugin.sensor.armed_campaign() is None and delete(app, plugin, plan(app, plugin)["id"])
+    plugin.on_settings_save({"demo": {"enabled": True}})
+    code, resp = call(app, plugin.api_campaign_program, cid, 3, json={"print": True})
+    assert code == 200 and resp["capture"]["armed"], resp
+    assert plugin.sensor.armed_campaign() == cid
+    code, out = delete(app, plugin, cid)
+    assert code == 409 and "live capture is armed for a test of campaign" in out["error"], out
+    assert plugin.campaign._campaigns.get(cid)

@@ -572,6 +572,34 @@ $(function () {
             });
         };
 
+        self.deleteHint = function (c) {
+            return _.sprintf(gettext("Delete campaign %(id)s (the runs of its tests stay in the history)"), {id: c.id});
+        };
+
+        // deleting asks first (OctoPrint's confirmation dialog); the server refuses a
+        // campaign whose test is being measured and says why
+        self.remove = function (summary) {
+            showConfirmationDialog({
+                title: gettext("Delete the campaign?"),
+                message: _.sprintf(gettext("Campaign %(id)s (%(state)s) will be deleted: its plan and progress are gone, a re-test of it has nothing to compare with. The runs of its tests and its joint result stay in the history."),
+                    {id: _.escape(summary.id), state: _.escape(self.stateText(summary))}),
+                question: gettext("Delete this campaign?"),
+                proceed: gettext("Delete"),
+                dialogClass: "kincomp-campaign-delete-dialog",
+                onproceed: function () {
+                    OctoPrint.delete(API("campaigns/" + summary.id)).done(function () {
+                        var c = self.campaign();
+                        if (c && c.id === summary.id) {
+                            self.campaign(null);
+                            self.planning(true);
+                        }
+                        self.error("");
+                        self.loadCampaigns();
+                    }).fail(self.fail);
+                }
+            });
+        };
+
         self.open = function (summary) {
             OctoPrint.get(API("campaigns/" + summary.id)).done(function (c) {
                 self.show(c);

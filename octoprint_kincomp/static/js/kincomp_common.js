@@ -50,6 +50,41 @@
         return name || "";
     };
 
+    // what the history's figure columns show of a run summary (GET /runs): a ballbar
+    // test's squareness (µm/m) and circularity (µm); a printed artifact's squareness per
+    // plane it measured and its scale mismatches (ppm), and a word where a circle's figure
+    // has no meaning for it
+    var historyFigures = function (run) {
+        if (run.source !== "artifact") {
+            return {
+                squareness: fmt(run.squareness_um_per_m, 1),
+                circularity: fmt(run.circularity_um, 1),
+                mismatch: ""
+            };
+        }
+        var pick = function (values, keys, label) {
+            return _.filter(_.map(keys, function (k) {
+                var v = (values || {})[k];
+                return v === null || v === undefined || isNaN(v) ? null : label(k) + " " + fmt(v, 1);
+            }));
+        };
+        var planes = run.planes || ["XY", "XZ", "YZ"];
+        var sq = pick(run.squareness_um_per_m, _.map(planes, function (p) {
+            return String(p).toLowerCase();
+        }), function (k) {
+            return k.toUpperCase();
+        });
+        var mm = pick(run.scale_mismatch_ppm, ["x-y", "x-z", "y-z"], function (k) {
+            return k.toUpperCase();
+        });
+        return {
+            squareness: sq.length ? sq.join(", ") : gettext("not measured"),
+            circularity: gettext("no circle (artifact)"),
+            mismatch: mm.length
+                ? _.sprintf(gettext("scale mismatch %(values)s ppm"), {values: mm.join(", ")}) : ""
+        };
+    };
+
     var errorText = function (jqXHR) {
         // the server's {"error": ...} message, or the HTTP status
         var response = jqXHR && (jqXHR.responseJSON || jqXHR.response || jqXHR.responseText);
@@ -279,6 +314,7 @@
         reductionText: reductionText,
         dateText: dateText,
         sourceText: sourceText,
+        historyFigures: historyFigures,
         errorText: errorText,
         notify: notify,
         copyText: copyText,

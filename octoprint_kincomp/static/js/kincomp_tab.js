@@ -439,10 +439,7 @@ $(function () {
                 });
                 self.runs(
                     _.map(single, function (r) {
-                        return _.extend({}, r, {
-                            squareness: r.squareness_um_per_m,
-                            circularity: r.circularity_um
-                        });
+                        return _.extend({}, r, {figures: K.historyFigures(r)});
                     })
                 );
             });
