@@ -11,11 +11,11 @@
  * object, which crosses to Python only as a tuple of plain values (state.c; the order of
  * engines/kernel.py RECORD). No line here touches a Python object's internals.
  *
- * Files: state.c the record's tuple and its handing over, numbers.c numbers, transform.c one
- * line, arc.c/arcgeo.c arcs, module.c the Python type. Units: positions mm (inches only in
- * the G-code text), backlash tables um, ``half``: the fraction of the backlash applied per
- * side, um -> mm. Backlash direction +1: the carriage command last moved towards +, the
- * take-up offset is + (half the backlash there). */
+ * Files: state.c the record's tuple and its handing over, numbers.c numbers and the words
+ * of a line, transform.c one line, arc.c/arcgeo.c arcs, module.c the Python type. Units:
+ * positions mm (inches only in the G-code text), backlash tables um, ``half``: the fraction
+ * of the backlash applied per side, um -> mm. Backlash direction +1: the carriage command
+ * last moved towards +, the take-up offset is + (half the backlash there). */
 #ifndef KINCOMP_KERNEL_H
 #define KINCOMP_KERNEL_H
 
