@@ -96,6 +96,13 @@ def test_measuring_form_result_and_apply(page, server):
     shown = first_row.locator(".kincomp-history-squareness").inner_text()
     assert f"XY {value:.1f}" in shown and "XZ " in shown and "scale mismatch X-Y " in shown
     assert first_row.locator(".kincomp-history-circularity").inner_text() == "no circle (artifact)"
+    # a value a line: the history stays inside the tab, as wide as with ballbar runs only
+    page.set_viewport_size({"width": 1400, "height": 900})
+    fits = page.evaluate("""() => {
+        const t = document.querySelector('#kincomp_history');
+        const box = t.closest('.tab-pane').getBoundingClientRect();
+        return t.getBoundingClientRect().right <= box.right + 1; }""")
+    assert fits
     first_row.locator("button").click()
     page.wait_for_selector("#kincomp_artifact_result", state="visible")
     page.wait_for_selector("#kincomp_artifact_result >> text=Applied on")

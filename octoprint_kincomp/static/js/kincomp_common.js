@@ -77,11 +77,13 @@
         var mm = pick(run.scale_mismatch_ppm, ["x-y", "x-z", "y-z"], function (k) {
             return k.toUpperCase();
         });
+        // a value a line (the cells keep the line breaks, kincomp.css): the history stays
+        // as wide as a ballbar run's
         return {
-            squareness: sq.length ? sq.join(", ") : gettext("not measured"),
+            squareness: sq.length ? sq.join("\n") : gettext("not measured"),
             circularity: gettext("no circle (artifact)"),
             mismatch: mm.length
-                ? _.sprintf(gettext("scale mismatch %(values)s ppm"), {values: mm.join(", ")}) : ""
+                ? _.sprintf(gettext("scale mismatch %(values)s ppm"), {values: mm.join("\n")}) : ""
         };
     };
 
