@@ -748,3 +748,17 @@ def test_a_campaign_being_measured_is_not_deleted(app, plugin):
     code, out = delete(app, plugin, cid)
     assert code == 409 and "live capture is armed for a test of campaign" in out["error"], out
     assert plugin.campaign._campaigns.get(cid)
+
+
+def test_findings_added_to_a_result_keep_it_worst_first():
+    """A forced measurement's warning goes before the analysis's own info findings (the
+    stored result is worst first, as every analysis's is)."""
+    from octoprint_kincomp.ballbar import findings as fnd
+    from octoprint_kincomp.plugin.campaign_measure import with_findings
+
+    note = fnd.info("model.cyclic_fitted", "a note")
+    result = {"findings": [note.to_dict()], "findings_i18n": [note.to_wire()], "trusted": True}
+    out = with_findings(result, [fnd.warning("campaign.other_profile", "another printer")])
+    for key in ("findings", "findings_i18n"):
+        assert [f["severity"] for f in out[key]] == ["warning", "info"], out[key]
+    assert out["trusted"] is True and result["findings"] == [note.to_dict()]
