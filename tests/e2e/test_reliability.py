@@ -1,9 +1,10 @@
 """Issue 17 end to end, on real OctoPrint servers with the virtual printer:
 
 * a read-only user's parallel dry runs of big files do not starve a running print: the
-  print's ``Send:`` rate with them stays within 20 % of the rate without them (phases
-  alternated and repeated: the machine is shared), and every dry run finishes or is refused
-  cleanly (200, 202 or 429);
+  print's ``Send:`` rate with them stays within 20 % of the rate without them (short phases
+  alternated, each loaded one against the quiet ones either side: the machine is shared
+  and its speed drifts), and every dry run finishes or is refused cleanly (200, 202 or
+  429);
 * ``squareness_um_per_m.xy: "garbage"`` in config.yaml survives restarts untouched (with the
   rest of the calibration), compensation stays off and the problem is reported until the
   user fixes it; a server killed during /compensate leaves no temporary file after the
@@ -76,8 +77,8 @@ def _active_jobs(srv):
     return [j for j in status(srv)["jobs"] if j["state"] in ("queued", "running")]
 
 
-PHASE_S = 8.0
-ROUNDS = 3
+PHASE_S = 4.0
+ROUNDS = 6
 
 
 def _worker(srv, sig):
@@ -140,12 +141,16 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
         _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60, "the print")
         time.sleep(3.0)  # past the start
         phases = []
-        for _ in range(ROUNDS):
+
+        def quiet_phase():
             _worker(server, signal.SIGSTOP)  # quiet: nothing of the dry runs runs at all
             t0 = time.time()
             time.sleep(PHASE_S)
             phases.append(("quiet", t0, time.time()))
             _worker(server, signal.SIGCONT)
+
+        for _ in range(ROUNDS):
+            quiet_phase()
             stop.clear()
             threads = [threading.Thread(target=reader, args=(k,)) for k in range(4)]
             for t in threads:
@@ -158,21 +163,22 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             stop.set()
             for t in threads:
                 t.join()
+        quiet_phase()  # (every load phase between two quiet ones)
         assert server.request("GET", "/api/job")[1]["state"] == "Printing", (
             "the print ended before the measurement did"
         )
         times = _send_times(server)
-        rates = {
-            kind: [_rate(times, a, b) for k, a, b in phases if k == kind]
-            for kind in ("quiet", "load")
-        }
-        quiet, load = statistics.median(rates["quiet"]), statistics.median(rates["load"])
+        rates = [_rate(times, a, b) for _, a, b in phases]
+        # each load phase against the quiet phases either side of it: the machine's speed
+        # drifts by the minute, seconds apart it is the same
+        ratios = [rates[i] / ((rates[i - 1] + rates[i + 1]) / 2) for i in range(1, len(rates), 2)]
+        ratio = statistics.median(ratios)
         print(
-            f"\nSend: rate of the print, lines/s: without dry runs {rates['quiet']} "
-            f"(median {quiet:.0f}), with 4 read-only clients' dry runs {rates['load']} "
-            f"(median {load:.0f}): {load / quiet:.0%}"
+            f"\nSend: rate of the print, lines/s, quiet and with 4 read-only clients' dry runs "
+            f"alternating: {[round(r) for r in rates]}; load / its quiet neighbours "
+            f"{[round(r, 2) for r in ratios]}, median {ratio:.0%}"
         )
-        assert load >= 0.8 * quiet, (rates, quiet, load)
+        assert ratio >= 0.8, (rates, ratios)
         _worker(server, signal.SIGCONT)
         _cancel_print(server)  # the dry runs at nice 19 get the CPU the print leaves
         _wait(lambda: not _active_jobs(server), 600, "the dry runs to finish")

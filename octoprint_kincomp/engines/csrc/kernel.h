@@ -44,6 +44,7 @@ typedef struct {
     int n;
     double pos[MAX_PTS];
     double um[MAX_PTS];
+    double slope[MAX_PTS];  /* (um[i+1] - um[i]) / (pos[i+1] - pos[i]): the same double */
 } Table;
 
 /* The stream state (core/state.py StreamState, its backlash directions and the report's

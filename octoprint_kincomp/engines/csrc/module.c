@@ -23,6 +23,8 @@ static int read_table(PyObject *seq, Table *t)
         }
     }
     Py_DECREF(fast);
+    for (i = 0; i + 1 < n; i++)
+        t->slope[i] = (t->um[i + 1] - t->um[i]) / (t->pos[i + 1] - t->pos[i]);
     return 0;
 }
 

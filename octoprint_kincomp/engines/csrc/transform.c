@@ -11,11 +11,11 @@ double kk_um_at(const Table *t, double q)
     if (q >= t->pos[t->n - 1])
         return t->um[t->n - 1];
     for (i = 0; i + 1 < t->n; i++) {
-        double p0 = t->pos[i], v0 = t->um[i], p1 = t->pos[i + 1], v1 = t->um[i + 1];
-        if (q < p1)
-            return (v1 - v0) / (p1 - p0) * (q - p0) + v0;
+        double p1 = t->pos[i + 1];
+        if (q < p1)  /* (v1 - v0) / (p1 - p0) * (q - p0) + v0, the quotient kept */
+            return t->slope[i] * (q - t->pos[i]) + t->um[i];
         if (q == p1)
-            return v1;
+            return t->um[i + 1];
     }
     return t->um[t->n - 1];
 }
