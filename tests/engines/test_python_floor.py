@@ -46,5 +46,5 @@ def test_the_floor_loop_writes_the_compensated_positions(tmp_path):
         want, have = _numbers(ref if isinstance(ref, str) else ref[-1]), _numbers(floor)
         for axis in "XY":
             assert abs(have[axis] - want[axis]) <= 0.0005
-        assert have[axis] != _numbers(line)[axis]  # (moved by the model: not a copy)
+            assert have[axis] != _numbers(line)[axis]  # (moved by the model: not a copy)
         assert have.get("E") == _numbers(line).get("E")
