@@ -97,7 +97,8 @@ class BacklashAxis:
             return pts[-1][1]
         for (p0, v0), (p1, v1) in zip(pts, pts[1:]):
             if pos_mm < p1:
-                # same operation order as the compiled kernel (csrc/transform.c kk_um_at)
+                # the compiled kernel computes the same (csrc/transform.c kk_um_at: the
+                # quotient kept per segment, the same double)
                 return (v1 - v0) / (p1 - p0) * (pos_mm - p0) + v0
             if pos_mm == p1:
                 return v1
