@@ -15,7 +15,7 @@ it needs an explicit "apply anyway").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterable, List, Union
+from typing import Any, Callable, Dict, Iterable, List, Optional, Union
 
 from ..core.messages import Msg, as_dict
 
@@ -73,9 +73,14 @@ def error(
     return Finding(code, "error", message, advice, evidence)
 
 
-def worst_first(findings: Iterable[Finding]) -> List[Finding]:
-    """Errors, then warnings, then infos; the order within a severity is kept."""
-    return sorted(findings, key=lambda f: -_RANK[f.severity])
+def worst_first(
+    findings: Iterable[Any], severity: Optional[Callable[[Any], Any]] = None
+) -> List[Any]:
+    """Errors, then warnings, then infos; the order within a severity is kept. ``findings``:
+    Finding objects, or their dicts with ``severity=lambda d: d.get("severity")`` (an
+    unknown severity ranks as an info)."""
+    sev = severity or (lambda f: f.severity)
+    return sorted(findings, key=lambda f: -_RANK.get(sev(f), 0))
 
 
 def trusted(findings: Iterable[Finding]) -> bool:

@@ -353,11 +353,10 @@ def with_findings(result: Dict[str, Any], found: List[fnd.Finding]) -> Dict[str,
     if not found:
         return result
     out = dict(result)
-    rank = {s: i for i, s in enumerate(fnd.SEVERITIES)}
     for key, form in (("findings", fnd.Finding.to_dict), ("findings_i18n", fnd.Finding.to_wire)):
         if key in result or key == "findings":
             merged = list(result.get(key) or []) + [form(f) for f in found]
-            out[key] = sorted(merged, key=lambda d: -rank.get(d.get("severity"), 0))
+            out[key] = fnd.worst_first(merged, severity=lambda d: d.get("severity"))
     if any(f.severity == "error" for f in found):
         out["trusted"] = False
     return out

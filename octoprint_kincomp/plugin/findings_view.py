@@ -12,10 +12,8 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Tuple
 
-from ..ballbar.findings import SEVERITIES, Finding, from_notes
+from ..ballbar.findings import SEVERITIES, Finding, from_notes, worst_first
 from ..core.messages import Msg, as_dict
-
-_RANK = {s: i for i, s in enumerate(SEVERITIES)}
 
 
 def _text(value: Any) -> Dict[str, Any]:
@@ -30,7 +28,7 @@ def _wire(item: Any) -> Dict[str, Any]:
     if isinstance(item, Finding):
         return item.to_wire()
     if isinstance(item, dict):
-        severity = item.get("severity") if item.get("severity") in _RANK else "warning"
+        severity = item.get("severity") if item.get("severity") in SEVERITIES else "warning"
         return {
             "code": str(item.get("code") or "finding"),
             "severity": severity,
@@ -47,7 +45,7 @@ def findings_of(result: Dict[str, Any]) -> Tuple[List[Dict[str, Any]], bool]:
     items = result.get("findings_i18n") or result.get("findings")
     if items is None:
         items = from_notes(result.get("notes") or [])
-    wire = sorted((_wire(f) for f in items), key=lambda f: -_RANK[f["severity"]])
+    wire = worst_first((_wire(f) for f in items), severity=lambda f: f["severity"])
     trusted = result.get("trusted") is not False and not any(f["severity"] == "error" for f in wire)
     return wire, trusted
 
