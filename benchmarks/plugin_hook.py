@@ -33,7 +33,12 @@ def main() -> int:
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from octoprint_kincomp.engines import select
     from octoprint_kincomp.plugin.queue import FILE_TAG
-    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
+    from octoprint_kincomp.tools.benchmark import (
+        BENCH_PARAMS,
+        generate,
+        keep_best,
+        latency_figures,
+    )
     from tests.support.mocked_plugin import mocked_plugin
 
     tmp = tempfile.mkdtemp(prefix="kincomp-hook-")
@@ -59,21 +64,17 @@ def main() -> int:
                 samples["G1"].append(dt)
             elif line.startswith(("G2 ", "G3 ")):
                 samples["G2"].append(dt)
-        for kind, got in samples.items():
-            got.sort()
-            p50, p99 = got[len(got) // 2] / 1000, got[int(len(got) * 0.99)] / 1000
-            if kind not in best or p50 < best[kind][0]:
-                best[kind] = (p50, p99, len(got))
+        keep_best(best, {kind: latency_figures(got) for kind, got in samples.items()})
     rep = p.queue.comp.report
     print(
         f"engine: {select.engine()}; "
         f"{rep.moves_compensated} moves compensated, {rep.takeup_moves} take-ups, "
         f"{rep.arcs_kept} arcs kept, {rep.arcs_split} split"
     )
-    for kind, (p50, p99, n) in best.items():
+    for kind, f in best.items():
         print(
-            f"KinCompPlugin.queuing_hook, {kind} line: p50 {p50:.2f} us  p99 {p99:.2f} us "
-            f"({n} lines; best of {args.repeat} passes)"
+            f"KinCompPlugin.queuing_hook, {kind} line: p50 {f['p50_us']:.2f} us  "
+            f"p99 {f['p99_us']:.2f} us ({f['lines']} lines; best of {args.repeat} passes)"
         )
     return 0
 

@@ -7,8 +7,8 @@ that does strictly less than any compensator must: for each ``G0``/``G1`` line, 
 words, parse X/Y/Z, apply the benchmark model's affine inverse, write X/Y/Z with
 ``"%.3f"`` and copy the other words; every other line copied. No backlash, no limits, no
 trimmed zeros, no E or F handling, no modal state, no arcs. Whatever ratio it prints is a
-lower bound for a pure-Python path with the reference path's semantics (which also measures
-the reference path itself on the first ``--reference-lines`` lines).
+lower bound for a pure-Python path with the reference path's semantics. The reference path
+itself: ``python -m octoprint_kincomp bench --engine python --lines N``.
 
     .venv/bin/python benchmarks/python_floor.py [--lines N] [--repeat N]
 """
@@ -17,7 +17,6 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 
 
 def floor_copy(src: str, dst: str, rows) -> None:
@@ -58,7 +57,6 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--lines", type=int, default=500_000)
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--reference-lines", type=int, default=20_000)
     args = ap.parse_args()
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from octoprint_kincomp.core.kinematics import KinematicModel
@@ -68,29 +66,18 @@ def main() -> int:
         _paired,
         generate,
         plain_copy,
-        reference_compensate,
     )
 
     params = Params.from_dict(BENCH_PARAMS)
     rows = KinematicModel(params).inverse_rows
-    tmp = tempfile.mkdtemp(prefix="kincomp-floor-")
-    src, dst = os.path.join(tmp, "in.gcode"), os.path.join(tmp, "out.gcode")
-    n = generate(src, args.lines)
-    t_copy, t_floor = _paired(
-        lambda: plain_copy(src, dst), lambda: floor_copy(src, dst, rows), args.repeat
-    )
+    with tempfile.TemporaryDirectory(prefix="kincomp-floor-") as tmp:
+        src, dst = os.path.join(tmp, "in.gcode"), os.path.join(tmp, "out.gcode")
+        n = generate(src, args.lines)
+        t_copy, t_floor = _paired(
+            lambda: plain_copy(src, dst), lambda: floor_copy(src, dst, rows), args.repeat
+        )
     print(f"{n:,} lines: plain copy {t_copy:.3f} s, floor loop {t_floor:.3f} s")
     print(f"floor of a pure-Python path: {t_floor / t_copy:.1f}x a plain copy (target 12x)")
-    if args.reference_lines:
-        head = os.path.join(tmp, "head.gcode")
-        with open(src) as f, open(head, "w") as out:
-            lines = [line for _, line in zip(range(args.reference_lines), f)]
-            out.writelines(lines)
-        k = len(lines)
-        t0 = time.perf_counter()
-        reference_compensate(head, dst, params)
-        per_line = (time.perf_counter() - t0) / k
-        print(f"reference path, first {k:,} lines: {per_line * n / t_copy:.0f}x a plain copy")
     return 0
 
 

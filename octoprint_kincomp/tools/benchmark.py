@@ -256,11 +256,28 @@ def hook_latency(params: Params, lines, repeat: int = 1) -> dict:
     res: dict = {}
     for _ in range(repeat):
         figures, share = _hook_pass(params, lines)
-        for key, got in figures.items():
-            if key not in res or got["p50_us"] < res[key]["p50_us"]:
-                res[key] = got
+        keep_best(res, figures)
     res["takeup_share"] = share
     return res
+
+
+def latency_figures(ns: list) -> dict:
+    """p50, p99 and mean (us) and the count of per-line times ``ns`` (ns; sorted here)."""
+    ns.sort()
+    return {
+        "p50_us": ns[len(ns) // 2] / 1000.0,
+        "p99_us": ns[int(len(ns) * 0.99)] / 1000.0,
+        "mean_us": statistics.fmean(ns) / 1000.0,
+        "lines": len(ns),
+    }
+
+
+def keep_best(best: dict, figures: dict) -> None:
+    """Each entry of ``figures`` (:func:`latency_figures`) into ``best`` where ``best`` has
+    none yet or a higher p50 (the best of several passes)."""
+    for key, got in figures.items():
+        if key not in best or got["p50_us"] < best[key]["p50_us"]:
+            best[key] = got
 
 
 def _hook_pass(params: Params, lines):
@@ -289,14 +306,7 @@ def _hook_pass(params: Params, lines):
                 samples.append(dt)
             elif line.startswith(("G2 ", "G3 ")):
                 arcs.append(dt)
-        for key, got in ((name, samples), (name + "_arc", arcs)):
-            got.sort()
-            res[key] = {
-                "p50_us": got[len(got) // 2] / 1000.0,
-                "p99_us": got[int(len(got) * 0.99)] / 1000.0,
-                "mean_us": statistics.fmean(got) / 1000.0,
-                "lines": len(got),
-            }
+        res[name], res[name + "_arc"] = latency_figures(samples), latency_figures(arcs)
     return res, comp.report.takeup_moves / max(1, comp.report.moves_compensated)
 
 

@@ -7,14 +7,12 @@ import os
 from octoprint_kincomp.core.compensator import Compensator
 from octoprint_kincomp.core.kinematics import KinematicModel
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.tools.benchmark import BENCH_PARAMS
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCRIPT = os.path.join(HERE, "..", "..", "benchmarks", "python_floor.py")
 
-PARAMS = {
-    "squareness_um_per_m": {"xy": -3638.6, "xz": 150.0, "yz": -80.0},
-    "scale_ppm": {"x": -451.7, "y": 287.0, "z": 50.0},
-}
+PARAMS = {k: v for k, v in BENCH_PARAMS.items() if k != "backlash"}  # (the affine part)
 
 
 def _floor_copy():
