@@ -14,15 +14,15 @@ import numpy as np
 
 
 def main() -> int:
-    from octoprint_kincomp.ballbar.artifact_fit import analyse_artifact
-    from octoprint_kincomp.ballbar.artifact_program import (
+    from octoprint_kincomp.calibration.artifact.fit import analyse_artifact
+    from octoprint_kincomp.calibration.artifact.program import (
         ArtifactSpec,
         generate,
         read_measurements,
         read_program_info,
     )
-    from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
     from octoprint_kincomp.core.params import Params
+    from octoprint_kincomp.simulator.artifact import simulate_readings
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=500)

@@ -17,12 +17,12 @@ from octoprint_kincomp.tools.benchmark import _time as best
 
 
 def main() -> int:
-    from octoprint_kincomp.ballbar.analysis import analyse
-    from octoprint_kincomp.ballbar.campaign import plan_campaign
-    from octoprint_kincomp.ballbar.campaign_analysis import analyse_campaign
-    from octoprint_kincomp.ballbar.motion import MotionSettings, plan_program
-    from octoprint_kincomp.ballbar.program import TestSpec, generate
-    from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
+    from octoprint_kincomp.calibration.ballbar.analysis import analyse
+    from octoprint_kincomp.calibration.ballbar.campaign import plan_campaign
+    from octoprint_kincomp.calibration.ballbar.campaign_analysis import analyse_campaign
+    from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
+    from octoprint_kincomp.firmware.planner import MotionSettings, plan_program
+    from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=3)

@@ -32,13 +32,8 @@ def main() -> int:
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from octoprint_kincomp.engines import select
-    from octoprint_kincomp.plugin.queue import FILE_TAG
-    from octoprint_kincomp.tools.benchmark import (
-        BENCH_PARAMS,
-        generate,
-        keep_best,
-        latency_figures,
-    )
+    from octoprint_kincomp.service.printing.queue import FILE_TAG
+    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate, keep_best, latency_figures
     from tests.support.mocked_plugin import mocked_plugin
 
     tmp = tempfile.mkdtemp(prefix="kincomp-hook-")

@@ -61,12 +61,7 @@ def main() -> int:
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from octoprint_kincomp.core.kinematics import KinematicModel
     from octoprint_kincomp.core.params import Params
-    from octoprint_kincomp.tools.benchmark import (
-        BENCH_PARAMS,
-        _paired,
-        generate,
-        plain_copy,
-    )
+    from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, _paired, generate, plain_copy
 
     params = Params.from_dict(BENCH_PARAMS)
     rows = KinematicModel(params).inverse_rows

@@ -39,9 +39,9 @@ from octoprint_kincomp.core.compensator import Compensator, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import select
-from octoprint_kincomp.engines.files import compensate_binary, marker_line
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
 from octoprint_kincomp.engines.select import make_compensator
-from octoprint_kincomp.plugin.queue import FILE_TAG, QueueCompensator
+from octoprint_kincomp.service.printing.queue import FILE_TAG, QueueCompensator
 from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
 from octoprint_kincomp.tools.line_path import compensate_lines
 

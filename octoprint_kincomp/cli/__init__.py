@@ -1,10 +1,10 @@
 """Command line: ``python -m octoprint_kincomp <command> ...``.
 
-One module per verb group: :mod:`.files` (``compensate``, ``params``, ``firmware``),
-:mod:`.ballbar` (``program``, ``simulate``, ``analyze``, ``closed-loop``, ``artifact``),
-:mod:`.sensor` (``sensor-ports``, ``sensor-capture``, ``sensor-trace``, ``sensor-virtual``);
-``bench`` and ``demo-server`` hand over to the developer tools. Errors are reported in one
-line on stderr with a non-zero exit status.
+One module per verb group: :mod:`.file_commands` (``compensate``, ``params``, ``firmware``),
+:mod:`.calibration_commands` (``program``, ``simulate``, ``analyze``, ``closed-loop``,
+``artifact``), :mod:`.sensor_commands` (``sensor-ports``, ``sensor-capture``, ``sensor-trace``,
+``sensor-virtual``); ``bench`` and ``demo-server`` hand over to the developer tools. Errors are
+reported in one line on stderr with a non-zero exit status.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import argparse
 import sys
 from typing import Optional, Sequence
 
-from .ballbar import add_ballbar_commands
+from .calibration_commands import add_ballbar_commands
 from .common import EXIT_ERROR, EXIT_OK, CliError
-from .files import add_file_commands
-from .sensor import add_sensor_commands
+from .file_commands import add_file_commands
+from .sensor_commands import add_sensor_commands
 
 
 def build_parser() -> argparse.ArgumentParser:

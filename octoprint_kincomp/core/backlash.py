@@ -1,6 +1,6 @@
 """Backlash state machine: per-axis travel direction and the take-up offset to command.
 
-Physical model (the simulator's play, ``ballbar/sim/play.py``, is the same): an axis with
+Physical model (the simulator's play, ``simulator/play.py``, is the same): an axis with
 lost motion ``b`` (um) behaves like a play of width ``b``; while the drive moves in
 +direction the carriage lags ``b/2`` behind it, while it moves in -direction the carriage is
 ``b/2`` ahead. ``b`` may depend on the axis position (the ballbar's per-side values), so the

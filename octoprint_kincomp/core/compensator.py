@@ -37,7 +37,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 
 from .arcpath import ArcWriter
 from .backlash import DEFAULT_DEADBAND_MM, BacklashTracker, deadband_for
-from .errors import CompensationError, LimitError
+from .compensation_errors import CompensationError, LimitError
 from .gcode import parse_command, parse_words
 from .gcode_table import (
     ARC,

@@ -1,10 +1,10 @@
 """The one table of what a G-code command does to the printer's state, by its code.
 
-Every place that must know whether a line moves, re-frames, homes, changes tools or is inert
-asks :func:`classify`: the reference compensator's dispatch (``compensator.py``), the
-simulator's firmware interpreter (``ballbar/sim/machine.py``) and the queue's check of which
-lines make a position report stale (``plugin/queue.py``). An accelerated engine that decides
-on its own which lines it takes is held against the table by :func:`check_engine`.
+Every place that must know whether a line moves, re-frames, homes, changes tools or is inert asks
+:func:`classify`: the reference compensator's dispatch (``compensator.py``), the simulator's
+firmware interpreter (``firmware/interpreter.py``) and the queue's check of which lines make a
+position report stale (``service/printing/queue.py``). An accelerated engine that decides on its own
+which lines it takes is held against the table by :func:`check_engine`.
 
 A code is its letter, number and sub-code (``G92.1``: ``("G", 92, 1)``; ``sub`` None
 without a dot). The classes, by group:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import List, Optional, Tuple
 
-from .errors import CompensationError, LimitError
+from .compensation_errors import CompensationError, LimitError
 from .gcode import Word, decimals_of, fmt
 
 AXIS_LETTERS = ("X", "Y", "Z")

@@ -10,7 +10,7 @@ An engine (today the one compiled kernel, ``engines/kernel.py``) serves one
 * ``feed(buf, pos) -> (out, stop)``: the complete lines of a block of a file (bytes) from
   ``pos`` on, compensated into ``out`` (bytes, endings kept), up to the first line it does
   not take, which starts at ``stop`` (``len(buf)``: all taken); the caller runs that line
-  through ``Compensator.process`` and feeds on after it (``engines/files.py`` FileEngine).
+  through ``Compensator.process`` and feeds on after it (``engines/file_loop.py`` FileEngine).
 * ``release()``: the stream state back into the compensator's :class:`StreamState`.
 
 The engine owns the stream state while it takes lines, and hands it back (once, however

@@ -1,8 +1,8 @@
-"""The OctoPrint side: the plugin class (``kincomp_plugin``, start reading there) and its
-pieces (settings store, print state, firmware check, demo mode, the endpoints, background
-jobs and their worker process, notifications). Only this floor imports OctoPrint; the
-plugin class is imported on first use, so that the worker process (``worker``, which
-imports no OctoPrint) can start from this package without loading OctoPrint."""
+"""The OctoPrint boundary: the plugin class (``kincomp_plugin``, start reading there), the
+request helpers (``http``) and, one room per page of the manual, what needs OctoPrint or
+Flask (``printing``, ``files``, ``calibration``, ``capture``, ``settings``); what does not is
+in ``service/``. The plugin class is imported on first use, so that importing this package
+loads no OctoPrint."""
 
 __all__ = ["KinCompPlugin", "plugin_hooks"]
 

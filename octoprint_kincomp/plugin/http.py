@@ -1,6 +1,10 @@
 """Small helpers for KinComp's HTTP endpoints, used within a Flask request.
 
-JSON error responses (``{"error": message}`` with a status code), the JSON body, boolean
+Routes are declared where they are handled: ``@route(rule, method, needs=(...))`` on a
+method of a feature's piece marks it as the view of ``rule`` and guards it with the
+OctoPrint permissions it needs (403 otherwise, checked before the method runs, also when it
+is called directly); :func:`register` adds a piece's routes to the plugin's blueprint.
+Besides: JSON error responses (``{"error": message}`` with a status code), the JSON body, boolean
 flags, permission checks (403), texts in the requesting user's language, and the
 permission KinComp adds to OctoPrint (``PLUGIN_KINCOMP_ADMIN``).
 """
@@ -8,15 +12,17 @@ permission KinComp adds to OctoPrint (``PLUGIN_KINCOMP_ADMIN``).
 from __future__ import annotations
 
 import errno
+import functools
 import math
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import flask
 from flask_babel import gettext
 from octoprint.access import ADMIN_GROUP
+from octoprint.access.permissions import Permissions
 
 from ..core.messages import as_dict, error_message, translate
-from .notify import N_
+from ..service.notify import N_
 
 
 def permissions() -> List[Dict[str, Any]]:
@@ -239,8 +245,6 @@ def choice(data: Dict[str, Any], key: str, choices, default: str) -> str:
 def current_user() -> Tuple[Optional[str], bool]:
     """(name, has KinComp's admin permission) of the requesting user; (None, False) where
     there is none (no login, no request)."""
-    from octoprint.access.permissions import Permissions
-
     try:
         import flask_login
 
@@ -261,6 +265,58 @@ def require(permission) -> None:
         flask.abort(403)
 
 
+# the permissions a route may need, by their names in OctoPrint's Permissions (KinComp's own
+# is registered by the permissions hook, after this module is imported: looked up per request)
+PLUGIN_KINCOMP_ADMIN = "PLUGIN_KINCOMP_ADMIN"
+STATUS = "STATUS"
+FILES_LIST = "FILES_LIST"
+FILES_UPLOAD = "FILES_UPLOAD"
+
+
+class Route(NamedTuple):
+    rule: str  # Flask's rule, relative to /plugin/kincomp
+    method: str  # GET, POST, DELETE
+    needs: Tuple[str, ...]  # names in OctoPrint's Permissions, each required
+
+
+def route(rule: str, method: str, needs: Sequence[str]) -> Callable:
+    """Declares a piece's method the view of ``rule`` (``method``), allowed only to a user
+    with every permission of ``needs`` (names of :data:`PLUGIN_KINCOMP_ADMIN`, :data:`STATUS`
+    ...); the check runs before the method whichever way it is called."""
+
+    def mark(fn):
+        @functools.wraps(fn)
+        def guarded(*args, **kwargs):
+            for name in needs:
+                require(getattr(Permissions, name))
+            return fn(*args, **kwargs)
+
+        guarded.kincomp_route = Route(rule, method, tuple(needs))
+        return guarded
+
+    return mark
+
+
+def routes_of(piece: Any) -> List[Tuple[Route, Callable]]:
+    """(route, bound view) of every method of ``piece`` declared with :func:`route`."""
+    out = []
+    for name in dir(type(piece)):
+        declared = getattr(getattr(type(piece), name, None), "kincomp_route", None)
+        if declared is not None:
+            out.append((declared, getattr(piece, name)))
+    return sorted(out, key=lambda rv: (rv[0].rule, rv[0].method))
+
+
+def register(blueprint, piece: Any) -> None:
+    """Adds the routes of ``piece`` to ``blueprint`` (each endpoint named by the piece's
+    class and method)."""
+    for declared, view in routes_of(piece):
+        endpoint = f"{type(piece).__name__}_{view.__name__}"
+        blueprint.add_url_rule(
+            declared.rule, endpoint=endpoint, view_func=view, methods=[declared.method]
+        )
+
+
 def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
     """403 if the request changes where KinComp's updates come from (the archive pip will
     install as OctoPrint's admin) without OctoPrint's own permission to configure software
@@ -268,7 +324,7 @@ def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):
     plugin is disabled (its permission is unknown then); None otherwise."""
     if old.get("software_update") == new.get("software_update"):
         return None
-    from octoprint.access.permissions import Permissions, UnknownPermission
+    from octoprint.access.permissions import UnknownPermission
 
     try:  # (even the truth of an unknown plugin permission raises: no "or" here)
         needed = getattr(Permissions, "PLUGIN_SOFTWAREUPDATE_CONFIGURE", None)

@@ -1,24 +1,23 @@
 """KinComp's OctoPrint plugin class: a thin composition of the pieces of this package.
 
 OctoPrint's mixin calls, hooks, events and routes arrive here and are handed on; the work
-is done by the pieces, which import neither this module nor each other in a circle:
+is done by the pieces, one room per page of the manual, in ``plugin/`` where they need
+OctoPrint or Flask and in ``service/`` where they do not:
 
-* ``settings_store``  the stored settings (read, validated, migrated, saved, applied to the
-                      queue) and the guard on OctoPrint's settings endpoint
-* ``queue``           the compensator as the queuing hook sees it
-* ``print_state``     the connection and the print on it (begins, ends, pause after an error)
-* ``firmware_check``  the firmware's own compensation (double compensation)
-* ``demo_mode``       the virtual ballbar in demo mode
-* ``sensor_api``      the live ballbar sensor: preview, arming, the end of a capture
-                      (``sensor_runs`` stores it as a run)
-* ``settings_api``, ``calibration_api``, ``files_api``  the endpoints (``files_api`` also
-                      the background jobs of ``jobs``, run in the low-priority process of
-                      ``worker``, answered through ``job_api``, and the upload
-                      preprocessor)
-* ``campaign_api``    the campaign endpoints (``campaigns``: their store;
-                      ``campaign_measure``: a trace as a campaign test's measurement)
-* ``notify``          notifications, plugin messages and custom events; ``http`` request
-                      helpers and the permission KinComp adds
+* settings     ``plugin/settings``: the stored settings (read, validated against
+               ``service/settings/schema.py``, migrated, saved, applied to the queue), their
+               endpoints and the motion limits read from the printer
+* printing     ``service/printing``: the compensator as the queuing hook sees it, the
+               firmware's own compensation, the speed factor; ``plugin/printing``: the
+               connection and the print on it (begins, ends, pause after an error)
+* files        ``plugin/files``: the files endpoints, the upload preprocessor and the jobs
+               endpoints over ``service/files`` (background jobs in a low-priority worker)
+* calibration  ``plugin/calibration``: tests, the history, campaigns and the artifact over
+               ``service/calibration`` (the run and campaign stores, demo mode)
+* capture      ``plugin/capture``: the live ballbar sensor (preview, arming, the end of a
+               capture), stored as a run by ``service/capture``
+* ``service/notify.py`` notifications, plugin messages and custom events; ``http`` request
+  helpers and the permission KinComp adds
 """
 
 from __future__ import annotations
@@ -36,30 +35,28 @@ from ..core.compensator import Options
 from ..core.params import Params
 from ..core.version import VERSION
 from ..engines.select import engine
+from ..service.calibration.campaign_measure import CampaignMeasurements
+from ..service.calibration.campaign_store import CampaignStore
+from ..service.calibration.demo_mode import DemoMode, lines_as_sent
+from ..service.calibration.run_store import RunStore
+from ..service.capture.capture_recorder import CaptureRecorder
+from ..service.notify import CUSTOM_EVENTS, N_, Notifier
+from ..service.printing.firmware_check import FirmwareCheck
+from ..service.printing.firmware_watch import FirmwareWatcher
+from ..service.printing.queue import FILE_TAG, HOME_QUERY, QueueCompensator
+from ..service.printing.speed_factor import held_back
+from ..service.settings.schema import SETTINGS_VERSION, defaults
+from ..service.settings.software_update import check_config
 from . import http
-from .artifact_api import ArtifactApi
-from .calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
-from .campaign_api import CampaignApi
-from .campaign_measure import CampaignMeasurements
-from .campaigns import CampaignStore
-from .demo_mode import DemoMode, lines_as_sent
-from .files_api import FilesApi
-from .firmware_check import FirmwareCheck
-from .firmware_watch import FirmwareWatcher
-from .motion_limits import LimitsCapture
-from .notify import CUSTOM_EVENTS, N_, Notifier
-from .print_state import PRINT_EVENTS, PrintState
-from .queue import FILE_TAG, HOME_QUERY, QueueCompensator
-from .runs import RunStore
-from .sensor_api import SensorApi
-from .sensor_runs import CaptureRecorder
-from .settings import SETTINGS_VERSION, defaults
-from .settings_api import SettingsApi
-from .settings_store import SettingsStore
-from .software_update import check_config
-from .speed_factor import held_back
-
-route = octoprint.plugin.BlueprintPlugin.route
+from .calibration.artifact_api import ArtifactApi
+from .calibration.calibration_api import MAX_TRACE_UPLOAD, CalibrationApi
+from .calibration.campaign_api import CampaignApi
+from .capture.sensor_api import SensorApi
+from .files.files_api import FilesApi
+from .printing.print_state import PRINT_EVENTS, PrintState
+from .settings.limits_capture import LimitsCapture
+from .settings.settings_api import SettingsApi
+from .settings.settings_store import SettingsStore
 
 
 class KinCompPlugin(
@@ -352,164 +349,41 @@ class KinCompPlugin(
         elif event == Events.FILE_ADDED:
             self.files.file_added(payload)
 
-    # ~~ API (each route hands on to its piece) ----------------------------------------------
+    # ~~ API (each piece declares its own routes: http.route) ------------------------------
     def is_blueprint_protected(self):
         return True
 
     def is_blueprint_csrf_protected(self):
         return True
 
-    @route("/status", methods=["GET"])
-    def api_status(self):
-        return self.settings_api.status()
+    def routed_pieces(self):
+        """The pieces whose methods serve KinComp's routes."""
+        return [
+            self.settings_api,
+            self.limits,
+            self.calibration,
+            self.artifact,
+            self.campaign,
+            self.sensor,
+            self.files,
+            self.files.job_api,
+        ]
 
-    @route("/settings", methods=["POST"])
-    def api_settings(self):
-        return self.settings_api.save()
-
-    @route("/limits/read", methods=["POST"])
-    def api_limits_read(self):
-        return self.limits.read_request()
-
-    @route("/program", methods=["POST"])
-    def api_program(self):
-        return self.calibration.program()
-
-    @route("/demo/trace", methods=["GET"])
-    def api_demo_trace(self):
-        return self.calibration.demo_trace()
-
-    @route("/trace", methods=["POST"])
-    def api_trace(self):
-        return self.calibration.trace()
-
-    @route("/analyze", methods=["POST"])
-    def api_analyze(self):
-        return self.calibration.analyze()
-
-    @route("/apply", methods=["POST"])
-    def api_apply(self):
-        return self.calibration.apply()
-
-    @route("/artifact/program", methods=["POST"])
-    def api_artifact_program(self):
-        return self.artifact.program()
-
-    @route("/artifact/sheet", methods=["GET"])
-    def api_artifact_sheet(self):
-        return self.artifact.sheet()
-
-    @route("/artifact/analyze", methods=["POST"])
-    def api_artifact_analyze(self):
-        return self.artifact.analyze()
-
-    @route("/runs", methods=["GET"])
-    def api_runs(self):
-        return self.calibration.runs()
-
-    @route("/runs/<run_id>", methods=["GET"])
-    def api_run(self, run_id):
-        return self.calibration.run(run_id)
-
-    @route("/runs/<run_id>/trace", methods=["GET"])
-    def api_run_trace(self, run_id):
-        return self.calibration.run_trace(run_id)
-
-    @route("/compare", methods=["GET"])
-    def api_compare(self):
-        return self.calibration.compare()
-
-    @route("/sensor/status", methods=["GET"])
-    def api_sensor_status(self):
-        return self.sensor.status()
-
-    @route("/sensor/live", methods=["GET"])
-    def api_sensor_live(self):
-        return self.sensor.live()
-
-    @route("/sensor/ports", methods=["GET"])
-    def api_sensor_ports(self):
-        return self.sensor.ports()
-
-    @route("/sensor/open", methods=["POST"])
-    def api_sensor_open(self):
-        return self.sensor.open()
-
-    @route("/sensor/close", methods=["POST"])
-    def api_sensor_close(self):
-        return self.sensor.close()
-
-    @route("/sensor/arm", methods=["POST"])
-    def api_sensor_arm(self):
-        return self.sensor.arm()
-
-    @route("/sensor/stop", methods=["POST"])
-    def api_sensor_stop(self):
-        return self.sensor.stop()
-
-    @route("/runs/<run_id>/raw", methods=["GET"])
-    def api_run_raw(self, run_id):
-        return self.sensor.raw(run_id)
-
-    @route("/campaign/plan", methods=["POST"])
-    def api_campaign_plan(self):
-        return self.campaign.plan()
-
-    @route("/campaigns", methods=["GET"])
-    def api_campaigns(self):
-        return self.campaign.list()
-
-    @route("/campaigns/<cid>", methods=["GET"])
-    def api_campaign(self, cid):
-        return self.campaign.get(cid)
-
-    @route("/campaigns/<cid>/steps/<int:n>/program", methods=["POST"])
-    def api_campaign_program(self, cid, n):
-        return self.campaign.program(cid, n)
-
-    @route("/campaigns/<cid>/steps/<int:n>/trace", methods=["POST"])
-    def api_campaign_trace(self, cid, n):
-        return self.campaign.trace(cid, n)
-
-    @route("/campaigns/<cid>/analyze", methods=["POST"])
-    def api_campaign_analyze(self, cid):
-        return self.campaign.analyze(cid)
-
-    @route("/campaigns/<cid>", methods=["DELETE"])
-    def api_campaign_delete(self, cid):
-        return self.campaign.delete(cid)
-
-    @route("/campaigns/<cid>/apply", methods=["POST"])
-    def api_campaign_apply(self, cid):
-        return self.campaign.apply(cid)
-
-    @route("/dryrun", methods=["GET"])
-    def api_dryrun(self):
-        return self.files.dryrun()
-
-    @route("/jobs/<job_id>", methods=["GET"])
-    def api_job(self, job_id):
-        return self.files.job_api.job(job_id)
-
-    @route("/jobs/<job_id>/cancel", methods=["POST"])
-    def api_job_cancel(self, job_id):
-        return self.files.job_api.cancel(job_id)
+    def get_blueprint(self):
+        if hasattr(self, "_blueprint"):
+            return self._blueprint
+        blueprint = super().get_blueprint()  # the error handlers declared below
+        for piece in self.routed_pieces():
+            http.register(blueprint, piece)
+        return blueprint
 
     @octoprint.plugin.BlueprintPlugin.errorhandler(http.BadRequest)
-    def api_bad_request(self, exc):
+    def bad_request_handler(self, exc):
         return http.bad_request(exc)
 
     @octoprint.plugin.BlueprintPlugin.errorhandler(OSError)
-    def api_os_error(self, exc):
+    def os_error_handler(self, exc):
         return http.os_error(exc)  # disk full: 507
-
-    @route("/compensate", methods=["POST"])
-    def api_compensate(self):
-        return self.files.compensate()
-
-    @route("/files", methods=["GET"])
-    def api_files(self):
-        return self.files.files()
 
 
 def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:

@@ -3,13 +3,13 @@
 Readings are the change of bar length in mm, positive = bar longer, everywhere inside this
 floor; times are in s. Modules, bottom up:
 
-* :mod:`.errors` (SensorError), :mod:`.convention` (units and sign), :mod:`.lines` (bounded
-  line splitting), :mod:`.diagnostics` (fault counts and limits);
+* :mod:`.sensor_error` (SensorError), :mod:`.convention` (units and sign), :mod:`.line_splitter`
+  (bounded line splitting), :mod:`.diagnostics` (fault counts and limits);
 * the protocol parsers, fed bytes, returning samples: :mod:`.parsing` (shared),
   :mod:`.protocol_kincomp` (KinComp's own line protocol, device clock),
   :mod:`.protocol_plain` (one number a line, host time), :mod:`.protocol_pattern` (a regular
   expression and a scale); :mod:`.config` (the validated settings, and the parser they make);
-* :mod:`.retime` (host arrival times -> sample times), :mod:`.runs` (runs, dwells and
+* :mod:`.retime` (host arrival times -> sample times), :mod:`.run_detection` (runs, dwells and
   feed-in/out found in the data), :mod:`.stream` (raw stream <-> native trace);
 * :mod:`.live` (current reading, moving chart, noise), :mod:`.ports` (list and open ports),
   :mod:`.capture` (the capture thread and its states), :mod:`.virtual` (a SIMULATED sensor on
@@ -18,8 +18,8 @@ floor; times are in s. Modules, bottom up:
 
 from .capture import STATES, Capture, CaptureResult
 from .config import PROTOCOLS, SensorConfig
-from .errors import SensorError
 from .ports import list_ports
+from .sensor_error import SensorError
 from .stream import RawStream, parse_raw_stream, trace_from_stream
 
 __all__ = [

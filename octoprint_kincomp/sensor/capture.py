@@ -41,14 +41,14 @@ from typing import Callable, Dict, List, Optional
 
 import numpy as np
 
-from ..ballbar.formats import NativeTrace
-from ..ballbar.program import TestSpec
+from ..calibration.ballbar.formats import NativeTrace
+from ..calibration.ballbar.program import TestSpec
 from ..core.messages import Msg
 from .config import SensorConfig
-from .errors import SensorError
 from .live import LiveView
 from .ports import open_port, read_some
-from .runs import detect_runs, program_seconds
+from .run_detection import detect_runs, program_seconds
+from .sensor_error import SensorError
 from .stream import RawStream, trace_from_stream
 
 IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED = (

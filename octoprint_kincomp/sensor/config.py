@@ -18,11 +18,11 @@ from typing import Any, Dict
 from ..core.messages import Msg
 from .convention import Convention
 from .diagnostics import Diagnostics
-from .errors import SensorError
 from .parsing import Parser, parse_range
 from .protocol_kincomp import KinCompParser
 from .protocol_pattern import PatternParser, check_scale, compile_pattern
 from .protocol_plain import PlainParser
+from .sensor_error import SensorError
 
 PROTOCOLS = ("kincomp", "plain", "pattern")
 BAUDRATES = (

@@ -1,9 +1,9 @@
 """Units and sign of a sensor's readings, and their conversion to KinComp's convention.
 
 Inside KinComp a reading is the change of bar length in **mm, positive = bar longer** (the
-convention of the native trace format, ``ballbar/formats.py``). A sensor may send mm, um or
-inch, and may read positive when the bar gets shorter (a dial indicator pushed in by a
-shortening bar does). :class:`Convention` says which, and :meth:`Convention.to_mm` converts.
+convention of the native trace format, ``calibration/ballbar/formats.py``). A sensor may send mm, um
+or inch, and may read positive when the bar gets shorter (a dial indicator pushed in by a shortening
+bar does). :class:`Convention` says which, and :meth:`Convention.to_mm` converts.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..core.messages import Msg
-from .errors import SensorError
+from .sensor_error import SensorError
 
 UNITS = {"mm": 1.0, "um": 1e-3, "inch": 25.4}  # mm per unit
 POSITIVE = ("longer", "shorter")  # what a positive reading means

@@ -2,7 +2,7 @@
 
 A parser is fed the bytes as they arrive with the host time of their arrival
 (:meth:`Parser.feed`), and returns the complete samples they hold. It never blocks and keeps
-bounded memory (:mod:`.lines`). A :class:`Sample` holds
+bounded memory (:mod:`.line_splitter`). A :class:`Sample` holds
 
 * ``t`` (s): the device's own clock (KinComp protocol), or the host's arrival time (plain and
   pattern protocols; see :mod:`.retime` for how those are re-timed);
@@ -26,8 +26,8 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 from ..core.messages import Msg
 from .convention import Convention
 from .diagnostics import Diagnostics
-from .errors import SensorError
-from .lines import DEFAULT_MAX_LINE, LineSplitter
+from .line_splitter import DEFAULT_MAX_LINE, LineSplitter
+from .sensor_error import SensorError
 
 NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 NOT_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.IGNORECASE)

@@ -16,7 +16,7 @@ import errno
 from typing import Dict, List
 
 from ..core.messages import Msg
-from .errors import SensorError
+from .sensor_error import SensorError
 
 READ_TIMEOUT_S = 0.1  # device paths: wait this long for a first byte, then take the rest
 URL_TIMEOUT_S = 0.01  # network URLs: read whatever arrived within this time

@@ -38,8 +38,8 @@ from typing import Optional
 
 from ..core.messages import Msg
 from .convention import UNITS, Convention
-from .errors import SensorError
 from .parsing import BadLine, Parser, Sample, parse_number, parse_range
+from .sensor_error import SensorError
 
 NAME = "KINCOMP-BALLBAR"
 VERSION = 1

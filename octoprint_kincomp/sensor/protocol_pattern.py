@@ -22,8 +22,8 @@ import re
 from typing import Optional, Pattern
 
 from ..core.messages import Msg
-from .errors import SensorError
 from .parsing import BadLine, Parser, Sample, parse_number
+from .sensor_error import SensorError
 
 MAX_PATTERN = 200
 

@@ -12,10 +12,10 @@ clock or the host's arrival clock as ``timing`` says; reading in mm, positive = 
     0.000000,1.0004120,17
 
 :func:`trace_from_stream` re-times host-stamped samples (:mod:`.retime`), finds the runs
-(:mod:`.runs`) and returns the ``ballbar/formats.py`` :class:`NativeTrace` the analysis reads
-(rows ``direction,time_s,reading_mm``, the program's metadata plus the sensor's). The same
-function serves the live capture and an offline re-run of a saved raw stream, so both give
-the same trace.
+(:mod:`.run_detection`) and returns the ``calibration/ballbar/formats.py`` :class:`NativeTrace` the
+analysis reads (rows ``direction,time_s,reading_mm``, the program's metadata plus the sensor's). The
+same function serves the live capture and an offline re-run of a saved raw stream, so both give the
+same trace.
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
-from ..ballbar.formats import NativeTrace, TraceError
-from ..ballbar.program import TestSpec
+from ..calibration.ballbar.formats import NativeTrace, TraceError
+from ..calibration.ballbar.program import TestSpec
 from ..core.messages import Msg
-from .errors import SensorError
 from .retime import retime
-from .runs import Detection, detect_runs, explain_failure
+from .run_detection import Detection, detect_runs, explain_failure
+from .sensor_error import SensorError
 
 RAW_HEADER = "time_s,reading_mm,line"
 RAW_KIND = "ballbar raw stream"

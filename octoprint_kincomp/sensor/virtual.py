@@ -8,7 +8,7 @@ in real time or ``speedup`` times faster, so that KinComp reads it exactly as a 
 printer receives them: comments stripped, line numbers, compensated or not) and the host time
 (``time.monotonic()``) at which the printer starts on them (a time that passed while the
 simulator ran is replaced by the next sample: the program starts late rather than
-skipping). The readings come from the ballbar simulator (``ballbar/simulator.py``, with the
+skipping). The readings come from the ballbar simulator (``simulator/printer.py``, with the
 printer's hidden errors of ``truth``): sample ``n`` of the simulated program goes out at
 ``start_time + n / (rate * speedup)`` with
 device clock ``n / rate`` after the program start. Before the program and after it, the bar
@@ -32,10 +32,10 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from ..ballbar.demo import demo_truth
-from ..ballbar.formats import NativeTrace
-from ..ballbar.program import TestSpec
-from ..ballbar.simulator import Truth, simulate_program
+from ..calibration.ballbar.formats import NativeTrace
+from ..calibration.ballbar.program import TestSpec
+from ..simulator.demo import demo_truth
+from ..simulator.printer import Truth, simulate_program
 from .convention import UNITS
 from .protocol_kincomp import NAME, US32, VERSION
 

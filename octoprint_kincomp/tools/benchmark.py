@@ -157,7 +157,7 @@ def reference_compensate(src: str, dst: str, params: Params, max_lines: Optional
     """The straightforward path: every line through the reference compensator."""
     from ..core.compensator import Compensator
     from ..core.marker import ENCODING, ERRORS
-    from ..engines.files import marker_line
+    from ..engines.file_loop import marker_line
     from .line_path import compensate_lines
 
     comp = Compensator(params)  # no accelerated engine: the reference path
@@ -188,7 +188,7 @@ def verify(
 ) -> dict:
     """Compare each file engine (or ``only`` that one) with the reference path line for
     line."""
-    from ..engines.files import compensate_file
+    from ..engines.file_loop import compensate_file
 
     part = src
     if max_lines is not None:
@@ -225,7 +225,7 @@ def _child_rss(src: str, dst: str, params_json: str, engine: str) -> dict:
     code = (
         "import json,sys\n"
         "from octoprint_kincomp.core.params import Params\n"
-        "from octoprint_kincomp.engines.files import compensate_file\n"
+        "from octoprint_kincomp.engines.file_loop import compensate_file\n"
         "p=Params.from_json(sys.argv[3])\n"
         "def status(key):\n"
         "    for l in open('/proc/self/status'):\n"
@@ -285,7 +285,7 @@ def _hook_pass(params: Params, lines):
     take-up."""
     from ..core.compensator import Options
     from ..engines.select import make_compensator
-    from ..plugin.queue import FILE_TAG, QueueCompensator
+    from ..service.printing.queue import FILE_TAG, QueueCompensator
 
     comp = make_compensator(params)
     queue = QueueCompensator(params, Options(), enabled=True)
@@ -340,9 +340,9 @@ def serial_estimate(path: str, params: Params, options) -> dict:
     time the lines sent (the busiest second and the 99th percentile), and the link's
     lines/s for the file's mean line length (8N1: baud / 10 bytes/s, plus the sender's
     line number and checksum)."""
-    from ..ballbar.sim.machine import FirmwareInterpreter, Move
     from ..core.compensator import Compensator
     from ..core.gcode import split_comment
+    from ..firmware.interpreter import FirmwareInterpreter, Move
 
     fw = FirmwareInterpreter()
     comp = Compensator(params, options)
@@ -380,7 +380,7 @@ def a1_figures(path: str = A1_FILE) -> Optional[dict]:
     of XY squareness, arcs kept and linearised (as before arcs were kept), and the serial-link
     estimate for both at 200 um/m."""
     from ..core.compensator import Options
-    from ..engines.files import compensate_file
+    from ..engines.file_loop import compensate_file
 
     if not os.path.exists(path):
         return None
@@ -428,7 +428,7 @@ def run(
     only: Optional[str] = None,
 ) -> dict:
     """The figures of every engine (or of ``only`` that one: ``"compiled"``, ``"python"``)."""
-    from ..engines.files import compensate_file
+    from ..engines.file_loop import compensate_file
 
     params = Params.from_dict(BENCH_PARAMS)
     tmp = workdir or tempfile.mkdtemp(prefix="kincomp-bench-")

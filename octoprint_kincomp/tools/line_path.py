@@ -1,5 +1,5 @@
 """The line path: a G-code text stream through ``Compensator.process`` one line at a time,
-without the file loop (``engines/files.py``). It is the oracle the benchmark's check and the
+without the file loop (``engines/file_loop.py``). It is the oracle the benchmark's check and the
 tests hold the file loop (and so the compiled kernel's blocks) to; nothing that compensates
 for a user runs it."""
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 from typing import Iterable, Iterator, Optional
 
 from ..core.compensator import Compensator
-from ..core.lines import join_output, split_ending
+from ..core.line_endings import join_output, split_ending
 from ..core.marker import MARKER_SCAN_LINES, find_marker
-from ..engines.files import AlreadyCompensated
+from ..engines.file_loop import AlreadyCompensated
 
 
 def compensate_lines(

@@ -9,9 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.artifact_program import read_measurements
-from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
+from octoprint_kincomp.calibration.artifact.program import read_measurements
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.artifact import simulate_readings
 from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step, browser, page  # noqa: F401 - the fixtures
 from tests.support.serverutil import settings, status
 

@@ -6,8 +6,8 @@ import os
 import pytest
 
 from octoprint_kincomp import __plugin_url__, __version__
-from octoprint_kincomp.core.firmware import export
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.firmware.export import export
 from tests.browser.test_ui import SHOTS, ZERO, _open_settings, _open_tab, browser, page  # noqa: F401
 from tests.support.serverutil import settings
 

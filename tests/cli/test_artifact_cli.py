@@ -1,15 +1,15 @@
 """``artifact program`` and ``artifact analyze`` (issue 27); the older ``artifact
---diagonals/--length`` form stays (tests/ballbar/test_analysis.py::test_artifact_route)."""
+--diagonals/--length`` form stays (tests/calibration/test_analysis.py::test_artifact_route)."""
 
 import json
 
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.artifact_program import read_measurements
-from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
+from octoprint_kincomp.calibration.artifact.program import read_measurements
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.artifact import simulate_readings
 
 TRUTH = Params.from_dict(
     {

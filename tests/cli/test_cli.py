@@ -10,7 +10,7 @@ import pytest
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.core.kinematics import changes_nothing
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.files import marker_line
+from octoprint_kincomp.engines.file_loop import marker_line
 from tests.core.test_limits import SKEW, edge_program
 from tests.engines.test_files import write
 

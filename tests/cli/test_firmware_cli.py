@@ -8,8 +8,8 @@ import sys
 import pytest
 
 from octoprint_kincomp.cli import main
-from octoprint_kincomp.core.firmware import format_equivalents, format_export
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.firmware.export import format_equivalents, format_export
 from tests.engines.test_files import write
 
 PARAMS = {

@@ -3,7 +3,7 @@ same trace again offline from the saved raw stream, and clear errors. SIMULATED 
 
 import threading
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.cli import main
 from octoprint_kincomp.sensor.virtual import VirtualSensor
 

@@ -24,14 +24,14 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter, Home, Move
-from octoprint_kincomp.ballbar.sim.play import Play
 from octoprint_kincomp.core import arcs
 from octoprint_kincomp.core.arcpath import strictly_between
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import KinematicModel
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.select import make_compensator
+from octoprint_kincomp.firmware.interpreter import FirmwareInterpreter, Home, Move
+from octoprint_kincomp.simulator.play import Play
 from tests.core.test_properties import cfg, geometry, program
 
 pytestmark = pytest.mark.usefixtures("engine")

@@ -1,14 +1,13 @@
 """Issue 26: every number a params document accepts is finite and within its documented
 range, and so is every quantity derived from it (the firmware equivalents and exports, the
 compensation): ``backlash.fraction: 1e-310`` was accepted and made every later ``/status``
-a 500 (OverflowError in core/firmware.py)."""
+a 500 (OverflowError in firmware/export.py)."""
 
 import math
 import re
 
 import pytest
 
-from octoprint_kincomp.core.firmware import equivalents, export_json, format_export
 from octoprint_kincomp.core.params import (
     MAX_BACKLASH_UM,
     MAX_SCALE_PPM,
@@ -17,6 +16,7 @@ from octoprint_kincomp.core.params import (
     Params,
     ParamsError,
 )
+from octoprint_kincomp.firmware.export import equivalents, export_json, format_export
 
 
 @pytest.mark.parametrize(

@@ -19,7 +19,7 @@ Every property runs on each engine (the ``engine`` fixture: the compiled kernel 
 pure-Python paths).
 
 The oracle for "where the program asks the head to go" is the firmware-like interpreter
-(:mod:`octoprint_kincomp.ballbar.sim.machine`); the printer replays the output with the true errors
+(:mod:`octoprint_kincomp.firmware.interpreter`); the printer replays the output with the true errors
 (:class:`tests.support.helpers.Printer`). Everything is derandomised for reproducible CI runs.
 """
 
@@ -34,18 +34,15 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter
-from octoprint_kincomp.ballbar.sim.play import Play
 from octoprint_kincomp.core import arcs
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import changes_nothing
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.files import (
-    compensate_binary,
-    marker_line,
-)
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
 from octoprint_kincomp.engines.select import make_compensator
+from octoprint_kincomp.firmware.interpreter import FirmwareInterpreter
+from octoprint_kincomp.simulator.play import Play
 from tests.support.helpers import Printer, dist
 
 # Reproducible by default (derandomised, no example database, no deadline for slow CI

@@ -1,5 +1,5 @@
 """The invariants a compensated real slicer file must hold (issue 28), checked on the
-project's own models: the firmware interpreter (ballbar/sim/machine.py) for what a line commands,
+project's own models: the firmware interpreter (firmware/interpreter.py) for what a line commands,
 the printer with the true errors and play (tests/support/helpers.Printer) for where the
 nozzle lands.
 
@@ -24,10 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple
 
-from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter, Move
 from octoprint_kincomp.core.compensator import Compensator, Options
 from octoprint_kincomp.core.gcode import parse_command
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.firmware.interpreter import FirmwareInterpreter, Move
 from tests.support.helpers import Printer, dist, still_extruding
 
 TRUE_HOME = (0.0, 0.0, 0.0)  # where the simulated printer homes (mm)

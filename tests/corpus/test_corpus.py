@@ -22,7 +22,7 @@ from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import select
-from octoprint_kincomp.engines.files import compensate_binary, marker_line
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
 from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.tools.line_path import compensate_lines
 from tests.corpus.check import check, unsettled_lag

@@ -8,9 +8,9 @@ import time
 
 import pytest
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
-from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow

@@ -11,9 +11,9 @@ import time
 
 import pytest
 
-from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.formats import load_any
-from octoprint_kincomp.ballbar.program import TestSpec, generate
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.formats import load_any
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
 from octoprint_kincomp.sensor.virtual import VirtualSensor

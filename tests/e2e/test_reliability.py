@@ -88,7 +88,7 @@ def _worker(srv, sig):
     import psutil
 
     for child in psutil.Process(srv.proc.pid).children(recursive=True):
-        if "octoprint_kincomp.plugin.worker" in " ".join(child.cmdline()):
+        if "octoprint_kincomp.service.files.worker" in " ".join(child.cmdline()):
             child.send_signal(sig)
 
 

@@ -24,9 +24,9 @@ import time
 import pytest
 import yaml
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
-from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
 from octoprint_kincomp.tools.devserver import DevServer
 from tests.support.serverutil import status
 
@@ -234,7 +234,7 @@ BAD = [
 def _settings_fields():
     """(dotted field, body maker) for every settings field, nested ones inside their
     objects, as a partial save sends them."""
-    from octoprint_kincomp.plugin.settings import defaults
+    from octoprint_kincomp.service.settings.schema import defaults
 
     out = []
 

@@ -141,7 +141,7 @@ def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
 def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
     from octoprint_kincomp.core.compensator import Compensator
     from octoprint_kincomp.core.marker import file_marker
-    from octoprint_kincomp.engines.files import marker_line
+    from octoprint_kincomp.engines.file_loop import marker_line
     from octoprint_kincomp.tools.line_path import compensate_lines
 
     settings(server, enabled=True, mode="on_upload", params=PARAMS)
@@ -154,7 +154,7 @@ def test_upload_compensated_file_is_not_compensated_again_when_printed(server):
         assert file_marker(stored) == status(server)["params_hash"]
         # the stored file is the offline compensation of the upload ...
         st = status(server)
-        from octoprint_kincomp.plugin.settings import engine_config
+        from octoprint_kincomp.service.settings.schema import engine_config
 
         params, options = engine_config(st["settings"], tuple(st["limits"]))
         with open(src, encoding="utf-8", newline="") as f:
@@ -268,8 +268,8 @@ def test_write_endpoints_refuse_anonymous_viewer_and_missing_csrf(server):
 def test_background_mode_writes_a_compensated_copy_with_progress(server):
     from octoprint_kincomp.core.compensator import Compensator
     from octoprint_kincomp.core.marker import file_marker
-    from octoprint_kincomp.engines.files import marker_line
-    from octoprint_kincomp.plugin.settings import engine_config
+    from octoprint_kincomp.engines.file_loop import marker_line
+    from octoprint_kincomp.service.settings.schema import engine_config
     from octoprint_kincomp.tools.line_path import compensate_lines
 
     settings(server, enabled=True, mode="background", params=PARAMS)

@@ -1,7 +1,7 @@
 """Every engine gives exactly what the reference path gives (issue 5).
 
 The engines: the compiled kernel per line (the queuing hook) and over blocks of a file (the
-file loop, engines/files.py), and without it the reference path over the same file loop
+file loop, engines/file_loop.py), and without it the reference path over the same file loop
 (the shapes below were once the retired numpy engine's hard cases). Each must produce the
 same text and report as the reference compensator, line by line, on real slicer files and on
 awkward generated programs. Tests that take the ``engine`` fixture run once per engine."""
@@ -16,12 +16,9 @@ import pytest
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines import files as fastfile
+from octoprint_kincomp.engines import file_loop as fastfile
 from octoprint_kincomp.engines import select
-from octoprint_kincomp.engines.files import (
-    compensate_binary,
-    marker_line,
-)
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
 from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.tools.benchmark import BENCH_PARAMS, generate
 from octoprint_kincomp.tools.line_path import compensate_lines

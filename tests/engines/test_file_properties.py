@@ -12,11 +12,8 @@ from hypothesis import strategies as st
 from octoprint_kincomp.core.compensator import Compensator, LimitError, Options
 from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines import files as fastfile
-from octoprint_kincomp.engines.files import (
-    compensate_binary,
-    marker_line,
-)
+from octoprint_kincomp.engines import file_loop as fastfile
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
 from octoprint_kincomp.engines.select import make_compensator
 from octoprint_kincomp.tools.line_path import compensate_lines
 from tests.core.test_properties import any_line, cfg, params

@@ -8,7 +8,7 @@ import pytest
 from octoprint_kincomp.core.compensator import LimitError, Options
 from octoprint_kincomp.core.marker import file_marker
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.files import AlreadyCompensated, compensate_file
+from octoprint_kincomp.engines.file_loop import AlreadyCompensated, compensate_file
 from tests.core.test_limits import LIMITS, SKEW, edge_program
 from tests.support import DATA as SAMPLES
 

@@ -14,7 +14,7 @@ from octoprint_kincomp.core.marker import ENCODING, ERRORS
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines import kernel as kernel_mod
 from octoprint_kincomp.engines import select
-from octoprint_kincomp.engines.files import compensate_binary
+from octoprint_kincomp.engines.file_loop import compensate_binary
 from octoprint_kincomp.engines.select import make_compensator
 
 SKEW = Params.from_dict(

@@ -7,9 +7,9 @@ import os
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.artifact_program import ArtifactSpec, generate, read_measurements
-from octoprint_kincomp.ballbar.artifact_sim import simulate_readings
+from octoprint_kincomp.calibration.artifact.program import ArtifactSpec, generate, read_measurements
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.artifact import simulate_readings
 from tests.support.blueprint import PREFIX, blueprint_client
 
 TRUTH = Params.from_dict(

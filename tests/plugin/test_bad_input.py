@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from octoprint_kincomp.ballbar.program import spec_from_program
+from octoprint_kincomp.calibration.ballbar.program import spec_from_program
 from tests.support.blueprint import PREFIX, blueprint_client
 
 

@@ -1,9 +1,9 @@
-"""The campaign endpoints (plugin/campaign_api.py) on the plugin with mocked OctoPrint objects
-(tests/support/mocked_plugin.py): planning on the profile's volume, printing test by test,
-each test measured in demo mode by the live capture of the virtual bar (a real pseudo-terminal
-read through pyserial, as a USB sensor) or, with the live path off, by the demo's SIMULATED
-trace collected per test, the joint analysis, ONE apply, the re-test compared with the
-campaign before it, and every way a campaign refuses to go on (issues 12 and 15)."""
+"""The campaign endpoints (plugin/calibration/campaign_api.py) on the plugin with mocked OctoPrint
+objects (tests/support/mocked_plugin.py): planning on the profile's volume, printing test by test,
+each test measured in demo mode by the live capture of the virtual bar (a real pseudo-terminal read
+through pyserial, as a USB sensor) or, with the live path off, by the demo's SIMULATED trace
+collected per test, the joint analysis, ONE apply, the re-test compared with the campaign before it,
+and every way a campaign refuses to go on (issues 12 and 15)."""
 
 import os
 import re
@@ -12,10 +12,10 @@ from unittest import mock
 
 import pytest
 
-from octoprint_kincomp.ballbar.demo import demo_truth
-from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
-from octoprint_kincomp.ballbar.simulator import simulate_program
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.simulator.demo import demo_truth
+from octoprint_kincomp.simulator.printer import simulate_program
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 PROFILE = {
@@ -29,7 +29,7 @@ OTHER = dict(PROFILE, id="printer_b", name="Printer B")
 PLAN = {"radius_xy": 50}
 SKEW = {"squareness_um_per_m": {"xy": 500.0, "xz": 0.0, "yz": 0.0}}
 # the demo's virtual bar streams at 20 times the feed (its 500 Hz: 10,000 lines/s)
-QUICKER = mock.patch("octoprint_kincomp.plugin.demo_mode.DEMO_SPEEDUP", 20.0)
+QUICKER = mock.patch("octoprint_kincomp.service.calibration.demo_mode.DEMO_SPEEDUP", 20.0)
 
 
 @pytest.fixture
@@ -64,7 +64,7 @@ def switch_profile(plugin, profile):
 
 
 def plan(app, plugin, **options):
-    code, doc = call(app, plugin.api_campaign_plan, json=dict(PLAN, **options))
+    code, doc = call(app, plugin.campaign.plan, json=dict(PLAN, **options))
     assert code == 200, doc
     return doc
 
@@ -85,7 +85,7 @@ def upload(app, plugin, tmp_path, cid, n, text, name="trace.csv", **fields):
     path.write_text(text)
     return call(
         app,
-        plugin.api_campaign_trace,
+        plugin.campaign.trace,
         cid,
         n,
         data=dict(fields, **{"file.path": str(path), "file.name": name}),
@@ -122,9 +122,7 @@ def run_campaign(app, plugin, doc, live=True):
     """Every test printed and measured: by the live capture of the demo's virtual bar
     (``live``) or by collecting the demo's simulated trace; returns the campaign analysed."""
     for step in doc["steps"]:
-        code, resp = call(
-            app, plugin.api_campaign_program, doc["id"], step["n"], json={"print": True}
-        )
+        code, resp = call(app, plugin.campaign.program, doc["id"], step["n"], json={"print": True})
         assert code == 200 and resp["printing"], resp
         assert resp["path"] == f"kincomp/{doc['id']}_{step['n']}_{step['name']}.gcode"
         assert bool(resp["capture"]) == live and (not live or resp["capture"]["armed"])
@@ -139,16 +137,14 @@ def run_campaign(app, plugin, doc, live=True):
                 == run["id"]
             )
         else:
-            code, resp = call(
-                app, plugin.api_campaign_trace, doc["id"], step["n"], json={"demo": True}
-            )
+            code, resp = call(app, plugin.campaign.trace, doc["id"], step["n"], json={"demo": True})
             assert code == 200, resp
             run = resp["run"]
         assert run["campaign"] == doc["id"] and run["campaign_step"] == step["name"]
         assert run["simulated"] and run["diagnostics"]["plane"] == step["plane"]
     if live:  # measured once: the UI is not told to collect the recorded trace too
         assert not [m for m in messages(plugin, "demo_trace") if m.get("campaign") == doc["id"]]
-    code, done = call(app, plugin.api_campaign_analyze, doc["id"])
+    code, done = call(app, plugin.campaign.analyze, doc["id"])
     assert code == 200, done
     return done
 
@@ -158,7 +154,7 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     plugin._printer_profile_manager.get_current_or_default.return_value = slow_z
     code, dry = call(
         app,
-        plugin.api_campaign_plan,
+        plugin.campaign.plan,
         json=dict(PLAN, dry_run=True, second_feed=3700, second_height=100),
     )
     assert code == 200 and dry["stored"] is False
@@ -174,19 +170,19 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     assert dry["next_step"] == 1 and dry["measured"] == 0
     with app.test_request_context("/campaigns"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            assert plugin.api_campaigns().get_json()["campaigns"] == []  # a dry run
+            assert plugin.campaign.list().get_json()["campaigns"] == []  # a dry run
     doc = plan(app, plugin)
     assert doc["stored"] and [s["name"] for s in doc["steps"]] == ["xy", "xz", "yz"]
     with app.test_request_context("/campaigns"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            listed = plugin.api_campaigns().get_json()["campaigns"]
+            listed = plugin.campaign.list().get_json()["campaigns"]
             assert [c["id"] for c in listed] == [doc["id"]]
             assert (
-                plugin.api_campaign(doc["id"]).get_json()["steps"][0]["program_hash"]
+                plugin.campaign.get(doc["id"]).get_json()["steps"][0]["program_hash"]
                 == doc["steps"][0]["program_hash"]
             )
-            assert plugin.api_campaign("c20990101-000000-abcdef").status_code == 404
-            assert plugin.api_campaign("../../etc/passwd").status_code == 404
+            assert plugin.campaign.get("c20990101-000000-abcdef").status_code == 404
+            assert plugin.campaign.get("../../etc/passwd").status_code == 404
 
 
 @pytest.mark.parametrize(
@@ -203,16 +199,16 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     ],
 )
 def test_bad_plan_requests_are_refused_naming_the_field(app, plugin, body, field):
-    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, **body))
+    code, resp = call(app, plugin.campaign.plan, json=dict(PLAN, **body))
     assert code == 400 and field in resp["error"], resp
 
 
 def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
-    code, resp = call(app, plugin.api_campaign_plan, json={"radius_xy": 100})
+    code, resp = call(app, plugin.campaign.plan, json={"radius_xy": 100})
     assert code == 400 and "campaign test xy" in resp["error"] and "does not fit" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_plan, json=dict(PLAN, feed=6000, second_feed=9000))
+    code, resp = call(app, plugin.campaign.plan, json=dict(PLAN, feed=6000, second_feed=9000))
     assert code == 400 and "second XY feed is capped" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_plan, json=["radius_xy"])
+    code, resp = call(app, plugin.campaign.plan, json=["radius_xy"])
     assert code == 400
     assert os.listdir(plugin.campaign._campaigns.folder) == []
 
@@ -259,11 +255,11 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     ]
     assert sum(r["has_trace"] for r in runs) == 3
     # analysed: closed to more measurements
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 1, json={})
     assert code == 409 and "re-test" in resp["error"]
 
     # ONE apply: the joint proposal becomes the parameters, compensation on
-    code, applied = call(app, plugin.api_campaign_apply, doc["id"], json={"enabled": True})
+    code, applied = call(app, plugin.campaign.apply, doc["id"], json={"enabled": True})
     assert code == 200, applied
     assert plugin.queue.enabled and plugin.queue.params.hash() == applied["params_hash"]
     assert plugin.queue.params.squareness_um_per_m["xz"] == pytest.approx(
@@ -272,11 +268,11 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     assert plugin.runs.get(a["id"])["applied"]
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            assert plugin.api_campaign(doc["id"]).get_json()["state"] == "applied"
+            assert plugin.campaign.get(doc["id"]).get_json()["state"] == "applied"
 
     # the re-test: the same plan, measured with the new parameters in force (the demo
     # records the compensated commands), compared test by test with the first campaign
-    code, again = call(app, plugin.api_campaign_plan, json={"retest_of": doc["id"]})
+    code, again = call(app, plugin.campaign.plan, json={"retest_of": doc["id"]})
     assert code == 200 and again["retest_of"] == doc["id"]
     assert again["options"] == doc["options"]
     assert again["params_hash"] == applied["params_hash"]
@@ -295,7 +291,7 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     plugin.on_settings_save({"demo": {"enabled": True}})
     doc = plan(app, plugin)
     cid = doc["id"]
-    code, resp = call(app, plugin.api_campaign_program, cid, 1, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, cid, 1, json={"print": True})
     assert code == 200 and resp["capture"]["armed"] and resp["capture"]["source"] == "demo"
     # the printer waits at the mount pause (M0): the virtual bar does not play the test yet
     text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
@@ -319,12 +315,12 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     time.sleep(0.2)
     assert not messages(plugin, "demo_trace")  # not measured a second time
     # the recorded trace stays an API fallback (it replaces the capture as the measurement)
-    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": True})
+    code, resp = call(app, plugin.campaign.trace, cid, 1, json={"demo": True})
     assert code == 200 and resp["campaign"]["steps"][0]["run"] == resp["run"]["id"] != told["id"]
 
     # test 2: the virtual bar is unplugged mid-test: a failed run, the test left unmeasured
     plugin._plugin_manager.send_plugin_message.reset_mock()
-    code, resp = call(app, plugin.api_campaign_program, cid, 2, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, cid, 2, json={"print": True})
     assert resp["capture"]["armed"]
     plugin.on_event("PrintStarted", {"origin": "local", "path": resp["path"]})
     queue_lines(
@@ -348,7 +344,7 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     assert not messages(plugin, "demo_trace")  # nor collected by itself: the user chooses
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            view = plugin.api_campaign(cid).get_json()
+            view = plugin.campaign.get(cid).get_json()
     assert view["measured"] == 1 and view["next_step"] == 2
 
 
@@ -359,9 +355,9 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
     assert code == 200
     plugin.on_settings_save({"enabled": True, "params": SKEW})
     for view, args, body in (
-        (plugin.api_campaign_program, (doc["id"], 2), {"print": True}),
-        (plugin.api_campaign_trace, (doc["id"], 2), {"demo": True}),
-        (plugin.api_campaign_analyze, (doc["id"],), {}),
+        (plugin.campaign.program, (doc["id"], 2), {"print": True}),
+        (plugin.campaign.trace, (doc["id"], 2), {"demo": True}),
+        (plugin.campaign.analyze, (doc["id"],), {}),
     ):
         code, resp = call(app, view, *args, json=body)
         assert code == 409 and "parameters in force changed" in resp["error"], resp
@@ -369,21 +365,21 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
     assert not plugin._printer.select_file.called
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            view = plugin.api_campaign(doc["id"]).get_json()
+            view = plugin.campaign.get(doc["id"]).get_json()
     assert view["params_changed"] and view["in_force_hash"] == Params.from_dict(SKEW).hash()
     # back to the campaign's parameters (compensation off: none in force): it goes on
     plugin.on_settings_save({"enabled": False})
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 2, json={})
     assert code == 200 and resp["printing"] is False
     # the same profile renamed: it goes on (the profile id decides, not the name)
     plugin._printer_profile_manager.get_current_or_default.return_value = dict(
         PROFILE, name="Other"
     )
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 2, json={})
     assert code == 200, resp
     # another printer profile in force: refused too
     switch_profile(plugin, OTHER)
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 2, json={})
     assert code == 409 and "planned for printer profile Virtual P1" in resp["error"], resp
 
 
@@ -431,13 +427,13 @@ def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
         code, resp = upload(app, plugin, tmp_path, cid, n, text, name)
         assert code == 400 and resp["error"].startswith(name), resp
         assert expected in resp["error"], resp
-    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": True})
+    code, resp = call(app, plugin.campaign.trace, cid, 1, json={"demo": True})
     assert code == 404 and "No simulated trace of test 1" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={"demo": "yes"})
+    code, resp = call(app, plugin.campaign.trace, cid, 1, json={"demo": "yes"})
     assert code == 400 and "'demo'" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_trace, cid, 1, json={})
+    code, resp = call(app, plugin.campaign.trace, cid, 1, json={})
     assert code == 400 and "multipart field 'file'" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_trace, cid, 9, json={"demo": True})
+    code, resp = call(app, plugin.campaign.trace, cid, 9, json={"demo": True})
     assert code == 404
     assert plugin.runs.list() == []
     # its own trace is taken (again: the newer replaces the older)
@@ -454,7 +450,7 @@ def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_
     for n in (1, 2):
         code, _ = upload(app, plugin, tmp_path, cid, n, offline_trace(doc, n), f"t{n}.csv")
         assert code == 200
-    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    code, resp = call(app, plugin.campaign.analyze, cid)
     assert code == 400 and "test 3 (yz" in resp["error"] and "incomplete" in resp["error"]
     # the YZ test failed: the bar slipped half-way (a 30 um jump in every reading after it)
     lines = offline_trace(doc, 3).splitlines()
@@ -464,23 +460,23 @@ def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_
         lines[i] = f"{d},{t},{float(r) + 0.03:.7f}"
     code, resp = upload(app, plugin, tmp_path, cid, 3, "\n".join(lines) + "\n", "slipped.csv")
     assert code == 200
-    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    code, resp = call(app, plugin.campaign.analyze, cid)
     assert code == 400 and resp["error"].startswith("slipped.csv: the fit leaves"), resp
     assert "repeat this test" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_apply, cid, json={"enabled": True})
+    code, resp = call(app, plugin.campaign.apply, cid, json={"enabled": True})
     assert code == 409 and "analyse it first" in resp["error"]
     assert plugin._settings.get(["params"]) == before and not plugin.queue.enabled
     # the test measured again: the campaign is analysed
     code, _ = upload(app, plugin, tmp_path, cid, 3, offline_trace(doc, 3), "t3.csv")
-    code, resp = call(app, plugin.api_campaign_analyze, cid)
+    code, resp = call(app, plugin.campaign.analyze, cid)
     assert code == 200 and resp["state"] == "analysed"
 
 
 def _live_run(plugin, text, name="live_XZ_R50.csv"):
     """A live capture of ``text`` as the sensor's recorder stores it (its trace names no
     parameters: a capture has only the program's metadata)."""
-    from octoprint_kincomp.ballbar.analysis import analyse
-    from octoprint_kincomp.ballbar.formats import load_any
+    from octoprint_kincomp.calibration.ballbar.analysis import analyse
+    from octoprint_kincomp.calibration.ballbar.formats import load_any
 
     text = "\n".join(ln for ln in text.splitlines() if not ln.startswith("# params_hash:"))
     data = (text + "\n").encode()
@@ -527,11 +523,11 @@ def test_a_live_capture_of_a_test_becomes_its_measurement(app, plugin):
 def test_printing_a_test_needs_a_ready_printer(app, plugin):
     doc = plan(app, plugin)
     plugin._printer.is_printing.return_value = True
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 1, json={"print": True})
     assert code == 409 and "not ready" in resp["error"]
     step = plugin.campaign._campaigns.get(doc["id"])["steps"][0]
     assert step["path"] and step["printed"] is None
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 1, json={"print": 1})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 1, json={"print": 1})
     assert code == 400 and "'print' must be true or false" in resp["error"]
     # the program the demo gets is the test as the program states it (campaign keys, the
     # parameters' hash): its simulated trace then names its campaign and test
@@ -542,7 +538,7 @@ def test_printing_a_test_needs_a_ready_printer(app, plugin):
     # trace then names the campaign and the test); demo mode uses its own simulated trace
     plugin._printer.is_printing.return_value = False
     plugin.calibration.on_print = mock.MagicMock(return_value={"armed": True})
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 2, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 2, json={"print": True})
     assert code == 200 and resp["capture"] == {"armed": True}
     path, armed, prog_hash = plugin.calibration.on_print.call_args[0]
     assert path == resp["path"] and prog_hash == resp["program_hash"]
@@ -551,12 +547,12 @@ def test_printing_a_test_needs_a_ready_printer(app, plugin):
     # (the demo's simulated trace is collected instead)
     plugin.on_settings_save({"demo": {"enabled": True}})
     plugin.calibration.on_print.reset_mock()
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 3, json={"print": True})
     assert code == 200 and resp["capture"] == {"armed": True}
     assert plugin.calibration.on_print.call_args[0][1].campaign_step == "yz"
     plugin.on_settings_save({"demo": {"enabled": True, "live": False}})
     plugin.calibration.on_print.reset_mock()
-    code, resp = call(app, plugin.api_campaign_program, doc["id"], 3, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, doc["id"], 3, json={"print": True})
     assert code == 200 and resp["capture"] is None and not plugin.calibration.on_print.called
 
 
@@ -564,21 +560,23 @@ def test_each_route_asks_for_its_permissions(app, plugin):
     doc = plan(app, plugin)
     cid = doc["id"]
     routes = [
-        (plugin.api_campaign_plan, (), {"dry_run": True}, {"ADMIN"}),
-        (plugin.api_campaigns, (), None, {"STATUS"}),
-        (plugin.api_campaign, (cid,), None, {"STATUS"}),
-        (plugin.api_campaign_program, (cid, 1), {}, {"ADMIN"}),
-        (plugin.api_campaign_program, (cid, 1), {"print": True}, {"ADMIN", "PRINT"}),
-        (plugin.api_campaign_trace, (cid, 1), {"demo": True}, {"ADMIN"}),
-        (plugin.api_campaign_analyze, (cid,), {}, {"ADMIN"}),
-        (plugin.api_campaign_apply, (cid,), {}, {"ADMIN"}),
-        (plugin.api_campaign_delete, (cid,), None, {"ADMIN"}),
+        (plugin.campaign.plan, (), {"dry_run": True}, {"ADMIN"}),
+        (plugin.campaign.list, (), None, {"STATUS"}),
+        (plugin.campaign.get, (cid,), None, {"STATUS"}),
+        (plugin.campaign.program, (cid, 1), {}, {"ADMIN"}),
+        (plugin.campaign.program, (cid, 1), {"print": True}, {"ADMIN", "PRINT"}),
+        (plugin.campaign.trace, (cid, 1), {"demo": True}, {"ADMIN"}),
+        (plugin.campaign.analyze, (cid,), {}, {"ADMIN"}),
+        (plugin.campaign.apply, (cid,), {}, {"ADMIN"}),
+        (plugin.campaign.delete, (cid,), None, {"ADMIN"}),
     ]
     for view, args, body, wanted in routes:
         asked = []
-        with mock.patch("octoprint_kincomp.plugin.campaign_api.Permissions") as perms:
-            perms.STATUS, perms.PLUGIN_KINCOMP_ADMIN, perms.PRINT = "STATUS", "ADMIN", "PRINT"
-            with mock.patch("octoprint_kincomp.plugin.http.require", side_effect=asked.append):
+        perms = mock.Mock(STATUS="STATUS", PLUGIN_KINCOMP_ADMIN="ADMIN", PRINT="PRINT")
+        with mock.patch("octoprint_kincomp.plugin.calibration.campaign_api.Permissions", perms):
+            with mock.patch("octoprint_kincomp.plugin.http.Permissions", perms), mock.patch(
+                "octoprint_kincomp.plugin.http.require", side_effect=asked.append
+            ):
                 with app.test_request_context(
                     "/", method="POST" if body is not None else "GET", json=body
                 ):
@@ -623,7 +621,7 @@ def test_a_test_is_measured_on_the_printer_profile_it_was_planned_for(app, plugi
     assert plugin.campaign._campaigns.get(cid)["steps"][1]["run"] is None
     code, resp = upload(app, plugin, tmp_path, cid, 2, t2, "t2.csv", force="yes")
     assert code == 400 and "'force'" in resp["error"]
-    code, resp = call(app, plugin.api_campaign_trace, cid, 2, json={"demo": True, "force": 1})
+    code, resp = call(app, plugin.campaign.trace, cid, 2, json={"demo": True, "force": 1})
     assert code == 400 and "'force'" in resp["error"]
     assert [r["id"] for r in plugin.runs.list()] == before
     # a live capture of the test is not taken either (it stays a single run, the user told)
@@ -647,13 +645,13 @@ def test_a_test_is_measured_on_the_printer_profile_it_was_planned_for(app, plugi
     assert run["profile"] == "_default" and resp["campaign"]["steps"][1]["run"] == run["id"]
     assert plugin.campaign._campaigns.get(cid)["steps"][1]["other_profile"] == "printer_b"
     # printing and the joint analysis stay refused while another profile is in force
-    code, resp = call(app, plugin.api_campaign_program, cid, 3, json={})
+    code, resp = call(app, plugin.campaign.program, cid, 3, json={})
     assert code == 409 and "Printer B" in resp["error"]
     # back on the campaign's printer: the last test, and the joint result repeats the warning
     switch_profile(plugin, PROFILE)
     code, resp = upload(app, plugin, tmp_path, cid, 3, offline_trace(doc, 3), "t3.csv")
     assert code == 200 and not _findings(resp["run"], "campaign.other_profile")
-    code, done = call(app, plugin.api_campaign_analyze, cid)
+    code, done = call(app, plugin.campaign.analyze, cid)
     assert code == 200, done
     (joint,) = _findings(done["analysis"], "campaign.other_profile")
     assert joint["evidence"]["tests"] == [2] and "(printer_b)" in joint["message"]["text"]
@@ -682,7 +680,7 @@ def plugin_dir():
 def delete(app, plugin, cid):
     with app.test_request_context("/", method="DELETE"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            resp = plugin.api_campaign_delete(cid)
+            resp = plugin.campaign.delete(cid)
     return resp.status_code, resp.get_json()
 
 
@@ -699,8 +697,8 @@ def test_a_campaign_is_deleted_its_runs_stay_in_the_history(app, plugin, tmp_pat
     assert code == 200 and resp == {"deleted": cid}
     with app.test_request_context("/campaigns"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            assert [c["id"] for c in plugin.api_campaigns().get_json()["campaigns"]] == [kept]
-            assert plugin.api_campaign(cid).status_code == 404
+            assert [c["id"] for c in plugin.campaign.list().get_json()["campaigns"]] == [kept]
+            assert plugin.campaign.get(cid).status_code == 404
     assert plugin.runs.get(measured)["campaign"] == cid  # the measurement is kept
     assert delete(app, plugin, cid)[0] == 404
     # the measurement of a deleted campaign's test is refused, not stored
@@ -721,7 +719,7 @@ def test_another_printers_campaign_is_not_deleted(app, plugin):
 def test_a_campaign_being_measured_is_not_deleted(app, plugin):
     doc = plan(app, plugin)
     cid = doc["id"]
-    code, resp = call(app, plugin.api_campaign_program, cid, 2, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, cid, 2, json={"print": True})
     assert code == 200 and resp["printing"], resp
     # its test 2 printing (and paused at the mount pause): refused, saying why
     plugin._printer.get_current_job.return_value = {
@@ -742,7 +740,7 @@ def test_a_campaign_being_measured_is_not_deleted(app, plugin):
     plugin._printer.is_printing.return_value = plugin._printer.is_paused.return_value = False
     assert plugin.sensor.armed_campaign() is None and delete(app, plugin, plan(app, plugin)["id"])
     plugin.on_settings_save({"demo": {"enabled": True}})
-    code, resp = call(app, plugin.api_campaign_program, cid, 3, json={"print": True})
+    code, resp = call(app, plugin.campaign.program, cid, 3, json={"print": True})
     assert code == 200 and resp["capture"]["armed"], resp
     assert plugin.sensor.armed_campaign() == cid
     code, out = delete(app, plugin, cid)
@@ -753,8 +751,8 @@ def test_a_campaign_being_measured_is_not_deleted(app, plugin):
 def test_findings_added_to_a_result_keep_it_worst_first():
     """A forced measurement's warning goes before the analysis's own info findings (the
     stored result is worst first, as every analysis's is)."""
-    from octoprint_kincomp.ballbar import findings as fnd
-    from octoprint_kincomp.plugin.campaign_measure import with_findings
+    from octoprint_kincomp.calibration import findings as fnd
+    from octoprint_kincomp.service.calibration.campaign_measure import with_findings
 
     note = fnd.info("model.cyclic_fitted", "a note")
     result = {"findings": [note.to_dict()], "findings_i18n": [note.to_wire()], "trusted": True}

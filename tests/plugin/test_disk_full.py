@@ -10,9 +10,9 @@ import os
 
 import pytest
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
-from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.core import atomic
+from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
 from tests.support.blueprint import PREFIX, blueprint_client
 
 
@@ -95,8 +95,8 @@ def test_every_writing_endpoint_answers_507_and_keeps_nothing(api, disk_full):
 
 
 def test_a_new_runs_trace_is_not_kept_without_it(tmp_path, monkeypatch):
-    from octoprint_kincomp.plugin import runs as runs_module
-    from octoprint_kincomp.plugin.runs import RunStore
+    from octoprint_kincomp.service.calibration import run_store as runs_module
+    from octoprint_kincomp.service.calibration.run_store import RunStore
 
     store = RunStore(str(tmp_path))
     real, calls = runs_module.write_atomic, []

@@ -7,8 +7,8 @@ from unittest import mock
 
 import pytest
 
-from octoprint_kincomp.ballbar import findings as F
-from octoprint_kincomp.ballbar.analysis import analyse
+from octoprint_kincomp.calibration import findings as F
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
 from octoprint_kincomp.core.messages import Msg
 from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
 
@@ -72,23 +72,23 @@ def _with_error(trace, current=None, **kw):
 
 # ~~ findings ------------------------------------------------------------------------------------
 def test_notes_become_info_findings_and_the_run_is_trusted(app, plugin):
-    code, run = call(app, plugin.api_analyze, json=SUMMARY)
+    code, run = call(app, plugin.calibration.analyze, json=SUMMARY)
     assert code == 200 and run["trusted"] is True
     # a clean summary: info findings only, every note among them, messages translatable
     assert run["findings"] and {f["severity"] for f in run["findings"]} == {"info"}
     texts = [f["message"]["text"] for f in run["findings"]]
     assert all(n in texts for n in run["notes"])
     assert all(f["message"].get("template") for f in run["findings"])
-    code, stored = call(app, plugin.api_run, run["id"], method="GET")
+    code, stored = call(app, plugin.calibration.run, run["id"], method="GET")
     assert stored["findings"] == run["findings"]
-    code, _ = call(app, plugin.api_apply, json={"run": run["id"]})
+    code, _ = call(app, plugin.calibration.apply, json={"run": run["id"]})
     assert code == 200  # trusted: no confirmation needed
 
 
 def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
     before = plugin.store.current()["params"]
-    with mock.patch("octoprint_kincomp.plugin.calibration_api.analyse", _with_error):
-        code, run = call(app, plugin.api_analyze, json=SUMMARY)
+    with mock.patch("octoprint_kincomp.plugin.calibration.calibration_api.analyse", _with_error):
+        code, run = call(app, plugin.calibration.analyze, json=SUMMARY)
     assert code == 200 and run["trusted"] is False
     # worst first, message and advice translatable, evidence kept
     first = run["findings"][0]
@@ -96,36 +96,36 @@ def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
     assert first["message"]["template"] == "the run took %(s)s s longer than planned"
     assert first["advice"]["text"] == "lower the feed to what the Z axis reaches"
     assert first["evidence"] == {"sync_mismatch_ms": 19074.0}
-    code, listed = call(app, plugin.api_runs, method="GET")
+    code, listed = call(app, plugin.calibration.runs, method="GET")
     assert [r["trusted"] for r in listed["runs"] if r["id"] == run["id"]] == [False]
-    code, body = call(app, plugin.api_apply, json={"run": run["id"]})
+    code, body = call(app, plugin.calibration.apply, json={"run": run["id"]})
     assert code == 409 and "not trusted" in body["error"]
     assert "19.1 s longer than planned" in body["error"] and '"force": true' in body["error"]
     assert plugin.store.current()["params"] == before  # nothing applied
-    code, body = call(app, plugin.api_apply, json={"run": run["id"], "force": "yes"})
+    code, body = call(app, plugin.calibration.apply, json={"run": run["id"], "force": "yes"})
     assert code == 400  # a flag is a boolean
-    code, body = call(app, plugin.api_apply, json={"run": run["id"], "force": True})
+    code, body = call(app, plugin.calibration.apply, json={"run": run["id"], "force": True})
     assert code == 200
     assert plugin.store.current()["params"]["squareness_um_per_m"]["xy"] != before.get(
         "squareness_um_per_m", {}
     ).get("xy")
-    code, stored = call(app, plugin.api_run, run["id"], method="GET")
+    code, stored = call(app, plugin.calibration.run, run["id"], method="GET")
     assert stored["applied"]
 
 
 def test_a_campaign_result_that_is_not_trusted_needs_force(app, plugin):
-    with mock.patch("octoprint_kincomp.plugin.calibration_api.analyse", _with_error):
-        code, run = call(app, plugin.api_analyze, json=SUMMARY)
-    doc = call(app, plugin.api_campaign_plan, json={"radius_xy": 50})[1]
+    with mock.patch("octoprint_kincomp.plugin.calibration.calibration_api.analyse", _with_error):
+        code, run = call(app, plugin.calibration.analyze, json=SUMMARY)
+    doc = call(app, plugin.campaign.plan, json={"radius_xy": 50})[1]
     stored = plugin.campaign._campaigns.get(doc["id"])
     stored["result"] = run["id"]  # as if its joint analysis gave this result
     plugin.campaign._campaigns.save(stored)
-    code, view = call(app, plugin.api_campaign, doc["id"], method="GET")
+    code, view = call(app, plugin.campaign.get, doc["id"], method="GET")
     assert view["analysis"]["trusted"] is False and view["analysis"]["findings"]
-    code, body = call(app, plugin.api_campaign_apply, doc["id"], json={})
+    code, body = call(app, plugin.campaign.apply, doc["id"], json={})
     assert code == 409 and "not trusted" in body["error"]
     assert not plugin.campaign._campaigns.get(doc["id"]).get("applied")
-    code, _ = call(app, plugin.api_campaign_apply, doc["id"], json={"force": True})
+    code, _ = call(app, plugin.campaign.apply, doc["id"], json={"force": True})
     assert code == 200 and plugin.campaign._campaigns.get(doc["id"]).get("applied")
 
 
@@ -148,13 +148,15 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     )
     with app.test_request_context("/"):
         with mock.patch("octoprint_kincomp.plugin.http.require"):
-            status = plugin.api_status().get_json()["motion_limits"]
+            status = plugin.settings_api.status().get_json()["motion_limits"]
     assert status["read"]["max_feed_mm_min"]["z"] == 600.0  # 10 mm/s
     assert status["effective"]["max_feed_mm_min"] == {"x": 6000.0, "y": 6000.0, "z": 600.0}
     assert status["effective"]["sources"]["max_feed_mm_min.x"] == "printer profile"
     # the program keeps within them and says why
     code, prog = call(
-        app, plugin.api_program, json={"plane": "XZ", "radius": 50, "centre": [110, 110, 70]}
+        app,
+        plugin.calibration.program,
+        json={"plane": "XZ", "radius": 50, "centre": [110, 110, 70]},
     )
     assert code == 200 and prog["spec"]["feed_mm_min"] == 600.0
     assert "Z axis' max feed is 600 mm/min" in prog["feed_lowered"][0]["text"]
@@ -162,7 +164,7 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     text = args[2].stream().read().decode() if hasattr(args[2], "stream") else ""
     assert "M220 S100" in text and "F1850" not in text
     # and so does a campaign plan
-    code, doc = call(app, plugin.api_campaign_plan, json={"dry_run": True})
+    code, doc = call(app, plugin.campaign.plan, json={"dry_run": True})
     feeds = {s["name"]: s["spec"]["feed_mm_min"] for s in doc["steps"]}
     assert feeds == {"xy": 1850.0, "xz": 600.0, "yz": 600.0}
 
@@ -170,7 +172,7 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
 def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
     code, body = call(
         app,
-        plugin.api_settings,
+        plugin.settings_api.save,
         json={
             "motion_limits": {
                 "text": "[printer]\nmax_velocity: 300\nmax_accel: 3000\nmax_z_velocity: 8"
@@ -182,14 +184,14 @@ def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
     assert plugin.limits.store("\n".join(MARLIN_M503[:2]), replace=False) is False
     assert plugin.store.current()["motion_limits"]["source"] == "pasted"
     # asked explicitly: the printer's answer replaces them
-    code, body = call(app, plugin.api_limits_read)
+    code, body = call(app, plugin.limits.read_request)
     assert code == 202
     (args, kwargs) = plugin._printer.commands.call_args
     assert args[0] == ["M503"] and "kincomp:motion-limits" in kwargs["tags"]
     _read_m503(plugin)
     wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
     plugin._printer.is_printing.return_value = True
-    assert call(app, plugin.api_limits_read)[0] == 409
+    assert call(app, plugin.limits.read_request)[0] == 409
 
 
 @pytest.mark.parametrize(
@@ -202,15 +204,21 @@ def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
     ],
 )
 def test_bad_limits_are_refused_naming_the_field(app, plugin, value, field):
-    code, body = call(app, plugin.api_settings, json={"motion_limits": value})
+    code, body = call(app, plugin.settings_api.save, json={"motion_limits": value})
     assert code == 400 and field in body["error"]
     assert plugin.store.current()["motion_limits"]["text"] == ""
 
 
 def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
-    call(app, plugin.api_settings, json={"motion_limits": {"text": "M203 X200 Y200 Z0.5 ; mm/s"}})
+    call(
+        app,
+        plugin.settings_api.save,
+        json={"motion_limits": {"text": "M203 X200 Y200 Z0.5 ; mm/s"}},
+    )
     code, body = call(
-        app, plugin.api_program, json={"plane": "YZ", "radius": 50, "centre": [110, 110, 70]}
+        app,
+        plugin.calibration.program,
+        json={"plane": "YZ", "radius": 50, "centre": [110, 110, 70]},
     )
     assert code == 400 and "Z axis' max feed is 30 mm/min" in body["error"]
     assert not plugin._file_manager.add_file.called
@@ -218,7 +226,7 @@ def test_a_feed_no_axis_can_reach_is_refused(app, plugin):
 
 # ~~ the speed factor ------------------------------------------------------------------------------
 def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
-    from octoprint_kincomp.plugin.speed_factor import changes_factor
+    from octoprint_kincomp.service.printing.speed_factor import changes_factor
 
     assert changes_factor("M220 S80") == 80.0 and changes_factor("M220") is None
     assert changes_factor("M221 S80") is None and changes_factor("m220 r") != 100.0
@@ -241,15 +249,15 @@ def test_the_speed_factor_stays_at_100_while_a_test_prints(plugin):
 
 
 def test_a_campaign_test_is_refused_when_the_limits_changed_since_the_plan(app, plugin):
-    code, doc = call(app, plugin.api_campaign_plan, json={"radius_xy": 50})
+    code, doc = call(app, plugin.campaign.plan, json={"radius_xy": 50})
     assert code == 200 and doc["steps"][1]["spec"]["feed_mm_min"] == 1850.0  # profile Z 3000
     _read_m503(plugin)  # the printer answers M503 after the plan: Z 10 mm/s
     wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
-    code, body = call(app, plugin.api_campaign_program, doc["id"], 2, json={})
+    code, body = call(app, plugin.campaign.program, doc["id"], 2, json={})
     assert code == 409 and "planned at 1850 mm/min" in body["error"]
     assert "allow 600 mm/min now" in body["error"] and "plan the campaign again" in body["error"]
     assert not plugin._file_manager.add_file.called
-    code, _ = call(app, plugin.api_campaign_program, doc["id"], 1, json={})  # XY: still fine
+    code, _ = call(app, plugin.campaign.program, doc["id"], 1, json={})  # XY: still fine
     assert code == 200
 
 
@@ -265,8 +273,8 @@ def test_the_reversal_deadband_follows_the_printers_steps_per_mm(app, plugin):
     wait_for(lambda: plugin.store.current()["motion_limits"]["source"] == "m503")
     assert "M92 X80.00 Y160.00" in plugin.store.current()["motion_limits"]["text"]
     assert plugin.queue.comp.options.deadband_mm == pytest.approx(0.0003125)
-    code, body = call(app, plugin.api_settings, json={"steps_per_mm": 100, "apply_now": True})
+    code, body = call(app, plugin.settings_api.save, json={"steps_per_mm": 100, "apply_now": True})
     assert code == 200, body
     assert plugin.queue.comp.options.deadband_mm == pytest.approx(0.0005)
-    code, body = call(app, plugin.api_settings, json={"steps_per_mm": 0})
+    code, body = call(app, plugin.settings_api.save, json={"steps_per_mm": 0})
     assert code == 400 and "steps_per_mm" in body["error"]

@@ -9,8 +9,8 @@ from unittest import mock
 
 import pytest
 
-from octoprint_kincomp.plugin.jobs import CANCELLED, JobQueue, QueueFull
-from octoprint_kincomp.plugin.worker import WorkerProcess
+from octoprint_kincomp.service.files.jobs import CANCELLED, JobQueue, QueueFull
+from octoprint_kincomp.service.files.worker import WorkerProcess
 from tests.support.blueprint import PREFIX, blueprint_client
 from tests.support.mocked_plugin import wait_for
 

@@ -11,8 +11,8 @@ import threading
 import pytest
 
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.plugin.jobs import INTERRUPTED, JobQueue, QueueFull
-from octoprint_kincomp.plugin.worker import WorkerDied, WorkerProcess
+from octoprint_kincomp.service.files.jobs import INTERRUPTED, JobQueue, QueueFull
+from octoprint_kincomp.service.files.worker import WorkerDied, WorkerProcess
 from tests.support.mocked_plugin import wait_for
 
 

@@ -9,10 +9,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate, spec_from_program
-from octoprint_kincomp.ballbar.simulator import simulate_program, volume_truth
-from octoprint_kincomp.plugin.known_squareness import for_trace, known_squareness
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.sensor import CaptureResult
+from octoprint_kincomp.service.calibration.known_squareness import for_trace, known_squareness
+from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
 from tests.support.blueprint import PREFIX, blueprint_client
 
 VOLUME = {"width": 220, "depth": 220, "height": 200, "origin": "lowerleft"}

@@ -38,13 +38,13 @@ def test_before_request_hook_answers_400_for_bad_settings(plugin):
     flask_babel.Babel(app)
     body = {"plugins": {"kincomp": {"limits_policy": "explode"}}}
     with app.test_request_context("/api/settings", method="POST", json=body):
-        with mock.patch("octoprint_kincomp.plugin.settings_store.Permissions") as perms:
+        with mock.patch("octoprint_kincomp.plugin.settings.settings_store.Permissions") as perms:
             perms.SETTINGS.can.return_value = True
             resp = plugin.store.check_settings_request()
     assert resp.status_code == 400 and b"limits_policy" in resp.get_data()
     ok = {"plugins": {"kincomp": {"limits_policy": "clamp"}}}
     with app.test_request_context("/api/settings", method="POST", json=ok):
-        with mock.patch("octoprint_kincomp.plugin.settings_store.Permissions") as perms:
+        with mock.patch("octoprint_kincomp.plugin.settings.settings_store.Permissions") as perms:
             perms.SETTINGS.can.return_value = True
             assert plugin.store.check_settings_request() is None
 
@@ -64,7 +64,7 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     fo = mock.MagicMock()
     fo.filename = "part.gcode"
     fo.stream.return_value = io.BytesIO(src)
-    with mock.patch("octoprint_kincomp.plugin.files_api.valid_file_type", return_value=True):
+    with mock.patch("octoprint_kincomp.plugin.files.files_api.valid_file_type", return_value=True):
         wrapped = plugin.preprocessor_hook("part.gcode", fo)
     out = wrapped.stream().read().decode()
     lines = out.splitlines()
@@ -75,7 +75,7 @@ def test_preprocessor_compensates_uploads_in_on_upload_mode(plugin, tmp_path):
     assert lines[3] == "M104 S200"
     # an already compensated upload goes through untouched
     fo.stream.return_value = io.BytesIO(out.encode())
-    with mock.patch("octoprint_kincomp.plugin.files_api.valid_file_type", return_value=True):
+    with mock.patch("octoprint_kincomp.plugin.files.files_api.valid_file_type", return_value=True):
         again = plugin.preprocessor_hook("part.gcode", fo).stream().read().decode()
     assert again == out
 
@@ -273,9 +273,9 @@ def test_request_flags_must_be_booleans(plugin):
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
         for path, view, body in (
-            ("/settings", plugin.api_settings, {"apply_now": "false"}),
-            ("/program", plugin.api_program, {"print": "no"}),
-            ("/apply", plugin.api_apply, {"params": {}, "apply_now": 1}),
+            ("/settings", plugin.settings_api.save, {"apply_now": "false"}),
+            ("/program", plugin.calibration.program, {"print": "no"}),
+            ("/apply", plugin.calibration.apply, {"params": {}, "apply_now": 1}),
         ):
             with app.test_request_context(path, method="POST", json=body):
                 resp = view()
@@ -316,13 +316,13 @@ def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
         with app.test_request_context(f"/runs/{run_id}/trace"):
-            resp = plugin.api_run_trace(run_id)
+            resp = plugin.calibration.run_trace(run_id)
             resp.direct_passthrough = False
             assert resp.status_code == 200 and b"ccw,0,1.5" in resp.get_data()
             assert "attachment" in resp.headers["Content-Disposition"]
             assert "/" not in resp.headers["Content-Disposition"].split("filename=")[1]
         with app.test_request_context("/runs/x/trace"):
-            assert plugin.api_run_trace("../../etc/passwd").status_code == 404
+            assert plugin.calibration.run_trace("../../etc/passwd").status_code == 404
     assert [r["has_trace"] for r in plugin.runs.list()] == [True]
 
 
@@ -332,7 +332,7 @@ def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
         with app.test_request_context("/status"):
-            body = plugin.api_status().get_json()
+            body = plugin.settings_api.status().get_json()
     assert body["settings_problem"].startswith("limits_policy: must be one of")
 
 

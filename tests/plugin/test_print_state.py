@@ -10,10 +10,10 @@ import pytest
 
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.plugin.firmware_watch import FirmwareWatcher
-from octoprint_kincomp.plugin.notify import Notifier
-from octoprint_kincomp.plugin.print_state import PrintState
-from octoprint_kincomp.plugin.queue import QueueCompensator
+from octoprint_kincomp.plugin.printing.print_state import PrintState
+from octoprint_kincomp.service.notify import Notifier
+from octoprint_kincomp.service.printing.firmware_watch import FirmwareWatcher
+from octoprint_kincomp.service.printing.queue import QueueCompensator
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 2000.0}})
 FIRST = {"source:file", "fileline:1"}
@@ -161,7 +161,7 @@ def test_errors_outside_a_print_or_passed_through_do_not_pause(t):
 
 
 def test_moves_sent_as_written_are_notified_at_most_once_a_minute(t):
-    with mock.patch("octoprint_kincomp.plugin.print_state.time.monotonic") as clock:
+    with mock.patch("octoprint_kincomp.plugin.printing.print_state.time.monotonic") as clock:
         clock.return_value = 1000.0
         t.state.sent_as_written("G1 X5", "unknown")
         clock.return_value = 1059.0

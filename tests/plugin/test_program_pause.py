@@ -9,7 +9,7 @@ from unittest import mock
 import pytest
 from octoprint.util.comm import _normalize_command_handler_result
 
-from octoprint_kincomp.ballbar.program import TestSpec, generate
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from tests.support.mocked_plugin import mocked_plugin
 
@@ -147,7 +147,9 @@ def test_a_move_sent_as_written_during_a_test_program_never_advises_homing(plugi
 
 def test_outside_a_test_program_the_advice_still_says_to_home(plugin, tmp_path):
     _printing(plugin, tmp_path, "G91\nG1 Z10 F600\n")
-    with mock.patch("octoprint_kincomp.plugin.print_state.time.monotonic", return_value=5e3):
+    with mock.patch(
+        "octoprint_kincomp.plugin.printing.print_state.time.monotonic", return_value=5e3
+    ):
         _play(plugin, Comm(), ["G91", "G1 Z10 F600"])
     said = [t for t in _notices(plugin) if "uncompensated" in t]
     assert said and "Home the printer (G28)" in said[-1]

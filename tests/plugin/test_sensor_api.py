@@ -10,9 +10,9 @@ from unittest import mock
 
 import pytest
 
-from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.formats import load_any
-from octoprint_kincomp.ballbar.program import TestSpec, generate
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.formats import load_any
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
 from octoprint_kincomp.sensor.virtual import VirtualSensor
@@ -71,7 +71,7 @@ def messages(plugin, kind=None):
 
 def use_sensor(plugin, call, port):
     status, body = call(
-        plugin.api_settings, "/settings", "POST", {"sensor": {"enabled": True, "port": port}}
+        plugin.settings_api.save, "/settings", "POST", {"sensor": {"enabled": True, "port": port}}
     )
     assert status == 200, body
 
@@ -84,7 +84,7 @@ def finished_run(plugin, timeout=30.0):
 
 def test_sensor_settings_are_checked_and_the_printers_port_refused(plugin, call):
     status, body = call(
-        plugin.api_settings,
+        plugin.settings_api.save,
         "/settings",
         "POST",
         {
@@ -109,34 +109,34 @@ def test_sensor_settings_are_checked_and_the_printers_port_refused(plugin, call)
         ({"port": "/dev/ttyPRINTER"}, "sensor.port"),
         ({"speed": 1}, "sensor.speed"),
     ):
-        status, body = call(plugin.api_settings, "/settings", "POST", {"sensor": bad})
+        status, body = call(plugin.settings_api.save, "/settings", "POST", {"sensor": bad})
         assert status == 400 and body["error"].startswith(field), (bad, body)
         assert plugin.store.current()["sensor"] == stored  # the old values are kept
     # the printer's configured port counts too (not only the connected one)
     plugin._settings.global_set(["serial", "port"], "/dev/ttyACM7")
     status, body = call(
-        plugin.api_settings, "/settings", "POST", {"sensor": {"port": "/dev/ttyACM7"}}
+        plugin.settings_api.save, "/settings", "POST", {"sensor": {"port": "/dev/ttyACM7"}}
     )
     assert status == 400 and "printer's own port" in body["error"]
-    status, body = call(plugin.api_sensor_ports, "/sensor/ports")
+    status, body = call(plugin.sensor.ports, "/sensor/ports")
     assert status == 200 and "/dev/ttyACM7" in body["printer_ports"]
     assert isinstance(body["ports"], list)
 
 
 def test_nothing_to_capture_without_a_sensor(plugin, call):
-    status, body = call(plugin.api_program, "/program", "POST", PROGRAM)
+    status, body = call(plugin.calibration.program, "/program", "POST", PROGRAM)
     assert status == 200 and body["printing"] and body["capture"] is None
     assert not plugin.sensor.waiting
-    status, body = call(plugin.api_sensor_open, "/sensor/open", "POST")
+    status, body = call(plugin.sensor.open, "/sensor/open", "POST")
     assert status == 400 and "no live sensor is set" in body["error"]
-    assert call(plugin.api_sensor_stop, "/sensor/stop", "POST")[0] == 409
-    status, body = call(plugin.api_sensor_status, "/sensor/status")
+    assert call(plugin.sensor.stop, "/sensor/stop", "POST")[0] == 409
+    status, body = call(plugin.sensor.status, "/sensor/status")
     assert status == 200 and body["state"] == "idle" and not body["configured"]
 
 
 def test_live_preview_shows_the_reading_noise_and_chart(plugin, call, bar):
     use_sensor(plugin, call, bar.url)
-    status, body = call(plugin.api_sensor_open, "/sensor/open", "POST")
+    status, body = call(plugin.sensor.open, "/sensor/open", "POST")
     assert status == 200, body
     wait_for(
         lambda: (
@@ -146,7 +146,7 @@ def test_live_preview_shows_the_reading_noise_and_chart(plugin, call, bar):
         10,
     )
     time.sleep(0.6)
-    status, live = call(plugin.api_sensor_live, "/sensor/live?seconds=5")
+    status, live = call(plugin.sensor.live, "/sensor/live?seconds=5")
     assert status == 200 and live["state"] == "preview" and live["port_open"]
     assert live["reading_mm"] == pytest.approx(1.0, abs=0.01)  # the idle bar
     assert 0.2 < live["noise_um"] < 1.0  # the virtual bar's 0.5 um
@@ -156,7 +156,7 @@ def test_live_preview_shows_the_reading_noise_and_chart(plugin, call, bar):
     wait_for(lambda: any(m["chart"]["mm"] for m in messages(plugin, "sensor")), 5)
     pushed = [m for m in messages(plugin, "sensor") if m["chart"]["mm"]][-1]
     assert pushed["status"]["preview"] and len(pushed["chart"]["mm"]) <= 150
-    status, body = call(plugin.api_sensor_close, "/sensor/close", "POST")
+    status, body = call(plugin.sensor.close, "/sensor/close", "POST")
     assert status == 200 and body["state"] == "idle" and not body["port_open"]
     assert plugin.sensor._cap is None
 
@@ -171,11 +171,11 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
         threads.append(threading.current_thread().name)
         return real(*args, **kw)
 
-    status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
+    status, prog = call(plugin.calibration.program, "/program", "POST", PROGRAM)
     assert status == 200 and prog["capture"]["armed"] and prog["capture"]["port"] == bar.url
     assert plugin.sensor.waiting
     plugin._printer.select_file.assert_called_once()
-    with mock.patch("octoprint_kincomp.plugin.sensor_runs.analyse", spy):
+    with mock.patch("octoprint_kincomp.service.capture.capture_recorder.analyse", spy):
         bar.play(
             generate(SPEC).splitlines(),
             time.monotonic(),
@@ -191,10 +191,10 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
     assert [r["direction"] for r in run["capture"]["runs"]] == ["ccw", "cw"]
     assert run["capture"]["program"] == prog["path"]
     # the stored raw stream gives the same result offline, exactly
-    status, raw = call(plugin.api_run_raw, "/runs/x/raw", "GET", None, run["id"])
+    status, raw = call(plugin.sensor.raw, "/runs/x/raw", "GET", None, run["id"])
     assert status == 200
     trace, _ = trace_from_stream(parse_raw_stream(raw.decode()), SPEC, prog["program_hash"])
-    status, stored = call(plugin.api_run_trace, "/runs/x/trace", "GET", None, run["id"])
+    status, stored = call(plugin.calibration.run_trace, "/runs/x/trace", "GET", None, run["id"])
     assert stored.decode() == trace.to_text()
     offline = analyse(
         load_any(trace.to_text().encode(), "offline.csv"),
@@ -212,7 +212,7 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
 
 def test_an_unplugged_sensor_is_a_failed_run_with_its_data(plugin, call, bar):
     use_sensor(plugin, call, bar.url)
-    status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
+    status, prog = call(plugin.calibration.program, "/program", "POST", PROGRAM)
     assert prog["capture"]["armed"]
     bar.play(generate(SPEC).splitlines(), time.monotonic(), spec=SPEC)
     wait_for(lambda: plugin.sensor._cap.state == "capturing", 15)
@@ -227,15 +227,15 @@ def test_an_unplugged_sensor_is_a_failed_run_with_its_data(plugin, call, bar):
     for method in ("cancel_print", "pause_print"):  # the print is not affected
         getattr(plugin._printer, method).assert_not_called()
     # a failed run cannot be applied
-    status, body = call(plugin.api_apply, "/apply", "POST", {"run": run["id"]})
+    status, body = call(plugin.calibration.apply, "/apply", "POST", {"run": run["id"]})
     assert status == 400 and "no proposed parameters" in body["error"]
     assert plugin.runs.list()[0]["status"] == "failed"
 
 
 def test_a_cancelled_print_stops_the_capture(plugin, call, bar):
     use_sensor(plugin, call, bar.url)
-    call(plugin.api_sensor_open, "/sensor/open", "POST")
-    status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
+    call(plugin.sensor.open, "/sensor/open", "POST")
+    status, prog = call(plugin.calibration.program, "/program", "POST", PROGRAM)
     wait_for(lambda: plugin.sensor._cap.state == "armed", 5)
     plugin.on_event("PrintStarted", {"origin": "local", "path": prog["path"]})
     plugin._printer.is_printing.return_value = False
@@ -248,7 +248,7 @@ def test_a_cancelled_print_stops_the_capture(plugin, call, bar):
 def test_the_end_marker_gives_the_data_a_grace_time(plugin, call, bar):
     """The program ended (its M117 marker was queued) but the data never shows its end."""
     use_sensor(plugin, call, bar.url)
-    call(plugin.api_program, "/program", "POST", PROGRAM)
+    call(plugin.calibration.program, "/program", "POST", PROGRAM)
     plugin.sensor._grace = lambda: 0.5
     plugin.queuing_hook(object(), "queuing", "M117 Ballbar run ccw", None, "M117")
     time.sleep(0.8)
@@ -266,24 +266,24 @@ def test_arm_and_stop_by_hand(plugin, call, bar, tmp_path):
     program.write_text(generate(SPEC))
     plugin._file_manager.file_exists.return_value = True
     plugin._file_manager.path_on_disk.return_value = str(program)
-    status, body = call(plugin.api_sensor_arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
+    status, body = call(plugin.sensor.arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
     assert status == 200 and body["armed"]["radius_mm"] == 30.0, body
-    status, body = call(plugin.api_sensor_arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
+    status, body = call(plugin.sensor.arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
     assert status == 400 and "already running" in body["error"]
     wait_for(lambda: plugin.sensor._cap.state == "armed", 5)
-    assert call(plugin.api_sensor_stop, "/sensor/stop", "POST")[0] == 200
+    assert call(plugin.sensor.stop, "/sensor/stop", "POST")[0] == 200
     run = finished_run(plugin)
     assert run["status"] == "failed" and run["capture"]["program"] == "ballbar.gcode"
     program.write_text("G28\n")
-    status, body = call(plugin.api_sensor_arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
+    status, body = call(plugin.sensor.arm, "/sensor/arm", "POST", {"path": "ballbar.gcode"})
     assert status == 400 and "not a KinComp ballbar program" in body["error"]
-    assert call(plugin.api_sensor_arm, "/sensor/arm", "POST", {})[0] == 400
+    assert call(plugin.sensor.arm, "/sensor/arm", "POST", {})[0] == 400
 
 
 def print_program(plugin, call, program, spec):
     """Write ``program`` through the program route and send it as OctoPrint would (comments
     stripped, through the queuing hook); returns the route's answer."""
-    status, prog = call(plugin.api_program, "/program", "POST", program)
+    status, prog = call(plugin.calibration.program, "/program", "POST", program)
     assert status == 200, prog
     plugin.on_event("PrintStarted", {"origin": "local", "path": prog["path"]})
     queue_lines(plugin, generate(spec).splitlines(), plugin.prints.comm)
@@ -291,7 +291,7 @@ def print_program(plugin, call, program, spec):
 
 
 def test_demo_mode_streams_the_virtual_bar_live(plugin, call):
-    status, _ = call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
+    status, _ = call(plugin.settings_api.save, "/settings", "POST", {"demo": {"enabled": True}})
     assert status == 200 and plugin.demo.live
     prog = print_program(plugin, call, PROGRAM, SPEC)
     assert prog["capture"]["armed"] and prog["capture"]["source"] == "demo"
@@ -308,9 +308,9 @@ def test_demo_mode_streams_the_virtual_bar_live(plugin, call):
     assert not messages(plugin, "demo_trace")
     assert plugin.demo._sensor is None  # nobody reads it: the virtual bar stopped
     # live off: the fallback path as before
-    call(plugin.api_settings, "/settings", "POST", {"demo": {"live": False}})
+    call(plugin.settings_api.save, "/settings", "POST", {"demo": {"live": False}})
     assert plugin.store.current()["demo"] == {"enabled": True, "live": False}
-    status, prog = call(plugin.api_program, "/program", "POST", PROGRAM)
+    status, prog = call(plugin.calibration.program, "/program", "POST", PROGRAM)
     assert prog["capture"] is None
 
 
@@ -319,7 +319,7 @@ def test_demo_captures_a_slow_vertical_test_live(plugin, call):
     """A vertical test at F200 takes the virtual bar seconds to simulate and its 1 s dwells
     are shorter than the step windows: the capture waits for the simulated stream's end
     (not for a guess made before it was known) and finds both runs."""
-    call(plugin.api_settings, "/settings", "POST", {"demo": {"enabled": True}})
+    call(plugin.settings_api.save, "/settings", "POST", {"demo": {"enabled": True}})
     program = {"plane": "XZ", "radius": 40, "centre": [110, 110, 60], "feed": 200, "print": True}
     spec = TestSpec(plane="XZ", centre=(110.0, 110.0, 60.0), radius_mm=40.0, feed_mm_min=200.0)
     prog = print_program(plugin, call, program, spec)

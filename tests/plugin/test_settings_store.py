@@ -13,14 +13,10 @@ from octoprint.settings import Settings
 
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.plugin.notify import Notifier
-from octoprint_kincomp.plugin.queue import QueueCompensator
-from octoprint_kincomp.plugin.settings import (
-    SETTINGS_VERSION,
-    defaults,
-    validate_settings,
-)
-from octoprint_kincomp.plugin.settings_store import SettingsStore
+from octoprint_kincomp.plugin.settings.settings_store import SettingsStore
+from octoprint_kincomp.service.notify import Notifier
+from octoprint_kincomp.service.printing.queue import QueueCompensator
+from octoprint_kincomp.service.settings.schema import SETTINGS_VERSION, defaults, validate_settings
 
 BED = {
     "volume": {"width": 200, "depth": 200, "height": 200, "origin": "lowerleft"},

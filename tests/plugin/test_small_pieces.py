@@ -5,16 +5,16 @@ from unittest import mock
 
 import pytest
 
-from octoprint_kincomp.ballbar.program import TestSpec
+from octoprint_kincomp.calibration.ballbar.program import TestSpec
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.messages import Msg
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.plugin import http
-from octoprint_kincomp.plugin.demo_mode import DemoMode
-from octoprint_kincomp.plugin.firmware_check import FirmwareCheck
-from octoprint_kincomp.plugin.firmware_watch import FirmwareWatcher
-from octoprint_kincomp.plugin.notify import Notifier
-from octoprint_kincomp.plugin.queue import QueueCompensator
+from octoprint_kincomp.service.calibration.demo_mode import DemoMode
+from octoprint_kincomp.service.notify import Notifier
+from octoprint_kincomp.service.printing.firmware_check import FirmwareCheck
+from octoprint_kincomp.service.printing.firmware_watch import FirmwareWatcher
+from octoprint_kincomp.service.printing.queue import QueueCompensator
 from tests.support.mocked_plugin import api_app, wait_for
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})

@@ -10,8 +10,8 @@ from octoprint.plugins.softwareupdate.updaters import pip as pip_updater
 from octoprint.plugins.softwareupdate.version_checks import github_release, jsondata
 
 from octoprint_kincomp import __plugin_url__, __version__
-from octoprint_kincomp.plugin.settings import SettingsError, defaults, validate_settings
-from octoprint_kincomp.plugin.software_update import check_config
+from octoprint_kincomp.service.settings.schema import SettingsError, defaults, validate_settings
+from octoprint_kincomp.service.settings.software_update import check_config
 from tests.support.mocked_plugin import mocked_plugin
 
 
@@ -149,7 +149,7 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
         ) as perms:
             perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = allowed
             with app.test_request_context("/settings", method="POST", json=body):
-                resp = plugin.api_settings()
+                resp = plugin.settings_api.save()
         assert getattr(resp, "status_code", 200) == status
         stored = plugin.store.current()["software_update"]["type"]
         assert stored == ("jsondata" if allowed else "github_release")
@@ -159,7 +159,7 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
     ) as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = False
         with app.test_request_context("/settings", method="POST", json={"enabled": True}):
-            assert getattr(plugin.api_settings(), "status_code", 200) == 200
+            assert getattr(plugin.settings_api.save(), "status_code", 200) == 200
 
 
 class _UnknownPermission:
@@ -195,11 +195,11 @@ def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp
     ) as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE = _UnknownPermission()
         with app.test_request_context("/settings", method="POST", json=body):
-            resp = plugin.api_settings()
+            resp = plugin.settings_api.save()
         assert resp.status_code == 409 and "disabled" in resp.get_json()["error"]
         with app.test_request_context(
             "/api/settings", method="POST", json={"plugins": {"kincomp": body}}
-        ), mock.patch("octoprint_kincomp.plugin.settings_store.Permissions"):
+        ), mock.patch("octoprint_kincomp.plugin.settings.settings_store.Permissions"):
             resp = plugin.store.check_settings_request()
         assert resp.status_code == 409
     assert plugin.store.current()["software_update"]["type"] == "github_release"

@@ -129,10 +129,10 @@ def test_core_messages_reach_the_user_in_german():
     German catalog they come out German, placeholders and nested messages filled in."""
     from babel.support import Translations
 
-    from octoprint_kincomp.ballbar.formats import TraceError, parse_summary
-    from octoprint_kincomp.ballbar.program import ProgramError, TestSpec, check_bounds
+    from octoprint_kincomp.calibration.ballbar.formats import TraceError, parse_summary
+    from octoprint_kincomp.calibration.ballbar.program import ProgramError, TestSpec, check_bounds
     from octoprint_kincomp.core.messages import Msg, as_dict, error_message, translate
-    from octoprint_kincomp.plugin.settings import SettingsError, validate_settings
+    from octoprint_kincomp.service.settings.schema import SettingsError, validate_settings
 
     de = Translations.load(os.path.join(ROOT, "octoprint_kincomp", "translations"), ["de"])
     with pytest.raises(SettingsError) as exc:

@@ -8,8 +8,8 @@ import os
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.marker import MARKER_SCAN_LINES
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.engines.files import compensate_binary, marker_line
-from octoprint_kincomp.plugin.upload import CompensatingStream
+from octoprint_kincomp.engines.file_loop import compensate_binary, marker_line
+from octoprint_kincomp.plugin.files.upload import CompensatingStream
 from tests.support import DATA as DATA
 
 PARAMS = Params.from_dict(

@@ -5,10 +5,10 @@ the runs, and junk after (unmounting)."""
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.closedloop import compensate_text
-from octoprint_kincomp.ballbar.program import TestSpec, generate
-from octoprint_kincomp.ballbar.simulator import paper_truth, simulate_program
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
+from octoprint_kincomp.simulator.closed_loop import compensate_text
+from octoprint_kincomp.simulator.printer import paper_truth, simulate_program
 
 
 class SimStream:
@@ -66,8 +66,8 @@ def xy_stream():
 
 @pytest.fixture(scope="session")
 def xz_stream():
-    from octoprint_kincomp.ballbar.simulator import Truth
     from octoprint_kincomp.core.params import Params
+    from octoprint_kincomp.simulator.printer import Truth
 
     truth = Truth(
         errors=Params.from_dict(

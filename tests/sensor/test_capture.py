@@ -9,13 +9,13 @@ import time
 import pytest
 import serial
 
-from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.demo import demo_truth
-from octoprint_kincomp.ballbar.program import TestSpec, generate
-from octoprint_kincomp.ballbar.simulator import simulate_program
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.sensor import Capture, SensorConfig, SensorError, list_ports
 from octoprint_kincomp.sensor.ports import open_error
 from octoprint_kincomp.sensor.virtual import VirtualSensor
+from octoprint_kincomp.simulator.demo import demo_truth
+from octoprint_kincomp.simulator.printer import simulate_program
 
 from .conftest import same_result
 

@@ -8,11 +8,11 @@ import pytest
 from octoprint_kincomp.sensor.config import SensorConfig
 from octoprint_kincomp.sensor.convention import Convention
 from octoprint_kincomp.sensor.diagnostics import Diagnostics
-from octoprint_kincomp.sensor.errors import SensorError
-from octoprint_kincomp.sensor.lines import LineSplitter
+from octoprint_kincomp.sensor.line_splitter import LineSplitter
 from octoprint_kincomp.sensor.protocol_kincomp import KinCompParser
 from octoprint_kincomp.sensor.protocol_pattern import PatternParser
 from octoprint_kincomp.sensor.protocol_plain import PlainParser
+from octoprint_kincomp.sensor.sensor_error import SensorError
 
 HEADER = b"KINCOMP-BALLBAR 1\n# sensor: DIY LVDT\n# sample_rate_hz: 500\n"
 

@@ -5,20 +5,16 @@ All streams are SIMULATED (KinComp's printer + ballbar simulator)."""
 import numpy as np
 import pytest
 
-from octoprint_kincomp.ballbar.analysis import analyse
-from octoprint_kincomp.ballbar.demo import demo_truth
-from octoprint_kincomp.ballbar.formats import parse_csv_trace
-from octoprint_kincomp.ballbar.program import TestSpec
-from octoprint_kincomp.ballbar.simulator import volume_truth
+from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.formats import parse_csv_trace
+from octoprint_kincomp.calibration.ballbar.program import TestSpec
 from octoprint_kincomp.core.params import Params
-from octoprint_kincomp.sensor.errors import SensorError
 from octoprint_kincomp.sensor.retime import retime
-from octoprint_kincomp.sensor.runs import detect_runs
-from octoprint_kincomp.sensor.stream import (
-    RawStream,
-    parse_raw_stream,
-    trace_from_stream,
-)
+from octoprint_kincomp.sensor.run_detection import detect_runs
+from octoprint_kincomp.sensor.sensor_error import SensorError
+from octoprint_kincomp.sensor.stream import RawStream, parse_raw_stream, trace_from_stream
+from octoprint_kincomp.simulator.demo import demo_truth
+from octoprint_kincomp.simulator.printer import volume_truth
 
 from .conftest import SimStream, same_result
 

@@ -26,7 +26,7 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     patches = [
         mock.patch("octoprint_kincomp.plugin.http.require"),
         mock.patch(
-            "octoprint_kincomp.plugin.files_api.valid_file_type",
+            "octoprint_kincomp.plugin.files.files_api.valid_file_type",
             side_effect=lambda p, type=None: str(p).endswith(".gcode"),
         ),
     ]
@@ -36,7 +36,7 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     if profile is None:
         plugin._printer_profile_manager.get_current_or_default.return_value = PROFILE
     try:
-        from octoprint_kincomp.plugin.worker import InProcessWorker
+        from octoprint_kincomp.service.files.worker import InProcessWorker
 
         plugin.jobs.worker = InProcessWorker()
     except ImportError:  # (before issue 17 there was no worker: work ran in the request)

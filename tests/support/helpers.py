@@ -5,12 +5,12 @@ from __future__ import annotations
 import math
 from typing import List, Sequence, Tuple
 
-from octoprint_kincomp.ballbar.sim.machine import FirmwareInterpreter, Home, Move
-from octoprint_kincomp.ballbar.sim.play import Play
 from octoprint_kincomp.core.compensator import Options
 from octoprint_kincomp.core.kinematics import KinematicModel
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.engines.select import make_compensator
+from octoprint_kincomp.firmware.interpreter import FirmwareInterpreter, Home, Move
+from octoprint_kincomp.simulator.play import Play
 
 
 def compensate_groups(params: Params, lines: Sequence[str], options: Options = None):

@@ -6,7 +6,7 @@ import os
 import time
 from unittest import mock
 
-from octoprint_kincomp.plugin.settings import defaults
+from octoprint_kincomp.service.settings.schema import defaults
 
 
 def mocked_plugin(basedir: str, bed_mm: float = 200.0, stored=None, profile=None, connected=True):

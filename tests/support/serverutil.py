@@ -7,8 +7,8 @@ import re
 import time
 import uuid
 
-from octoprint_kincomp.plugin.queue import QueueCompensator, command_of
-from octoprint_kincomp.plugin.settings import engine_config
+from octoprint_kincomp.service.printing.queue import QueueCompensator, command_of
+from octoprint_kincomp.service.settings.schema import engine_config
 from tests.support import DATA as DATA
 
 # commands OctoPrint sends by itself (polls, handshake): not part of what a test sent

@@ -30,7 +30,7 @@
 
     var reductionText = function (row) {
         // a compared row's reduction: "at noise level" when the before value is within the
-        // noise floor (the server decides: ballbar/closedloop.py), else the per cent
+        // noise floor (the server decides: simulator/closed_loop.py), else the per cent
         if (!row) return "";
         if (row.at_noise) return gettext("at noise level");
         return row.reduction_pct !== null && row.reduction_pct !== undefined

@@ -1,0 +1,495 @@
+"""Ballbar trace analysis: from readings to errors, ISO 230-4 metrics and KinComp parameters.
+
+One trace (native time series, angle domain, ``.b5r`` or typed summary) -> :func:`analyse`,
+which returns ``{"diagnostics", "parameters", "firmware", "findings", "trusted", "notes",
+"plot"}``. The pieces:
+
+* :mod:`.timing`: native samples -> nominal angle with the planned motion of the program
+  (acceleration, junction speeds, stops; settings from the metadata or the trace itself);
+* :mod:`.model`: the exact radial-deviation model, its joint CW+CCW least-squares fit and the
+  1-sigma uncertainty of every fitted value (signs and units documented there);
+* :mod:`.metrics`: ISO 230-4 circularity (LSC and MZC), hysteresis and the plot data;
+* ``proposal.py``: residual errors + the parameters active during the test -> a params file;
+* :mod:`.checks`: what is checked before the result is trusted (timing against the plan,
+  the residual against the noise floor, cyclic error, outliers) -> ``findings`` (see
+  ``findings.py``); ``trusted`` is False when a finding is an error. ``notes`` (the info
+  findings' messages) stays for older readers.
+
+Several traces of one campaign are fitted jointly by :mod:`.joint`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ...core.kinematics import changes_nothing
+from ...core.messages import Msg
+from ...core.params import AXES, Params
+from ..findings import Finding, info, trusted, warning, worst_first
+from ..proposal import propose_params
+from . import checks
+from .formats import (
+    AngleTrace,
+    NativeTrace,
+    Summary,
+    TraceError,
+    meta_centre,
+    meta_float,
+    meta_plane,
+)
+from .metrics import circularity, iso_metrics, plot_data
+from .model import (
+    DEFAULT_MASK_DEG,
+    FitResult,
+    Geometry,
+    Model,
+    Run,
+    diagnostic_values,
+    fit,
+    reversal_mask,
+    uncertainty_values,
+)
+from .timing import Mapping, runs_from_angle, runs_from_native
+
+__all__ = [
+    "DEFAULT_MASK_DEG",
+    "FitResult",
+    "Geometry",
+    "Model",
+    "PLANE_KEYS",
+    "Run",
+    "analyse",
+    "analyse_runs",
+    "fit",
+    "iso_metrics",
+    "load_runs",
+    "plot_data",
+    "propose_params",
+    "reversal_mask",
+    "runs_from_angle",
+    "runs_from_native",
+]
+
+PLANE_KEYS = {"XY": "xy", "XZ": "xz", "YZ": "yz"}
+
+
+def load_runs(trace, current: Optional[Params] = None) -> Tuple[Geometry, List[Run]]:
+    geom, runs, _ = load_runs_mapped(trace, current)
+    return geom, runs
+
+
+def load_runs_mapped(
+    trace, current: Optional[Params] = None
+) -> Tuple[Geometry, List[Run], Mapping]:
+    if isinstance(trace, NativeTrace):
+        loaded = runs_from_native(trace, current)
+    elif isinstance(trace, AngleTrace):
+        loaded = runs_from_angle(trace, current)
+    else:
+        raise TraceError(Msg("not a trace"))
+    geom, runs, mapping = loaded
+    if current is not None and current.servo_precomp:
+        runs = [
+            dataclasses.replace(run, known=_lead_speed_error(geom, run, current)) for run in runs
+        ]
+    return geom, runs, mapping
+
+
+def _lead_speed_error(geom: Geometry, run: Run, current: Params) -> Optional[np.ndarray]:
+    """mm (+ = bar longer): the deviation of a run measured with servo pre-compensation on
+    that comes from the lead's use of the programmed feed (None: not known).
+
+    The compensator leads each axis by ``T * v_programmed`` (the chord's direction at the
+    programmed feed); the drive lags by ``T * v_planned`` (the planner accelerates). Besides
+    the residual lag, which the fit's ``dT`` models on the planned motion, the axis is then
+    off by ``T * (v_programmed - v_planned)``: in the acceleration at the ends of the
+    overshoot arcs. Unremoved, the fit took it for a smaller lag (a re-test of the simulated
+    printer read -0.087 ms at F3700 and R40 instead of 0, and proposed switching the lead
+    off); the ISO metrics keep it, it is there on the printer."""
+    if run.vA is None or run.vB is None or not geom.speed:
+        return None
+    a, b = geom.axes
+    t_a = current.servo_lag_ms[AXES[a]] * 1e-3
+    t_b = current.servo_lag_ms[AXES[b]] * 1e-3
+    s, c = np.sin(run.theta), np.cos(run.theta)
+    off_a = t_a * (-run.w * geom.speed * s - run.vA)  # mm, A further than the model has it
+    off_b = t_b * (run.w * geom.speed * c - run.vB)
+    return off_a * c + off_b * s
+
+
+def _check_both_directions(runs: Sequence[Run]) -> None:
+    """Both directions must have samples: with one, the fit cannot tell squareness from
+    servo mismatch (a lag difference dT shows as R * omega * dT / 2 of squareness), so a
+    truncated trace or a capture stopped early would propose a wrong squareness."""
+    present = {r.direction for r in runs if len(r.theta)}
+    for d in ("ccw", "cw"):
+        if d not in present:
+            raise TraceError(
+                Msg(
+                    "the trace has no %(direction)s run: with one direction the fit cannot tell "
+                    "squareness from servo mismatch; test (or export) both directions",
+                    direction=d.upper(),
+                )
+            )
+
+
+@dataclass
+class CheckedFit:
+    """A fit after the trust checks: the fit the values come from (outliers left out, the
+    cyclic term added when the residual showed one), its findings and diagnostics."""
+
+    fit: FitResult
+    runs: List[Run]  # the runs the fit used (outliers left out)
+    cyclic_pitch: Optional[float]
+    findings: List[Finding] = field(default_factory=list)
+    checks: Dict[str, object] = field(default_factory=dict)  # diag["checks"]
+    robust_runs: Optional[List[Run]] = None  # for the circularity without outliers
+
+
+def checked_fit(
+    geom: Geometry,
+    runs: Sequence[Run],
+    mapping: Optional[Mapping],
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    label: str = "",
+    fixed: Optional[Dict[str, float]] = None,
+) -> CheckedFit:
+    """Fit, then check the evidence (see :mod:`.checks`): outliers are left out and the fit
+    repeated; a clear cyclic error in the residual is fitted (when ``cyclic_pitch`` is not
+    given); the timing and the residual against the noise floor become findings."""
+    runs = list(runs)
+    found: List[Finding] = list(checks.motion_findings(geom, mapping, label))
+    f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+    floor, source = checks.noise_floor(f, runs, mapping)
+    out = CheckedFit(f, runs, cyclic_pitch)
+    drop = checks.find_outliers(f, runs, floor)
+    n_out = int(sum(int(m.sum()) for m in drop.values()))
+    out.checks["outliers"] = n_out
+    if n_out:
+        runs = checks.without(runs, drop)
+        out.robust_runs = runs
+        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+        if source == "residual":
+            floor = max(checks.residual_floor(f, runs) * 1e3, checks.FLOOR_MIN_UM)
+    keep = checks.keep_mask(runs, mask_deg)
+    scan = checks.scan_cyclic(geom, runs, f, keep)
+    if scan is not None:
+        out.checks["cyclic_scan"] = {
+            "pitch_mm": round(scan["pitch_mm"], 4),
+            "amplitude_um": {k: round(v, 3) for k, v in scan["amplitude_um"].items()},
+        }
+    if cyclic_pitch is None and checks.cyclic_detected(
+        scan, floor, checks.excess_mm2(runs, f, keep, floor)
+    ):
+        cyclic_pitch = float(scan["pitch_mm"])
+        f2 = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+        if f2.rms_um < f.rms_um:
+            f = f2
+            out.cyclic_pitch = cyclic_pitch
+            found.append(checks.cyclic_finding(scan, label))
+            scan = checks.scan_cyclic(geom, runs, f, keep)
+    misfit_floor, misfit_source, vibration, moving_ev = checks.misfit_floor(
+        f, runs, floor, source, label
+    )
+    found += vibration
+    adequacy, ev = checks.adequacy_findings(
+        geom,
+        runs,
+        f,
+        keep,
+        misfit_floor,
+        misfit_source,
+        scan if checks.cyclic_detected(scan, floor) else None,
+        label,
+    )
+    found += adequacy
+    ev.update(moving_ev)
+    out.checks["adequacy"] = ev
+    wider = mask_deg + checks.STABILITY_EXTRA_DEG
+    try:
+        f_wide = fit(geom, runs, wider, calibrated, out.cyclic_pitch, fixed=fixed)
+    except TraceError:
+        f_wide = None
+    if f_wide is not None:
+        found += checks.stability_findings(
+            diagnostic_values(f.values, geom.radius),
+            diagnostic_values(f_wide.values, geom.radius),
+            uncertainty_values(f.sigma, geom.radius),
+            uncertainty_values(f_wide.sigma, geom.radius),
+            mask_deg,
+            wider,
+            label,
+            checks.reached_sides(runs),
+        )
+    out.fit = f
+    out.runs = runs
+    out.findings = found
+    return out
+
+
+def analyse_runs(
+    geom: Geometry,
+    runs: Sequence[Run],
+    meta: Dict[str, str],
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    f: Optional[FitResult] = None,
+    mapping: Optional[Mapping] = None,
+) -> Dict[str, object]:
+    if f is None:
+        f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch)
+    v = f.values
+    la, lb = geom.letters
+    diag: Dict[str, object] = {
+        "plane": geom.plane,
+        "axes": {"a": la.upper(), "b": lb.upper()},
+        "radius_mm": geom.radius,
+        "feed_mm_min": geom.feed,
+        "centre": list(geom.centre) if geom.centre else None,
+        "simulated": meta.get("simulated", "").lower() == "true",
+    }
+    diag.update(diagnostic_values(v, geom.radius))
+    diag["bar_calibrated"] = calibrated
+    if cyclic_pitch:
+        diag["cyclic_error_um"] = {
+            "a": math.hypot(v["cAs"], v["cAc"]) * 1e3,
+            "b": math.hypot(v["cBs"], v["cBc"]) * 1e3,
+            "pitch_mm": cyclic_pitch,
+        }
+    diag["uncertainty"] = uncertainty_values(f.sigma, geom.radius)
+    diag.update(iso_metrics(geom, runs, calibrated))
+    diag["fit"] = {
+        "rms_um": f.rms_um,
+        "samples": f.samples,
+        "masked": f.masked,
+        "mask_deg": mask_deg,
+        "condition": f.condition,
+        "iterations": f.iterations,
+        "correlation_inflation": f.correlation_inflation,
+        "model": "exact geometry, joint CW+CCW, common centre",
+    }
+    if mapping is not None:
+        diag["fit"].update(mapping.as_dict())
+    return diag
+
+
+def analyse(
+    trace,
+    current: Optional[Params] = None,
+    mask_deg: float = DEFAULT_MASK_DEG,
+    calibrated: bool = False,
+    cyclic_pitch: Optional[float] = None,
+    known_squareness_um_per_m: Optional[Dict[str, float]] = None,
+    known_sources: Optional[Dict[str, str]] = None,
+) -> Dict[str, object]:
+    """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes",
+    "plot"}. ``current``: the parameters active during the test (the fit is then a residual
+    and the program the printer ran is the compensated one).
+
+    ``known_squareness_um_per_m``: the printer's squareness (um/m, keys ``xy``, ``xz``,
+    ``yz``, as KinComp's parameters state it: e.g. an XY result's proposal) that a vertical
+    test cannot see but that moves its third axis (:data:`.model.OUT_OF_PLANE`); less what
+    ``current`` corrects, it is fitted as a fixed motion (as the joint fit does) instead of
+    biasing the scale mismatch and squareness; ``known_sources``: per key, where the value
+    came from (said in the ``model.out_of_plane_used`` finding)."""
+    from ...firmware.export import equivalents
+
+    current = current or Params()
+    known = checked_known_squareness(known_squareness_um_per_m)
+    notes: List[str] = []
+    found: List[Finding] = []
+    plot = None
+    if isinstance(trace, Summary):
+        diag = dict(trace.diagnostics)
+        geom = Geometry(
+            meta_plane(trace.meta),
+            meta_float(trace.meta, "radius_mm", 0.0),
+            meta_centre(trace.meta),
+            meta_float(trace.meta, "feed_mm_min", 0.0) or None,
+        )
+        diag.setdefault("plane", geom.plane)
+        diag["source"] = trace.meta.get("source", "summary")
+        notes += trace.notes
+        found.append(
+            info(
+                "source.summary",
+                Msg(
+                    "These values come from another program's summary, not from a trace: KinComp "
+                    "could not check the motion, the fit or the noise behind them."
+                ),
+            )
+        )
+    else:
+        geom, runs, mapping = load_runs_mapped(trace, current)
+        _check_both_directions(runs)
+        fixed, used = checks.out_of_plane_used(
+            geom.plane, known, current.squareness_um_per_m, known_sources or {}
+        )
+        cf = checked_fit(
+            geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, fixed=fixed or None
+        )
+        f = cf.fit
+        diag = analyse_runs(
+            geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping
+        )
+        found += cf.findings
+        found += outlier_findings(cf, diag, radius=geom.radius)
+        diag["checks"] = cf.checks
+        drift = checks.drift_finding(diag, runs)
+        if drift is not None:
+            found.append(drift)
+        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m, list(known))
+        if oop is not None:
+            found.append(oop)
+        if used is not None:
+            found.append(used)
+        if fixed:
+            diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
+        plot = plot_data(geom, runs, f, diag)
+        for n in mapping_notes(mapping):
+            notes.append(n)
+            found.append(info("motion.estimated", n))
+        measured_with = trace.meta.get("params_hash", "").strip()
+        if measured_with not in ("", "none", "-") and measured_with != current.hash():
+            n = Msg(
+                "The trace was measured with parameters %(hash)s, but the "
+                "analysis assumes %(current)s were in force: give the parameters "
+                "that were active during the test, or the residuals are wrong.",
+                hash=measured_with,
+                current=current.hash(),
+            )
+            notes.append(n)
+            found.append(
+                warning(
+                    "params.mismatch", n, evidence_hash=measured_with, current_hash=current.hash()
+                )
+            )
+        if not calibrated:
+            n = Msg(
+                "The bar is not calibrated: the mean radius mixes the bar's own "
+                "length error with the mean axis scale, so only the scale "
+                "mismatch is used."
+            )
+            notes.append(n)
+            found.append(info("bar.uncalibrated", n))
+    if current is not None and not changes_nothing(current):
+        n = Msg(
+            "The test ran with compensation active: the fitted errors are "
+            "residuals and the proposed parameters are current + residual."
+        )
+        notes.append(n)
+        found.append(info("params.residual", n))
+    before = len(notes)
+    params = propose_params(diag, geom, current, notes)
+    found += [info("proposal.note", n) for n in notes[before:]]
+    found = worst_first(found)
+    return {
+        "diagnostics": diag,
+        "parameters": params.to_dict(),
+        "firmware": equivalents(params),
+        "findings": [x.to_dict() for x in found],
+        "findings_i18n": [x.to_wire() for x in found],
+        "trusted": trusted(found),
+        "notes": notes,
+        "plot": plot,
+    }
+
+
+def checked_known_squareness(values: Optional[Dict[str, float]]) -> Dict[str, float]:
+    """``values`` (um/m by KinComp's squareness key) checked: ValueError naming a key that is
+    not ``xy``, ``xz`` or ``yz`` or a value that is not a finite number."""
+    out: Dict[str, float] = {}
+    for k, v in (values or {}).items():
+        if k not in PLANE_KEYS.values():
+            raise ValueError(Msg("known squareness: %(key)s is not one of xy, xz, yz", key=str(k)))
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            f = math.nan
+        if not math.isfinite(f) or isinstance(v, bool):
+            raise ValueError(Msg("known squareness: %(key)s must be a finite number (um/m)", key=k))
+        out[k] = f
+    return out
+
+
+def outlier_findings(
+    cf: CheckedFit, diag: Dict[str, object], label: str = "", radius: float = 0.0
+) -> List[Finding]:
+    """The circularity without the outliers the checks left out of the fit, and a finding
+    saying how much they weigh (a warning when they dominate G(b)); ``label`` prefixes the
+    message (a campaign's file name); ``radius`` (mm): the nominal radius (see
+    :func:`.metrics.circularity`)."""
+    if not cf.robust_runs:
+        return []
+    pre = (label + ": ") if label else ""
+    robust = circularity([r.captured() for r in cf.robust_runs], radius)
+    diag["circularity_robust_um"] = robust
+    g, gr = diag["circularity_um"]["bidirectional"], robust["bidirectional"]
+    n = cf.checks.get("outliers", 0)
+    ev = dict(outliers=n, g_b_um=round(g, 2), g_b_without_um=round(gr, 2))
+    if g > checks.OUTLIER_DOMINATE * gr:
+        return [
+            warning(
+                "data.outliers",
+                Msg(
+                    "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor "
+                    "glitch, a knock): the circularity G(b) is %(g)s um with them and %(gr)s um "
+                    "without. They dominate G(b) and any before/after comparison of it; the fit "
+                    "left them out.",
+                    pre=pre,
+                    n=n,
+                    g=f"{g:.1f}",
+                    gr=f"{gr:.1f}",
+                ),
+                Msg(
+                    "Compare circularity without the outliers (circularity_robust_um), or repeat "
+                    "the test with the sensor's cable and mount secured."
+                ),
+                **ev,
+            )
+        ]
+    return [
+        info(
+            "data.outliers",
+            Msg(
+                "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
+                "(G(b) %(g)s um with them, %(gr)s um without).",
+                pre=pre,
+                n=n,
+                g=f"{g:.1f}",
+                gr=f"{gr:.1f}",
+            ),
+            **ev,
+        )
+    ]
+
+
+def mapping_notes(mapping: Mapping) -> List[str]:
+    s = mapping.settings
+    if s is None or not s.estimated:
+        return []
+    if s.constant_speed:
+        return [
+            Msg(
+                "The trace records no planner settings; its ramps fit motion at constant "
+                "speed, so time was mapped to angle at the programmed feed."
+            )
+        ]
+    return [
+        Msg(
+            "The trace records no planner settings; estimated from its own start-up and "
+            "stop transients: acceleration %(accel)s mm/s^2, junction deviation %(jd)s mm "
+            "(90 deg corner speed %(corner)s mm/s).",
+            accel=f"{s.accel_mm_s2:.0f}",
+            jd=f"{s.junction_deviation_mm:.4f}",
+            corner=f"{s.corner_speed_90:.1f}",
+        )
+    ]

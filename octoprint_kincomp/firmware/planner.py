@@ -1,0 +1,527 @@
+"""Lookahead motion planner: where a firmware really puts the head, as a function of time.
+
+Units: mm, s, mm/s, mm/s^2; feeds in the G-code and ``max_feed_mm_min`` in mm/min.
+
+What it models (the common core of Marlin's and Klipper's planners):
+
+* every move runs a trapezoidal velocity profile: accelerate at ``accel_mm_s2`` from its entry
+  speed, cruise at its nominal speed, decelerate to its exit speed (a short move may never
+  reach its nominal speed: triangle profile);
+* the nominal speed is the programmed feed, lowered so that no axis exceeds its own maximum
+  (``max_feed_mm_min`` per axis, as Marlin's ``M203`` and Klipper's ``max_z_velocity``);
+  an optional per-axis ``max_accel_mm_s2`` lowers a move's acceleration the same way;
+* the speed at a junction between two moves is limited by the angle between them, either by
+  Marlin's junction deviation ``v^2 = a * JD * sin(t/2) / (1 - sin(t/2))`` (with Marlin's
+  small-segment arc limit ``v^2 <= a * L / (pi - theta)`` for moves shorter than 1 mm) or, when
+  ``square_corner_velocity_mm_s`` is given, by Klipper's square-corner velocity (the same
+  formula with ``JD = scv^2 (sqrt 2 - 1) / a`` and Klipper's centripetal limit
+  ``v^2 <= a L tan(t/2) / 2`` on both moves); a reversal stops;
+* full stops: at ``M400``, ``M0``/``M1``, before and after every ``G4`` dwell, at homing and
+  at the start and end of the program; lookahead is unlimited between stops (a firmware's
+  block buffer of 16 moves covers the braking distance of these tests);
+* ``constant_speed``: every move at its nominal speed from the first instant (no
+  acceleration), the simulator's former behaviour, kept as an explicit option.
+
+Left out: S-curve (jerk-limited) acceleration, Klipper's minimum cruise ratio and input
+shaper, Marlin's classic jerk, slow-down when the serial line cannot feed the planner.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Dict, Iterable, Iterator, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ..core.gcode import parse_command
+from ..core.gcode_table import STOP, classify
+from ..core.messages import Msg
+from ..core.params import AXES, ParamsError
+from .interpreter import Dwell, FirmwareInterpreter, Home, Move
+
+DEFAULT_ACCEL = 1500.0  # mm/s^2, a typical desktop printer's print acceleration
+DEFAULT_JD = 0.013  # mm, Marlin's default junction deviation
+DEFAULT_MAX_FEED = {"x": 18000.0, "y": 18000.0, "z": 2400.0}  # mm/min (300, 300, 40 mm/s)
+SQRT2_1 = math.sqrt(2.0) - 1.0
+
+
+@dataclass
+class MotionSettings:
+    """Planner settings of one printer (see the module docstring)."""
+
+    accel_mm_s2: float = DEFAULT_ACCEL
+    junction_deviation_mm: Optional[float] = DEFAULT_JD
+    square_corner_velocity_mm_s: Optional[float] = None  # Klipper; replaces the JD
+    max_feed_mm_min: Dict[str, float] = field(default_factory=lambda: dict(DEFAULT_MAX_FEED))
+    max_accel_mm_s2: Optional[Dict[str, float]] = None
+    constant_speed: bool = False
+    small_segments: bool = True  # Marlin's JD_HANDLE_SMALL_SEGMENTS
+    estimated: bool = False  # found from a trace's own transients, not given
+
+    KEYS = (
+        "motion",
+        "accel_mm_s2",
+        "junction_deviation_mm",
+        "square_corner_velocity_mm_s",
+        "max_feed_mm_min",
+        "max_accel_mm_s2",
+    )
+
+    @property
+    def klipper(self) -> bool:
+        return self.square_corner_velocity_mm_s is not None
+
+    @property
+    def corner_speed_90(self) -> float:
+        """Junction speed (mm/s) of a 90 degree corner (the program's feed-in corners)."""
+        if self.klipper:
+            return float(self.square_corner_velocity_mm_s)
+        s = math.sqrt(0.5)
+        return math.sqrt(self.accel_mm_s2 * (self.junction_deviation_mm or 0.0) * s / (1 - s))
+
+    def caps(self) -> np.ndarray:
+        return np.array(
+            [float(self.max_feed_mm_min.get(a, math.inf) or math.inf) / 60.0 for a in AXES]
+        )
+
+    def axis_accels(self) -> Optional[np.ndarray]:
+        if not self.max_accel_mm_s2:
+            return None
+        return np.array([float(self.max_accel_mm_s2.get(a, math.inf) or math.inf) for a in AXES])
+
+    # -- documents ------------------------------------------------------------------------
+    def metadata(self) -> Dict[str, str]:
+        """``# key: value`` lines of a trace (what the analysis reads back)."""
+        if self.constant_speed:
+            return {"motion": "constant_speed"}
+        out = {
+            "motion": "planner" + (" (estimated)" if self.estimated else ""),
+            "accel_mm_s2": f"{self.accel_mm_s2:g}",
+        }
+        if self.klipper:
+            out["square_corner_velocity_mm_s"] = f"{self.square_corner_velocity_mm_s:g}"
+        else:
+            out["junction_deviation_mm"] = f"{self.junction_deviation_mm:g}"
+        out["max_feed_mm_min"] = ",".join(f"{self.max_feed_mm_min.get(a, 0):g}" for a in AXES)
+        if self.max_accel_mm_s2:
+            out["max_accel_mm_s2"] = ",".join(f"{self.max_accel_mm_s2.get(a, 0):g}" for a in AXES)
+        return out
+
+    def as_dict(self) -> Dict[str, object]:
+        """JSON form for diagnostics."""
+        d: Dict[str, object] = {
+            "motion": "constant_speed" if self.constant_speed else "planner",
+            "estimated": self.estimated,
+        }
+        if not self.constant_speed:
+            d["accel_mm_s2"] = self.accel_mm_s2
+            if self.klipper:
+                d["square_corner_velocity_mm_s"] = self.square_corner_velocity_mm_s
+            else:
+                d["junction_deviation_mm"] = self.junction_deviation_mm
+            d["corner_speed_90_mm_s"] = self.corner_speed_90
+        d["max_feed_mm_min"] = dict(self.max_feed_mm_min)
+        return d
+
+    @staticmethod
+    def from_metadata(meta: Dict[str, str]) -> Optional[MotionSettings]:
+        """Settings recorded in a trace's metadata; None when it records none (old traces,
+        other loggers). Raises ValueError (with the key) for malformed values."""
+        kind = meta.get("motion", "").strip().lower()
+        if not kind and "accel_mm_s2" not in meta:
+            return None
+        if kind == "constant_speed":
+            return MotionSettings(
+                constant_speed=True,
+                max_feed_mm_min=_axis_triple(
+                    meta.get("max_feed_mm_min"), "max_feed_mm_min", DEFAULT_MAX_FEED
+                ),
+            )
+        d: Dict[str, object] = {}
+        for key in ("accel_mm_s2", "junction_deviation_mm", "square_corner_velocity_mm_s"):
+            if key in meta:
+                d[key] = meta[key]
+        d["max_feed_mm_min"] = _axis_triple(
+            meta.get("max_feed_mm_min"), "max_feed_mm_min", DEFAULT_MAX_FEED
+        )
+        if "max_accel_mm_s2" in meta:
+            d["max_accel_mm_s2"] = _axis_triple(meta["max_accel_mm_s2"], "max_accel_mm_s2", {})
+        s = MotionSettings.from_dict(d)
+        s.estimated = "estimated" in kind
+        return s
+
+    @staticmethod
+    def from_dict(d: Dict[str, object]) -> MotionSettings:
+        """From a truth file / printer profile; raises ParamsError naming the field."""
+        s = MotionSettings()
+        if d.get("motion", "planner") == "constant_speed" or d.get("constant_speed") is True:
+            s.constant_speed = True
+        if "accel_mm_s2" in d:
+            s.accel_mm_s2 = _positive(d["accel_mm_s2"], "accel_mm_s2", 1.0, 1e6)
+        if d.get("square_corner_velocity_mm_s") is not None:
+            s.square_corner_velocity_mm_s = _positive(
+                d["square_corner_velocity_mm_s"], "square_corner_velocity_mm_s", 0.0, 1000.0
+            )
+            s.junction_deviation_mm = None
+        elif d.get("junction_deviation_mm") is not None:
+            s.junction_deviation_mm = _positive(
+                d["junction_deviation_mm"], "junction_deviation_mm", 0.0, 10.0
+            )
+        if d.get("max_feed_mm_min") is not None:
+            s.max_feed_mm_min = {
+                a: _positive(v, f"max_feed_mm_min.{a}", 1.0, 1e6)
+                for a, v in _axis_map(d["max_feed_mm_min"], "max_feed_mm_min").items()
+            }
+            for a in AXES:
+                s.max_feed_mm_min.setdefault(a, DEFAULT_MAX_FEED[a])
+        if d.get("max_accel_mm_s2"):
+            s.max_accel_mm_s2 = {
+                a: _positive(v, f"max_accel_mm_s2.{a}", 1.0, 1e6)
+                for a, v in _axis_map(d["max_accel_mm_s2"], "max_accel_mm_s2").items()
+            }
+        return s
+
+    def with_(self, **changes) -> MotionSettings:
+        return replace(self, **changes)
+
+
+def _positive(v, name: str, lo: float, hi: float) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ParamsError(name, Msg("must be a number")) from None
+    if not (lo < x <= hi) or not math.isfinite(x):
+        raise ParamsError(name, Msg("must be within %(lo)s..%(hi)s", lo=f"{lo:g}", hi=f"{hi:g}"))
+    return x
+
+
+def _axis_map(v, name: str) -> Dict[str, object]:
+    if isinstance(v, dict):
+        bad = [k for k in v if k not in AXES]
+        if bad:
+            raise ParamsError(f"{name}.{bad[0]}", Msg("unknown axis (allowed: x, y, z)"))
+        return dict(v)
+    if isinstance(v, (list, tuple)) and len(v) == 3:
+        return dict(zip(AXES, v))
+    raise ParamsError(name, Msg('expected {"x": .., "y": .., "z": ..}'))
+
+
+def _axis_triple(text: Optional[str], key: str, default: Dict[str, float]) -> Dict[str, float]:
+    if text is None:
+        return dict(default)
+    parts = str(text).split(",")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(key) from None
+    if len(vals) != 3 or not all(math.isfinite(v) and v > 0 for v in vals):
+        raise ValueError(key)
+    return dict(zip(AXES, vals))
+
+
+# ---------------------------------------------------------------------------------------
+# program -> events
+
+
+@dataclass(frozen=True)
+class Stop:
+    """A full stop without waiting (M400, M0, M1)."""
+
+    lineno: int
+
+
+def program_events(lines: Iterable[str], start: Sequence[float]) -> Iterator[object]:
+    """Move, Dwell, Home and Stop events of G-code ``lines`` on an ideal firmware starting at
+    ``start`` (machine frame, mm)."""
+    fw = FirmwareInterpreter(start=tuple(start))
+    for line in lines:
+        evs = fw.execute(line)
+        if evs:
+            yield from evs
+            continue
+        cmd = parse_command(line)
+        if cmd is not None and classify(cmd.kind, cmd.number, cmd.sub).cls == STOP:
+            yield Stop(fw.lineno)
+
+
+# ---------------------------------------------------------------------------------------
+# planning
+
+
+@dataclass
+class Plan:
+    """A planned program: blocks (moves and waits) with their trapezoids, sampled on demand.
+
+    Arrays per block: start time ``t0`` (s), start point ``p0`` (mm), unit direction ``u``,
+    length ``L`` (mm), entry/cruise/exit speeds ``v0/vc/v1`` (mm/s), acceleration ``a``
+    (mm/s^2), phase durations ``ta/tc/td`` (s; a wait is a cruise at speed 0), source line,
+    programmed speed ``f`` (mm/s).
+    """
+
+    t0: np.ndarray
+    p0: np.ndarray
+    u: np.ndarray
+    L: np.ndarray
+    v0: np.ndarray
+    vc: np.ndarray
+    v1: np.ndarray
+    a: np.ndarray
+    ta: np.ndarray
+    tc: np.ndarray
+    td: np.ndarray
+    line: np.ndarray
+    f: np.ndarray  # programmed speed (mm/s, before the axis caps)
+    vn: np.ndarray  # nominal speed (mm/s, the programmed one within the axis caps)
+    end: np.ndarray  # final position
+    settings: MotionSettings
+
+    @property
+    def duration(self) -> float:
+        if not len(self.t0):
+            return 0.0
+        return float(self.t0[-1] + self.ta[-1] + self.tc[-1] + self.td[-1])
+
+    def block_at(self, ts: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(self.t0, ts, side="right") - 1
+        return np.clip(i, 0, max(0, len(self.t0) - 1))
+
+    def line_at(self, ts: np.ndarray) -> np.ndarray:
+        return self.line[self.block_at(ts)]
+
+    def sample(self, ts) -> Tuple[np.ndarray, np.ndarray]:
+        """Commanded positions (n, 3) in mm and velocities (n, 3) in mm/s at times ``ts``."""
+        ts = np.asarray(ts, dtype=float)
+        if not len(self.t0):
+            pos = np.broadcast_to(self.end, ts.shape + (3,)).copy()
+            return pos, np.zeros_like(pos)
+        i = self.block_at(ts)
+        tau = np.maximum(ts - self.t0[i], 0.0)
+        ta, tc, td = self.ta[i], self.tc[i], self.td[i]
+        v0, vc, v1, a = self.v0[i], self.vc[i], self.v1[i], self.a[i]
+        t1 = np.minimum(tau, ta)
+        t2 = np.clip(tau - ta, 0.0, tc)
+        t3 = np.clip(tau - ta - tc, 0.0, td)
+        s = v0 * t1 + 0.5 * a * t1 * t1
+        s = s + np.where(tau > ta, vc * t2, 0.0)
+        s = s + np.where(tau > ta + tc, vc * t3 - 0.5 * a * t3 * t3, 0.0)
+        # the phase's velocity (a block's dc/da are exact; s never exceeds L)
+        v = np.where(
+            tau < ta, v0 + a * t1, np.where(tau < ta + tc, vc, np.maximum(vc - a * t3, v1))
+        )
+        s = np.minimum(s, self.L[i])
+        after = ts >= self.duration
+        v = np.where(after, 0.0, v)
+        u = self.u[i]
+        pos = self.p0[i] + u * s[..., None]
+        pos[after] = self.end
+        return pos, u * v[..., None]
+
+    def blocks_of_lines(self, lines: Sequence[int]) -> np.ndarray:
+        return np.nonzero(np.isin(self.line, np.asarray(lines)))[0]
+
+    def block_span(self, k: int) -> Tuple[float, float]:
+        return float(self.t0[k]), float(self.t0[k] + self.ta[k] + self.tc[k] + self.td[k])
+
+
+@dataclass
+class Blocks:
+    """A program's blocks before planning (what does not depend on the settings)."""
+
+    p0: np.ndarray
+    p1: np.ndarray
+    feed: np.ndarray  # mm/min; 0 for a wait
+    line: np.ndarray
+    wait: np.ndarray  # s of dwell for a wait block, 0 for a move after a stop, -1 otherwise
+    end: np.ndarray
+
+    def plan(self, settings: Optional[MotionSettings] = None) -> Plan:
+        return _plan_arrays(
+            self.p0,
+            self.p1,
+            self.feed,
+            self.line,
+            self.wait,
+            self.end,
+            settings or MotionSettings(),
+        )
+
+
+def program_blocks(events: Iterable[object], start: Sequence[float]) -> Blocks:
+    """Moves, waits and stops of a program's events (see :func:`program_events`)."""
+    p0s: List[Tuple[float, float, float]] = []
+    p1s: List[Tuple[float, float, float]] = []
+    feeds: List[float] = []
+    lines: List[int] = []
+    waits: List[float] = []
+    pos = tuple(float(v) for v in start)
+    stop_next = True
+    for ev in events:
+        if isinstance(ev, Move):
+            if math.dist(ev.start, ev.end) == 0.0:
+                pos = ev.end
+                continue
+            if math.dist(ev.start, pos) > 1e-9:  # position jumped (homing, ...)
+                stop_next = True
+            p0s.append(tuple(ev.start))
+            p1s.append(tuple(ev.end))
+            feeds.append(ev.feed)
+            lines.append(ev.lineno)
+            waits.append(0.0 if stop_next else -1.0)
+            stop_next = False
+            pos = ev.end
+        elif isinstance(ev, Dwell):
+            stop_next = True
+            if ev.seconds > 0.0:
+                p0s.append(pos)
+                p1s.append(pos)
+                feeds.append(0.0)
+                lines.append(ev.lineno)
+                waits.append(float(ev.seconds))
+        elif isinstance(ev, (Stop, Home)):
+            stop_next = True
+    return Blocks(
+        np.array(p0s, dtype=float).reshape(-1, 3),
+        np.array(p1s, dtype=float).reshape(-1, 3),
+        np.array(feeds, dtype=float),
+        np.array(lines, dtype=int),
+        np.array(waits, dtype=float),
+        np.array(pos, dtype=float),
+    )
+
+
+def plan_events(
+    events: Iterable[object], start: Sequence[float], settings: Optional[MotionSettings] = None
+) -> Plan:
+    """Plan a program's events (see :func:`program_events`)."""
+    return program_blocks(events, start).plan(settings)
+
+
+def _plan_arrays(P0, P1, feed, line, wait, end, s: MotionSettings) -> Plan:
+    n = len(P0)
+    is_wait = feed == 0.0
+    D = P1 - P0
+    L = np.linalg.norm(D, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        U = np.where(L[:, None] > 0, D / np.where(L > 0, L, 1.0)[:, None], 0.0)
+    absu = np.abs(U)
+    caps = s.caps()
+    with np.errstate(divide="ignore"):
+        cap_speed = np.min(
+            np.where(absu > 1e-12, caps[None, :] / np.maximum(absu, 1e-300), np.inf), axis=1
+        )
+    vn = np.minimum(feed / 60.0, cap_speed)
+    vn[is_wait] = 0.0
+    acc = np.full(n, float(s.accel_mm_s2))
+    amax = s.axis_accels()
+    if amax is not None:
+        with np.errstate(divide="ignore"):
+            acc = np.minimum(
+                acc,
+                np.min(
+                    np.where(absu > 1e-12, amax[None, :] / np.maximum(absu, 1e-300), np.inf), axis=1
+                ),
+            )
+    vn2 = vn * vn
+    if s.constant_speed or n == 0:
+        v0 = vn.copy()
+        v1 = vn.copy()
+        vc = vn.copy()
+        a = np.zeros(n)
+        ta = np.zeros(n)
+        td = np.zeros(n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tc = np.where(is_wait, np.maximum(wait, 0.0), L / np.where(vn > 0, vn, 1.0))
+    else:
+        J = _junction_v2(U, L, acc, vn2, wait >= 0.0, is_wait, s)
+        c = 2.0 * acc * L  # v^2 gained over a whole move
+        P = np.concatenate([[0.0], np.cumsum(c)])  # prefix sums
+        # backward pass: e_i = min(J_i, e_{i+1} + c_i), exit of the last move 0
+        g = np.minimum.accumulate(np.concatenate([J + P[:-1], [P[-1]]])[::-1])[::-1]
+        e = g[:-1] - P[:-1]
+        # forward pass: x_{i+1} = min(e_{i+1}, x_i + c_i), x_0 = 0 (J_0 = 0)
+        ee = np.concatenate([e, [0.0]])
+        h = np.minimum.accumulate(ee - P)
+        x = np.maximum(h + P, 0.0)
+        v0sq, v1sq = x[:-1], x[1:]
+        vcsq = np.minimum(vn2, (c + v0sq + v1sq) * 0.5)
+        vcsq = np.maximum(vcsq, np.maximum(v0sq, v1sq))
+        v0, v1, vc = np.sqrt(v0sq), np.sqrt(v1sq), np.sqrt(vcsq)
+        a = np.where(is_wait, 0.0, acc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = np.where(is_wait, 0.0, (vc - v0) / acc)
+            td = np.where(is_wait, 0.0, (vc - v1) / acc)
+            da = (vcsq - v0sq) / (2 * acc)
+            dd = (vcsq - v1sq) / (2 * acc)
+            dc = np.maximum(L - da - dd, 0.0)
+            tc = np.where(is_wait, np.maximum(wait, 0.0), dc / np.where(vc > 0, vc, 1.0))
+    dur = ta + tc + td
+    t0 = np.concatenate([[0.0], np.cumsum(dur)[:-1]]) if n else np.zeros(0)
+    return Plan(
+        t0=t0,
+        p0=P0,
+        u=U,
+        L=L,
+        v0=v0,
+        vc=vc,
+        v1=v1,
+        a=a,
+        ta=ta,
+        tc=tc,
+        td=td,
+        line=line,
+        f=feed / 60.0,
+        vn=vn,
+        end=end,
+        settings=s,
+    )
+
+
+def _junction_v2(U, L, acc, vn2, stop, is_wait, s: MotionSettings) -> np.ndarray:
+    """Maximum squared speed at the start of each block (0 after a stop)."""
+    n = len(U)
+    J = np.zeros(n)
+    if n < 2:
+        return J
+    up, un = U[:-1], U[1:]
+    cos_t = -np.einsum("ij,ij->i", up, un)
+    rev = cos_t > 0.999999
+    cos_t = np.maximum(cos_t, -0.999999)
+    sin_d2 = np.sqrt(0.5 * (1.0 - cos_t))
+    R = sin_d2 / (1.0 - sin_d2)
+    a_prev, a_next = acc[:-1], acc[1:]
+    L_prev, L_next = L[:-1], L[1:]
+    if s.klipper:
+        v2 = R * s.square_corner_velocity_mm_s**2 * SQRT2_1
+        tan_d2 = sin_d2 / np.sqrt(0.5 * (1.0 + cos_t))
+        v2 = np.minimum(
+            v2, np.minimum(0.5 * L_next * tan_d2 * a_next, 0.5 * L_prev * tan_d2 * a_prev)
+        )
+    else:
+        v2 = a_next * float(s.junction_deviation_mm or 0.0) * R
+        if s.small_segments:
+            theta = (
+                (math.radians(-40) * cos_t**2 - math.radians(50)) * cos_t + math.radians(90) - 0.18
+            )
+            arc = (L_next < 1.0) & (theta > math.radians(135))
+            with np.errstate(divide="ignore"):
+                lim = L_next / np.maximum(math.pi - theta, 1e-12) * a_next
+            v2 = np.where(arc, np.minimum(v2, lim), v2)
+    v2 = np.minimum(v2, np.minimum(vn2[:-1], vn2[1:]))
+    v2[rev] = 0.0
+    J[1:] = v2
+    J[stop] = 0.0
+    J[is_wait] = 0.0
+    J[1:][is_wait[:-1]] = 0.0
+    return J
+
+
+def program_blocks_of(text_or_lines, start: Sequence[float]) -> Blocks:
+    lines = text_or_lines.splitlines() if isinstance(text_or_lines, str) else text_or_lines
+    return program_blocks(program_events(lines, start), start)
+
+
+def plan_program(
+    text_or_lines, start: Sequence[float], settings: Optional[MotionSettings] = None
+) -> Plan:
+    return program_blocks_of(text_or_lines, start).plan(settings)

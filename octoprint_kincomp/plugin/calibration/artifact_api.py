@@ -1,0 +1,202 @@
+"""The printed-artifact endpoints (issue 27): calibrate with calipers.
+
+* ``POST /artifact/program``  {planes, nozzle, temps: [nozzle, bed], first_layer, caliper,
+  print}: writes KinComp's artifact for the printer profile's volume into OctoPrint's storage
+  (``kincomp/artifact_<date>.gcode``), optionally prints it; answers with its path and
+  :func:`sheet` (the numbered measurements and the drawing).
+* ``GET /artifact/sheet?path=``  the same sheet for a stored artifact program.
+* ``POST /artifact/analyze``  {path, readings: {"<id>": [mm, ...]}}: fits the readings
+  (``calibration/artifact/fit.py``) with the parameters in force as those of the print, and
+  stores the result as a calibration run (source ``artifact``; the readings are kept as its
+  measurement file). Applying it and the history are those of every run (``/apply``,
+  ``/runs``).
+
+Errors are JSON ``{"error": ...}`` in the user's language, 400 naming the field.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from typing import Any, Dict, List
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+
+from ...calibration.artifact.drawing import legend, svg
+from ...calibration.artifact.fit import ArtifactFitError, analyse_artifact, parse_readings
+from ...calibration.artifact.program import (
+    PLANES,
+    ArtifactProgramError,
+    ArtifactSpec,
+    generate,
+    read_measurements,
+    read_program_info,
+)
+from ...calibration.ballbar.formats import TraceError
+from ...service.calibration.run_store import RunNotStorable
+from .. import http
+from .calibration_api import CalibrationApi
+
+MAX_PROGRAM_BYTES = 8 * 1024 * 1024
+MAX_READINGS = 20  # repeats per measurement
+DEFAULT_VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
+
+
+def sheet(text: str, volume=None) -> Dict[str, Any]:
+    """What the measuring form shows of a program: its measurements (numbered), the drawing
+    and the program's settings."""
+    meas = read_measurements(text)
+    info = read_program_info(text)
+    if volume is None and info.get("volume"):
+        try:
+            volume = [float(v) for v in info["volume"].split(",")]
+        except ValueError:
+            volume = None
+    return {"measurements": legend(meas), "svg": svg(meas, volume), "info": info}
+
+
+class ArtifactApi:
+    def __init__(self, store, queue, calibration: CalibrationApi, files_api):
+        self._store = store
+        self._queue = queue
+        self._calibration = calibration
+        self._files = files_api
+
+    @http.route("/artifact/program", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def program(self):
+        data = http.json_object() or {}
+        try:
+            do_print = http.flag(data, "print")
+            planes = data.get("planes", list(PLANES))
+            if isinstance(planes, str):
+                planes = [p.strip() for p in planes.split(",") if p.strip()]
+            if (
+                not isinstance(planes, list)
+                or not planes
+                or not all(isinstance(p, str) and p.upper() in PLANES for p in planes)
+            ):
+                raise http.BadRequest(
+                    gettext("'%(key)s' must be a list of XY, XZ, YZ", key="planes")
+                )
+            temps = http.numbers(data, "temps", 2, (210.0, 60.0))
+            spec = ArtifactSpec(
+                volume=tuple(self._store.limits() or DEFAULT_VOLUME),
+                planes=tuple(p.upper() for p in planes),
+                nozzle_mm=http.number(data, "nozzle", 0.4),
+                hotend_c=temps[0],
+                bed_c=temps[1],
+                first_layer_mm=http.number(data, "first_layer", 0.2),
+                max_span_mm=http.number(data, "caliper", 150.0),
+            )
+            text = generate(spec, date=_dt.datetime.now().strftime("%Y-%m-%d %H:%M"))
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        except ArtifactProgramError as exc:
+            return http.error(http.tr(exc.args[0] if exc.args else exc), 400)
+        if do_print:
+            http.require(Permissions.PRINT)
+        name = f"artifact_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        path = self._calibration.store_program(text, name)
+        printing = False
+        if do_print:
+            if not self._calibration.printer_ready():
+                return http.error(gettext("The printer is not ready to print"), 409)
+            self._calibration.start_print(path)
+            printing = True
+        out = sheet(text, spec.volume)
+        out.update(path=path, printing=printing, lines=text.count("\n"))
+        return flask.jsonify(out)
+
+    def _read(self, path: Any) -> str:
+        disk = self._files._local_file(path)  # aborts 400/403/404 as for every stored file
+        try:
+            with open(disk, encoding="utf-8", errors="replace") as f:
+                return f.read(MAX_PROGRAM_BYTES)
+        except OSError as exc:
+            http.abort(
+                400, gettext("%(path)s cannot be read: %(error)s", path=path, error=exc.strerror)
+            )
+
+    @http.route("/artifact/sheet", "GET", needs=(http.STATUS,))
+    def sheet(self):
+        path = flask.request.args.get("path", "")
+        text = self._read(path)
+        try:
+            out = sheet(text)
+        except ArtifactProgramError as exc:
+            return http.error(
+                gettext(
+                    "%(path)s: %(reason)s",
+                    path=path,
+                    reason=http.tr(exc.args[0] if exc.args else exc),
+                ),
+                400,
+            )
+        out["path"] = path
+        return flask.jsonify(out)
+
+    @http.route("/artifact/analyze", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def analyze(self):
+        data = http.json_object()
+        if data is None:
+            return http.error(gettext("Expected a JSON object"), 400)
+        path = data.get("path")
+        text = self._read(path)
+        raw = data.get("readings")
+        if not isinstance(raw, dict) or any(
+            isinstance(v, list) and len(v) > MAX_READINGS for v in raw.values()
+        ):
+            return http.error(
+                gettext(
+                    "'%(key)s' must map each measurement to at most %(n)s readings in mm",
+                    key="readings",
+                    n=MAX_READINGS,
+                ),
+                400,
+            )
+        # empty fields are not measured
+        raw = {
+            k: [v for v in (vals if isinstance(vals, list) else [vals]) if v is not None]
+            for k, vals in raw.items()
+        }
+        try:
+            measurements = read_measurements(text)
+            readings = parse_readings(raw)
+            result = analyse_artifact(
+                measurements,
+                readings,
+                current=self._queue.in_force,
+                info=read_program_info(text),
+                wire=True,
+            )
+        except (ArtifactProgramError, ArtifactFitError, TraceError) as exc:
+            return http.error(
+                gettext(
+                    "Invalid artifact measurements: %(e)s",
+                    e=http.tr(exc.args[0] if exc.args else exc),
+                ),
+                400,
+            )
+        result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
+        result["diagnostics"]["program"] = path
+        findings: List[Dict[str, Any]] = result["findings"]
+        try:
+            run = self._calibration.record_run(
+                result,
+                str(path).rsplit("/", 1)[-1],
+                "artifact",
+                json.dumps(readings, indent=1).encode(),
+                None,
+                extra={"findings": findings, "trusted": result["trusted"]},
+            )
+        except RunNotStorable:
+            return http.error(
+                gettext(
+                    "The analysis gave numbers that are not finite; check "
+                    "the measurements (nothing was stored)"
+                ),
+                400,
+            )
+        return flask.jsonify(run)

@@ -1,0 +1,603 @@
+"""The calibration endpoints: ballbar program, measurement upload and analysis, applying a
+proposal, the run history, comparing two runs, and demo mode's simulated trace.
+
+* ``POST /program``  writes a ballbar test program (radius mm, feed mm/min lowered to what the
+  printer's motion limits allow, ``plugin/settings/limits_capture.py``; ``feed_lowered`` says why;
+  400 when no usable feed is left; centre mm) into OctoPrint's storage, optionally prints it (a live
+  sensor, if one is set, is armed first through ``on_print``).
+* ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
+  MAX_TRACE_UPLOAD bytes): analysed in the worker process (a background job: the run comes
+  in the response if it is ready within TRACE_WAIT_S, else 202 with the job, whose result
+  is the run id) and stored as a run; nothing is applied.
+* ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
+* ``POST /apply``    a run's proposed parameters, or given ones, into the settings; an
+  untrusted run (an error finding) only with ``"force": true`` (409 naming the error
+  without it).
+* ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
+  ``/demo/trace``.
+
+Every stored run carries ``findings`` (worst first; message and advice translatable) and ``trusted``
+(``service/calibration/findings_view.py``). Each method here is one route's body (the plugin class
+holds the routes); errors are JSON ``{"error": ...}`` responses in the user's language, 400 naming
+the field for bad input. A run whose numbers are not all finite is never stored.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import os
+import re
+from typing import Any, Dict, Optional, Tuple
+
+import flask
+from flask_babel import gettext
+from octoprint.access.permissions import Permissions
+from octoprint.filemanager import FileDestinations
+from octoprint.filemanager.util import StreamWrapper
+
+from ...calibration.artifact.diagonals import ArtifactError, diagnostics_from_artifact
+from ...calibration.ballbar.analysis import Geometry, analyse, propose_params
+from ...calibration.ballbar.formats import TraceError, load_any
+from ...calibration.ballbar.program import (
+    PLANES,
+    ProgramError,
+    TestSpec,
+    check_bounds,
+    generate,
+    spec_dict,
+    spec_from_program,
+)
+from ...core.messages import as_dict
+from ...core.params import Params, ParamsError
+from ...firmware.export import equivalents
+from ...firmware.motion_limits import LimitsError, circle_feed, describe
+from ...service.calibration.demo_mode import DemoMode
+from ...service.calibration.findings_view import findings_of, refusal
+from ...service.calibration.known_squareness import known_squareness
+from ...service.calibration.run_store import RunNotFound, RunNotStorable, RunStore
+from ...service.notify import Notifier
+from ...service.printing.queue import QueueCompensator
+from ...service.settings.printer_profiles import other_profile
+from ...service.settings.schema import SettingsError
+from ...simulator.closed_loop import table
+from .. import http
+from ..files.job_api import JobApi
+from ..settings.limits_capture import effective_limits
+from ..settings.settings_store import ProfileChanged, SettingsStore
+
+MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
+TRACE_WAIT_S = 20.0  # an analysis done within this many seconds comes in the response
+MAX_LENGTH_PAIRS = 100  # nominal/measured pairs per axis of a printed artifact
+PROGRAM_FOLDER = "kincomp"  # where generated programs go in OctoPrint's local storage
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+class UploadRefused(Exception):
+    """No uploaded file, or one too large: the message and the HTTP status."""
+
+    def __init__(self, message: str, status: int):
+        super().__init__(message)
+        self.message = message
+        self.status = status
+
+
+def safe_name(name: str) -> str:
+    """``name`` with only letters, digits, '.', '_' and '-' (others become '_'), at most 100
+    characters, "trace" if nothing is left."""
+    return _UNSAFE.sub("_", name)[:100] or "trace"
+
+
+class CalibrationApi:
+    def __init__(
+        self,
+        store: SettingsStore,
+        queue: QueueCompensator,
+        runs: RunStore,
+        demo: DemoMode,
+        notifier: Notifier,
+        printer,
+        file_manager,
+        job_api: JobApi,
+    ):
+        self._store = store
+        self._queue = queue
+        self._runs = runs
+        self._demo = demo
+        self._notifier = notifier
+        self._printer = printer
+        self._file_manager = file_manager
+        # on_print(path, spec, program_hash) -> JSON-ready capture state: arms the live
+        # sensor just before the program is printed (None: no live capture)
+        self.on_print = None
+        self._job_api = job_api
+
+    # ~~ the test program ------------------------------------------------------------------------
+    @http.route("/program", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def program(self):
+        data = http.json_object() or {}
+        try:
+            do_print, mount_pause = http.flag(data, "print"), http.flag(data, "mount_pause")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        if do_print:
+            http.require(Permissions.PRINT)
+        try:
+            plane = http.choice(data, "plane", tuple(PLANES), "XY")
+            feed = http.number(data, "feed", 1850.0)
+            spec = TestSpec(
+                plane=plane,
+                centre=tuple(http.numbers(data, "centre", 3, (110.0, 110.0, 10.0))),
+                radius_mm=http.number(data, "radius", 100.0),
+                feed_mm_min=feed,
+                requested_feed_mm_min=feed,
+                mount_pause=mount_pause,
+            )
+            volume = self._store.limits()
+            check_bounds(spec, volume)
+            choice = circle_feed(
+                spec.plane,
+                spec.radius_mm,
+                feed,
+                self.motion_limits(),
+                overshoot_deg=spec.overshoot_deg,
+            )
+            spec.feed_mm_min = choice.feed_mm_min
+            params = self._queue.in_force
+            text = generate(
+                spec, volume=volume, params_hash=params.hash(), feed_notes=describe(choice)
+            )
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        except (ProgramError, LimitsError, TypeError, ValueError) as exc:
+            return http.error(http.tr(exc), 400)
+        name = (
+            f"ballbar_{spec.plane}_R{spec.radius_mm:g}_"
+            f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
+        )
+        path, prog_hash, _ = self.write_program(text, name)
+        printing, capture = self.print_program(path, spec, prog_hash) if do_print else (False, None)
+        if do_print and not printing:
+            return http.error(gettext("The printer is not ready to print"), 409)
+        return flask.jsonify(
+            path=path,
+            spec=spec_dict(spec),
+            lines=text.count("\n"),
+            printing=printing,
+            program_hash=prog_hash,
+            capture=capture,
+            feed_lowered=[as_dict(r) for r in choice.reasons],
+        )
+
+    def test_printing(self) -> bool:
+        """Whether one of KinComp's test programs (its program folder) is printing."""
+        try:
+            if not self._printer.is_printing():
+                return False
+            job = self._printer.get_current_job() or {}
+            path = str((job.get("file") or {}).get("path") or "")
+        except Exception:
+            return False
+        return path.startswith(PROGRAM_FOLDER + "/")
+
+    def motion_limits(self):
+        """The limits a test must respect now (stated limits and the printer profile)."""
+        return effective_limits(self._store.current(), self._store.max_feeds())
+
+    def store_program(self, text: str, name: str) -> str:
+        """Writes the G-code ``text`` as ``kincomp/<name>`` into OctoPrint's storage (the
+        folder made if missing, a file of that name replaced); returns its path."""
+        path = f"{PROGRAM_FOLDER}/{name}"
+        self._file_manager.add_folder(FileDestinations.LOCAL, PROGRAM_FOLDER, ignore_existing=True)
+        self._file_manager.add_file(
+            FileDestinations.LOCAL,
+            path,
+            StreamWrapper(name, io.BytesIO(text.encode())),
+            allow_overwrite=True,
+        )
+        return path
+
+    def write_program(self, text: str, name: str) -> Tuple[str, str, TestSpec]:
+        """Writes the ballbar program ``text`` as ``kincomp/<name>`` (:meth:`store_program`)
+        and tells demo mode, with the test as the program states it (its params hash and
+        campaign keys go into the simulated trace); returns the path, the program hash and
+        that test."""
+        path = self.store_program(text, name)
+        stated, prog_hash = spec_from_program(text)
+        self._demo.program_written(path, stated, prog_hash)
+        return path, prog_hash, stated
+
+    def printer_ready(self) -> bool:
+        """Whether a program can be started now (connected, not printing)."""
+        return self._printer.is_operational() and not self._printer.is_printing()
+
+    def job_path(self) -> Optional[str]:
+        """The path of the file printing now (also paused or pausing); None when none is."""
+        p = self._printer
+        if not (p.is_printing() or p.is_paused() or p.is_pausing()):
+            return None
+        job = p.get_current_job() or {}
+        path = (job.get("file") or {}).get("path") if isinstance(job, dict) else None
+        return path if isinstance(path, str) and path else None
+
+    def start_print(self, path: str) -> None:
+        """Selects the stored file ``path`` and prints it, tagged as KinComp's."""
+        self._printer.select_file(
+            path, False, printAfterSelect=True, tags={"plugin:kincomp", "kincomp:calibration"}
+        )
+
+    def print_program(
+        self, path: str, spec: TestSpec, prog_hash: str, arm: bool = True
+    ) -> Tuple[bool, Optional[Dict[str, Any]]]:
+        """Prints the program at ``path`` (the test ``spec``); a live sensor, if one is in
+        use (and ``arm``), is armed first through ``on_print``. (printing, the capture's
+        state); (False, None) if the printer is not ready (not connected, or printing)."""
+        if not self.printer_ready():
+            return False, None
+        capture = (
+            self.on_print(path, spec, prog_hash) if arm and self.on_print is not None else None
+        )
+        self.start_print(path)
+        return True, capture
+
+    # ~~ measurements in ---------------------------------------------------------------------
+    @http.route("/trace", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def trace(self):
+        """Upload a trace, .b5r or summary file (multipart field 'file'), analyse it (in the
+        worker process) and store the run; nothing is applied."""
+        try:
+            data, filename = self.read_upload()
+        except UploadRefused as exc:
+            return http.error(exc.message, exc.status)
+        safe = safe_name(os.path.basename(str(filename)))
+        args = {
+            "data": data,
+            "name": safe,
+            "current": self._queue.in_force.to_dict(),
+            "known": self.known_squareness(),
+        }
+
+        def run(job, progress) -> None:
+            result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
+            kind = result.pop("kind", None) or "upload"
+            job.result = self.record_run(
+                result, safe, kind, data if kind != "summary" else None, result.get("plot")
+            )["id"]
+
+        job = self._job_api.submit("analyse", None, run)
+        return self._job_api.answer(
+            job,
+            lambda j: self._runs.get(j.result),
+            wait=TRACE_WAIT_S,
+            failed=lambda j: self._analysis_failed(safe, j.exception or j.error),
+        )
+
+    def read_upload(self) -> Tuple[bytes, str]:
+        """The uploaded file (multipart field 'file', or the raw body) and its name; raises
+        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes."""
+        suffix, name_suffix = self._store.upload_fields()
+        tmp_path = flask.request.values.get("file." + suffix)
+        filename = flask.request.values.get("file." + name_suffix, "trace")
+        if tmp_path:
+            size = os.path.getsize(tmp_path)
+            if size > MAX_TRACE_UPLOAD:
+                raise UploadRefused(gettext("The file is too large"), 413)
+            with open(tmp_path, "rb") as f:
+                data = f.read()
+        else:
+            data = flask.request.get_data(cache=False)
+            if not data:
+                raise UploadRefused(gettext("No file uploaded (multipart field 'file')"), 400)
+            if len(data) > MAX_TRACE_UPLOAD:
+                raise UploadRefused(gettext("The file is too large"), 413)
+        return data, filename
+
+    @http.route("/analyze", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def analyze(self):
+        """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
+        data = http.json_object()
+        if data is None:
+            return http.error(gettext("Expected a JSON object"), 400)
+        if "summary" in data:
+            if not isinstance(data["summary"], dict):
+                return http.error(gettext("'%(key)s' must be an object", key="summary"), 400)
+            return self._analyse_and_store(
+                json.dumps(data["summary"]).encode(), "typed summary", "summary"
+            )
+        if "artifact" in data:
+            try:
+                diag = self._artifact(data["artifact"])
+                notes = []
+                params = propose_params(
+                    diag, Geometry(diag["plane"], 0.0, None, None), self._queue.in_force, notes
+                )
+            except http.BadRequest as exc:
+                return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
+            except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
+                return http.error(
+                    gettext("Invalid artifact measurements: %(e)s", e=http.tr(exc)), 400
+                )
+            return self._store_run(
+                {
+                    "diagnostics": diag,
+                    "parameters": params.to_dict(),
+                    "firmware": equivalents(params),
+                    "notes": notes,
+                },
+                "printed artifact",
+                "artifact",
+                None,
+            )
+        return http.error(gettext("Give 'summary' or 'artifact'"), 400)
+
+    @staticmethod
+    def _artifact(a: Any) -> Dict[str, Any]:
+        """Diagnostics of printed-artifact measurements ({plane, ac, bd, ad, lengths}),
+        each field checked (:class:`http.BadRequest` naming it)."""
+        if not isinstance(a, dict):
+            raise http.BadRequest(gettext("'%(key)s' must be an object", key="artifact"))
+        plane = http.choice(a, "plane", tuple(PLANES), "XY")
+        ac, bd, ad = (http.number(a, k, None, "artifact.") for k in ("ac", "bd", "ad"))
+        lengths = a.get("lengths") or {}
+        if not isinstance(lengths, dict) or set(lengths) - set("xyzXYZ"):
+            raise http.BadRequest(
+                gettext(
+                    "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
+                    key="artifact.lengths",
+                )
+            )
+        pairs = {}
+        for axis, items in lengths.items():
+            where = f"artifact.lengths.{axis}"
+            if (
+                not isinstance(items, list)
+                or not 0 < len(items) <= MAX_LENGTH_PAIRS
+                or not all(isinstance(p, list) and len(p) == 2 for p in items)
+            ):
+                raise http.BadRequest(
+                    gettext(
+                        "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
+                        key=where,
+                        n=MAX_LENGTH_PAIRS,
+                    )
+                )
+            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p) for p in items]
+        diag = diagnostics_from_artifact(plane, ac, bd, ad, pairs)
+        http.check_json(diag)  # an overflow (1e308 mm) is no measurement
+        return diag
+
+    def _analysis_failed(self, name: str, exc) -> str:
+        return gettext(
+            "%(name)s: %(reason)s",
+            name=name,
+            reason=http.tr(exc) if isinstance(exc, BaseException) else str(exc),
+        )
+
+    def _analyse_and_store(self, data: bytes, filename: str, source: str):
+        safe = safe_name(os.path.basename(str(filename)))
+        try:
+            trace = load_any(data, safe)
+            result = analyse(trace, current=self._queue.in_force)
+        except TraceError as exc:
+            return http.error(self._analysis_failed(safe, exc), 400)
+        except (ParamsError, KeyError, TypeError, ValueError, ArithmeticError) as exc:
+            # values the formats accept but the analysis cannot use: the user's input
+            return http.error(self._analysis_failed(safe, exc), 400)
+        kind = getattr(trace, "kind", source)
+        return self._store_run(
+            result, safe, kind, data if kind != "summary" else None, result.get("plot")
+        )
+
+    def _store_run(
+        self, result: Dict[str, Any], filename: str, source: str, raw: Optional[bytes], plot=None
+    ):
+        try:
+            return flask.jsonify(self.record_run(result, filename, source, raw, plot))
+        except RunNotStorable:
+            return http.error(
+                gettext(
+                    "The analysis gave numbers that are not finite; check "
+                    "the measurements (nothing was stored)"
+                ),
+                400,
+            )
+
+    def record_run(
+        self,
+        result: Dict[str, Any],
+        filename: str,
+        source: str,
+        raw: Optional[bytes],
+        plot=None,
+        extra: Optional[Dict[str, Any]] = None,
+    ) -> Dict[str, Any]:
+        """Store an analysis as a run (and ``raw``, the measurement file, next to it;
+        ``extra``: more fields, e.g. a campaign's keys) and announce it; returns the run.
+        Raises :class:`RunNotStorable` (nothing stored) if a number is not finite. Needs
+        no request: the worker and the live capture's thread store their runs here too."""
+        run_id = self._runs.new_id()
+        current = self._queue.in_force
+        findings, trusted = findings_of(result)
+        run = {
+            "id": run_id,
+            "date": _dt.datetime.now().isoformat(timespec="seconds"),
+            "filename": filename,
+            "source": source,
+            "simulated": bool(result["diagnostics"].get("simulated")),
+            "params_before": current.to_dict(),
+            "params_before_hash": current.hash(),
+            "diagnostics": result["diagnostics"],
+            "proposed": result["parameters"],
+            "firmware": http.with_i18n(result["firmware"]),
+            "notes": [str(n) for n in result["notes"]],
+            "notes_i18n": [as_dict(n) for n in result["notes"]],
+            "findings": findings,
+            "trusted": trusted,
+            "plot": plot,
+            "applied": None,
+        }
+        run.update(extra or {})
+        self._runs.save(run, raw)
+        self._notifier.event(
+            "calibration_analysed", {"run": run_id, "source": source, "simulated": run["simulated"]}
+        )
+        return run
+
+    # ~~ applying a proposal -----------------------------------------------------------------
+    @http.route("/apply", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
+    def apply(self):
+        """Apply a run's proposed parameters ({"run": id}) or given ones ({"params": {...}})."""
+        data = http.json_object() or {}
+        try:
+            apply_now, force = http.flag(data, "apply_now"), http.flag(data, "force")
+            expected = http.expected_profile(data)
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
+        run = None
+        if "run" in data:
+            try:
+                run = self._runs.get(str(data["run"]))
+            except RunNotFound:
+                return http.error(gettext("No such calibration run"), 404)
+            params_doc = run.get("proposed")
+            if params_doc is None:
+                return http.error(
+                    gettext("This run has no proposed parameters (its capture failed)"), 400
+                )
+            refused = self.other_printers(run) or self.untrusted(run, force)
+            if refused is not None:
+                return refused
+        elif "params" in data:
+            if not isinstance(data["params"], dict):
+                return http.error(gettext("'%(key)s' must be an object", key="params"), 400)
+            params_doc = data["params"]
+        else:
+            return http.error(gettext("Give 'run' or 'params'"), 400)
+        return self.apply_params(
+            params_doc,
+            apply_now,
+            run,
+            {"enabled": data["enabled"]} if "enabled" in data else None,
+            expected,
+        )
+
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
+        """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
+        printer profile than the one in force (a stale page or another user's switch:
+        printer A's result must never be applied to printer B; ``force`` does not override
+        it); None to go on."""
+        s = self._store.current()
+        if not other_profile(run.get("profile"), s):
+            return None
+        return http.error(
+            gettext(
+                "%(what)s belongs to printer profile %(run)s, but %(current)s "
+                "is in force: connect that printer to apply it.",
+                what=what or gettext("This run"),
+                run=run.get("profile") or s["legacy_profile"],
+                current=s["profile"],
+            ),
+            409,
+        )
+
+    @staticmethod
+    def untrusted(run: Dict[str, Any], force: bool):
+        """409 naming the first error finding when ``run`` is not trusted and the request
+        does not say ``"force": true`` (apply anyway); None to go on."""
+        reason = refusal(run)
+        if reason is None or force:
+            return None
+        return http.error(http.tr(reason), 409)
+
+    def apply_params(
+        self,
+        params_doc,
+        apply_now: bool,
+        run: Optional[Dict[str, Any]] = None,
+        settings: Optional[Dict[str, Any]] = None,
+        expected_profile: Optional[str] = None,
+    ):
+        """Saves ``params_doc`` (and ``settings``, e.g. enabled) as the parameters, validated
+        whole (400 naming the field, nothing saved); marks ``run`` applied. 409, nothing
+        saved, when ``expected_profile`` is given and another profile's set is in force."""
+        new = {"params": params_doc}
+        new.update(settings or {})
+        try:
+            new, _ = self._store.update(
+                new,
+                replace_params=True,
+                immediately=apply_now or None,
+                expected_profile=expected_profile,
+            )
+        except ProfileChanged as exc:
+            return http.profile_changed(exc, self._store.profile_names())
+        except SettingsError as exc:
+            return http.error(http.tr(exc), 400)
+        if run is not None:
+            run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
+            self._runs.save(run)
+        return flask.jsonify(
+            params=new["params"],
+            params_hash=Params.from_dict(new["params"]).hash(),
+            compensation=self._queue.status(),
+        )
+
+    # ~~ the run history -----------------------------------------------------------------------
+    def known_squareness(self) -> Dict[str, Any]:
+        """The printer's squareness as the history of the printer profile in force knows it
+        (:func:`.known_squareness.known_squareness`): what a vertical test analysed alone
+        takes as its out-of-plane motion."""
+        s = self._store.current()
+        return known_squareness(self._runs.documents(s["profile"] or None, s["legacy_profile"]))
+
+    @http.route("/runs", "GET", needs=(http.STATUS,))
+    def runs(self):
+        s = self._store.current()  # the history of the printer profile in force
+        return flask.jsonify(runs=self._runs.list(s["profile"] or None, s["legacy_profile"]))
+
+    @http.route("/runs/<run_id>", "GET", needs=(http.STATUS,))
+    def run(self, run_id: str):
+        try:
+            return flask.jsonify(self._runs.get(run_id))
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+
+    @http.route("/runs/<run_id>/trace", "GET", needs=(http.STATUS,))
+    def run_trace(self, run_id: str):
+        """The measurement file of a run as it was uploaded (trace, .b5r)."""
+        try:
+            run = self._runs.get(run_id)
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+        path = self._runs.trace_path(run_id)
+        if path is None:
+            return http.error(gettext("This run has no stored measurement file"), 404)
+        name = safe_name(str(run.get("filename") or "trace"))
+        return flask.send_file(
+            path, mimetype="application/octet-stream", as_attachment=True, download_name=name
+        )
+
+    @http.route("/compare", "GET", needs=(http.STATUS,))
+    def compare(self):
+        try:
+            a = self._runs.get(flask.request.args.get("before", ""))
+            b = self._runs.get(flask.request.args.get("after", ""))
+        except RunNotFound:
+            return http.error(gettext("No such calibration run"), 404)
+        return flask.jsonify(
+            table=table(a["diagnostics"], b["diagnostics"]), before=a["id"], after=b["id"]
+        )
+
+    # ~~ demo mode ---------------------------------------------------------------------------
+    @http.route("/demo/trace", "GET", needs=(http.STATUS,))
+    def demo_trace(self):
+        trace = self._demo.last_trace()
+        if trace is None:
+            return http.error(
+                gettext("No simulated trace yet: print a ballbar program in demo mode first"), 404
+            )
+        resp = flask.make_response(trace.to_text())
+        resp.headers["Content-Type"] = "text/csv; charset=utf-8"
+        resp.headers["Content-Disposition"] = 'attachment; filename="simulated_trace.csv"'
+        return resp

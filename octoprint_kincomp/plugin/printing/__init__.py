@@ -1,0 +1,1 @@
+"""Printing on OctoPrint: the connection and the print on it (``print_state``)."""
