@@ -73,19 +73,27 @@ def error(
     return Finding(code, "error", message, advice, evidence)
 
 
+def severity_of(finding: Any) -> Optional[str]:
+    """The severity of a :class:`Finding` or of its dict form."""
+    if isinstance(finding, Finding):
+        return finding.severity
+    return finding.get("severity") if isinstance(finding, dict) else None
+
+
 def worst_first(
     findings: Iterable[Any], severity: Optional[Callable[[Any], Any]] = None
 ) -> List[Any]:
     """Errors, then warnings, then infos; the order within a severity is kept. ``findings``:
-    Finding objects, or their dicts with ``severity=lambda d: d.get("severity")`` (an
-    unknown severity ranks as an info)."""
-    sev = severity or (lambda f: f.severity)
+    Finding objects or their dicts (an unknown severity ranks as an info). This is the one
+    severity order: the API hands findings on in it, and the web UI shows them as given."""
+    sev = severity or severity_of
     return sorted(findings, key=lambda f: -_RANK.get(sev(f), 0))
 
 
-def trusted(findings: Iterable[Finding]) -> bool:
-    """False when any finding is an error."""
-    return not any(f.severity == "error" for f in findings)
+def trusted(findings: Iterable[Any]) -> bool:
+    """Whether a result with ``findings`` (Finding objects or their dicts) can be trusted:
+    the one rule, False when any finding is an error."""
+    return not any(severity_of(f) == "error" for f in findings)
 
 
 def from_notes(notes: Iterable[Union[str, Msg]], code: str = "note") -> List[Finding]:

@@ -209,8 +209,7 @@ def cmd_analyze(args) -> int:
     if args.params_out:
         write_text(args.params_out, json.dumps(result["parameters"], indent=2))
     if args.json:
-        out = {k: v for k, v in result.items() if k != "findings_i18n"}
-        print(json.dumps(out, indent=2, default=float))
+        print(json.dumps(for_the_terminal(result), indent=2, default=float))
     else:
         print(format_diagnostics(result))
     if result.get("trusted", True):
@@ -360,14 +359,14 @@ def format_campaign(d) -> list:
     return lines
 
 
+def for_the_terminal(result: dict) -> dict:
+    """A result document as ``--json`` prints it: without the translatable copy of the
+    findings (``findings_i18n``, the web UI's)."""
+    return {k: v for k, v in result.items() if k != "findings_i18n"}
+
+
 def cmd_artifact(args) -> int:
-    from ..calibration.artifact.diagonals import (
-        ArtifactError,
-        artifact_findings,
-        diagnostics_from_artifact,
-    )
-    from ..calibration.ballbar.analysis import Geometry, propose_params
-    from ..calibration.findings import info, trusted
+    from ..calibration.artifact.diagonals import ArtifactError, analyse_diagonals
 
     if getattr(args, "artifact_command", None) == "program":
         return cmd_artifact_program(args)
@@ -388,24 +387,10 @@ def cmd_artifact(args) -> int:
         except ValueError:
             raise CliError(f"--length expects AXIS:NOMINAL:MEASURED, got {spec!r}") from None
     try:
-        diag = diagnostics_from_artifact(args.plane, ac, bd, ad, lengths)
+        result = analyse_diagonals(args.plane, ac, bd, ad, lengths, current)
     except ArtifactError as exc:
         raise CliError(str(exc)) from None
-    notes = []
-    params = propose_params(diag, Geometry(args.plane.upper(), 0.0, None, None), current, notes)
-    found = artifact_findings(diag) + [info("proposal.note", n) for n in notes]
-    print(
-        json.dumps(
-            {
-                "diagnostics": diag,
-                "parameters": params.to_dict(),
-                "findings": [f.to_dict() for f in found],
-                "trusted": trusted(found),
-                "notes": notes,
-            },
-            indent=2,
-        )
-    )
+    print(json.dumps(for_the_terminal(result), indent=2))
     return 0
 
 
@@ -462,7 +447,7 @@ def cmd_artifact_analyze(args) -> int:
     if args.params_out:
         write_text(args.params_out, json.dumps(result["parameters"], indent=2))
     if args.json:
-        print(json.dumps(result, indent=2, default=float))
+        print(json.dumps(for_the_terminal(result), indent=2, default=float))
     else:
         print(format_artifact(result))
     return 0

@@ -22,7 +22,12 @@ import math
 from typing import Dict, Iterable, Sequence, Tuple
 
 from ...core.messages import Msg
+from ...core.params import Params
 from ...firmware.export import klipper_skew_factor
+from ..ballbar.model import Geometry
+from ..findings import info
+from ..proposal import propose_params
+from ..result import result_document
 
 
 class ArtifactError(ValueError):
@@ -93,8 +98,6 @@ def diagnostics_from_artifact(
 def artifact_findings(diag: Dict[str, object]) -> list:
     """What a printed-artifact result checked: nothing of the motion, and its precision is
     the caliper's (a 100 mm square resolves about 100-200 um/m of squareness)."""
-    from ..findings import info
-
     return [
         info(
             "artifact.hand_measured",
@@ -109,3 +112,21 @@ def artifact_findings(diag: Dict[str, object]) -> list:
             ),
         )
     ]
+
+
+def analyse_diagonals(
+    plane: str,
+    ac: float,
+    bd: float,
+    ad: float,
+    lengths: Dict[str, Sequence[Tuple[float, float]]],
+    current: Params,
+) -> dict:
+    """The result document (``calibration/result.py``) of a printed square's diagonals and
+    measured lengths (see :func:`diagnostics_from_artifact`), printed with ``current`` in
+    force: the proposal is ``current`` plus what was measured."""
+    diag = diagnostics_from_artifact(plane, ac, bd, ad, lengths)
+    notes: list = []
+    params = propose_params(diag, Geometry(plane.upper(), 0.0, None, None), current, notes)
+    found = artifact_findings(diag) + [info("proposal.note", n) for n in notes]
+    return result_document(diag, params, found, notes)

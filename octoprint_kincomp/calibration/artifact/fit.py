@@ -39,6 +39,7 @@ from ...core.messages import Msg
 from ...core.params import Params
 from .. import findings as fnd
 from ..proposal import alignment_matrix, checked_params, proposal_meta, split_alignment
+from ..result import result_document
 from .program import Measurement
 
 NAMES = ("u_x", "u_y", "u_z", "xy", "xz", "yz", "w_vertical", "w_slanted")
@@ -303,15 +304,11 @@ def analyse_artifact(
     info: Optional[Dict[str, str]] = None,
     resolution_mm: float = RESOLUTION_MM,
     simulated: bool = False,
-    wire: bool = False,
 ) -> Dict[str, object]:
-    """Fit the readings of an artifact program's measurements; returns ``{"diagnostics",
-    "parameters", "firmware", "notes", "findings", "trusted"}`` (see the module docstring).
+    """Fit the readings of an artifact program's measurements; returns the result document
+    (``calibration/result.py``).
     ``current``: the parameters active while the artifact was printed (the fit is then a
-    residual, and the proposal is current + residual). ``wire``: findings in the browser's
-    translatable form (:meth:`Finding.to_wire`)."""
-    from ...firmware.export import equivalents
-
+    residual, and the proposal is current + residual)."""
     current = current or Params()
     info = info or {}
     by_id = {m.id: m for m in measurements}
@@ -553,15 +550,8 @@ def analyse_artifact(
         "measurements": _per_measurement(obs, fit, dropped, measurements, readings),
     }
     params = _propose(values, fit, est_axes, current, simulated)
-    findings = fnd.worst_first(found)
-    return {
-        "diagnostics": diag,
-        "parameters": params.to_dict(),
-        "firmware": equivalents(params),
-        "notes": [f.message for f in findings if f.severity != "info"],
-        "findings": [f.to_wire() if wire else f.to_dict() for f in findings],
-        "trusted": fnd.trusted(findings),
-    }
+    notes = [f.message for f in fnd.worst_first(found) if f.severity != "info"]
+    return result_document(diag, params, found, notes)
 
 
 def _separability(values, sigmas, planes_made, found) -> None:

@@ -1,8 +1,8 @@
 """Ballbar trace analysis: from readings to errors, ISO 230-4 metrics and KinComp parameters.
 
 One trace (native time series, angle domain, ``.b5r`` or typed summary) -> :func:`analyse`,
-which returns ``{"diagnostics", "parameters", "firmware", "findings", "trusted", "notes",
-"plot"}``. The pieces:
+which returns the result document (``calibration/result.py``: diagnostics, proposed
+parameters, firmware equivalents, findings, trusted, verdict, notes, plot). The pieces:
 
 * :mod:`.timing`: native samples -> nominal angle with the planned motion of the program
   (acceleration, junction speeds, stops; settings from the metadata or the trace itself);
@@ -30,8 +30,9 @@ import numpy as np
 from ...core.kinematics import changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
-from ..findings import Finding, info, trusted, warning, worst_first
+from ..findings import Finding, info, warning
 from ..proposal import propose_params
+from ..result import result_document
 from . import checks
 from .formats import (
     AngleTrace,
@@ -300,7 +301,6 @@ def analyse(
     ``current`` corrects, it is fitted as a fixed motion (as the joint fit does) instead of
     biasing the scale mismatch and squareness; ``known_sources``: per key, where the value
     came from (said in the ``model.out_of_plane_used`` finding)."""
-    from ...firmware.export import equivalents
 
     current = current or Params()
     known = checked_known_squareness(known_squareness_um_per_m)
@@ -390,17 +390,7 @@ def analyse(
     before = len(notes)
     params = propose_params(diag, geom, current, notes)
     found += [info("proposal.note", n) for n in notes[before:]]
-    found = worst_first(found)
-    return {
-        "diagnostics": diag,
-        "parameters": params.to_dict(),
-        "firmware": equivalents(params),
-        "findings": [x.to_dict() for x in found],
-        "findings_i18n": [x.to_wire() for x in found],
-        "trusted": trusted(found),
-        "notes": notes,
-        "plot": plot,
-    }
+    return result_document(diag, params, found, notes, plot)
 
 
 def checked_known_squareness(values: Optional[Dict[str, float]]) -> Dict[str, float]:

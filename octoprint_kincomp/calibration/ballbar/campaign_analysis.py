@@ -1,11 +1,10 @@
 """Analysis of a whole campaign: checks, the joint fit, the servo decision, ONE parameter set.
 
 :func:`analyse_campaign` takes the traces of a campaign (file name and parsed trace each) and
-the parameters that were in force while they were measured; it returns the same kind of dict
-as :func:`.analysis.analyse` (``diagnostics``, ``parameters``, ``firmware``, ``findings``,
-``trusted``, ``notes``), where
-``diagnostics`` holds ``traces`` (per trace: ``file``, ``plane`` and the single-trace keys) and
-``campaign`` (the joint values with their 1-sigma uncertainties, see :mod:`.joint`).
+the parameters that were in force while they were measured; it returns the result document
+(``calibration/result.py``) as :func:`.analysis.analyse` does, where ``diagnostics`` holds
+``traces`` (per trace: ``file``, ``plane`` and the single-trace keys) and ``campaign`` (the
+joint values with their 1-sigma uncertainties, see :mod:`.joint`).
 
 Parameters the campaign did not measure (a plane without a test, an axis in no plane) keep
 their values from ``current``. Servo pre-compensation is decided from data: with XY at two
@@ -23,8 +22,9 @@ import numpy as np
 from ...core.kinematics import changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
-from ..findings import Finding, info, trusted, worst_first
+from ..findings import Finding, info
 from ..proposal import alignment_matrix, checked_params, proposal_meta, split_alignment
+from ..result import result_document
 from . import checks
 from .analysis import analyse_runs, checked_fit, load_runs_mapped, mapping_notes, outlier_findings
 from .campaign import CampaignError, check_traces
@@ -51,7 +51,6 @@ def analyse_campaign(
 ) -> Dict[str, object]:
     """Joint analysis of a campaign's traces; raises CampaignError (naming the file) when the
     traces are not one complete campaign or a test failed: nothing is proposed then."""
-    from ...firmware.export import equivalents
 
     current = current or Params()
     check_traces(items, current.hash(), manifest)
@@ -171,18 +170,8 @@ def analyse_campaign(
         )
     shown = {str(x.message) for x in found}
     found += [info("campaign.note", n) for n in notes if str(n) not in shown]
-    found = worst_first(found)
-    return {
-        "diagnostics": {"traces": per_trace, "campaign": camp, "simulated": simulated},
-        "parameters": params.to_dict(),
-        "firmware": equivalents(params),
-        "findings": [x.to_dict() for x in found],
-        "findings_i18n": [x.to_wire() for x in found],
-        "trusted": trusted(found),
-        "notes": notes,
-        "plot": None,
-        "plots": plots,
-    }
+    diag = {"traces": per_trace, "campaign": camp, "simulated": simulated}
+    return result_document(diag, params, found, notes, None, plots)
 
 
 def _joint_row(t: TraceFit, res, cf) -> Dict[str, float]:

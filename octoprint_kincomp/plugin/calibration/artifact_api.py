@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from typing import Any, Dict, List
+from typing import Any, Dict
 
 import flask
 from flask_babel import gettext
@@ -169,7 +169,6 @@ class ArtifactApi:
                 readings,
                 current=self._queue.in_force,
                 info=read_program_info(text),
-                wire=True,
             )
         except (ArtifactProgramError, ArtifactFitError, TraceError) as exc:
             return http.error(
@@ -181,7 +180,6 @@ class ArtifactApi:
             )
         result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
         result["diagnostics"]["program"] = path
-        findings: List[Dict[str, Any]] = result["findings"]
         try:
             run = self._calibration.record_run(
                 result,
@@ -189,7 +187,6 @@ class ArtifactApi:
                 "artifact",
                 json.dumps(readings, indent=1).encode(),
                 None,
-                extra={"findings": findings, "trusted": result["trusted"]},
             )
         except RunNotStorable:
             return http.error(

@@ -37,8 +37,8 @@ from octoprint.access.permissions import Permissions
 from octoprint.filemanager import FileDestinations
 from octoprint.filemanager.util import StreamWrapper
 
-from ...calibration.artifact.diagonals import ArtifactError, diagnostics_from_artifact
-from ...calibration.ballbar.analysis import Geometry, analyse, propose_params
+from ...calibration.artifact.diagonals import ArtifactError, analyse_diagonals
+from ...calibration.ballbar.analysis import analyse
 from ...calibration.ballbar.formats import TraceError, load_any
 from ...calibration.ballbar.program import (
     PLANES,
@@ -51,7 +51,6 @@ from ...calibration.ballbar.program import (
 )
 from ...core.messages import as_dict
 from ...core.params import Params, ParamsError
-from ...firmware.export import equivalents
 from ...firmware.motion_limits import LimitsError, circle_feed, describe
 from ...service.calibration.demo_mode import DemoMode
 from ...service.calibration.findings_view import findings_of, refusal
@@ -307,33 +306,18 @@ class CalibrationApi:
             )
         if "artifact" in data:
             try:
-                diag = self._artifact(data["artifact"])
-                notes = []
-                params = propose_params(
-                    diag, Geometry(diag["plane"], 0.0, None, None), self._queue.in_force, notes
-                )
+                result = self._artifact(data["artifact"])
             except http.BadRequest as exc:
                 return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
             except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
                 return http.error(
                     gettext("Invalid artifact measurements: %(e)s", e=http.tr(exc)), 400
                 )
-            return self._store_run(
-                {
-                    "diagnostics": diag,
-                    "parameters": params.to_dict(),
-                    "firmware": equivalents(params),
-                    "notes": notes,
-                },
-                "printed artifact",
-                "artifact",
-                None,
-            )
+            return self._store_run(result, "printed artifact", "artifact", None)
         return http.error(gettext("Give 'summary' or 'artifact'"), 400)
 
-    @staticmethod
-    def _artifact(a: Any) -> Dict[str, Any]:
-        """Diagnostics of printed-artifact measurements ({plane, ac, bd, ad, lengths}),
+    def _artifact(self, a: Any) -> Dict[str, Any]:
+        """The result of printed-artifact measurements ({plane, ac, bd, ad, lengths}),
         each field checked (:class:`http.BadRequest` naming it)."""
         if not isinstance(a, dict):
             raise http.BadRequest(gettext("'%(key)s' must be an object", key="artifact"))
@@ -363,9 +347,9 @@ class CalibrationApi:
                     )
                 )
             pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p) for p in items]
-        diag = diagnostics_from_artifact(plane, ac, bd, ad, pairs)
-        http.check_json(diag)  # an overflow (1e308 mm) is no measurement
-        return diag
+        result = analyse_diagonals(plane, ac, bd, ad, pairs, self._queue.in_force)
+        http.check_json(result["diagnostics"])  # an overflow (1e308 mm) is no measurement
+        return result
 
     def _analysis_failed(self, name: str, exc) -> str:
         return gettext(

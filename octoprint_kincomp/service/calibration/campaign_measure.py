@@ -38,6 +38,7 @@ from ..notify import N_, Notifier
 from ..printing.queue import QueueCompensator
 from ..settings.printer_profiles import other_profile, profile_id
 from .campaign_store import CampaignNotFound, CampaignStore, now
+from .findings_view import verdict_of
 from .run_store import RunStore
 
 
@@ -349,16 +350,15 @@ def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[
 
 def with_findings(result: Dict[str, Any], found: List[fnd.Finding]) -> Dict[str, Any]:
     """An analysis ``result`` with the findings ``found`` added (both forms, worst first;
-    an error among them makes it untrusted)."""
+    an error among them makes it untrusted, and the verdict follows)."""
     if not found:
         return result
     out = dict(result)
     for key, form in (("findings", fnd.Finding.to_dict), ("findings_i18n", fnd.Finding.to_wire)):
         if key in result or key == "findings":
-            merged = list(result.get(key) or []) + [form(f) for f in found]
-            out[key] = fnd.worst_first(merged, severity=lambda d: d.get("severity"))
-    if any(f.severity == "error" for f in found):
-        out["trusted"] = False
+            out[key] = fnd.worst_first(list(result.get(key) or []) + [form(f) for f in found])
+    out["trusted"] = result.get("trusted") is not False and fnd.trusted(found)
+    out["verdict"] = verdict_of(out)
     return out
 
 

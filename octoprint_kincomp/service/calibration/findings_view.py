@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Tuple
 
-from ...calibration.findings import SEVERITIES, Finding, from_notes, worst_first
+from ...calibration.findings import SEVERITIES, Finding, from_notes, trusted, worst_first
+from ...calibration.result import verdict
 from ...core.messages import Msg, as_dict
 
 
@@ -41,13 +42,24 @@ def _wire(item: Any) -> Dict[str, Any]:
 
 def findings_of(result: Dict[str, Any]) -> Tuple[List[Dict[str, Any]], bool]:
     """(findings for the wire, worst first; trusted) of an analysis ``result`` (its
-    ``findings_i18n``, the translatable form, where the analysis gives it)."""
+    ``findings_i18n``, the translatable form, where the analysis gives it), or of a stored
+    run (whose ``findings`` are in that form already)."""
     items = result.get("findings_i18n") or result.get("findings")
     if items is None:
         items = from_notes(result.get("notes") or [])
-    wire = worst_first((_wire(f) for f in items), severity=lambda f: f["severity"])
-    trusted = result.get("trusted") is not False and not any(f["severity"] == "error" for f in wire)
-    return wire, trusted
+    wire = worst_first(_wire(f) for f in items)
+    return wire, result.get("trusted") is not False and trusted(wire)
+
+
+def verdict_of(run: Dict[str, Any]) -> Dict[str, Any]:
+    """The decision a stored run (or an analysis result) stands for, from its findings
+    (``calibration/result.py``: :func:`verdict`); its reason in the translatable form. A
+    run its analysis says is not trusted is never to be applied, whatever its findings."""
+    wire, ok = findings_of(run)
+    out = verdict(wire)
+    if not ok and out["decision"] != "do_not_apply":
+        out = {"decision": "do_not_apply", "reason": out["reason"] or {"text": ""}}
+    return out
 
 
 def _msg(d: Any) -> Any:

@@ -24,6 +24,7 @@ import secrets
 from typing import Any, Callable, Dict, List, Optional
 
 from ...core.atomic import write_atomic
+from .findings_view import verdict_of
 
 _ID = re.compile(r"[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
 MAX_RUNS_LISTED = 500
@@ -68,6 +69,7 @@ class RunStore:
         new = not os.path.exists(path)
         if new and self.profile is not None and "profile" not in run:
             run["profile"] = self.profile()
+        run["verdict"] = verdict_of(run)  # decided from its findings, whoever stores it
         try:
             text = json.dumps(run, indent=1, sort_keys=True, default=float, allow_nan=False)
         except (TypeError, ValueError) as exc:
@@ -104,9 +106,12 @@ class RunStore:
         path = self._path(run_id)
         try:
             with open(path, encoding="utf-8") as f:
-                return json.load(f, parse_constant=lambda name: None)  # NaN, Infinity
+                run = json.load(f, parse_constant=lambda name: None)  # NaN, Infinity
         except (OSError, ValueError, RecursionError):
             raise self.NotFound(run_id) from None
+        if isinstance(run, dict) and "verdict" not in run:  # stored before verdicts
+            run["verdict"] = verdict_of(run)
+        return run
 
     def ids(self) -> List[str]:
         """The stored ids, newest first (at most MAX_RUNS_LISTED)."""
@@ -153,6 +158,7 @@ class RunStore:
             "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
             "applied": run.get("applied"),
             "trusted": run.get("trusted") is not False,  # runs from before findings: True
+            "verdict": (run.get("verdict") or verdict_of(run))["decision"],
             "params_before_hash": run.get("params_before_hash"),
             "has_trace": self.trace_path(run_id) is not None,
             "has_raw": self.raw_path(run_id) is not None,

@@ -7,19 +7,14 @@
 (function () {
     "use strict";
     var K = window.KinComp;
-    var RANK = {error: 0, warning: 1, info: 2};
 
-    // the findings of a run, worst first; a run stored before findings existed: its notes
+    // the findings of a run in the API's order (worst first: the server decides the order);
+    // a run stored before findings existed: its notes
     K.findingsOf = function (run) {
         if (!run) return [];
-        var list = run.findings;
-        if (!list) {
-            list = _.map(run.notes_i18n || run.notes || [], function (n) {
-                return {code: "note", severity: "info", message: n, advice: {text: ""}, evidence: {}};
-            });
-        }
-        return _.sortBy(list, function (f) {
-            return RANK[f.severity] === undefined ? 1 : RANK[f.severity];
+        if (run.findings) return run.findings;
+        return _.map(run.notes_i18n || run.notes || [], function (n) {
+            return {code: "note", severity: "info", message: n, advice: {text: ""}, evidence: {}};
         });
     };
 
