@@ -7,7 +7,7 @@
 #   scripts/translations.sh compile    compile + bundle only
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PY=.venv/bin/python
+PY=${PY:-.venv/bin/python}
 BABEL="$PY -m babel.messages.frontend"
 if [ "${1:-}" != "compile" ]; then
     $BABEL extract -F babel.cfg -k N_ -k gettext -k Msg -o translations/messages.pot \

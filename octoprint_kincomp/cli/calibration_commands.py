@@ -496,6 +496,15 @@ def cmd_closed_loop(args) -> int:
 
 
 def add_ballbar_commands(sub) -> None:
+    """The calibration verbs: program, simulate, analyze, closed-loop, artifact."""
+    _add_program(sub)
+    _add_simulate(sub)
+    _add_analyze(sub)
+    _add_closed_loop(sub)
+    _add_artifact(sub)
+
+
+def _add_program(sub) -> None:
     p = sub.add_parser("program", help="generate an ISO 230-4 ballbar test program")
     p.add_argument("--plane", default="XY", choices=("XY", "XZ", "YZ"))
     p.add_argument("--centre", metavar="X,Y,Z", help="pivot position, mm")
@@ -572,6 +581,8 @@ def add_ballbar_commands(sub) -> None:
     p.add_argument("-o", "--output", help="output file (campaign: directory)")
     p.set_defaults(func=cmd_program)
 
+
+def _add_simulate(sub) -> None:
     s = sub.add_parser("simulate", help="run a ballbar program on the simulated printer")
     s.add_argument("program")
     s.add_argument("--truth", required=True, help="JSON with the printer's true errors")
@@ -590,6 +601,8 @@ def add_ballbar_commands(sub) -> None:
     s.add_argument("-o", "--output")
     s.set_defaults(func=cmd_simulate)
 
+
+def _add_analyze(sub) -> None:
     a = sub.add_parser(
         "analyze",
         help="fit a ballbar trace, .b5r or typed summary; several "
@@ -628,6 +641,8 @@ def add_ballbar_commands(sub) -> None:
     a.add_argument("--params-out", help="write the proposed params file here")
     a.set_defaults(func=cmd_analyze)
 
+
+def _add_closed_loop(sub) -> None:
     c = sub.add_parser("closed-loop", help="print the simulated one-round before/after table")
     c.add_argument(
         "--noise-um",
@@ -642,6 +657,8 @@ def add_ballbar_commands(sub) -> None:
     )
     c.set_defaults(func=cmd_closed_loop)
 
+
+def _add_artifact(sub) -> None:
     t = sub.add_parser(
         "artifact",
         help="parameters from a printed square (and lengths), or "
@@ -659,6 +676,11 @@ def add_ballbar_commands(sub) -> None:
     t.add_argument("--current", help="params active when the artifact was printed")
     t.set_defaults(func=cmd_artifact, artifact_command=None)
     ts = t.add_subparsers(dest="artifact_command", metavar="{program,analyze}")
+    _add_artifact_program(ts)
+    _add_artifact_analyze(ts)
+
+
+def _add_artifact_program(ts) -> None:
     tp = ts.add_parser("program", help="write KinComp's caliper artifact as G-code")
     tp.add_argument(
         "--volume",
@@ -691,6 +713,9 @@ def add_ballbar_commands(sub) -> None:
     )
     tp.add_argument("-o", "--output", help="output file (default: standard output)")
     tp.set_defaults(func=cmd_artifact)
+
+
+def _add_artifact_analyze(ts) -> None:
     ta = ts.add_parser("analyze", help="fit the caliper readings of KinComp's artifact")
     ta.add_argument("measurements", help='JSON {"<id>": [reading_mm, ...], ...}')
     ta.add_argument("--program", required=True, help="the artifact's G-code (its header)")

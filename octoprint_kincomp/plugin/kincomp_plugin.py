@@ -45,7 +45,7 @@ from ..service.printing.firmware_check import FirmwareCheck
 from ..service.printing.firmware_watch import FirmwareWatcher
 from ..service.printing.queue import FILE_TAG, HOME_QUERY, QueueCompensator
 from ..service.printing.speed_factor import held_back
-from ..service.settings.schema import SETTINGS_VERSION, defaults
+from ..service.settings.schema import SETTINGS_VERSION, defaults, form_fields
 from ..service.settings.software_update import check_config
 from . import http
 from .calibration.artifact_api import ArtifactApi
@@ -206,6 +206,10 @@ class KinCompPlugin(
     def is_template_autoescaped(self):
         return True
 
+    def get_template_vars(self):
+        # the settings page's plain fields, as declared (the template translates their texts)
+        return {"settings_fields": form_fields()}
+
     def get_template_configs(self):
         return [
             {"type": "settings", "name": "KinComp", "custom_bindings": True},
@@ -219,6 +223,7 @@ class KinCompPlugin(
         return {
             "js": [
                 "js/kincomp_common.js",
+                "js/kincomp_settings_form.js",
                 "js/kincomp_findings.js",
                 "js/kincomp_plot.js",
                 "js/kincomp_sensor.js",

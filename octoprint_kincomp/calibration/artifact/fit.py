@@ -311,28 +311,8 @@ def analyse_artifact(
     residual, and the proposal is current + residual)."""
     current = current or Params()
     info = info or {}
-    by_id = {m.id: m for m in measurements}
-    unknown = sorted(set(readings) - set(by_id))
-    if unknown:
-        raise ArtifactFitError(
-            Msg(
-                "readings for ids the program does not have: %(ids)s "
-                "(check the program given with the readings)",
-                ids=", ".join(unknown[:8]),
-            )
-        )
     found: List[fnd.Finding] = []
-    obs = [_Obs(m, list(readings[m.id])) for m in measurements if readings.get(m.id)]
-    n_readings = sum(len(o.values) for o in obs)
-    missing = [m.id for m in measurements if not readings.get(m.id)]
-    if missing:
-        found.append(
-            fnd.info(
-                "artifact.not_measured",
-                Msg("Not measured: %(ids)s.", ids=", ".join(missing)),
-                ids=missing,
-            )
-        )
+    obs, n_readings = _observations(measurements, readings, found)
     repeat_sd = _screen_repeats(obs, found)
     obs = [o for o in obs if o.values]
     if len(obs) < 2:
@@ -344,8 +324,98 @@ def analyse_artifact(
     except ValueError:
         w0 = 0.45
     floor = resolution_mm / math.sqrt(12.0)
+    rf = _robust_fit(obs, w0, repeat_sd, floor, found)
+    planes_made = [p for p in info.get("planes", "XY,XZ,YZ").split(",") if p]
+    values, sigmas = _quantities(rf, planes_made, found)
+    est_axes = [k for k in range(3) if _estimable(rf.fit, _unit(len(NAMES), k))]
+    mean_u = _mean_scale(rf, est_axes)
+    _line_width_check(values, info, found)
+    _quality_findings(rf, repeat_sd, floor, found)
+    _model_findings(current, found)
+    diag: Dict[str, object] = {
+        "source": "printed artifact",
+        "simulated": simulated,
+        "planes": planes_made,
+        "squareness_um_per_m": values["squareness_um_per_m"],
+        "scale_mismatch_ppm": values["scale_mismatch_ppm"],
+        "line_width_mm": values["line_width_mm"],
+        "mean_scale_with_shrinkage_ppm": mean_u[0] if mean_u else None,
+        "uncertainty": {**sigmas, "mean_scale_with_shrinkage_ppm": mean_u[1] if mean_u else None},
+        "fit": _fit_summary(rf, obs, n_readings, repeat_sd),
+        "measurements": _per_measurement(obs, rf.fit, rf.dropped, measurements, readings),
+    }
+    params = _propose(values, rf.fit, est_axes, current, simulated)
+    notes = [f.message for f in fnd.worst_first(found) if f.severity != "info"]
+    return result_document(diag, params, found, notes)
 
-    # fit, then leave out the worst measurement while one disagrees with the others
+
+def _observations(
+    measurements: Sequence[Measurement], readings: Dict[str, List[float]], found: List
+) -> Tuple[List[_Obs], int]:
+    """(the measured measurements with their readings, the number of readings); readings
+    for an id the program does not have are an :class:`ArtifactFitError`, measurements
+    without readings an info finding."""
+    by_id = {m.id: m for m in measurements}
+    unknown = sorted(set(readings) - set(by_id))
+    if unknown:
+        raise ArtifactFitError(
+            Msg(
+                "readings for ids the program does not have: %(ids)s "
+                "(check the program given with the readings)",
+                ids=", ".join(unknown[:8]),
+            )
+        )
+    obs = [_Obs(m, list(readings[m.id])) for m in measurements if readings.get(m.id)]
+    missing = [m.id for m in measurements if not readings.get(m.id)]
+    if missing:
+        found.append(
+            fnd.info(
+                "artifact.not_measured",
+                Msg("Not measured: %(ids)s.", ids=", ".join(missing)),
+                ids=missing,
+            )
+        )
+    return obs, sum(len(o.values) for o in obs)
+
+
+@dataclass
+class _RobustFit:
+    """The fit left when the measurements that disagree were left out: ``fit`` of the
+    measurements kept (``obs``, changed in place), ``dof`` its redundancy, ``s_res`` the
+    residual scatter (mm), ``sigma`` the reading's standard deviation used (mm), ``dropped``
+    the measurements left out."""
+
+    fit: _Fit
+    dof: int
+    s_res: float
+    sigma: float
+    dropped: List[_Obs]
+
+
+def _worst_measurement(
+    fit: _Fit, dof: int, rss: float, spread: float
+) -> Tuple[Optional[int], float]:
+    """(index, studentised residual) of the measurement that disagrees most with the others
+    (leave-one-out; measurements nothing else checks are not judged); (None, 0) without
+    redundancy. ``spread``: the least scatter a reading has (mm)."""
+    worst, worst_t = None, 0.0
+    if dof < 2:
+        return worst, worst_t
+    for i in range(len(fit.resid)):
+        h = fit.leverage[i]
+        if h > MAX_LEVERAGE:
+            continue
+        e2 = fit.weights[i] * fit.resid[i] ** 2
+        s_i = math.sqrt(max(rss - e2 / (1 - h), 0.0) / (dof - 1))
+        t = math.sqrt(e2) / (max(s_i, spread) * math.sqrt(1 - h))
+        if t > worst_t:
+            worst, worst_t = i, t
+    return worst, worst_t
+
+
+def _robust_fit(obs: List[_Obs], w0: float, repeat_sd: float, floor: float, found) -> _RobustFit:
+    """Fit, then leave out the worst measurement while one disagrees with the others (at
+    most a fifth of them; a warning each), an error when one still does."""
     dropped: List[_Obs] = []
     while True:
         fit = _solve(obs, w0)
@@ -353,39 +423,12 @@ def analyse_artifact(
         rss = float(np.sum(fit.weights * fit.resid**2))
         s_res = math.sqrt(rss / dof) if dof > 0 else 0.0
         sigma = max(s_res, repeat_sd, floor)
-        worst, worst_t = None, 0.0
-        if dof >= 2:
-            for i in range(len(obs)):
-                h = fit.leverage[i]
-                if h > MAX_LEVERAGE:
-                    continue
-                e2 = fit.weights[i] * fit.resid[i] ** 2
-                s_i = math.sqrt(max(rss - e2 / (1 - h), 0.0) / (dof - 1))
-                t = math.sqrt(e2) / (max(s_i, repeat_sd, floor) * math.sqrt(1 - h))
-                if t > worst_t:
-                    worst, worst_t = i, t
+        worst, worst_t = _worst_measurement(fit, dof, rss, max(repeat_sd, floor))
         if worst is None or worst_t <= OUTLIER_T or len(dropped) >= max(1, len(obs) // 5):
             break
         o = obs.pop(worst)
         dropped.append(o)
-        found.append(
-            fnd.warning(
-                "artifact.measurement_outlier",
-                Msg(
-                    "%(id)s (mean %(mean)s mm) disagrees with the other measurements by %(off)s mm "
-                    "(%(t)s sigma): a typo, a jaw on a seam or a damaged wall? It was left out.",
-                    id=o.meas.id,
-                    mean=f"{o.mean:.3f}",
-                    off=f"{fit.resid[worst]:+.3f}",
-                    t=f"{worst_t:.0f}",
-                ),
-                Msg("Check the readings of %(id)s and measure it again.", id=o.meas.id),
-                id=o.meas.id,
-                residual_um=round(float(fit.resid[worst]) * 1e3, 1),
-                t=round(worst_t, 1),
-                readings_mm=list(o.values),
-            )
-        )
+        found.append(_outlier_finding(o, float(fit.resid[worst]), worst_t))
     if worst is not None and worst_t > OUTLIER_T:
         found.append(
             fnd.error(
@@ -404,7 +447,6 @@ def analyse_artifact(
                 id=obs[worst].meas.id,
             )
         )
-
     unchecked = [o.meas.id for o, h in zip(obs, fit.leverage) if h > MAX_LEVERAGE]
     if unchecked:
         found.append(
@@ -417,7 +459,32 @@ def analyse_artifact(
                 ids=unchecked,
             )
         )
+    return _RobustFit(fit, dof, s_res, sigma, dropped)
 
+
+def _outlier_finding(o: _Obs, resid_mm: float, t: float) -> fnd.Finding:
+    return fnd.warning(
+        "artifact.measurement_outlier",
+        Msg(
+            "%(id)s (mean %(mean)s mm) disagrees with the other measurements by %(off)s mm "
+            "(%(t)s sigma): a typo, a jaw on a seam or a damaged wall? It was left out.",
+            id=o.meas.id,
+            mean=f"{o.mean:.3f}",
+            off=f"{resid_mm:+.3f}",
+            t=f"{t:.0f}",
+        ),
+        Msg("Check the readings of %(id)s and measure it again.", id=o.meas.id),
+        id=o.meas.id,
+        residual_um=round(resid_mm * 1e3, 1),
+        t=round(t, 1),
+        readings_mm=list(o.values),
+    )
+
+
+def _quantities(rf: _RobustFit, planes_made: List[str], found):
+    """(values, 1-sigma uncertainties) of the reported quantities: squareness um/m per
+    plane, scale mismatch ppm per pair of axes, line width mm per wall family (None where
+    the measurements do not determine one)."""
     n = len(NAMES)
     quantities = {
         ("squareness_um_per_m", "xy"): (_unit(n, 3), 1e6),
@@ -429,25 +496,33 @@ def analyse_artifact(
         ("line_width_mm", "vertical_walls"): (_unit(n, 6), 1.0),
         ("line_width_mm", "slanted_walls"): (_unit(n, 7), 1.0),
     }
-    planes_made = [p for p in info.get("planes", "XY,XZ,YZ").split(",") if p]
     values: Dict[str, Dict[str, Optional[float]]] = {}
     sigmas: Dict[str, Dict[str, Optional[float]]] = {}
     for (key, sub), (g, unit) in quantities.items():
         values.setdefault(key, {})
         sigmas.setdefault(key, {})
-        if _estimable(fit, g):
-            values[key][sub] = float(g @ fit.p) * unit
-            sigmas[key][sub] = _sigma_of(fit, g, sigma) * unit
+        if _estimable(rf.fit, g):
+            values[key][sub] = float(g @ rf.fit.p) * unit
+            sigmas[key][sub] = _sigma_of(rf.fit, g, rf.sigma) * unit
         else:
             values[key][sub] = sigmas[key][sub] = None
     _separability(values, sigmas, planes_made, found)
+    return values, sigmas
 
-    est_axes = [k for k in range(3) if _estimable(fit, _unit(n, k))]
-    mean_u = None
-    if est_axes:
-        g = sum(_unit(n, k) for k in est_axes) / len(est_axes)
-        mean_u = (float(g @ fit.p) * 1e6, _sigma_of(fit, g, sigma) * 1e6)
-    _line_width_check(values, info, found)
+
+def _mean_scale(rf: _RobustFit, est_axes: List[int]) -> Optional[Tuple[float, float]]:
+    """(the mean scale of the axes it determines, ppm, with the print's shrinkage; its
+    1-sigma uncertainty), None when it determines none."""
+    if not est_axes:
+        return None
+    n = len(NAMES)
+    g = sum(_unit(n, k) for k in est_axes) / len(est_axes)
+    return float(g @ rf.fit.p) * 1e6, _sigma_of(rf.fit, g, rf.sigma) * 1e6
+
+
+def _quality_findings(rf: _RobustFit, repeat_sd: float, floor: float, found) -> None:
+    """What the fit's scatter, conditioning and redundancy say about the result."""
+    fit, dof, s_res = rf.fit, rf.dof, rf.s_res
     if dof >= 3 and repeat_sd > 0 and s_res > 3 * max(repeat_sd, floor):
         found.append(
             fnd.warning(
@@ -492,6 +567,10 @@ def analyse_artifact(
                 dof=max(dof, 0),
             )
         )
+
+
+def _model_findings(current: Params, found) -> None:
+    """What the artifact's model assumes and cannot see."""
     found.append(
         fnd.info(
             "artifact.absolute_scale",
@@ -523,35 +602,25 @@ def analyse_artifact(
             )
         )
 
-    diag: Dict[str, object] = {
-        "source": "printed artifact",
-        "simulated": simulated,
-        "planes": planes_made,
-        "squareness_um_per_m": values["squareness_um_per_m"],
-        "scale_mismatch_ppm": values["scale_mismatch_ppm"],
-        "line_width_mm": values["line_width_mm"],
-        "mean_scale_with_shrinkage_ppm": mean_u[0] if mean_u else None,
-        "uncertainty": {**sigmas, "mean_scale_with_shrinkage_ppm": mean_u[1] if mean_u else None},
-        "fit": {
-            "readings": n_readings,
-            "readings_used": int(sum(len(o.values) for o in obs)),
-            "measurements_used": len(obs),
-            "dof": dof,
-            "rank": fit.rank,
-            "condition": fit.condition,
-            "rms_um": s_res * 1e3,
-            "repeat_sd_um": repeat_sd * 1e3,
-            "sigma_reading_um": sigma * 1e3,
-            "sigma_from": (
-                "residual" if sigma == s_res else "repeats" if sigma == repeat_sd else "resolution"
-            ),
-            "model": "affine errors (squareness, scale) + isotropic shrinkage + line width",
-        },
-        "measurements": _per_measurement(obs, fit, dropped, measurements, readings),
+
+def _fit_summary(rf: _RobustFit, obs: List[_Obs], n_readings: int, repeat_sd: float) -> dict:
+    """The fit's figures for the result (um where named so)."""
+    fit, sigma, s_res = rf.fit, rf.sigma, rf.s_res
+    return {
+        "readings": n_readings,
+        "readings_used": int(sum(len(o.values) for o in obs)),
+        "measurements_used": len(obs),
+        "dof": rf.dof,
+        "rank": fit.rank,
+        "condition": fit.condition,
+        "rms_um": s_res * 1e3,
+        "repeat_sd_um": repeat_sd * 1e3,
+        "sigma_reading_um": sigma * 1e3,
+        "sigma_from": (
+            "residual" if sigma == s_res else "repeats" if sigma == repeat_sd else "resolution"
+        ),
+        "model": "affine errors (squareness, scale) + isotropic shrinkage + line width",
     }
-    params = _propose(values, fit, est_axes, current, simulated)
-    notes = [f.message for f in fnd.worst_first(found) if f.severity != "info"]
-    return result_document(diag, params, found, notes)
 
 
 def _separability(values, sigmas, planes_made, found) -> None:

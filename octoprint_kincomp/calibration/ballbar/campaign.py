@@ -73,6 +73,39 @@ def _centre_height(spec: TestSpec, z0: float, margin: float) -> float:
     return math.ceil(z0 + margin - low)
 
 
+def _tests_on(
+    volume: Sequence[float],
+    radius_xy: float,
+    radius_vertical: float,
+    feed: float,
+    xy_height: float,
+    second_height: Optional[float],
+    second_feed: Optional[float],
+    margin_mm: float,
+) -> List[Tuple[str, dict]]:
+    """(name, TestSpec fields) of the campaign's tests on ``volume`` (x0,x1,y0,y1,z0,z1 mm),
+    centred on the bed: XY ``xy_height`` above the bed, XZ and YZ as low as their circle
+    allows (``margin_mm`` above it), XY again at ``second_height`` and at ``second_feed``
+    (mm/min) when given."""
+    x0, x1, y0, y1, z0, z1 = (float(v) for v in volume)
+    mx, my = round((x0 + x1) / 2, 1), round((y0 + y1) / 2, 1)
+
+    def xy(z, f):
+        return dict(plane="XY", centre=(mx, my, z), radius_mm=radius_xy, feed_mm_min=f)
+
+    plan: List[Tuple[str, dict]] = [("xy", xy(z0 + xy_height, feed))]
+    for plane in ("XZ", "YZ"):
+        probe = TestSpec(plane=plane, centre=(mx, my, 0.0), radius_mm=radius_vertical)
+        zc = _centre_height(probe, z0, margin_mm)
+        spec = dict(plane=plane, centre=(mx, my, zc), radius_mm=radius_vertical, feed_mm_min=feed)
+        plan.append((plane.lower(), spec))
+    if second_height is not None:
+        plan.append((f"xy-z{second_height:g}", xy(second_height, feed)))
+    if second_feed is not None:
+        plan.append((f"xy-f{second_feed:g}", xy(z0 + xy_height, second_feed)))
+    return plan
+
+
 def plan_campaign(
     volume: Sequence[float],
     radius_xy: float = 100.0,
@@ -95,50 +128,10 @@ def plan_campaign(
     is not known."""
     if volume is None or len(volume) != 6:
         raise ProgramError(Msg("a campaign needs the machine volume X0,X1,Y0,Y1,Z0,Z1 (mm)"))
-    x0, x1, y0, y1, z0, z1 = (float(v) for v in volume)
-    mx, my = round((x0 + x1) / 2, 1), round((y0 + y1) / 2, 1)
     cid = campaign_id or "c" + _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    plan: List[Tuple[str, dict]] = [
-        (
-            "xy",
-            dict(
-                plane="XY", centre=(mx, my, z0 + xy_height), radius_mm=radius_xy, feed_mm_min=feed
-            ),
-        )
-    ]
-    for plane in ("XZ", "YZ"):
-        probe = TestSpec(plane=plane, centre=(mx, my, 0.0), radius_mm=radius_vertical)
-        zc = _centre_height(probe, z0, margin_mm)
-        plan.append(
-            (
-                plane.lower(),
-                dict(plane=plane, centre=(mx, my, zc), radius_mm=radius_vertical, feed_mm_min=feed),
-            )
-        )
-    if second_height is not None:
-        plan.append(
-            (
-                f"xy-z{second_height:g}",
-                dict(
-                    plane="XY",
-                    centre=(mx, my, second_height),
-                    radius_mm=radius_xy,
-                    feed_mm_min=feed,
-                ),
-            )
-        )
-    if second_feed is not None:
-        plan.append(
-            (
-                f"xy-f{second_feed:g}",
-                dict(
-                    plane="XY",
-                    centre=(mx, my, z0 + xy_height),
-                    radius_mm=radius_xy,
-                    feed_mm_min=second_feed,
-                ),
-            )
-        )
+    plan = _tests_on(
+        volume, radius_xy, radius_vertical, feed, xy_height, second_height, second_feed, margin_mm
+    )
     names = ",".join(n for n, _ in plan)
     known = MotionLimits.from_feeds(max_feed, "max feed").combined(limits)
     steps = []

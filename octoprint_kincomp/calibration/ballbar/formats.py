@@ -279,27 +279,7 @@ _UNIT_TO = {  # DT -> (kind, factor to KinComp's unit)
 
 def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     """Read the diagnostics of a Renishaw ``.b5r`` XML file (no DTDs, no entities)."""
-    if len(data) > MAX_XML_BYTES:
-        raise TraceError(
-            Msg(".b5r file is larger than %(mb)s MB", mb=MAX_XML_BYTES // (1024 * 1024))
-        )
-    head = data[:4096].lower()
-    if b"<!doctype" in data.lower() or b"<!entity" in data.lower():
-        raise TraceError(Msg(".b5r file contains a DTD or entity declarations; refused for safety"))
-    if b"\x00" in head:
-        raise TraceError(
-            Msg(".b5r file is not text XML (binary or UTF-16 files are not supported)")
-        )
-    try:
-        root = ET.fromstring(data)
-    except ET.ParseError as exc:
-        raise TraceError(Msg(".b5r is not well-formed XML: %(error)s", error=str(exc))) from None
-    except (LookupError, ValueError) as exc:
-        # expat raises these (not ParseError) for an XML declaration naming an unknown
-        # codec (LookupError) or a multi-byte one such as utf-7 (ValueError)
-        raise TraceError(
-            Msg(".b5r: unsupported XML encoding (%(error)s)", error=str(exc))
-        ) from None
+    root = _b5r_root(data)
     meta: Dict[str, str] = {"source": ".b5r (Renishaw)"}
     plane_el = root.find(".//PLANE")
     raw_plane = (plane_el.get("TEST_PLANE") if plane_el is not None else None) or ""
@@ -324,69 +304,107 @@ def parse_b5r(data: bytes, radius_mm: Optional[float] = None) -> Summary:
     notes = []
     for feat in root.iter("FEATURE"):
         name = (feat.get("NAME") or "").strip()
-        if name not in _B5R_NAMES:
-            continue
-        dt = (feat.get("DT") or "").strip()
-        text = (feat.text or "").strip()
-        try:
-            value = float(text)
-        except ValueError:
-            raise TraceError(
-                Msg(
-                    ".b5r: FEATURE %(name)s has a non-numeric value %(value)s",
-                    name=name,
-                    value=repr(text[:30]),
-                )
-            ) from None
-        if not math.isfinite(value):
-            raise TraceError(Msg(".b5r: FEATURE %(name)s is not finite", name=name))
-        key, sub = _B5R_NAMES[name]
-        kind, factor = _UNIT_TO.get(dt, (None, 1.0))
-        if key == "scale_mismatch":
-            if kind == "ppm":
-                ppm = value
-            elif kind == "length":
-                if radius_mm is None or not 0.0 < radius_mm < math.inf:
-                    raise TraceError(
-                        Msg(
-                            ".b5r: scale mismatch given in um but the test radius "
-                            "is unknown; give the radius"
-                        )
-                    )
-                ppm = value * factor / radius_mm * 1000.0
-                notes.append(
-                    Msg("scale mismatch converted from um to ppm assuming um over the test radius")
-                )
-            else:
-                raise TraceError(
-                    Msg(
-                        ".b5r: FEATURE %(name)s has an unexpected unit %(unit)s",
-                        name=name,
-                        unit=repr(dt),
-                    )
-                )
-            if not math.isfinite(ppm):  # a finite value can overflow in the conversion
-                raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
-            diag["scale_mismatch_ppm"] = ppm
-            continue
-        if kind == "length":
-            value *= factor
-            if not math.isfinite(value):  # e.g. 1e308 mm in um
-                raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
-        elif kind is None:
-            raise TraceError(
-                Msg(".b5r: FEATURE %(name)s has an unknown unit %(unit)s", name=name, unit=repr(dt))
-            )
-        if sub is None:
-            diag[key] = value
-        else:
-            diag.setdefault(key, {})[sub] = value
+        if name in _B5R_NAMES:
+            _b5r_feature(feat, name, radius_mm, diag, notes)
     if not diag:
         raise TraceError(Msg(".b5r: no known FEATURE diagnostics found"))
     if swap:
         _swap_ab(diag)
         notes.append(Msg("ZX plane read as A=Z, B=X and mapped to XZ (A/B swapped)"))
     return Summary(meta=meta, diagnostics=diag, notes=notes)
+
+
+def _b5r_root(data: bytes):
+    """The XML root of a ``.b5r`` file, refused (:class:`TraceError`) when it is too large,
+    declares a DTD or entities, is not text XML or not well-formed."""
+    if len(data) > MAX_XML_BYTES:
+        raise TraceError(
+            Msg(".b5r file is larger than %(mb)s MB", mb=MAX_XML_BYTES // (1024 * 1024))
+        )
+    head = data[:4096].lower()
+    if b"<!doctype" in data.lower() or b"<!entity" in data.lower():
+        raise TraceError(Msg(".b5r file contains a DTD or entity declarations; refused for safety"))
+    if b"\x00" in head:
+        raise TraceError(
+            Msg(".b5r file is not text XML (binary or UTF-16 files are not supported)")
+        )
+    try:
+        return ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise TraceError(Msg(".b5r is not well-formed XML: %(error)s", error=str(exc))) from None
+    except (LookupError, ValueError) as exc:
+        # expat raises these (not ParseError) for an XML declaration naming an unknown
+        # codec (LookupError) or a multi-byte one such as utf-7 (ValueError)
+        raise TraceError(
+            Msg(".b5r: unsupported XML encoding (%(error)s)", error=str(exc))
+        ) from None
+
+
+def _b5r_feature(feat, name: str, radius_mm: Optional[float], diag: dict, notes: list) -> None:
+    """One known FEATURE of a ``.b5r`` file into ``diag`` (lengths in um, scale mismatch in
+    ppm: a length over the test radius ``radius_mm`` converted, said in ``notes``)."""
+    dt = (feat.get("DT") or "").strip()
+    text = (feat.text or "").strip()
+    try:
+        value = float(text)
+    except ValueError:
+        raise TraceError(
+            Msg(
+                ".b5r: FEATURE %(name)s has a non-numeric value %(value)s",
+                name=name,
+                value=repr(text[:30]),
+            )
+        ) from None
+    if not math.isfinite(value):
+        raise TraceError(Msg(".b5r: FEATURE %(name)s is not finite", name=name))
+    key, sub = _B5R_NAMES[name]
+    kind, factor = _UNIT_TO.get(dt, (None, 1.0))
+    if key == "scale_mismatch":
+        diag["scale_mismatch_ppm"] = _b5r_mismatch_ppm(
+            name, value, dt, kind, factor, radius_mm, notes
+        )
+        return
+    if kind == "length":
+        value *= factor
+        if not math.isfinite(value):  # e.g. 1e308 mm in um
+            raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
+    elif kind is None:
+        raise TraceError(
+            Msg(".b5r: FEATURE %(name)s has an unknown unit %(unit)s", name=name, unit=repr(dt))
+        )
+    if sub is None:
+        diag[key] = value
+    else:
+        diag.setdefault(key, {})[sub] = value
+
+
+def _b5r_mismatch_ppm(name, value, dt, kind, factor, radius_mm, notes) -> float:
+    """A ``.b5r`` scale mismatch in ppm (given in ppm, or as a length over the radius)."""
+    if kind == "ppm":
+        ppm = value
+    elif kind == "length":
+        if radius_mm is None or not 0.0 < radius_mm < math.inf:
+            raise TraceError(
+                Msg(
+                    ".b5r: scale mismatch given in um but the test radius "
+                    "is unknown; give the radius"
+                )
+            )
+        ppm = value * factor / radius_mm * 1000.0
+        notes.append(
+            Msg("scale mismatch converted from um to ppm assuming um over the test radius")
+        )
+    else:
+        raise TraceError(
+            Msg(
+                ".b5r: FEATURE %(name)s has an unexpected unit %(unit)s",
+                name=name,
+                unit=repr(dt),
+            )
+        )
+    if not math.isfinite(ppm):  # a finite value can overflow in the conversion
+        raise TraceError(Msg(".b5r: FEATURE %(name)s is out of range", name=name))
+    return ppm
 
 
 def _swap_ab(diag: Dict[str, object]) -> None:

@@ -1,132 +1,391 @@
-"""KinComp's OctoPrint settings: defaults, version migration and validation (no OctoPrint import).
+"""KinComp's settings, each declared once (no OctoPrint import).
 
-The settings hold the params document (see :mod:`params`) plus how the plugin applies it,
-demo mode, and the live ballbar sensor (``sensor``: port, baud rate in bit/s, protocol, units,
-sign, pattern and scale; see ``sensor/config.py``). ``validate_settings`` returns a
-complete, checked copy or raises :class:`SettingsError` naming the field, so that the API can
-answer 400 and keep the old values.
+:data:`SETTINGS` declares every setting: its key, default, check, where it belongs (the
+printer profile's set, or KinComp's own bookkeeping) and, for those the settings page shows
+as a plain field, its form (kind, label, unit, help, choices, the element's id). Everything
+else is derived from it: :func:`defaults`, the checks (:data:`CHECKS`, in declaration order),
+what belongs to a printer profile (:data:`PER_PROFILE`), what only KinComp sets
+(:data:`INTERNAL_KEYS`), the objects merged key by key (:data:`MERGED`) and the settings
+page's fields (:func:`form_fields`, which the template renders and the page's script reads).
+A new plain setting is one :class:`Setting` here (and the German of its texts).
+
+The settings hold the params document (see ``core/params.py``) plus how the plugin applies
+it, demo mode, the live ballbar sensor (``sensor``: see ``sensor/config.py``) and the
+printer's stated motion limits. :func:`validate_settings` returns a complete, checked copy
+or raises :class:`SettingsError` naming the field, so that the API can answer 400 and keep
+the old values.
 """
 
 from __future__ import annotations
 
 import copy
-import math
 import re
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ...core.backlash import deadband_steps
 from ...core.compensator import POLICIES, Options
 from ...core.messages import Msg
-from ...core.params import Params, ParamsError
-from ...firmware.motion_limits import MAX_TEXT, LimitsError, parse_limits, steps_per_mm
-from ...sensor.config import SensorConfig
-from ...sensor.protocol_pattern import check_scale, compile_pattern
-from ...sensor.sensor_error import SensorError
+from ...core.params import Params
+from ...firmware.motion_limits import steps_per_mm
+from ..notify import N_
 from . import software_update
+from .checks import (
+    SettingsError,
+    SettingsInvalid,
+    check_bool,
+    check_choice,
+    check_decimals,
+    check_demo,
+    check_home,
+    check_number,
+    check_params,
+    check_profile_id,
+    check_software_update,
+    check_steps,
+    merge_params,
+    motion_limits_defaults,
+    sensor_defaults,
+    validate_motion_limits,
+    validate_sensor,
+)
+
+__all__ = ["SettingsError", "SettingsInvalid"]  # (raised by validate_settings)
 
 SETTINGS_VERSION = 1
 MODES = ("on_the_fly", "on_upload", "background")
 APPLY_CHANGES = ("next_print", "immediately")
 
 
-class SettingsError(ValueError):
-    def __init__(self, field: str, message: str):
-        self.field = field
-        self.message = message  # a messages.Msg: translatable by the plugin
-        super().__init__(f"{field}: {message}" if field else message)
+@dataclass(frozen=True)
+class Field:
+    """A plain field of the settings page: ``path`` in the settings document (``demo.enabled``,
+    ``params.scale_ppm.x``), ``kind`` ``bool`` (a checkbox), ``choice`` (a list of
+    ``choices``: (value, label)), ``number`` or ``optional_number`` (a text field; empty means
+    None: ``placeholder`` says what then applies); ``label``, ``unit``, ``help`` in English
+    (translated where shown); ``dom_id`` the element's id; ``section`` the page's fieldset."""
+
+    path: str
+    kind: str
+    label: str
+    section: str
+    dom_id: str
+    unit: str = ""
+    help: str = ""
+    choices: Tuple[Tuple[str, str], ...] = ()
+    placeholder: str = ""
+
+    def as_dict(self, translate: Callable[[str], str]) -> Dict[str, Any]:
+        """The field for the page, its texts through ``translate``."""
+        return {
+            "path": self.path,
+            "kind": self.kind,
+            "label": translate(self.label),
+            "section": self.section,
+            "id": self.dom_id,
+            "unit": self.unit,
+            "help": translate(self.help) if self.help else "",
+            "choices": [{"value": v, "label": translate(t)} for v, t in self.choices],
+            "placeholder": translate(self.placeholder) if self.placeholder else "",
+        }
 
 
-class SettingsInvalid(SettingsError):
-    """The stored settings are invalid (``reason``: the SettingsError); compensation and
-    file jobs refuse to run until the user fixes them."""
+@dataclass(frozen=True)
+class Setting:
+    """One setting: ``key`` in the settings document, its ``default`` (a JSON value, copied
+    for each use), its ``check`` ((value, field) -> the checked value, or SettingsError
+    naming the field), ``scope`` (``global``; ``profile``: kept per printer profile and
+    swapped when the profile changes; ``internal``: set by KinComp only, dropped from what a
+    request sends), ``merged`` (an object updated key by key: a form may send only some
+    keys) and the plain ``fields`` the settings page shows of it."""
 
-    def __init__(self, reason: SettingsError):
-        self.reason = reason
-        super().__init__(
-            reason.field,
-            Msg(
-                "the stored KinComp settings are invalid (%(reason)s); fix them in KinComp's "
-                "settings first",
-                reason=str(reason),
-            ),
+    key: str
+    default: Any
+    check: Callable[[Any, str], Any]
+    scope: str = "global"
+    merged: bool = False
+    fields: Tuple[Field, ...] = ()
+
+
+def _choice_check(allowed):
+    return lambda v, f: check_choice(v, f, allowed)
+
+
+def _range_check(lo, hi):
+    return lambda v, f: check_number(v, f, lo, hi)
+
+
+def _axes_fields(group, letters, unit, section, hints=None):
+    """Fields of ``params.<group>.<letter>`` (the squareness and scale terms, labelled by
+    their axes; their bounds are the params document's own, ``core/params.py``)."""
+    hints = hints or {}
+    return tuple(
+        Field(
+            f"params.{group}.{k}",
+            "number",
+            k.upper(),
+            section,
+            f"kincomp_{group[:2]}_{k}",
+            unit=unit,
+            help=hints.get(k, ""),
         )
+        for k in letters
+    )
+
+
+_PARAMS_FIELDS = (
+    _axes_fields(
+        "squareness_um_per_m",
+        ("xy", "xz", "yz"),
+        "µm/m",
+        "squareness",
+        {
+            "xy": N_("Positive: X grows with Y (the Y axis leans toward +X)."),
+            "xz": N_("Positive: X grows with Z."),
+            "yz": N_("Positive: Y grows with Z."),
+        },
+    )
+    + _axes_fields("scale_ppm", "xyz", "ppm", "scale")
+    + (
+        Field(
+            "params.backlash.fraction",
+            "number",
+            N_("Fraction applied"),
+            "backlash",
+            "kincomp_bl_fraction",
+            help=N_("0 to 1: how much of the measured backlash to take up (1 = all of it)."),
+        ),
+        Field(
+            "params.backlash.smoothing_mm",
+            "number",
+            N_("Smoothing"),
+            "backlash",
+            "kincomp_bl_smoothing",
+            unit="mm",
+            help=N_(
+                "Spread each take-up over this much following travel instead of one jump "
+                "(0 = immediate)."
+            ),
+        ),
+    )
+)
+
+SETTINGS: Tuple[Setting, ...] = (
+    Setting(
+        "enabled",
+        False,
+        check_bool,
+        fields=(
+            Field(
+                "enabled",
+                "bool",
+                N_("Compensate moves"),
+                "general",
+                "kincomp_enabled",
+                help=N_(
+                    "When on, KinComp rewrites every move sent to the printer (or every "
+                    "uploaded file, see mode)."
+                ),
+            ),
+        ),
+    ),
+    Setting(
+        "mode",
+        "on_the_fly",
+        _choice_check(MODES),
+        fields=(
+            Field(
+                "mode",
+                "choice",
+                N_("Mode"),
+                "general",
+                "kincomp_mode",
+                help=N_(
+                    "Files compensated on upload carry a marker and are never compensated a "
+                    "second time when printed."
+                ),
+                choices=(
+                    ("on_the_fly", N_("On the fly (every line as it is sent)")),
+                    ("on_upload", N_("On upload (files are compensated when stored)")),
+                    ("background", N_("In the background (a compensated copy of each upload)")),
+                ),
+            ),
+        ),
+    ),
+    Setting(
+        "limits_policy",
+        "warn",
+        _choice_check(POLICIES),
+        fields=(
+            Field(
+                "limits_policy",
+                "choice",
+                N_("Bed limits"),
+                "moves",
+                "kincomp_limits",
+                choices=(
+                    ("warn", N_("Warn when a compensated move leaves the bed volume")),
+                    ("clamp", N_("Clamp compensated moves to the bed volume")),
+                    ("error", N_("Stop (pause the print) instead")),
+                ),
+            ),
+        ),
+    ),
+    Setting(
+        "chord_tol_mm",
+        0.01,
+        _range_check(0.0005, 1.0),
+        fields=(
+            Field(
+                "chord_tol_mm",
+                "number",
+                N_("Arc chord tolerance"),
+                "moves",
+                "kincomp_chord",
+                unit="mm",
+                help=N_(
+                    "Compensated arcs (G2/G3) stay within this distance of the true arc: kept "
+                    "as arcs where one fits, else split or cut into straight segments."
+                ),
+            ),
+        ),
+    ),
+    Setting(
+        "linearise_arcs",
+        False,
+        check_bool,
+        fields=(
+            Field(
+                "linearise_arcs",
+                "bool",
+                N_("Write arcs as straight segments (for firmware without G2/G3 support)"),
+                "moves",
+                "kincomp_linearise_arcs",
+            ),
+        ),
+    ),
+    Setting("decimals", 3, check_decimals),
+    # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
+    Setting("home_mm", None, check_home, scope="profile"),
+    # the X/Y drives' steps per mm (the reversal dead band is a twentieth of a step); None:
+    # read from the printer (M92 in its M503 answer, Klipper's [stepper_x/y]), else a
+    # typical 80 (steps_for_deadband)
+    Setting(
+        "steps_per_mm",
+        None,
+        check_steps,
+        scope="profile",
+        fields=(
+            Field(
+                "steps_per_mm",
+                "optional_number",
+                N_("Steps per mm (X/Y)"),
+                "moves",
+                "kincomp_steps_per_mm",
+                placeholder=N_("from the printer"),
+                help=N_(
+                    "A retreat of less than a twentieth of a step gets no backlash take-up "
+                    "(the drive would not move for it). Empty: read from the printer (M92 in "
+                    "its answer to M503, or Klipper's [stepper_x] pasted with the motion "
+                    "limits), else 80 steps/mm."
+                ),
+            ),
+        ),
+    ),
+    Setting(
+        "pass_through_on_error",
+        False,
+        check_bool,
+        fields=(
+            Field(
+                "pass_through_on_error",
+                "bool",
+                N_(
+                    "If a move cannot be compensated, send it as written (otherwise the print "
+                    "pauses)"
+                ),
+                "moves",
+                "kincomp_pass_through",
+            ),
+        ),
+    ),
+    Setting(
+        "apply_changes",
+        "next_print",
+        _choice_check(APPLY_CHANGES),
+        fields=(
+            Field(
+                "apply_changes",
+                "choice",
+                N_("New parameters"),
+                "moves",
+                "kincomp_apply",
+                choices=(
+                    ("next_print", N_("apply from the next print on")),
+                    ("immediately", N_("apply immediately, even during a print")),
+                ),
+            ),
+        ),
+    ),
+    # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
+    Setting(
+        "demo",
+        {"enabled": False, "live": True},
+        check_demo,
+        merged=True,
+        fields=(
+            Field(
+                "demo.enabled",
+                "bool",
+                N_(
+                    "Demo mode: the virtual printer gets hidden simulated errors and a virtual "
+                    "ballbar"
+                ),
+                "moves",
+                "kincomp_demo",
+            ),
+        ),
+    ),
+    Setting("sensor", sensor_defaults(), lambda v, f: validate_sensor(v), merged=True),
+    Setting(
+        "motion_limits",
+        motion_limits_defaults(),
+        lambda v, f: validate_motion_limits(v),
+        scope="profile",
+        merged=True,
+    ),
+    Setting("software_update", software_update.default_settings(), check_software_update),
+    Setting("params", Params().to_dict(), check_params, scope="profile", fields=_PARAMS_FIELDS),
+    # per printer: the OctoPrint printer profile whose set (PER_PROFILE keys) is in force
+    # above ("" : none yet, the set is adopted by the active profile), every profile's set
+    # by profile id, and the profile the runs recorded before profiles belong to (see
+    # printer_profiles.py)
+    Setting("profile", "", check_profile_id, scope="internal"),
+    Setting("legacy_profile", "", check_profile_id, scope="internal"),
+    Setting("profiles", {}, lambda v, f: _profiles(v, f), scope="internal"),
+)
+
+BY_KEY: Dict[str, Setting] = {s.key: s for s in SETTINGS}
+SETTING_KEYS = tuple(BY_KEY)
+# what belongs to one printer: kept per printer profile, swapped when the profile changes
+PER_PROFILE = tuple(s.key for s in SETTINGS if s.scope == "profile")
+# set only by KinComp itself (a profile switch), dropped from what a request sends
+INTERNAL_KEYS = tuple(s.key for s in SETTINGS if s.scope == "internal")
+# objects updated key by key (a form may send only some keys)
+MERGED = tuple(s.key for s in SETTINGS if s.merged)
+# key -> check(value, field), in the order of checking
+CHECKS: Dict[str, Callable[[Any, str], Any]] = {s.key: s.check for s in SETTINGS}
 
 
 def defaults() -> Dict[str, Any]:
-    return {
-        "enabled": False,
-        "mode": "on_the_fly",
-        "params": Params().to_dict(),
-        "limits_policy": "warn",
-        "chord_tol_mm": 0.01,
-        "linearise_arcs": False,
-        "decimals": 3,
-        "home_mm": None,  # where G28 leaves X, Y, Z (mm); None (or a None entry): learned
-        # the X/Y drives' steps per mm (the reversal dead band is a twentieth of a step);
-        # None: read from the printer (M92 in its M503 answer, Klipper's [stepper_x/y]),
-        # else a typical 80 (steps_for_deadband)
-        "steps_per_mm": None,
-        "pass_through_on_error": False,
-        "apply_changes": "next_print",
-        # live: in demo mode the virtual ballbar streams to KinComp as a live sensor
-        "demo": {"enabled": False, "live": True},
-        "sensor": sensor_defaults(),
-        "software_update": software_update.default_settings(),
-        "motion_limits": motion_limits_defaults(),
-        # per printer: the OctoPrint printer profile whose set (PER_PROFILE keys) is in
-        # force above ("" : none yet, the set is adopted by the active profile), every
-        # profile's set by profile id, and the profile the runs recorded before profiles
-        # belong to (see printer_profiles.py); set by KinComp only, never by a request
-        "profile": "",
-        "profiles": {},
-        "legacy_profile": "",
-    }
+    """Every setting's default (a fresh copy)."""
+    return {s.key: copy.deepcopy(s.default) for s in SETTINGS}
 
 
-# what belongs to one printer: kept per printer profile, swapped when the profile changes
-PER_PROFILE = ("params", "home_mm", "motion_limits", "steps_per_mm")
-# set only by KinComp itself (a profile switch), dropped from what a request sends
-INTERNAL_KEYS = ("profile", "profiles", "legacy_profile")
-
-
-# the printer's motion limits as stated (firmware/motion_limits.py reads them): the firmware's
-# answer to M503 (source "m503", captured by the plugin) or text the user pasted (source
-# "pasted": M503 lines or Klipper's printer.cfg); firmware: its name (M203's unit)
-MOTION_LIMIT_KEYS = ("text", "source", "firmware", "captured")
-MOTION_LIMIT_SOURCES = ("", "m503", "pasted")
-
-
-def motion_limits_defaults() -> Dict[str, Any]:
-    return {"text": "", "source": "", "firmware": "", "captured": None}
-
-
-# the sensor settings the plugin stores (SensorConfig's others keep their defaults)
-SENSOR_KEYS = (
-    "enabled",
-    "port",
-    "baudrate",
-    "protocol",
-    "units",
-    "positive",
-    "pattern",
-    "scale",
-    "range",
-    "sample_rate_hz",
-)
-# the JSON types of the sensor settings (SensorConfig checks ranges and choices)
-SENSOR_TEXTS = ("port", "protocol", "units", "positive", "pattern", "range")
-SENSOR_NUMBERS = ("baudrate", "scale", "sample_rate_hz")
-# objects updated key by key (a form may send only some keys)
-MERGED = ("demo", "sensor", "motion_limits")
-
-
-def sensor_defaults() -> Dict[str, Any]:
-    """No live sensor: tests are measured by uploading a trace."""
-    cfg = SensorConfig().to_dict()
-    return dict({k: cfg[k] for k in SENSOR_KEYS if k != "enabled"}, enabled=False)
-
-
-SETTING_KEYS = tuple(defaults())
+def form_fields(translate: Callable[[str], str] = str) -> List[Dict[str, Any]]:
+    """The settings page's plain fields, in the declaration's order, their texts through
+    ``translate`` (the page's language)."""
+    return [f.as_dict(translate) for s in SETTINGS for f in s.fields]
 
 
 def migrate(settings: Dict[str, Any], current: Optional[int]) -> Dict[str, Any]:
@@ -145,53 +404,6 @@ def migrate(settings: Dict[str, Any], current: Optional[int]) -> Dict[str, Any]:
             if f"scale_{axis}" in out:
                 sc[axis] = out.pop(f"scale_{axis}")
         out["params"] = params
-    return out
-
-
-def _bool(value: Any, field: str) -> bool:
-    if not isinstance(value, bool):
-        raise SettingsError(field, Msg("must be true or false"))
-    return value
-
-
-def _choice(value: Any, field: str, allowed: Sequence[str]) -> str:
-    if value not in allowed:
-        raise SettingsError(field, Msg("must be one of %(choices)s", choices=", ".join(allowed)))
-    return value
-
-
-def _number(value: Any, field: str, lo: float, hi: float) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(float(value))
-    ):
-        raise SettingsError(field, Msg("must be a finite number"))
-    if not lo <= float(value) <= hi:
-        raise SettingsError(
-            field,
-            Msg(
-                "%(value)s is out of range (%(lo)s..%(hi)s)",
-                value=f"{value:g}",
-                lo=f"{lo:g}",
-                hi=f"{hi:g}",
-            ),
-        )
-    return float(value)
-
-
-def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]:
-    """``base`` params document with ``update`` merged in: objects merge key by key, any
-    other value (a number, a backlash table) replaces, ``None`` removes the key (its default
-    applies). So ``{"scale_ppm": {"x": 100}}`` changes X scale and keeps everything else."""
-    out = copy.deepcopy(base)
-    for key, value in update.items():
-        if value is None:
-            out.pop(key, None)
-        elif isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = merge_params(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
     return out
 
 
@@ -246,121 +458,6 @@ def validate_settings(
     return out
 
 
-def _decimals(dec: Any, field: str) -> int:
-    if isinstance(dec, bool) or not isinstance(dec, int) or not 3 <= dec <= 6:
-        raise SettingsError(field, Msg("must be an integer within 3..6"))
-    return dec
-
-
-def _home(home: Any, field: str) -> Optional[List[Optional[float]]]:
-    if home is None:
-        return None
-    if not isinstance(home, list) or len(home) != 3:
-        raise SettingsError(
-            field, Msg("must be a list of three numbers (mm) or null (learned from the printer)")
-        )
-    return [
-        None if v is None else _number(v, f"{field}[{i}]", -10000, 10000)
-        for i, v in enumerate(home)
-    ]
-
-
-def _steps(value: Any, field: str) -> Optional[float]:
-    """The drives' steps per mm, or None (from the printer, else the default)."""
-    return None if value is None else _number(value, field, 1.0, 100000.0)
-
-
-def _demo(demo: Any, field: str) -> Dict[str, bool]:
-    if not isinstance(demo, dict) or set(demo) - {"enabled", "live"}:
-        raise SettingsError(field, Msg("must be an object with 'enabled' and 'live'"))
-    return {
-        "enabled": _bool(demo.get("enabled", False), f"{field}.enabled"),
-        "live": _bool(demo.get("live", True), f"{field}.live"),
-    }
-
-
-def _software_update(value: Any, field: str) -> Dict[str, Any]:
-    try:
-        return software_update.validate(value)
-    except software_update.UpdateSettingsError as exc:
-        raise SettingsError(exc.field, exc.message) from None
-
-
-def _params(value: Any, field: str) -> Dict[str, Any]:
-    try:
-        return Params.from_dict(value).to_dict()
-    except ParamsError as exc:
-        raise SettingsError(f"{field}.{exc.field}" if exc.field else field, exc.message) from None
-
-
-def validate_motion_limits(value: Any) -> Dict[str, Any]:
-    """The stated motion limits, checked: a text that states none is refused (naming
-    ``motion_limits.text``), an empty text means "not known"."""
-    if not isinstance(value, dict):
-        raise SettingsError("motion_limits", Msg("must be an object"))
-    for key in value:
-        if key not in MOTION_LIMIT_KEYS:
-            raise SettingsError(f"motion_limits.{key}", Msg("unknown setting"))
-    out = dict(motion_limits_defaults(), **value)
-    for key in ("text", "firmware"):
-        if not isinstance(out[key], str):
-            raise SettingsError(f"motion_limits.{key}", Msg("must be a text"))
-    if len(out["text"]) > MAX_TEXT:
-        raise SettingsError(
-            "motion_limits.text", Msg("is longer than %(n)s characters", n=MAX_TEXT)
-        )
-    out["source"] = _choice(out["source"], "motion_limits.source", MOTION_LIMIT_SOURCES)
-    if out["captured"] is not None and not isinstance(out["captured"], str):
-        raise SettingsError("motion_limits.captured", Msg("must be a date text or null"))
-    if out["text"].strip():
-        try:
-            parse_limits(out["text"], out["firmware"])
-        except LimitsError as exc:
-            raise SettingsError("motion_limits.text", exc.args[0]) from None
-        if not out["source"]:
-            out["source"] = "pasted"
-    else:
-        out.update(text="", source="", captured=None)
-    return out
-
-
-def validate_sensor(value: Any) -> Dict[str, Any]:
-    """The sensor settings checked (complete: missing keys get their defaults); the field
-    at fault is named ``sensor.<key>``."""
-    if not isinstance(value, dict):
-        raise SettingsError("sensor", Msg("must be an object"))
-    for key in value:
-        if key not in SENSOR_KEYS:
-            raise SettingsError(f"sensor.{key}", Msg("unknown setting"))
-    out = dict(sensor_defaults(), **value)
-    enabled = _bool(out.pop("enabled"), "sensor.enabled")
-    for key in SENSOR_TEXTS:
-        if not isinstance(out[key], str):
-            raise SettingsError(f"sensor.{key}", Msg("must be a text"))
-    for key in SENSOR_NUMBERS:
-        if isinstance(out[key], bool) or not isinstance(out[key], (int, float)):
-            raise SettingsError(f"sensor.{key}", Msg("must be a number"))
-    out["port"] = out["port"].strip()
-    try:
-        cfg = SensorConfig.from_dict(out)
-        cfg.scale = check_scale(cfg.scale)  # kept for the pattern protocol: checked always
-        if cfg.pattern:
-            compile_pattern(cfg.pattern)
-    except SensorError as exc:
-        raise SettingsError(f"sensor.{exc.field}" if exc.field else "sensor", exc.message) from None
-    if enabled and not cfg.port:
-        raise SettingsError(
-            "sensor.port", Msg("choose the sensor's port (or switch live capture off)")
-        )
-    return dict({k: getattr(cfg, k) for k in SENSOR_KEYS if k != "enabled"}, enabled=enabled)
-
-
-def _profile_id(value: Any, field: str) -> str:
-    if not isinstance(value, str) or len(value) > 200:
-        raise SettingsError(field, Msg("must be a printer profile id (a text)"))
-    return value
-
-
 def _profiles(value: Any, field: str) -> Dict[str, Dict[str, Any]]:
     """Each printer profile's set: an object of PER_PROFILE keys (a missing key: its
     default; no ``params``: the profile has no calibration), each checked as on top."""
@@ -368,7 +465,7 @@ def _profiles(value: Any, field: str) -> Dict[str, Dict[str, Any]]:
         raise SettingsError(field, Msg("must be an object"))
     out: Dict[str, Dict[str, Any]] = {}
     for pid, entry in value.items():
-        _profile_id(pid, field)
+        check_profile_id(pid, field)
         where = f"{field}.{pid}"
         if not isinstance(entry, dict):
             raise SettingsError(where, Msg("must be an object"))
@@ -379,30 +476,6 @@ def _profiles(value: Any, field: str) -> Dict[str, Dict[str, Any]]:
             checked[key] = CHECKS[key](item, f"{where}.{key}")
         out[pid] = checked
     return out
-
-
-# key -> check(value, field): the checked value, or SettingsError naming the field. Every
-# key of the defaults has one (a test keeps them equal); the order is the order of checking.
-CHECKS: Dict[str, Callable[[Any, str], Any]] = {
-    "enabled": _bool,
-    "mode": lambda v, f: _choice(v, f, MODES),
-    "limits_policy": lambda v, f: _choice(v, f, POLICIES),
-    "chord_tol_mm": lambda v, f: _number(v, f, 0.0005, 1.0),
-    "linearise_arcs": _bool,
-    "decimals": _decimals,
-    "home_mm": _home,
-    "steps_per_mm": _steps,
-    "pass_through_on_error": _bool,
-    "apply_changes": lambda v, f: _choice(v, f, APPLY_CHANGES),
-    "demo": _demo,
-    "sensor": lambda v, f: validate_sensor(v),
-    "motion_limits": lambda v, f: validate_motion_limits(v),
-    "software_update": _software_update,
-    "params": _params,
-    "profile": lambda v, f: _profile_id(v, f),
-    "legacy_profile": lambda v, f: _profile_id(v, f),
-    "profiles": lambda v, f: _profiles(v, f),
-}
 
 
 def engine_config(

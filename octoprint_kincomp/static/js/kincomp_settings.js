@@ -20,17 +20,9 @@ $(function () {
         self.limitsSettings = parameters[3];  // the printer's motion limits' part
         self.docs = ko.observableArray([]);
 
-        self.enabled = ko.observable(false);
-        self.mode = ko.observable("on_the_fly");
-        self.chordTol = ko.observable("0.01");
-        self.stepsPerMm = ko.observable("");  // empty: from the printer (M92), else 80
-        self.limitsPolicy = ko.observable("warn");
-        self.applyChanges = ko.observable("next_print");
-        self.passThrough = ko.observable(false);
-        self.lineariseArcs = ko.observable(false);
-        self.demo = ko.observable(false);
-        self.blFraction = ko.observable("1");
-        self.blSmoothing = ko.observable("0");
+        // the plain fields, as the server declares them (the template renders the same list)
+        var declared = $("#kincomp_settings_fields").text();
+        self.settingsForm = new K.SettingsForm(declared ? JSON.parse(declared) : []);
         self.limits = ko.observable(null);
         self.paramsHash = ko.observable("");
         self.engine = ko.observable("");  // "compiled" or "python" (kernel.py)
@@ -56,33 +48,10 @@ $(function () {
         self.staleProfile = ko.observable(false);
         self.loaded = null; // the settings as last loaded (to keep what the form does not show)
 
-        // a stored value as the form shows it (at most 3 decimals: 30.8903127 -> "30.89");
-        // a field still showing that text stands for the stored value itself, so that
-        // saving an untouched form changes nothing
-        var shown = function (v) {
-            return String(Number(Number(v).toFixed(3)));
-        };
-        var kept = function (text, stored) {
-            return stored !== undefined && stored !== null && text === shown(stored) ? stored : text;
-        };
+        // (backlash: a value per axis, or its value at two positions: shown by hand here)
+        var shown = K.shownNumber;
+        var kept = K.keptNumber;
         self.shown = shown;
-
-        var field = function (id, path, label, hint) {
-            return {id: id, path: path, label: label, hint: hint, value: ko.observable("0")};
-        };
-        self.squareness = [
-            field("sq_xy", "params.squareness_um_per_m.xy", gettext("XY"),
-                gettext("Positive: X grows with Y (the Y axis leans toward +X).")),
-            field("sq_xz", "params.squareness_um_per_m.xz", gettext("XZ"),
-                gettext("Positive: X grows with Z.")),
-            field("sq_yz", "params.squareness_um_per_m.yz", gettext("YZ"),
-                gettext("Positive: Y grows with Z."))
-        ];
-        self.scale = [
-            field("sc_x", "params.scale_ppm.x", gettext("X")),
-            field("sc_y", "params.scale_ppm.y", gettext("Y")),
-            field("sc_z", "params.scale_ppm.z", gettext("Z"))
-        ];
         self.backlash = _.map(["x", "y", "z"], function (axis) {
             return {
                 axis: axis,
@@ -119,22 +88,8 @@ $(function () {
             self.profileName(profile.name || "");
             self.deletedProfiles(profile.deleted || []);
             self.staleProfile(false);
-            self.enabled(s.enabled);
-            self.mode(s.mode);
-            self.chordTol(String(s.chord_tol_mm));
-            self.stepsPerMm(s.steps_per_mm === null || s.steps_per_mm === undefined ? "" : String(s.steps_per_mm));
-            self.limitsPolicy(s.limits_policy);
-            self.applyChanges(s.apply_changes);
-            self.passThrough(s.pass_through_on_error);
-            self.lineariseArcs(!!s.linearise_arcs);
-            self.demo(!!(s.demo && s.demo.enabled));
+            self.settingsForm.show(s);
             var p = s.params;
-            _.each(self.squareness, function (f) {
-                f.value(shown(p.squareness_um_per_m[f.id.slice(3)]));
-            });
-            _.each(self.scale, function (f) {
-                f.value(shown(p.scale_ppm[f.id.slice(3)]));
-            });
             _.each(self.backlash, function (b) {
                 var v = p.backlash[b.axis];
                 b.table = _.isArray(v) ? v : null; // as stored (may have more than 2 points)
@@ -150,8 +105,6 @@ $(function () {
                     b.single(shown(v));
                 }
             });
-            self.blFraction(shown(p.backlash.fraction));
-            self.blSmoothing(shown(p.backlash.smoothing_mm));
             self.limits(status.limits);
             self.paramsHash(status.params_hash);
             self.engine(status.engine || "");
@@ -217,16 +170,11 @@ $(function () {
                 }
                 return v;
             };
-            var params = JSON.parse(JSON.stringify(self.loaded.params));
+            // the parameters the form does not show are kept as loaded
+            var data = {params: JSON.parse(JSON.stringify(self.loaded.params))};
+            self.settingsForm.collect(data, errs, num);
+            var params = data.params;
             var stored = self.loaded.params;
-            _.each(self.squareness, function (f) {
-                var k = f.id.slice(3);
-                params.squareness_um_per_m[k] = number(f.path, kept(f.value(), stored.squareness_um_per_m[k]));
-            });
-            _.each(self.scale, function (f) {
-                var k = f.id.slice(3);
-                params.scale_ppm[k] = number(f.path, kept(f.value(), stored.scale_ppm[k]));
-            });
             _.each(self.backlash, function (b) {
                 var t = b.table;
                 var sv = stored.backlash[b.axis];
@@ -249,24 +197,7 @@ $(function () {
                     params.backlash[b.axis] = number(b.path, kept(b.single(), _.isArray(sv) ? sv[0].um : sv));
                 }
             });
-            params.backlash.fraction = number("params.backlash.fraction", kept(self.blFraction(), stored.backlash.fraction));
-            params.backlash.smoothing_mm = number("params.backlash.smoothing_mm", kept(self.blSmoothing(), stored.backlash.smoothing_mm));
-            return {
-                errors: errs,
-                data: {
-                    enabled: self.enabled(),
-                    mode: self.mode(),
-                    params: params,
-                    chord_tol_mm: number("chord_tol_mm", self.chordTol()),
-                    steps_per_mm: String(self.stepsPerMm() || "").trim() === "" ? null
-                        : number("steps_per_mm", kept(String(self.stepsPerMm()).trim(), self.loaded.steps_per_mm)),
-                    limits_policy: self.limitsPolicy(),
-                    apply_changes: self.applyChanges(),
-                    pass_through_on_error: self.passThrough(),
-                    linearise_arcs: self.lineariseArcs(),
-                    demo: {enabled: self.demo()}
-                }
-            };
+            return {errors: errs, data: data};
         };
 
         self.save = function () {
@@ -310,10 +241,7 @@ $(function () {
         };
 
         self.allPaths = function () {
-            return _.pluck(self.squareness, "path")
-                .concat(_.pluck(self.scale, "path"))
-                .concat(_.pluck(self.backlash, "path"))
-                .concat(["params.backlash.fraction", "params.backlash.smoothing_mm", "chord_tol_mm", "steps_per_mm"]);
+            return self.settingsForm.paths.concat(_.pluck(self.backlash, "path"));
         };
 
         self.onSettingsShown = function () {
@@ -326,16 +254,8 @@ $(function () {
             // which refuses invalid values with a message instead of dropping them)
             if (!self.loaded) return;
             var now = JSON.stringify(self.collect().data);
-            var before = JSON.stringify({
-                enabled: self.loaded.enabled, mode: self.loaded.mode, params: self.loaded.params,
-                chord_tol_mm: self.loaded.chord_tol_mm,
-                steps_per_mm: self.loaded.steps_per_mm === undefined ? null : self.loaded.steps_per_mm,
-                limits_policy: self.loaded.limits_policy,
-                apply_changes: self.loaded.apply_changes,
-                pass_through_on_error: self.loaded.pass_through_on_error,
-                linearise_arcs: !!self.loaded.linearise_arcs,
-                demo: {enabled: !!(self.loaded.demo && self.loaded.demo.enabled)}
-            });
+            var before = JSON.stringify(self.settingsForm.stored(
+                {params: JSON.parse(JSON.stringify(self.loaded.params))}));
             if (now !== before) {
                 self.save().fail(function () {
                     notify({
