@@ -288,8 +288,8 @@ def test_the_bad_value_probe_gives_no_5xx_and_stores_nothing_refused(server):
             ("POST", f"{BASE}/analyze", {"summary": value}, "admin"),
             (
                 "POST",
-                f"{BASE}/analyze",
-                {"artifact": {"plane": "XY", "ac": value, "bd": 1, "ad": 1}},
+                f"{BASE}/artifact/analyze",
+                {"square": {"plane": "XY", "ac": value, "bd": 1, "ad": 1}},
                 "admin",
             ),
             ("POST", f"{BASE}/campaign/plan", {"radius_xy": value, "preview": True}, "admin"),

@@ -90,13 +90,13 @@ GOOD_ARTIFACT = {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}
     ],
 )
 def test_artifact_measurements_are_checked_and_nothing_absurd_is_stored(api, change, field):
-    code, resp = post(api, "/analyze", {"artifact": dict(GOOD_ARTIFACT, **change)})
+    code, resp = post(api, "/artifact/analyze", {"square": dict(GOOD_ARTIFACT, **change)})
     assert code == 400 and field in resp["error"], resp
     assert api.plugin.runs.list() == []
     code, run = post(
         api,
-        "/analyze",
-        {"artifact": dict(GOOD_ARTIFACT, lengths={"x": [[100, 100.05], [50, 50.02]]})},
+        "/artifact/analyze",
+        {"square": dict(GOOD_ARTIFACT, lengths={"x": [[100, 100.05], [50, 50.02]]})},
     )
     assert code == 200 and run["diagnostics"]["scale_ppm"]["x"] > 0
 

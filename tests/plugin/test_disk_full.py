@@ -80,7 +80,11 @@ def test_every_writing_endpoint_answers_507_and_keeps_nothing(api, disk_full):
     trace = _trace().encode()
     calls = [
         ("/analyze", {"summary": {"plane": "XY", "squareness_um_per_m": 40.0}}, None),
-        ("/analyze", {"artifact": {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}}, None),
+        (
+            "/artifact/analyze",
+            {"square": {"plane": "XY", "ac": 141.5, "bd": 141.3, "ad": 100.0}},
+            None,
+        ),
         ("/campaign/plan", {"radius_xy": 50}, None),
         ("/trace", None, trace),
         (f"/campaigns/{cid}/steps/1/trace", None, step_trace),

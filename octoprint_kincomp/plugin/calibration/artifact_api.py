@@ -24,6 +24,7 @@ import flask
 from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
+from ...calibration.artifact.diagonals import ArtifactError, analyse_diagonals
 from ...calibration.artifact.drawing import legend, svg
 from ...calibration.artifact.fit import ArtifactFitError, analyse_artifact, parse_readings
 from ...calibration.artifact.program import (
@@ -35,12 +36,14 @@ from ...calibration.artifact.program import (
     read_program_info,
 )
 from ...calibration.ballbar.formats import TraceError
+from ...core.params import ParamsError
 from ...service.calibration.run_store import RunNotStorable
 from .. import http
 from .calibration_api import CalibrationApi
 
 MAX_PROGRAM_BYTES = 8 * 1024 * 1024
 MAX_READINGS = 20  # repeats per measurement
+MAX_LENGTH_PAIRS = 100  # nominal/measured pairs per axis of a printed square
 DEFAULT_VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)
 
 
@@ -137,11 +140,59 @@ class ArtifactApi:
         out["path"] = path
         return flask.jsonify(out)
 
+    def _analyze_square(self, square: Any):
+        """A printed square (Marlin's and Klipper's calibration object, measured with
+        calipers): its result stored as a run like every artifact's."""
+        try:
+            result = self._square(square)
+        except http.BadRequest as exc:
+            return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
+        except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
+            return http.error(gettext("Invalid artifact measurements: %(e)s", e=http.tr(exc)), 400)
+        return self._calibration.store_run(result, "printed artifact", "artifact", None)
+
+    def _square(self, a: Any) -> Dict[str, Any]:
+        """The result of a printed square's measurements ({plane, ac, bd, ad, lengths},
+        mm), each field checked (:class:`http.BadRequest` naming it)."""
+        if not isinstance(a, dict):
+            raise http.BadRequest(gettext("'%(key)s' must be an object", key="square"))
+        plane = http.choice(a, "plane", tuple(PLANES), "XY")
+        ac, bd, ad = (http.number(a, k, None, "square.") for k in ("ac", "bd", "ad"))
+        lengths = a.get("lengths") or {}
+        if not isinstance(lengths, dict) or set(lengths) - set("xyzXYZ"):
+            raise http.BadRequest(
+                gettext(
+                    "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
+                    key="square.lengths",
+                )
+            )
+        pairs = {}
+        for axis, items in lengths.items():
+            where = f"square.lengths.{axis}"
+            if (
+                not isinstance(items, list)
+                or not 0 < len(items) <= MAX_LENGTH_PAIRS
+                or not all(isinstance(p, list) and len(p) == 2 for p in items)
+            ):
+                raise http.BadRequest(
+                    gettext(
+                        "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
+                        key=where,
+                        n=MAX_LENGTH_PAIRS,
+                    )
+                )
+            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p) for p in items]
+        result = analyse_diagonals(plane, ac, bd, ad, pairs, self._queue.in_force)
+        http.check_json(result["diagnostics"])  # an overflow (1e308 mm) is no measurement
+        return result
+
     @http.route("/artifact/analyze", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
     def analyze(self):
         data = http.json_object()
         if data is None:
             return http.error(gettext("Expected a JSON object"), 400)
+        if "square" in data:
+            return self._analyze_square(data["square"])
         path = data.get("path")
         text = self._read(path)
         raw = data.get("readings")

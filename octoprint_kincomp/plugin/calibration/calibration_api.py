@@ -37,7 +37,6 @@ from octoprint.access.permissions import Permissions
 from octoprint.filemanager import FileDestinations
 from octoprint.filemanager.util import StreamWrapper
 
-from ...calibration.artifact.diagonals import ArtifactError, analyse_diagonals
 from ...calibration.ballbar.analysis import analyse
 from ...calibration.ballbar.formats import TraceError, load_any
 from ...calibration.ballbar.program import (
@@ -68,7 +67,6 @@ from ..settings.settings_store import ProfileChanged, SettingsStore
 
 MAX_TRACE_UPLOAD = 16 * 1024 * 1024  # bytes, also OctoPrint's body size limit for /trace
 TRACE_WAIT_S = 20.0  # an analysis done within this many seconds comes in the response
-MAX_LENGTH_PAIRS = 100  # nominal/measured pairs per axis of a printed artifact
 PROGRAM_FOLDER = "kincomp"  # where generated programs go in OctoPrint's local storage
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
@@ -294,7 +292,7 @@ class CalibrationApi:
 
     @http.route("/analyze", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
     def analyze(self):
-        """Analyse typed numbers: {"summary": {...}} or {"artifact": {...}}."""
+        """Analyse a ballbar report's typed numbers: {"summary": {...}}."""
         data = http.json_object()
         if data is None:
             return http.error(gettext("Expected a JSON object"), 400)
@@ -304,52 +302,12 @@ class CalibrationApi:
             return self._analyse_and_store(
                 json.dumps(data["summary"]).encode(), "typed summary", "summary"
             )
-        if "artifact" in data:
-            try:
-                result = self._artifact(data["artifact"])
-            except http.BadRequest as exc:
-                return http.error(gettext("Invalid artifact measurements: %(e)s", e=str(exc)), 400)
-            except (ArtifactError, ParamsError, ArithmeticError, ValueError) as exc:
-                return http.error(
-                    gettext("Invalid artifact measurements: %(e)s", e=http.tr(exc)), 400
-                )
-            return self._store_run(result, "printed artifact", "artifact", None)
-        return http.error(gettext("Give 'summary' or 'artifact'"), 400)
-
-    def _artifact(self, a: Any) -> Dict[str, Any]:
-        """The result of printed-artifact measurements ({plane, ac, bd, ad, lengths}),
-        each field checked (:class:`http.BadRequest` naming it)."""
-        if not isinstance(a, dict):
-            raise http.BadRequest(gettext("'%(key)s' must be an object", key="artifact"))
-        plane = http.choice(a, "plane", tuple(PLANES), "XY")
-        ac, bd, ad = (http.number(a, k, None, "artifact.") for k in ("ac", "bd", "ad"))
-        lengths = a.get("lengths") or {}
-        if not isinstance(lengths, dict) or set(lengths) - set("xyzXYZ"):
-            raise http.BadRequest(
-                gettext(
-                    "'%(key)s' must map the axes x, y, z to lists of [nominal, measured] mm",
-                    key="artifact.lengths",
-                )
+        if "artifact" in data:  # (printed parts are measured at /artifact/analyze)
+            return http.error(
+                gettext("A printed square's measurements go to /artifact/analyze as 'square'"),
+                400,
             )
-        pairs = {}
-        for axis, items in lengths.items():
-            where = f"artifact.lengths.{axis}"
-            if (
-                not isinstance(items, list)
-                or not 0 < len(items) <= MAX_LENGTH_PAIRS
-                or not all(isinstance(p, list) and len(p) == 2 for p in items)
-            ):
-                raise http.BadRequest(
-                    gettext(
-                        "'%(key)s' must be a list of 1..%(n)s [nominal, measured] pairs (mm)",
-                        key=where,
-                        n=MAX_LENGTH_PAIRS,
-                    )
-                )
-            pairs[axis] = [tuple(http.number({"v": v}, "v", None, where) for v in p) for p in items]
-        result = analyse_diagonals(plane, ac, bd, ad, pairs, self._queue.in_force)
-        http.check_json(result["diagnostics"])  # an overflow (1e308 mm) is no measurement
-        return result
+        return http.error(gettext("Give 'summary'"), 400)
 
     def _analysis_failed(self, name: str, exc) -> str:
         return gettext(
@@ -369,13 +327,15 @@ class CalibrationApi:
             # values the formats accept but the analysis cannot use: the user's input
             return http.error(self._analysis_failed(safe, exc), 400)
         kind = getattr(trace, "kind", source)
-        return self._store_run(
+        return self.store_run(
             result, safe, kind, data if kind != "summary" else None, result.get("plot")
         )
 
-    def _store_run(
+    def store_run(
         self, result: Dict[str, Any], filename: str, source: str, raw: Optional[bytes], plot=None
     ):
+        """The response to a request whose analysis ``result`` is stored as a run: the run,
+        or 400 when it holds a number that is not finite (nothing stored)."""
         try:
             return flask.jsonify(self.record_run(result, filename, source, raw, plot))
         except RunNotStorable:

@@ -376,8 +376,8 @@ $(function () {
         };
 
         self.analyseArtifact = function () {
-            OctoPrint.postJson(API("analyze"), {
-                artifact: {plane: self.aPlane(), ac: num(self.aAC()), bd: num(self.aBD()), ad: num(self.aAD())}
+            OctoPrint.postJson(API("artifact/analyze"), {
+                square: {plane: self.aPlane(), ac: num(self.aAC()), bd: num(self.aBD()), ad: num(self.aAD())}
             })
                 .done(self.analysed)
                 .fail(self.fail);
