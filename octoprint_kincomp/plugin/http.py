@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import errno
 import functools
-import math
 from typing import Any, Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import flask
@@ -22,6 +21,7 @@ from octoprint.access import ADMIN_GROUP
 from octoprint.access.permissions import Permissions
 
 from ..core.messages import as_dict, error_message, translate
+from ..core.numbers import finite
 from ..service.notify import N_
 
 
@@ -135,7 +135,11 @@ def check_json(data: Any) -> None:
     stack = [(data, "", 1)]
     while stack:
         value, where, depth = stack.pop()
-        if isinstance(value, float) and not math.isfinite(value):
+        if (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and finite(value) is None
+        ):
             raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
         if isinstance(value, str) and not _encodable(value):
             raise BadRequest(
@@ -214,14 +218,10 @@ def number(
     data: Dict[str, Any], key: str, default: Optional[float] = None, prefix: str = ""
 ) -> float:
     """A finite JSON number field (``default`` when absent; required when that is None)."""
-    value = data.get(key, default)
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(float(value))
-    ):
+    value = finite(data.get(key, default))
+    if value is None:
         raise BadRequest(gettext("'%(key)s' must be a finite number", key=prefix + key))
-    return float(value)
+    return value
 
 
 def numbers(data: Dict[str, Any], key: str, n: int, default) -> List[float]:

@@ -10,13 +10,13 @@ answer 400 and keep the old values.
 from __future__ import annotations
 
 import copy
-import math
 import re
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from ...core.backlash import deadband_steps
 from ...core.compensator import POLICIES, Options
 from ...core.messages import Msg
+from ...core.numbers import finite
 from ...core.params import Params, ParamsError
 from ...firmware.motion_limits import MAX_TEXT, LimitsError, parse_limits, steps_per_mm
 from ...sensor.config import SensorConfig
@@ -161,13 +161,10 @@ def _choice(value: Any, field: str, allowed: Sequence[str]) -> str:
 
 
 def _number(value: Any, field: str, lo: float, hi: float) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(float(value))
-    ):
+    value = finite(value)
+    if value is None:
         raise SettingsError(field, Msg("must be a finite number"))
-    if not lo <= float(value) <= hi:
+    if not lo <= value <= hi:
         raise SettingsError(
             field,
             Msg(
@@ -177,7 +174,7 @@ def _number(value: Any, field: str, lo: float, hi: float) -> float:
                 hi=f"{hi:g}",
             ),
         )
-    return float(value)
+    return value
 
 
 def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]:
