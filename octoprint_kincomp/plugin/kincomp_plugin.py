@@ -123,6 +123,7 @@ class KinCompPlugin(
             recorder, self.runs, self.demo, notifier, printer, files, log, self._settings.global_get
         )
         self.calibration.on_print = self.sensor.program_printing
+        self.sensor.inside_uploads = self.files.inside_uploads  # one rule for files read
         self.settings_api.check = self.sensor.check_settings
         self.prints.compensated_for = self.store.compensated_for
         campaigns = CampaignStore(self.data_folder())

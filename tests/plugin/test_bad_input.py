@@ -322,3 +322,17 @@ def test_a_stored_limit_beyond_range_is_reported_and_repairable(tmp_path, text):
         assert ns.client.get(PREFIX + "/status").get_json()["settings_problem"] is None
     finally:
         ns.stop()
+
+
+def test_arming_never_follows_a_link_out_of_the_uploads(api, tmp_path):
+    """Issue 37 row 9: /sensor/arm read /etc/passwd through a link where the other routes
+    answer 403; a stored file holding only a program's plane line was a 500."""
+    secret = tmp_path / "outside.gcode"
+    secret.write_text("; ballbar plane: XY\n")
+    os.symlink(str(secret), os.path.join(api.uploads, "link.gcode"))
+    code, resp = post(api, "/sensor/arm", {"path": "link.gcode"})
+    assert code == 403 and "link" in resp["error"], (code, resp)
+    with open(os.path.join(api.uploads, "cut.gcode"), "w") as f:
+        f.write("; ballbar plane: XY\n")
+    code, resp = post(api, "/sensor/arm", {"path": "cut.gcode"})
+    assert code == 400 and "centre" in resp["error"], (code, resp)

@@ -97,6 +97,8 @@ class ArtifactApi:
             return http.error(http.tr(exc.args[0] if exc.args else exc), 400)
         if do_print:
             http.require(Permissions.PRINT)
+            if not self._calibration.printer_ready():  # (before a file is written)
+                return http.error(gettext("The printer is not ready to print"), 409)
         name = f"artifact_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
         path = self._calibration.store_program(text, name)
         printing = False
@@ -110,7 +112,7 @@ class ArtifactApi:
         return flask.jsonify(out)
 
     def _read(self, path: Any) -> str:
-        disk = self._files._local_file(path)  # aborts 400/403/404 as for every stored file
+        disk = self._files.local_file(path)  # aborts 400/403/404 as for every stored file
         try:
             with open(disk, encoding="utf-8", errors="replace") as f:
                 return f.read(MAX_PROGRAM_BYTES)
@@ -119,7 +121,8 @@ class ArtifactApi:
                 400, gettext("%(path)s cannot be read: %(error)s", path=path, error=exc.strerror)
             )
 
-    @http.route("/artifact/sheet", "GET", needs=(http.STATUS,))
+    # (it reads a stored file's content: as OctoPrint's download does)
+    @http.route("/artifact/sheet", "GET", needs=(http.STATUS, http.FILES_DOWNLOAD))
     def sheet(self):
         path = flask.request.args.get("path", "")
         text = self._read(path)

@@ -152,6 +152,8 @@ class CalibrationApi:
             return http.error(str(exc), 400)
         except (ProgramError, LimitsError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
+        if do_print and not self.printer_ready():  # refused before a file is written
+            return http.error(gettext("The printer is not ready to print"), 409)
         name = (
             f"ballbar_{spec.plane}_R{spec.radius_mm:g}_"
             f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
