@@ -25,7 +25,6 @@ from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
 from ...calibration.artifact.drawing import legend, svg
-from ...calibration.artifact.fit import ArtifactFitError, analyse_artifact, parse_readings
 from ...calibration.artifact.program import (
     PLANES,
     ArtifactProgramError,
@@ -34,8 +33,6 @@ from ...calibration.artifact.program import (
     read_measurements,
     read_program_info,
 )
-from ...calibration.ballbar.formats import TraceError
-from ...service.calibration.run_store import RunNotStorable
 from .. import http
 from .calibration_api import CalibrationApi
 
@@ -164,42 +161,23 @@ class ArtifactApi:
             k: [v for v in (vals if isinstance(vals, list) else [vals]) if v is not None]
             for k, vals in raw.items()
         }
-        try:
-            measurements = read_measurements(text)
-            readings = parse_readings(raw)
-            result = analyse_artifact(
-                measurements,
-                readings,
-                current=self._queue.in_force,
-                info=read_program_info(text),
-                wire=True,
-            )
-        except (ArtifactProgramError, ArtifactFitError, TraceError) as exc:
-            return http.error(
-                gettext(
-                    "Invalid artifact measurements: %(e)s",
-                    e=http.tr(exc.args[0] if exc.args else exc),
-                ),
-                400,
-            )
-        result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
-        result["diagnostics"]["program"] = path
-        findings: List[Dict[str, Any]] = result["findings"]
-        try:
-            run = self._calibration.record_run(
-                result,
-                str(path).rsplit("/", 1)[-1],
-                "artifact",
-                json.dumps(readings, indent=1).encode(),
-                None,
-                extra={"findings": findings, "trusted": result["trusted"]},
-            )
-        except RunNotStorable:
-            return http.error(
-                gettext(
-                    "The analysis gave numbers that are not finite; check "
-                    "the measurements (nothing was stored)"
-                ),
-                400,
-            )
-        return flask.jsonify(run)
+        known = self._calibration.known_now()
+        args = {"text": text, "readings": raw, "current": known["current"]}
+        name = str(path).rsplit("/", 1)[-1]
+
+        def store(result: Dict[str, Any]) -> str:
+            readings = result.pop("readings")
+            result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
+            result["diagnostics"]["program"] = path
+            findings: List[Dict[str, Any]] = result["findings"]
+            extra = {"findings": findings, "trusted": result["trusted"]}
+            extra["profile"] = known["profile"]
+            raw_file = json.dumps(readings, indent=1).encode()
+            return self._calibration.record_run(result, name, "artifact", raw_file, None, extra)[
+                "id"
+            ]
+
+        # (in the worker process, as every analysis; a failure answers 400 naming the file)
+        return self._calibration.analysis(
+            "analyse_artifact", args, store, self._calibration._runs.get, name
+        )
