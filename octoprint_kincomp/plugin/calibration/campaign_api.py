@@ -60,6 +60,7 @@ from ...firmware.motion_limits import LimitsError, circle_feed
 from ...service.calibration.campaign_measure import (
     CampaignMeasurements,
     Refused,
+    busy_test,
     campaign_keys,
     with_findings,
 )
@@ -333,16 +334,26 @@ class CampaignApi:
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
         name = safe_name(os.path.basename(filename))
+        if not self._campaigns.claim(cid, step["name"]):  # the same test twice at once
+            return http.error(http.tr(busy_test(doc, step).message), 409)
 
         def run(job, progress) -> None:  # in the job thread, its analysis in the worker
             def analyse(task, args):
                 return self._calibration._job_api.jobs.worker.call(job.id, task, args, progress)
 
-            job.result = self.measure.measure(doc, step, data, name, force=force, analyse=analyse)[
-                "id"
-            ]
+            try:
+                run = self.measure.measure(
+                    doc, step, data, name, force=force, analyse=analyse, claimed=True
+                )
+                job.result = run["id"]
+            finally:
+                self._campaigns.release(cid, step["name"])
 
-        job = self._calibration._job_api.submit("analyse", None, run)
+        try:
+            job = self._calibration._job_api.submit("analyse", None, run)
+        except BaseException:  # (429: the job never runs)
+            self._campaigns.release(cid, step["name"])
+            raise
         return self._answer(
             job, lambda run_id: dict(campaign=self._view(doc), run=self._runs.get(run_id)), name
         )
@@ -389,16 +400,22 @@ class CampaignApi:
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
         args = {"traces": traces, "current": current.to_dict()}
+        if not self._campaigns.claim(cid, "joint"):  # the joint analysis twice at once
+            return http.error(gettext("Campaign %(id)s is being analysed already", id=cid), 409)
 
         def run(job, progress) -> None:
-            with self._campaigns.working(cid, "joint") as free:
-                if not free:
-                    raise Refused(Msg("Campaign %(id)s is being analysed already", id=cid), 409)
+            try:
                 worker = self._calibration._job_api.jobs.worker
                 result = worker.call(job.id, "analyse_campaign", args, progress)
                 job.result = self._store_joint(doc, result, current)
+            finally:
+                self._campaigns.release(cid, "joint")
 
-        job = self._calibration._job_api.submit("analyse", None, run)
+        try:
+            job = self._calibration._job_api.submit("analyse", None, run)
+        except BaseException:  # (429: the job never runs)
+            self._campaigns.release(cid, "joint")
+            raise
         return self._answer(job, lambda _: self._view(doc), None)
 
     def _store_joint(self, doc: Dict[str, Any], result: Dict[str, Any], current) -> str:

@@ -26,6 +26,7 @@ that every trace stays one run. Refusals are :class:`Refused` with a translatabl
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any, Callable, Dict, List, Optional
 
 from ...calibration import findings as fnd
@@ -210,6 +211,7 @@ class CampaignMeasurements:
         extra: Optional[Dict[str, Any]] = None,
         force: bool = False,
         analyse: Optional[Callable[[str, Dict[str, Any]], Dict[str, Any]]] = None,
+        claimed: bool = False,
     ) -> Dict[str, Any]:
         """The trace ``data`` (file ``name``) as ``step``'s measurement: checked, analysed
         (``analyse(task, args)``: in the worker process, ``service/calibration/
@@ -219,23 +221,18 @@ class CampaignMeasurements:
         trace or its analysis fails; (409) while another printer profile is in force,
         unless ``force`` (then the run carries the warning finding and belongs to the
         campaign's profile, as the campaign does), and while the same test is measured
-        already; (404) when the campaign was deleted meanwhile (nothing is stored)."""
+        already (``claimed``: the caller registered this measurement with
+        ``CampaignStore.claim`` when the request came in); (404) when the campaign was
+        deleted meanwhile (nothing is stored)."""
         self.check_unchanged(doc, force)
         said = self.profile_findings(doc)
         known = self._calibration.known_now()
         current = self.in_force()
-        with self._campaigns.working(doc["id"], step["name"]) as free:
-            if not free:
-                raise Refused(
-                    Msg(
-                        "Test %(n)s (%(name)s) of campaign %(id)s is being measured already: "
-                        "wait for that measurement.",
-                        n=step["n"],
-                        name=step["name"],
-                        id=doc["id"],
-                    ),
-                    409,
-                )
+        with contextlib.ExitStack() as stack:
+            if not claimed and not stack.enter_context(
+                self._campaigns.working(doc["id"], step["name"])
+            ):
+                raise busy_test(doc, step)
             args = dict(data=data, name=name, current=current.to_dict(), known=known["known"])
             args.update(campaign=doc, step=step)
             try:
@@ -336,6 +333,20 @@ class CampaignMeasurements:
                 self._runs.save_raw(new["id"], f.read())
         self._runs.delete(run["id"])
         return new
+
+
+def busy_test(doc: Dict[str, Any], step: Dict[str, Any]) -> Refused:
+    """The refusal of a second measurement of a test while the first is under way."""
+    return Refused(
+        Msg(
+            "Test %(n)s (%(name)s) of campaign %(id)s is being measured already: wait for "
+            "that measurement.",
+            n=step["n"],
+            name=step["name"],
+            id=doc["id"],
+        ),
+        409,
+    )
 
 
 def _in_process(task: str, args: Dict[str, Any]) -> Dict[str, Any]:

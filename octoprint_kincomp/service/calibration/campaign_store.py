@@ -76,20 +76,29 @@ class CampaignStore(RunStore):
         with self.lock(run_id):
             super().delete(run_id)
 
-    @contextlib.contextmanager
-    def working(self, cid: str, what: str) -> Iterator[bool]:
-        """Registers work ``what`` (a test's name, or "joint") on campaign ``cid`` while the
-        block runs; yields False, registering nothing, when the same work is in flight."""
+    def claim(self, cid: str, what: str) -> bool:
+        """Registers work ``what`` (a test's name, or "joint") on campaign ``cid``; False,
+        registering nothing, when the same work is in flight (queued or running)."""
         key = (str(cid), str(what))
         with self._guard:
-            busy = key in self._work
+            if key in self._work:
+                return False
             self._work.add(key)
+            return True
+
+    def release(self, cid: str, what: str) -> None:
+        with self._guard:
+            self._work.discard((str(cid), str(what)))
+
+    @contextlib.contextmanager
+    def working(self, cid: str, what: str) -> Iterator[bool]:
+        """:meth:`claim` while the block runs (yields its answer), then released."""
+        free = self.claim(cid, what)
         try:
-            yield not busy
+            yield free
         finally:
-            if not busy:
-                with self._guard:
-                    self._work.discard(key)
+            if free:
+                self.release(cid, what)
 
 
 def new_campaign(
