@@ -502,7 +502,7 @@ class CalibrationApi:
                 return http.error(
                     gettext("This run has no proposed parameters (its capture failed)"), 400
                 )
-            refused = self.other_printers(run, force=force) or self.untrusted(run, force)
+            refused = self.other_printers(run) or self.untrusted(run, force)
             if refused is not None:
                 return refused
         elif "params" in data:
@@ -519,13 +519,14 @@ class CalibrationApi:
             expected,
         )
 
-    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None, force=False):
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
         """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
         printer profile than the one in force (a stale page or another user's switch:
-        printer A's result is not applied to printer B unless the request says ``force``,
-        as a campaign test's measurement on another profile); None to go on."""
+        printer A's result must never be applied to printer B; ``force`` does not override
+        it); None to go on. A run belongs to the profile in force when its measurement
+        started (``known_now``), whatever is switched during its analysis."""
         s = self._store.current()
-        if force or not other_profile(run.get("profile"), s):
+        if not other_profile(run.get("profile"), s):
             return None
         return http.error(
             gettext(
