@@ -37,11 +37,11 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Tuple
 
 from .messages import Msg
+from .numbers import finite
 
 SCHEMA_VERSION = 1
 AXES = ("x", "y", "z")
@@ -242,8 +242,8 @@ def _number(
         raise ParamsError(
             field, Msg("must be a number, got %(value)s", value=json.dumps(value)[:40])
         )
-    v = float(value)
-    if not math.isfinite(v):
+    v = finite(value)
+    if v is None:
         raise ParamsError(field, Msg("must be a finite number (NaN/Infinity are not allowed)"))
     if limit is not None and abs(v) > limit:
         raise ParamsError(

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Sequence
 
 from ..core.messages import Msg, joined
+from ..core.numbers import finite_text
 
 AXES = ("x", "y", "z")
 PLANE_AXES = {"XY": ("x", "y"), "XZ": ("x", "z"), "YZ": ("y", "z")}
@@ -46,6 +47,19 @@ PLANE_AXES = {"XY": ("x", "y"), "XZ": ("x", "z"), "YZ": ("y", "z")}
 # take over four minutes per direction, long enough for the bar and frame to drift
 MIN_TEST_FEED = 60.0  # mm/min
 MAX_TEXT = 20000  # characters of limits text stored with the settings
+# The bounds of each limit (exclusive low, inclusive high), the same wherever a limit comes
+# from: typed (a trace's or truth file's motion settings, firmware/planner.py), pasted or
+# read from the firmware (M503, printer.cfg) or a printer profile. Beyond them a value is
+# no printer's (max_velocity: 1e307 made the feed Infinity, and /status a 500).
+BOUNDS = {
+    "max_feed_mm_min": (1.0, 1e6),  # mm/min (16,667 mm/s)
+    "max_accel_mm_s2": (1.0, 1e6),  # mm/s^2
+    "print_accel_mm_s2": (1.0, 1e6),  # mm/s^2
+    "travel_accel_mm_s2": (1.0, 1e6),  # mm/s^2
+    "junction_deviation_mm": (0.0, 10.0),  # mm
+    "jerk_mm_s": (-1e-9, 1000.0),  # mm/s (0 allowed)
+    "square_corner_velocity_mm_s": (0.0, 1000.0),  # mm/s
+}
 
 
 class LimitsError(ValueError):
@@ -88,7 +102,7 @@ class MotionLimits:
                 v = float(v)
             except (TypeError, ValueError):
                 continue
-            if a in AXES and math.isfinite(v) and v > 0:
+            if a in AXES and within("max_feed_mm_min", v):
                 out.max_feed_mm_min[a] = v
                 out.sources[f"max_feed_mm_min.{a}"] = source
         return out
@@ -170,18 +184,41 @@ def firmware_feed_unit(firmware: Optional[str]) -> Optional[str]:
     return None
 
 
+def within(key: str, value: Optional[float]) -> bool:
+    """Whether ``value`` is a finite number within the BOUNDS of the limit ``key``."""
+    lo, hi = BOUNDS[key]
+    return value is not None and math.isfinite(value) and lo < value <= hi
+
+
+def out_of_bounds(limits: MotionLimits) -> Optional[Msg]:
+    """The first limit of ``limits`` beyond its BOUNDS (with where it came from), else
+    None."""
+    for key, (lo, hi) in BOUNDS.items():
+        value = getattr(limits, key)
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for axis, v in items:
+            if v is None or within(key, v):
+                continue
+            name = f"{key}.{axis}" if axis else key
+            return Msg(
+                "%(name)s %(value)s (from %(source)s) is out of range (%(lo)s..%(hi)s)",
+                name=name,
+                value=f"{v:g}",
+                source=limits.sources.get(name, "?"),
+                lo=f"{max(lo, 0.0):g}",
+                hi=f"{hi:g}",
+            )
+    return None
+
+
 def _number(text: str) -> Optional[float]:
-    try:
-        v = float(text)
-    except ValueError:
-        return None
-    return v if math.isfinite(v) else None
+    return finite_text(text)
 
 
 def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
     """The limits stated in ``text`` (see the module docstring); ``firmware`` is the
     firmware's name (M115), which decides M203's unit when the text does not. Raises
-    LimitsError when the text states none of them."""
+    LimitsError when the text states none of them, or one beyond its BOUNDS."""
     if not isinstance(text, str):
         raise LimitsError(Msg("the motion limits must be a text"))
     out = MotionLimits()
@@ -281,6 +318,9 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
                     out.sources[f"jerk_mm_s.{a}"] = "M205"
     if klipper:
         _apply_klipper(out, klipper)
+    bad = out_of_bounds(out)
+    if bad is not None:
+        raise LimitsError(bad)
     if out.empty():
         raise LimitsError(
             Msg(
@@ -507,7 +547,7 @@ def limits_from_sequence(
     ``--max-feed`` and ``--max-accel``."""
     out = MotionLimits.from_feeds(dict(zip(AXES, feeds or ())), source)
     for a, v in zip(AXES, accels or ()):
-        if v and v > 0:
+        if within("max_accel_mm_s2", v):
             out.max_accel_mm_s2[a] = float(v)
             out.sources[f"max_accel_mm_s2.{a}"] = source
     return out

@@ -39,6 +39,7 @@ from ..core.gcode_table import STOP, classify
 from ..core.messages import Msg
 from ..core.params import AXES, ParamsError
 from .interpreter import Dwell, FirmwareInterpreter, Home, Move
+from .motion_limits import BOUNDS
 
 DEFAULT_ACCEL = 1500.0  # mm/s^2, a typical desktop printer's print acceleration
 DEFAULT_JD = 0.013  # mm, Marlin's default junction deviation
@@ -158,26 +159,30 @@ class MotionSettings:
         if d.get("motion", "planner") == "constant_speed" or d.get("constant_speed") is True:
             s.constant_speed = True
         if "accel_mm_s2" in d:
-            s.accel_mm_s2 = _positive(d["accel_mm_s2"], "accel_mm_s2", 1.0, 1e6)
+            s.accel_mm_s2 = _positive(d["accel_mm_s2"], "accel_mm_s2", *BOUNDS["max_accel_mm_s2"])
         if d.get("square_corner_velocity_mm_s") is not None:
             s.square_corner_velocity_mm_s = _positive(
-                d["square_corner_velocity_mm_s"], "square_corner_velocity_mm_s", 0.0, 1000.0
+                d["square_corner_velocity_mm_s"],
+                "square_corner_velocity_mm_s",
+                *BOUNDS["square_corner_velocity_mm_s"],
             )
             s.junction_deviation_mm = None
         elif d.get("junction_deviation_mm") is not None:
             s.junction_deviation_mm = _positive(
-                d["junction_deviation_mm"], "junction_deviation_mm", 0.0, 10.0
+                d["junction_deviation_mm"],
+                "junction_deviation_mm",
+                *BOUNDS["junction_deviation_mm"],
             )
         if d.get("max_feed_mm_min") is not None:
             s.max_feed_mm_min = {
-                a: _positive(v, f"max_feed_mm_min.{a}", 1.0, 1e6)
+                a: _positive(v, f"max_feed_mm_min.{a}", *BOUNDS["max_feed_mm_min"])
                 for a, v in _axis_map(d["max_feed_mm_min"], "max_feed_mm_min").items()
             }
             for a in AXES:
                 s.max_feed_mm_min.setdefault(a, DEFAULT_MAX_FEED[a])
         if d.get("max_accel_mm_s2"):
             s.max_accel_mm_s2 = {
-                a: _positive(v, f"max_accel_mm_s2.{a}", 1.0, 1e6)
+                a: _positive(v, f"max_accel_mm_s2.{a}", *BOUNDS["max_accel_mm_s2"])
                 for a, v in _axis_map(d["max_accel_mm_s2"], "max_accel_mm_s2").items()
             }
         return s
@@ -189,7 +194,7 @@ class MotionSettings:
 def _positive(v, name: str, lo: float, hi: float) -> float:
     try:
         x = float(v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ParamsError(name, Msg("must be a number")) from None
     if not (lo < x <= hi) or not math.isfinite(x):
         raise ParamsError(name, Msg("must be within %(lo)s..%(hi)s", lo=f"{lo:g}", hi=f"{hi:g}"))

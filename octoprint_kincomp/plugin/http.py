@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import errno
 import functools
-import math
+import re
 from typing import Any, Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import flask
@@ -22,6 +22,7 @@ from octoprint.access import ADMIN_GROUP
 from octoprint.access.permissions import Permissions
 
 from ..core.messages import as_dict, error_message, translate
+from ..core.numbers import finite
 from ..service.notify import N_
 
 
@@ -135,7 +136,11 @@ def check_json(data: Any) -> None:
     stack = [(data, "", 1)]
     while stack:
         value, where, depth = stack.pop()
-        if isinstance(value, float) and not math.isfinite(value):
+        if (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and finite(value) is None
+        ):
             raise BadRequest(gettext("'%(key)s' must be a finite number", key=where or "body"))
         if isinstance(value, str) and not _encodable(value):
             raise BadRequest(
@@ -214,14 +219,10 @@ def number(
     data: Dict[str, Any], key: str, default: Optional[float] = None, prefix: str = ""
 ) -> float:
     """A finite JSON number field (``default`` when absent; required when that is None)."""
-    value = data.get(key, default)
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(float(value))
-    ):
+    value = finite(data.get(key, default))
+    if value is None:
         raise BadRequest(gettext("'%(key)s' must be a finite number", key=prefix + key))
-    return float(value)
+    return value
 
 
 def numbers(data: Dict[str, Any], key: str, n: int, default) -> List[float]:
@@ -271,6 +272,7 @@ PLUGIN_KINCOMP_ADMIN = "PLUGIN_KINCOMP_ADMIN"
 STATUS = "STATUS"
 FILES_LIST = "FILES_LIST"
 FILES_UPLOAD = "FILES_UPLOAD"
+FILES_DOWNLOAD = "FILES_DOWNLOAD"
 
 
 class Route(NamedTuple):
@@ -284,17 +286,34 @@ def route(rule: str, method: str, needs: Sequence[str]) -> Callable:
     with every permission of ``needs`` (names of :data:`PLUGIN_KINCOMP_ADMIN`, :data:`STATUS`
     ...); the check runs before the method whichever way it is called."""
 
+    ints = _INT_PART.findall(rule)
+
     def mark(fn):
         @functools.wraps(fn)
         def guarded(*args, **kwargs):
             for name in needs:
                 require(getattr(Permissions, name))
+            for key in ints:  # (registered as text: Werkzeug's int takes any Unicode digit)
+                if key in kwargs:
+                    kwargs[key] = ascii_int(kwargs[key])
             return fn(*args, **kwargs)
 
         guarded.kincomp_route = Route(rule, method, tuple(needs))
         return guarded
 
     return mark
+
+
+_INT_PART = re.compile(r"<int:(\w+)>")
+
+
+def ascii_int(value: Any) -> int:
+    """A rule's ``<int:..>`` part: ASCII digits only (``/steps/\u0663/`` is no test 3: 404)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.isascii() and value.isdigit():
+        return int(value)
+    flask.abort(404)
 
 
 def routes_of(piece: Any) -> List[Tuple[Route, Callable]]:
@@ -312,9 +331,8 @@ def register(blueprint, piece: Any) -> None:
     class and method)."""
     for declared, view in routes_of(piece):
         endpoint = f"{type(piece).__name__}_{view.__name__}"
-        blueprint.add_url_rule(
-            declared.rule, endpoint=endpoint, view_func=view, methods=[declared.method]
-        )
+        rule = _INT_PART.sub(r"<\1>", declared.rule)
+        blueprint.add_url_rule(rule, endpoint=endpoint, view_func=view, methods=[declared.method])
 
 
 def update_source_refused(old: Dict[str, Any], new: Dict[str, Any]):

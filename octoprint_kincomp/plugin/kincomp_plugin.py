@@ -123,6 +123,7 @@ class KinCompPlugin(
             recorder, self.runs, self.demo, notifier, printer, files, log, self._settings.global_get
         )
         self.calibration.on_print = self.sensor.program_printing
+        self.sensor.inside_uploads = self.files.inside_uploads  # one rule for files read
         self.settings_api.check = self.sensor.check_settings
         self.prints.compensated_for = self.store.compensated_for
         campaigns = CampaignStore(self.data_folder())
@@ -244,7 +245,8 @@ class KinCompPlugin(
     ):
         prints = self.prints
         if comm_instance is not prints.comm:
-            prints.connection_changed(comm_instance)
+            if not prints.current(comm_instance):
+                return None  # a retired connection's line: nothing of the print's changes
             # a new connection's profile decides the calibration before its first command
             self.store.follow_profile()
         if tags and FILE_TAG in tags and (not prints.file_lines_seen or "fileline:1" in tags):
@@ -280,7 +282,8 @@ class KinCompPlugin(
 
     def received_hook(self, comm_instance, line, *args, **kwargs):
         if comm_instance is not self.prints.comm:
-            self.prints.connection_changed(comm_instance)
+            if not self.prints.current(comm_instance):
+                return line  # a retired connection's late line is not the new one's
             self.store.follow_profile()
         self.firmware.received(line)
         self.limits.received(line)

@@ -260,3 +260,79 @@ def test_a_test_measured_with_compensation_off_is_analysed_against_no_parameters
     code, on = post(api, "/analyze", summary)
     assert code == 200 and on["params_before"]["squareness_um_per_m"]["xy"] == 300.0
     assert on["proposed"]["squareness_um_per_m"]["xy"] == pytest.approx(300.0 + whole, abs=1e-6)
+
+
+# ~~ issue 37 rows 3 and 7: numbers beyond the float range, stored or pasted ----------------
+HUGE = "1" + "0" * 400  # a JSON integer beyond the float range
+
+
+@pytest.mark.parametrize(
+    "route, body",
+    [
+        ("/program", '{"plane": "XY", "radius": %s}'),
+        ("/artifact/program", '{"size_mm": %s}'),
+        ("/artifact/analyze", '{"plane": "XY", "ac": %s, "bd": 141.3, "ad": 100}'),
+        ("/campaign/plan", '{"radius": %s}'),
+        ("/settings", '{"chord_tol_mm": %s}'),
+        ("/analyze", '{"summary": {"plane": "XY", "squareness_um_per_m": %s}}'),
+    ],
+)
+def test_an_integer_beyond_the_float_range_is_400(api, route, body):
+    code, resp = post(api, route, raw=body % HUGE)
+    assert code == 400 and "finite" in resp["error"], (code, resp)
+
+
+LIMITS = [
+    "[printer]\nmax_velocity: 1e307\nmax_accel: 3000",
+    "[printer]\nmax_velocity: 300\nmax_z_velocity: 1e307\nmax_accel: 3000",
+    "SET_VELOCITY_LIMIT VELOCITY=1e308",
+    "[printer]\nmax_velocity: 300\nmax_accel: 1e308",
+    "M201 X1e300 Y3000 Z100",
+]
+
+
+@pytest.mark.parametrize("text", LIMITS)
+def test_pasted_motion_limits_beyond_any_printers_are_refused(api, text):
+    body = {"motion_limits": {"text": text, "source": "pasted"}}
+    code, resp = post(api, "/settings", body)
+    assert code == 400 and "motion_limits.text" in resp["error"], resp
+    assert api.plugin.store.current()["motion_limits"]["text"] == ""
+    resp = api.client.get(PREFIX + "/status")
+    assert resp.status_code == 200
+
+
+@pytest.mark.parametrize("text", LIMITS)
+def test_a_stored_limit_beyond_range_is_reported_and_repairable(tmp_path, text):
+    """Stored by an earlier version (or by hand): /status was a 500 on every call (Infinity
+    in the JSON), /program and /campaign/plan too. Now the problem is reported, naming the
+    field, every page works, and a save of a good text repairs it."""
+    stored = {"motion_limits": {"text": text, "source": "pasted", "firmware": ""}}
+    ns = blueprint_client(str(tmp_path), stored=stored)
+    try:
+        resp = ns.client.get(PREFIX + "/status")
+        assert resp.status_code == 200, resp.get_data()[:300]
+        body = json.loads(resp.get_data())  # strict JSON: no Infinity
+        assert body["settings_problem_field"] == "motion_limits.text"
+        for route, req in (("/program", {"plane": "XY"}), ("/campaign/plan", {})):
+            code = ns.client.post(PREFIX + route, json=req).status_code
+            assert code < 500, route
+        good = {"text": "[printer]\nmax_velocity: 300\nmax_accel: 3000", "source": "pasted"}
+        resp = ns.client.post(PREFIX + "/settings", json={"motion_limits": good})
+        assert resp.status_code == 200, resp.get_json()
+        assert ns.client.get(PREFIX + "/status").get_json()["settings_problem"] is None
+    finally:
+        ns.stop()
+
+
+def test_arming_never_follows_a_link_out_of_the_uploads(api, tmp_path):
+    """Issue 37 row 9: /sensor/arm read /etc/passwd through a link where the other routes
+    answer 403; a stored file holding only a program's plane line was a 500."""
+    secret = tmp_path / "outside.gcode"
+    secret.write_text("; ballbar plane: XY\n")
+    os.symlink(str(secret), os.path.join(api.uploads, "link.gcode"))
+    code, resp = post(api, "/sensor/arm", {"path": "link.gcode"})
+    assert code == 403 and "link" in resp["error"], (code, resp)
+    with open(os.path.join(api.uploads, "cut.gcode"), "w") as f:
+        f.write("; ballbar plane: XY\n")
+    code, resp = post(api, "/sensor/arm", {"path": "cut.gcode"})
+    assert code == 400 and "centre" in resp["error"], (code, resp)

@@ -12,6 +12,7 @@ import json
 import os
 import threading
 
+import pytest
 import yaml
 
 from octoprint_kincomp.core.params import Params
@@ -144,5 +145,33 @@ def test_a_failed_write_changes_nothing(tmp_path, monkeypatch):
         assert resp.status_code == 507
         assert plugin.store.current() == before and _on_disk(config) == disk_before
         assert plugin.queue.params.hash() == Params.from_dict(CALIBRATION).hash()
+    finally:
+        ns.stop()
+
+
+def test_a_failed_write_on_octoprints_settings_path_leaves_nothing_in_force(tmp_path, monkeypatch):
+    """Issue 37 row 8: POST /api/settings on a full disk answered 500 while the compensator
+    already used the new parameters and config.yaml kept the old ones (the next unrelated
+    save wrote them). Now the dialog's save writes first: nothing is in force that is not
+    stored."""
+    import errno
+
+    ns, config = _calibrated(tmp_path)
+    try:
+        plugin = ns.plugin
+        before, disk_before = plugin.store.current(), _on_disk(config)
+
+        def full(*a, **kw):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(plugin._settings.settings, "save", full)
+        change = {"params": {"squareness_um_per_m": {"xy": 1234.0}}}
+        with pytest.raises(OSError):  # (OctoPrint answers 500: its own write fails too)
+            plugin.on_settings_save(change)
+        assert plugin.store.current() == before and _on_disk(config) == disk_before
+        assert plugin.queue.params.hash() == Params.from_dict(CALIBRATION).hash()
+        monkeypatch.undo()
+        plugin.on_settings_save({"decimals": 4})  # the next unrelated save
+        assert plugin.store.current()["params"] == before["params"]
     finally:
         ns.stop()

@@ -32,7 +32,10 @@ MARLIN_M503 = [
 
 @pytest.fixture
 def plugin(tmp_path):
+    from octoprint_kincomp.service.files.worker import InProcessWorker
+
     p = mocked_plugin(str(tmp_path))
+    p.jobs.worker = InProcessWorker()  # (the analyses patched below run in this process)
     p._printer_profile_manager.get_current_or_default.return_value = PROFILE
     p._printer.is_printing.return_value = False
     p._printer.is_operational.return_value = True
@@ -87,7 +90,7 @@ def test_notes_become_info_findings_and_the_run_is_trusted(app, plugin):
 
 def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
     before = plugin.store.current()["params"]
-    with mock.patch("octoprint_kincomp.plugin.calibration.calibration_api.analyse", _with_error):
+    with mock.patch("octoprint_kincomp.service.calibration.measurement.analyse", _with_error):
         code, run = call(app, plugin.calibration.analyze, json=SUMMARY)
     assert code == 200 and run["trusted"] is False
     # worst first, message and advice translatable, evidence kept
@@ -114,7 +117,7 @@ def test_an_untrusted_result_is_applied_only_with_force(app, plugin):
 
 
 def test_a_campaign_result_that_is_not_trusted_needs_force(app, plugin):
-    with mock.patch("octoprint_kincomp.plugin.calibration.calibration_api.analyse", _with_error):
+    with mock.patch("octoprint_kincomp.service.calibration.measurement.analyse", _with_error):
         code, run = call(app, plugin.calibration.analyze, json=SUMMARY)
     doc = call(app, plugin.campaign.plan, json={"radius_xy": 50})[1]
     stored = plugin.campaign._campaigns.get(doc["id"])

@@ -80,6 +80,7 @@ def test_a_queued_job_is_cancelled_at_once_a_running_one_at_its_next_step():
     wait_for(lambda: running.state == "running" and steps)
     assert q.cancel(queued) and queued.state == "failed" and queued.error == CANCELLED
     assert q.cancel(running)
+    assert not q.cancel(running)  # issue 37 row 10: a second cancel does nothing (409)
     wait_for(lambda: running.state == "failed")
     assert running.error == CANCELLED and len(steps) < 1000
     assert not q.cancel(running)  # finished: nothing to cancel

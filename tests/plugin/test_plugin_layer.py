@@ -348,6 +348,8 @@ def test_a_print_resumed_from_a_file_position_begins_at_its_first_line(plugin, t
     plugin.queuing_hook(comm, "queuing", "G28", None, "G28", tags={"source:file", "fileline:1"})
     plugin.on_event(end, {"origin": "local", "path": "p.gcode"})
     assert plugin.prints.begun == 1 and not plugin.queue.printing
+    if end == "Disconnected":  # (OctoPrint makes a new comm object per connect)
+        comm = object()
     for n in (40, 41):
         plugin.queuing_hook(
             comm, "queuing", "G1 X10 Y10", None, "G1", tags={"source:file", "fileline:%d" % n}
@@ -368,3 +370,44 @@ def test_a_late_end_event_does_not_end_a_paused_next_print(plugin, tmp_path):
     plugin._printer.is_paused.return_value = True
     plugin.on_event("PrintDone", {"origin": "local", "path": "p.gcode"})  # A's, late
     assert plugin.queue.printing
+
+
+class _Comm:
+    """A comm object as OctoPrint's (weakly referable)."""
+
+
+def test_a_retired_connections_late_line_changes_nothing(plugin):
+    """Issue 37 row 1: after a disconnect and connect, the old connection's monitor thread
+    hands the received hook one last (empty) line up to 30 s later; it was taken for a new
+    connection and the print lost its position ([true, true, false] until Z was named)."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]})
+    old, new = _Comm(), _Comm()
+    plugin.queuing_hook(old, "queuing", "G28", None, "G28", tags={"source:api"})
+    plugin.on_event("Disconnected", {})
+    plugin.queuing_hook(new, "queuing", "G28", None, "G28", tags={"source:api"})
+    plugin.queuing_hook(new, "queuing", "G1 X10 Y50 Z1", None, "G1")
+    assert plugin.queue.comp.known == (True, True, True)
+    assert plugin.received_hook(old, "") == ""  # the old monitor's last line
+    assert plugin.received_hook(old, "X:1.00 Y:2.00 Z:3.00 E:0.00 Count X:0 Y:0 Z:0") is not None
+    assert plugin.queuing_hook(old, "queuing", "G1 X5", None, "G1") is None
+    assert plugin.prints.comm is new and plugin.queue.comp.known == (True, True, True)
+    assert plugin.queuing_hook(new, "queuing", "G1 X20", None, "G1") is not None  # compensated
+    # a connection replaced without a disconnect event is retired too
+    third = _Comm()
+    plugin.received_hook(third, "start")
+    assert plugin.prints.comm is third and plugin.queue.comp.known == (False, False, False)
+    plugin.received_hook(new, "ok")
+    assert plugin.prints.comm is third
+
+
+def test_moves_of_unknown_position_are_logged_once_not_per_line(plugin):
+    """A print of unknown position logged a warning per move (709k lines, 103 MB, half the
+    line rate): now once a minute with the count, as the notification."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict()})
+    comm = _Comm()
+    plugin._logger.reset_mock()
+    for i in range(500):
+        plugin.queuing_hook(comm, "queuing", f"G1 X{i % 50}", None, "G1", tags={"source:file"})
+    assert plugin.queue.comp.report.untouched_unknown == 500
+    warnings = [c for c in plugin._logger.warning.call_args_list if "uncompensated" in c[0][0]]
+    assert len(warnings) == 1

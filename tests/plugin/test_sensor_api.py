@@ -175,7 +175,7 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
     assert status == 200 and prog["capture"]["armed"] and prog["capture"]["port"] == bar.url
     assert plugin.sensor.waiting
     plugin._printer.select_file.assert_called_once()
-    with mock.patch("octoprint_kincomp.service.capture.capture_recorder.analyse", spy):
+    with mock.patch("octoprint_kincomp.service.calibration.measurement.analyse", spy):
         bar.play(
             generate(SPEC).splitlines(),
             time.monotonic(),
@@ -184,7 +184,10 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
         )
         run = finished_run(plugin)
     bar.stop()  # the test's own analysis below need not share the CPU with it
-    assert threads == ["kincomp-sensor-ui"]  # not the capture's thread, not the comm thread
+    # analysed as every measurement (issue 37): a job in the worker process, not in the
+    # capture's thread, not in the comm thread, nor in the sensor's own
+    assert "kincomp-sensor-ui" not in threads
+    assert any(j.kind == "analyse" and j.state == "done" for j in plugin.jobs.jobs.values())
     assert run["status"] == "ok" and run["source"] == "live" and run["simulated"]
     assert run["capture"]["sensor"]["sensor_name"].startswith("KinComp virtual ballbar")
     assert run["capture"]["sensor"]["timing"] == "device clock"

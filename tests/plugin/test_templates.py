@@ -21,7 +21,11 @@ def _render(name):
         autoescape=True,
     )
     env.globals["_"] = lambda text, **kw: text
-    return env.get_template(name).render()
+    from octoprint_kincomp.plugin.kincomp_plugin import KinCompPlugin
+
+    # (as OctoPrint renders them: with the plugin's template variables, plugin_<id>_<key>)
+    plugin_vars = {f"plugin_kincomp_{k}": v for k, v in KinCompPlugin().get_template_vars().items()}
+    return env.get_template(name).render(**plugin_vars)
 
 
 @pytest.mark.parametrize(

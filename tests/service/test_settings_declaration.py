@@ -46,3 +46,13 @@ def test_the_page_renders_and_reads_the_declared_fields_only():
         key = f["path"].split(".")[-1]
         assert f'id="{f["id"]}"' not in template, f["id"]
         assert not re.search(r"\bs\.%s\b|loaded\.%s\b" % (key, key), script), key
+
+
+def test_the_rendered_page_has_every_declared_field_bound_to_its_path():
+    from tests.plugin.test_templates import _render
+
+    html = _render("kincomp_settings.jinja2")
+    for f in schema.form_fields():
+        element = re.search(r'<(?:input|select)[^>]*id="%s"[^>]*>' % f["id"], html)
+        assert element, f["id"]
+        assert "settingsForm.value[&#39;%s&#39;]" % f["path"] in element.group(0), f["id"]

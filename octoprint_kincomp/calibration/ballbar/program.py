@@ -342,27 +342,34 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
             meta[k.strip()] = v.strip()
     if "plane" not in meta:
         raise ProgramError(Msg("not a KinComp ballbar program (no '; ballbar plane:' line)"))
-    spec = TestSpec(
-        plane=meta["plane"],
-        centre=tuple(float(v) for v in meta["centre"].split(",")),
-        radius_mm=float(meta["radius_mm"]),
-        feed_mm_min=float(meta["feed_mm_min"]),
-        feed_in_mm=float(meta["feed_in_mm"]),
-        overshoot_deg=float(meta["overshoot_deg"]),
-        capture_deg=float(meta["capture_deg"]),
-        start_deg=float(meta["start_deg"]),
-        dwell_s=float(meta.get("dwell_s", 1.0)),
-        directions=tuple(meta.get("directions", "ccw,cw").split(",")),
-        chord_error_um=float(meta.get("chord_error_um", 0.5)),
-        lift_mm=float(meta.get("lift_mm", 10.0)),
-        travel_feed_mm_min=float(meta.get("travel_feed_mm_min", 3000.0)),
-        mount_pause=meta.get("mount_pause", "false") == "true",
-        params_hash=meta.get("params_hash") or None,
-        printer=meta.get("printer") or None,
-        campaign=meta.get("campaign") or None,
-        campaign_step=meta.get("campaign_step") or None,
-        campaign_tests=meta.get("campaign_tests") or None,
-    )
+    try:
+        spec = TestSpec(
+            plane=meta["plane"],
+            centre=tuple(float(v) for v in meta["centre"].split(",")),
+            radius_mm=float(meta["radius_mm"]),
+            feed_mm_min=float(meta["feed_mm_min"]),
+            feed_in_mm=float(meta["feed_in_mm"]),
+            overshoot_deg=float(meta["overshoot_deg"]),
+            capture_deg=float(meta["capture_deg"]),
+            start_deg=float(meta["start_deg"]),
+            dwell_s=float(meta.get("dwell_s", 1.0)),
+            directions=tuple(meta.get("directions", "ccw,cw").split(",")),
+            chord_error_um=float(meta.get("chord_error_um", 0.5)),
+            lift_mm=float(meta.get("lift_mm", 10.0)),
+            travel_feed_mm_min=float(meta.get("travel_feed_mm_min", 3000.0)),
+            mount_pause=meta.get("mount_pause", "false") == "true",
+            params_hash=meta.get("params_hash") or None,
+            printer=meta.get("printer") or None,
+            campaign=meta.get("campaign") or None,
+            campaign_step=meta.get("campaign_step") or None,
+            campaign_tests=meta.get("campaign_tests") or None,
+        )
+    except KeyError as exc:  # a header cut short (only its plane line)
+        raise ProgramError(
+            Msg("not a complete KinComp ballbar program header (no '%(key)s')", key=exc.args[0])
+        ) from None
+    except (TypeError, ValueError, OverflowError):
+        raise ProgramError(Msg("a KinComp ballbar program header with unreadable values")) from None
     return spec, meta.get("program_hash", "")
 
 

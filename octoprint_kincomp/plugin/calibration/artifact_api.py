@@ -26,7 +26,6 @@ from octoprint.access.permissions import Permissions
 
 from ...calibration.artifact.diagonals import ArtifactError, analyse_diagonals
 from ...calibration.artifact.drawing import legend, svg
-from ...calibration.artifact.fit import ArtifactFitError, analyse_artifact, parse_readings
 from ...calibration.artifact.program import (
     PLANES,
     ArtifactProgramError,
@@ -35,9 +34,7 @@ from ...calibration.artifact.program import (
     read_measurements,
     read_program_info,
 )
-from ...calibration.ballbar.formats import TraceError
 from ...core.params import ParamsError
-from ...service.calibration.run_store import RunNotStorable
 from .. import http
 from .calibration_api import CalibrationApi
 
@@ -100,6 +97,8 @@ class ArtifactApi:
             return http.error(http.tr(exc.args[0] if exc.args else exc), 400)
         if do_print:
             http.require(Permissions.PRINT)
+            if not self._calibration.printer_ready():  # (before a file is written)
+                return http.error(gettext("The printer is not ready to print"), 409)
         name = f"artifact_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
         path = self._calibration.store_program(text, name)
         printing = False
@@ -113,7 +112,7 @@ class ArtifactApi:
         return flask.jsonify(out)
 
     def _read(self, path: Any) -> str:
-        disk = self._files._local_file(path)  # aborts 400/403/404 as for every stored file
+        disk = self._files.local_file(path)  # aborts 400/403/404 as for every stored file
         try:
             with open(disk, encoding="utf-8", errors="replace") as f:
                 return f.read(MAX_PROGRAM_BYTES)
@@ -122,7 +121,8 @@ class ArtifactApi:
                 400, gettext("%(path)s cannot be read: %(error)s", path=path, error=exc.strerror)
             )
 
-    @http.route("/artifact/sheet", "GET", needs=(http.STATUS,))
+    # (it reads a stored file's content: as OctoPrint's download does)
+    @http.route("/artifact/sheet", "GET", needs=(http.STATUS, http.FILES_DOWNLOAD))
     def sheet(self):
         path = flask.request.args.get("path", "")
         text = self._read(path)
@@ -212,39 +212,21 @@ class ArtifactApi:
             k: [v for v in (vals if isinstance(vals, list) else [vals]) if v is not None]
             for k, vals in raw.items()
         }
-        try:
-            measurements = read_measurements(text)
-            readings = parse_readings(raw)
-            result = analyse_artifact(
-                measurements,
-                readings,
-                current=self._queue.in_force,
-                info=read_program_info(text),
-            )
-        except (ArtifactProgramError, ArtifactFitError, TraceError) as exc:
-            return http.error(
-                gettext(
-                    "Invalid artifact measurements: %(e)s",
-                    e=http.tr(exc.args[0] if exc.args else exc),
-                ),
-                400,
-            )
-        result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
-        result["diagnostics"]["program"] = path
-        try:
-            run = self._calibration.record_run(
-                result,
-                str(path).rsplit("/", 1)[-1],
-                "artifact",
-                json.dumps(readings, indent=1).encode(),
-                None,
-            )
-        except RunNotStorable:
-            return http.error(
-                gettext(
-                    "The analysis gave numbers that are not finite; check "
-                    "the measurements (nothing was stored)"
-                ),
-                400,
-            )
-        return flask.jsonify(run)
+        known = self._calibration.known_now()
+        args = {"text": text, "readings": raw, "current": known["current"]}
+        name = str(path).rsplit("/", 1)[-1]
+
+        def store(result: Dict[str, Any]) -> str:
+            readings = result.pop("readings")
+            result["diagnostics"]["plane"] = "+".join(result["diagnostics"]["planes"])
+            result["diagnostics"]["program"] = path
+            extra = {"profile": known["profile"]}
+            raw_file = json.dumps(readings, indent=1).encode()
+            return self._calibration.record_run(result, name, "artifact", raw_file, None, extra)[
+                "id"
+            ]
+
+        # (in the worker process, as every analysis; a failure answers 400 naming the file)
+        return self._calibration.analysis(
+            "analyse_artifact", args, store, self._calibration._runs.get, name
+        )

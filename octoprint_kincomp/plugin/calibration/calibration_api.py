@@ -29,7 +29,7 @@ import io
 import json
 import os
 import re
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import flask
 from flask_babel import gettext
@@ -37,8 +37,6 @@ from octoprint.access.permissions import Permissions
 from octoprint.filemanager import FileDestinations
 from octoprint.filemanager.util import StreamWrapper
 
-from ...calibration.ballbar.analysis import analyse
-from ...calibration.ballbar.formats import TraceError, load_any
 from ...calibration.ballbar.program import (
     PLANES,
     ProgramError,
@@ -49,11 +47,12 @@ from ...calibration.ballbar.program import (
     spec_from_program,
 )
 from ...core.messages import as_dict
-from ...core.params import Params, ParamsError
+from ...core.params import Params
 from ...firmware.motion_limits import LimitsError, circle_feed, describe
 from ...service.calibration.demo_mode import DemoMode
 from ...service.calibration.findings_view import findings_of, refusal
 from ...service.calibration.known_squareness import known_squareness
+from ...service.calibration.measurement import known_as_of
 from ...service.calibration.run_store import RunNotFound, RunNotStorable, RunStore
 from ...service.notify import Notifier
 from ...service.printing.queue import QueueCompensator
@@ -149,6 +148,8 @@ class CalibrationApi:
             return http.error(str(exc), 400)
         except (ProgramError, LimitsError, TypeError, ValueError) as exc:
             return http.error(http.tr(exc), 400)
+        if do_print and not self.printer_ready():  # refused before a file is written
+            return http.error(gettext("The printer is not ready to print"), 409)
         name = (
             f"ballbar_{spec.plane}_R{spec.radius_mm:g}_"
             f"{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}.gcode"
@@ -247,28 +248,78 @@ class CalibrationApi:
             data, filename = self.read_upload()
         except UploadRefused as exc:
             return http.error(exc.message, exc.status)
+        return self.analyse_file(data, filename)
+
+    def analyse_file(self, data: bytes, filename: str, source: Optional[str] = None):
+        """A trace, .b5r or summary file (``data``) analysed in the worker and stored as a
+        run (``source``: its kind when the file does not say it, else "upload")."""
         safe = safe_name(os.path.basename(str(filename)))
-        args = {
-            "data": data,
-            "name": safe,
-            "current": self._queue.in_force.to_dict(),
-            "known": self.known_squareness(),
-        }
+        known = self.known_now()
+        args = {"data": data, "name": safe, "current": known["current"], "known": known["known"]}
+
+        def store(result) -> str:
+            kind = result.pop("kind", None) or source or "upload"
+            raw = data if kind != "summary" else None
+            extra = {"profile": known["profile"]}
+            return self.record_run(result, safe, kind, raw, result.get("plot"), extra)["id"]
+
+        return self.analysis("analyse", args, store, lambda run_id: self._runs.get(run_id), safe)
+
+    # ~~ THE analysis entry point ------------------------------------------------------------
+    def analyse_in_worker(self, task: str, args: Dict[str, Any]) -> Dict[str, Any]:
+        """``task`` on ``args`` in the worker process, for a thread that is no request (the
+        live capture's): a job of KinComp's own (an admin's place), waited for; its result,
+        or its exception raised here."""
+        out: Dict[str, Any] = {}
 
         def run(job, progress) -> None:
-            result = self._job_api.jobs.worker.call(job.id, "analyse", args, progress)
-            kind = result.pop("kind", None) or "upload"
-            job.result = self.record_run(
-                result, safe, kind, data if kind != "summary" else None, result.get("plot")
-            )["id"]
+            out["result"] = self._job_api.jobs.worker.call(job.id, task, args, progress)
 
-        job = self._job_api.submit("analyse", None, run)
-        return self._job_api.answer(
-            job,
-            lambda j: self._runs.get(j.result),
-            wait=TRACE_WAIT_S,
-            failed=lambda j: self._analysis_failed(safe, j.exception or j.error),
-        )
+        job = self._job_api.jobs.submit("analyse", None, run, owner=None, admin=True)
+        job.done.wait()
+        if job.state != "done":
+            raise job.exception or RuntimeError(str(job.error))
+        return out["result"]
+
+    def known_now(self) -> Dict[str, Any]:
+        """What every analysis takes from the plugin, taken as the measurement starts (the
+        parameters in force, the known squareness, the printer profile id it belongs to:
+        ``service/calibration/measurement.known_as_of``)."""
+        s = self._store.current()
+        return known_as_of(self._queue.in_force, self.known_squareness(), s["profile"] or None)
+
+    def analysis(
+        self,
+        task: str,
+        args: Dict[str, Any],
+        store: Callable[[Dict[str, Any]], Any],
+        body: Callable[[Any], Dict[str, Any]],
+        name: str,
+    ):
+        """The one way a request analyses a measurement: ``task`` (a worker task of
+        ``service/calibration/measurement.py``) on ``args`` in the low-priority worker
+        process, as a job under the job queue's fairness rules (quotas, 429); ``store``
+        records its result (its return is the job's result), ``body(job result)`` is the
+        answer. 200 when done within TRACE_WAIT_S, else 202 with the job; 400 naming
+        ``name`` when it failed (507 on a full disk)."""
+
+        def run(job, progress) -> None:
+            result = self._job_api.jobs.worker.call(job.id, task, args, progress)
+            job.result = store(result)
+
+        return self.answer_job(self._job_api.submit("analyse", None, run), body, name)
+
+    def answer_job(self, job, body: Callable[[Any], Dict[str, Any]], name: Optional[str]):
+        """The answer to a request whose analysis is ``job`` (see :meth:`analysis`); a
+        failure names the file ``name`` (None: its message names what failed)."""
+
+        def failed(j) -> str:
+            exc = j.exception or j.error
+            if name is None:
+                return http.tr(exc) if isinstance(exc, BaseException) else str(exc)
+            return self._analysis_failed(name, exc)
+
+        return self._job_api.answer(job, lambda j: body(j.result), wait=TRACE_WAIT_S, failed=failed)
 
     def read_upload(self) -> Tuple[bytes, str]:
         """The uploaded file (multipart field 'file', or the raw body) and its name; raises
@@ -299,7 +350,7 @@ class CalibrationApi:
         if "summary" in data:
             if not isinstance(data["summary"], dict):
                 return http.error(gettext("'%(key)s' must be an object", key="summary"), 400)
-            return self._analyse_and_store(
+            return self.analyse_file(
                 json.dumps(data["summary"]).encode(), "typed summary", "summary"
             )
         if "artifact" in data:  # (printed parts are measured at /artifact/analyze)
@@ -314,21 +365,6 @@ class CalibrationApi:
             "%(name)s: %(reason)s",
             name=name,
             reason=http.tr(exc) if isinstance(exc, BaseException) else str(exc),
-        )
-
-    def _analyse_and_store(self, data: bytes, filename: str, source: str):
-        safe = safe_name(os.path.basename(str(filename)))
-        try:
-            trace = load_any(data, safe)
-            result = analyse(trace, current=self._queue.in_force)
-        except TraceError as exc:
-            return http.error(self._analysis_failed(safe, exc), 400)
-        except (ParamsError, KeyError, TypeError, ValueError, ArithmeticError) as exc:
-            # values the formats accept but the analysis cannot use: the user's input
-            return http.error(self._analysis_failed(safe, exc), 400)
-        kind = getattr(trace, "kind", source)
-        return self.store_run(
-            result, safe, kind, data if kind != "summary" else None, result.get("plot")
         )
 
     def store_run(
@@ -430,7 +466,8 @@ class CalibrationApi:
         """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
         printer profile than the one in force (a stale page or another user's switch:
         printer A's result must never be applied to printer B; ``force`` does not override
-        it); None to go on."""
+        it); None to go on. A run belongs to the profile in force when its measurement
+        started (``known_now``), whatever is switched during its analysis."""
         s = self._store.current()
         if not other_profile(run.get("profile"), s):
             return None

@@ -54,14 +54,13 @@ from octoprint.access.permissions import Permissions
 
 from ...calibration import findings as fnd
 from ...calibration.ballbar.campaign import plan_campaign
-from ...calibration.ballbar.campaign_analysis import analyse_campaign
-from ...calibration.ballbar.formats import TraceError, load_any
 from ...calibration.ballbar.program import ProgramError, TestSpec, generate
 from ...core.messages import Msg, as_dict, joined
 from ...firmware.motion_limits import LimitsError, circle_feed
 from ...service.calibration.campaign_measure import (
     CampaignMeasurements,
     Refused,
+    busy_test,
     campaign_keys,
     with_findings,
 )
@@ -328,16 +327,44 @@ class CampaignApi:
                 data, filename = self._simulated(cid, step)
             else:
                 data, filename = self._calibration.read_upload()
-            run = self.measure.measure(
-                doc, step, data, safe_name(os.path.basename(filename)), force=force
-            )
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         except UploadRefused as exc:
             return http.error(exc.message, exc.status)
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
-        return flask.jsonify(campaign=self._view(doc), run=self._runs.get(run["id"]))
+        name = safe_name(os.path.basename(filename))
+        if not self._campaigns.claim(cid, step["name"]):  # the same test twice at once
+            return http.error(http.tr(busy_test(doc, step).message), 409)
+
+        def run(job, progress) -> None:  # in the job thread, its analysis in the worker
+            def analyse(task, args):
+                return self._calibration._job_api.jobs.worker.call(job.id, task, args, progress)
+
+            try:
+                run = self.measure.measure(
+                    doc, step, data, name, force=force, analyse=analyse, claimed=True
+                )
+                job.result = run["id"]
+            finally:
+                self._campaigns.release(cid, step["name"])
+
+        try:
+            job = self._calibration._job_api.submit("analyse", None, run)
+        except BaseException:  # (429: the job never runs)
+            self._campaigns.release(cid, step["name"])
+            raise
+        return self._answer(
+            job, lambda run_id: dict(campaign=self._view(doc), run=self._runs.get(run_id)), name
+        )
+
+    def _answer(self, job, body, name: Optional[str]):
+        """The answer to a campaign request whose work is ``job``: as an analysis's
+        (CalibrationApi.answer_job), a refusal with its own status."""
+        answer = self._calibration.answer_job(job, body, name)
+        if job.state == "failed" and isinstance(job.exception, Refused):
+            return http.error(http.tr(job.exception.message), job.exception.status)
+        return answer
 
     def _simulated(self, cid: str, step: Dict[str, Any]) -> Tuple[bytes, str]:
         """Demo mode's SIMULATED trace of ``step`` (Refused, 404, when there is none)."""
@@ -361,19 +388,42 @@ class CampaignApi:
     # ~~ the joint analysis and applying it ----------------------------------------------------
     @http.route("/campaigns/<cid>/analyze", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
     def analyze(self, cid: str):
+        """The joint analysis of campaign ``cid``'s tests, in the worker process (a job as
+        every analysis: CalibrationApi.analysis); stored under the campaign's lock."""
         current = self.measure.in_force()
         try:
             doc = self._campaigns.get(cid)
             self.measure.check_unchanged(doc)
-            result = with_findings(
-                analyse_campaign(self._traces(doc), current=current), _forced_steps(doc)
-            )
+            traces = self._traces(doc)
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
-        except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
-            return http.error(http.tr(exc), 400)
+        args = {"traces": traces, "current": current.to_dict()}
+        if not self._campaigns.claim(cid, "joint"):  # the joint analysis twice at once
+            return http.error(gettext("Campaign %(id)s is being analysed already", id=cid), 409)
+
+        def run(job, progress) -> None:
+            try:
+                worker = self._calibration._job_api.jobs.worker
+                result = worker.call(job.id, "analyse_campaign", args, progress)
+                job.result = self._store_joint(doc, result, current)
+            finally:
+                self._campaigns.release(cid, "joint")
+
+        try:
+            job = self._calibration._job_api.submit("analyse", None, run)
+        except BaseException:  # (429: the job never runs)
+            self._campaigns.release(cid, "joint")
+            raise
+        return self._answer(job, lambda _: self._view(doc), None)
+
+    def _store_joint(self, doc: Dict[str, Any], result: Dict[str, Any], current) -> str:
+        """The joint analysis ``result`` of campaign ``doc`` stored as its run, under the
+        campaign's lock (Refused when it was deleted or analysed meanwhile: nothing is
+        stored); ``doc`` becomes the stored document. Returns the run's id."""
+        cid = doc["id"]
+        result = with_findings(result, _forced_steps(doc))
         camp = result["diagnostics"]["campaign"]
         for key in ("scale_rule", "servo_rule"):
             camp[key + "_i18n"] = as_dict(camp[key])
@@ -383,16 +433,30 @@ class CampaignApi:
             plots=result["plots"],
             campaign_steps=[s["name"] for s in doc["steps"]],
             step_runs=[s["run"] for s in doc["steps"]],
+            profile=doc.get("profile") or self._store.current().get("legacy_profile"),
         )
-        run = self._calibration.record_run(result, f"campaign {cid}", "campaign", None, None, extra)
-        doc["result"] = run["id"]
-        doc["analysed"] = now()
-        self._campaigns.save(doc)
-        return flask.jsonify(self._view(doc))
 
-    def _traces(self, doc: Dict[str, Any]) -> List[Tuple[str, object]]:
-        """[(file name, trace)] of the campaign's tests, in order; Refused names the first
-        test without a measurement."""
+        def link(fresh: Dict[str, Any]) -> str:
+            if fresh.get("result"):
+                raise Refused(Msg("Campaign %(id)s was analysed meanwhile", id=cid), 409)
+            name = f"campaign {cid}"
+            run = self._calibration.record_run(result, name, "campaign", None, None, extra)
+            fresh["result"], fresh["analysed"] = run["id"], now()
+            doc.clear()
+            doc.update(fresh)
+            return run["id"]
+
+        try:
+            return self._campaigns.change(cid, link)
+        except CampaignNotFound:
+            raise Refused(
+                Msg("Campaign %(id)s was deleted during its analysis: nothing was stored.", id=cid),
+                404,
+            ) from None
+
+    def _traces(self, doc: Dict[str, Any]) -> List[Tuple[str, bytes]]:
+        """[(file name, trace file's data)] of the campaign's tests, in order; Refused names
+        the first test without a measurement."""
         items = []
         for step in doc["steps"]:
             path = None
@@ -412,7 +476,7 @@ class CampaignApi:
                     )
                 )
             with open(path, "rb") as f:
-                items.append((run["filename"], load_any(f.read(), run["filename"])))
+                items.append((run["filename"], f.read()))
         return items
 
     # ~~ deleting ---------------------------------------------------------------------------------

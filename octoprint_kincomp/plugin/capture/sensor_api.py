@@ -102,6 +102,9 @@ class SensorApi:
         self._file_manager = file_manager
         self._logger = logger
         self._global_get = global_get
+        # FilesApi.inside_uploads (set by the plugin): the disk path of a stored file, 403
+        # for a link out of the uploads folder, as for every file a route reads
+        self.inside_uploads: Optional[Callable[[str], str]] = None
         self._lock = threading.RLock()  # short: state only
         self._open_lock = threading.Lock()  # making, opening and closing captures
         self._settings: Dict[str, Any] = {"enabled": False, "port": ""}
@@ -499,8 +502,11 @@ class SensorApi:
             exists = False  # "\\", ..) or trips over it ("./": IndexError in sanitize_path)
         if not exists:
             return http.error(gettext("No such file: %(path)s", path=path), 404)
-        try:
+        if self.inside_uploads is not None:
+            disk = self.inside_uploads(path)  # a link out of the uploads folder: 403
+        else:
             disk = self._file_manager.path_on_disk(FileDestinations.LOCAL, path)
+        try:
             with open(disk, encoding="utf-8", errors="replace") as f:
                 spec, program_hash = spec_from_program(f.read(MAX_PROGRAM_HEAD))
             self._arm(spec, program_hash, path)

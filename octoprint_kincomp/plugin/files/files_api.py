@@ -109,7 +109,7 @@ class FilesApi:
         ),
     )
     def dryrun(self):
-        disk = self._local_file(flask.request.args.get("path", ""))
+        disk = self.local_file(flask.request.args.get("path", ""))
         path = self._canonical(disk)
         running = self.jobs.under_way("dryrun", path)
         if running is not None:  # asked again: the answer costs nothing more
@@ -143,7 +143,7 @@ class FilesApi:
     )
     def compensate(self):
         data = http.json_object() or {}
-        disk = self._local_file(data.get("path", ""))
+        disk = self.local_file(data.get("path", ""))
         path = self._canonical(disk)
         try:
             self._store.require_usable()
@@ -291,6 +291,14 @@ class FilesApi:
             )
         return disk
 
+    def inside_uploads(self, path: str) -> str:
+        """The disk path of the stored file ``path`` (its existence checked by the caller);
+        aborts with 403 for a link out of the uploads folder."""
+        try:
+            return self._disk(path)
+        except LinkOutside as exc:
+            http.abort(403, str(exc))
+
     def _uploads_root(self) -> str:
         return os.path.dirname(
             self._file_manager.path_on_disk(FileDestinations.LOCAL, "kincomp-root-probe.gcode")
@@ -303,7 +311,7 @@ class FilesApi:
         rel = os.path.relpath(os.path.normpath(disk), os.path.normpath(self._uploads_root()))
         return rel.replace(os.sep, "/")
 
-    def _local_file(self, path: Any) -> str:
+    def local_file(self, path: Any) -> str:
         """The disk path of the stored G-code file ``path`` (a request field): aborts with
         400 for a malformed path, 404 if there is no such file, 403 for a link out of the
         uploads folder."""

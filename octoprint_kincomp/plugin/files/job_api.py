@@ -100,5 +100,7 @@ class JobApi:
                 gettext("Only the user who started a job or a KinComp admin can cancel it"), 403
             )
         if not self.jobs.cancel(job):
+            if job.cancelled and job.active:  # a second cancel of a job still ending
+                return http.error(gettext("The job is being cancelled already"), 409)
             return http.error(gettext("The job has already finished"), 409)
         return flask.jsonify(job=job.to_dict())

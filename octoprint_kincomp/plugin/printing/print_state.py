@@ -1,7 +1,11 @@
 """The connection and the print on it, as KinComp follows them.
 
 * A new connection (OctoPrint makes a new comm object per connect) or a disconnect: nothing
-  about the printer's position or firmware is known any more.
+  about the printer's position or firmware is known any more. The print's state belongs to
+  the connection it was made for: a connection replaced or closed is retired, and what its
+  threads still hand the hooks afterwards (an old monitor thread ends up to 30 s after the
+  disconnect, with one last empty line) changes nothing: it is not taken for a new
+  connection, which would forget the new print's position.
 * A print begins when its first file line reaches the queuing hook (file reader thread) or
   when PRINT_STARTED arrives (event thread), whichever comes first; both are counted under
   one lock, so that one print begins once and an end event of the previous print that
@@ -11,8 +15,9 @@
 * After a compensation error the print is paused and its moves are held back until the user
   resumes; PRINT_RESUMED comes only after OctoPrint has started sending again, so the hook
   follows the printer state (paused once, then printing again means resumed).
-* Moves sent as written (position unknown, malformed) are always logged and notified at
-  most once a minute; so are prints from, and transfers to, the printer's SD card (KinComp
+* Moves sent as written (position unknown, malformed) are logged and notified at most once
+  a minute, with how many went out since (never a log line per move: that halved the
+  print's line rate); so are prints from, and transfers to, the printer's SD card (KinComp
   never sees their lines). During a KinComp test program (its ``; ballbar plane:`` header)
   the advice never says to home: the ballbar is mounted.
 * A test program's pauses (M0/M1, to mount and unmount the bar): when OctoPrint would pause
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 import threading
 import time
+import weakref
 from typing import Any, Callable, Dict, List, Optional
 
 from octoprint.events import Events
@@ -49,6 +55,27 @@ PRINT_EVENTS = frozenset(
 UNTOUCHED_NOTICE_S = 60.0  # at most one "sent as written" notification per this many s
 PROGRAM_HEAD_LINES = 60  # a test program's ``; ballbar key: value`` header is within these
 PROGRAM_PAUSE_TAGS = frozenset({"source:plugin", "plugin:kincomp", "trigger:kincomp.program_pause"})
+RETIRED_KEPT = 8  # connections remembered as retired (OctoPrint makes one per connect)
+
+
+class _Retired:
+    """The connections (comm objects) that were replaced or closed: weakly held where the
+    object allows it, the last RETIRED_KEPT of them."""
+
+    def __init__(self):
+        self._refs: List[Any] = []
+
+    def add(self, comm) -> None:
+        if comm is None or comm in self:
+            return
+        try:
+            ref = weakref.ref(comm)
+        except TypeError:  # (a plain object() in tests)
+            ref = lambda comm=comm: comm  # noqa: E731
+        self._refs = [r for r in self._refs if r() is not None][-(RETIRED_KEPT - 1) :] + [ref]
+
+    def __contains__(self, comm) -> bool:
+        return comm is not None and any(r() is comm for r in self._refs)
 
 
 class PrintState:
@@ -87,6 +114,8 @@ class PrintState:
         self.comm = None  # the MachineCom of the current connection
         self.pause_seen = False
         self.warned_unknown_at = 0.0  # time.monotonic() of the last such notification
+        self.untouched_unsaid = 0  # moves sent as written since the last such notification
+        self._retired = _Retired()  # connections replaced or closed
         self.test_program = False  # the current print is a KinComp ballbar test program
         # OctoPrint's serial settings: the commands it pauses at and does not send
         self.pausing_commands: frozenset = frozenset()
@@ -95,10 +124,22 @@ class PrintState:
         self.compensated_for: Optional[Callable[[str], List[str]]] = None
 
     # ~~ the connection ------------------------------------------------------------------------
+    def current(self, comm_instance) -> bool:
+        """A hook call from ``comm_instance``: True if it belongs to the connection in force
+        (a new connection becomes it: ``connection_changed``), False for a retired one (its
+        line must change nothing)."""
+        if comm_instance is self.comm:
+            return True
+        if comm_instance in self._retired:
+            return False
+        self.connection_changed(comm_instance)
+        return True
+
     def connection_changed(self, comm_instance) -> None:
         """A new connection: nothing about the printer's position or firmware is known any
-        more. Called by the hooks, synchronously, as CONNECTED reaches ``on_event`` only
-        after the first commands may have gone out."""
+        more, and the previous connection is retired. Called by the hooks, synchronously, as
+        CONNECTED reaches ``on_event`` only after the first commands may have gone out."""
+        self._retired.add(self.comm)
         self.comm = comm_instance
         self._queue.reset()
         self._watch.reset()
@@ -151,6 +192,7 @@ class PrintState:
         """One of PRINT_EVENTS."""
         with self.lock:  # against the queuing hook's view of the print
             if event == Events.DISCONNECTED:
+                self._retired.add(self.comm)
                 self.comm = None
                 self._queue.reset()
                 self._watch.reset()
@@ -249,20 +291,29 @@ class PrintState:
 
     def sent_as_written(self, cmd: str, why: str) -> None:
         """A move went out as written: its start position is not known (no G28 since
-        connecting, probing, a compensation error), or it is malformed. Never silent: always
-        logged, notified at most once a minute."""
-        if why == "malformed":
-            self._logger.warning(
-                "KinComp: malformed move %r sent as written; position "
-                "forgotten until the next G28 or absolute move",
-                cmd,
-            )
-        else:
-            self._logger.warning("KinComp: %r sent uncompensated: position unknown", cmd)
+        connecting, probing, a compensation error), or it is malformed. Never silent, never
+        a log line per move (a print of unknown position would log every line, at half its
+        rate): logged and notified at most once a minute, with how many went out since."""
+        self.untouched_unsaid += 1
         now = time.monotonic()
         if now - self.warned_unknown_at < UNTOUCHED_NOTICE_S:
             return
         self.warned_unknown_at = now
+        count, self.untouched_unsaid = self.untouched_unsaid, 0
+        if why == "malformed":
+            self._logger.warning(
+                "KinComp: malformed move %r sent as written; position forgotten until the next "
+                "G28 or absolute move (%d moves sent as written since the last report)",
+                cmd,
+                count,
+            )
+        else:
+            self._logger.warning(
+                "KinComp: %r sent uncompensated: position unknown (%d moves sent as written "
+                "since the last report; said at most once a minute)",
+                cmd,
+                count,
+            )
         if why == "malformed":
             self._notifier.notify(
                 "warning",

@@ -233,24 +233,33 @@ class SettingsStore:
 
     # ~~ saving and applying -----------------------------------------------------------------
     def dialog_save(self, data: Dict[str, Any]):
-        """The standard settings dialog path (OctoPrint writes config.yaml after it). Invalid
-        values never get here through the UI (the before_request hook answers 400 first);
-        anything else invalid is refused whole, logged and reported, and the stored settings
-        stay as they were. Without the KinComp admin permission nothing is changed (the
-        request hook answers 403 first)."""
+        """The standard settings dialog path. Invalid values never get here through the UI
+        (the before_request hook answers 400 first); anything else invalid is refused whole,
+        logged and reported, and the stored settings stay as they were. Without the KinComp
+        admin permission nothing is changed (the request hook answers 403 first).
+        config.yaml is written here, before the change is applied (OctoPrint writes it again
+        after): on a full disk OctoPrint's own write failed after KinComp had applied the new
+        parameters, which were then in force without being stored; now a failed write
+        changes nothing (the stored document is put back) and says so."""
         if flask.has_request_context() and not Permissions.PLUGIN_KINCOMP_ADMIN.can():
             self._logger.warning(
                 "KinComp settings refused: the user lacks the KinComp admin permission"
             )
             return {}
         try:
-            _, diff = self.update(data, write=False)
+            _, diff = self.update(data, write=True)
         except SettingsError as exc:
             self._logger.warning("KinComp settings refused: %s", exc)
             self._notifier.notify(
                 "error", N_("KinComp settings not saved: %(reason)s"), reason=error_message(exc)
             )
             return {}
+        except OSError as exc:  # disk full: nothing changed, nothing in force
+            self._logger.error("KinComp settings not saved: %s", exc)
+            self._notifier.notify(
+                "error", N_("KinComp settings not saved: %(reason)s"), reason=str(exc)
+            )
+            raise
         return diff
 
     def update(

@@ -26,11 +26,11 @@ that every trace stays one run. Refusals are :class:`Refused` with a translatabl
 
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional
+import contextlib
+from typing import Any, Callable, Dict, List, Optional
 
 from ...calibration import findings as fnd
-from ...calibration.ballbar.analysis import analyse
-from ...calibration.ballbar.formats import AngleTrace, NativeTrace, TraceError, load_any
+from ...calibration.ballbar.formats import AngleTrace, NativeTrace, TraceError
 from ...calibration.ballbar.program import ProgramError
 from ...core.messages import Msg, error_message
 from ...core.params import Params
@@ -211,40 +211,74 @@ class CampaignMeasurements:
         name: str,
         extra: Optional[Dict[str, Any]] = None,
         force: bool = False,
+        analyse: Optional[Callable[[str, Dict[str, Any]], Dict[str, Any]]] = None,
+        claimed: bool = False,
     ) -> Dict[str, Any]:
-        """The trace ``data`` (file ``name``) as ``step``'s measurement: checked, analysed,
-        stored as a run of the campaign (``extra``: more fields) and linked to the test;
-        returns the run. Refused (400) naming the file when it is not this test's trace or
-        its analysis fails; (409) while another printer profile is in force, unless
-        ``force`` (then the run carries the warning finding and belongs to the campaign's
-        profile, as the campaign does)."""
+        """The trace ``data`` (file ``name``) as ``step``'s measurement: checked, analysed
+        (``analyse(task, args)``: in the worker process, ``service/calibration/
+        measurement.py``), stored as a run of the campaign (``extra``: more fields) and
+        linked to the test under the campaign's lock; returns the run (``doc`` is updated
+        to the stored document). Refused (400) naming the file when it is not this test's
+        trace or its analysis fails; (409) while another printer profile is in force,
+        unless ``force`` (then the run carries the warning finding and belongs to the
+        campaign's profile, as the campaign does), and while the same test is measured
+        already (``claimed``: the caller registered this measurement with
+        ``CampaignStore.claim`` when the request came in); (404) when the campaign was
+        deleted meanwhile (nothing is stored)."""
         self.check_unchanged(doc, force)
         said = self.profile_findings(doc)
+        known = self._calibration.known_now()
         current = self.in_force()
-        try:
-            trace = load_any(data, name)
-            wrong = not_this_test(trace, doc, step)
-            if wrong is not None:
-                raise Refused(Msg("%(name)s: %(reason)s", name=name, reason=wrong))
-            result = with_findings(analyse(trace, current=current), said)
-        except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
-            raise Refused(
-                Msg("%(name)s: %(reason)s", name=name, reason=error_message(exc))
-            ) from None
-        fields = campaign_keys(doc["id"], step["name"], current)
-        step.pop("other_profile", None)
-        if any(f.code == "campaign.other_profile" for f in said):  # taken anyway (force)
-            s = self._store.current()
-            fields["profile"] = doc.get("profile") or s.get("legacy_profile")
-            step["other_profile"] = s.get("profile")
-        fields.update(extra or {})
-        run = self._calibration.record_run(
-            result, name, trace.kind, data, result.get("plot"), fields
-        )
-        step["run"] = run["id"]
-        step["measured"] = now()
-        self._campaigns.save(doc)
-        return run
+        with contextlib.ExitStack() as stack:
+            if not claimed and not stack.enter_context(
+                self._campaigns.working(doc["id"], step["name"])
+            ):
+                raise busy_test(doc, step)
+            args = dict(data=data, name=name, current=current.to_dict(), known=known["known"])
+            args.update(campaign=doc, step=step)
+            try:
+                result = (analyse or _in_process)("analyse", args)
+            except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
+                raise Refused(
+                    Msg("%(name)s: %(reason)s", name=name, reason=error_message(exc))
+                ) from None
+            kind = result.pop("kind", None) or "upload"
+            result = with_findings(result, said)
+            fields = campaign_keys(doc["id"], step["name"], current)
+            fields["profile"] = doc.get("profile") or known["profile"]
+            forced = any(f.code == "campaign.other_profile" for f in said)  # taken anyway
+            if forced:
+                fields["profile"] = doc.get("profile") or self._store.current().get(
+                    "legacy_profile"
+                )
+            fields.update(extra or {})
+
+            def link(fresh: Dict[str, Any]) -> Dict[str, Any]:
+                if fresh.get("result"):
+                    raise Refused(Msg("Campaign %(id)s was analysed meanwhile", id=doc["id"]), 409)
+                run = self._calibration.record_run(
+                    result, name, kind, data, result.get("plot"), fields
+                )
+                mine = fresh["steps"][step["n"] - 1]
+                mine.pop("other_profile", None)
+                if forced:
+                    mine["other_profile"] = self._store.current().get("profile")
+                mine["run"], mine["measured"] = run["id"], now()
+                doc.clear()
+                doc.update(fresh)
+                return run
+
+            try:
+                return self._campaigns.change(doc["id"], link)
+            except CampaignNotFound:
+                raise Refused(
+                    Msg(
+                        "Campaign %(id)s was deleted while its test was analysed: nothing was "
+                        "stored.",
+                        id=doc["id"],
+                    ),
+                    404,
+                ) from None
 
     def take_capture(self, run: Dict[str, Any]) -> Dict[str, Any]:
         """CaptureRecorder.on_recorded (the sensor's worker thread): a live capture stored as
@@ -279,6 +313,7 @@ class CampaignMeasurements:
                 data,
                 name,
                 {"source": run.get("source"), "status": "ok", "capture": run.get("capture")},
+                analyse=self._calibration.analyse_in_worker,
             )
         except CampaignNotFound:
             return run
@@ -299,6 +334,27 @@ class CampaignMeasurements:
                 self._runs.save_raw(new["id"], f.read())
         self._runs.delete(run["id"])
         return new
+
+
+def busy_test(doc: Dict[str, Any], step: Dict[str, Any]) -> Refused:
+    """The refusal of a second measurement of a test while the first is under way."""
+    return Refused(
+        Msg(
+            "Test %(n)s (%(name)s) of campaign %(id)s is being measured already: wait for "
+            "that measurement.",
+            n=step["n"],
+            name=step["name"],
+            id=doc["id"],
+        ),
+        409,
+    )
+
+
+def _in_process(task: str, args: Dict[str, Any]) -> Dict[str, Any]:
+    """The worker's task ``task`` run here (callers without a worker: tests)."""
+    from ..files.worker import TASKS
+
+    return TASKS[task](progress=lambda frac: None, **args)
 
 
 def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[Msg]:

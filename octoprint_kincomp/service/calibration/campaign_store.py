@@ -15,13 +15,22 @@ every lookup (the run store's rules): a request cannot name a path outside the f
 ``next_step`` and ``state`` read how far a document got; ``view`` is what the UI gets: the
 document with its progress, each test's run summary and, once analysed, the joint result with
 per test the rows of the paper's Table 2 against the campaign it re-tests.
+
+A campaign's record changes under its own lock (:meth:`CampaignStore.change`): the document
+is read afresh under it, changed and saved, so that two measurements of different tests
+both land (each saved its own copy whole, and the later one dropped the other's link). A
+measurement or joint analysis in flight is registered (:meth:`CampaignStore.working`): the
+same test twice, or the joint analysis twice, is refused while the first runs; a delete
+wins over work in flight, which then finds the campaign gone and stores nothing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import re
-from typing import Any, Dict, Optional, Sequence
+import threading
+from typing import Any, Callable, Dict, Iterator, Optional, Sequence, Set, Tuple
 
 from ...calibration.ballbar.program import body_hash, spec_dict
 from ...simulator.closed_loop import table
@@ -41,6 +50,55 @@ class CampaignStore(RunStore):
     ID = re.compile(r"c[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
     PREFIX = "c"
     NotFound = CampaignNotFound
+
+    def __init__(self, data_folder: str):
+        super().__init__(data_folder)
+        self._guard = threading.Lock()  # the tables below
+        self._locks: Dict[str, threading.RLock] = {}
+        self._work: Set[Tuple[str, str]] = set()  # (campaign id, what: a test's name, "joint")
+
+    def lock(self, cid: str) -> threading.RLock:
+        """The lock under which campaign ``cid``'s record changes."""
+        with self._guard:
+            return self._locks.setdefault(str(cid), threading.RLock())
+
+    def change(self, cid: str, edit: Callable[[Dict[str, Any]], Any]) -> Any:
+        """Under campaign ``cid``'s lock: its document read afresh, ``edit(doc)`` (which may
+        raise to change nothing), the document saved; returns what ``edit`` returned.
+        CampaignNotFound if it is gone (deleted meanwhile): nothing is written."""
+        with self.lock(cid):
+            doc = self.get(cid)
+            out = edit(doc)
+            self.save(doc)
+            return out
+
+    def delete(self, run_id: str) -> None:
+        with self.lock(run_id):
+            super().delete(run_id)
+
+    def claim(self, cid: str, what: str) -> bool:
+        """Registers work ``what`` (a test's name, or "joint") on campaign ``cid``; False,
+        registering nothing, when the same work is in flight (queued or running)."""
+        key = (str(cid), str(what))
+        with self._guard:
+            if key in self._work:
+                return False
+            self._work.add(key)
+            return True
+
+    def release(self, cid: str, what: str) -> None:
+        with self._guard:
+            self._work.discard((str(cid), str(what)))
+
+    @contextlib.contextmanager
+    def working(self, cid: str, what: str) -> Iterator[bool]:
+        """:meth:`claim` while the block runs (yields its answer), then released."""
+        free = self.claim(cid, what)
+        try:
+            yield free
+        finally:
+            if free:
+                self.release(cid, what)
 
 
 def new_campaign(

@@ -19,11 +19,9 @@ from __future__ import annotations
 import datetime as _dt
 from typing import Any, Callable, Dict, Optional
 
-from ...calibration.ballbar.analysis import analyse
-from ...calibration.ballbar.formats import TraceError, load_any
+from ...calibration.ballbar.formats import TraceError
 from ...core.messages import as_dict, error_message
 from ...sensor import CaptureResult
-from ..calibration.known_squareness import for_trace
 from ..calibration.run_store import RunStore
 from ..notify import N_, Notifier
 from ..printing.queue import QueueCompensator
@@ -54,24 +52,21 @@ class CaptureRecorder:
         if not res.ok:
             return self._failed(res.message, capture, res)
         data = res.trace.to_text().encode()
-        try:
-            trace = load_any(data, filename)
-            values, sources = for_trace(self._calibration.known_squareness(), trace)
-            result = analyse(
-                trace,
-                current=self._queue.in_force,
-                known_squareness_um_per_m=values,
-                known_sources=sources,
-            )
-        except TraceError as exc:
+        known = self._calibration.known_now()
+        args = {"data": data, "name": filename, "current": known["current"]}
+        args["known"] = known["known"]
+        try:  # the one analysis of a measurement, in the worker process
+            result = self._calibration.analyse_in_worker("analyse", args)
+        except (TraceError, ValueError, ArithmeticError) as exc:
             return self._failed(error_message(exc), capture, res)
+        result.pop("kind", None)
         run = self._calibration.record_run(
             result,
             filename,
             SOURCE,
             data,
             result.get("plot"),
-            extra={"status": "ok", "capture": capture},
+            extra={"status": "ok", "capture": capture, "profile": known["profile"]},
         )
         self._save_raw(run["id"], res)
         return self.on_recorded(run) if self.on_recorded is not None else run

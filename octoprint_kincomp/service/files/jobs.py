@@ -200,9 +200,10 @@ class JobQueue:
 
     def cancel(self, job: Job) -> bool:
         """Cancels ``job``: a queued one is failed at once, a running one stops at its next
-        progress step. False if it had already finished."""
+        progress step. False if it had already finished or is being cancelled already (a
+        second cancel of one job is refused, not answered as if it had done something)."""
         with self._cond:
-            if not job.active:
+            if not job.active or job.cancelled:
                 return False
             job.cancelled = True
             queued = job in self._queue

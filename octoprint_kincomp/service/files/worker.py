@@ -1,5 +1,6 @@
 """The low-priority worker process that does KinComp's heavy work for the plugin: whole-file
-compensation, dry runs and the analysis of uploaded traces (no OctoPrint import: the child
+compensation, dry runs and every analysis of a measurement: traces, summaries, campaign
+tests, campaigns' joint analyses, printed artifacts (no OctoPrint import: the child
 runs ``python -m octoprint_kincomp.service.files.worker`` and loads only what its work needs).
 
 Why a separate process at the lowest CPU priority (nice 19, and the lowest best-effort I/O
@@ -71,28 +72,44 @@ def task_analyse(
     current: Dict[str, Any],
     progress: Callable[[float], None],
     known: Optional[Dict[str, Any]] = None,
+    campaign: Optional[Dict[str, Any]] = None,
+    step: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
-    """A trace, .b5r or summary file analysed (ballbar.analysis); its kind added. ``known``:
-    the printer's squareness from its run history (``service/calibration/known_squareness.py``)."""
-    from ...calibration.ballbar.analysis import analyse
-    from ...calibration.ballbar.formats import load_any
-    from ...core.params import Params
-    from ..calibration.known_squareness import for_trace
+    """A trace, .b5r or summary file analysed (``service/calibration/measurement.py``, the
+    one analysis of a measurement); ``known``: the printer's squareness from its run
+    history; ``campaign`` and ``step``: the campaign test it must be the trace of."""
+    from ..calibration.measurement import analyse_measurement
 
-    trace = load_any(data, name)
-    progress(0.3)
-    values, sources = for_trace(known or {}, trace)
-    result = analyse(
-        trace,
-        current=Params.from_dict(current),
-        known_squareness_um_per_m=values,
-        known_sources=sources,
-    )
-    result["kind"] = getattr(trace, "kind", None)
-    return result
+    progress(0.1)
+    return analyse_measurement(data, name, current, known, campaign, step)
 
 
-TASKS = {"compensate": task_compensate, "analyse": task_analyse}
+def task_analyse_campaign(
+    traces, current: Dict[str, Any], progress: Callable[[float], None]
+) -> Dict[str, Any]:
+    """A campaign's joint analysis of its tests' traces ``[(name, data)]``."""
+    from ..calibration.measurement import analyse_joint
+
+    progress(0.1)
+    return analyse_joint(traces, current)
+
+
+def task_analyse_artifact(
+    text: str, readings: Dict[str, Any], current: Dict[str, Any], progress: Callable[[float], None]
+) -> Dict[str, Any]:
+    """A printed artifact's caliper readings against its program ``text``."""
+    from ..calibration.measurement import analyse_artifact_readings
+
+    progress(0.1)
+    return analyse_artifact_readings(text, readings, current)
+
+
+TASKS = {
+    "compensate": task_compensate,
+    "analyse": task_analyse,
+    "analyse_campaign": task_analyse_campaign,
+    "analyse_artifact": task_analyse_artifact,
+}
 
 
 def lower_priority() -> None:

@@ -7,10 +7,10 @@ import). Each takes ``(value, field)`` and returns the checked value or raises
 from __future__ import annotations
 
 import copy
-import math
 from typing import Any, Dict, List, Optional, Sequence
 
 from ...core.messages import Msg
+from ...core.numbers import finite
 from ...core.params import Params, ParamsError
 from ...firmware.motion_limits import MAX_TEXT, LimitsError, parse_limits
 from ...sensor.config import SensorConfig
@@ -90,13 +90,10 @@ def check_choice(value: Any, field: str, allowed: Sequence[str]) -> str:
 
 
 def check_number(value: Any, field: str, lo: float, hi: float) -> float:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(float(value))
-    ):
+    value = finite(value)
+    if value is None:
         raise SettingsError(field, Msg("must be a finite number"))
-    if not lo <= float(value) <= hi:
+    if not lo <= value <= hi:
         raise SettingsError(
             field,
             Msg(
@@ -106,7 +103,7 @@ def check_number(value: Any, field: str, lo: float, hi: float) -> float:
                 hi=f"{hi:g}",
             ),
         )
-    return float(value)
+    return value
 
 
 def merge_params(base: Dict[str, Any], update: Dict[str, Any]) -> Dict[str, Any]:

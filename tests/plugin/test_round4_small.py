@@ -1,0 +1,56 @@
+"""Issue 37 row 10, the low items, through the real blueprint (tests/support/blueprint.py):
+a test program refused with 409 (printer not ready) writes no file; a second cancel of a
+running job is 409; ``/steps/<Unicode digit>/`` is no test number; ``/artifact/sheet``
+reads a stored file, so it needs OctoPrint's download permission as well as STATUS."""
+
+from unittest import mock
+
+import pytest
+
+from tests.support.blueprint import PREFIX, blueprint_client
+
+
+@pytest.fixture
+def api(tmp_path):
+    ns = blueprint_client(str(tmp_path))
+    yield ns
+    ns.stop()
+
+
+def _gcode_files(api):
+    """The programs handed to OctoPrint's file manager."""
+    return [c.args[1] for c in api.plugin._file_manager.add_file.call_args_list]
+
+
+@pytest.mark.parametrize("route", ["/program", "/artifact/program"])
+def test_a_program_refused_for_a_busy_printer_writes_no_file(api, route):
+    api.plugin._printer.is_operational.return_value = True
+    api.plugin._printer.is_printing.return_value = True  # busy
+    resp = api.client.post(PREFIX + route, json={"print": True})
+    assert resp.status_code == 409, resp.get_json()
+    assert _gcode_files(api) == []
+    resp = api.client.post(PREFIX + route, json={})  # without printing: written
+    assert resp.status_code == 200, resp.get_json()
+    assert len(_gcode_files(api)) == 1
+
+
+def test_a_test_number_in_unicode_digits_is_no_test(api):
+    plan = api.client.post(PREFIX + "/campaign/plan", json={"planes": ["XY"]})
+    assert plan.status_code == 200, plan.get_json()
+    cid = plan.get_json()["id"]
+    for n in ("\u0661", "\uff11", "1\u0660"):  # Arabic-Indic one, fullwidth one, "10"
+        resp = api.client.post(PREFIX + f"/campaigns/{cid}/steps/{n}/program", json={})
+        assert resp.status_code == 404, (n, resp.get_json())
+    resp = api.client.post(PREFIX + f"/campaigns/{cid}/steps/1/program", json={})
+    assert resp.status_code == 200, resp.get_json()
+
+
+def test_the_artifact_sheet_needs_the_download_permission(api):
+    from octoprint_kincomp.plugin import http
+
+    with mock.patch.object(http, "require") as require:
+        api.client.get(PREFIX + "/artifact/sheet?path=none.gcode")
+    asked = [c.args[0] for c in require.call_args_list]
+    from octoprint.access.permissions import Permissions
+
+    assert Permissions.FILES_DOWNLOAD in asked and Permissions.STATUS in asked
