@@ -40,8 +40,18 @@ from .program import ProgramError, TestSpec, arc_angles, generate, run_angles
 
 A_GRID = np.geomspace(100.0, 30000.0, 11)  # mm/s^2, estimation grid
 JD_GRID = np.geomspace(0.002, 0.3, 7)  # mm
-RAMP_BEFORE_S = 0.03  # s of flat reading used before a ramp / after it
-CORNER_S = 0.003  # s of the arc side used after the feed-in corner / before the feed-out
+RAMP_BEFORE_S = 0.03  # s of flat reading used after the feed-out (its play state is constant)
+# mm of a ramp's start left out of the synchronisation: an axis that reverses there takes up
+# its play first (the carriage stands while its drive crosses the play), which at a low
+# acceleration delays the reading by up to a millisecond (simulated: X play 25 um, XZ R50 at
+# 300 mm/s^2: the feed-in read 0.9 ms late, the feed-out 0.3 ms; with the pivot 0.2 mm off
+# centre that bent the angles enough to move the squareness by 8 um/m when 10 deg more was
+# masked). The flat level before the feed-in (another play state) and the arc side after its
+# corner (the arc's own take-up) are left out for the same reason; at most this share of
+# the feed-in is left out.
+TAKEUP_SKIP_MM = 0.2
+TAKEUP_SKIP_SHARE = 0.4
+CORNER_S = 0.003  # s of the arc side used by the fallback window (a slow logger)
 
 
 # ---------------------------------------------------------------------------------------
@@ -343,12 +353,7 @@ def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarra
     tau_out = t_out - _planned_crossing(test, fo[0], fo[1], d / 2)
     mr = MeasuredRun(direction, t, r, tau0=(tau_in, tau_out))
     for (k0, k1), tau, falling in ((fi, tau_in, True), (fo, tau_out, False)):
-        p0, p1 = test.span(k0, k1)
-        if falling:
-            w0, w1 = p0 - RAMP_BEFORE_S, p1 + CORNER_S
-        else:
-            w0, w1 = p0 - CORNER_S, p1 + RAMP_BEFORE_S
-        sel = (t >= w0 + tau) & (t <= w1 + tau)
+        sel = _ramp_samples(test, k0, k1, falling, t - tau)
         if sel.sum() < 4:
             raise TraceError(
                 Msg(
@@ -359,6 +364,56 @@ def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarra
             )
         mr.ramps.append(Ramp(t[sel], r[sel], k0, k1, falling))
     return mr
+
+
+def _ramp_samples(test: PlannedTest, k0: int, k1: int, falling: bool, tp: np.ndarray) -> np.ndarray:
+    """The samples (planned times ``tp``) the synchronisation uses on one ramp: those past its
+    take-up (:func:`_ramp_window`) when they tell the time well enough (at least
+    :data:`MIN_TIMING_SHARE` of the information of the whole ramp with its flat level and
+    corner: a fast ramp is nearly a straight line, whose time only its ends tell; its take-up
+    is short then), else the whole ramp."""
+    p0, p1 = test.span(k0, k1)
+    w0, w1 = _ramp_window(test, k0, k1, falling)
+    part = (tp >= w0) & (tp <= w1)
+    if falling:
+        whole = (tp >= p0 - RAMP_BEFORE_S) & (tp <= p1 + CORNER_S)
+    else:
+        whole = (tp >= p0 - CORNER_S) & (tp <= w1)
+    if part.sum() >= MIN_RAMP_SAMPLES and _timing_information(test, tp[part]) >= (
+        MIN_TIMING_SHARE * _timing_information(test, tp[whole])
+    ):
+        return part
+    return whole
+
+
+def _timing_information(test: PlannedTest, tp: np.ndarray) -> float:
+    """(s^-2, per unit noise variance) how well samples at planned times ``tp`` fix the time
+    offset of ``reading = c0 + c1 r_p(t - tau)``: the rate's part that the levels do not
+    absorb, squared and summed."""
+    if len(tp) < 3:
+        return 0.0
+    rp, rate = test.radial(tp)
+    M = np.stack([np.ones_like(rp), rp], axis=1)
+    g = rate - M @ np.linalg.lstsq(M, rate, rcond=None)[0]
+    return float(g @ g)
+
+
+MIN_RAMP_SAMPLES = 6  # fewer past the take-up: the whole ramp with its levels
+MIN_TIMING_SHARE = 0.1  # the take-up-free part must tell the time at least this well
+
+
+def _ramp_window(test: PlannedTest, k0: int, k1: int, falling: bool) -> Tuple[float, float]:
+    """Planned times (s) of the part of a ramp the synchronisation uses: from where its axes
+    have taken up their play (:data:`TAKEUP_SKIP_MM` into the ramp) to the feed-in's corner,
+    or to :data:`RAMP_BEFORE_S` after the feed-out has stopped."""
+    p0, p1 = test.span(k0, k1)
+    d = test.spec.feed_in_mm
+    skip = min(TAKEUP_SKIP_MM, TAKEUP_SKIP_SHARE * d)
+    ts = np.linspace(p0, p1, 400)
+    rp, _ = test.radial(ts)
+    past = (rp < d - skip) if falling else (rp > skip)
+    start = float(ts[int(np.argmax(past))]) if past.any() else p0
+    return (start, p1) if falling else (start, p1 + RAMP_BEFORE_S)
 
 
 def sync_run(test: PlannedTest, mr: MeasuredRun, common: bool) -> Sync:
