@@ -55,7 +55,7 @@ from .model import (
     reversal_mask,
     uncertainty_values,
 )
-from .timing import Mapping, runs_from_angle, runs_from_native
+from .timing import Mapping, SentWith, runs_from_angle, runs_from_native
 
 __all__ = [
     "DEFAULT_MASK_DEG",
@@ -85,12 +85,14 @@ def load_runs(trace, current: Optional[Params] = None) -> Tuple[Geometry, List[R
 
 
 def load_runs_mapped(
-    trace, current: Optional[Params] = None
+    trace, current: Optional[Params] = None, sent: Optional[SentWith] = None
 ) -> Tuple[Geometry, List[Run], Mapping]:
+    """The runs of a trace on the nominal circle; ``current``: the parameters in force,
+    ``sent``: how the compensated program was written (the trace's record first)."""
     if isinstance(trace, NativeTrace):
-        loaded = runs_from_native(trace, current)
+        loaded = runs_from_native(trace, current, sent)
     elif isinstance(trace, AngleTrace):
-        loaded = runs_from_angle(trace, current)
+        loaded = runs_from_angle(trace, current, sent)
     else:
         raise TraceError(Msg("not a trace"))
     geom, runs, mapping = loaded
@@ -290,6 +292,7 @@ def analyse(
     cyclic_pitch: Optional[float] = None,
     known_squareness_um_per_m: Optional[Dict[str, float]] = None,
     known_sources: Optional[Dict[str, str]] = None,
+    sent: Optional[SentWith] = None,
 ) -> Dict[str, object]:
     """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes",
     "plot"}. ``current``: the parameters active during the test (the fit is then a residual
@@ -328,7 +331,7 @@ def analyse(
             )
         )
     else:
-        geom, runs, mapping = load_runs_mapped(trace, current)
+        geom, runs, mapping = load_runs_mapped(trace, current, sent)
         _check_both_directions(runs)
         fixed, used = checks.out_of_plane_used(
             geom.plane, known, current.squareness_um_per_m, known_sources or {}

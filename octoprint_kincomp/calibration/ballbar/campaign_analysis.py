@@ -32,6 +32,7 @@ from .formats import TraceError
 from .joint import TraceFit, check_coverage, joint_fit, joint_values, summary
 from .metrics import plot_data
 from .model import DEFAULT_MASK_DEG, fit
+from .timing import SentWith
 
 RMS_OUTLIER = 4.0  # a trace whose residual is this many times the campaign's median failed
 AGREE_SIGMA = 2.0  # lags at two feeds agree when they differ by less than this many sigma
@@ -48,6 +49,7 @@ def analyse_campaign(
     calibrated: bool = False,
     cyclic_pitch: Optional[float] = None,
     manifest: Optional[Dict[str, object]] = None,
+    sent: Optional[SentWith] = None,
 ) -> Dict[str, object]:
     """Joint analysis of a campaign's traces; raises CampaignError (naming the file) when the
     traces are not one complete campaign or a test failed: nothing is proposed then."""
@@ -63,7 +65,7 @@ def analyse_campaign(
     plots = []
     for name, trace in items:
         try:
-            geom, runs, mapping = load_runs_mapped(trace, current)
+            geom, runs, mapping = load_runs_mapped(trace, current, sent)
             check_coverage(name, geom, runs)
             cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, name)
         except CampaignError:

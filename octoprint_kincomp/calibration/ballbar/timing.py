@@ -30,6 +30,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
+from ...core.backlash import DEFAULT_DEADBAND_MM
 from ...core.kinematics import KinematicModel, changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
@@ -101,26 +102,75 @@ def spec_from_meta(meta: Dict[str, str]) -> TestSpec:
 
 
 # The dead band (mm) of the take-ups in the compensated test programs of the simulated
-# printer (the closed loop) and of the analysis's model of what a printer received: the
-# simulated printer moves continuously (it has no steps), so a dead band derived from a step
-# size (0.625 um at 80 steps/mm) would show there as an error of up to its size at each
-# reversal that a stepping printer does not resolve; on a real printer the two differ by less
-# than a step.
+# printer (the closed loop): the simulated printer moves continuously (it has no steps), so a
+# dead band derived from a step size (0.625 um at 80 steps/mm) would show there as an error of
+# up to its size at each reversal that a stepping printer does not resolve. Its traces say so
+# (:class:`SentWith` in their metadata), as the plugin's do for its own settings.
 CONTINUOUS_DEADBAND_MM = 1e-6
 
 
-def program_text(spec: TestSpec, current: Optional[Params]) -> str:
+@dataclass(frozen=True)
+class SentWith:
+    """How a compensated test program was written on its way to the printer: the
+    compensator's ``decimals`` and reversal ``deadband_mm`` (mm). The analysis regenerates
+    the program exactly so: a dead band decides where a slowly reversing axis gets its
+    take-up move (in a vertical test the out-of-plane axis, moved by the squareness
+    compensation, reverses a few degrees after the top with 0.625 um, at the top with
+    1e-6 mm; each take-up is a move of its own that the head brakes for, and modelled at the
+    wrong place it shifted the time mapping by 14-19 ms: misfit 1.7x, model.unstable and
+    campaign.inconsistent on a clean re-test). The defaults are the compensator's own
+    (``core.compensator.Options``: what the command line's ``compensate`` and a plugin at
+    its default settings send); traces record theirs as ``compensation_decimals`` and
+    ``compensation_deadband_mm``."""
+
+    decimals: int = 3  # core.compensator.Options.decimals
+    deadband_mm: float = DEFAULT_DEADBAND_MM
+
+    KEYS = ("compensation_decimals", "compensation_deadband_mm")
+
+    @staticmethod
+    def of_options(options) -> SentWith:
+        """The part of a ``core.compensator.Options`` that shapes the program."""
+        return SentWith(int(options.decimals), float(options.deadband_mm))
+
+    @staticmethod
+    def from_meta(meta: Dict[str, str], default: Optional[SentWith] = None) -> SentWith:
+        """The trace's record, else ``default``, else the compensator's defaults."""
+        base = default or SentWith()
+        if not any(k in meta for k in SentWith.KEYS):
+            return base
+        dec = meta_float(meta, "compensation_decimals", float(base.decimals))
+        band = meta_float(meta, "compensation_deadband_mm", base.deadband_mm)
+        if dec != int(dec) or not 3 <= dec <= 8 or not 0.0 <= band <= 0.1:
+            raise TraceError(Msg("metadata 'compensation_decimals/_deadband_mm' is not valid"))
+        return SentWith(int(dec), band)
+
+    def metadata(self) -> Dict[str, str]:
+        return {
+            "compensation_decimals": str(self.decimals),
+            "compensation_deadband_mm": f"{self.deadband_mm:.10g}",
+        }
+
+
+CONTINUOUS = SentWith(4, CONTINUOUS_DEADBAND_MM)  # the closed loop's (a stepless printer)
+
+
+def program_text(spec: TestSpec, current: Optional[Params], sent: Optional[SentWith] = None) -> str:
     """The program as the printer received it: generated, then compensated with ``current``
-    (every retreat taken up: :data:`CONTINUOUS_DEADBAND_MM`)."""
+    the way ``sent`` says (default: the compensator's defaults)."""
     text = generate(spec, date="-")
     if current is None or changes_nothing(current):
         return text
     from ...core.compensator import Options
     from ...engines.file_loop import compensate_stream
 
+    sent = sent or SentWith()
     dst = io.StringIO()
     compensate_stream(
-        io.StringIO(text), dst, current, Options(decimals=4, deadband_mm=CONTINUOUS_DEADBAND_MM)
+        io.StringIO(text),
+        dst,
+        current,
+        Options(decimals=sent.decimals, deadband_mm=sent.deadband_mm),
     )
     return dst.getvalue()
 
@@ -176,10 +226,12 @@ class PlannedTest:
     settings: Optional[MotionSettings] = None
 
     @staticmethod
-    def build(spec: TestSpec, current: Optional[Params]) -> PlannedTest:
+    def build(
+        spec: TestSpec, current: Optional[Params], sent: Optional[SentWith] = None
+    ) -> PlannedTest:
         if current is not None and changes_nothing(current):
             current = None
-        text = program_text(spec, current)
+        text = program_text(spec, current, sent)
         lines = text.splitlines()
         blocks = program_blocks_of(lines, spec.centre)
         fin = [i + 1 for i, ln in enumerate(lines) if "; radial feed-in" in ln]
@@ -523,14 +575,16 @@ class Mapping:
         return d
 
 
-def _planned_test(meta: Dict[str, str], current: Optional[Params]) -> PlannedTest:
+def _planned_test(
+    meta: Dict[str, str], current: Optional[Params], sent: Optional[SentWith] = None
+) -> PlannedTest:
     try:
         spec = spec_from_meta(meta)
     except ProgramError as exc:
         raise TraceError(
             Msg("metadata does not describe a test program: %(error)s", error=str(exc))
         ) from None
-    return PlannedTest.build(spec, current)
+    return PlannedTest.build(spec, current, SentWith.from_meta(meta, sent))
 
 
 def _settings_from_meta(meta: Dict[str, str]) -> Optional[MotionSettings]:
@@ -542,7 +596,7 @@ def _settings_from_meta(meta: Dict[str, str]) -> Optional[MotionSettings]:
 
 
 def runs_from_native(
-    trace: NativeTrace, current: Optional[Params] = None
+    trace: NativeTrace, current: Optional[Params] = None, sent: Optional[SentWith] = None
 ) -> Tuple[Geometry, List[Run], Mapping]:
     """Map each sample's time to its nominal angle with the planned motion."""
     meta = trace.meta
@@ -551,7 +605,7 @@ def runs_from_native(
         meta_float(meta, key)
     if not geom.speed:
         raise TraceError(Msg("metadata 'feed_mm_min' is needed to map time to angle"))
-    test = _planned_test(meta, current)
+    test = _planned_test(meta, current, sent)
     settings = _settings_from_meta(meta)
     measured = []
     for direction in test.spec.directions:
@@ -632,6 +686,7 @@ def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:
     return R - R * np.cos(half) / np.cos(np.clip(theta - mid, -half, half))
 
 
+ROUNDING_MM = 0.002  # a compensated path further off its chords is a take-up (not rounding)
 AT_SPEED = 0.98  # overshoot samples are fitted where the planned speed is this near nominal
 
 
@@ -672,9 +727,19 @@ def _arc_run(
     on_arc: np.ndarray,
 ) -> Run:
     """A run of the samples kept; the chords' sag (the program's polyline runs up to
-    ``chord_error_um`` inside the circle) is taken off each reading."""
+    ``chord_error_um`` inside the circle) is taken off each reading. A compensated program
+    runs off the circle by more than its chords: its coordinates are rounded to the
+    compensator's decimals (3: up to 0.5 um an axis, 0.29 um rms, which left clean re-tests
+    at 1.1 times the noise); there the distance of the nominal path from the circle, as the
+    plan has it, is taken off instead (not on the take-up moves, where undoing the
+    compensation leaves the nominal path a play's width off: :data:`ROUNDING_MM`)."""
     a, b = test.spec.axes
-    dev = dev + chord_sag(test.spec, direction, theta)
+    sag = chord_sag(test.spec, direction, theta)
+    if test.current is not None:
+        c = test.spec.centre
+        off = test.spec.radius_mm - np.hypot(pos[:, a] - c[a], pos[:, b] - c[b])
+        sag = np.where(np.abs(off - sag) <= ROUNDING_MM, off, sag)
+    dev = dev + sag
     c0 = math.radians(geom.capture_start_deg)
     c1 = c0 + math.radians(geom.capture_deg)
     capture = (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
@@ -702,7 +767,7 @@ def _arc_run(
 
 
 def runs_from_angle(
-    trace: AngleTrace, current: Optional[Params] = None
+    trace: AngleTrace, current: Optional[Params] = None, sent: Optional[SentWith] = None
 ) -> Tuple[Geometry, List[Run], Mapping]:
     """Angle-domain runs; velocities and times from the planned program when the metadata
     describes one (a constant feed otherwise)."""
@@ -721,7 +786,7 @@ def runs_from_angle(
     test = None
     if geom.feed:
         try:
-            test = _planned_test(trace.meta, current)
+            test = _planned_test(trace.meta, current, sent)
         except TraceError:
             test = None
     runs = []
