@@ -880,3 +880,279 @@ def stability_findings(
 
 def keep_mask(runs: Sequence[Run], mask_deg: float) -> np.ndarray:
     return fit_mask(runs, mask_deg)
+
+
+# -- the sensor's gain from the commanded radial step -----------------------------------------
+# The head stands still ``feed_in_mm`` outside the circle before each feed-in and after each
+# feed-out; what the bar reads there, less what the fitted model says it reads at that point
+# without the step (the errors, the set-up offset, the play on its known side, the drift), is
+# the step as the sensor saw it. Its ratio to ``feed_in_mm`` is the sensor's gain. A gain
+# further from 1 than GAIN_MIN and GAIN_SIGMAS of its uncertainty is taken off the readings
+# (clean simulated traces, KinComp's and the independent lab's: docs/trust-checks.md).
+GAIN_MIN = 0.004
+GAIN_SIGMAS = 5.0
+
+
+def sensor_gain(
+    geom: Geometry,
+    f: FitResult,
+    cyclic_pitch: Optional[float],
+    levels: Sequence[Dict[str, object]],
+    feed_in_mm: float,
+) -> Optional[Dict[str, object]]:
+    """``{"value", "sigma", "dwells", "each"}``: the sensor's gain from the still ``levels``
+    (``ramps.still_levels``, readings in mm) against the fit ``f`` of the same readings;
+    None without levels. ``sigma`` is the larger of the model's uncertainty there and the
+    dwells' scatter."""
+    if not levels or feed_in_mm <= 0:
+        return None
+    from .model import Model
+
+    still = Geometry(
+        geom.plane, geom.radius + feed_in_mm, geom.centre, geom.feed, geom.capture_start_deg
+    )
+    each, var = [], []
+    for lv in levels:
+        dir_a, dir_b = lv["state"]
+        run = Run(
+            "ccw",
+            np.array([lv["theta_rad"]]),
+            np.zeros(1),
+            np.array([lv["t_s"]]),
+            np.array([dir_a * 1e-12]),
+            np.array([dir_b * 1e-12]),
+        )
+        m = Model(
+            still,
+            [run],
+            "dT" in f.names,
+            "sm" in f.names,
+            cyclic_pitch,
+            "drift" in f.names,
+            f.fixed,
+            f.t_ref,
+        )
+        if m.names != f.names:
+            return None
+        p = np.array([f.values[n] for n in m.names])
+        pred = float(m.predict(p)[0])
+        J = m.jacobian(p, np.ones(1, dtype=bool))
+        v = float((J @ f.covariance @ J.T).item()) if f.covariance is not None else 0.0
+        each.append((float(lv["level_mm"]) - pred) / feed_in_mm)
+        var.append(max(v, 0.0) / feed_in_mm**2)
+    g = np.array(each)
+    sigma = math.sqrt(float(np.mean(var)) / len(g))
+    if len(g) > 1:
+        sigma = max(sigma, float(np.std(g, ddof=1)) / math.sqrt(len(g)))
+    return {
+        "value": float(g.mean()),
+        "sigma": sigma,
+        "dwells": len(g),
+        "each": [round(x, 5) for x in each],
+    }
+
+
+def gain_significant(gain: Optional[Dict[str, object]]) -> bool:
+    """Whether the sensor's gain is off by more than the noise and GAIN_MIN explain."""
+    if not gain:
+        return False
+    off = abs(float(gain["value"]) - 1.0)
+    return off > max(GAIN_MIN, GAIN_SIGMAS * float(gain["sigma"]))
+
+
+def sensor_findings(
+    mapping, gain: Optional[Dict[str, object]], feed_in_mm: float, label: str = ""
+) -> List[Finding]:
+    """What the commanded radial steps say about the sensor (``ramps``): its sign (an error
+    when the readings had to be inverted), its gain (a warning when it was taken off the
+    readings); for a trace without them (an angle-domain export) an info saying that neither
+    could be checked."""
+    pre = (label + ": ") if label else ""
+    out: List[Finding] = []
+    if mapping is None or not mapping.timed:
+        out.append(
+            info(
+                "sensor.not_checked",
+                Msg(
+                    "%(pre)sThe trace has no radial feed-in (angles only): the sensor's sign and "
+                    "gain could not be checked against the commanded step. A sensor reading 3 "
+                    "%% high reads every error 3 %% high; one with its sign reversed reads "
+                    "every error reversed.",
+                    pre=pre,
+                ),
+                Msg(
+                    "Check the sensor once with a known step (a slip gauge, or a time-series "
+                    "trace of a KinComp program, whose feed-in is the step)."
+                ),
+                timed=False,
+            )
+        )
+        return out
+    steps = [round(x * feed_in_mm, 3) for x in mapping.feed_in_steps]
+    if mapping.sign < 0:
+        out.append(
+            error(
+                "sensor.sign_reversed",
+                Msg(
+                    "%(pre)sThe reading rose by %(steps)s mm at the radial feed-ins, where the bar "
+                    "gets %(feed)s mm shorter: the sensor reports extension as negative. The "
+                    "readings were inverted for this analysis; analysed as they came, every "
+                    "error would have its sign reversed and applying it would double them.",
+                    pre=pre,
+                    steps=", ".join(f"{-s:.3f}" for s in steps),
+                    feed=f"{feed_in_mm:g}",
+                ),
+                Msg(
+                    "Set the sensor's sign (KinComp's sensor settings: 'positive: longer', or "
+                    "the logger's own setting) and test again; do not apply this result."
+                ),
+                feed_in_steps_mm=steps,
+                feed_in_mm=feed_in_mm,
+            )
+        )
+    if gain_significant(gain):
+        g = float(gain["value"])
+        out.append(
+            warning(
+                "sensor.gain",
+                Msg(
+                    "%(pre)sThe commanded %(feed)s mm radial step read %(read)s mm: the sensor's "
+                    "gain is %(gain)s (+- %(sigma)s, %(pct)s %% off, more than the noise "
+                    "explains). Every reading was divided by it, so the values here are "
+                    "corrected; uncorrected, every error would read %(pct)s %% off.",
+                    pre=pre,
+                    feed=f"{feed_in_mm:g}",
+                    read=f"{g * feed_in_mm:.4f}",
+                    gain=f"{g:.4f}",
+                    sigma=f"{float(gain['sigma']):.4f}",
+                    pct=f"{(g - 1.0) * 100:+.1f}",
+                ),
+                Msg(
+                    "Calibrate the sensor (its gain or its units) before other measurements: a "
+                    "trace without a feed-in (an angle export) cannot be corrected this way."
+                ),
+                gain=round(g, 5),
+                gain_sigma=round(float(gain["sigma"]), 5),
+                threshold=GAIN_MIN,
+                dwells=gain["dwells"],
+            )
+        )
+    return out
+
+
+# a ramp that took this share longer (or shorter) than planned did not run at the program's
+# feed: clean simulated ramps 0.976-1.017 (KinComp's and the lab's simulators), a program
+# printed at half the feed 1.95-2.00
+RAMP_TIME_TOL = 0.2
+
+
+def ramp_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
+    """An error when the radial ramps took clearly longer or shorter than the program plans
+    at its feed (:data:`RAMP_TIME_TOL`): the trace belongs to another program (another feed
+    and, with the same arc time, another radius) or an axis was capped."""
+    if mapping is None or not mapping.timed:
+        return []
+    ratios = [x for v in mapping.ramp_speed.values() for x in v if x]
+    if not ratios:
+        return []
+    ratio = float(np.median(ratios))
+    if 1.0 / (1.0 + RAMP_TIME_TOL) <= ratio <= 1.0 + RAMP_TIME_TOL:
+        return []
+    pre = (label + ": ") if label else ""
+    feed = (geom.feed or 0.0) / ratio
+    arc = [mapping.planned_s[d] + mapping.sync_ms.get(d, 0.0) * 1e-3 for d in mapping.planned_s]
+    planned = [mapping.planned_s[d] for d in mapping.planned_s]
+    time_ratio = sum(arc) / sum(planned) if planned and sum(planned) > 0 else 1.0
+    radius = geom.radius * time_ratio / ratio
+    return [
+        error(
+            "motion.ramp",
+            Msg(
+                "%(pre)sThe radial feed-ins and feed-outs took %(ratio)s times as long as the "
+                "program plans at %(feed)s mm/min: the head moved them at about %(implied)s "
+                "mm/min. The trace belongs to another program: at that feed, its arc time "
+                "fits a radius of about %(radius)s mm, not the %(labelled)s mm its metadata "
+                "says (the same angular speed keeps the arc's time, so only the ramps show it), "
+                "or an axis was capped below the feed.",
+                pre=pre,
+                ratio=f"{ratio:.2f}",
+                feed=f"{geom.feed or 0.0:g}",
+                implied=f"{feed:.0f}",
+                radius=f"{radius:.0f}",
+                labelled=f"{geom.radius:g}",
+            ),
+            Msg(
+                "Do not apply this result. Upload the trace with the metadata of the program "
+                "that was printed (its radius and feed), or print this program and test again."
+            ),
+            ramp_time_ratio=round(ratio, 3),
+            tolerance=RAMP_TIME_TOL,
+            implied_feed_mm_min=round(feed, 1),
+            implied_radius_mm=round(radius, 2),
+        )
+    ]
+
+
+def run_order_findings(mapping, label: str = "") -> List[Finding]:
+    """The labels against the data: time-stamped runs in the other order than the program
+    runs them, or angle-domain rows that advance against their label, are swapped labels (an
+    error); angle rows sorted by angle cannot tell (an info)."""
+    if mapping is None:
+        return []
+    pre = (label + ": ") if label else ""
+    advice = Msg(
+        "Check how the logger or the export labels the runs (the program runs them in the "
+        "order of its metadata 'directions'); do not apply this result."
+    )
+    if mapping.timed:
+        order = mapping.run_order or {}
+        if order.get("swapped"):
+            return [
+                error(
+                    "labels.direction",
+                    Msg(
+                        "%(pre)sThe runs were recorded in the order %(found)s, but the program "
+                        "runs %(expected)s: the CW and CCW labels are swapped. Analysed as "
+                        "labelled, the squareness has its sign reversed (and the backlash "
+                        "ends and the servo mismatch are exchanged).",
+                        pre=pre,
+                        found=", ".join(d.upper() for d in order["found"]),
+                        expected=", ".join(d.upper() for d in order["expected"]),
+                    ),
+                    advice,
+                    found=list(order["found"]),
+                    expected=list(order["expected"]),
+                )
+            ]
+        return []
+    rows = mapping.row_order
+    if not rows:
+        return []
+    if rows.get("ccw", 1.0) < 0.1 and rows.get("cw", 0.0) > 0.9:
+        return [
+            error(
+                "labels.direction",
+                Msg(
+                    "%(pre)sThe rows labelled CCW run towards smaller angles and those labelled "
+                    "CW towards larger ones: the labels are swapped (CCW means the angle "
+                    "increases). Analysed as labelled, the servo mismatch and the backlash "
+                    "come out reversed.",
+                    pre=pre,
+                ),
+                advice,
+                increasing_share=dict(rows),
+            )
+        ]
+    if all(v > 0.9 for v in rows.values()) or all(v < 0.1 for v in rows.values()):
+        return [
+            info(
+                "labels.not_checked",
+                Msg(
+                    "%(pre)sThe rows of both runs are in the same order of angle (sorted): "
+                    "whether the CW and CCW labels are right could not be checked.",
+                    pre=pre,
+                ),
+                increasing_share=dict(rows),
+            )
+        ]
+    return []

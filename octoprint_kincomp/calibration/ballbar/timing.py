@@ -35,6 +35,7 @@ from ...core.kinematics import KinematicModel, changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
 from ...firmware.planner import Blocks, MotionSettings, Plan, program_blocks_of
+from . import ramps
 from .formats import AngleTrace, NativeTrace, TraceError, meta_centre, meta_float, meta_plane
 from .model import Geometry, Run
 from .program import ProgramError, TestSpec, arc_angles, generate, run_angles
@@ -564,6 +565,23 @@ class Mapping:
     # um per run: the reading's scatter while the head stands still before the feed-in (the
     # sensor's own noise floor; None when the trace has no such samples)
     still_noise_um: Dict[str, float] = field(default_factory=dict)
+    # the commanded radial steps (module ramps): the reading's sign (+1; -1: the readings were
+    # inverted to be analysed; 0: no feed-in seen), each run's step before the feed-in in
+    # feed-ins, the still readings outside the circle (ramps.still_levels), each run's
+    # [feed-in, feed-out] time against the plan, the runs' order against the program's
+    sign: int = 1
+    feed_in_steps: List[float] = field(default_factory=list)
+    still_levels: List[Dict[str, object]] = field(default_factory=list)
+    ramp_speed: Dict[str, List[Optional[float]]] = field(default_factory=dict)
+    run_order: Optional[Dict[str, object]] = None
+    # angle traces: per run the share of row-to-row steps that advance in the labelled
+    # direction (file order); whether only the capture arc was used (no planner known)
+    row_order: Dict[str, float] = field(default_factory=dict)
+    capture_only: bool = False
+    # angle traces: per run the share of samples beyond the program's run (by more than
+    # ARC_SLACK_RAD) and the program's run (deg from, to)
+    off_arc: Dict[str, float] = field(default_factory=dict)
+    arc_span_deg: Dict[str, List[float]] = field(default_factory=dict)
 
     def as_dict(self) -> Dict[str, object]:
         d: Dict[str, object] = {"motion": self.settings.as_dict() if self.settings else None}
@@ -572,7 +590,36 @@ class Mapping:
             d["planned_arc_s"] = dict(self.planned_s)
         if self.still_noise_um:
             d["still_noise_um"] = dict(self.still_noise_um)
+        if self.timed:
+            d["sensor"] = {
+                "sign": self.sign,
+                "feed_in_steps": [round(x, 4) for x in self.feed_in_steps],
+                "gain": None
+                if self.gain is None
+                else {k: round(v, 5) for k, v in self.gain.items()},
+                "gain_applied": round(self.gain_applied, 5),
+            }
+            d["ramp_time_ratio"] = {
+                k: [None if x is None else round(x, 3) for x in v]
+                for k, v in self.ramp_speed.items()
+            }
+            d["run_order"] = self.run_order
+        if self.row_order:
+            d["row_order"] = {k: round(v, 3) for k, v in self.row_order.items()}
+        if self.capture_only:
+            d["capture_only"] = True
+        if self.off_arc:
+            d["off_arc_share"] = {k: round(v, 4) for k, v in self.off_arc.items()}
         return d
+
+
+def _rounded(v, n: int):
+    """``v`` (a number, a dict of numbers or None) rounded to ``n`` decimals."""
+    if v is None:
+        return None
+    if isinstance(v, dict):
+        return {k: _rounded(x, n) for k, x in v.items()}
+    return round(float(v), n)
 
 
 def _planned_test(
@@ -622,15 +669,23 @@ def runs_from_native(
         measured.append((direction, t, r))
     if not measured:
         raise TraceError(Msg("no cw or ccw samples"))
+    dt = float(np.median(np.diff(measured[0][1])))
+    sign, steps = ramps.reading_sign(
+        measured, test.spec.feed_in_mm, max(3, int(0.3 * test.spec.dwell_s / max(dt, 1e-6)))
+    )
+    if sign < 0:  # a sensor that reports extension as negative: analysed the right way up
+        measured = [(d, t, -r) for d, t, r in measured]
     test.use(settings or MotionSettings(constant_speed=True))
     mruns = [_measured_run(test, d, t, r) for d, t, r in measured]
     if settings is None:
         settings = estimate_motion(test, mruns)
         mruns = [_measured_run(test, d, t, r) for d, t, r in measured]
-    mapping = Mapping(settings)
+    mapping = Mapping(settings, sign=sign, feed_in_steps=steps)
+    mapping.run_order = ramps.run_order(measured, test.spec.directions)
+    syncs = [sync_run(test, mr, common=False) for mr in mruns]
+    _ramp_evidence(test, mruns, syncs, mapping)
     runs = []
-    for mr in mruns:
-        sync = sync_run(test, mr, common=False)
+    for mr, sync in zip(mruns, syncs):
         mapping.sync_ms[mr.direction] = float(sync.tau_out - sync.tau_in) * 1e3
         mapping.planned_s[mr.direction] = float(
             sync.t_out - sync.tau_out - (sync.t_in - sync.tau_in)
@@ -641,6 +696,21 @@ def runs_from_native(
         tp = mr.t - sync.tau(mr.t)
         runs.append(_run_on_arc(test, geom, mr.direction, tp, mr.t, mr.r))
     return geom, runs, mapping
+
+
+def _ramp_evidence(test: PlannedTest, mruns, syncs, mapping: Mapping) -> None:
+    """Each ramp's time against the plan and the still readings outside the circle (for the
+    sensor's gain: :mod:`.ramps`) into ``mapping``."""
+    for mr, sync in zip(mruns, syncs):
+        rp = test.runs[mr.direction]
+        mapping.ramp_speed[mr.direction] = [
+            ramps.ramp_speed(test, mr.t, mr.r, k0, k1, falling, tau)
+            for (k0, k1), tau, falling in (
+                (rp.feed_in, sync.tau_in, True),
+                (rp.feed_out, sync.tau_out, False),
+            )
+        ]
+        mapping.still_levels += ramps.still_levels(test, mr.direction, mr.t, mr.r, sync)
 
 
 def _still_noise(test: PlannedTest, mr: MeasuredRun, sync: Sync) -> Optional[float]:
@@ -725,8 +795,10 @@ def _arc_run(
     pos: np.ndarray,
     vel: np.ndarray,
     on_arc: np.ndarray,
+    overshoot: bool = True,
 ) -> Run:
-    """A run of the samples kept; the chords' sag (the program's polyline runs up to
+    """A run of the samples kept (``overshoot``: also those of the overshoot arcs where the
+    plan has the head at its nominal speed); the chords' sag (the program's polyline runs up to
     ``chord_error_um`` inside the circle) is taken off each reading. A compensated program
     runs off the circle by more than its chords: its coordinates are rounded to the
     compensator's decimals (3: up to 0.5 um an axis, 0.29 um rms, which left clean re-tests
@@ -745,7 +817,7 @@ def _arc_run(
     capture = (theta >= c0 - 1e-9) & (theta <= c1 + 1e-9)
     speed = np.hypot(vel[:, a], vel[:, b])
     at_speed = speed >= AT_SPEED * test.plan.vn[test.plan.block_at(tp)]
-    keep = on_arc & (capture | at_speed)
+    keep = on_arc & (capture | (at_speed & overshoot))
     start = math.radians(run_angles(test.spec, direction)[0])
     qa = qb = None
     if test.current is not None:  # compensated: the axes went where the program said
@@ -790,12 +862,20 @@ def runs_from_angle(
         except TraceError:
             test = None
     runs = []
+    row_order = {
+        d: _advancing_share(theta, 1 if d == "ccw" else -1) for d, (theta, _) in raw.items()
+    }
     if test is None or any(d not in test.runs for d in raw):
         for d, (theta, dev) in raw.items():
             runs.append(Run(d, theta, dev))
-        return geom, runs, Mapping(None, timed=False, planned=False)
+        return geom, runs, Mapping(None, timed=False, planned=False, row_order=row_order)
+    # without the printer's planner the head is taken to run at the feed all along: right on
+    # the capture arc, wrong where it speeds up and slows down on the overshoot arcs (XZ R50
+    # at 500 mm/s^2: the scale mismatch 16-19 ppm off with them, within 0.1 ppm without)
+    capture_only = settings is None
     settings = settings or MotionSettings(constant_speed=True)
     test.use(settings)
+    mapping = Mapping(settings, timed=False, row_order=row_order, capture_only=capture_only)
     for d, (theta, dev) in raw.items():
         rp = test.runs[d]
         t0 = test.span(*rp.feed_in)[1]
@@ -805,6 +885,20 @@ def runs_from_angle(
         order = np.argsort(th)
         t_of = np.interp(theta, th[order], tp[order])
         pos, vel = test.nominal(t_of)
-        on_arc = (theta >= th.min()) & (theta <= th.max())
-        runs.append(_arc_run(test, geom, d, theta, dev, t_of, t_of, pos, vel, on_arc))
-    return geom, runs, Mapping(settings, timed=False)
+        on_arc = (theta >= th.min() - ARC_SLACK_RAD) & (theta <= th.max() + ARC_SLACK_RAD)
+        mapping.off_arc[d] = float(np.mean(~on_arc)) if len(theta) else 0.0
+        mapping.arc_span_deg[d] = [float(np.degrees(th.min())), float(np.degrees(th.max()))]
+        on_arc &= (theta >= th.min()) & (theta <= th.max())
+        run = _arc_run(test, geom, d, theta, dev, t_of, t_of, pos, vel, on_arc, not capture_only)
+        runs.append(run)
+    return geom, runs, mapping
+
+
+ARC_SLACK_RAD = math.radians(1.0)  # an angle this far beyond the program's run is off its arc
+
+
+def _advancing_share(theta: np.ndarray, w: int) -> float:
+    """The share of row-to-row steps (file order) whose angle moves in direction ``w``."""
+    steps = np.diff(theta)
+    steps = steps[steps != 0]
+    return float(np.mean(w * steps > 0)) if len(steps) else 1.0
