@@ -115,6 +115,22 @@ def motion_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
             )
         )
         return out
+    if getattr(mapping, "sent_source", None) == "timing":
+        out.append(
+            info(
+                "motion.compensated_as",
+                Msg(
+                    "%(pre)sThe trace does not record how its compensated program was written; "
+                    "its timing fits a reversal dead band of %(band)s mm (a stepless printer's, "
+                    "or compensate --steps-per-mm 50000), not the compensator's default, so "
+                    "the program was regenerated with that.",
+                    pre=pre,
+                    band=f"{mapping.sent.deadband_mm:g}",
+                ),
+                deadband_mm=mapping.sent.deadband_mm,
+                decimals=mapping.sent.decimals,
+            )
+        )
     for d, mismatch in sorted(mapping.sync_ms.items()):
         planned = mapping.planned_s.get(d)
         if not planned:
@@ -1156,3 +1172,145 @@ def run_order_findings(mapping, label: str = "") -> List[Finding]:
             )
         ]
     return []
+
+
+# an angle-domain run with more than this share of its samples beyond the program's run (by
+# more than 1 deg) does not belong to the test its metadata describes
+OFF_ARC_SHARE = 0.05
+
+
+def arc_findings(mapping, label: str = "") -> List[Finding]:
+    """An error when an angle-domain trace's angles do not fit the labelled test's arc (an XY
+    test runs 360 deg plus its overshoots, a vertical one 220: a trace of one plane labelled
+    as the other, or of another program)."""
+    if mapping is None or not mapping.off_arc:
+        return []
+    worst = max(mapping.off_arc, key=mapping.off_arc.get)
+    share = mapping.off_arc[worst]
+    if share <= OFF_ARC_SHARE:
+        return []
+    pre = (label + ": ") if label else ""
+    lo, hi = mapping.arc_span_deg[worst]
+    return [
+        error(
+            "labels.arc",
+            Msg(
+                "%(pre)s%(pct)s %% of the %(direction)s run's samples lie outside the arc its "
+                "metadata describes (%(lo)s to %(hi)s deg): the trace belongs to another test "
+                "(another plane, capture arc or start angle) than its metadata says.",
+                pre=pre,
+                pct=f"{share * 100:.0f}",
+                direction=worst.upper(),
+                lo=f"{lo:.0f}",
+                hi=f"{hi:.0f}",
+            ),
+            Msg(
+                "Upload the trace with the metadata of the test that was run (its plane, "
+                "capture_deg and start_deg); do not apply this result."
+            ),
+            off_arc_share={k: round(v, 4) for k, v in mapping.off_arc.items()},
+            arc_deg=[round(lo, 2), round(hi, 2)],
+        )
+    ]
+
+
+# -- backlash the printer cannot have --------------------------------------------------------
+# Play takes up lost motion: it cannot be negative. A side fitted below zero by this much
+# (um) and NEGATIVE_SIGMAS of its uncertainty, with nothing compensating backlash, is evidence:
+# every side negative is an error (the readings or the labels are reversed), some a warning
+# (the firmware takes up more play than there is).
+NEGATIVE_UM = 1.0
+NEGATIVE_SIGMAS = 4.0
+
+
+def backlash_findings(
+    diag: Dict[str, object],
+    sides: Sequence[str],
+    kincomp_backlash: bool,
+    firmware,
+    label: str = "",
+) -> List[Finding]:
+    """Backlash sides (of those reached: ``sides``) fitted clearly negative. With KinComp's
+    own backlash in force that is over-compensation (the proposal's note says so); with the
+    firmware's known on (``firmware``: ``FirmwareCompensation``), the firmware's; with
+    nothing known to compensate, every side negative is an error (a sensor reporting
+    extension as negative, or swapped CW/CCW labels, or the firmware compensating), some a
+    warning (the firmware compensating more than the play)."""
+    if kincomp_backlash:
+        return []
+    bl = diag.get("backlash_um") or {}
+    sig = (diag.get("uncertainty") or {}).get("backlash_um") or {}
+    neg = {
+        s: float(bl[s])
+        for s in sides
+        if bl.get(s) is not None
+        and float(bl[s]) < -max(NEGATIVE_UM, NEGATIVE_SIGMAS * float(sig.get(s) or 0.0))
+    }
+    if not neg:
+        return []
+    pre = (label + ": ") if label else ""
+    axes = diag.get("axes") or {"a": "A", "b": "B"}
+    names = ", ".join(
+        f"{'+' if s.endswith('plus') else '-'}{axes[s[0]]} {v:+.1f} um" for s, v in neg.items()
+    )
+    ev = dict(negative_um={s: round(v, 2) for s, v in neg.items()}, sides=list(sides))
+    fw_on = firmware is not None and firmware.backlash
+    if fw_on:
+        return [
+            warning(
+                "backlash.over_compensated",
+                Msg(
+                    "%(pre)sThe backlash left over is negative (%(sides)s) while the firmware "
+                    "takes up play itself (%(fw)s): it takes up more than there is there. "
+                    "KinComp cannot propose less than zero, so this stays.",
+                    pre=pre,
+                    sides=names,
+                    fw=firmware.backlash,
+                ),
+                Msg(
+                    "Keep one backlash compensation: lower the firmware's values by the amounts "
+                    "shown, or turn it off (%(off)s) and test again, so that KinComp measures "
+                    "the play per side and takes it up itself.",
+                    off=firmware.off_command("backlash"),
+                ),
+                **ev,
+            )
+        ]
+    if len(neg) == len([s for s in sides if bl.get(s) is not None]) and len(neg) >= 2:
+        return [
+            error(
+                "backlash.impossible",
+                Msg(
+                    "%(pre)sEvery backlash side came out negative (%(sides)s) with nothing "
+                    "compensating backlash: a printer cannot have that. Most likely the sensor "
+                    "reports extension as negative (then every value here has its sign "
+                    "reversed) or the CW and CCW runs are swapped in the trace's labels; else "
+                    "the firmware takes up play itself (M425) and more than there is.",
+                    pre=pre,
+                    sides=names,
+                ),
+                Msg(
+                    "Check the sensor's sign and the run labels (a time-series trace checks "
+                    "both itself) and the firmware's M425; do not apply this result."
+                ),
+                **ev,
+            )
+        ]
+    return [
+        warning(
+            "backlash.negative",
+            Msg(
+                "%(pre)sBacklash came out negative (%(sides)s) with no backlash compensation "
+                "known to be in force: play cannot be negative. Most likely the firmware "
+                "takes up play itself (M425 backlash compensation) and more than there is "
+                "there; then every value here is what the firmware's compensation left over.",
+                pre=pre,
+                sides=names,
+            ),
+            Msg(
+                "Check the firmware's settings (M503: M425, M852). KinComp records them with a "
+                "test printed from the plugin; give them to the command line with --firmware."
+            ),
+            **ev,
+        )
+    ]

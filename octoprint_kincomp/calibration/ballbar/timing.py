@@ -225,6 +225,7 @@ class PlannedTest:
     runs: Dict[str, RunPlan]
     plan: Optional[Plan] = None
     settings: Optional[MotionSettings] = None
+    sent: Optional[SentWith] = None  # how the compensated program was written
 
     @staticmethod
     def build(
@@ -244,7 +245,9 @@ class PlannedTest:
             if len(bi) == 0 or len(bo) == 0:
                 raise TraceError(Msg("the test program has no radial feed-in/feed-out"))
             runs[d] = RunPlan(d, (int(bi[0]), int(bi[-1])), (int(bo[0]), int(bo[-1])))
-        return PlannedTest(spec, current, blocks, runs)
+        return PlannedTest(
+            spec, current, blocks, runs, sent=(sent or SentWith()) if current else None
+        )
 
     def use(self, settings: MotionSettings) -> Plan:
         if self.plan is None or self.settings is not settings:
@@ -570,6 +573,7 @@ class Mapping:
     # feed-ins, the still readings outside the circle (ramps.still_levels), each run's
     # [feed-in, feed-out] time against the plan, the runs' order against the program's
     sign: int = 1
+    feed_in_mm: float = 1.0
     feed_in_steps: List[float] = field(default_factory=list)
     still_levels: List[Dict[str, object]] = field(default_factory=list)
     ramp_speed: Dict[str, List[Optional[float]]] = field(default_factory=dict)
@@ -578,6 +582,11 @@ class Mapping:
     # direction (file order); whether only the capture arc was used (no planner known)
     row_order: Dict[str, float] = field(default_factory=dict)
     capture_only: bool = False
+    # how the compensated program was taken to be written, and where that came from
+    # ("trace": its record, "given": the caller's, "default": the compensator's defaults,
+    # "timing": the dead band the ramps' timing fits; None: an uncompensated program)
+    sent: Optional[SentWith] = None
+    sent_source: Optional[str] = None
     # angle traces: per run the share of samples beyond the program's run (by more than
     # ARC_SLACK_RAD) and the program's run (deg from, to)
     off_arc: Dict[str, float] = field(default_factory=dict)
@@ -594,14 +603,9 @@ class Mapping:
             d["sensor"] = {
                 "sign": self.sign,
                 "feed_in_steps": [round(x, 4) for x in self.feed_in_steps],
-                "gain": None
-                if self.gain is None
-                else {k: round(v, 5) for k, v in self.gain.items()},
-                "gain_applied": round(self.gain_applied, 5),
             }
             d["ramp_time_ratio"] = {
-                k: [None if x is None else round(x, 3) for x in v]
-                for k, v in self.ramp_speed.items()
+                k: [_rounded(x, 3) for x in v] for k, v in self.ramp_speed.items()
             }
             d["run_order"] = self.run_order
         if self.row_order:
@@ -610,7 +614,20 @@ class Mapping:
             d["capture_only"] = True
         if self.off_arc:
             d["off_arc_share"] = {k: round(v, 4) for k, v in self.off_arc.items()}
+        if self.sent is not None:
+            d["compensated_as"] = dict(self.sent.metadata(), source=self.sent_source)
         return d
+
+
+def _record_sent(mapping: Mapping, test: PlannedTest, meta, sent: Optional[SentWith]) -> None:
+    """How the program of ``test`` was taken to be compensated (None: it was not)."""
+    if test.current is None:
+        return
+    mapping.sent = test.sent
+    if any(k in meta for k in SentWith.KEYS):
+        mapping.sent_source = "trace"
+    else:
+        mapping.sent_source = "given" if sent is not None else "default"
 
 
 def _rounded(v, n: int):
@@ -680,7 +697,8 @@ def runs_from_native(
     if settings is None:
         settings = estimate_motion(test, mruns)
         mruns = [_measured_run(test, d, t, r) for d, t, r in measured]
-    mapping = Mapping(settings, sign=sign, feed_in_steps=steps)
+    mapping = Mapping(settings, sign=sign, feed_in_mm=test.spec.feed_in_mm, feed_in_steps=steps)
+    _record_sent(mapping, test, meta, sent)
     mapping.run_order = ramps.run_order(measured, test.spec.directions)
     syncs = [sync_run(test, mr, common=False) for mr in mruns]
     _ramp_evidence(test, mruns, syncs, mapping)
@@ -876,6 +894,7 @@ def runs_from_angle(
     settings = settings or MotionSettings(constant_speed=True)
     test.use(settings)
     mapping = Mapping(settings, timed=False, row_order=row_order, capture_only=capture_only)
+    _record_sent(mapping, test, trace.meta, sent)
     for d, (theta, dev) in raw.items():
         rp = test.runs[d]
         t0 = test.span(*rp.feed_in)[1]
