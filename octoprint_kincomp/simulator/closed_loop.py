@@ -31,18 +31,13 @@ VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)  # mm, the paper's Ultimaker-sized
 
 def compensate_text(program: str, params: Params) -> str:
     """``program`` compensated for the simulated printer (:data:`CONTINUOUS`: 4 decimals, a
-    1e-6 mm dead band); its traces record that (:func:`sent_continuous`)."""
+    1e-6 mm dead band); its header records that (``core/marker.py``), and so do the
+    simulator's traces of it."""
     src = io.StringIO(program)
     dst = io.StringIO()
     options = Options(decimals=CONTINUOUS.decimals, deadband_mm=CONTINUOUS.deadband_mm)
     compensate_stream(src, dst, params, options)
     return dst.getvalue()
-
-
-def sent_continuous(trace):
-    """``trace`` with the record of how its program was compensated (:func:`compensate_text`)."""
-    trace.meta.update(CONTINUOUS.metadata())
-    return trace
 
 
 def run_round(
@@ -56,7 +51,7 @@ def run_round(
     current = current or Params()
     program = generate(spec, date="simulated", params_hash=current.hash())
     run0 = program if changes_nothing(current) else compensate_text(program, current)
-    trace0 = sent_continuous(simulate_program(run0, truth))
+    trace0 = simulate_program(run0, truth)
     before = analyse(parse_csv_trace(trace0.to_text()), current=current)
     proposed = Params.from_dict(before["parameters"])
     if servo_precomp:
@@ -64,7 +59,7 @@ def run_round(
     # the re-test's program records the parameters it runs with (as the plugin's does)
     program = generate(spec, date="simulated", params_hash=proposed.hash())
     run1 = compensate_text(program, proposed)
-    trace1 = sent_continuous(simulate_program(run1, truth))
+    trace1 = simulate_program(run1, truth)
     after = analyse(parse_csv_trace(trace1.to_text()), current=proposed)
     return {"before": before, "after": after, "params": proposed}
 
@@ -74,7 +69,7 @@ def _campaign_traces(steps, truth: Truth, params: Params):
     for step in steps:
         program = generate(step.spec, date="simulated", params_hash=params.hash())
         sent = program if changes_nothing(params) else compensate_text(program, params)
-        trace = sent_continuous(simulate_program(sent, truth, step.spec, _hash(program)))
+        trace = simulate_program(sent, truth, step.spec, _hash(program))
         out.append((step.file.replace(".gcode", ".csv"), parse_csv_trace(trace.to_text())))
     return out
 

@@ -47,6 +47,7 @@ from ..calibration.ballbar.program import (
 )
 from ..calibration.ballbar.timing import nominal_positions
 from ..core.kinematics import KinematicModel
+from ..core.marker import BALLBAR_RECORD_KEYS, MARKER_SCAN_LINES
 from ..core.messages import Msg
 from ..core.params import AXES, Params, ParamsError
 from ..firmware.planner import MotionSettings, Plan, plan_program, program_blocks_of
@@ -429,6 +430,7 @@ class Simulator:
             nxt = run_starts[idx + 1][0] if idx + 1 < len(run_starts) else end_line
             runs.append((direction, np.nonzero((line_of > ln) & (line_of < nxt))[0]))
         meta = dict(spec.metadata())
+        meta.update(_compensation_record(lines))
         meta["sample_rate_hz"] = f"{fs:g}"
         meta["program_hash"] = prog_hash
         if getattr(spec, "params_hash", None):
@@ -509,6 +511,18 @@ def planned(text: str, truth: Truth, spec=None) -> Plan:
     if spec is None:
         spec, _ = spec_from_program(text)
     return plan_program(text, spec.centre, truth.motion)
+
+
+def _compensation_record(lines: List[str]) -> Dict[str, str]:
+    """The ``; ballbar compensation_*`` keys a compensated test program's header carries
+    (``core/marker.py``): a logger that copies the program's header records them too."""
+    out = {}
+    for ln in lines[:MARKER_SCAN_LINES]:
+        for key in BALLBAR_RECORD_KEYS:
+            head = f"; ballbar {key}:"
+            if ln.startswith(head):
+                out[key] = ln[len(head) :].strip()
+    return out
 
 
 def _strip_number(line: str) -> str:

@@ -32,6 +32,7 @@ import numpy as np
 
 from ...core.backlash import DEFAULT_DEADBAND_MM
 from ...core.kinematics import KinematicModel, changes_nothing
+from ...core.marker import BALLBAR_RECORD_KEYS
 from ...core.messages import Msg
 from ...core.params import AXES, Params
 from ...firmware.planner import Blocks, MotionSettings, Plan, program_blocks_of
@@ -127,7 +128,7 @@ class SentWith:
     decimals: int = 3  # core.compensator.Options.decimals
     deadband_mm: float = DEFAULT_DEADBAND_MM
 
-    KEYS = ("compensation_decimals", "compensation_deadband_mm")
+    KEYS = BALLBAR_RECORD_KEYS  # (a compensated program's header says them: core/marker.py)
 
     @staticmethod
     def of_options(options) -> SentWith:
@@ -774,7 +775,9 @@ def chord_sag(spec: TestSpec, direction: str, theta: np.ndarray) -> np.ndarray:
     return R - R * np.cos(half) / np.cos(np.clip(theta - mid, -half, half))
 
 
-ROUNDING_MM = 0.002  # a compensated path further off its chords is a take-up (not rounding)
+# a compensated path further off its chords than this many of its last decimal's units is a
+# take-up move, not rounding (rounding both axes puts a point at most 0.71 of them off)
+ROUNDING_ULPS = 1.0
 AT_SPEED = 0.98  # overshoot samples are fitted where the planned speed is this near nominal
 
 
@@ -822,13 +825,14 @@ def _arc_run(
     compensator's decimals (3: up to 0.5 um an axis, 0.29 um rms, which left clean re-tests
     at 1.1 times the noise); there the distance of the nominal path from the circle, as the
     plan has it, is taken off instead (not on the take-up moves, where undoing the
-    compensation leaves the nominal path a play's width off: :data:`ROUNDING_MM`)."""
+    compensation leaves the nominal path a play's width off: :data:`ROUNDING_ULPS`)."""
     a, b = test.spec.axes
     sag = chord_sag(test.spec, direction, theta)
     if test.current is not None:
         c = test.spec.centre
         off = test.spec.radius_mm - np.hypot(pos[:, a] - c[a], pos[:, b] - c[b])
-        sag = np.where(np.abs(off - sag) <= ROUNDING_MM, off, sag)
+        ulp = 10.0 ** -(test.sent.decimals if test.sent is not None else 3)
+        sag = np.where(np.abs(off - sag) <= ROUNDING_ULPS * ulp, off, sag)
     dev = dev + sag
     c0 = math.radians(geom.capture_start_deg)
     c1 = c0 + math.radians(geom.capture_deg)
