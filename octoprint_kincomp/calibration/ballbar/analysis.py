@@ -279,7 +279,7 @@ def _sensor_gain(geom, runs, mapping, f, out: CheckedFit, floor, mask_deg, calib
         return f, runs, floor
     gain = checks.sensor_gain(geom, f, out.cyclic_pitch, mapping.still_levels, mapping.feed_in_mm)
     out.checks["sensor_gain"] = gain
-    if not checks.gain_significant(gain):
+    if not checks.gain_significant(gain, mapping.feed_in_mm):
         return f, runs, floor
     out.gain = float(gain["value"])
     k = 1.0 / out.gain
