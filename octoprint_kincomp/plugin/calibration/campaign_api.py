@@ -73,6 +73,7 @@ from ...service.calibration.campaign_store import (
     view,
 )
 from ...service.calibration.demo_mode import DemoMode
+from ...service.calibration.printed_programs import origin_kwargs
 from ...service.calibration.run_store import RunNotFound, RunStore
 from ...service.settings.printer_profiles import other_profile
 from .. import http
@@ -365,8 +366,16 @@ class CampaignApi:
         try:
             doc = self._campaigns.get(cid)
             self.measure.check_unchanged(doc)
+            traces = self._traces(doc)
+            origin = origin_kwargs(self._calibration.origin_for(traces[0][1].meta))
             result = with_findings(
-                analyse_campaign(self._traces(doc), current=current), _forced_steps(doc)
+                analyse_campaign(
+                    traces,
+                    current=current,
+                    sent=origin["sent"],
+                    firmware=origin["origin"].firmware,
+                ),
+                _forced_steps(doc),
             )
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)

@@ -39,6 +39,7 @@ from ..printing.queue import QueueCompensator
 from ..settings.printer_profiles import other_profile, profile_id
 from .campaign_store import CampaignNotFound, CampaignStore, now
 from .findings_view import verdict_of
+from .printed_programs import origin_kwargs
 from .run_store import RunStore
 
 
@@ -226,7 +227,8 @@ class CampaignMeasurements:
             wrong = not_this_test(trace, doc, step)
             if wrong is not None:
                 raise Refused(Msg("%(name)s: %(reason)s", name=name, reason=wrong))
-            result = with_findings(analyse(trace, current=current), said)
+            origin = origin_kwargs(self._calibration.origin_for(trace.meta))
+            result = with_findings(analyse(trace, current=current, **origin), said)
         except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:
             raise Refused(
                 Msg("%(name)s: %(reason)s", name=name, reason=error_message(exc))

@@ -1,7 +1,9 @@
 """A finished live capture into the run history (called in the sensor worker thread, never in
 the capture's listener or OctoPrint's comm thread; no request context needed).
 
-* Done: the native trace is analysed exactly as an uploaded file of it would be (its text is
+* Done: the native trace (its metadata now also saying the firmware's compensation and how
+  the queue compensated the program: what the test ran with) is analysed exactly as an
+  uploaded file of it would be (its text is
   read back, so that the stored trace, an upload of it and an offline re-run of the stored
   raw stream all give the same result) with the parameters in force and, for a vertical test,
   the squareness the profile's history knows (``service/calibration/known_squareness.py``; offline:
@@ -24,11 +26,25 @@ from ...calibration.ballbar.formats import TraceError, load_any
 from ...core.messages import as_dict, error_message
 from ...sensor import CaptureResult
 from ..calibration.known_squareness import for_trace
+from ..calibration.printed_programs import origin_kwargs
 from ..calibration.run_store import RunStore
 from ..notify import N_, Notifier
 from ..printing.queue import QueueCompensator
 
 SOURCE = "live"
+
+
+def _record_origin(meta: Dict[str, str], origin: Dict[str, Any]) -> None:
+    """The stored trace says what its test ran with (the firmware's compensation, how the
+    queue compensated the program), so that an upload or an offline run of it reads the same."""
+    from ...firmware.compensation import FirmwareCompensation
+
+    if origin.get("firmware") is not None:
+        meta.setdefault(
+            "firmware_compensation", FirmwareCompensation.from_dict(origin["firmware"]).text()
+        )
+    for k, v in (origin.get("sent") or {}).items():
+        meta.setdefault(k, str(v))
 
 
 def _iso(wall: float) -> Optional[str]:
@@ -53,6 +69,8 @@ class CaptureRecorder:
         filename = f"live_{spec.plane}_R{spec.radius_mm:g}_{stamp}.csv"
         if not res.ok:
             return self._failed(res.message, capture, res)
+        origin = self._calibration.origin_for(res.trace.meta, captured=True)
+        _record_origin(res.trace.meta, origin)
         data = res.trace.to_text().encode()
         try:
             trace = load_any(data, filename)
@@ -62,6 +80,7 @@ class CaptureRecorder:
                 current=self._queue.in_force,
                 known_squareness_um_per_m=values,
                 known_sources=sources,
+                **origin_kwargs(origin),
             )
         except TraceError as exc:
             return self._failed(error_message(exc), capture, res)

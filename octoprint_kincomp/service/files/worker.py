@@ -71,13 +71,16 @@ def task_analyse(
     current: Dict[str, Any],
     progress: Callable[[float], None],
     known: Optional[Dict[str, Any]] = None,
+    origin: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
     """A trace, .b5r or summary file analysed (ballbar.analysis); its kind added. ``known``:
-    the printer's squareness from its run history (``service/calibration/known_squareness.py``)."""
+    the printer's squareness from its run history (``service/calibration/known_squareness.py``);
+    ``origin``: what the test ran with (``service/calibration/printed_programs.py``)."""
     from ...calibration.ballbar.analysis import analyse
     from ...calibration.ballbar.formats import load_any
     from ...core.params import Params
     from ..calibration.known_squareness import for_trace
+    from ..calibration.printed_programs import origin_kwargs
 
     trace = load_any(data, name)
     progress(0.3)
@@ -87,6 +90,7 @@ def task_analyse(
         current=Params.from_dict(current),
         known_squareness_um_per_m=values,
         known_sources=sources,
+        **origin_kwargs(origin),
     )
     result["kind"] = getattr(trace, "kind", None)
     return result
