@@ -799,7 +799,12 @@ def drift_finding(
 # of the shift. The shift between nested fits (the wider mask's samples are a subset) has the
 # variance sigma_wide^2 - sigma_narrow^2 when the model is right.
 STABILITY_EXTRA_DEG = 10.0
-STABILITY_SIGMA = 3.0
+# 4, not 3: on clean vertical re-tests (XZ R50, the lab's printer with its proposal in force,
+# eight seeds) the scale mismatch moved between the 15 and 25 deg masks by 1.3 times its
+# nominal sigma on average, once by 3.0 sigma (issue 34); the faults the check is for move far
+# beyond either limit (a Z cap: hundreds of ppm; long reversal spikes: 1.7 um of backlash,
+# where the wider fit's sigma is even smaller)
+STABILITY_SIGMA = 4.0
 HALF_TOLERANCE = {
     "squareness_um_per_m": 2.5,
     "scale_mismatch_ppm": 2.5,
@@ -1177,34 +1182,34 @@ def run_order_findings(mapping, label: str = "") -> List[Finding]:
                 )
             ]
         return []
-    rows = mapping.row_order
+    rows = mapping.row_order  # per run: the share of its rows advancing as labelled
     if not rows:
         return []
-    if rows.get("ccw", 1.0) < 0.1 and rows.get("cw", 0.0) > 0.9:
+    if all(v < 0.1 for v in rows.values()):
         return [
             error(
                 "labels.direction",
                 Msg(
-                    "%(pre)sThe rows labelled CCW run towards smaller angles and those labelled "
-                    "CW towards larger ones: the labels are swapped (CCW means the angle "
-                    "increases). Analysed as labelled, the servo mismatch and the backlash "
-                    "come out reversed.",
+                    "%(pre)sThe rows of every run advance against their label (those labelled "
+                    "CCW towards smaller angles, CW towards larger ones; CCW means the angle "
+                    "increases): the labels are swapped. Analysed as labelled, the servo "
+                    "mismatch and the backlash come out reversed.",
                     pre=pre,
                 ),
                 advice,
-                increasing_share=dict(rows),
+                advancing_share=dict(rows),
             )
         ]
-    if all(v > 0.9 for v in rows.values()) or all(v < 0.1 for v in rows.values()):
+    if any(v < 0.9 for v in rows.values()):
         return [
             info(
                 "labels.not_checked",
                 Msg(
-                    "%(pre)sThe rows of both runs are in the same order of angle (sorted): "
-                    "whether the CW and CCW labels are right could not be checked.",
+                    "%(pre)sThe rows are not in the order the runs were measured (sorted by "
+                    "angle, say): whether the CW and CCW labels are right could not be checked.",
                     pre=pre,
                 ),
-                increasing_share=dict(rows),
+                advancing_share=dict(rows),
             )
         ]
     return []

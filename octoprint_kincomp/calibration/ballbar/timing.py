@@ -425,22 +425,23 @@ def _measured_run(test: PlannedTest, direction: str, t: np.ndarray, r: np.ndarra
 
 def _ramp_samples(test: PlannedTest, k0: int, k1: int, falling: bool, tp: np.ndarray) -> np.ndarray:
     """The samples (planned times ``tp``) the synchronisation uses on one ramp: those past its
-    take-up (:func:`_ramp_window`) when they tell the time well enough (at least
+    take-up (:func:`_ramp_window`) when that part tells the time well enough (at least
     :data:`MIN_TIMING_SHARE` of the information of the whole ramp with its flat level and
-    corner: a fast ramp is nearly a straight line, whose time only its ends tell; its take-up
-    is short then), else the whole ramp."""
+    corner, judged on the plan at the trace's sample rate: a fast ramp is nearly a straight
+    line, whose time only its ends tell; its take-up is short then), else the whole ramp."""
     p0, p1 = test.span(k0, k1)
     w0, w1 = _ramp_window(test, k0, k1, falling)
+    whole = (p0 - RAMP_BEFORE_S, p1 + CORNER_S) if falling else (p0 - CORNER_S, w1)
     part = (tp >= w0) & (tp <= w1)
-    if falling:
-        whole = (tp >= p0 - RAMP_BEFORE_S) & (tp <= p1 + CORNER_S)
-    else:
-        whole = (tp >= p0 - CORNER_S) & (tp <= w1)
-    if part.sum() >= MIN_RAMP_SAMPLES and _timing_information(test, tp[part]) >= (
-        MIN_TIMING_SHARE * _timing_information(test, tp[whole])
-    ):
-        return part
-    return whole
+    dt = float(np.median(np.diff(tp))) if len(tp) > 1 else 0.0
+    if part.sum() >= MIN_RAMP_SAMPLES and dt > 0:
+        grid = np.arange(whole[0], whole[1], dt)
+        inside = (grid >= w0) & (grid <= w1)
+        if _timing_information(test, grid[inside]) >= MIN_TIMING_SHARE * _timing_information(
+            test, grid
+        ):
+            return part
+    return (tp >= whole[0]) & (tp <= whole[1])
 
 
 def _timing_information(test: PlannedTest, tp: np.ndarray) -> float:
