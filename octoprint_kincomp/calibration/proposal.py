@@ -50,19 +50,30 @@ def checked_params(d: Dict[str, object]) -> Params:
         ) from None
 
 
-def proposal_meta(source: str, simulated: bool, plane: str, current: Params) -> Dict[str, str]:
-    return {
+def proposal_meta(
+    source: str, simulated: bool, plane: str, current: Params, firmware=None
+) -> Dict[str, object]:
+    """The proposal's record: where it comes from, and (``firmware``: a
+    ``firmware.compensation.FirmwareCompensation`` whose state is known or active) the
+    firmware's compensation it was measured with: it holds only what that left over
+    (``service/printing/firmware_watch.py`` reads it back)."""
+    out: Dict[str, object] = {
         "source": source + (" (SIMULATED data)" if simulated else ""),
         "plane": plane,
         "date": _dt.datetime.now().strftime("%Y-%m-%d %H:%M"),
         "based_on": current.hash(),
     }
+    if firmware is not None:
+        fw = firmware.to_dict()
+        out["firmware"] = {k: fw[k] for k in ("known", "skew", "backlash", "scale", "text")}
+    return out
 
 
 def propose_params(
-    diag: Dict[str, object], geom: Geometry, current: Params, notes: List[str]
+    diag: Dict[str, object], geom: Geometry, current: Params, notes: List[str], firmware=None
 ) -> Params:
-    """Current parameters updated with the residual errors of one test (see module doc)."""
+    """Current parameters updated with the residual errors of one test (see module doc);
+    ``firmware``: the firmware's compensation during the test (recorded in the meta)."""
     a, b = geom.axes
     d = current.to_dict()
     # Linear part: compose the residual machine with the current model exactly, then split it
@@ -115,7 +126,7 @@ def propose_params(
                         axis=AXES[ax].upper(),
                     )
                 )
-            if min(plus, minus) < -0.5:
+            if min(plus, minus) < -0.5 and frac > 0 and not table.is_zero:
                 notes.append(
                     Msg(
                         "Negative residual backlash on %(axis)s: the current value "
@@ -147,5 +158,6 @@ def propose_params(
         bool(diag.get("simulated")),
         geom.plane,
         current,
+        firmware,
     )
     return checked_params(d)

@@ -10,7 +10,12 @@ returns :func:`result_document`:
   same with translatable messages (:meth:`Finding.to_wire`);
 * ``trusted``: False when any finding is an error (:func:`..findings.trusted`);
 * ``verdict``: the decision the result is for (:func:`verdict`);
-* ``notes``: free-text remarks for the record; ``plot`` / ``plots``: what the UI draws.
+* ``notes``: free-text remarks for the record; ``plot`` / ``plots``: what the UI draws;
+* ``needs_confirmation``: what the user must confirm before the proposal is applied
+  (``{"confirm": ["plane", "radius_mm", "feed_mm_min"], "stated": {...}}``: a trace that is
+  not tied to a program KinComp printed, ``ballbar/provenance.py``), or None. It does not
+  change the verdict; the plugin's ``/apply`` refuses such a run until the request confirms
+  the stated values.
 
 The verdict is decided here only, from the findings: ``do_not_apply`` when a finding is an
 error (the result cannot be trusted; applying it needs an explicit "apply anyway"),
@@ -55,6 +60,7 @@ def result_document(
     notes: Optional[List[Any]] = None,
     plot: Any = None,
     plots: Any = None,
+    needs_confirmation: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
     """The result of an analysis that measured ``diagnostics``, proposes ``params`` and
     found ``found`` (see the module docstring)."""
@@ -69,6 +75,7 @@ def result_document(
         "verdict": _wire_verdict(ordered),
         "notes": list(notes or []),
         "plot": plot,
+        "needs_confirmation": needs_confirmation,
     }
     if plots is not None:
         out["plots"] = plots

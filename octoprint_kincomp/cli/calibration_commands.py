@@ -161,6 +161,62 @@ def _read_trace(path: str):
         raise CliError(f"{path}: {exc.strerror}") from None
 
 
+def _sent_with(args):
+    """--decimals / --steps-per-mm: how ``compensate`` wrote the re-test's program (None:
+    the trace's record, else the compensator's defaults)."""
+    if args.steps_per_mm is None and args.decimals is None:
+        return None
+    from ..calibration.ballbar.timing import SentWith
+    from ..core.compensator import Options
+    from .file_commands import _steps
+
+    try:
+        opts = Options(decimals=args.decimals or 3, steps_per_mm=_steps(args.steps_per_mm))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    return SentWith.of_options(opts)
+
+
+def _firmware(args):
+    """--firmware: the firmware's compensation state (None: not given)."""
+    import os
+
+    from ..firmware.compensation import FirmwareCompensation
+
+    if args.firmware is None:
+        return None
+    text = args.firmware
+    if os.path.isfile(text):
+        with open(text, encoding="utf-8", errors="replace") as f:
+            text = f.read()
+    return FirmwareCompensation.from_text(text)
+
+
+def _origin(args, traces):
+    """--firmware (the M503 reply or the commands in force, text or a file) and --program
+    (the program that was printed: a trace with its hash is tied to it)."""
+
+    from ..calibration.ballbar.analysis import Provenance
+    from ..calibration.ballbar.program import ProgramError, spec_from_program
+
+    fw = _firmware(args)
+    confirmed = None
+    if args.program:
+        try:
+            with open(args.program, encoding="utf-8") as f:
+                _, printed = spec_from_program(f.read())
+        except (OSError, ProgramError) as exc:
+            raise CliError(f"{args.program}: {exc}") from None
+        hashes = {getattr(t, "meta", {}).get("program_hash", "").strip() for t in traces}
+        if hashes != {printed}:
+            raise CliError(
+                f"{args.program}: its program_hash {printed} is not the trace's "
+                f"({', '.join(sorted(hashes)) or '-'}): not the program that was printed"
+            )
+        confirmed = "program"
+    return Provenance(firmware=fw, confirmed=confirmed)
+
+
 def cmd_analyze(args) -> int:
     import os
 
@@ -169,6 +225,7 @@ def cmd_analyze(args) -> int:
 
     current = load_params(args.current) if args.current else Params()
     known = out_of_plane_option(args.out_of_plane)
+    sent = _sent_with(args)
     if len(args.trace) == 1 and not args.manifest:
         path = args.trace[0]
         trace = _read_trace(path)
@@ -181,6 +238,8 @@ def cmd_analyze(args) -> int:
                 cyclic_pitch=args.cyclic_pitch,
                 known_squareness_um_per_m=known,
                 known_sources=dict.fromkeys(known, "--out-of-plane"),
+                sent=sent,
+                origin=_origin(args, [trace]),
             )
         except TraceError as exc:
             raise CliError(f"{path}: {exc}") from None
@@ -203,6 +262,8 @@ def cmd_analyze(args) -> int:
                 calibrated=args.calibrated_bar,
                 cyclic_pitch=args.cyclic_pitch,
                 manifest=manifest,
+                sent=sent,
+                firmware=_firmware(args),
             )
         except TraceError as exc:  # CampaignError names the file itself
             raise CliError(str(exc)) from None
@@ -311,6 +372,14 @@ def format_diagnostics(result) -> str:
         lines.append(f"{f['severity']}: {f['message']}")
         if f.get("advice"):
             lines.append(f"    advice: {f['advice']}")
+    need = result.get("needs_confirmation")
+    if need:
+        stated = need.get("stated") or {}
+        lines.append("")
+        lines.append(
+            "to confirm before applying: "
+            + ", ".join(f"{k} {stated.get(k)}" for k in need.get("confirm", []))
+        )
     return "\n".join(lines)
 
 
@@ -639,6 +708,27 @@ def _add_analyze(sub) -> None:
         "is taken off, the rest fitted as a known motion",
     )
     a.add_argument("--params-out", help="write the proposed params file here")
+    a.add_argument(
+        "--steps-per-mm",
+        metavar="N|X,Y,Z",
+        help="a re-test's program was compensated with this --steps-per-mm (its reversal "
+        "dead band; default: as the trace records, else compensate's default)",
+    )
+    a.add_argument(
+        "--decimals", type=int, help="a re-test's program was compensated with these decimals"
+    )
+    a.add_argument(
+        "--firmware",
+        metavar="TEXT|FILE",
+        help="the firmware's compensation during the test: its M503 reply or the commands in "
+        "force (M852, M425, M556, M579, SET_SKEW), text or a file; 'none' for none "
+        "(default: as the trace records, else unknown)",
+    )
+    a.add_argument(
+        "--program",
+        help="the program that was printed (a trace with its program_hash is then tied to it: "
+        "nothing left to confirm)",
+    )
     a.set_defaults(func=cmd_analyze)
 
 

@@ -20,6 +20,26 @@ ENCODING = "utf-8"
 ERRORS = "surrogateescape"  # reading G-code as text round-trips any byte
 
 
+# A ballbar test program (its ``; ballbar plane:`` header line) that is compensated also says
+# how: these ``; ballbar`` keys go into its trace's metadata (a logger copies the header), so
+# that the analysis regenerates exactly the program the printer received (its reversal dead
+# band decides where a slowly reversing axis gets its take-up move: calibration/ballbar/
+# timing.py, SentWith).
+BALLBAR_HEADER = "; ballbar plane:"
+BALLBAR_RECORD_KEYS = ("compensation_decimals", "compensation_deadband_mm")
+
+
+def ballbar_record(head: str, decimals: int, deadband_mm: float) -> str:
+    """The ``; ballbar`` lines that record the compensator's decimals and dead band (mm) when
+    ``head`` (the first lines of a file) is a ballbar test program, else ""."""
+    if BALLBAR_HEADER not in head:
+        return ""
+    return (
+        f"; ballbar {BALLBAR_RECORD_KEYS[0]}: {int(decimals)}\n"
+        f"; ballbar {BALLBAR_RECORD_KEYS[1]}: {float(deadband_mm):.10g}"
+    )
+
+
 def marker_line(params_hash: str, version: str) -> str:
     """The marker line (without a line ending) for parameters of hash ``params_hash``."""
     return f"{MARKER_PREFIX} params={params_hash} kincomp={version}"

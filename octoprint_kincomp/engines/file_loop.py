@@ -20,7 +20,7 @@ from typing import IO, Callable, Optional
 from ..core.atomic import replacing
 from ..core.compensator import Compensator, Options, Report
 from ..core.line_endings import UNIVERSAL, join_output, split_ending
-from ..core.marker import ENCODING, ERRORS, file_marker, find_marker
+from ..core.marker import ENCODING, ERRORS, ballbar_record, file_marker, find_marker
 from ..core.marker import marker_line as make_marker_line
 from ..core.params import Params
 from ..core.version import VERSION
@@ -85,13 +85,14 @@ class FileEngine:
         self,
         read: Callable[[int], bytes],
         write: Callable[[bytes], object],
-        header: Optional[str] = None,
+        header=None,
         check_first: Optional[Callable[[str], None]] = None,
         progress: Optional[Callable[[int], None]] = None,
     ) -> None:
         """Compensate everything ``read`` yields into ``write``. ``header`` is written
         before the first line (with that line's ending), ``check_first`` sees the first
-        lines of text (the marker check), ``progress(bytes_read)`` is called per block."""
+        lines of text (the marker check), ``progress(bytes_read)`` is called per block;
+        ``header`` may be a function of those first lines (text) that returns the header."""
         done = 0
         for block in self._blocks(read):
             first = not done
@@ -103,7 +104,12 @@ class FileEngine:
                 if check_first is not None:
                     check_first(head[:16384].decode(ENCODING, ERRORS))
                 if header is not None:
-                    write(self.header(header, head))
+                    text = (
+                        header(head[:16384].decode(ENCODING, ERRORS))
+                        if callable(header)
+                        else header
+                    )
+                    write(self.header(text, head))
             if isinstance(block, _Unterminated) and block.endswith(b"\r\n"):
                 # the file ended with a lone CR (its last line is terminated after all): the
                 # virtual newline would make that ending CRLF
@@ -114,10 +120,12 @@ class FileEngine:
 
     @staticmethod
     def header(line: str, head: bytes) -> bytes:
-        """``line`` with the ending of the first line of ``head`` (``\\n`` if none)."""
+        """``line`` (lines joined by ``\\n``) with the ending of the first line of ``head``
+        (``\\n`` if none) after each."""
         first = UNIVERSAL.match(head[:16384].decode(ENCODING, ERRORS))
         ending = split_ending(first.group(0))[1] if first else ""
-        return (line + (ending or "\n")).encode(ENCODING, ERRORS)
+        ending = ending or "\n"
+        return "".join(part + ending for part in line.split("\n")).encode(ENCODING, ERRORS)
 
     @staticmethod
     def _blocks(read: Callable[[int], bytes]):
@@ -173,7 +181,13 @@ def compensate_binary(
     ``progress(bytes_read)`` is called as the input is consumed."""
     comp = make_compensator(params, options)
     refuse = functools.partial(head_marker, refuse=True)
-    FileEngine(comp).run(src.read, dst.write, marker_line(params), refuse, progress)
+    opts = options or Options()
+
+    def header(head: str) -> str:  # the marker; a ballbar program also says how (marker.py)
+        record = ballbar_record(head, opts.decimals, opts.deadband_mm)
+        return marker_line(params) + ("\n" + record if record else "")
+
+    FileEngine(comp).run(src.read, dst.write, header, refuse, progress)
     return comp.report
 
 

@@ -38,6 +38,7 @@ from ..engines.select import engine
 from ..service.calibration.campaign_measure import CampaignMeasurements
 from ..service.calibration.campaign_store import CampaignStore
 from ..service.calibration.demo_mode import DemoMode, lines_as_sent
+from ..service.calibration.printed_programs import PrintedPrograms
 from ..service.calibration.run_store import RunStore
 from ..service.capture.capture_recorder import CaptureRecorder
 from ..service.notify import CUSTOM_EVENTS, N_, Notifier
@@ -117,6 +118,9 @@ class KinCompPlugin(
         self.calibration = CalibrationApi(
             self.store, queue, self.runs, self.demo, notifier, printer, files, self.files.job_api
         )
+        # what each test ran with: the firmware's compensation, the queue's compensator
+        self.calibration.firmware_state = self.watch.state
+        self.calibration.printed = PrintedPrograms(self.data_folder())
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
         recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
         self.sensor = SensorApi(

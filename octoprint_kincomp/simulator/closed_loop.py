@@ -19,9 +19,7 @@ from ..calibration.ballbar.campaign import plan_campaign
 from ..calibration.ballbar.campaign_analysis import analyse_campaign
 from ..calibration.ballbar.formats import parse_csv_trace
 from ..calibration.ballbar.program import TestSpec, generate
-from ..calibration.ballbar.timing import (
-    CONTINUOUS_DEADBAND_MM,
-)  # (the simulated printer has no steps)
+from ..calibration.ballbar.timing import CONTINUOUS  # (the simulated printer has no steps)
 from ..core.compensator import Options
 from ..core.kinematics import changes_nothing
 from ..core.params import Params
@@ -32,9 +30,13 @@ VOLUME = (0.0, 220.0, 0.0, 220.0, 0.0, 250.0)  # mm, the paper's Ultimaker-sized
 
 
 def compensate_text(program: str, params: Params) -> str:
+    """``program`` compensated for the simulated printer (:data:`CONTINUOUS`: 4 decimals, a
+    1e-6 mm dead band); its header records that (``core/marker.py``), and so do the
+    simulator's traces of it."""
     src = io.StringIO(program)
     dst = io.StringIO()
-    compensate_stream(src, dst, params, Options(decimals=4, deadband_mm=CONTINUOUS_DEADBAND_MM))
+    options = Options(decimals=CONTINUOUS.decimals, deadband_mm=CONTINUOUS.deadband_mm)
+    compensate_stream(src, dst, params, options)
     return dst.getvalue()
 
 
@@ -49,14 +51,16 @@ def run_round(
     current = current or Params()
     program = generate(spec, date="simulated", params_hash=current.hash())
     run0 = program if changes_nothing(current) else compensate_text(program, current)
-    before = analyse(parse_csv_trace(simulate_program(run0, truth).to_text()), current=current)
+    trace0 = simulate_program(run0, truth)
+    before = analyse(parse_csv_trace(trace0.to_text()), current=current)
     proposed = Params.from_dict(before["parameters"])
     if servo_precomp:
         proposed = proposed.replace(servo_precomp=True)
     # the re-test's program records the parameters it runs with (as the plugin's does)
     program = generate(spec, date="simulated", params_hash=proposed.hash())
     run1 = compensate_text(program, proposed)
-    after = analyse(parse_csv_trace(simulate_program(run1, truth).to_text()), current=proposed)
+    trace1 = simulate_program(run1, truth)
+    after = analyse(parse_csv_trace(trace1.to_text()), current=proposed)
     return {"before": before, "after": after, "params": proposed}
 
 

@@ -25,6 +25,17 @@ isolated samples off by ``amplitude_um``), and play in the motors of a CoreXY
 (``corexy_motor_backlash_um``: motor A drives X+Y, motor B X-Y; the carriage lags half the play
 of each motor along that motor's direction).
 
+Faults of issue 34, all off by default too: the sensor's gain and sign (``sensor_gain``,
+``sensor_sign``: -1 reports extension as negative; the truth document's ``sensor``), the CW and
+CCW labels swapped in the trace (``swap_labels``: the rows keep their times and angles), and
+the firmware's own compensation during the test (``firmware_compensation``: its commands, as
+``M852 I0.00115 J-0.00078 K0.00048; M425 X0.028 Y0.02 Z0.01 F1``; Marlin's ``skew()`` moves the
+target before planning, M425 adds an axis's play over the first block after it reverses),
+which the trace records as the plugin would when ``record_firmware``. A plane key or radius
+written wrongly into a trace is an edit of its metadata (the tests do that). A compensated
+program's header record of how it was compensated (``; ballbar compensation_*``) goes into
+the trace's metadata, as a logger that copies the header would.
+
 Units: mm, s; lags in ms, play and noise in um, drift in um/min, steps per mm.
 """
 
@@ -47,8 +58,10 @@ from ..calibration.ballbar.program import (
 )
 from ..calibration.ballbar.timing import nominal_positions
 from ..core.kinematics import KinematicModel
+from ..core.marker import BALLBAR_RECORD_KEYS, MARKER_SCAN_LINES
 from ..core.messages import Msg
 from ..core.params import AXES, Params, ParamsError
+from ..firmware.compensation import FirmwareCompensation
 from ..firmware.planner import MotionSettings, Plan, plan_program, program_blocks_of
 from .play import Play
 
@@ -79,6 +92,15 @@ class Truth:
     glitches: Tuple[int, float] = (0, 0.0)  # (count, amplitude_um)
     corexy_motor_backlash_um: Dict[str, float] = field(default_factory=dict)  # "a", "b"
     corexy_motor_scale_ppm: Dict[str, float] = field(default_factory=dict)  # "a", "b"
+    # issue 34: the sensor's gain and sign (-1: extension reported as negative), the CW/CCW
+    # labels swapped in the trace, the firmware's own compensation during the test (its
+    # commands, e.g. "M852 I0.00115; M425 X0.028 Y0.02 F1") and whether the trace records
+    # it (as the plugin does)
+    sensor_gain: float = 1.0
+    sensor_sign: float = 1.0
+    swap_labels: bool = False
+    firmware_compensation: str = ""
+    record_firmware: bool = False
 
     def printer_motion(self) -> MotionSettings:
         """The motion the printer really has: the recorded settings with the hidden caps."""
@@ -117,6 +139,10 @@ class Truth:
             "glitches",
             "corexy_motor_backlash_um",
             "corexy_motor_scale_ppm",
+            "sensor",
+            "swap_labels",
+            "firmware_compensation",
+            "record_firmware",
         } | set(MOTION_KEYS)
         for k in d:
             if k not in allowed:
@@ -171,6 +197,7 @@ class Truth:
             if m not in ("a", "b"):
                 raise ParamsError(f"corexy_motor_scale_ppm.{m}", Msg("a motor: a or b"))
             t.corexy_motor_scale_ppm[m] = float(v)
+        _sensor_faults(t, d)
         return t
 
     @staticmethod
@@ -187,6 +214,19 @@ class Truth:
                         line=exc.lineno,
                     ),
                 ) from None
+
+
+def _sensor_faults(t: Truth, d: dict) -> None:
+    """The issue-34 keys of a truth document: ``sensor`` {gain, sign}, ``swap_labels``,
+    ``firmware_compensation`` (commands), ``record_firmware``."""
+    sensor = d.get("sensor") or {}
+    t.sensor_gain = float(sensor.get("gain", 1.0))
+    t.sensor_sign = float(sensor.get("sign", 1.0))
+    if not (0.5 <= t.sensor_gain <= 2.0) or t.sensor_sign not in (1.0, -1.0):
+        raise ParamsError("sensor", Msg("gain within 0.5..2, sign 1 or -1"))
+    t.swap_labels = bool(d.get("swap_labels", False))
+    t.firmware_compensation = str(d.get("firmware_compensation") or "")
+    t.record_firmware = bool(d.get("record_firmware", False))
 
 
 def paper_truth(**overrides) -> Truth:
@@ -400,7 +440,13 @@ class Simulator:
         if not run_starts:
             raise ProgramError(Msg("no ballbar runs found (no 'M117 Ballbar run' markers)"))
         tr = self.truth
+        fw = FirmwareCompensation.from_text(tr.firmware_compensation)
+        skew = _skew_matrix(fw.skew_um_per_m())
         blocks = program_blocks_of(lines, spec.centre)
+        if skew is not None:  # Marlin's skew(): the target moved before planning
+            inv = np.linalg.inv(skew)
+            blocks.p0, blocks.p1 = blocks.p0 @ inv.T, blocks.p1 @ inv.T
+            blocks.end = inv @ blocks.end
         factor = _speed_factors(lines, blocks, tr.speed_factor_pct)
         if np.any(factor != 1.0):
             blocks.feed = np.where(blocks.feed > 0, blocks.feed * factor, blocks.feed)
@@ -408,12 +454,17 @@ class Simulator:
         fs = tr.sample_rate_hz
         ts = np.arange(0.0, plan.duration + 1e-9, 1.0 / fs)
         u, vel = plan.sample(ts)
-        actual = self.actual_path(ts, u)
-        centre_actual = np.array(self.model.forward(spec.centre))
+        drive = u if not fw.backlash else u + _firmware_backlash(plan, ts, u, fw.backlash_um())
+        actual = self.actual_path(ts, drive)
+        centre = np.array(spec.centre) if skew is None else np.linalg.inv(skew) @ spec.centre
+        centre_actual = np.array(self.model.forward(tuple(centre)))
         pivot = centre_actual + np.array(tr.setup_offset_um) * 1e-3
         length = spec.radius_mm + tr.bar_length_error_um * 1e-3
         reading = np.linalg.norm(actual - pivot, axis=1) - length
         reading = reading + tr.bar_drift_um_per_min * 1e-3 / 60.0 * ts
+        reading = tr.sensor_sign * tr.sensor_gain * reading
+        if skew is not None:  # the program's own coordinates (what the angle export shows)
+            u = u @ skew.T
         rng = np.random.default_rng(tr.seed)
         if tr.noise_um:
             reading = reading + rng.normal(0.0, tr.noise_um * 1e-3, size=reading.shape)
@@ -429,6 +480,9 @@ class Simulator:
             nxt = run_starts[idx + 1][0] if idx + 1 < len(run_starts) else end_line
             runs.append((direction, np.nonzero((line_of > ln) & (line_of < nxt))[0]))
         meta = dict(spec.metadata())
+        meta.update(_compensation_record(lines))
+        if tr.record_firmware:
+            meta["firmware_compensation"] = fw.text()
         meta["sample_rate_hz"] = f"{fs:g}"
         meta["program_hash"] = prog_hash
         if getattr(spec, "params_hash", None):
@@ -448,8 +502,15 @@ class Simulator:
         _, meta, _, ts, _, _, reading, runs = self._run(text, spec, prog_hash)
         rows: List[Tuple[str, float, float]] = []
         for direction, sel in runs:
-            rows.extend(zip([direction] * len(sel), ts[sel].tolist(), reading[sel].tolist()))
+            label = self._label(direction)
+            rows.extend(zip([label] * len(sel), ts[sel].tolist(), reading[sel].tolist()))
         return NativeTrace(meta=meta, rows=rows)
+
+    def _label(self, direction: str) -> str:
+        """The run's label in the trace (swapped when the truth says so)."""
+        if not self.truth.swap_labels:
+            return direction
+        return {"cw": "ccw", "ccw": "cw"}[direction]
 
     def run_program_angle(
         self, text: str, spec=None, prog_hash: str = "", compensated_with: Optional[Params] = None
@@ -465,7 +526,7 @@ class Simulator:
             theta, on_arc = arc_angles_of(nominal, spec, direction)
             rows.extend(
                 zip(
-                    [direction] * int(on_arc.sum()),
+                    [self._label(direction)] * int(on_arc.sum()),
                     theta[on_arc].tolist(),
                     (reading[sel][on_arc] * 1e3).tolist(),
                 )
@@ -509,6 +570,53 @@ def planned(text: str, truth: Truth, spec=None) -> Plan:
     if spec is None:
         spec, _ = spec_from_program(text)
     return plan_program(text, spec.centre, truth.motion)
+
+
+def _skew_matrix(skew: Optional[Dict[str, float]]) -> Optional[np.ndarray]:
+    """``actual = S @ target`` of a skew in KinComp's keys (um/m); None for none."""
+    if not skew or not any(skew.values()):
+        return None
+    xy, xz, yz = (skew.get(k, 0.0) * 1e-6 for k in ("xy", "xz", "yz"))
+    return np.array([[1.0, xy, xz], [0.0, 1.0, yz], [0.0, 0.0, 1.0]])
+
+
+def _firmware_backlash(plan: Plan, ts: np.ndarray, u: np.ndarray, um: Dict[str, float]):
+    """Marlin's M425 (mm, n x 3): on each direction change of an axis its play (``um``) is
+    added in the new direction, spread over the block in proportion to its progress."""
+    n = len(plan.t0)
+    c0 = np.zeros((n, 3))
+    dc = np.zeros((n, 3))
+    last = [0, 0, 0]
+    cur = np.zeros(3)
+    for k in range(n):
+        c0[k] = cur
+        if plan.L[k] <= 0:
+            continue
+        for ax in range(3):
+            d = plan.u[k][ax]
+            if abs(d) < 1e-12:
+                continue
+            sg = 1 if d > 0 else -1
+            if last[ax] and sg != last[ax]:
+                dc[k, ax] = sg * um.get(AXES[ax], 0.0) * 1e-3
+            last[ax] = sg
+        cur = cur + dc[k]
+    i = plan.block_at(ts)
+    s = np.einsum("ij,ij->i", u - plan.p0[i], plan.u[i])
+    frac = np.clip(np.where(plan.L[i] > 0, s / np.where(plan.L[i] > 0, plan.L[i], 1.0), 0.0), 0, 1)
+    return c0[i] + dc[i] * frac[:, None]
+
+
+def _compensation_record(lines: List[str]) -> Dict[str, str]:
+    """The ``; ballbar compensation_*`` keys a compensated test program's header carries
+    (``core/marker.py``): a logger that copies the program's header records them too."""
+    out = {}
+    for ln in lines[:MARKER_SCAN_LINES]:
+        for key in BALLBAR_RECORD_KEYS:
+            head = f"; ballbar {key}:"
+            if ln.startswith(head):
+                out[key] = ln[len(head) :].strip()
+    return out
 
 
 def _strip_number(line: str) -> str:

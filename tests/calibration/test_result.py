@@ -43,7 +43,9 @@ def test_every_analysis_returns_the_same_document():
         "verdict",
         "notes",
         "plot",
+        "needs_confirmation",
     }
+    assert doc["needs_confirmation"] is None
     assert [f["severity"] for f in doc["findings"]] == ["warning", "info"]
     assert doc["trusted"] is True
     assert doc["verdict"]["decision"] == "apply_with_care"

@@ -15,6 +15,7 @@ from octoprint_kincomp.calibration.ballbar.formats import load_any
 from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
+from octoprint_kincomp.service.calibration.printed_programs import origin_kwargs
 from octoprint_kincomp.sensor.virtual import VirtualSensor
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
@@ -198,10 +199,15 @@ def test_a_printed_program_is_captured_analysed_and_stored(plugin, call, bar):
     assert status == 200
     trace, _ = trace_from_stream(parse_raw_stream(raw.decode()), SPEC, prog["program_hash"])
     status, stored = call(plugin.calibration.run_trace, "/runs/x/trace", "GET", None, run["id"])
+    # the stored trace also says what the test ran with (issue 34): the firmware's own
+    # compensation, here not reported (no M503 answer)
+    origin = plugin.calibration.origin_for(trace.meta, captured=True)
+    trace.meta["firmware_compensation"] = "unknown"
     assert stored.decode() == trace.to_text()
     offline = analyse(
         load_any(trace.to_text().encode(), "offline.csv"),
         current=Params.from_dict(run["params_before"]),
+        **origin_kwargs(origin),
     )
     assert json.loads(json.dumps(offline["diagnostics"], default=float)) == run["diagnostics"]
     assert run["diagnostics"]["squareness_um_per_m"] == pytest.approx(-3638, abs=60)

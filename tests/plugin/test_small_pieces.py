@@ -100,8 +100,10 @@ def test_each_conflict_is_reported_once_and_only_with_compensation_on():
     check.sent("M852 I0.002")
     check.received("ok")  # not about compensation: nothing happens
     check.sent("M852 I0.002")
-    kinds = sorted(m["params"]["kind"] for m in messages(pm))
+    kinds = sorted(m["params"]["kind"]["text"] for m in messages(pm))
     assert kinds == ["backlash", "skew"]
+    # the parameters do not say how they were measured: no "turn one of them off"
+    assert all("keep both" in m["text"] for m in messages(pm))
     check.sent("M852 I0.003")  # another finding: said again
     assert len(messages(pm)) == 3
 

@@ -30,10 +30,11 @@ import numpy as np
 from ...core.kinematics import changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
+from ...firmware.compensation import FirmwareCompensation
 from ..findings import Finding, info, warning
 from ..proposal import propose_params
 from ..result import result_document
-from . import checks
+from . import checks, provenance
 from .formats import (
     AngleTrace,
     NativeTrace,
@@ -55,7 +56,13 @@ from .model import (
     reversal_mask,
     uncertainty_values,
 )
-from .timing import Mapping, runs_from_angle, runs_from_native
+from .timing import (
+    CONTINUOUS_DEADBAND_MM,
+    Mapping,
+    SentWith,
+    runs_from_angle,
+    runs_from_native,
+)
 
 __all__ = [
     "DEFAULT_MASK_DEG",
@@ -85,12 +92,14 @@ def load_runs(trace, current: Optional[Params] = None) -> Tuple[Geometry, List[R
 
 
 def load_runs_mapped(
-    trace, current: Optional[Params] = None
+    trace, current: Optional[Params] = None, sent: Optional[SentWith] = None
 ) -> Tuple[Geometry, List[Run], Mapping]:
+    """The runs of a trace on the nominal circle; ``current``: the parameters in force,
+    ``sent``: how the compensated program was written (the trace's record first)."""
     if isinstance(trace, NativeTrace):
-        loaded = runs_from_native(trace, current)
+        loaded = _native_sent(trace, current, sent)
     elif isinstance(trace, AngleTrace):
-        loaded = runs_from_angle(trace, current)
+        loaded = runs_from_angle(trace, current, sent)
     else:
         raise TraceError(Msg("not a trace"))
     geom, runs, mapping = loaded
@@ -99,6 +108,32 @@ def load_runs_mapped(
             dataclasses.replace(run, known=_lead_speed_error(geom, run, current)) for run in runs
         ]
     return geom, runs, mapping
+
+
+# a compensated time series whose runs' timing is off by more than this (ms) with the assumed
+# dead band, and by less than half of it with the one of a stepless printer (1e-6 mm), was
+# compensated with that one (the command line's compensate --steps-per-mm 50000 writes it)
+SENT_PROBE_MS = 3.0
+
+
+def _native_sent(trace: NativeTrace, current, sent: Optional[SentWith]):
+    """``runs_from_native`` with the compensator's dead band the trace records or the caller
+    gives; with neither (the compensator's defaults assumed), when the timing says the
+    program was written with the stepless dead band instead, with that one."""
+    loaded = runs_from_native(trace, current, sent)
+    mapping = loaded[2]
+    worst = max((abs(v) for v in mapping.sync_ms.values()), default=0.0)
+    if mapping.sent_source != "default" or worst <= SENT_PROBE_MS:
+        return loaded
+    alt = SentWith(mapping.sent.decimals, CONTINUOUS_DEADBAND_MM)
+    try:
+        other = runs_from_native(trace, current, alt)
+    except TraceError:
+        return loaded
+    if max((abs(v) for v in other[2].sync_ms.values()), default=0.0) < 0.5 * worst:
+        other[2].sent_source = "timing"
+        return other
+    return loaded
 
 
 def _lead_speed_error(geom: Geometry, run: Run, current: Params) -> Optional[np.ndarray]:
@@ -142,7 +177,8 @@ def _check_both_directions(runs: Sequence[Run]) -> None:
 @dataclass
 class CheckedFit:
     """A fit after the trust checks: the fit the values come from (outliers left out, the
-    cyclic term added when the residual showed one), its findings and diagnostics."""
+    cyclic term added when the residual showed one, the readings corrected for a sensor gain
+    the feed-in showed), its findings and diagnostics."""
 
     fit: FitResult
     runs: List[Run]  # the runs the fit used (outliers left out)
@@ -150,6 +186,13 @@ class CheckedFit:
     findings: List[Finding] = field(default_factory=list)
     checks: Dict[str, object] = field(default_factory=dict)  # diag["checks"]
     robust_runs: Optional[List[Run]] = None  # for the circularity without outliers
+    all_runs: List[Run] = field(default_factory=list)  # every sample (gain-corrected)
+    gain: float = 1.0  # the sensor gain taken off the readings (1: none)
+
+
+def _scaled(runs: Sequence[Run], factor: float) -> List[Run]:
+    """The runs with their readings multiplied by ``factor`` (a sensor gain taken off)."""
+    return [dataclasses.replace(r, dev=r.dev * factor) for r in runs]
 
 
 def checked_fit(
@@ -164,12 +207,16 @@ def checked_fit(
 ) -> CheckedFit:
     """Fit, then check the evidence (see :mod:`.checks`): outliers are left out and the fit
     repeated; a clear cyclic error in the residual is fitted (when ``cyclic_pitch`` is not
-    given); the timing and the residual against the noise floor become findings."""
+    given); a sensor gain the feed-in shows is taken off the readings; the timing, the labels
+    and the residual against the noise floor become findings."""
     runs = list(runs)
     found: List[Finding] = list(checks.motion_findings(geom, mapping, label))
+    found += checks.ramp_findings(geom, mapping, label)
+    found += checks.run_order_findings(mapping, label)
+    found += checks.arc_findings(mapping, label)
     f = fit(geom, runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
     floor, source = checks.noise_floor(f, runs, mapping)
-    out = CheckedFit(f, runs, cyclic_pitch)
+    out = CheckedFit(f, runs, cyclic_pitch, all_runs=runs)
     drop = checks.find_outliers(f, runs, floor)
     n_out = int(sum(int(m.sum()) for m in drop.values()))
     out.checks["outliers"] = n_out
@@ -196,6 +243,10 @@ def checked_fit(
             out.cyclic_pitch = cyclic_pitch
             found.append(checks.cyclic_finding(scan, label))
             scan = checks.scan_cyclic(geom, runs, f, keep)
+    f, runs, floor = _sensor_gain(geom, runs, mapping, f, out, floor, mask_deg, calibrated, fixed)
+    found += checks.sensor_findings(
+        mapping, out.checks.get("sensor_gain"), getattr(mapping, "feed_in_mm", 1.0), label
+    )
     misfit_floor, misfit_source, vibration, moving_ev = checks.misfit_floor(
         f, runs, floor, source, label
     )
@@ -213,26 +264,50 @@ def checked_fit(
     found += adequacy
     ev.update(moving_ev)
     out.checks["adequacy"] = ev
-    wider = mask_deg + checks.STABILITY_EXTRA_DEG
-    try:
-        f_wide = fit(geom, runs, wider, calibrated, out.cyclic_pitch, fixed=fixed)
-    except TraceError:
-        f_wide = None
-    if f_wide is not None:
-        found += checks.stability_findings(
-            diagnostic_values(f.values, geom.radius),
-            diagnostic_values(f_wide.values, geom.radius),
-            uncertainty_values(f.sigma, geom.radius),
-            uncertainty_values(f_wide.sigma, geom.radius),
-            mask_deg,
-            wider,
-            label,
-            checks.reached_sides(runs),
-        )
+    found += _stability(geom, runs, f, out, mask_deg, calibrated, fixed, label)
     out.fit = f
     out.runs = runs
     out.findings = found
     return out
+
+
+def _sensor_gain(geom, runs, mapping, f, out: CheckedFit, floor, mask_deg, calibrated, fixed):
+    """The sensor's gain from the still readings outside the circle (``checks.sensor_gain``)
+    into ``out.checks``; one clearly off 1 is taken off every reading (the fit repeated):
+    returns the fit, the runs and the noise floor (um) to go on with."""
+    if mapping is None or not mapping.timed:
+        return f, runs, floor
+    gain = checks.sensor_gain(geom, f, out.cyclic_pitch, mapping.still_levels, mapping.feed_in_mm)
+    out.checks["sensor_gain"] = gain
+    if not checks.gain_significant(gain, mapping.feed_in_mm):
+        return f, runs, floor
+    out.gain = float(gain["value"])
+    k = 1.0 / out.gain
+    runs = _scaled(runs, k)
+    out.all_runs = _scaled(out.all_runs, k)
+    if out.robust_runs is not None:
+        out.robust_runs = runs
+    f = fit(geom, runs, mask_deg, calibrated, out.cyclic_pitch, fixed=fixed)
+    return f, runs, floor * k
+
+
+def _stability(geom, runs, f, out: CheckedFit, mask_deg, calibrated, fixed, label):
+    """The stability check against a wider reversal mask (``checks.stability_findings``)."""
+    wider = mask_deg + checks.STABILITY_EXTRA_DEG
+    try:
+        f_wide = fit(geom, runs, wider, calibrated, out.cyclic_pitch, fixed=fixed)
+    except TraceError:
+        return []
+    return checks.stability_findings(
+        diagnostic_values(f.values, geom.radius),
+        diagnostic_values(f_wide.values, geom.radius),
+        uncertainty_values(f.sigma, geom.radius),
+        uncertainty_values(f_wide.sigma, geom.radius),
+        mask_deg,
+        wider,
+        label,
+        checks.reached_sides(runs),
+    )
 
 
 def analyse_runs(
@@ -282,6 +357,17 @@ def analyse_runs(
     return diag
 
 
+@dataclass
+class Provenance:
+    """Where a trace comes from, as the caller knows it (``provenance.py``): the firmware's
+    compensation during the test (the trace's own record wins), and how the trace is tied
+    to the program KinComp printed (``confirmed``: e.g. ``"capture"``, ``"printed"``;
+    None: it is not, and the result says what to confirm)."""
+
+    firmware: Optional[FirmwareCompensation] = None
+    confirmed: Optional[str] = None
+
+
 def analyse(
     trace,
     current: Optional[Params] = None,
@@ -290,96 +376,53 @@ def analyse(
     cyclic_pitch: Optional[float] = None,
     known_squareness_um_per_m: Optional[Dict[str, float]] = None,
     known_sources: Optional[Dict[str, str]] = None,
+    sent: Optional[SentWith] = None,
+    origin: Optional[Provenance] = None,
 ) -> Dict[str, object]:
-    """Analyse a trace or summary; returns {"diagnostics", "parameters", "firmware", "notes",
-    "plot"}. ``current``: the parameters active during the test (the fit is then a residual
-    and the program the printer ran is the compensated one).
+    """Analyse a trace or summary; returns the result document (``calibration/result.py``).
+    ``current``: the parameters active during the test (the fit is then a residual and the
+    program the printer ran is the compensated one, written as ``sent`` says: the trace's
+    record first, else the compensator's defaults).
 
     ``known_squareness_um_per_m``: the printer's squareness (um/m, keys ``xy``, ``xz``,
     ``yz``, as KinComp's parameters state it: e.g. an XY result's proposal) that a vertical
     test cannot see but that moves its third axis (:data:`.model.OUT_OF_PLANE`); less what
     ``current`` corrects, it is fitted as a fixed motion (as the joint fit does) instead of
     biasing the scale mismatch and squareness; ``known_sources``: per key, where the value
-    came from (said in the ``model.out_of_plane_used`` finding)."""
+    came from (said in the ``model.out_of_plane_used`` finding). ``origin``: the firmware's
+    compensation and the program's confirmation (:class:`Provenance`)."""
 
     current = current or Params()
-    known = checked_known_squareness(known_squareness_um_per_m)
+    origin = origin or Provenance()
     notes: List[str] = []
     found: List[Finding] = []
     plot = None
+    need = None
+    fw = provenance.firmware_of(trace.meta, origin.firmware)
     if isinstance(trace, Summary):
-        diag = dict(trace.diagnostics)
-        geom = Geometry(
-            meta_plane(trace.meta),
-            meta_float(trace.meta, "radius_mm", 0.0),
-            meta_centre(trace.meta),
-            meta_float(trace.meta, "feed_mm_min", 0.0) or None,
-        )
-        diag.setdefault("plane", geom.plane)
-        diag["source"] = trace.meta.get("source", "summary")
-        notes += trace.notes
-        found.append(
-            info(
-                "source.summary",
-                Msg(
-                    "These values come from another program's summary, not from a trace: KinComp "
-                    "could not check the motion, the fit or the noise behind them."
-                ),
-            )
-        )
+        diag, geom = _summary(trace, notes, found)
     else:
-        geom, runs, mapping = load_runs_mapped(trace, current)
-        _check_both_directions(runs)
-        fixed, used = checks.out_of_plane_used(
-            geom.plane, known, current.squareness_um_per_m, known_sources or {}
+        known = checked_known_squareness(known_squareness_um_per_m)
+        geom, diag, plot, mapping = _trace(
+            trace, current, mask_deg, calibrated, cyclic_pitch, known, known_sources, sent, found
         )
-        cf = checked_fit(
-            geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, fixed=fixed or None
+        found += provenance.program_findings(trace.meta)
+        found += checks.backlash_findings(
+            diag, _reached(diag), current.has_backlash, fw if fw.known or fw.active else None
         )
-        f = cf.fit
-        diag = analyse_runs(
-            geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping
-        )
-        found += cf.findings
-        found += outlier_findings(cf, diag, radius=geom.radius)
-        diag["checks"] = cf.checks
-        drift = checks.drift_finding(diag, runs)
-        if drift is not None:
-            found.append(drift)
-        oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m, list(known))
-        if oop is not None:
-            found.append(oop)
-        if used is not None:
-            found.append(used)
-        if fixed:
-            diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
-        plot = plot_data(geom, runs, f, diag)
+        found += provenance.firmware_findings(fw, geom.plane)
+        extra = provenance.with_firmware(diag, fw, geom.letters)
+        diag["firmware_compensation"] = fw.to_dict()
+        if extra:
+            diag["with_firmware"] = extra
         for n in mapping_notes(mapping):
             notes.append(n)
             found.append(info("motion.estimated", n))
-        measured_with = trace.meta.get("params_hash", "").strip()
-        if measured_with not in ("", "none", "-") and measured_with != current.hash():
-            n = Msg(
-                "The trace was measured with parameters %(hash)s, but the "
-                "analysis assumes %(current)s were in force: give the parameters "
-                "that were active during the test, or the residuals are wrong.",
-                hash=measured_with,
-                current=current.hash(),
-            )
-            notes.append(n)
-            found.append(
-                warning(
-                    "params.mismatch", n, evidence_hash=measured_with, current_hash=current.hash()
-                )
-            )
-        if not calibrated:
-            n = Msg(
-                "The bar is not calibrated: the mean radius mixes the bar's own "
-                "length error with the mean axis scale, so only the scale "
-                "mismatch is used."
-            )
-            notes.append(n)
-            found.append(info("bar.uncalibrated", n))
+        found += _params_findings(trace.meta, current, calibrated, notes)
+        timing_ok = not any(x.code in ("motion.timing", "motion.ramp") for x in found)
+        need = provenance.needs_confirmation(trace.meta, mapping.timed, timing_ok, origin.confirmed)
+        if need is not None:
+            found.append(provenance.confirmation_finding(need))
     if current is not None and not changes_nothing(current):
         n = Msg(
             "The test ran with compensation active: the fitted errors are "
@@ -388,9 +431,95 @@ def analyse(
         notes.append(n)
         found.append(info("params.residual", n))
     before = len(notes)
-    params = propose_params(diag, geom, current, notes)
+    params = propose_params(diag, geom, current, notes, fw if fw.known or fw.active else None)
     found += [info("proposal.note", n) for n in notes[before:]]
-    return result_document(diag, params, found, notes, plot)
+    return result_document(diag, params, found, notes, plot, needs_confirmation=need)
+
+
+def _reached(diag: Dict[str, object]) -> List[str]:
+    """The backlash sides the test reached (``diag["checks"]["reached_sides"]``)."""
+    return list((diag.get("checks") or {}).get("reached_sides") or [])
+
+
+def _summary(trace: Summary, notes: List[str], found: List[Finding]):
+    """(diagnostics, geometry) of a summary: its numbers, nothing behind them checked."""
+    diag = dict(trace.diagnostics)
+    geom = Geometry(
+        meta_plane(trace.meta),
+        meta_float(trace.meta, "radius_mm", 0.0),
+        meta_centre(trace.meta),
+        meta_float(trace.meta, "feed_mm_min", 0.0) or None,
+    )
+    diag.setdefault("plane", geom.plane)
+    diag["source"] = trace.meta.get("source", "summary")
+    notes += trace.notes
+    found.append(
+        info(
+            "source.summary",
+            Msg(
+                "These values come from another program's summary, not from a trace: KinComp "
+                "could not check the motion, the fit or the noise behind them."
+            ),
+        )
+    )
+    return diag, geom
+
+
+def _trace(trace, current, mask_deg, calibrated, cyclic_pitch, known, known_sources, sent, found):
+    """The checked fit of one trace: (geometry, diagnostics, plot, mapping); its findings
+    go into ``found``."""
+    geom, runs, mapping = load_runs_mapped(trace, current, sent)
+    _check_both_directions(runs)
+    fixed, used = checks.out_of_plane_used(
+        geom.plane, known, current.squareness_um_per_m, known_sources or {}
+    )
+    cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, fixed=fixed or None)
+    runs = cf.all_runs
+    f = cf.fit
+    diag = analyse_runs(geom, runs, trace.meta, mask_deg, calibrated, cf.cyclic_pitch, f, mapping)
+    found += cf.findings
+    found += outlier_findings(cf, diag, radius=geom.radius)
+    cf.checks["reached_sides"] = checks.reached_sides(cf.runs)
+    diag["checks"] = cf.checks
+    drift = checks.drift_finding(diag, runs)
+    if drift is not None:
+        found.append(drift)
+    oop = checks.out_of_plane_finding(geom.plane, current.squareness_um_per_m, list(known))
+    if oop is not None:
+        found.append(oop)
+    if used is not None:
+        found.append(used)
+    if fixed:
+        diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
+    plot = plot_data(geom, runs, f, diag)
+    return geom, diag, plot, mapping
+
+
+def _params_findings(meta, current: Params, calibrated: bool, notes: List[str]) -> List[Finding]:
+    """The parameters the trace records against those in force, and the bar's calibration."""
+    out: List[Finding] = []
+    measured_with = meta.get("params_hash", "").strip()
+    if measured_with not in ("", "none", "-") and measured_with != current.hash():
+        n = Msg(
+            "The trace was measured with parameters %(hash)s, but the "
+            "analysis assumes %(current)s were in force: give the parameters "
+            "that were active during the test, or the residuals are wrong.",
+            hash=measured_with,
+            current=current.hash(),
+        )
+        notes.append(n)
+        out.append(
+            warning("params.mismatch", n, evidence_hash=measured_with, current_hash=current.hash())
+        )
+    if not calibrated:
+        n = Msg(
+            "The bar is not calibrated: the mean radius mixes the bar's own "
+            "length error with the mean axis scale, so only the scale "
+            "mismatch is used."
+        )
+        notes.append(n)
+        out.append(info("bar.uncalibrated", n))
+    return out
 
 
 def checked_known_squareness(values: Optional[Dict[str, float]]) -> Dict[str, float]:

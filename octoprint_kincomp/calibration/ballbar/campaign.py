@@ -334,23 +334,20 @@ def check_traces(
 def _check_program(name: str, meta: Dict[str, str]) -> None:
     """The metadata must describe the program its ``program_hash`` names (when it records
     everything the program depends on: traces written since the campaign format)."""
-    want = meta.get("program_hash", "").strip()
-    if not want or "chord_error_um" not in meta:
-        return
-    from .timing import spec_from_meta
+    from .provenance import program_mismatch
 
     try:
-        got = body_hash(spec_from_meta(meta))
+        bad = program_mismatch(meta)
     except (ProgramError, TraceError) as exc:
         raise CampaignError(Msg("%(file)s: %(error)s", file=name, error=str(exc))) from None
-    if got != want:
+    if bad is not None:
         raise CampaignError(
             Msg(
                 "%(file)s: the metadata does not match its program (program_hash %(want)s, the "
                 "metadata describes %(got)s): the file was edited or belongs to another test",
                 file=name,
-                want=want,
-                got=got,
+                want=bad["recorded"],
+                got=bad["described"],
             )
         )
 

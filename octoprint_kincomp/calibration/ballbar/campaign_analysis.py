@@ -22,16 +22,18 @@ import numpy as np
 from ...core.kinematics import changes_nothing
 from ...core.messages import Msg
 from ...core.params import AXES, Params
+from ...firmware.compensation import FirmwareCompensation
 from ..findings import Finding, info
 from ..proposal import alignment_matrix, checked_params, proposal_meta, split_alignment
 from ..result import result_document
-from . import checks
+from . import checks, provenance
 from .analysis import analyse_runs, checked_fit, load_runs_mapped, mapping_notes, outlier_findings
 from .campaign import CampaignError, check_traces
 from .formats import TraceError
 from .joint import TraceFit, check_coverage, joint_fit, joint_values, summary
 from .metrics import plot_data
 from .model import DEFAULT_MASK_DEG, fit
+from .timing import SentWith
 
 RMS_OUTLIER = 4.0  # a trace whose residual is this many times the campaign's median failed
 AGREE_SIGMA = 2.0  # lags at two feeds agree when they differ by less than this many sigma
@@ -48,11 +50,18 @@ def analyse_campaign(
     calibrated: bool = False,
     cyclic_pitch: Optional[float] = None,
     manifest: Optional[Dict[str, object]] = None,
+    sent: Optional[SentWith] = None,
+    firmware: Optional[FirmwareCompensation] = None,
 ) -> Dict[str, object]:
     """Joint analysis of a campaign's traces; raises CampaignError (naming the file) when the
-    traces are not one complete campaign or a test failed: nothing is proposed then."""
+    traces are not one complete campaign or a test failed: nothing is proposed then.
+    ``sent``: how compensated programs were written (each trace's record first);
+    ``firmware``: the firmware's compensation during the tests (the first trace's record
+    first)."""
 
     current = current or Params()
+    fw = provenance.firmware_of(items[0][1].meta if items else {}, firmware)
+    fw_known = fw if fw.known or fw.active else None
     check_traces(items, current.hash(), manifest)
     notes: List[str] = []
     found: List[Finding] = []
@@ -63,7 +72,7 @@ def analyse_campaign(
     plots = []
     for name, trace in items:
         try:
-            geom, runs, mapping = load_runs_mapped(trace, current)
+            geom, runs, mapping = load_runs_mapped(trace, current, sent)
             check_coverage(name, geom, runs)
             cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, name)
         except CampaignError:
@@ -105,8 +114,12 @@ def analyse_campaign(
             else t.fit
         )
         # the ISO metrics and the plot of all samples, outliers included (as for one trace)
+        raw = cf.all_runs  # every sample, the sensor's gain taken off
         diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
         found += outlier_findings(cf, diag, t.name, t.geom.radius)
+        found += checks.backlash_findings(
+            diag, checks.reached_sides(t.runs), current.has_backlash, fw_known, t.name
+        )
         drift = checks.drift_finding(diag, raw, t.name)
         if drift is not None:
             found.append(drift)
@@ -159,8 +172,10 @@ def analyse_campaign(
     }
     simulated = any(t.get("simulated") for t in per_trace)
     params = propose_campaign(
-        res, len(fits), current, notes, bool(camp["servo_precomp"]["proposed"]), simulated
+        res, len(fits), current, notes, bool(camp["servo_precomp"]["proposed"]), simulated, fw_known
     )
+    found += provenance.firmware_findings(fw, "")
+    camp["firmware_compensation"] = fw.to_dict()
     if camp["residual"]:
         notes.append(
             Msg(
@@ -343,9 +358,16 @@ def _xy_heights(per_trace, notes: List[str]) -> List[Dict[str, float]]:
 
 
 def propose_campaign(
-    res, n_traces: int, current: Params, notes: List[str], servo_precomp: bool, simulated: bool
+    res,
+    n_traces: int,
+    current: Params,
+    notes: List[str],
+    servo_precomp: bool,
+    simulated: bool,
+    firmware=None,
 ) -> Params:
-    """``current`` updated with the campaign's jointly fitted residuals (see module doc)."""
+    """``current`` updated with the campaign's jointly fitted residuals (see module doc);
+    ``firmware``: the firmware's compensation during the tests (recorded in the meta)."""
     lay = res.layout
     d = current.to_dict()
     A_res = np.eye(3)
@@ -363,7 +385,7 @@ def propose_campaign(
             (q, res.value(lay.backlash_row(a, q)) * 1e3 + frac * table.um_at(q))
             for q in ((lo, hi) if hi - lo >= 1.0 else (lo,))
         ]
-        if min(v for _, v in pts) < -0.5:
+        if min(v for _, v in pts) < -0.5 and frac > 0 and not table.is_zero:
             notes.append(
                 Msg(
                     "Negative backlash on %(axis)s: the current value over-compensates.",
@@ -383,6 +405,10 @@ def propose_campaign(
         d["servo_lag_ms"] = lag
     d["servo_precomp"] = servo_precomp
     d["meta"] = proposal_meta(
-        "ballbar campaign (%d traces)" % n_traces, simulated, "+".join(lay.planes), current
+        "ballbar campaign (%d traces)" % n_traces,
+        simulated,
+        "+".join(lay.planes),
+        current,
+        firmware,
     )
     return checked_params(d)

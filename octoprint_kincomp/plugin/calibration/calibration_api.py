@@ -12,7 +12,9 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
 * ``POST /apply``    a run's proposed parameters, or given ones, into the settings; an
   untrusted run (an error finding) only with ``"force": true`` (409 naming the error
-  without it).
+  without it); a run whose trace is not tied to a program KinComp printed
+  (``needs_confirmation``) only with ``"confirm"`` stating its plane, radius and feed
+  (409 naming them without it; ``force`` does not replace it).
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
   ``/demo/trace``.
 
@@ -46,13 +48,17 @@ from ...calibration.ballbar.program import (
     spec_dict,
     spec_from_program,
 )
+from ...calibration.ballbar.timing import SentWith
+from ...core.kinematics import changes_nothing
 from ...core.messages import as_dict
 from ...core.params import Params
+from ...firmware.compensation import FirmwareCompensation
 from ...firmware.motion_limits import LimitsError, circle_feed, describe
 from ...service.calibration.demo_mode import DemoMode
 from ...service.calibration.findings_view import findings_of, refusal
 from ...service.calibration.known_squareness import known_squareness
 from ...service.calibration.measurement import known_as_of
+from ...service.calibration.printed_programs import PrintedPrograms, trace_meta
 from ...service.calibration.run_store import RunNotFound, RunNotStorable, RunStore
 from ...service.notify import Notifier
 from ...service.printing.queue import QueueCompensator
@@ -77,6 +83,22 @@ class UploadRefused(Exception):
         super().__init__(message)
         self.message = message
         self.status = status
+
+
+def _same(given: Any, stated: Any) -> bool:
+    """Whether a confirmed value matches the stated one (numbers within 1e-6, text by case)."""
+    if isinstance(stated, (int, float)) and not isinstance(stated, bool):
+        try:
+            return abs(float(given) - float(stated)) <= 1e-6
+        except (TypeError, ValueError):
+            return False
+    return str(given or "").strip().upper() == str(stated or "").strip().upper()
+
+
+def _firmware_of(diag: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    """The firmware's compensation a result was measured with (a campaign's or a test's)."""
+    camp = diag.get("campaign") if isinstance(diag.get("campaign"), dict) else {}
+    return diag.get("firmware_compensation") or camp.get("firmware_compensation")
 
 
 def safe_name(name: str) -> str:
@@ -108,6 +130,10 @@ class CalibrationApi:
         # sensor just before the program is printed (None: no live capture)
         self.on_print = None
         self._job_api = job_api
+        # () -> the firmware's compensation now (FirmwareWatcher.state); the programs printed
+        # (PrintedPrograms: what each test ran with; None: not recorded)
+        self.firmware_state = FirmwareCompensation
+        self.printed: Optional[PrintedPrograms] = None
 
     # ~~ the test program ------------------------------------------------------------------------
     @http.route("/program", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
@@ -233,11 +259,45 @@ class CalibrationApi:
         state); (False, None) if the printer is not ready (not connected, or printing)."""
         if not self.printer_ready():
             return False, None
+        if self.printed is not None:
+            sent = self.sent_now()
+            self.printed.record(
+                prog_hash,
+                spec.metadata(),
+                self.firmware_state().to_dict(),
+                sent.metadata() if sent is not None else None,
+                self._queue.in_force.hash(),
+            )
         capture = (
             self.on_print(path, spec, prog_hash) if arm and self.on_print is not None else None
         )
         self.start_print(path)
         return True, capture
+
+    # ~~ what a test ran with ----------------------------------------------------------------
+    def sent_now(self) -> Optional[SentWith]:
+        """How the queue compensates a program now (None: it does not)."""
+        if changes_nothing(self._queue.in_force):
+            return None
+        return SentWith.of_options(self._queue.comp.options)
+
+    def origin_for(self, meta: Dict[str, str], captured: bool = False) -> Dict[str, Any]:
+        """What KinComp knows of the test a trace with ``meta`` comes from, as JSON (the
+        worker's arguments): ``firmware`` (the firmware's compensation during it), ``confirmed``
+        (``"capture"``: captured while KinComp printed it; ``"printed"``: its program_hash is
+        one KinComp printed; None: neither) and ``sent`` (how its program was compensated:
+        that print's, else the queue's now)."""
+        rec = self.printed.get(meta.get("program_hash")) if self.printed is not None else None
+        sent = self.sent_now()
+        out: Dict[str, Any] = {
+            "firmware": rec.get("firmware") if rec else None,
+            "confirmed": "capture" if captured else ("printed" if rec else None),
+            "sent": (rec.get("sent") if rec else None)
+            or (sent.metadata() if sent is not None else None),
+        }
+        if captured and out["firmware"] is None:
+            out["firmware"] = self.firmware_state().to_dict()
+        return out
 
     # ~~ measurements in ---------------------------------------------------------------------
     @http.route("/trace", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
@@ -256,6 +316,7 @@ class CalibrationApi:
         safe = safe_name(os.path.basename(str(filename)))
         known = self.known_now()
         args = {"data": data, "name": safe, "current": known["current"], "known": known["known"]}
+        args["origin"] = self.origin_for(trace_meta(data))
 
         def store(result) -> str:
             kind = result.pop("kind", None) or source or "upload"
@@ -416,6 +477,9 @@ class CalibrationApi:
             "trusted": trusted,
             "plot": plot,
             "applied": None,
+            # what the test ran with (firmware/compensation.py) and what to confirm first
+            "firmware_compensation": _firmware_of(result["diagnostics"]),
+            "needs_confirmation": result.get("needs_confirmation"),
         }
         run.update(extra or {})
         self._runs.save(run, raw)
@@ -445,7 +509,11 @@ class CalibrationApi:
                 return http.error(
                     gettext("This run has no proposed parameters (its capture failed)"), 400
                 )
-            refused = self.other_printers(run) or self.untrusted(run, force)
+            refused = (
+                self.other_printers(run)
+                or self.untrusted(run, force)
+                or self.unconfirmed(run, data.get("confirm"))
+            )
             if refused is not None:
                 return refused
         elif "params" in data:
@@ -490,6 +558,29 @@ class CalibrationApi:
         if reason is None or force:
             return None
         return http.error(http.tr(reason), 409)
+
+    @staticmethod
+    def unconfirmed(run: Dict[str, Any], confirm: Any):
+        """409 naming what to confirm when ``run`` needs a confirmation
+        (``needs_confirmation``) and ``confirm`` (the request's) does not state those values:
+        ``{"plane": "XY", "radius_mm": 100, "feed_mm_min": 1850}`` (the keys the run asks
+        for); None to go on."""
+        need = run.get("needs_confirmation")
+        if not need:
+            return None
+        stated = need.get("stated") or {}
+        keys = list(need.get("confirm") or [])
+        if isinstance(confirm, dict) and all(_same(confirm.get(k), stated.get(k)) for k in keys):
+            return None
+        what = ", ".join(f"{k} {stated.get(k)}" for k in keys)
+        return http.error(
+            gettext(
+                "This result comes from a trace that KinComp cannot tie to a program it printed; "
+                "confirm that the test ran as its metadata says (%(what)s) to apply it.",
+                what=what,
+            ),
+            409,
+        )
 
     def apply_params(
         self,

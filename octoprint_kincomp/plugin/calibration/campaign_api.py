@@ -72,6 +72,7 @@ from ...service.calibration.campaign_store import (
     view,
 )
 from ...service.calibration.demo_mode import DemoMode
+from ...service.calibration.printed_programs import trace_meta
 from ...service.calibration.run_store import RunNotFound, RunStore
 from ...service.settings.printer_profiles import other_profile
 from .. import http
@@ -395,11 +396,12 @@ class CampaignApi:
             doc = self._campaigns.get(cid)
             self.measure.check_unchanged(doc)
             traces = self._traces(doc)
+            origin = self._calibration.origin_for(trace_meta(traces[0][1]))
         except CampaignNotFound:
             return http.error(gettext("No such campaign"), 404)
         except Refused as exc:
             return http.error(http.tr(exc.message), exc.status)
-        args = {"traces": traces, "current": current.to_dict()}
+        args = {"traces": traces, "current": current.to_dict(), "origin": origin}
         if not self._campaigns.claim(cid, "joint"):  # the joint analysis twice at once
             return http.error(gettext("Campaign %(id)s is being analysed already", id=cid), 409)
 

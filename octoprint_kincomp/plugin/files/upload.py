@@ -6,7 +6,7 @@ from __future__ import annotations
 from octoprint.filemanager.util import LineProcessorStream
 
 from ...core.compensator import Options
-from ...core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES
+from ...core.marker import ENCODING, ERRORS, MARKER_SCAN_LINES, ballbar_record
 from ...core.params import Params
 from ...engines.file_loop import FileEngine, head_marker, marker_line
 from ...engines.select import make_compensator
@@ -47,4 +47,7 @@ class CompensatingStream(LineProcessorStream):
         if head_marker(data.decode(ENCODING, ERRORS)) is not None:
             self.passthrough = True
             return data
-        return self.engine.header(marker_line(self.params), data) + self.engine.chunk(data)
+        opts = self.comp.options
+        record = ballbar_record(data.decode(ENCODING, ERRORS), opts.decimals, opts.deadband_mm)
+        header = marker_line(self.params) + ("\n" + record if record else "")
+        return self.engine.header(header, data) + self.engine.chunk(data)

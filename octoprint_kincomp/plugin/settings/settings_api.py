@@ -72,6 +72,8 @@ class SettingsApi:
                 "skew": self._watch.skew,
                 "backlash": self._watch.backlash,
                 "conflicts": self._watch.conflicts(params),
+                # the state a test printed now runs with (firmware/compensation.py)
+                "state": self._watch.state().to_dict(),
             },
             equivalents=http.with_i18n(equivalents(params)),
             demo=self._demo.ballbar is not None,

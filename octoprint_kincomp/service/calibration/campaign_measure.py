@@ -39,6 +39,7 @@ from ..printing.queue import QueueCompensator
 from ..settings.printer_profiles import other_profile, profile_id
 from .campaign_store import CampaignNotFound, CampaignStore, now
 from .findings_view import verdict_of
+from .printed_programs import trace_meta
 from .run_store import RunStore
 
 
@@ -236,6 +237,7 @@ class CampaignMeasurements:
                 raise busy_test(doc, step)
             args = dict(data=data, name=name, current=current.to_dict(), known=known["known"])
             args.update(campaign=doc, step=step)
+            args["origin"] = self._calibration.origin_for(trace_meta(data))
             try:
                 result = (analyse or _in_process)("analyse", args)
             except (TraceError, ProgramError, ValueError, ArithmeticError) as exc:

@@ -21,6 +21,7 @@ from ...calibration.ballbar.analysis import analyse
 from ...calibration.ballbar.formats import load_any
 from ...core.params import Params
 from .known_squareness import for_trace
+from .printed_programs import origin_kwargs
 
 
 class NotThisTest(ValueError):
@@ -43,11 +44,13 @@ def analyse_measurement(
     known: Optional[Dict[str, Any]] = None,
     campaign: Optional[Dict[str, Any]] = None,
     step: Optional[Dict[str, Any]] = None,
+    origin: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
     """The file ``data`` (named ``name``) analysed against the parameters ``current`` with
     the known out-of-plane squareness that fits it; its ``kind`` added. With ``campaign``
     and ``step`` (the campaign's document and its test): NotThisTest when it is not that
-    test's trace."""
+    test's trace. ``origin``: what the test ran with (``printed_programs.origin_kwargs``:
+    the firmware's compensation, whether the print is confirmed, how it was compensated)."""
     from .campaign_measure import not_this_test
 
     trace = load_any(data, name)
@@ -61,19 +64,30 @@ def analyse_measurement(
         current=Params.from_dict(current),
         known_squareness_um_per_m=values,
         known_sources=sources,
+        **origin_kwargs(origin),
     )
     result["kind"] = getattr(trace, "kind", None)
     return result
 
 
-def analyse_joint(traces: Sequence[Tuple[str, bytes]], current: Dict[str, Any]) -> Dict[str, Any]:
+def analyse_joint(
+    traces: Sequence[Tuple[str, bytes]],
+    current: Dict[str, Any],
+    origin: Optional[Dict[str, Any]] = None,
+) -> Dict[str, Any]:
     """A campaign's joint analysis of its tests' traces ``[(file name, data)]``, in order,
     against the parameters ``current`` (the joint fit estimates the out-of-plane terms
-    itself)."""
+    itself); ``origin``: what the first test ran with (as :func:`analyse_measurement`'s)."""
     from ...calibration.ballbar.campaign_analysis import analyse_campaign
 
     loaded: List[Tuple[str, Any]] = [(n, load_any(d, n)) for n, d in traces]
-    return analyse_campaign(loaded, current=Params.from_dict(current))
+    how = origin_kwargs(origin)
+    return analyse_campaign(
+        loaded,
+        current=Params.from_dict(current),
+        sent=how["sent"],
+        firmware=how["origin"].firmware,
+    )
 
 
 def analyse_artifact_readings(

@@ -158,6 +158,8 @@ class RunStore:
             "circularity_um": (d.get("circularity_um") or {}).get("bidirectional"),
             "applied": run.get("applied"),
             "trusted": run.get("trusted") is not False,  # runs from before findings: True
+            # what to confirm before it is applied (its trace is not tied to a printed program)
+            "needs_confirmation": run.get("needs_confirmation"),
             "verdict": (run.get("verdict") or verdict_of(run))["decision"],
             "params_before_hash": run.get("params_before_hash"),
             "has_trace": self.trace_path(run_id) is not None,

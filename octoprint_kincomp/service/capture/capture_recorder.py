@@ -1,7 +1,9 @@
 """A finished live capture into the run history (called in the sensor worker thread, never in
 the capture's listener or OctoPrint's comm thread; no request context needed).
 
-* Done: the native trace is analysed exactly as an uploaded file of it would be (its text is
+* Done: the native trace (its metadata now also saying the firmware's compensation and how
+  the queue compensated the program: what the test ran with) is analysed exactly as an
+  uploaded file of it would be (its text is
   read back, so that the stored trace, an upload of it and an offline re-run of the stored
   raw stream all give the same result) with the parameters in force and, for a vertical test,
   the squareness the profile's history knows (``service/calibration/known_squareness.py``; offline:
@@ -29,6 +31,19 @@ from ..printing.queue import QueueCompensator
 SOURCE = "live"
 
 
+def _record_origin(meta: Dict[str, str], origin: Dict[str, Any]) -> None:
+    """The stored trace says what its test ran with (the firmware's compensation, how the
+    queue compensated the program), so that an upload or an offline run of it reads the same."""
+    from ...firmware.compensation import FirmwareCompensation
+
+    if origin.get("firmware") is not None:
+        meta.setdefault(
+            "firmware_compensation", FirmwareCompensation.from_dict(origin["firmware"]).text()
+        )
+    for k, v in (origin.get("sent") or {}).items():
+        meta.setdefault(k, str(v))
+
+
 def _iso(wall: float) -> Optional[str]:
     return _dt.datetime.fromtimestamp(wall).isoformat(timespec="seconds") if wall else None
 
@@ -51,10 +66,12 @@ class CaptureRecorder:
         filename = f"live_{spec.plane}_R{spec.radius_mm:g}_{stamp}.csv"
         if not res.ok:
             return self._failed(res.message, capture, res)
+        origin = self._calibration.origin_for(res.trace.meta, captured=True)
+        _record_origin(res.trace.meta, origin)
         data = res.trace.to_text().encode()
         known = self._calibration.known_now()
         args = {"data": data, "name": filename, "current": known["current"]}
-        args["known"] = known["known"]
+        args.update(known=known["known"], origin=origin)
         try:  # the one analysis of a measurement, in the worker process
             result = self._calibration.analyse_in_worker("analyse", args)
         except (TraceError, ValueError, ArithmeticError) as exc:

@@ -74,24 +74,30 @@ def task_analyse(
     known: Optional[Dict[str, Any]] = None,
     campaign: Optional[Dict[str, Any]] = None,
     step: Optional[Dict[str, Any]] = None,
+    origin: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
     """A trace, .b5r or summary file analysed (``service/calibration/measurement.py``, the
     one analysis of a measurement); ``known``: the printer's squareness from its run
-    history; ``campaign`` and ``step``: the campaign test it must be the trace of."""
+    history; ``campaign`` and ``step``: the campaign test it must be the trace of;
+    ``origin``: what the test ran with (``service/calibration/printed_programs.py``)."""
     from ..calibration.measurement import analyse_measurement
 
     progress(0.1)
-    return analyse_measurement(data, name, current, known, campaign, step)
+    return analyse_measurement(data, name, current, known, campaign, step, origin)
 
 
 def task_analyse_campaign(
-    traces, current: Dict[str, Any], progress: Callable[[float], None]
+    traces,
+    current: Dict[str, Any],
+    progress: Callable[[float], None],
+    origin: Optional[Dict[str, Any]] = None,
 ) -> Dict[str, Any]:
-    """A campaign's joint analysis of its tests' traces ``[(name, data)]``."""
+    """A campaign's joint analysis of its tests' traces ``[(name, data)]``; ``origin``: what
+    its tests ran with (as ``task_analyse``'s)."""
     from ..calibration.measurement import analyse_joint
 
     progress(0.1)
-    return analyse_joint(traces, current)
+    return analyse_joint(traces, current, origin)
 
 
 def task_analyse_artifact(

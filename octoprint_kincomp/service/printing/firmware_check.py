@@ -3,19 +3,19 @@
 The lines sent to and received from the printer feed the :class:`FirmwareWatcher`; a
 Marlin firmware is asked for its settings (``M503``) after its ``M115`` reply, as its
 ``M852``/``M425`` lines tell whether it corrects skew or backlash itself. With compensation
-on, each conflict (skew, backlash, axis scale) is logged and notified once per finding.
+on, each conflict (skew, backlash, axis scale) is logged and notified once per finding, with
+advice that depends on how the parameters in force were measured (their ``meta.firmware``):
+on top of the firmware's compensation (both stay), without it (the firmware's goes), or not
+recorded.
 """
 
 from __future__ import annotations
 
 from typing import Any, Dict
 
-from ..notify import N_, Notifier
+from ..notify import Notifier
 from .firmware_watch import FirmwareWatcher
 from .queue import QueueCompensator
-
-# what the firmware may compensate too, as words in a notification (translated by the UI)
-CONFLICT_NAMES = {"skew": N_("skew"), "backlash": N_("backlash"), "scale": N_("axis scale")}
 
 
 class FirmwareCheck:
@@ -41,24 +41,18 @@ class FirmwareCheck:
             self.check()
 
     def check(self) -> None:
-        """Reports conflicts with the compensation as it is now (if it is on)."""
+        """Reports where the firmware's compensation and the parameters in force do not fit
+        together (:meth:`FirmwareWatcher.advice`: corrected twice, the firmware's changed or
+        gone since the parameters were measured on top of it), if compensation is on."""
         if not self._queue.enabled:
             return
-        conflicts = self.watch.conflicts(self._queue.params)
-        for kind, where in conflicts.items():
-            if self._warned.get(kind) != where:
-                self._warned[kind] = where
-                self._logger.warning("Double compensation: firmware %s active (%s)", kind, where)
-                self._notifier.notify(
-                    "warning",
-                    N_(
-                        "The firmware compensates %(kind)s too (%(where)s): with KinComp on, it is "
-                        "corrected twice. Turn one of them off."
-                    ),
-                    tr_params=("kind",),
-                    kind=CONFLICT_NAMES[kind],
-                    where=where,
-                )
+        for item in self.watch.advice(self._queue.params):
+            kind, where, msg = item["kind"], str(item["where"]), item["message"]
+            key = f"{item['case']}:{where}"
+            if self._warned.get(kind) != key:
+                self._warned[kind] = key
+                self._logger.warning("KinComp and the firmware: %s", msg)
+                self._notifier.notify("warning", msg.template, **msg.params)
 
     def query(self, payload: Dict[str, Any]) -> None:
         """After the M115 reply (FIRMWARE_DATA): a Marlin firmware is asked for its

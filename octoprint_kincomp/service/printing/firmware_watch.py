@@ -1,35 +1,76 @@
 """Notices when the firmware compensates too (double compensation), from what it reports
 (``M503`` lines, which KinComp asks a Marlin firmware for after its ``M115`` reply) and from
 what is sent to it: skew (Marlin/Klipper ``M852``, RepRapFirmware ``M556``, Klipper
-``SET_SKEW``), backlash (``M425``) and per-axis scale (RepRapFirmware ``M579``). Case does
-not matter."""
+``SET_SKEW``, ``SKEW_PROFILE LOAD``), backlash (``M425``) and per-axis scale
+(RepRapFirmware ``M579``). Case does not matter.
+
+The state itself is ``firmware/compensation.py``'s :class:`FirmwareCompensation`; a test
+records it (:meth:`FirmwareWatcher.state`), so that its result is what the firmware left over
+and its proposal says so (the params' ``meta.firmware``). :meth:`FirmwareWatcher.advice` tells
+the two cases apart that "turn one off" confuses: parameters measured with the firmware's
+compensation on hold only what it left (both stay; turning the firmware's off brings its part
+back), parameters measured with it off hold everything (the firmware's must go)."""
 
 from __future__ import annotations
 
-import re
-from typing import Dict, Optional
+from typing import Dict, List, Optional
 
-_WORD = re.compile(r"([A-Za-z])\s*([-+]?\d*\.?\d+)")
+from ...core.messages import Msg
+from ...firmware.compensation import KINDS, FirmwareCompensation
+
 # commands (upper case) whose lines the watcher reads; callers pre-filter with these
-HINTS = ("M852", "M425", "M556", "M579", "SET_SKEW")
+HINTS = ("M852", "M425", "M556", "M579", "SET_SKEW", "SKEW_PROFILE", "M92 ", "M203")
+KIND_NAMES = {"skew": Msg("skew"), "backlash": Msg("backlash"), "scale": Msg("axis scale")}
 
 
-def _values(text: str) -> Dict[str, float]:
-    return {m.group(1).upper(): float(m.group(2)) for m in _WORD.finditer(text)}
+def _compensates(params, kind: str) -> bool:
+    if kind == "skew":
+        return any(v != 0.0 for v in params.squareness_um_per_m.values())
+    if kind == "backlash":
+        return bool(params.has_backlash)
+    return any(v != 0.0 for v in params.scale_ppm.values())
+
+
+def measured_on(params) -> Optional[FirmwareCompensation]:
+    """The firmware's compensation the parameters were measured with (their proposal's
+    ``meta.firmware``); None when they do not say (typed in, or older)."""
+    meta = getattr(params, "meta", None) or {}
+    fw = meta.get("firmware")
+    return FirmwareCompensation.from_dict(fw) if isinstance(fw, dict) else None
 
 
 class FirmwareWatcher:
-    """Tracks whether the firmware applies skew or backlash compensation itself."""
+    """Tracks whether the firmware applies skew, backlash or scale compensation itself."""
 
     def __init__(self):
-        self.skew: Optional[str] = None  # where it was seen, e.g. "M852 I0.001 (sent)"
-        self.backlash: Optional[str] = None
-        self.scale: Optional[str] = None
+        self._state = FirmwareCompensation()
+        self._where: Dict[str, str] = {}
 
     def reset(self) -> None:
-        self.skew = None
-        self.backlash = None
-        self.scale = None
+        self._state = FirmwareCompensation()
+        self._where = {}
+
+    @property
+    def skew(self) -> Optional[str]:
+        """Where skew compensation was seen, e.g. "M852 I0.001 (sent)"; None: off."""
+        return self._shown("skew")
+
+    @property
+    def backlash(self) -> Optional[str]:
+        return self._shown("backlash")
+
+    @property
+    def scale(self) -> Optional[str]:
+        return self._shown("scale")
+
+    def _shown(self, kind: str) -> Optional[str]:
+        cmd = getattr(self._state, kind)
+        return f"{cmd} ({self._where.get(kind, 'sent')})" if cmd else None
+
+    def state(self) -> FirmwareCompensation:
+        """A copy of the state now (what a test printed now runs with)."""
+        s = self._state
+        return FirmwareCompensation(s.known, s.skew, s.backlash, s.scale)
 
     @staticmethod
     def relevant(text: str) -> bool:
@@ -37,52 +78,12 @@ class FirmwareWatcher:
         up = text.upper()
         return any(h in up for h in HINTS)
 
-    def _scale_cmd(self, rest: str, where: str) -> None:
-        vals = _values(rest)
-        factors = [vals[k] for k in ("X", "Y", "Z") if k in vals]
-        if any(abs(f - 1.0) > 1e-9 for f in factors):
-            self.scale = f"M579{rest.rstrip()} ({where})"
-        elif factors:
-            self.scale = None
-
-    def _skew_cmd(self, code: str, rest: str, where: str) -> None:
-        vals = _values(rest)
-        keys = ("I", "J", "K", "S") if code == "M852" else ("X", "Y", "Z")
-        if any(abs(vals.get(k, 0.0)) > 0 for k in keys):
-            self.skew = f"{code}{rest.rstrip()} ({where})"
-        elif any(k in vals for k in keys):
-            self.skew = None
-
-    def _backlash_cmd(self, rest: str, where: str) -> None:
-        vals = _values(rest)
-        axes = [vals[k] for k in ("X", "Y", "Z") if k in vals]
-        fraction = vals.get("F", 1.0)
-        if axes:
-            if any(abs(v) > 0 for v in axes) and fraction > 0:
-                self.backlash = f"M425{rest.rstrip()} ({where})"
-            else:
-                self.backlash = None
-        elif "F" in vals and fraction == 0:
-            self.backlash = None
-
-    def _line(self, text: str, where: str) -> None:
-        text = text.split(";", 1)[0].strip()
-        low = text.upper()
-        for code in ("M852", "M556"):
-            i = low.find(code)
-            if i >= 0 and not low[i + 4 : i + 5].isdigit():
-                self._skew_cmd(code, text[i + 4 :], where)
-        i = low.find("M425")
-        if i >= 0 and not low[i + 4 : i + 5].isdigit():
-            self._backlash_cmd(text[i + 4 :], where)
-        i = low.find("M579")
-        if i >= 0 and not low[i + 4 : i + 5].isdigit():
-            self._scale_cmd(text[i + 4 :], where)
-        if low.startswith("SET_SKEW"):
-            if "CLEAR" in low:
-                self.skew = None
-            elif "=" in low:
-                self.skew = f"{text} ({where})"
+    def _line(self, text: str, where: str, reported: bool = False) -> None:
+        before = {k: getattr(self._state, k) for k in KINDS}
+        self._state.read(text, reported)
+        for k in KINDS:
+            if getattr(self._state, k) != before[k]:
+                self._where[k] = where
 
     def sent(self, cmd: str) -> None:
         """A command on its way to the printer."""
@@ -93,16 +94,87 @@ class FirmwareWatcher:
         body = line.strip()
         if body.lower().startswith("echo:"):
             body = body[5:]
-        self._line(body, "reported by the firmware")
+        self._line(body.strip(), "reported by the firmware", reported=True)
 
     def conflicts(self, params) -> Dict[str, str]:
-        """What KinComp and the firmware would both compensate."""
-        out = {}
-        sq = params.squareness_um_per_m
-        if self.skew and any(sq[k] != 0.0 for k in sq):
-            out["skew"] = self.skew
-        if self.backlash and params.has_backlash:
-            out["backlash"] = self.backlash
-        if self.scale and any(v != 0.0 for v in params.scale_ppm.values()):
-            out["scale"] = self.scale
+        """What KinComp and the firmware would both compensate where that is not how the
+        parameters were measured (:meth:`advice`'s ``double`` and ``unknown`` cases)."""
+        return {
+            a["kind"]: a["where"] for a in self.advice(params) if a["case"] in ("double", "unknown")
+        }
+
+    def advice(self, params) -> List[Dict[str, object]]:
+        """Per kind where the firmware's compensation and KinComp's parameters do not fit
+        together: ``{"kind", "case", "where", "message"}``. Cases: ``double`` (both
+        compensate it, the parameters were measured with the firmware's off: they hold all of
+        it, the firmware's must go), ``unknown`` (both compensate it; how the parameters were
+        measured is not recorded), ``changed`` (measured on top of another firmware value),
+        ``gone`` (measured on top of the firmware's, which is off now: its part is back).
+        Parameters measured on top of the same firmware compensation fit: nothing is said."""
+        base = measured_on(params)
+        out = []
+        for kind in KINDS:
+            now = getattr(self._state, kind)
+            ours = _compensates(params, kind)
+            then = getattr(base, kind) if base is not None else None
+            name = KIND_NAMES[kind]
+            if now and ours:
+                if base is None or not base.known:
+                    case, msg = "unknown", _unknown(kind, name, self._state)
+                elif then is None:
+                    case, msg = "double", _double(kind, name, self._state)
+                elif base.same_as(self._state, kind):
+                    continue
+                else:
+                    case, msg = "changed", _changed(name, then)
+            elif then and not now and self._state.known:
+                case, msg = "gone", _gone(name, then)
+            else:
+                continue
+            out.append(
+                {"kind": kind, "case": case, "where": self._shown(kind) or then, "message": msg}
+            )
         return out
+
+
+def _double(kind: str, name: Msg, state: FirmwareCompensation) -> Msg:
+    return Msg(
+        "The firmware compensates %(kind)s too (%(where)s), and KinComp's parameters were "
+        "measured with the firmware's %(kind)s compensation off: they hold all of it, so it "
+        "is corrected twice. Turn the firmware's off (%(off)s), not KinComp's.",
+        kind=name,
+        where=getattr(state, kind),
+        off=state.off_command(kind),
+    )
+
+
+def _unknown(kind: str, name: Msg, state: FirmwareCompensation) -> Msg:
+    return Msg(
+        "The firmware compensates %(kind)s too (%(where)s), and KinComp's parameters do not "
+        "record whether it was on when they were measured. If it was, they hold only what it "
+        "left: keep both (turning either off brings back its part). If it was off, turn the "
+        "firmware's off (%(off)s). Re-test to be sure: a new result records it.",
+        kind=name,
+        where=getattr(state, kind),
+        off=state.off_command(kind),
+    )
+
+
+def _changed(name: Msg, then: str) -> Msg:
+    return Msg(
+        "The firmware's %(kind)s compensation is not the one KinComp's parameters were "
+        "measured on top of (%(then)s): their residual no longer fits it. Set it back, or "
+        "re-test with it as it is now.",
+        kind=name,
+        then=then,
+    )
+
+
+def _gone(name: Msg, then: str) -> Msg:
+    return Msg(
+        "KinComp's parameters were measured with the firmware's %(kind)s compensation on "
+        "(%(then)s) and hold only what it left; it is off now, so what it corrected is back. "
+        "Turn it on again, or re-test without it.",
+        kind=name,
+        then=then,
+    )
