@@ -15,8 +15,8 @@ from octoprint_kincomp.calibration.ballbar.formats import load_any
 from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
-from octoprint_kincomp.service.calibration.printed_programs import origin_kwargs
 from octoprint_kincomp.sensor.virtual import VirtualSensor
+from octoprint_kincomp.service.calibration.printed_programs import origin_kwargs
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 SPEEDUP = 20.0
