@@ -112,6 +112,7 @@ def _fast_print(path, lines):
     )
 
 
+@pytest.mark.alone  # (compares the print's line rates: nothing else may run meanwhile)
 def test_read_only_dry_runs_do_not_starve_a_print(server):
     uploads = os.path.join(server.basedir, "uploads")
     big = [f"kc-big-{i}.gcode" for i in range(3)]
@@ -221,8 +222,13 @@ def _kill(srv):
     srv.proc = None
 
 
+# OctoPrint's own analysis of the 60 MB file (at each restart, for a file it has not
+# analysed) would take a core from the compensation job the test waits for
+NO_GCODE_ANALYSIS = {"gcodeAnalysis": {"runAt": "never"}}
+
+
 def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(tmp_path):
-    srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE)
+    srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE, extra_config=NO_GCODE_ANALYSIS)
     srv.start()
     try:
         st = status(srv)
