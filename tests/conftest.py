@@ -1,19 +1,136 @@
-"""Shared fixtures.
+"""Shared fixtures (how to write a fast real-server or browser test: docs/tests.md).
 
 ``engine``: the test runs once per engine (``"compiled"``: the C kernel, ``"python"``: the
 pure-Python paths), with every compensator made inside on that engine
 (``engines.select.use``). The compiled run fails if the kernel is not built: the test
 set-up builds it, so the compiled variants cannot silently test Python twice.
 ``server``: one real OctoPrint (virtual printer, KinComp installed) for the end-to-end and
-browser tests of a session, on a free loopback port, stopped at the end. Set
-KINCOMP_E2E_KEEP=<dir> to keep its logs."""
+browser tests of a session (of each worker process under ``-n``), on a free loopback port,
+stopped at the end. Set KINCOMP_E2E_KEEP=<dir> to keep its logs.
+``new_server``: a factory for a test that needs an OctoPrint of its own (its own stored
+settings, plugins or restarts): ``new_server(kincomp=..., connect=True)``, stopped at the
+test's end. Every test server's users (admin, viewer, settings-only, read-only) are made
+once per session and copied into its basedir (``devserver.users_template``).
+``browser``: one headless Chromium per session; ``page``: a new browser context per test
+(viewport and locale from ``browser_context_args``, which a module or test may override)
+on ``server``, logged in as the admin from the state stored after the session's first
+login; ``@pytest.mark.fresh_login``: through the login form instead.
 
+Under pytest-xdist (``./test.sh`` runs ``-n 2 --dist loadgroup``): the slowest modules are
+handed out first, modules with module-scoped fixtures stay on one worker, and a test marked
+``alone`` (it measures rates or times) runs while no other test runs."""
+
+import contextlib
+import fcntl
 import os
 import shutil
+import tempfile
 
 import pytest
 
 from octoprint_kincomp.engines.select import ENGINES, use
+
+# the modules that take longest, slowest first (measured with --durations=0): handed out
+# first under -n, so that the end of the run is many short tests spread over both workers
+SLOWEST_FIRST = [
+    "tests/e2e/test_soak.py",
+    "tests/e2e/test_reliability.py",
+    "tests/browser/test_campaign_ui.py",
+    "tests/e2e/test_reliability_round3.py",
+    "tests/e2e/test_server.py",
+    "tests/e2e/test_campaign.py",
+    "tests/plugin/test_campaign_api.py",
+    "tests/browser/test_first_hour.py",
+    "tests/sensor/test_capture.py",
+    "tests/browser/test_ui.py",
+    "tests/browser/test_findings_ui.py",
+    "tests/e2e/test_compat.py",
+    "tests/core/test_arc_fit.py",
+    "tests/core/test_properties.py",
+    "tests/corpus/test_corpus.py",
+    "tests/engines/test_fastpaths.py",
+]
+# modules whose tests share module-scoped fixtures: one worker runs all of them (the
+# fixture is made once); every other test may go to either worker
+ONE_WORKER = [
+    "tests/e2e/test_compat.py",
+    "tests/sensor/test_capture.py",
+    "tests/simulator/test_closed_loop.py",
+    "tests/release/test_extras.py",
+    "tests/calibration/test_campaign.py",
+    "tests/calibration/test_artifact_fit.py",
+    "tests/calibration/test_analysis.py",
+]
+SESSION_DIR_ENV = "KINCOMP_TEST_SESSION_DIR"
+
+
+def pytest_configure(config):
+    """The session's folder (shared by the workers under -n: made by the main process):
+    the users made once for every test server, the lock of the ``alone`` tests."""
+    from octoprint_kincomp.tools.devserver import USERS_TEMPLATE_ENV
+
+    if not os.environ.get(SESSION_DIR_ENV):
+        os.environ[SESSION_DIR_ENV] = tempfile.mkdtemp(prefix="kincomp-tests-")
+        config._kincomp_session_dir = os.environ[SESSION_DIR_ENV]
+    os.environ.setdefault(USERS_TEMPLATE_ENV, os.path.join(os.environ[SESSION_DIR_ENV], "users"))
+
+
+def pytest_unconfigure(config):
+    made = getattr(config, "_kincomp_session_dir", None)
+    if made:
+        shutil.rmtree(made, ignore_errors=True)
+        del os.environ[SESSION_DIR_ENV]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(session, config, items):
+    """The order and grouping for pytest-xdist's loadgroup scheduling (it hands out work in
+    collection order): the slowest modules first, ``alone`` tests last (one group: their
+    worker waits for the other's current test, which is then a short one)."""
+    rank = {m: i for i, m in enumerate(SLOWEST_FIRST)}
+
+    def module(item):
+        return item.nodeid.split("::", 1)[0]
+
+    def key(indexed):
+        i, item = indexed
+        alone = item.get_closest_marker("alone") is not None
+        return (alone, rank.get(module(item), len(rank)), i)
+
+    items[:] = [item for _, item in sorted(enumerate(items), key=key)]
+    for item in items:
+        if item.get_closest_marker("alone") is not None:
+            item.add_marker(pytest.mark.xdist_group("alone"))
+        elif module(item) in ONE_WORKER:
+            item.add_marker(pytest.mark.xdist_group(module(item)))
+
+
+@contextlib.contextmanager
+def _machine(exclusive: bool):
+    """Under -n: a test holds the run lock shared, an ``alone`` test exclusive (it waits for
+    the other worker's current test; the other's next test waits at the gate meanwhile)."""
+    folder = os.environ.get(SESSION_DIR_ENV)
+    if not os.environ.get("PYTEST_XDIST_WORKER") or not folder:
+        yield
+        return
+    mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
+    with open(os.path.join(folder, "gate.lock"), "a") as gate:
+        with open(os.path.join(folder, "run.lock"), "a") as run:
+            fcntl.flock(gate, mode)
+            fcntl.flock(run, mode)
+            if not exclusive:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+            try:
+                yield
+            finally:
+                fcntl.flock(run, fcntl.LOCK_UN)
+                fcntl.flock(gate, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    with _machine(item.get_closest_marker("alone") is not None):
+        yield
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -46,3 +163,58 @@ def server(tmp_path_factory):
         keep = os.environ.get("KINCOMP_E2E_KEEP")
         if keep:
             shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
+
+
+@pytest.fixture
+def new_server(tmp_path):
+    """``new_server(name="op", start=True, connect=False, **DevServer arguments)``: an
+    OctoPrint of the test's own in ``tmp_path/name`` (its users copied, not made), started
+    (and connected to the virtual printer) unless told otherwise; all stopped at the end."""
+    from octoprint_kincomp.tools.devserver import DevServer
+
+    made = []
+
+    def make(name="op", start=True, connect=False, **kwargs):
+        srv = DevServer(str(tmp_path / name), **kwargs)
+        made.append(srv)
+        if start:
+            srv.start()
+        if connect:
+            srv.connect()
+        return srv
+
+    try:
+        yield make
+    finally:
+        for srv in made:
+            srv.stop()
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Chromium for the session (Debian's, under Playwright)."""
+    from tests.support.browser import launched
+
+    with launched() as b:
+        yield b
+
+
+@pytest.fixture
+def browser_context_args():
+    """The ``page``'s browser context (Playwright's new_context arguments): override it in a
+    module or test for another viewport or locale."""
+    from tests.support.browser import CONTEXT
+
+    return dict(CONTEXT)
+
+
+@pytest.fixture
+def page(browser, server, browser_context_args, request):
+    """A page on ``server`` in a new context, logged in as the admin (stored login; with
+    ``@pytest.mark.fresh_login`` through the form). A failed test leaves
+    ``failed-<test>.png``; a KinComp error in the page's console fails the test."""
+    from tests.support.browser import browser_page
+
+    fresh = request.node.get_closest_marker("fresh_login") is not None
+    with browser_page(browser, server, request, fresh_login=fresh, **browser_context_args) as pg:
+        yield pg

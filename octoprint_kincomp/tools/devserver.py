@@ -41,6 +41,9 @@ USER_FLAGS = {
     READER: ["-g", "readonly"],
 }
 SERVER_OUT = "server.out"  # OctoPrint's own output (stdout and stderr), in the basedir
+LOGINS_FILE = "kincomp-logins.json"  # the logins (password, API key) of a basedir's users
+# a folder for the users made once and copied into every basedir (see users_template)
+USERS_TEMPLATE_ENV = "KINCOMP_USERS_TEMPLATE"
 
 
 def free_port() -> int:
@@ -68,11 +71,14 @@ def prepare(
     users: Sequence[str] = (ADMIN, VIEWER),
     demo: Optional[bool] = None,
     python: Optional[str] = None,
+    users_from: Optional[str] = None,
 ) -> Dict[str, str]:
     """Create (or refresh) a basedir; returns the logins {user: (password, apikey)}.
 
     ``kincomp`` replaces KinComp's stored settings (a fresh test server); ``demo`` only
-    switches demo mode and keeps everything else the user saved."""
+    switches demo mode and keeps everything else the user saved. Missing users are copied
+    from :func:`users_template` in ``users_from`` (default: the folder named by
+    :data:`USERS_TEMPLATE_ENV`, if set), else added by one run of OctoPrint's user manager."""
     os.makedirs(basedir, exist_ok=True)
     cfg_path = os.path.join(basedir, "config.yaml")
     config: Dict[str, Any] = {}
@@ -117,37 +123,131 @@ def prepare(
     with open(cfg_path, "w") as f:
         yaml.safe_dump(config, f)
 
-    logins_path = os.path.join(basedir, "kincomp-logins.json")
-    if os.path.exists(logins_path):
-        with open(logins_path) as f:
-            logins = json.load(f)
-    else:
-        logins = {}
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-    for user in users:
-        flags = USER_FLAGS[user]
-        if user in logins:
-            continue
-        pw = password if (password and user == ADMIN) else secrets.token_urlsafe(12)
-        cmd = (
-            _octoprint_cmd(python)
-            + ["--basedir", basedir, "user", "add", user, "--password", pw]
-            + flags
-        )
-        subprocess.run(cmd, check=True, capture_output=True, env=env)
-        logins[user] = {"password": pw, "apikey": secrets.token_hex(16).upper()}
+    logins_path = os.path.join(basedir, LOGINS_FILE)
+    logins = _read_json(logins_path)
+    missing = [u for u in users if u not in logins]
+    template = users_from or os.environ.get(USERS_TEMPLATE_ENV)
+    if missing and template and not password:
+        # the template's users (made once): copied, no OctoPrint process started
+        folder = users_template(template, python)
+        logins.update(_copy_users(folder, basedir, missing))
+    elif missing:
+        logins.update(add_users(basedir, missing, python, password))
     users_path = os.path.join(basedir, "users.yaml")
     with open(users_path) as f:
-        users = yaml.safe_load(f) or {}
+        stored = yaml.safe_load(f) or {}
     for user, info in logins.items():
-        if user in users:
-            users[user]["apikey"] = info["apikey"]
+        if user in stored:
+            stored[user]["apikey"] = info["apikey"]
     with open(users_path, "w") as f:
-        yaml.safe_dump(users, f)
+        yaml.safe_dump(stored, f)
     with open(logins_path, "w") as f:
         json.dump(logins, f)
     os.chmod(logins_path, 0o600)
     return logins
+
+
+# One OctoPrint process adds every user (OctoPrint's own user manager, as `octoprint user
+# add` does it: the same groups, permissions and password hashing), instead of one
+# `octoprint user add` process per user (each starts OctoPrint's command line: seconds).
+_ADD_USERS = """
+import json, sys
+from octoprint import init_settings
+from octoprint.access.groups import FilebasedGroupManager
+from octoprint.access.users import FilebasedUserManager
+
+settings = init_settings(sys.argv[1], None)
+groups = FilebasedGroupManager()
+manager = FilebasedUserManager(groups, settings=settings)
+for name, password, apikey, group_ids, permissions, admin in json.loads(sys.argv[2]):
+    member_of = list(group_ids) + ([groups.admin_group] if admin else [])
+    manager.add_user(name, password, active=True, permissions=permissions, groups=member_of,
+                     apikey=apikey, overwrite=True)
+"""
+
+
+def _user_spec(user: str, password: str, apikey: str) -> list:
+    """``user``'s :data:`USER_FLAGS` as the user manager takes them."""
+    flags = USER_FLAGS[user]
+    groups = [flags[i + 1] for i, f in enumerate(flags) if f == "-g"]
+    permissions = [flags[i + 1] for i, f in enumerate(flags) if f == "-p"]
+    return [user, password, apikey, groups, permissions, "--admin" in flags]
+
+
+def add_users(
+    basedir: str, users: Sequence[str], python: Optional[str] = None, password: str = None
+) -> Dict[str, Dict[str, str]]:
+    """Adds ``users`` (of :data:`USER_FLAGS`) to ``basedir`` with fresh passwords (the admin's
+    ``password`` if given) and API keys, in one run of that environment's OctoPrint; returns
+    their logins {user: {password, apikey}}."""
+    os.makedirs(basedir, exist_ok=True)
+    logins = {
+        u: {
+            "password": password if (password and u == ADMIN) else secrets.token_urlsafe(12),
+            "apikey": secrets.token_hex(16).upper(),
+        }
+        for u in users
+    }
+    spec = [_user_spec(u, i["password"], i["apikey"]) for u, i in logins.items()]
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
+    subprocess.run(
+        [python or sys.executable, "-c", _ADD_USERS, basedir, json.dumps(spec)],
+        check=True,
+        capture_output=True,
+        env=env,
+    )
+    return logins
+
+
+def users_template(folder: str, python: Optional[str] = None) -> str:
+    """A folder inside ``folder`` with every user of :data:`USER_FLAGS` (``users.yaml`` and
+    their logins) for the OctoPrint of ``python``, made on the first call (by any process:
+    under a lock) and then only found; :func:`prepare` copies users from it. The test
+    session sets :data:`USERS_TEMPLATE_ENV` so that no test server creates its users."""
+    import fcntl
+    import hashlib
+
+    key = hashlib.sha1(os.path.abspath(python or sys.executable).encode()).hexdigest()[:12]
+    here = os.path.join(folder, "users-" + key)
+    if os.path.exists(os.path.join(here, LOGINS_FILE)):
+        return here
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, ".lock-" + key), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not os.path.exists(os.path.join(here, LOGINS_FILE)):
+            tmp = here + ".tmp"
+            shutil.rmtree(tmp, ignore_errors=True)
+            logins = add_users(tmp, list(USER_FLAGS), python)
+            with open(os.path.join(tmp, LOGINS_FILE), "w") as f:
+                json.dump(logins, f)
+            os.rename(tmp, here)
+    return here
+
+
+def _copy_users(template: str, basedir: str, users: Sequence[str]) -> Dict[str, Dict[str, str]]:
+    """``users`` copied from the folder :func:`users_template` made into ``basedir``'s
+    ``users.yaml`` (beside any user it has); returns their logins."""
+    with open(os.path.join(template, "users.yaml")) as f:
+        made = yaml.safe_load(f)
+    users_path = os.path.join(basedir, "users.yaml")
+    stored = {}
+    if os.path.exists(users_path):
+        with open(users_path) as f:
+            stored = yaml.safe_load(f) or {}
+    for key in [k for k in made if k.startswith("_")]:
+        stored.setdefault(key, made[key])  # the file format's version
+    stored.update({u: made[u] for u in users})
+    with open(users_path, "w") as f:
+        yaml.safe_dump(stored, f)
+    logins = _read_json(os.path.join(template, LOGINS_FILE))
+    return {u: logins[u] for u in users}
+
+
+def _read_json(path: str) -> dict:
+    if not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        return json.load(f)
 
 
 def request_body(

@@ -12,7 +12,7 @@ import pytest
 from octoprint_kincomp.calibration.artifact.program import read_measurements
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.simulator.artifact import simulate_readings
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step, browser, page  # noqa: F401 - the fixtures
+from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -26,7 +26,7 @@ TRUTH = Params.from_dict(
 
 
 def _open_artifact(page):
-    _open_tab(page)
+    open_tab(page)
     page.click("#kincomp_artifact_toggle")
     page.wait_for_selector("#kincomp_artifact_program", state="visible")
 
@@ -57,7 +57,7 @@ def test_measuring_form_result_and_apply(page, server):
     for m in meas:
         for k, v in enumerate(readings[m.id], 1):
             page.fill(f"#kincomp_artifact_r_{m.id}_{k}", f"{v:.2f}")
-    _no_popups(page)
+    no_popups(page)
     page.screenshot(path=os.path.join(SHOTS, "artifact-measure.png"), full_page=True)
     page.click("#kincomp_artifact_analyse")
     page.wait_for_selector("#kincomp_artifact_result", state="visible")
@@ -70,7 +70,7 @@ def test_measuring_form_result_and_apply(page, server):
     findings = page.inner_text("#kincomp_artifact_findings")
     assert "B3-in" in findings and "left out" in findings
     assert page.is_visible("#kincomp_artifact_trusted")
-    _no_popups(page)
+    no_popups(page)
     page.screenshot(path=os.path.join(SHOTS, "artifact-result.png"), full_page=True)
     # the row of the typo is marked in the form
     page.click("#kincomp_artifact_step_measure")
@@ -87,8 +87,8 @@ def test_measuring_form_result_and_apply(page, server):
     # readings
     page.reload()
     page.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
-    _open_tab(page)
-    _step(page, "history")
+    open_tab(page)
+    step(page, "history")
     page.wait_for_selector("#kincomp_history tbody tr")
     first_row = page.locator("#kincomp_history tbody tr").first
     assert path.rsplit("/", 1)[-1] in first_row.inner_text()

@@ -11,7 +11,7 @@ import time
 import pytest
 
 from octoprint_kincomp.core.params import Params
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _open_tab, _step, browser, page  # noqa: F401 - the fixtures
+from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -20,8 +20,8 @@ API = "/plugin/kincomp"
 
 
 def _open_campaign_mode(page):
-    _open_tab(page)
-    _step(page, "campaign")
+    open_tab(page)
+    step(page, "campaign")
     # the newest campaign is shown where it was left (e.g. by another test): plan a new one
     page.wait_for_selector("#kincomp_campaign", state="visible")
     for button in ("#kincomp_campaign_new", "#kincomp_campaign_restart"):
@@ -45,7 +45,7 @@ def _measure_every_test(page, server, shot=None):
             page.wait_for_selector("#kincomp_campaign_paused", state="visible", timeout=180_000)
             _no_blocked_command_warnings(page)  # KinComp pauses at the program's M0 itself
             if shot and n == 2 and k == 0:
-                _no_popups(page)
+                no_popups(page)
                 page.screenshot(path=os.path.join(SHOTS, shot), full_page=True)
             page.click("#kincomp_campaign_resume")
             page.wait_for_selector("#kincomp_campaign_paused", state="hidden")
@@ -134,7 +134,7 @@ def test_a_whole_campaign_in_demo_mode(page, server):
         assert f"{proposed['squareness_um_per_m']['xz']:.1f} µm/m" in shown
         assert page.is_visible("#kincomp_campaign_servo >> text=servo pre-compensation is proposed")
         assert page.is_visible("#kincomp_campaign_result >> text=SIMULATED")
-        _no_popups(page)
+        no_popups(page)
         page.locator("#kincomp_campaign_result").screenshot(
             path=os.path.join(SHOTS, "campaign-first.png")
         )
@@ -180,13 +180,13 @@ def test_a_whole_campaign_in_demo_mode(page, server):
         assert float(xy.split()[-2]) > 95, xy
         page.wait_for_selector("#kincomp_campaign_plot_0 .legend >> text=CCW (before)")
         time.sleep(0.5)
-        _no_popups(page)
+        no_popups(page)
         page.locator("#kincomp_campaign_result").screenshot(
             path=os.path.join(SHOTS, "campaign.png")
         )
 
         # the history groups each campaign's runs
-        _step(page, "history")
+        step(page, "history")
         for c in (cid, again["id"]):
             group = page.locator(f"#kincomp_campaign_group_{c}")
             group.wait_for()
@@ -201,8 +201,8 @@ def test_a_campaign_is_deleted_from_the_history(page, server):
     code, doc = server.request("POST", f"{API}/campaign/plan", {"radius_xy": 50})
     assert code == 200, doc
     cid = doc["id"]
-    _open_tab(page)
-    _step(page, "history")
+    open_tab(page)
+    step(page, "history")
     group = page.locator(f"#kincomp_campaign_group_{cid}")
     group.wait_for()
     assert "not run" in group.inner_text()

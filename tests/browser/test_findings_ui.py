@@ -10,16 +10,7 @@ import os
 
 import pytest
 
-from octoprint_kincomp.tools.devserver import DevServer
-from tests.browser.test_ui import (  # noqa: F401 (browser: the fixture)
-    SHOTS,
-    _no_popups,
-    _open_settings,
-    _open_tab,
-    _step,
-    browser,
-    login,
-)
+from tests.support.browser import SHOTS, browser_page, no_popups, open_settings, open_tab, step
 from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
@@ -64,21 +55,14 @@ def _untrusted_run(srv):
 
 
 def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
-    browser,
-    tmp_path,
+    browser, new_server, request
 ):
-    srv = DevServer(str(tmp_path / "op"))
-    srv.start()
-    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
-    try:
-        os.makedirs(SHOTS, exist_ok=True)
-        run = _untrusted_run(srv)
-        before = status(srv)["params_hash"]
-        page = context.new_page()
-        page.set_default_timeout(60_000)
-        login(page, srv)
-        _open_tab(page)
-        _step(page, "history")
+    srv = new_server()  # (its own: a fresh run store and parameters)
+    run = _untrusted_run(srv)
+    before = status(srv)["params_hash"]
+    with browser_page(browser, srv, request) as page:
+        open_tab(page)
+        step(page, "history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
         row = page.locator("#kincomp_history tbody tr", has_text=run["filename"]).first
         assert row.locator(".kincomp-untrusted-label").is_visible()
@@ -95,7 +79,7 @@ def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
         # Apply asks first; cancelling applies nothing
         page.click("#kincomp_apply")
         page.wait_for_selector("#kincomp_apply_confirm .kincomp-apply-confirm", state="visible")
-        _no_popups(page)
+        no_popups(page)
         page.screenshot(path=os.path.join(SHOTS, "untrusted-result.png"), full_page=True)
         page.click("#kincomp_apply_confirm .kincomp-apply-cancel")
         page.wait_for_selector("#kincomp_apply_confirm .kincomp-apply-confirm", state="hidden")
@@ -106,20 +90,12 @@ def test_an_untrusted_result_shows_its_findings_and_needs_apply_anyway(
         st = status(srv)
         assert st["params_hash"] != before
         assert st["settings"]["params"]["squareness_um_per_m"]["xy"] != 0.0
-    finally:
-        context.close()
-        srv.stop()
 
 
-def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):
-    srv = DevServer(str(tmp_path / "op"))
-    srv.start()
-    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
-    try:
-        page = context.new_page()
-        page.set_default_timeout(60_000)
-        login(page, srv)
-        _open_settings(page)
+def test_the_settings_page_takes_pasted_klipper_limits(browser, new_server, request):
+    srv = new_server()  # (its own: no printer connected, no limits stated yet)
+    with browser_page(browser, srv, request) as page:
+        open_settings(page)
         page.wait_for_selector("#kincomp_limits_table", state="visible")
         page.fill("#kincomp_limits_text", "nothing useful")
         page.click("#kincomp_save")  # the page's one Save
@@ -136,8 +112,5 @@ def test_the_settings_page_takes_pasted_klipper_limits(browser, tmp_path):
         assert ml["stated"]["source"] == "pasted"
         assert ml["effective"]["max_feed_mm_min"]["z"] == 120.0
         page.evaluate("document.querySelector('#kincomp_motion_limits').scrollIntoView()")
-        _no_popups(page)
+        no_popups(page)
         page.screenshot(path=os.path.join(SHOTS, "settings-motion-limits.png"))
-    finally:
-        context.close()
-        srv.stop()

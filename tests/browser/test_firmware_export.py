@@ -8,7 +8,7 @@ import pytest
 from octoprint_kincomp import __plugin_url__, __version__
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.firmware.export import export
-from tests.browser.test_ui import SHOTS, ZERO, _open_settings, _open_tab, browser, page  # noqa: F401
+from tests.support.browser import SHOTS, ZERO, open_settings, open_tab
 from tests.support.serverutil import settings
 
 pytestmark = pytest.mark.slow
@@ -23,7 +23,7 @@ PARAMS = {
 def test_settings_show_the_export_per_firmware_and_copy_it(page, server):
     settings(server, enabled=False, params=PARAMS)
     page.context.grant_permissions(["clipboard-read", "clipboard-write"], origin=server.url)
-    _open_settings(page)
+    open_settings(page)
     want = export(Params.from_dict(PARAMS))
     # the version that runs and the README link
     page.wait_for_function("document.querySelector('#kincomp_version').textContent !== ''")
@@ -57,7 +57,7 @@ def test_settings_show_the_export_per_firmware_and_copy_it(page, server):
     )
     page.reload()
     page.wait_for_selector("#navbar_show_settings", state="visible")
-    _open_settings(page)
+    open_settings(page)
     page.click("#kincomp_fw_tab_marlin")
     page.click("#kincomp_fw_marlin_terminal .kincomp-copy")
     page.wait_for_selector("#kincomp_fw_marlin_terminal >> text=Copied")
@@ -66,7 +66,7 @@ def test_settings_show_the_export_per_firmware_and_copy_it(page, server):
 
 
 def test_calibration_tab_shows_version_and_readme(page, server):
-    _open_tab(page)
+    open_tab(page)
     page.wait_for_function("document.querySelector('#kincomp_tab_version').textContent !== ''")
     assert page.inner_text("#kincomp_tab_version") == __version__
     assert page.get_attribute("#kincomp_tab_about a", "href") == __plugin_url__

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from tests.browser.test_ui import SHOTS, ZERO, _no_popups, _step, browser, login  # noqa: F401
+from tests.support.browser import SHOTS, ZERO, browser_page, no_popups, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -28,20 +28,15 @@ def size(request):
 
 
 @pytest.fixture
-def page(browser, server, size):
-    os.makedirs(SHOTS, exist_ok=True)
-    context = browser.new_context(viewport={"width": size[0], "height": size[1]}, locale="en-US")
-    pg = context.new_page()
-    pg.set_default_timeout(60_000)
-    errors = []
-    pg.on("pageerror", lambda e: errors.append(str(e)))
-    pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    login(pg, server)
-    pg.wait_for_selector("#navbar_plugin_kincomp", state="attached")
-    yield pg
-    context.close()
-    kincomp_errors = [e for e in errors if "kincomp" in e.lower()]
-    assert not kincomp_errors, kincomp_errors
+def browser_context_args(size):
+    return {"viewport": {"width": size[0], "height": size[1]}, "locale": "en-US"}
+
+
+@pytest.fixture
+def page(page):
+    """tests/conftest.py's page, at the test's window size, with KinComp's top-bar entry."""
+    page.wait_for_selector("#navbar_plugin_kincomp", state="attached")
+    return page
 
 
 def _tab_shown(page):
@@ -65,6 +60,7 @@ def _summary_run(server, **values):
     return run
 
 
+@pytest.mark.fresh_login  # (the login form: what a new user sees right after it)
 def test_kincomp_is_one_click_away_from_a_fresh_login(page, server, size):
     settings(server, enabled=False, params=ZERO)
     # OctoPrint folds the tab into its unlabeled overflow menu at these widths
@@ -109,10 +105,10 @@ def test_the_history_is_readable_and_never_run_campaigns_say_so(page, server, si
     )
     assert code == 200, plan
     page.click("#kincomp_navbar_link")
-    _step(page, "history")
+    step(page, "history")
     page.wait_for_selector("#kincomp_history tbody tr")
     page.wait_for_selector(f"#kincomp_campaign_group_{plan['id']}")
-    _no_popups(page)
+    no_popups(page)
     page.screenshot(path=os.path.join(SHOTS, f"history-{size[0]}.png"))
     shown = page.evaluate("""() => {
         const t = document.querySelector('#kincomp_history');
@@ -143,7 +139,7 @@ def test_a_reduction_within_the_noise_floor_says_at_noise_level(page, server, si
     before = _summary_run(server, squareness_um_per_m=0.3, backlash_a_plus=20.0)
     after = _summary_run(server, squareness_um_per_m=-2.5, backlash_a_plus=0.2)
     page.click("#kincomp_navbar_link")
-    _step(page, "history")
+    step(page, "history")
     page.check(f"#kincomp_history input[name=kincomp_before][value='{before['id']}']")
     page.check(f"#kincomp_history input[name=kincomp_after][value='{after['id']}']")
     page.click("#kincomp_compare")
@@ -238,7 +234,7 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
         notes = seen["notes"]
         assert not any("Home the printer" in n or "G28" in n for n in notes), notes
         assert any("Do not home the printer" in n for n in notes), notes
-        _no_popups(page)
+        no_popups(page)
         page.evaluate("window.scrollTo(0, 0)")
         chart = page.locator("#kincomp_sensor_chart").bounding_box()
         assert chart and chart["y"] + chart["height"] <= size[1], chart  # in view
@@ -265,20 +261,15 @@ def test_a_test_waiting_at_its_mount_pause(page, server, size):
     assert not page.is_visible("#kincomp_apply_why")
 
 
-def test_a_live_capture_source_is_translated(browser, server):
+def test_a_live_capture_source_is_translated(browser, server, request):
     # the History's source "live capture (XZ)" is stored in English: shown in German
-    context = browser.new_context(
+    german = dict(
         viewport={"width": 1400, "height": 900},
         locale="de-DE",
         extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"},
     )
-    try:
-        pg = context.new_page()
-        pg.set_default_timeout(60_000)
-        login(pg, server)
+    with browser_page(browser, server, request, **german) as pg:
         pg.wait_for_selector("#navbar_plugin_kincomp", state="attached")
         assert pg.evaluate("KinComp.sourceText('live capture (XZ)')") == "Live-Erfassung (XZ)"
         assert pg.evaluate("KinComp.reductionText({at_noise: true})") == "im Rauschen"
         assert "KinComp" in pg.inner_text("#kincomp_navbar_link")
-    finally:
-        context.close()

@@ -9,16 +9,7 @@ import re
 
 import pytest
 
-from tests.browser.test_ui import (  # noqa: F401 - the fixtures
-    SHOTS,
-    ZERO,
-    _no_popups,
-    _open_settings,
-    _open_tab,
-    _step,
-    browser,
-    page,
-)
+from tests.support.browser import SHOTS, ZERO, no_popups, open_settings, open_tab, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -27,7 +18,7 @@ pytestmark = pytest.mark.slow
 def test_live_capture_from_the_calibration_tab(page, server):
     settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": True})
     try:
-        _open_tab(page)
+        open_tab(page)
         page.wait_for_selector("#kincomp_sensor_live >> text=Virtual ballbar of demo mode")
         page.click("#kincomp_sensor_open")
         page.wait_for_selector("#kincomp_sensor_state >> text=Live view")
@@ -51,7 +42,7 @@ def test_live_capture_from_the_calibration_tab(page, server):
         page.click("#kincomp_print_program")
         # armed, then the runs stream in: the live view follows the capture
         page.wait_for_selector("#kincomp_sensor_state >> text=Capturing", timeout=60_000)
-        _no_popups(page)
+        no_popups(page)
         page.locator("#kincomp_sensor_live").screenshot(path=os.path.join(SHOTS, "live-view.png"))
         # analysed by itself: the result as for an uploaded trace
         page.wait_for_selector(
@@ -72,11 +63,11 @@ def test_live_capture_from_the_calibration_tab(page, server):
         server.wait_print_done()
         page.wait_for_selector("#kincomp_apply:enabled")  # applying stays the user's click
         assert status(server)["settings"]["enabled"] is False
-        _step(page, "program")
+        step(page, "program")
         page.wait_for_selector("#kincomp_sensor_run >> text=Test captured and analysed")
         page.click("#kincomp_sensor_close")
         page.wait_for_selector("#kincomp_sensor_state >> text=Closed")
-        _step(page, "history")
+        step(page, "history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")
         assert page.locator("#kincomp_history a.kincomp-raw-link").first.is_visible()
     finally:
@@ -85,7 +76,7 @@ def test_live_capture_from_the_calibration_tab(page, server):
 
 def test_sensor_settings_refuse_bad_values_inline(page, server):
     settings(server, sensor={"enabled": False, "port": ""})
-    _open_settings(page)
+    open_settings(page)
     page.locator("#kincomp_sensor_settings").scroll_into_view_if_needed()
     page.check("#kincomp_sensor_enabled")
     page.fill("#kincomp_sensor_port", "VIRTUAL")  # the virtual printer's port

@@ -7,10 +7,9 @@ import os
 
 import pytest
 
-from octoprint_kincomp.tools.devserver import DevServer
-from tests.browser import test_ui as ui
-from tests.browser.test_ui import browser  # noqa: F401 (the fixture)
 from tests.e2e.test_printer_profiles import SECOND, _connect
+from tests.support import browser as ui
+from tests.support.browser import browser_page
 from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
@@ -23,32 +22,23 @@ CALIBRATED = {
 
 
 @pytest.fixture
-def two_printers(browser, tmp_path):
+def two_printers(browser, new_server, request):
     """A server whose default printer profile (A) is calibrated and connected, a second
     profile (B) made, and a logged-in page on it: (server, page)."""
-    srv = DevServer(str(tmp_path / "op"), kincomp=CALIBRATED).start()
-    context = None
-    try:
-        _connect(srv, "_default")
-        code, body = srv.request(
-            "POST", "/api/printerprofiles", {"profile": dict(SECOND), "basedOn": "_default"}
-        )
-        assert code == 200, body
-        context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
-        page = context.new_page()
-        page.set_default_timeout(60_000)
-        ui.login(page, srv)
+    srv = new_server(kincomp=CALIBRATED)
+    _connect(srv, "_default")
+    code, body = srv.request(
+        "POST", "/api/printerprofiles", {"profile": dict(SECOND), "basedOn": "_default"}
+    )
+    assert code == 200, body
+    with browser_page(browser, srv, request) as page:
         yield srv, page
-    finally:
-        if context is not None:
-            context.close()
-        srv.stop()
 
 
 def test_a_stale_settings_page_is_refused_and_offers_reload(two_printers):
     srv, page = two_printers
     os.makedirs(ui.SHOTS, exist_ok=True)
-    ui._open_settings(page)
+    ui.open_settings(page)
     page.wait_for_selector("#kincomp_settings_profile >> text=Default")
     assert page.input_value("#kincomp_sq_xy") == "1000"
 
@@ -62,7 +52,7 @@ def test_a_stale_settings_page_is_refused_and_offers_reload(two_printers):
     assert st["profile"]["id"] == SECOND["id"] and st["profile"]["calibrated"] is False
     assert st["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0  # A's not in B
     assert st["settings"]["params"]["scale_ppm"]["x"] == 0.0
-    ui._no_popups(page)
+    ui.no_popups(page)
     page.evaluate("document.querySelector('#settings_plugin_kincomp').scrollIntoView()")
     page.screenshot(path=os.path.join(ui.SHOTS, "settings-stale-profile.png"))
 

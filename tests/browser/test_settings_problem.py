@@ -6,14 +6,7 @@ import os
 
 import pytest
 
-from octoprint_kincomp.tools.devserver import DevServer
-from tests.browser.test_ui import (  # noqa: F401 (browser: the fixture)
-    SHOTS,
-    _no_popups,
-    _open_settings,
-    browser,
-    login,
-)
+from tests.support.browser import SHOTS, browser_page, no_popups, open_settings
 from tests.support.serverutil import status
 
 pytestmark = pytest.mark.slow
@@ -27,21 +20,15 @@ GARBAGE = {
 }
 
 
-def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_path):
-    srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE)
-    srv.start()
-    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
-    try:
-        os.makedirs(SHOTS, exist_ok=True)
-        page = context.new_page()
-        page.set_default_timeout(60_000)
-        login(page, srv)
-        _open_settings(page)
+def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, new_server, request):
+    srv = new_server(kincomp=GARBAGE)  # (its own: the garbage is in config.yaml at start-up)
+    with browser_page(browser, srv, request) as page:
+        open_settings(page)
         page.wait_for_selector("#kincomp_settings_problem >> text=params.squareness_um_per_m.xy")
         assert page.is_visible("#settings_plugin_kincomp .control-group.error #kincomp_sq_xy")
         assert page.input_value("#kincomp_sq_xz") == "120"  # the rest of the calibration
         assert page.input_value("#kincomp_sc_x") == "350"
-        _no_popups(page)
+        no_popups(page)
         page.evaluate("document.querySelector('#settings_plugin_kincomp').scrollIntoView()")
         page.screenshot(path=os.path.join(SHOTS, "settings-stored-invalid.png"))
         page.fill("#kincomp_sq_xy", "250")
@@ -53,6 +40,3 @@ def test_the_settings_page_shows_and_fixes_invalid_stored_settings(browser, tmp_
         p = st["settings"]["params"]
         assert p["squareness_um_per_m"] == {"xy": 250.0, "xz": 120.0, "yz": -80.0}
         assert p["scale_ppm"] == {"x": 350.0, "y": -200.0, "z": 15.0}
-    finally:
-        context.close()
-        srv.stop()

@@ -1,137 +1,35 @@
 """The web UI in a real headless Chromium (Debian's chromium, driven by Playwright) against
-a real OctoPrint with the virtual printer. Screenshots go to test-artifacts/screenshots/."""
+a real OctoPrint with the virtual printer. Screenshots go to test-artifacts/screenshots/.
+The ``browser`` and ``page`` fixtures are tests/conftest.py's (one Chromium per session, a
+stored login); the steps (log in, open the tab...) are tests/support/browser.py's."""
 
 import os
-import shutil
 import time
 import urllib.parse
 
 import pytest
 
+from tests.support.browser import (
+    SHOTS,
+    ZERO,
+    browser_page,
+    failure_picture,
+    login,  # noqa: F401 (other modules import it from here)
+    no_popups,
+    open_settings,
+    open_tab,
+    step,
+)
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-SHOTS = os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "screenshots")
-ZERO = {
-    "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
-    "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
-    "backlash": {"x": 0.0, "y": 0.0, "z": 0.0},
-}
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if not os.path.exists(CHROMIUM):
-        pytest.fail("Debian's chromium is missing: run ./scripts/bootstrap.sh (it installs it)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(
-            executable_path=CHROMIUM,
-            args=[
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-            ],
-        )
-        try:
-            yield b
-        finally:
-            b.close()
-
-
-@pytest.fixture
-def page(browser, server, request):
-    os.makedirs(SHOTS, exist_ok=True)
-    context = browser.new_context(viewport={"width": 1400, "height": 1100}, locale="en-US")
-    pg = context.new_page()
-    pg.set_default_timeout(60_000)
-    errors = []
-    pg.on("pageerror", lambda e: errors.append(f"{e} {getattr(e, 'stack', '')}"))
-    # OctoPrint catches view model callback exceptions and logs them to the console
-    pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    login(pg, server)
-    pg.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
-    yield pg
-    rep = getattr(request.node, "rep_call", None)
-    if rep is not None and rep.failed:
-        _failure_picture(pg, request.node.name)
-    context.close()
-    kincomp_errors = [e for e in errors if "kincomp" in e.lower()]
-    assert not kincomp_errors, kincomp_errors
-
-
-def login(pg, server):
-    """The admin logs in on ``server``'s page."""
-    pg.goto(server.url + "/")
-    pg.fill("#login-user", "admin")
-    pg.fill("#login-password", server.logins["admin"]["password"])
-    pg.click("#login-button")
-    pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
-
-
-def _no_popups(page):
-    """Close OctoPrint's notification pop-ups so that they do not cover a screenshot."""
-    page.evaluate("document.querySelectorAll('.ui-pnotify').forEach(e => e.remove())")
-
-
-def _failure_picture(pg, name: str) -> None:
-    """What the page showed when a test failed: a screenshot in SHOTS and, in the test's
-    output, its address (with the tab shown), whether the Calibration tab is visible, any
-    dialog open and the offline overlay (a failed click on a hidden element says little
-    more than that it was hidden)."""
-    try:
-        pg.screenshot(path=os.path.join(SHOTS, f"failed-{name}.png"), full_page=True)
-        shown = pg.evaluate("""() => ({
-            url: location.href,
-            kincompTabVisible: !!(document.querySelector('#kincomp_tab') || {}).offsetParent,
-            modals: [...document.querySelectorAll('.modal.in')].map(m => m.id),
-            offline: !!(document.querySelector('#offline_overlay') || {}).offsetParent})""")
-        print(f"page at the failure of {name}: {shown}")
-    except Exception as exc:
-        print(f"no picture of the page at the failure of {name}: {exc}")
-
-
-def _open_tab(page):
-    """The Calibration tab; on a narrow layout OctoPrint moves tabs into an overflow menu."""
-    if not page.is_visible("#tab_plugin_kincomp_link a"):
-        page.click("#tabs .tabdrop .dropdown-toggle")
-    page.locator('a[href="#tab_plugin_kincomp"]:visible').first.click()
-    page.wait_for_selector("#kincomp_plane", state="visible")
-
-
-def _step(page, name: str) -> None:
-    """Go to a step of the Calibration tab (``name``: program, measure, result, campaign,
-    history). OctoPrint folds pills that no longer fit on one row into a menu (its tabdrop,
-    at any window resize; in the 1400 px test window the steps take two rows): a folded step
-    is clicked in that menu."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
-    link = f"#kincomp_step_{name}"
-    menu = "#kincomp_tab .kincomp-steps .tabdrop .dropdown-toggle"
-    for _ in range(3):
-        if not page.is_visible(link) and page.is_visible(menu):
-            page.click(menu)
-        try:
-            page.click(link, timeout=5_000)
-            return
-        except PlaywrightTimeout:  # folded (or unfolded) meanwhile: look again
-            continue
-    page.click(link)  # (this one reports what is wrong)
-
-
-def _open_settings(page):
-    page.click("#navbar_show_settings")
-    page.click("#settings_plugin_kincomp_link a")
-    page.wait_for_selector("#kincomp_sq_xy", state="visible")
-    # the form is filled from the server
-    page.wait_for_function("document.querySelector('#kincomp_sq_xy').value !== ''")
+# the steps of every browser test, under the names the other browser modules import
+_no_popups = no_popups
+_failure_picture = failure_picture
+_open_tab = open_tab
+_step = step
+_open_settings = open_settings
 
 
 def test_settings_change_save_and_refuse_invalid(page, server):
@@ -296,21 +194,10 @@ def test_files_compensated_with_older_parameters_are_flagged(page, server):
         server.request("DELETE", "/api/files/local/flagged.gcode")
 
 
-def test_german_browser_gets_the_german_ui(browser, server):
+def test_german_browser_gets_the_german_ui(browser, server, request):
     """Jinja (server side) and gettext in the view models (browser side) both translate."""
-    context = browser.new_context(
-        viewport={"width": 1400, "height": 1100},
-        locale="de-DE",
-        extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"},
-    )
-    try:
-        pg = context.new_page()
-        pg.set_default_timeout(60_000)
-        pg.goto(server.url + "/")
-        pg.fill("#login-user", "admin")
-        pg.fill("#login-password", server.logins["admin"]["password"])
-        pg.click("#login-button")
-        pg.wait_for_selector("#navbar_show_settings", state="visible", timeout=120_000)
+    german = dict(locale="de-DE", extra_http_headers={"Accept-Language": "de-DE,de;q=0.9"})
+    with browser_page(browser, server, request, **german) as pg:
         _open_tab(pg)
         assert "Kalibrierung" in pg.inner_text("#tab_plugin_kincomp_link")
         assert pg.is_visible("text=Testprogramm drucken")  # template, rendered by Jinja
@@ -326,5 +213,3 @@ def test_german_browser_gets_the_german_ui(browser, server):
             "#settings_plugin_kincomp .alert-error >> text=liegt außerhalb des zulässigen Bereichs"
         )
         assert status(server)["settings"]["params"]["scale_ppm"]["y"] == 0.0
-    finally:
-        context.close()

@@ -41,6 +41,7 @@ FINE = 1e-5  # sagitta of the chords the interpreters cut arcs into (mm)
 # make such arcs, and for them the check (radial distance at the same angle) overstates the
 # distance of a chord: they are not compared here.
 SPIRAL_MM = 0.05
+_BLOCK = 512  # points of the printed path whose nearest arc points are sought at once
 
 
 def deviation(arc: arcs.Arc, path) -> float:
@@ -50,29 +51,38 @@ def deviation(arc: arcs.Arc, path) -> float:
     Between two points the path is straight: it is checked at quarters of each segment too."""
     V = np.asarray(path, float)
     # the path is straight between its points: check those lines at quarters too
-    P = np.concatenate([V[:-1] + (V[1:] - V[:-1]) * t for t in (0.0, 0.25, 0.5, 0.75)] + [V[-1:]])
-    order = np.concatenate([np.arange(len(V) - 1) * 4 + i for i in range(4)] + [[4 * len(V)]])
-    P = P[np.argsort(order, kind="stable")]
+    P = np.empty((4 * len(V) - 3, 3))
+    for i, q in enumerate((0.0, 0.25, 0.5, 0.75)):
+        P[i:-1:4] = V[:-1] + (V[1:] - V[:-1]) * q
+    P[-1] = V[-1]
     a = P[:, arc.ia] - arc.ca
     b = P[:, arc.ib] - arc.cb
     ang = np.unwrap(np.arctan2(b, a))
     ang += 2 * math.pi * round((arc.t0 - float(ang[0])) / (2 * math.pi))  # ang[0] ~ t0
     f = np.clip((ang - arc.t0) / arc.sweep, 0.0, 1.0)
     # the nearest point of the arc is near the one at the same angle: search around it
-    # (twice, the second time 40 times finer), so a steep helix is not judged by its angle
+    # (twice, the second time 40 times finer), so a steep helix is not judged by its angle;
+    # in blocks of points (the candidates of a block stay in the CPU's cache)
     width = min(0.5, 0.2 / (max(min(arc.r0, arc.r1), 1e-3) * abs(arc.sweep)))
-    for _ in range(2):
-        cand = np.clip(f[:, None] + width * np.linspace(-1.0, 1.0, 81)[None, :], 0.0, 1.0)
-        t = arc.t0 + arc.sweep * cand
-        r = arc.r0 + arc.dr * cand
-        da = a[:, None] - r * np.cos(t)
-        db = b[:, None] - r * np.sin(t)
-        dl = P[:, arc.il][:, None] - (arc.l0 + arc.dl * cand)
-        dist = np.sqrt(da * da + db * db + dl * dl)
-        best = np.argmin(dist, axis=1)
-        f = cand[np.arange(len(f)), best]
-        width /= 40.0
-    d = dist[np.arange(len(f)), best]
+    grid = np.linspace(-1.0, 1.0, 81)[None, :]
+    d = np.empty(len(f))
+    for lo in range(0, len(f), _BLOCK):
+        fb, ab, bb = f[lo : lo + _BLOCK], a[lo : lo + _BLOCK, None], b[lo : lo + _BLOCK, None]
+        lb = P[lo : lo + _BLOCK, arc.il][:, None]
+        rows = np.arange(len(fb))
+        w = width
+        for _ in range(2):
+            cand = np.clip(fb[:, None] + w * grid, 0.0, 1.0)
+            t = arc.t0 + arc.sweep * cand
+            r = arc.r0 + arc.dr * cand
+            da = ab - r * np.cos(t)
+            db = bb - r * np.sin(t)
+            dl = lb - (arc.l0 + arc.dl * cand)
+            d2 = da * da + db * db + dl * dl  # (the nearest by its square: no root each)
+            best = np.argmin(d2, axis=1)
+            fb = cand[rows, best]
+            w /= 40.0
+        d[lo : lo + _BLOCK] = np.sqrt(d2[rows, best])
     # (the first point is where the previous line left the head: after a partial G28 under
     # skew the drives' position, not the desired start; that is judged with that line)
     worst = float(d[1:].max()) if len(d) > 1 else 0.0

@@ -112,6 +112,7 @@ def _fast_print(path, lines):
     )
 
 
+@pytest.mark.alone  # (compares the print's line rates: nothing else may run meanwhile)
 def test_read_only_dry_runs_do_not_starve_a_print(server):
     uploads = os.path.join(server.basedir, "uploads")
     big = [f"kc-big-{i}.gcode" for i in range(3)]
@@ -134,12 +135,16 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             stop.wait({200: 0.05, 202: 1.0, 429: 2.0}.get(code, 1.0))
 
     try:
+        sent_before = len(_send_times(server))  # (serial.log has the session's earlier prints)
         code, body = server.request(
             "POST", "/api/files/local/kc-long-print.gcode", {"command": "select", "print": True}
         )
         assert code == 204, body
         _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60, "the print")
-        time.sleep(3.0)  # past the start
+        # past the start: the print's moves stream (its homing and first lines are sent)
+        _wait(
+            lambda: len(_send_times(server)) > sent_before + 2000, 60, "the print's moves to stream"
+        )
         phases = []
 
         def quiet_phase():
@@ -155,7 +160,7 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             threads = [threading.Thread(target=reader, args=(k,)) for k in range(4)]
             for t in threads:
                 t.start()
-            time.sleep(1.0)  # the first jobs are in the worker
+            _wait(lambda: _active_jobs(server), 30, "the first dry runs")  # in the worker
             t0 = time.time()
             time.sleep(PHASE_S)
             phases.append(("load", t0, time.time()))
@@ -221,8 +226,13 @@ def _kill(srv):
     srv.proc = None
 
 
+# OctoPrint's own analysis of the 60 MB file (at each restart, for a file it has not
+# analysed) would take a core from the compensation job the test waits for
+NO_GCODE_ANALYSIS = {"gcodeAnalysis": {"runAt": "never"}}
+
+
 def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(tmp_path):
-    srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE)
+    srv = DevServer(str(tmp_path / "op"), kincomp=GARBAGE, extra_config=NO_GCODE_ANALYSIS)
     srv.start()
     try:
         st = status(srv)

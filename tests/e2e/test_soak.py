@@ -1,6 +1,13 @@
-"""Soak: a 200k-line real slicer file printed through a real OctoPrint (virtual printer,
-throttle off) with compensation on; every Send: line accounted for, server memory flat.
-Prints its figures (pytest -s) and writes them to test-artifacts/soak.json."""
+"""Soak: a real slicer file with its layers repeated (58,821 lines) printed through a real
+OctoPrint (virtual printer, throttle off) with compensation on. What it proves, on a print
+three times as long as test_server.py's: every ``Send:`` line equals the offline
+compensation of the file (nothing lost, reordered or compensated twice over a long
+stream), no error in octoprint.log, and the server's memory flat: RSS from 10 % of the
+print to its end grows by less than LEAK_BYTES_PER_LINE a line of the file (200 bytes a
+line: 11.8 MB here; the 210,941-line soak this replaced allowed 40 MB, about the same per
+line; measured growth 0.0-0.5 MB on both). It runs beside the quick tests under -n (the
+first test handed out). Prints its figures (pytest -s) and writes them to
+test-artifacts/soak.json."""
 
 import json
 import os
@@ -29,18 +36,20 @@ PARAMS = {
     "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
     "backlash": {"x": 30.0, "y": 25.0, "z": 0.0},
 }
-MIN_LINES = 200_000
+REPEATS = 3  # the layers above the first one, printed this many times
+MIN_LINES = 58_000
+LEAK_BYTES_PER_LINE = 200  # more RSS growth than this a line of the file fails the soak
 
 
 def _soak_file():
     """The real A1 print with its layers repeated: start code and first layer once, the
-    layers above it eleven times, end code once (every line is real slicer output)."""
+    layers above it REPEATS times, end code once (every line is real slicer output)."""
     with open(os.path.join(DATA, "bambustudio-a1-hook.gcode"), encoding="utf-8") as f:
         lines = f.read().splitlines()
     layers = [i for i, l in enumerate(lines) if l.startswith("; CHANGE_LAYER")]
     end = next(i for i, l in enumerate(lines) if l.startswith("; filament end gcode"))
     head, body, tail = lines[: layers[1]], lines[layers[1] : end], lines[end:]
-    out = head + body * 11 + tail
+    out = head + body * REPEATS + tail
     assert len(out) >= MIN_LINES
     return out
 
@@ -50,7 +59,7 @@ def _rss_kb(pid):
         return int(re.search(r"VmRSS:\s+(\d+)", f.read()).group(1))
 
 
-def test_soak_200k_lines(server):
+def test_soak_a_long_print(server):
     settings(server, enabled=True, mode="on_the_fly", params=PARAMS)
     lines = _soak_file()
     server.request("POST", "/api/printer/command", {"commands": ["M220 S5000"]})
@@ -130,6 +139,7 @@ def test_soak_200k_lines(server):
         os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "soak.json"), "w"
     ) as f:
         json.dump(figures, f, indent=1)
+    figures["rss_growth_allowed_mb"] = round(LEAK_BYTES_PER_LINE * len(lines) / 2**20, 1)
     print("soak:", figures)
-    assert growth_mb < 40, figures
+    assert growth_mb < figures["rss_growth_allowed_mb"], figures
     settings(server, enabled=False)

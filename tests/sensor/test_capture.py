@@ -270,6 +270,7 @@ def test_list_ports():
 
 
 @pytest.mark.slow
+@pytest.mark.alone  # (the host times the readings: another test's load makes them jitter)
 def test_real_time_plain_readings_timed_by_the_host(sensors, captures, offline):
     """In real time (about 60 s): plain readings through a pty, times from their arrival on
     the host, the rate fitted; the analysis still equals the offline one."""
