@@ -12,7 +12,8 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
 * ``POST /apply``    a run's proposed parameters, or given ones, into the settings; an
   untrusted run (an error finding) only with ``"force": true`` (409 naming the error
-  without it).
+  without it), and so a run of another printer profile than the one in force (409
+  without it; with it the run and the answer carry the warning ``applied.other_profile``).
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
   ``/demo/trace``.
 
@@ -46,6 +47,7 @@ from ...calibration.ballbar.program import (
     spec_dict,
     spec_from_program,
 )
+from ...calibration.findings import worst_first
 from ...core.messages import as_dict
 from ...core.params import Params
 from ...firmware.motion_limits import LimitsError, circle_feed, describe
@@ -56,7 +58,7 @@ from ...service.calibration.measurement import known_as_of
 from ...service.calibration.run_store import RunNotFound, RunNotStorable, RunStore
 from ...service.notify import Notifier
 from ...service.printing.queue import QueueCompensator
-from ...service.settings.printer_profiles import other_profile
+from ...service.settings.printer_profiles import applied_elsewhere, other_profile
 from ...service.settings.schema import SettingsError
 from ...simulator.closed_loop import table
 from .. import http
@@ -323,7 +325,11 @@ class CalibrationApi:
 
     def read_upload(self) -> Tuple[bytes, str]:
         """The uploaded file (multipart field 'file', or the raw body) and its name; raises
-        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes."""
+        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes, and the OSError
+        KinComp's upload handler met writing its temporary file (a full disk: 507)."""
+        failed = http.upload_failed(flask.request.headers)  # (the upload handler's)
+        if failed is not None:
+            raise failed  # a full disk: 507
         suffix, name_suffix = self._store.upload_fields()
         tmp_path = flask.request.values.get("file." + suffix)
         filename = flask.request.values.get("file." + name_suffix, "trace")
@@ -445,7 +451,7 @@ class CalibrationApi:
                 return http.error(
                     gettext("This run has no proposed parameters (its capture failed)"), 400
                 )
-            refused = self.other_printers(run) or self.untrusted(run, force)
+            refused = self.other_printers(run, force=force) or self.untrusted(run, force)
             if refused is not None:
                 return refused
         elif "params" in data:
@@ -462,19 +468,22 @@ class CalibrationApi:
             expected,
         )
 
-    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None, force=False):
         """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
         printer profile than the one in force (a stale page or another user's switch:
-        printer A's result must never be applied to printer B; ``force`` does not override
-        it); None to go on. A run belongs to the profile in force when its measurement
-        started (``known_now``), whatever is switched during its analysis."""
+        printer A's result is not applied to printer B unless the request says ``force``,
+        e.g. one printer set up under two profiles; :meth:`apply_params` then records the
+        warning ``applied.other_profile``); None to go on. A run belongs to the profile in
+        force when its measurement started (``known_now``), whatever is switched during
+        its analysis."""
         s = self._store.current()
-        if not other_profile(run.get("profile"), s):
+        if force or not other_profile(run.get("profile"), s):
             return None
         return http.error(
             gettext(
                 "%(what)s belongs to printer profile %(run)s, but %(current)s "
-                "is in force: connect that printer to apply it.",
+                "is in force: connect that printer to apply it (or apply it anyway: "
+                '"force": true).',
                 what=what or gettext("This run"),
                 run=run.get("profile") or s["legacy_profile"],
                 current=s["profile"],
@@ -515,13 +524,23 @@ class CalibrationApi:
             return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
+        findings = []
         if run is not None:
+            s = self._store.current()
+            if other_profile(run.get("profile"), s):  # applied anyway (force)
+                findings = [applied_elsewhere(run.get("profile"), s, self._store.profile_names())]
+                kept = [
+                    f for f in run.get("findings") or [] if f.get("code") != findings[0]["code"]
+                ]
+                run["findings"] = worst_first(kept + findings)
+                run["applied_profile"] = s["profile"]
             run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
             self._runs.save(run)
         return flask.jsonify(
             params=new["params"],
             params_hash=Params.from_dict(new["params"]).hash(),
             compensation=self._queue.status(),
+            findings=findings,
         )
 
     # ~~ the run history -----------------------------------------------------------------------
