@@ -207,7 +207,29 @@ def history(srv, runs):
     client.close()
 
 
+def drain(srv, timeout=600.0):
+    """Waits until no KinComp job is queued or running (a load's jobs left over must not be
+    the next load's), cancelling what is left after ``timeout`` seconds."""
+    client = lr.Client(srv)
+    deadline = time.time() + timeout
+    try:
+        while True:
+            code, body, headers = client.request("GET", f"{BASE}/status")
+            if code == 200:
+                active = [j for j in body["jobs"] if j["state"] in ("queued", "running")]
+                if not active:
+                    return
+                if time.time() > deadline:
+                    for job in active:
+                        client.request("POST", f"{BASE}/jobs/{job['id']}/cancel", {})
+                    deadline = time.time() + 60
+            time.sleep(lr.retry_after(code, headers) or 2.0)
+    finally:
+        client.close()
+
+
 def measure(srv, load, log, rounds, phase_s):
+    drain(srv)
     if lr.job_state(srv) != "Printing":
         lr.cancel_print(srv)
         lr.start_print(srv, PRINT)
@@ -227,7 +249,7 @@ def measure(srv, load, log, rounds, phase_s):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--phase", type=float, default=4.0, help="seconds a phase")
     ap.add_argument("--only", help="comma-separated load names")
     ap.add_argument("--runs", type=int, default=20, help="runs in the history before")

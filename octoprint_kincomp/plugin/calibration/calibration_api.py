@@ -549,7 +549,7 @@ class CalibrationApi:
         (:func:`.known_squareness.known_squareness`): what a vertical test analysed alone
         takes as its out-of-plane motion."""
         s = self._store.current()
-        return known_squareness(self._runs.documents(s["profile"] or None, s["legacy_profile"]))
+        return known_squareness(self._runs.index(s["profile"] or None, s["legacy_profile"]))
 
     @http.route("/runs", "GET", needs=(http.STATUS,))
     def runs(self):
