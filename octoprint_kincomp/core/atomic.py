@@ -27,6 +27,11 @@ _OURS = re.compile(r"\.kincomp-(\d+)-[a-z0-9_]+(\.[A-Za-z0-9]+)?\Z")
 # those of versions before the pid was in the name: only removed once clearly abandoned
 _LEGACY = re.compile(r"\.kincomp-[a-z0-9_]{8}\.(gcode|tmp)\Z")
 LEGACY_STALE_S = 3600.0
+# the temporary files of uploads to KinComp's routes (``plugin/files/upload_handler.py``):
+# the server's pid, then tempfile's random letters, in the temporary folder
+UPLOAD_PREFIX = "kincomp-upload-"
+UPLOAD_SUFFIX = ".tmp"
+_UPLOAD = re.compile(r"kincomp-upload-(\d+)-[a-z0-9_]+\.tmp\Z")
 
 
 def _named(exc: OSError, target: str) -> OSError:
@@ -110,6 +115,32 @@ def clean_stale(directory: str) -> List[str]:
             if stale and os.path.isfile(path) and not os.path.islink(path):
                 os.unlink(path)
                 removed.append(path)
+        except OSError:
+            continue
+    return removed
+
+
+def clean_stale_uploads(directory: str) -> List[str]:
+    """Remove the temporary files of uploads to KinComp's routes in ``directory`` (the
+    temporary folder) whose server no longer runs (killed during an upload: nothing else
+    removes them); another server's, and everything not named so, are left. Returns the
+    removed paths."""
+    removed = []
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return removed
+    for name in names:
+        m = _UPLOAD.match(name)
+        if m is None:
+            continue
+        pid = int(m.group(1))
+        path = os.path.join(directory, name)
+        try:
+            if pid != os.getpid() and not _alive(pid) and os.path.isfile(path):
+                if not os.path.islink(path):
+                    os.unlink(path)
+                    removed.append(path)
         except OSError:
             continue
     return removed

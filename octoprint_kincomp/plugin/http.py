@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import os
 import re
 from typing import Any, Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
@@ -109,6 +110,21 @@ def disk_full(exc: BaseException) -> bool:
     return isinstance(exc, OSError) and exc.errno in DISK_FULL
 
 
+# the request header KinComp's upload handler (files/upload_handler.py) sets when the
+# uploaded file could not be written (the error's number: ENOSPC for a full disk; the file
+# is not there then)
+UPLOAD_FAILED = "X-KinComp-Upload-Error"
+
+
+def upload_failed(headers) -> Optional[OSError]:
+    """The error KinComp's upload handler met writing this request's file, if any."""
+    value = headers.get(UPLOAD_FAILED)
+    if value is None:
+        return None
+    num = int(value) if value.isdigit() else errno.EIO
+    return OSError(num, os.strerror(num))
+
+
 def os_error(exc: OSError):
     """The blueprint's handler of an OSError that reached it: 507 with a message when the
     disk is full (whatever was being written was not kept: every write is atomic), else
@@ -122,6 +138,25 @@ def os_error(exc: OSError):
             507,
         )
     raise exc
+
+
+def rationed(gate):
+    """None when ``gate`` (a :class:`..service.request_gate.RequestGate`) admits the
+    requesting user's request now (it may have waited for its turn), else 429 with
+    ``Retry-After``."""
+    wait = gate.admit(current_user()[0])
+    if wait is None:
+        return None
+    resp = error(
+        gettext(
+            "A print is running: KinComp answers a few requests a second then. "
+            "Ask again in %(seconds)s s.",
+            seconds=f"{wait:g}",
+        ),
+        429,
+    )
+    resp.headers["Retry-After"] = f"{wait:g}"
+    return resp
 
 
 def abort(status: int, message: str):

@@ -26,6 +26,7 @@ import functools
 import os
 from typing import Any, Dict
 
+import flask
 import octoprint.plugin
 from flask_babel import gettext
 from octoprint.events import Events
@@ -46,6 +47,7 @@ from ..service.printing.firmware_check import FirmwareCheck
 from ..service.printing.firmware_watch import FirmwareWatcher
 from ..service.printing.queue import FILE_TAG, HOME_QUERY, QueueCompensator
 from ..service.printing.speed_factor import held_back
+from ..service.request_gate import RequestGate
 from ..service.settings.schema import SETTINGS_VERSION, defaults, form_fields
 from ..service.settings.software_update import check_config
 from . import http
@@ -77,7 +79,7 @@ class KinCompPlugin(
         self.notifier = self.queue = self.runs = self.store = self.demo = None
         self.firmware = self.prints = self.files = self.jobs = None
         self.settings_api = self.calibration = self.sensor = self.campaign = None
-        self.limits = self.artifact = None
+        self.limits = self.artifact = self.requests = None
         self._data_root = None
 
     # ~~ lifecycle ---------------------------------------------------------------------------
@@ -88,6 +90,8 @@ class KinCompPlugin(
         # a run belongs to the printer profile in force when it is recorded
         self.runs.profile = lambda: self.store.current()["profile"]
         self.queue = queue = QueueCompensator(Params(), Options())
+        # KinComp's requests rationed while a print runs (service/request_gate.py)
+        self.requests = RequestGate(lambda: queue.printing)
         self.demo = DemoMode(notifier, log)
         self.firmware = FirmwareCheck(self.watch, queue, printer, notifier, log)
         self.store = SettingsStore(
@@ -228,6 +232,7 @@ class KinCompPlugin(
         return {
             "js": [
                 "js/kincomp_common.js",
+                "js/kincomp_jobs.js",
                 "js/kincomp_settings_form.js",
                 "js/kincomp_findings.js",
                 "js/kincomp_plot.js",
@@ -320,6 +325,13 @@ class KinCompPlugin(
     def permissions_hook(self, *args, **kwargs):
         return http.permissions()
 
+    def routes_hook(self, server_routes, *args, **kwargs):
+        """KinComp's upload routes on its own Tornado handler (a full disk answers 507, its
+        temporary files are its own: ``plugin/files/upload_handler.py``)."""
+        from .files.upload_handler import routes
+
+        return routes(self._settings.global_get)
+
     def bodysize_hook(self, current_max_body_sizes, *args, **kwargs):
         return [
             ("POST", r"/trace", MAX_TRACE_UPLOAD),
@@ -330,7 +342,16 @@ class KinCompPlugin(
         return list(CUSTOM_EVENTS)
 
     def before_api_request_hook(self, plugin=None, *args, **kwargs):
-        return [self.store.check_settings_request]
+        return [self.store.check_settings_request, self.ration_request]
+
+    def ration_request(self):
+        """KinComp's requests while a print runs (``service/request_gate.py``): one over its
+        ration waits for its turn or is answered 429; None lets it through. (A before-request
+        handler of every API blueprint, which OctoPrint adds after its login check: only
+        KinComp's own are rationed.)"""
+        if not flask.request.path.startswith(f"/plugin/{self._identifier}/"):
+            return None
+        return http.rationed(self.requests)
 
     def get_update_information(self, *args, **kwargs):
         """The software update plugin's check for new KinComp versions (software_update)."""
@@ -407,6 +428,7 @@ def plugin_hooks(plugin: KinCompPlugin) -> Dict[str, Any]:
         "octoprint.filemanager.preprocessor": (plugin.preprocessor_hook, 10000),
         "octoprint.access.permissions": plugin.permissions_hook,
         "octoprint.server.http.bodysize": plugin.bodysize_hook,
+        "octoprint.server.http.routes": plugin.routes_hook,
         "octoprint.events.register_custom_events": plugin.custom_events_hook,
         "octoprint.server.api.before_request": plugin.before_api_request_hook,
         "octoprint.plugin.softwareupdate.check_config": plugin.get_update_information,

@@ -655,6 +655,16 @@ def test_a_test_is_measured_on_the_printer_profile_it_was_planned_for(app, plugi
     assert code == 200, done
     (joint,) = _findings(done["analysis"], "campaign.other_profile")
     assert joint["evidence"]["tests"] == [2] and "(printer_b)" in joint["message"]["text"]
+    # applying it while another profile is in force: refused unless forced (issue 37)
+    switch_profile(plugin, OTHER)
+    code, resp = call(app, plugin.campaign.apply, cid, json={"enabled": True})
+    assert code == 409 and "This campaign belongs to printer profile _default" in resp["error"]
+    code, resp = call(app, plugin.campaign.apply, cid, json={"enabled": True, "force": True})
+    assert code == 200, resp
+    assert [f["code"] for f in resp["findings"]] == ["applied.other_profile"]
+    applied = plugin.runs.get(plugin.campaign._campaigns.get(cid)["result"])
+    assert applied["applied_profile"] == "printer_b"
+    assert _findings(applied, "applied.other_profile")
 
 
 def test_the_refusal_for_another_printer_comes_in_german(app, plugin):

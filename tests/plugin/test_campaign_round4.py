@@ -1,6 +1,6 @@
 """Issue 37 rows 2, 4 and 5 on the plugin with mocked OctoPrint objects, its jobs run in the
 calling process: a measurement stays with the printer profile it was made on whatever is
-switched during its analysis (and /apply on another profile is refused); a
+switched during its analysis (and /apply on another profile is refused unless forced); a
 campaign deleted during an analysis stays deleted and nothing is stored; two tests measured
 at once both land; the same test twice at once is refused, leaving no orphaned run."""
 
@@ -101,8 +101,13 @@ def test_a_measurement_stays_with_the_profile_it_was_made_on(app, plugin, tmp_pa
     assert run["profile"] == "_default"
     code, body = call(app, plugin.calibration.apply, json={"run": run["id"]})
     assert code == 409 and "_default" in body["error"], body
+    code, body = call(
+        app, plugin.calibration.apply, json={"run": run["id"], "expected_profile": "_default"}
+    )
+    assert code == 409, body  # a page loaded for the run's printer: refused, force or not
     code, body = call(app, plugin.calibration.apply, json={"run": run["id"], "force": True})
-    assert code == 409, body  # never onto another printer (test_printer_profiles.py)
+    assert code == 200, body  # forced: applied with a warning (test_printer_profiles.py)
+    assert [f["code"] for f in body["findings"]] == ["applied.other_profile"]
 
 
 def test_a_campaign_deleted_during_an_analysis_stays_deleted(app, plugin, tmp_path):

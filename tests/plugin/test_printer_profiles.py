@@ -225,24 +225,44 @@ def trusted_run(api, source, xy):
     return run_id
 
 
-def test_a_run_of_another_printer_is_not_applied(api):
-    """A stale page (or the API) applying printer A's run while B is in force: refused,
-    ``force`` included; B's set unchanged."""
+def _apply(api, body):
+    resp = api.client.post(
+        PREFIX + "/apply", data=json.dumps(body), content_type="application/json"
+    )
+    return resp.status_code, resp.get_json()
+
+
+def test_a_run_of_another_printer_is_applied_only_when_forced(api):
+    """A stale page (or the API) applying printer A's run while B is in force: refused
+    (409) unless forced; a page loaded for A (``expected_profile``) is refused with force
+    too. Forced: applied to B, the answer and the run carry the warning
+    ``applied.other_profile`` naming both profiles; A's set unchanged."""
     on_a = trusted_run(api, "trace", 500.0)
     connect(api, B)
-    for force in (False, True):
-        resp = api.client.post(
-            PREFIX + "/apply",
-            data=json.dumps({"run": on_a, "enabled": True, "force": force}),
-            content_type="application/json",
-        )
-        assert resp.status_code == 409 and "printer_a" in resp.get_json()["error"]
-    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
-    connect(api, A)
-    resp = api.client.post(
-        PREFIX + "/apply", data=json.dumps({"run": on_a}), content_type="application/json"
+    code, resp = _apply(api, {"run": on_a, "enabled": True})
+    assert code == 409 and "printer_a" in resp["error"]
+    code, resp = _apply(
+        api, {"run": on_a, "enabled": True, "force": True, "expected_profile": "printer_a"}
     )
-    assert resp.status_code == 200, resp.get_json()
+    assert code == 409 and resp["profile_changed"]["current"] == "printer_b"
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
+    assert not api.plugin.runs.get(on_a).get("applied")
+    code, resp = _apply(api, {"run": on_a, "enabled": True, "force": True})
+    assert code == 200, resp
+    (warned,) = resp["findings"]
+    assert warned["code"] == "applied.other_profile" and warned["severity"] == "warning"
+    assert warned["evidence"] == {"run_profile": "printer_a", "profile_in_force": "printer_b"}
+    text = warned["message"]["text"]  # (the mocked profile manager names no profiles)
+    assert "profile printer_b although" in text and "profile printer_a" in text
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 500.0
+    run = api.plugin.runs.get(on_a)
+    assert run["applied"] and run["applied_profile"] == "printer_b"
+    assert [f["code"] for f in run["findings"]] == ["applied.other_profile"]
+    assert run["profile"] == "printer_a"  # still A's run, in A's history
+    connect(api, A)
+    assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 1000.0
+    code, resp = _apply(api, {"run": on_a})
+    assert code == 200 and resp["findings"] == []
     assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 500.0
 
 
@@ -341,9 +361,17 @@ def test_the_stale_page_check_names_profiles_by_their_names(api):
     assert "Printer A" in resp.get_json()["error"] and "Printer B" in resp.get_json()["error"]
 
 
+def _apply_campaign(api, cid, body):
+    resp = api.client.post(
+        PREFIX + f"/campaigns/{cid}/apply", data=json.dumps(body), content_type="application/json"
+    )
+    return resp.status_code, resp.get_json()
+
+
 def test_campaigns_belong_to_the_printer_they_were_planned_on(api):
     """Planned on A: tagged A, listed for A only (kept while B is in force); its joint result
-    is not applied to B (409, force or not), and is to A."""
+    is not applied to B (409; forced from a page loaded for A: 409 too; forced from the API:
+    applied with a warning, tests/plugin/test_campaign_api.py), and is to A."""
     connect(api, A)
     resp = api.client.post(
         PREFIX + "/campaign/plan", data=json.dumps({}), content_type="application/json"
@@ -361,13 +389,13 @@ def test_campaigns_belong_to_the_printer_they_were_planned_on(api):
     assert listed() == [cid]
     connect(api, B)
     assert listed() == []
-    for force in (False, True):
-        resp = api.client.post(
-            PREFIX + f"/campaigns/{cid}/apply",
-            data=json.dumps({"force": force}),
-            content_type="application/json",
-        )
-        assert resp.status_code == 409 and "printer_a" in resp.get_json()["error"]
+    code, resp = _apply_campaign(api, cid, {})
+    assert code == 409 and "printer_a" in resp["error"]
+    code, resp = _apply_campaign(api, cid, {"force": True, "expected_profile": "printer_a"})
+    assert code == 409 and resp["profile_changed"] == {
+        "expected": "printer_a",
+        "current": "printer_b",
+    }
     assert status(api)["settings"]["params"]["squareness_um_per_m"]["xy"] == 0.0
     assert campaigns.get(cid)["applied"] is None
     connect(api, A)

@@ -54,3 +54,31 @@ def test_the_artifact_sheet_needs_the_download_permission(api):
     from octoprint.access.permissions import Permissions
 
     assert Permissions.FILES_DOWNLOAD in asked and Permissions.STATUS in asked
+
+
+def test_kincomps_requests_are_rationed_while_a_print_runs(api):
+    """Row 6: the before-request handler KinComp adds to OctoPrint's API blueprints
+    (``ration_request``) answers a request over its ration 429 with ``Retry-After`` while a
+    print runs; OctoPrint's own routes and any request without a print pass."""
+    from octoprint_kincomp.service.request_gate import RequestGate
+
+    plugin = api.plugin
+    assert plugin.ration_request in plugin.before_api_request_hook()
+    plugin.requests = RequestGate(
+        lambda: plugin.queue.printing, per_user_burst=1, burst=1, max_wait_s=0.0
+    )
+
+    def asked(path):
+        with api.app.test_request_context(path):
+            return plugin.ration_request()
+
+    assert asked(PREFIX + "/status") is None and asked(PREFIX + "/status") is None  # no print
+    plugin.queue.printing = True
+    try:
+        assert asked(PREFIX + "/status") is None
+        refused = asked(PREFIX + "/runs")
+        assert refused.status_code == 429 and refused.headers["Retry-After"] == "1"
+        assert "A print is running" in refused.get_json()["error"]
+        assert asked("/api/version") is None  # OctoPrint's own: not KinComp's to ration
+    finally:
+        plugin.queue.printing = False

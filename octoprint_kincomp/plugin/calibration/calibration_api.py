@@ -12,7 +12,9 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
 * ``POST /analyze``  typed numbers: a ballbar summary or printed-artifact measurements.
 * ``POST /apply``    a run's proposed parameters, or given ones, into the settings; an
   untrusted run (an error finding) only with ``"force": true`` (409 naming the error
-  without it); a run whose trace is not tied to a program KinComp printed
+  without it), and so a run of another printer profile than the one in force (409
+  without it; with it the run and the answer carry the warning ``applied.other_profile``);
+  a run whose trace is not tied to a program KinComp printed
   (``needs_confirmation``) only with ``"confirm"`` stating its plane, radius and feed
   (409 naming them without it; ``force`` does not replace it).
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
@@ -49,6 +51,7 @@ from ...calibration.ballbar.program import (
     spec_from_program,
 )
 from ...calibration.ballbar.timing import SentWith
+from ...calibration.findings import worst_first
 from ...core.kinematics import changes_nothing
 from ...core.messages import as_dict
 from ...core.params import Params
@@ -62,7 +65,7 @@ from ...service.calibration.printed_programs import PrintedPrograms, trace_meta
 from ...service.calibration.run_store import RunNotFound, RunNotStorable, RunStore
 from ...service.notify import Notifier
 from ...service.printing.queue import QueueCompensator
-from ...service.settings.printer_profiles import other_profile
+from ...service.settings.printer_profiles import applied_elsewhere, other_profile
 from ...service.settings.schema import SettingsError
 from ...simulator.closed_loop import table
 from .. import http
@@ -384,7 +387,11 @@ class CalibrationApi:
 
     def read_upload(self) -> Tuple[bytes, str]:
         """The uploaded file (multipart field 'file', or the raw body) and its name; raises
-        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes."""
+        UploadRefused when there is none or it is over MAX_TRACE_UPLOAD bytes, and the OSError
+        KinComp's upload handler met writing its temporary file (a full disk: 507)."""
+        failed = http.upload_failed(flask.request.headers)  # (the upload handler's)
+        if failed is not None:
+            raise failed  # a full disk: 507
         suffix, name_suffix = self._store.upload_fields()
         tmp_path = flask.request.values.get("file." + suffix)
         filename = flask.request.values.get("file." + name_suffix, "trace")
@@ -510,7 +517,7 @@ class CalibrationApi:
                     gettext("This run has no proposed parameters (its capture failed)"), 400
                 )
             refused = (
-                self.other_printers(run)
+                self.other_printers(run, force=force)
                 or self.untrusted(run, force)
                 or self.unconfirmed(run, data.get("confirm"))
             )
@@ -530,19 +537,22 @@ class CalibrationApi:
             expected,
         )
 
-    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None):
+    def other_printers(self, run: Dict[str, Any], what: Optional[str] = None, force=False):
         """409 when ``run`` (or a campaign: ``what`` names it) was recorded for another
         printer profile than the one in force (a stale page or another user's switch:
-        printer A's result must never be applied to printer B; ``force`` does not override
-        it); None to go on. A run belongs to the profile in force when its measurement
-        started (``known_now``), whatever is switched during its analysis."""
+        printer A's result is not applied to printer B unless the request says ``force``,
+        e.g. one printer set up under two profiles; :meth:`apply_params` then records the
+        warning ``applied.other_profile``); None to go on. A run belongs to the profile in
+        force when its measurement started (``known_now``), whatever is switched during
+        its analysis."""
         s = self._store.current()
-        if not other_profile(run.get("profile"), s):
+        if force or not other_profile(run.get("profile"), s):
             return None
         return http.error(
             gettext(
                 "%(what)s belongs to printer profile %(run)s, but %(current)s "
-                "is in force: connect that printer to apply it.",
+                "is in force: connect that printer to apply it (or apply it anyway: "
+                '"force": true).',
                 what=what or gettext("This run"),
                 run=run.get("profile") or s["legacy_profile"],
                 current=s["profile"],
@@ -606,13 +616,23 @@ class CalibrationApi:
             return http.profile_changed(exc, self._store.profile_names())
         except SettingsError as exc:
             return http.error(http.tr(exc), 400)
+        findings = []
         if run is not None:
+            s = self._store.current()
+            if other_profile(run.get("profile"), s):  # applied anyway (force)
+                findings = [applied_elsewhere(run.get("profile"), s, self._store.profile_names())]
+                kept = [
+                    f for f in run.get("findings") or [] if f.get("code") != findings[0]["code"]
+                ]
+                run["findings"] = worst_first(kept + findings)
+                run["applied_profile"] = s["profile"]
             run["applied"] = _dt.datetime.now().isoformat(timespec="seconds")
             self._runs.save(run)
         return flask.jsonify(
             params=new["params"],
             params_hash=Params.from_dict(new["params"]).hash(),
             compensation=self._queue.status(),
+            findings=findings,
         )
 
     # ~~ the run history -----------------------------------------------------------------------
@@ -621,7 +641,7 @@ class CalibrationApi:
         (:func:`.known_squareness.known_squareness`): what a vertical test analysed alone
         takes as its out-of-plane motion."""
         s = self._store.current()
-        return known_squareness(self._runs.documents(s["profile"] or None, s["legacy_profile"]))
+        return known_squareness(self._runs.index(s["profile"] or None, s["legacy_profile"]))
 
     @http.route("/runs", "GET", needs=(http.STATUS,))
     def runs(self):

@@ -10,7 +10,7 @@ volume, printed test by test with the same parameters in force, fitted jointly
   only answers the plan (for the drawing), else it is stored.
 * ``GET /campaigns``, ``GET /campaigns/<id>``  the campaigns of the printer profile in force
   (each is tagged with the profile it was planned on; the others stay stored, and one of
-  them is never applied: 409), newest first; one campaign with
+  them is not applied unless forced: 409), newest first; one campaign with
   its progress and, once analysed, the joint result and per test the comparison with the
   campaign it re-tests (the paper's Table 2 per plane).
 * ``POST /campaigns/<id>/steps/<n>/program``  writes test n's program (n from 1) into
@@ -33,8 +33,9 @@ volume, printed test by test with the same parameters in force, fitted jointly
   another printer profile than the one in force, and 409 while one of its tests is being
   measured (its program printing or paused, or a live capture armed for it).
 * ``POST /campaigns/<id>/apply``  that parameter set into the settings (``enabled``,
-  ``apply_now`` and, for an untrusted result, ``force`` as for ``/apply``). The joint
-  result, as every run, carries ``findings`` and ``trusted``.
+  ``apply_now`` and ``force`` as for ``/apply``: an untrusted result, or another printer
+  profile's campaign, applied anyway, the latter with the warning ``applied.other_profile``
+  on its run). The joint result, as every run, carries ``findings`` and ``trusted``.
 
 What is in force, when a campaign may go on (409 when the parameters in force or the printer profile
 changed since it began) and how a trace becomes a test's measurement (also a live capture's, armed
@@ -546,8 +547,8 @@ class CampaignApi:
                 409,
             )
         refused = (
-            self._calibration.other_printers(doc, gettext("This campaign"))
-            or self._calibration.other_printers(run)
+            self._calibration.other_printers(doc, gettext("This campaign"), force)
+            or self._calibration.other_printers(run, force=force)
             or self._calibration.untrusted(run, force)
         )
         if refused is not None:

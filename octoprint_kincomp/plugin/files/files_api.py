@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import tempfile
 from typing import Any, Callable, Dict
 
 import flask
@@ -31,7 +32,7 @@ from flask_babel import gettext
 from octoprint.filemanager import FileDestinations, valid_file_type
 from octoprint.filemanager.util import DiskFileWrapper, StreamWrapper
 
-from ...core.atomic import clean_stale
+from ...core.atomic import clean_stale, clean_stale_uploads
 from ...core.kinematics import changes_nothing
 from ...core.marker import file_marker
 from ...engines.file_loop import AlreadyCompensated
@@ -57,9 +58,12 @@ def options_dict(options) -> Dict[str, Any]:
 
 def start_up_clean(folder: str) -> None:
     """The plugin's data folder at start-up: temporary files of processes that no longer
-    run (``.kincomp-*``), and job outputs that were never moved into the uploads."""
+    run (``.kincomp-*``), and job outputs that were never moved into the uploads; and in
+    the temporary folder the files of uploads to KinComp's routes whose server was killed
+    (``kincomp-upload-<pid>-*.tmp``, ``upload_handler.py``)."""
     for sub in ("", "runs", "jobs"):
         clean_stale(os.path.join(folder, sub))
+    clean_stale_uploads(tempfile.gettempdir())
     jobs = os.path.join(folder, "jobs")
     if os.path.isdir(jobs):
         for name in os.listdir(jobs):

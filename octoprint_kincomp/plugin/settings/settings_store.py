@@ -29,6 +29,7 @@ then.
 from __future__ import annotations
 
 import copy
+import json
 import threading
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
@@ -112,6 +113,8 @@ class SettingsStore:
         )
         # what is wrong with the stored settings (a SettingsError), None when they are valid
         self.problem: Optional[SettingsError] = None
+        # (stored document as JSON, its validation or None, its SettingsError or None)
+        self._validated: Optional[Tuple[str, Any, Any]] = None
 
     # ~~ reading ------------------------------------------------------------------------------
     def stored(self) -> Dict[str, Any]:
@@ -127,11 +130,22 @@ class SettingsStore:
     def current(self) -> Dict[str, Any]:
         """The settings in effect: the stored ones, validated; while they are invalid the
         defaults with compensation off (the stored ones stay untouched, ``problem`` says
-        what is wrong)."""
+        what is wrong). The validation of a stored document is kept until the document
+        changes (every request asks for the settings: validating them is most of what a
+        read of /status or /runs cost the server). A copy, for the caller to change."""
         with self.lock:
-            try:
-                s = validate_settings(self.stored(), defaults())
-            except SettingsError as exc:
+            stored = self.stored()
+            # (the document's exact text: ``True == 1.0`` in Python, not in a setting)
+            key = json.dumps(stored, sort_keys=True, default=repr)
+            cached = self._validated
+            if cached is None or cached[0] != key:
+                try:
+                    cached = (key, validate_settings(stored, defaults()), None)
+                except SettingsError as exc:
+                    cached = (key, None, exc)
+                self._validated = cached
+            _, s, exc = cached
+            if exc is not None:
                 self._set_problem(exc)
                 s = defaults()
                 s["enabled"] = False
@@ -139,7 +153,7 @@ class SettingsStore:
             if self.problem is not None:
                 self._logger.info("KinComp: the stored settings are valid again")
                 self.problem = None
-            return s
+            return copy.deepcopy(s)
 
     def editable(self) -> Dict[str, Any]:
         """The settings to show and edit: the stored ones, with any invalid value shown as

@@ -190,7 +190,7 @@ def _summary(runs: RunStore, run_id: Optional[str]) -> Optional[Dict[str, Any]]:
     if not run_id:
         return None
     try:
-        run = runs.get(run_id)
+        run = runs.slim_doc(run_id)  # (not the whole run: no plots read)
     except RunNotFound:
         return None
     return runs.summary(run)

@@ -21,13 +21,54 @@ import json
 import os
 import re
 import secrets
-from typing import Any, Callable, Dict, List, Optional
+import threading
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ...core.atomic import write_atomic
 from .findings_view import verdict_of
 
 _ID = re.compile(r"[0-9]{8}-[0-9]{6}-[0-9a-f]{6}")
 MAX_RUNS_LISTED = 500
+
+
+# what :func:`slim` keeps of a run (besides the parts of its diagnostics and proposal below)
+_SLIM = (
+    "id",
+    "date",
+    "source",
+    "simulated",
+    "filename",
+    "applied",
+    "trusted",
+    "verdict",
+    "params_before_hash",
+    "status",
+    "message",
+    "campaign",
+    "campaign_step",
+    "profile",
+)
+_SLIM_DIAGNOSTICS = ("simulated", "plane", "planes", "squareness_um_per_m", "scale_mismatch_ppm")
+
+
+def slim(run: Dict[str, Any]) -> Dict[str, Any]:
+    """What the history's row (:meth:`RunStore.summary`) and the known squareness
+    (``known_squareness.py``) read of a stored run, in the run's own shape."""
+    out = {k: run[k] for k in _SLIM if k in run}
+    d = run.get("diagnostics")
+    d = d if isinstance(d, dict) else {}
+    diag = {k: d[k] for k in _SLIM_DIAGNOSTICS if k in d}
+    circ = d.get("circularity_um")
+    if isinstance(circ, dict):
+        diag["circularity_um"] = {"bidirectional": circ.get("bidirectional")}
+    camp = d.get("campaign")
+    if isinstance(camp, dict):
+        diag["campaign"] = {"planes": camp.get("planes")}
+    out["diagnostics"] = diag
+    proposed = run.get("proposed")
+    if isinstance(proposed, dict) and "squareness_um_per_m" in proposed:
+        out["proposed"] = {"squareness_um_per_m": proposed["squareness_um_per_m"]}
+    return out
 
 
 class RunNotFound(KeyError):
@@ -51,6 +92,10 @@ class RunStore:
         # whatever folder a later reader (Flask's send_file: the app's) starts from
         self.folder = os.path.abspath(os.path.join(data_folder, self.FOLDER))
         os.makedirs(self.folder, exist_ok=True)
+        # :meth:`index`: id -> ((mtime_ns, size) of its file, its slim document)
+        self._index: Dict[str, Tuple[Tuple[int, int], Dict[str, Any]]] = {}
+        self._index_lock = threading.Lock()
+        self._names: Optional[set] = None  # the folder's names, as index() last read them
 
     def _path(self, run_id: str, suffix: str = ".json") -> str:
         if not isinstance(run_id, str) or not self.ID.fullmatch(run_id):
@@ -135,12 +180,62 @@ class RunStore:
             out.append(doc)
         return out
 
+    def index(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
+        """:meth:`documents`, each cut down to what the history and the known squareness read
+        (:func:`slim`: no plots, no traces), newest first. Each is kept in memory as long as
+        its file is unchanged (its modification time and size), so that listing the
+        history reads only what changed since: a page's read, or an analysis's look at the
+        history, costs the server little however long the history is. Read-only."""
+        try:
+            names = os.listdir(self.folder)
+        except OSError:
+            return []
+        ids = sorted((n[:-5] for n in names if n.endswith(".json")), reverse=True)
+        ids = [n for n in ids if self.ID.fullmatch(n)][:MAX_RUNS_LISTED]
+        out = []
+        with self._index_lock:
+            for doc_id in ids:
+                doc = self._slim(doc_id)
+                if doc is not None and (
+                    profile is None or (doc.get("profile") or legacy) == profile
+                ):
+                    out.append(doc)
+            for gone in set(self._index) - set(ids):
+                del self._index[gone]
+        self._names = set(names)
+        return out
+
+    def slim_doc(self, run_id: str) -> Dict[str, Any]:
+        """The :func:`slim` form of run ``run_id`` (kept as :meth:`index` keeps it);
+        NotFound when there is no such run. Read-only."""
+        with self._index_lock:
+            doc = self._slim(run_id)
+        if doc is None:
+            raise self.NotFound(run_id)
+        return doc
+
+    def _slim(self, doc_id: str) -> Optional[Dict[str, Any]]:
+        try:
+            st = os.stat(self._path(doc_id))
+        except OSError:
+            self._index.pop(doc_id, None)
+            return None
+        key = (st.st_mtime_ns, st.st_size)
+        cached = self._index.get(doc_id)
+        if cached is None or cached[0] != key:
+            try:
+                cached = (key, slim(self.get(doc_id)))
+            except self.NotFound:
+                return None
+            self._index[doc_id] = cached
+        return cached[1]
+
     def list(self, profile: Optional[str] = None, legacy: str = "") -> List[Dict[str, Any]]:
-        """Summaries of :meth:`documents`."""
-        return [self.summary(run) for run in self.documents(profile, legacy)]
+        """Summaries of :meth:`index` (the history's rows)."""
+        return [self.summary(run) for run in self.index(profile, legacy)]
 
     def summary(self, run: Dict[str, Any]) -> Dict[str, Any]:
-        """What the history shows of ``run``."""
+        """What the history shows of ``run`` (a document, or its :func:`slim` form)."""
         run_id = run.get("id", "")
         d = run.get("diagnostics") or {}
         return {
@@ -162,14 +257,25 @@ class RunStore:
             "needs_confirmation": run.get("needs_confirmation"),
             "verdict": (run.get("verdict") or verdict_of(run))["decision"],
             "params_before_hash": run.get("params_before_hash"),
-            "has_trace": self.trace_path(run_id) is not None,
-            "has_raw": self.raw_path(run_id) is not None,
+            "has_trace": self._has(run_id, ".trace"),
+            "has_raw": self._has(run_id, ".raw"),
             "status": run.get("status", "ok"),
             "message": run.get("message"),
             "campaign": run.get("campaign"),
             "campaign_step": run.get("campaign_step"),
             "profile": run.get("profile"),
         }
+
+    def _has(self, run_id: str, suffix: str) -> bool:
+        """Whether ``run_id`` has a file of ``suffix`` (from the folder listing :meth:`index`
+        just read, else asked of the disk)."""
+        names = self._names
+        if names is not None and run_id + ".json" in names:
+            return run_id + suffix in names
+        try:
+            return self.trace_path(run_id, suffix) is not None
+        except self.NotFound:
+            return False
 
     def delete(self, run_id: str) -> None:
         for suffix in (".json", ".trace", ".raw"):

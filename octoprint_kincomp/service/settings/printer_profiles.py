@@ -60,6 +60,34 @@ def other_profile(owner: Optional[str], s: Dict[str, Any]) -> bool:
     return bool(s.get("profile")) and bool(mine) and mine != s["profile"]
 
 
+def applied_elsewhere(
+    owner: Optional[str], s: Dict[str, Any], names: Optional[Dict[str, str]] = None
+) -> Dict[str, Any]:
+    """The warning finding ``applied.other_profile`` (wire form) of a result recorded for
+    printer profile ``owner`` that was applied anyway (``force``) while another profile's
+    set is in force in ``s``; ``names``: the profiles' names by id, if known."""
+    from ...calibration.findings import warning
+    from ...core.messages import Msg
+
+    mine = owner or s.get("legacy_profile") or ""
+    names = names or {}
+    return warning(
+        "applied.other_profile",
+        Msg(
+            "Applied to printer profile %(current)s although it was measured on printer "
+            "profile %(owner)s (applied anyway: force).",
+            current=names.get(s["profile"]) or s["profile"],
+            owner=names.get(mine) or mine,
+        ),
+        Msg(
+            "Make sure both profiles are the same printer; if not, measure this printer and "
+            "apply its own result."
+        ),
+        run_profile=mine or None,
+        profile_in_force=s.get("profile") or None,
+    ).to_wire()
+
+
 def owners(s: Dict[str, Any], params_hash: str) -> List[str]:
     """The ids of the other printer profiles (not the one in force in ``s``) whose parameter
     set has the hash ``params_hash`` (a compensated file's marker: which printer it was

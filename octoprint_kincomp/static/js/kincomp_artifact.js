@@ -173,7 +173,8 @@ $(function () {
                 return;
             }
             self.busy(true);
-            OctoPrint.postJson(API("artifact/analyze"), {path: self.path(), readings: readings})
+            K.afterJob(OctoPrint.postJson(API("artifact/analyze"), {path: self.path(), readings: readings}),
+                       K.loadRun)
                 .done(self.showRun)
                 .fail(self.fail)
                 .always(function () { self.busy(false); });

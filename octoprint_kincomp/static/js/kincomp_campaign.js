@@ -419,14 +419,12 @@ $(function () {
             var file = event.target.files && event.target.files[0];
             var c = self.campaign(), step = self.current();
             if (!file || !c || !step) return;
+            // (a 202: its job polled until the run is stored, then shown: kincomp_jobs.js)
             self.working(gettext("Analysing the test…"),
-                OctoPrint.upload(API("campaigns/" + c.id + "/steps/" + step.n + "/trace"), file, file.name)
-                    .done(function (result) {
-                        self.measured(result[0]);
-                    })
-                    .fail(function (result) {
-                        self.fail(result[0]);
-                    })
+                K.afterJob(OctoPrint.upload(API("campaigns/" + c.id + "/steps/" + step.n + "/trace"), file, file.name),
+                           K.loadCampaignStep(c.id))
+                    .done(self.measured)
+                    .fail(self.fail)
                     .always(function () {
                         $("#kincomp_campaign_trace_file").val("");
                     }));
@@ -435,7 +433,8 @@ $(function () {
         self.collect = function (n) {
             var c = self.campaign();
             return self.working(gettext("Analysing the test…"),
-                OctoPrint.postJson(API("campaigns/" + c.id + "/steps/" + n + "/trace"), {demo: true})
+                K.afterJob(OctoPrint.postJson(API("campaigns/" + c.id + "/steps/" + n + "/trace"), {demo: true}),
+                           K.loadCampaignStep(c.id))
                     .done(self.measured)
                     .fail(self.fail));
         };
@@ -447,7 +446,7 @@ $(function () {
         self.analyse = function () {
             var c = self.campaign();
             self.working(gettext("Fitting all tests together…"),
-                OctoPrint.postJson(API("campaigns/" + c.id + "/analyze"), {})
+                K.afterJob(OctoPrint.postJson(API("campaigns/" + c.id + "/analyze"), {}), K.loadCampaign(c.id))
                     .done(function (fresh) {
                         self.show(fresh);
                         self.loadCampaigns();
@@ -478,8 +477,10 @@ $(function () {
         };
         self.applyConfirmed = function (force) {
             var c = self.campaign();
+            var body = {enabled: true, force: !!force};
+            if (self.tab.profileId()) body.expected_profile = self.tab.profileId();  // (a stale page: 409)
             self.working(gettext("Applying…"),
-                OctoPrint.postJson(API("campaigns/" + c.id + "/apply"), {enabled: true, force: !!force})
+                OctoPrint.postJson(API("campaigns/" + c.id + "/apply"), body)
                     .done(function (resp) {
                         self.tab.paramsHash(resp.params_hash);
                         self.tab.enabled(true);

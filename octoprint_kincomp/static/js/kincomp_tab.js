@@ -32,6 +32,7 @@ $(function () {
         // the printer profile whose calibration is in force (issue 28): its name, and
         // whether it has a calibration at all (without one compensation stays off)
         self.profileName = ko.observable("");
+        self.profileId = ko.observable(null);  // sent with Apply: a stale page's is refused
         self.profileCalibrated = ko.observable(true);
         self.version = ko.observable("");
         self.homepage = ko.observable("");
@@ -187,6 +188,7 @@ $(function () {
             OctoPrint.get(API("status")).done(function (status) {
                 var profile = status.profile || {calibrated: true, name: ""};
                 self.profileName(profile.name || "");
+                self.profileId(profile.id || null);
                 self.profileCalibrated(!!profile.calibrated);
                 self.enabled(status.settings.enabled && !!profile.calibrated);
                 self.demo(status.demo);
@@ -301,44 +303,21 @@ $(function () {
             self.loadRuns();
         };
 
-        self.uploadBlob = function (blob, name) {
+        // an analysis's answer (a 202: polled until its run is stored, kincomp_jobs.js)
+        self.analysing = function (request) {
             self.busy(true);
             self.error("");
-            return OctoPrint.upload(API("trace"), blob, name)
-                .done(function (result) {
-                    if (result[0] && result[0].job) {
-                        self.waitForRun(result[0].job.id);  // a big trace: analysed in the background
-                    } else {
-                        self.analysed(result[0]);
-                    }
-                })
-                .fail(function (result) {
-                    self.fail(result[0]);
-                })
+            return K.afterJob(request, K.loadRun)
+                .done(self.analysed)
+                .fail(self.fail)
                 .always(function () {
                     self.busy(false);
-                    $("#kincomp_trace_file").val("");
                 });
         };
 
-        self.waitForRun = function (jobId) {
-            // poll the analysis job until it is done, then show its run
-            self.busy(true);
-            OctoPrint.get(API("jobs/" + jobId)).done(function (resp) {
-                var job = resp.job;
-                if (job.state === "done") {
-                    OctoPrint.get(API("runs/" + job.result)).done(self.analysed).fail(self.fail)
-                        .always(function () { self.busy(false); });
-                } else if (job.state === "failed") {
-                    self.busy(false);
-                    self.error(job.error);
-                    notify({title: gettext("KinComp"), text: job.error, type: "error"});
-                } else {
-                    setTimeout(function () { self.waitForRun(jobId); }, 1000);
-                }
-            }).fail(function (jqXHR) {
-                self.busy(false);
-                self.fail(jqXHR);
+        self.uploadBlob = function (blob, name) {
+            return self.analysing(OctoPrint.upload(API("trace"), blob, name)).always(function () {
+                $("#kincomp_trace_file").val("");
             });
         };
 
@@ -372,15 +351,13 @@ $(function () {
             put("backlash_a_minus", self.sBlAm());
             put("backlash_b_plus", self.sBlBp());
             put("backlash_b_minus", self.sBlBm());
-            OctoPrint.postJson(API("analyze"), {summary: summary}).done(self.analysed).fail(self.fail);
+            self.analysing(OctoPrint.postJson(API("analyze"), {summary: summary}));
         };
 
         self.analyseArtifact = function () {
-            OctoPrint.postJson(API("artifact/analyze"), {
+            self.analysing(OctoPrint.postJson(API("artifact/analyze"), {
                 square: {plane: self.aPlane(), ac: num(self.aAC()), bd: num(self.aBD()), ad: num(self.aAD())}
-            })
-                .done(self.analysed)
-                .fail(self.fail);
+            }));
         };
 
         // Apply is offered for a proposal not applied yet, once nothing prints (the test
@@ -405,7 +382,9 @@ $(function () {
         self.applyConfirmed = function (force) {
             var run = self.run();
             if (!run || !self.canApply()) return;
-            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
+            var body = {run: run.id, enabled: true, force: !!force};
+            if (self.profileId()) body.expected_profile = self.profileId();
+            OctoPrint.postJson(API("apply"), body)
                 .done(function (resp) {
                     self.paramsHash(resp.params_hash);
                     self.enabled(true);
@@ -536,12 +515,6 @@ $(function () {
         self.onEventFileAdded = function () {
             self.refresh();
         };
-        // another printer profile in force: its calibration, its history
-        self.onDataUpdaterPluginMessage = function (plugin, data) {
-            if (plugin !== "kincomp" || !data || data.type !== "profile") return;
-            self.refresh();
-            self.loadRuns();
-        };
         // the custom event plugin_kincomp_params_applied, camel-cased by OctoPrint
         self.onEventPluginKincompParamsApplied = function () {
             self.refresh();
@@ -549,7 +522,11 @@ $(function () {
 
         self.onDataUpdaterPluginMessage = function (plugin, data) {
             if (plugin !== "kincomp" || !data) return;
-            if (data.type === "notify") {
+            if (data.type === "profile") {
+                // another printer profile in force: its calibration, its history
+                self.refresh();
+                self.loadRuns();
+            } else if (data.type === "notify") {
                 notify({
                     title: gettext("KinComp"),
                     text: translateNotice(data),
