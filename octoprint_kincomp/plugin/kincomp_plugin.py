@@ -117,6 +117,7 @@ class KinCompPlugin(
         self.calibration = CalibrationApi(
             self.store, queue, self.runs, self.demo, notifier, printer, files, self.files.job_api
         )
+        self.calibration.firmware_name = lambda: self.limits.firmware
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
         recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
         self.sensor = SensorApi(
@@ -272,11 +273,7 @@ class KinCompPlugin(
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)
-        if (
-            prints.test_program
-            and gcode in ("M0", "M1")
-            and prints.program_pause(comm_instance, gcode, tags)
-        ):
+        if prints.test_program and prints.program_pause(comm_instance, cmd, gcode, tags):
             return []  # paused here: OctoPrint would block it and warn (nothing is lost)
         return result
 
