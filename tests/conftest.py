@@ -46,3 +46,18 @@ def server(tmp_path_factory):
         keep = os.environ.get("KINCOMP_E2E_KEEP")
         if keep:
             shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
+
+
+@pytest.fixture(scope="session")
+def klippy(tmp_path_factory):
+    """Real Klipper's ``klippy`` directory for ``tests/support/klipper.py``'s ``run``: a copy
+    of ``../shared/klipper`` (read-only in CI) with its C helper built, once per session
+    (about 10 s of one core). KINCOMP_KLIPPY_CACHE=<dir> keeps the copy there between
+    sessions. The test is skipped when Klipper cannot run here (no Klipper, no gcc)."""
+    from tests.support import klipper
+
+    why = klipper.available()
+    if why:
+        pytest.skip(why)
+    cache = os.environ.get("KINCOMP_KLIPPY_CACHE") or str(tmp_path_factory.mktemp("klippy"))
+    return klipper.prepare(cache)
