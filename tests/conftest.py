@@ -218,3 +218,18 @@ def page(browser, server, browser_context_args, request):
     fresh = request.node.get_closest_marker("fresh_login") is not None
     with browser_page(browser, server, request, fresh_login=fresh, **browser_context_args) as pg:
         yield pg
+
+
+@pytest.fixture(scope="session")
+def klippy(tmp_path_factory):
+    """Real Klipper's ``klippy`` directory for ``tests/support/klipper.py``'s ``run``: a copy
+    of ``../shared/klipper`` (read-only in CI) with its C helper built, once per session
+    (about 10 s of one core). KINCOMP_KLIPPY_CACHE=<dir> keeps the copy there between
+    sessions. The test is skipped when Klipper cannot run here (no Klipper, no gcc)."""
+    from tests.support import klipper
+
+    why = klipper.available()
+    if why:
+        pytest.skip(why)
+    cache = os.environ.get("KINCOMP_KLIPPY_CACHE") or str(tmp_path_factory.mktemp("klippy"))
+    return klipper.prepare(cache)

@@ -30,6 +30,26 @@ def _limits(args):
     return known
 
 
+def _firmware(args, limits):
+    """The firmware the program is for (``marlin``, ``klipper``, ``reprapfirmware``; None:
+    not known): ``--firmware``, else what ``--limits`` shows (Klipper's printer.cfg...)."""
+    from ..firmware.motion_limits import firmware_kind
+
+    return firmware_kind(args.firmware) or (limits.firmware if limits is not None else None)
+
+
+def _planned_for(args, limits):
+    """(pause command, planner settings as metadata or None) of a program for the printer
+    ``--limits`` and ``--firmware`` describe (see ``program.pause_for`` and
+    ``planner.settings_from_limits``)."""
+    from ..calibration.ballbar.program import pause_for
+    from ..firmware.planner import settings_from_limits
+
+    firmware = _firmware(args, limits)
+    settings = settings_from_limits(limits, firmware)
+    return pause_for(firmware), (settings.metadata() if settings is not None else None)
+
+
 def _feed(args, plane: str, radius: float, overshoot: float, limits):
     """The feed (mm/min) the test runs at and the header lines saying why; refuses (CliError)
     a feed no axis can reach or a vertical test without a known Z max feed."""
@@ -58,6 +78,7 @@ def cmd_program(args) -> int:
     centre = floats(args.centre, 3, "--centre")
     limits = _limits(args)
     params_hash = load_params(args.params).hash() if args.params else "none"
+    pause, motion = _planned_for(args, limits)
     try:
         spec = TestSpec(
             plane=args.plane,
@@ -70,6 +91,8 @@ def cmd_program(args) -> int:
             capture_deg=args.capture,
             start_deg=args.start,
             mount_pause=args.mount_pause,
+            pause_command=pause,
+            motion=motion,
             printer=args.printer,
         )
         volume = floats(args.volume, 6, "--volume") if args.volume else None
@@ -96,6 +119,7 @@ def _program_campaign(args) -> int:
         raise CliError("--campaign needs -o DIRECTORY for its programs and manifest")
     volume = floats(args.volume, 6, "--volume")
     params_hash = load_params(args.params).hash() if args.params else "none"
+    limits = _limits(args)
     try:
         steps = plan_campaign(
             volume,
@@ -104,9 +128,10 @@ def _program_campaign(args) -> int:
             feed=args.feed,
             second_height=args.second_height,
             second_feed=args.second_feed,
-            limits=_limits(args),
+            limits=limits,
             require_limits=True,
             printer=args.printer,
+            firmware=_firmware(args, limits),
         )
         write_campaign(steps, args.output, volume, params_hash=params_hash)
     except ProgramError as exc:
@@ -605,8 +630,10 @@ def _add_program(sub) -> None:
     p.add_argument(
         "--firmware",
         metavar="NAME",
-        help="with --limits: the firmware (Marlin, RepRapFirmware, ...), which "
-        "decides M203's unit when the text does not state it",
+        help="the firmware (Marlin, Klipper, RepRapFirmware): its pause (M0, PAUSE, M291) "
+        "and, with --limits, its planner (recorded in the program for the analysis) and "
+        "M203's unit when the text does not state it; --limits with Klipper's printer.cfg "
+        "says Klipper by itself",
     )
     p.add_argument("--feed-in", type=float, default=1.0, help="radial feed-in, mm")
     p.add_argument("--overshoot", type=float, default=20.0, help="overshoot arcs, deg")
@@ -620,7 +647,8 @@ def _add_program(sub) -> None:
     p.add_argument(
         "--mount-pause",
         action="store_true",
-        help="pause (M0) to mount the ballbar at the start and unmount at the end",
+        help="pause to mount the ballbar at the start and unmount at the end (M0; Klipper: "
+        "PAUSE; RepRapFirmware: M291 S2)",
     )
     p.add_argument("--params", help="the params that will be in force (their hash is recorded)")
     p.add_argument("--printer", help="printer name to record (campaign checks)")

@@ -9,14 +9,23 @@ Sources (:func:`parse_limits` reads any mix of them from one text):
 * the firmware's answer to ``M503`` (Marlin, Prusa, RepRapFirmware; ``echo:`` and ``Recv:``
   prefixes and comments are fine): ``M201`` axis max accelerations (mm/s^2), ``M203`` axis max
   feeds, ``M204`` accelerations (``P`` print, ``T`` travel, ``S`` both), ``M205`` ``J``
-  junction deviation (mm) and ``X``/``Y``/``Z`` jerk (mm/s). ``M203`` is in mm/s on Marlin
+  junction deviation (mm) and ``X``/``Y``/``Z`` jerk (mm/s), RepRapFirmware's ``M566``
+  instantaneous speed changes (mm/min, read as jerk in mm/s). ``M203`` is in mm/s on Marlin
   and Prusa but in mm/min on RepRapFirmware: the unit is taken from the line's own comment or
   the header above it ("Maximum feedrates (units/s)", "mm/min"), else from the firmware's
   name, else mm/s is assumed and said (``notes``);
 * Klipper's ``printer.cfg`` ``[printer]`` section: ``max_velocity``, ``max_accel``,
-  ``max_z_velocity``, ``max_z_accel``, ``square_corner_velocity`` (mm/s, mm/s^2), and
-  ``SET_VELOCITY_LIMIT VELOCITY= ACCEL= SQUARE_CORNER_VELOCITY=`` lines;
+  ``max_z_velocity``, ``max_z_accel``, ``square_corner_velocity`` (mm/s, mm/s^2),
+  ``minimum_cruise_ratio`` (the older ``max_accel_to_decel`` read as ``1 - it / max_accel``),
+  and ``SET_VELOCITY_LIMIT VELOCITY= ACCEL= SQUARE_CORNER_VELOCITY= MINIMUM_CRUISE_RATIO=``
+  lines. What a Klipper text leaves out is Klipper's default, with its source saying so:
+  ``square_corner_velocity`` 5 mm/s, ``minimum_cruise_ratio`` 0.5 (``klippy/toolhead.py``);
 * OctoPrint's printer profile (axis speeds in mm/min): :meth:`MotionLimits.from_feeds`.
+
+The firmware (:func:`firmware_kind`: ``marlin``, ``klipper``, ``reprapfirmware``) is the one
+the firmware's name (``M115``) says, else the one the text's own lines show (Klipper's keys,
+``M566``, Marlin's ``M205 J`` or its ``echo:`` lines); ``MotionLimits.firmware`` holds it, None
+when nothing tells.
 
 Several sources combine to the lower value of each limit (:meth:`MotionLimits.combined`):
 a test must run on the printer as it is, whichever source is right.
@@ -42,6 +51,9 @@ from ..core.messages import Msg, joined
 from ..core.numbers import finite_text
 
 AXES = ("x", "y", "z")
+FIRMWARES = ("marlin", "klipper", "reprapfirmware")  # the planners KinComp models
+# what Klipper uses when printer.cfg does not say (klippy/toolhead.py: ToolHead.__init__)
+KLIPPER_DEFAULTS = {"square_corner_velocity": 5.0, "minimum_cruise_ratio": 0.5}
 PLANE_AXES = {"XY": ("x", "y"), "XZ": ("x", "z"), "YZ": ("y", "z")}
 # below this feed (1 mm/s) a test is refused rather than run: a 50 mm vertical circle would
 # take over four minutes per direction, long enough for the bar and frame to drift
@@ -59,6 +71,7 @@ BOUNDS = {
     "junction_deviation_mm": (0.0, 10.0),  # mm
     "jerk_mm_s": (-1e-9, 1000.0),  # mm/s (0 allowed)
     "square_corner_velocity_mm_s": (0.0, 1000.0),  # mm/s
+    "minimum_cruise_ratio": (-1e-9, 0.99),  # Klipper: 0 allowed, below 1
 }
 
 
@@ -77,6 +90,8 @@ class MotionLimits:
     junction_deviation_mm: Optional[float] = None
     jerk_mm_s: Dict[str, float] = field(default_factory=dict)
     square_corner_velocity_mm_s: Optional[float] = None
+    minimum_cruise_ratio: Optional[float] = None  # Klipper
+    firmware: Optional[str] = None  # FIRMWARES: whose limits these are (None: not known)
     # where each limit came from, by key ("max_feed_mm_min.z": "M203")
     sources: Dict[str, str] = field(default_factory=dict)
     notes: List[Msg] = field(default_factory=list)  # what was assumed while reading
@@ -111,7 +126,9 @@ class MotionLimits:
         """The lower of each limit of ``self`` and ``other`` (with its source)."""
         if other is None:
             return self
-        out = MotionLimits(notes=list(self.notes) + list(other.notes))
+        out = MotionLimits(
+            notes=list(self.notes) + list(other.notes), firmware=self.firmware or other.firmware
+        )
         for key in ("max_feed_mm_min", "max_accel_mm_s2", "jerk_mm_s"):
             mine, theirs = getattr(self, key), getattr(other, key)
             for a in AXES:
@@ -125,6 +142,7 @@ class MotionLimits:
             "travel_accel_mm_s2",
             "junction_deviation_mm",
             "square_corner_velocity_mm_s",
+            "minimum_cruise_ratio",
         ):
             pick = _lower(getattr(self, key), getattr(other, key))
             if pick is not None:
@@ -143,6 +161,8 @@ class MotionLimits:
             "junction_deviation_mm": self.junction_deviation_mm,
             "jerk_mm_s": dict(self.jerk_mm_s),
             "square_corner_velocity_mm_s": self.square_corner_velocity_mm_s,
+            "minimum_cruise_ratio": self.minimum_cruise_ratio,
+            "firmware": self.firmware,
             "sources": dict(self.sources),
             "notes": [str(n) for n in self.notes],
         }
@@ -155,7 +175,7 @@ def _lower(a: Optional[float], b: Optional[float]) -> Optional[float]:
 
 # ~~ reading ----------------------------------------------------------------------------------
 _GCODE = re.compile(
-    r"(?:^|[\s:])(M20[1345])((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
+    r"(?:^|[\s:])(M20[1345]|M566)((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
     r"[^;]*(?:;(.*))?$"
 )
 _WORD = re.compile(r"([A-Za-z])(-?\d*\.?\d+)")
@@ -165,6 +185,8 @@ _KLIPPER_KEYS = (
     "max_z_velocity",
     "max_z_accel",
     "square_corner_velocity",
+    "minimum_cruise_ratio",
+    "max_accel_to_decel",
 )
 _CFG = re.compile(r"^\s*(" + "|".join(_KLIPPER_KEYS) + r")\s*[:=]\s*([-+0-9.eE]+)\s*$")
 _SECTION = re.compile(r"^\s*\[([^\]]+)\]")
@@ -215,6 +237,158 @@ def _number(text: str) -> Optional[float]:
     return finite_text(text)
 
 
+def firmware_kind(name: Optional[str]) -> Optional[str]:
+    """Which planner a firmware's name (its ``M115`` FIRMWARE_NAME, or the name a user typed)
+    means: ``klipper``, ``reprapfirmware`` (also Duet), ``marlin`` (also Prusa's firmware,
+    which plans as Marlin); None when the name says none of them."""
+    low = (name or "").strip().lower()
+    if not low:
+        return None
+    if "klipper" in low:
+        return "klipper"
+    if "reprapfirmware" in low or "duet" in low or low in ("rrf", "reprap"):
+        return "reprapfirmware"
+    if "marlin" in low or "prusa" in low or "buddy" in low:
+        return "marlin"
+    return None
+
+
+class _Reader:
+    """The state of :func:`parse_limits` over the lines of one text."""
+
+    def __init__(self, out: MotionLimits, fw_unit: Optional[str]):
+        self.out = out
+        self.fw_unit = fw_unit
+        self.header_unit: Optional[str] = None
+        self.section: Optional[str] = None
+        self.klipper: Dict[str, float] = {}
+        self.seen: Dict[str, bool] = {}  # what the lines show of the firmware
+
+    def line(self, raw: str) -> None:
+        line = raw.strip()
+        if not line:
+            return
+        m = _SECTION.match(line)
+        if m:
+            self.section = m.group(1).strip().lower()
+            return
+        m = _CFG.match(line.split("#")[0])
+        if m and self.section in (None, "printer"):
+            v = _number(m.group(2))
+            if v is not None and (v > 0 or v == 0 and m.group(1) == "minimum_cruise_ratio"):
+                self.klipper[m.group(1)] = v
+            return
+        m = _SVL.search(line)
+        if m:
+            self._set_velocity_limit(m.group(1))
+            return
+        m = _GCODE.search(line)
+        if not m:
+            # a header such as "echo:; Maximum feedrates (units/s):" sets the next M203's unit
+            if "feedrate" in line.lower() or "maximum speed" in line.lower():
+                self.header_unit = (
+                    "mm/min"
+                    if _MM_MIN.search(line)
+                    else "mm/s"
+                    if _MM_S.search(line)
+                    else self.header_unit
+                )
+                self.seen["marlin"] = self.seen.get("marlin") or "units/s" in line.lower()
+            return
+        if line.lower().startswith(("echo:", "recv: echo:")):
+            self.seen["marlin"] = True
+        code, words, comment = m.group(1), m.group(2), m.group(3) or ""
+        vals = {k.upper(): _number(v) for k, v in _WORD.findall(words)}
+        getattr(self, "_" + code.lower())(vals, comment)
+
+    def _set_velocity_limit(self, words: str) -> None:
+        for key, val in re.findall(r"(\w+)\s*=\s*([-+0-9.eE]+)", words):
+            v = _number(val)
+            name = {
+                "velocity": "max_velocity",
+                "accel": "max_accel",
+                "square_corner_velocity": "square_corner_velocity",
+                "minimum_cruise_ratio": "minimum_cruise_ratio",
+                "accel_to_decel": "max_accel_to_decel",
+            }.get(key.lower())
+            if name and v is not None and (v > 0 or v == 0 and name == "minimum_cruise_ratio"):
+                self.klipper[name] = v
+
+    def _m203(self, vals, comment: str) -> None:
+        out = self.out
+        unit = (
+            "mm/min"
+            if _MM_MIN.search(comment)
+            else "mm/s"
+            if _MM_S.search(comment)
+            else self.header_unit or self.fw_unit
+        )
+        if unit is None:
+            unit = "mm/s"
+            out.notes.append(
+                Msg(
+                    "M203 has no stated unit: read as mm/s (Marlin's); RepRapFirmware states mm/min"
+                )
+            )
+        factor = 1.0 if unit == "mm/min" else 60.0
+        for a in AXES:
+            v = vals.get(a.upper())
+            if v is not None and v > 0:
+                out.max_feed_mm_min[a] = v * factor
+                out.sources[f"max_feed_mm_min.{a}"] = f"M203 ({unit})"
+        self.header_unit = None
+
+    def _m201(self, vals, comment: str) -> None:
+        for a in AXES:
+            v = vals.get(a.upper())
+            if v is not None and v > 0:
+                self.out.max_accel_mm_s2[a] = v
+                self.out.sources[f"max_accel_mm_s2.{a}"] = "M201"
+
+    def _m204(self, vals, comment: str) -> None:
+        out = self.out
+        if vals.get("S") and vals["S"] > 0:
+            out.print_accel_mm_s2 = out.travel_accel_mm_s2 = vals["S"]
+            out.sources["print_accel_mm_s2"] = out.sources["travel_accel_mm_s2"] = "M204 S"
+        if vals.get("P") and vals["P"] > 0:
+            out.print_accel_mm_s2 = vals["P"]
+            out.sources["print_accel_mm_s2"] = "M204 P"
+        if vals.get("T") and vals["T"] > 0:
+            out.travel_accel_mm_s2 = vals["T"]
+            out.sources["travel_accel_mm_s2"] = "M204 T"
+
+    def _m205(self, vals, comment: str) -> None:
+        out = self.out
+        if vals.get("J") is not None and vals["J"] > 0:
+            out.junction_deviation_mm = vals["J"]
+            out.sources["junction_deviation_mm"] = "M205 J"
+            self.seen["marlin"] = True  # (RepRapFirmware's M205 has no J)
+        for a in AXES:
+            v = vals.get(a.upper())
+            if v is not None and v >= 0:
+                out.jerk_mm_s[a] = v
+                out.sources[f"jerk_mm_s.{a}"] = "M205"
+
+    def _m566(self, vals, comment: str) -> None:
+        """RepRapFirmware's instantaneous speed changes, in mm/min."""
+        self.seen["reprapfirmware"] = True
+        for a in AXES:
+            v = vals.get(a.upper())
+            if v is not None and v >= 0:
+                self.out.jerk_mm_s[a] = v / 60.0
+                self.out.sources[f"jerk_mm_s.{a}"] = "M566 (mm/min)"
+
+    def firmware(self) -> Optional[str]:
+        """What the lines show of the firmware (None: nothing)."""
+        if self.klipper:
+            return "klipper"
+        if self.seen.get("reprapfirmware"):
+            return "reprapfirmware"
+        if self.seen.get("marlin"):
+            return "marlin"
+        return None
+
+
 def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
     """The limits stated in ``text`` (see the module docstring); ``firmware`` is the
     firmware's name (M115), which decides M203's unit when the text does not. Raises
@@ -222,102 +396,13 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
     if not isinstance(text, str):
         raise LimitsError(Msg("the motion limits must be a text"))
     out = MotionLimits()
-    fw_unit = firmware_feed_unit(firmware) or (
-        "mm/min" if re.search(r"reprapfirmware", text, re.IGNORECASE) else None
-    )
-    header_unit: Optional[str] = None
-    section: Optional[str] = None
-    klipper: Dict[str, float] = {}
+    rrf_text = re.search(r"reprapfirmware", text, re.IGNORECASE) is not None
+    fw_unit = firmware_feed_unit(firmware) or ("mm/min" if rrf_text else None)
+    reader = _Reader(out, fw_unit)
     for raw in text.splitlines():
-        line = raw.strip()
-        if not line:
-            continue
-        m = _SECTION.match(line)
-        if m:
-            section = m.group(1).strip().lower()
-            continue
-        m = _CFG.match(line.split("#")[0])
-        if m and section in (None, "printer"):
-            v = _number(m.group(2))
-            if v is not None and v > 0:
-                klipper[m.group(1)] = v
-            continue
-        m = _SVL.search(line)
-        if m:
-            for key, val in re.findall(r"(\w+)\s*=\s*([-+0-9.eE]+)", m.group(1)):
-                v = _number(val)
-                name = {
-                    "velocity": "max_velocity",
-                    "accel": "max_accel",
-                    "square_corner_velocity": "square_corner_velocity",
-                }.get(key.lower())
-                if name and v is not None and v > 0:
-                    klipper[name] = v
-            continue
-        m = _GCODE.search(line)
-        if not m:
-            # a header such as "echo:; Maximum feedrates (units/s):" sets the next M203's unit
-            if "feedrate" in line.lower() or "maximum speed" in line.lower():
-                header_unit = (
-                    "mm/min"
-                    if _MM_MIN.search(line)
-                    else "mm/s"
-                    if _MM_S.search(line)
-                    else header_unit
-                )
-            continue
-        code, words, comment = m.group(1), m.group(2), m.group(3) or ""
-        vals = {k.upper(): _number(v) for k, v in _WORD.findall(words)}
-        if code == "M203":
-            unit = (
-                "mm/min"
-                if _MM_MIN.search(comment)
-                else "mm/s"
-                if _MM_S.search(comment)
-                else header_unit or fw_unit
-            )
-            if unit is None:
-                unit = "mm/s"
-                out.notes.append(
-                    Msg(
-                        "M203 has no stated unit: read as mm/s (Marlin's); "
-                        "RepRapFirmware states mm/min"
-                    )
-                )
-            factor = 1.0 if unit == "mm/min" else 60.0
-            for a in AXES:
-                v = vals.get(a.upper())
-                if v is not None and v > 0:
-                    out.max_feed_mm_min[a] = v * factor
-                    out.sources[f"max_feed_mm_min.{a}"] = f"M203 ({unit})"
-            header_unit = None
-        elif code == "M201":
-            for a in AXES:
-                v = vals.get(a.upper())
-                if v is not None and v > 0:
-                    out.max_accel_mm_s2[a] = v
-                    out.sources[f"max_accel_mm_s2.{a}"] = "M201"
-        elif code == "M204":
-            if vals.get("S") and vals["S"] > 0:
-                out.print_accel_mm_s2 = out.travel_accel_mm_s2 = vals["S"]
-                out.sources["print_accel_mm_s2"] = out.sources["travel_accel_mm_s2"] = "M204 S"
-            if vals.get("P") and vals["P"] > 0:
-                out.print_accel_mm_s2 = vals["P"]
-                out.sources["print_accel_mm_s2"] = "M204 P"
-            if vals.get("T") and vals["T"] > 0:
-                out.travel_accel_mm_s2 = vals["T"]
-                out.sources["travel_accel_mm_s2"] = "M204 T"
-        elif code == "M205":
-            if vals.get("J") is not None and vals["J"] > 0:
-                out.junction_deviation_mm = vals["J"]
-                out.sources["junction_deviation_mm"] = "M205 J"
-            for a in AXES:
-                v = vals.get(a.upper())
-                if v is not None and v >= 0:
-                    out.jerk_mm_s[a] = v
-                    out.sources[f"jerk_mm_s.{a}"] = "M205"
-    if klipper:
-        _apply_klipper(out, klipper)
+        reader.line(raw)
+    if reader.klipper:
+        _apply_klipper(out, reader.klipper)
     bad = out_of_bounds(out)
     if bad is not None:
         raise LimitsError(bad)
@@ -329,6 +414,9 @@ def parse_limits(text: str, firmware: Optional[str] = None) -> MotionLimits:
                 "max_z_velocity, max_z_accel)"
             )
         )
+    out.firmware = (
+        firmware_kind(firmware) or reader.firmware() or ("reprapfirmware" if rrf_text else None)
+    )
     return out
 
 
@@ -373,7 +461,8 @@ def steps_per_mm(text: str) -> Dict[str, float]:
 
 def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:
     """Klipper's limits: ``max_velocity`` bounds the toolhead's speed (so each axis too),
-    ``max_z_velocity`` the Z component (default: max_velocity); the same for accel."""
+    ``max_z_velocity`` the Z component (default: max_velocity); the same for accel. The
+    square-corner velocity and the minimum cruise ratio not stated are Klipper's defaults."""
     v, a = cfg.get("max_velocity"), cfg.get("max_accel")
     vz, az = cfg.get("max_z_velocity", v), cfg.get("max_z_accel", a)
     for axis, vel, src in (
@@ -398,6 +487,18 @@ def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:
     if "square_corner_velocity" in cfg:
         out.square_corner_velocity_mm_s = cfg["square_corner_velocity"]
         out.sources["square_corner_velocity_mm_s"] = "Klipper square_corner_velocity"
+    else:  # Klipper's own default (klippy/toolhead.py), which its planner then uses
+        out.square_corner_velocity_mm_s = KLIPPER_DEFAULTS["square_corner_velocity"]
+        out.sources["square_corner_velocity_mm_s"] = "Klipper default (not stated)"
+    if "minimum_cruise_ratio" in cfg:
+        out.minimum_cruise_ratio = cfg["minimum_cruise_ratio"]
+        out.sources["minimum_cruise_ratio"] = "Klipper minimum_cruise_ratio"
+    elif "max_accel_to_decel" in cfg and a:  # before Klipper 0.12.0-170 (2024)
+        out.minimum_cruise_ratio = min(max(1.0 - cfg["max_accel_to_decel"] / a, 0.0), 0.99)
+        out.sources["minimum_cruise_ratio"] = "Klipper max_accel_to_decel"
+    else:
+        out.minimum_cruise_ratio = KLIPPER_DEFAULTS["minimum_cruise_ratio"]
+        out.sources["minimum_cruise_ratio"] = "Klipper default (not stated)"
 
 
 # ~~ feasibility ------------------------------------------------------------------------------

@@ -125,6 +125,7 @@ class KinCompPlugin(
         # what each test ran with: the firmware's compensation, the queue's compensator
         self.calibration.firmware_state = self.watch.state
         self.calibration.printed = PrintedPrograms(self.data_folder())
+        self.calibration.firmware_name = lambda: self.limits.firmware
         self.demo.lines_as_sent = functools.partial(lines_as_sent, queue)
         recorder = CaptureRecorder(self.calibration, self.runs, queue, notifier)
         self.sensor = SensorApi(
@@ -281,11 +282,7 @@ class KinCompPlugin(
         result = queue.handle(cmd, tags)
         if self.demo.ballbar is not None:
             self.demo.record(cmd, result, tags)
-        if (
-            prints.test_program
-            and gcode in ("M0", "M1")
-            and prints.program_pause(comm_instance, gcode, tags)
-        ):
+        if prints.test_program and prints.program_pause(comm_instance, cmd, gcode, tags):
             return []  # paused here: OctoPrint would block it and warn (nothing is lost)
         return result
 

@@ -3,7 +3,10 @@
 The printer executes G-code like a firmware (:class:`~.sim.machine.FirmwareInterpreter`) and
 moves the way its planner makes it move (``firmware/planner.py``: trapezoidal velocity with
 acceleration, junction speeds, full stops at ``M400``/``G4``, per-axis feed caps; the former
-constant-speed motion only when the truth asks for ``"motion": "constant_speed"``). Then, per
+constant-speed motion only when the truth asks for ``"motion": "constant_speed"``). Its trace
+records the planner settings the program's header states (what a capture for that program
+carries: the firmware and limits it was planned for), else the truth's ``motion``; the printer
+itself always moves with the truth's. Then, per
 axis and in this order: optional stepper quantisation (the commanded position rounded to whole
 steps), a first-order servo lag ``T`` acting on the planned motion (the drive is ``v*T``
 behind at steady speed), the play of the drive (backlash, possibly different along the axis),
@@ -487,7 +490,8 @@ class Simulator:
         meta["program_hash"] = prog_hash
         if getattr(spec, "params_hash", None):
             meta["params_hash"] = spec.params_hash
-        meta.update(tr.motion.metadata())
+        if not getattr(spec, "motion", None):  # else the program's, as a capture carries it
+            meta.update(tr.motion.metadata())
         meta["source"] = SIMULATED_LABEL
         meta["simulated"] = "true"
         return spec, meta, plan, ts, u, vel, reading, runs

@@ -125,12 +125,15 @@ def test_a_program_that_pins_the_speed_factor_runs_as_planned():
 )
 def test_a_z_axis_capped_below_the_feed_is_an_error(cap):
     """The issue's first case: XZ at F1850, the printer's Z capped at 10 mm/s (or its
-    acceleration at 200 mm/s^2), which the trace's metadata does not record."""
+    acceleration at 200 mm/s^2), which the trace's metadata does not record. (Marlin 2.1's
+    small-segment limit, modelled since issue 36, lets a Z acceleration cap slow the circle
+    much less than Marlin 2.0.0's did: 156 ms over its 74 ms tolerance, not seconds.)"""
     t = volume_truth(noise_um=0.5, **cap)
     out = analysed(XZ, t)
     f = finding(out, "motion.timing")
     assert f["severity"] == "error" and f["evidence"]["likely_cause"] == "axis_cap"
-    assert f["evidence"]["sync_mismatch_ms"] > 1000
+    ev = f["evidence"]
+    assert ev["sync_mismatch_ms"] > 2 * ev["tolerance_ms"]
     assert "Z axis is capped" in f["message"]
 
 

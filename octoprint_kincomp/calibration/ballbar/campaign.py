@@ -35,6 +35,7 @@ from ...firmware.motion_limits import (
     describe,
     require_known,
 )
+from ...firmware.planner import settings_from_limits
 from .formats import AngleTrace, NativeTrace, TraceError, meta_float, meta_plane
 from .program import (
     DEFAULT_FEED,
@@ -43,6 +44,7 @@ from .program import (
     body_hash,
     check_bounds,
     generate,
+    pause_for,
     run_angles,
 )
 
@@ -120,12 +122,15 @@ def plan_campaign(
     margin_mm: float = 5.0,
     limits: Optional[MotionLimits] = None,
     require_limits: bool = False,
+    firmware: Optional[str] = None,
 ) -> List[Step]:
     """The campaign's tests on ``volume`` (x0,x1,y0,y1,z0,z1 mm); raises ProgramError naming
     the test that does not fit or cannot run within the printer's motion ``limits`` (with
     ``max_feed``, axis max feeds in mm/min, the lower of each applies; see
     :func:`.limits.circle_feed`); ``require_limits``: refuse vertical tests whose Z max feed
-    is not known."""
+    is not known; ``firmware`` (``marlin``, ``klipper``, ``reprapfirmware``; None: not known,
+    else ``limits.firmware``): the pause the programs write and the planner their headers
+    record (:func:`.program.pause_for`, ``planner.settings_from_limits``)."""
     if volume is None or len(volume) != 6:
         raise ProgramError(Msg("a campaign needs the machine volume X0,X1,Y0,Y1,Z0,Z1 (mm)"))
     cid = campaign_id or "c" + _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -134,6 +139,9 @@ def plan_campaign(
     )
     names = ",".join(n for n, _ in plan)
     known = MotionLimits.from_feeds(max_feed, "max feed").combined(limits)
+    firmware = firmware or (limits.firmware if limits is not None else None)
+    settings = settings_from_limits(limits, firmware)
+    motion = settings.metadata() if settings is not None else None
     steps = []
     for i, (name, kw) in enumerate(plan, 1):
         requested = kw["feed_mm_min"]
@@ -145,6 +153,8 @@ def plan_campaign(
             spec = TestSpec(
                 requested_feed_mm_min=requested,
                 mount_pause=True,
+                pause_command=pause_for(firmware),
+                motion=motion,
                 printer=printer,
                 campaign=cid,
                 campaign_step=name,

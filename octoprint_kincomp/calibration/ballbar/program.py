@@ -11,6 +11,15 @@ vertical planes, from -20 to 200 deg by default), overshoot arc, radial feed-out
 counter-clockwise run ended, so the bar stays mounted. Arcs are G1 chords (chord error <=
 ``chord_error_um``) with a point on every quadrant: firmware segments G2/G3 differently and some
 cannot do G18/G19 at all.
+
+With ``mount_pause`` the program waits for the user to mount the bar before the first run and
+to unmount it after the last, with the pause the firmware has (``pause_command``, see
+:data:`PAUSES`): ``M0`` (Marlin, and any firmware through OctoPrint, which pauses its job at
+it), Klipper's ``PAUSE`` (``M0`` is unknown to Klipper: printed from its own SD card the program
+would run on without the bar), RepRapFirmware's blocking message box ``M291 S2`` (its ``M0``
+ends the print). The header records the planner settings the program was planned with
+(``motion``, :meth:`..firmware.planner.MotionSettings.metadata`): a trace captured for it
+carries them, and the analysis plans the program as that firmware does.
 """
 
 from __future__ import annotations
@@ -18,10 +27,12 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import math
+import re
 from dataclasses import asdict, dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from ...core.messages import Msg, joined
+from ...firmware.planner import MotionSettings, pauses
 
 PLANES = {"XY": (0, 1), "XZ": (0, 2), "YZ": (1, 2)}
 # Run markers that survive comment stripping (OctoPrint sends no comments); M117 just shows
@@ -31,6 +42,41 @@ END_MARKER = "Ballbar test done"
 AXIS = "XYZ"
 DEFAULT_FEED = 1850.0
 DEFAULT_RADIUS = 100.0
+# The mount and unmount pause of each pause command; the M0 lines as they always were (a
+# program's hash covers its body: stored campaigns' programs must stay the same)
+PAUSES = {
+    "M0": (
+        "M0 Mount the ballbar now ; pause: continue when it is mounted",
+        "M0 Unmount the ballbar now ; pause",
+    ),
+    "PAUSE": (
+        "PAUSE ; Klipper: mount the ballbar now, then RESUME",
+        "PAUSE ; Klipper: unmount the ballbar now, then RESUME",
+    ),
+    "M291": (
+        'M291 P"Mount the ballbar now, then press OK" R"KinComp" S2 ; wait for the user',
+        'M291 P"Unmount the ballbar now, then press OK" R"KinComp" S2 ; wait for the user',
+    ),
+}
+# the pause command of each firmware (firmware/motion_limits.FIRMWARES); M0 for any other
+FIRMWARE_PAUSE = {"marlin": "M0", "klipper": "PAUSE", "reprapfirmware": "M291"}
+
+
+_M0_M1 = re.compile(r"\s*M0*[01](?!\d)", re.IGNORECASE)
+
+
+def is_pause(line: str) -> bool:
+    """Whether ``line`` (a program line as written or as sent, comments stripped) is one of
+    the pauses a test program may write (:data:`PAUSES`: ``M0``/``M1``, ``PAUSE``,
+    ``M291 S2``; ``M226`` too)."""
+    return _M0_M1.match(line) is not None or pauses(line)
+
+
+def pause_for(firmware: Optional[str]) -> str:
+    """The pause command (a key of :data:`PAUSES`) a program for ``firmware`` (``marlin``,
+    ``klipper``, ``reprapfirmware``; None: not known) writes: M0 unless the firmware has
+    another (Klipper: PAUSE; RepRapFirmware: M291 S2, never its M0, which ends the print)."""
+    return FIRMWARE_PAUSE.get(firmware or "", "M0")
 
 
 class ProgramError(ValueError):
@@ -57,6 +103,8 @@ class TestSpec:
     travel_feed_mm_min: float = 3000.0
     directions: Tuple[str, ...] = ("ccw", "cw")
     mount_pause: bool = False
+    pause_command: str = "M0"  # a key of PAUSES (the firmware's pause, see pause_for)
+    motion: Optional[Dict[str, str]] = None  # planner settings planned with (metadata keys)
     requested_feed_mm_min: Optional[float] = None  # before capping (for the record)
     params_hash: Optional[str] = None  # of the parameters active when it runs (read back)
     printer: Optional[str] = None  # printer name (campaign checks: one printer)
@@ -104,6 +152,20 @@ class TestSpec:
             self.start_deg = 0.0 if self.plane == "XY" else -20.0
         if not (10.0 <= float(self.capture_deg) <= 360.0):
             raise ProgramError(Msg("capture_deg must be within 10..360"))
+        if self.pause_command not in PAUSES:
+            raise ProgramError(
+                Msg(
+                    "pause_command must be one of %(choices)s, got %(value)s",
+                    choices=", ".join(PAUSES),
+                    value=repr(self.pause_command),
+                )
+            )
+        if self.motion is not None:
+            self.motion = {str(k): str(v) for k, v in dict(self.motion).items()}
+            try:
+                MotionSettings.from_metadata(self.motion)
+            except ValueError:  # ParamsError too
+                raise ProgramError(Msg("the program's planner settings are not valid")) from None
         self.directions = tuple(self.directions)
         if (
             not self.directions
@@ -143,6 +205,10 @@ class TestSpec:
             "travel_feed_mm_min": f"{self.travel_feed_mm_min:g}",
             "mount_pause": "true" if self.mount_pause else "false",
         }
+        if self.mount_pause and self.pause_command != "M0":
+            out["mount_pause_command"] = self.pause_command
+        if self.motion:
+            out.update(self.motion)
         if self.printer:
             out["printer"] = self.printer
         if self.campaign:
@@ -279,9 +345,10 @@ def generate(
         " ; travel to above the start point"
     )
     w(f"G1 Z{_fmt(start[2])} F600 ; to the test height")
+    mount, unmount = PAUSES[spec.pause_command]
     if spec.mount_pause:
         w("M400")
-        w("M0 Mount the ballbar now ; pause: continue when it is mounted")
+        w(mount)
     feed = spec.feed_mm_min
     for d in spec.directions:
         a0, sweep = run_angles(spec, d)
@@ -306,7 +373,7 @@ def generate(
     w("; --- end of test: unmount the ballbar before moving the printer")
     w(f"M117 {END_MARKER}")
     if spec.mount_pause:
-        w("M0 Unmount the ballbar now ; pause")
+        w(unmount)
         w("G91")
         w(f"G1 Z{spec.lift_mm:g} F600")
         w("G90")
@@ -358,6 +425,8 @@ def spec_from_program(text: str) -> Tuple[TestSpec, str]:
             lift_mm=float(meta.get("lift_mm", 10.0)),
             travel_feed_mm_min=float(meta.get("travel_feed_mm_min", 3000.0)),
             mount_pause=meta.get("mount_pause", "false") == "true",
+            pause_command=meta.get("mount_pause_command", "M0"),
+            motion={k: meta[k] for k in MotionSettings.KEYS if k in meta} or None,
             params_hash=meta.get("params_hash") or None,
             printer=meta.get("printer") or None,
             campaign=meta.get("campaign") or None,

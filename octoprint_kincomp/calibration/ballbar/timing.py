@@ -100,6 +100,8 @@ def spec_from_meta(meta: Dict[str, str]) -> TestSpec:
             kw[key] = meta_float(meta, key)
     if "mount_pause" in meta:
         kw["mount_pause"] = meta["mount_pause"].strip().lower() == "true"
+    if "mount_pause_command" in meta:
+        kw["pause_command"] = meta["mount_pause_command"].strip()
     return TestSpec(**kw)
 
 

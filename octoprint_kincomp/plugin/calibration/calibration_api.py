@@ -4,7 +4,9 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
 * ``POST /program``  writes a ballbar test program (radius mm, feed mm/min lowered to what the
   printer's motion limits allow, ``plugin/settings/limits_capture.py``; ``feed_lowered`` says why;
   400 when no usable feed is left; centre mm) into OctoPrint's storage, optionally prints it (a live
-  sensor, if one is set, is armed first through ``on_print``).
+  sensor, if one is set, is armed first through ``on_print``). The program is for the printer's
+  firmware (:meth:`CalibrationApi.firmware`): its pause, and its planner with the stated limits
+  recorded in the header for the analysis.
 * ``POST /trace``    a trace, .b5r or summary file (multipart field ``file``, at most
   MAX_TRACE_UPLOAD bytes): analysed in the worker process (a background job: the run comes
   in the response if it is ready within TRACE_WAIT_S, else 202 with the job, whose result
@@ -47,6 +49,7 @@ from ...calibration.ballbar.program import (
     TestSpec,
     check_bounds,
     generate,
+    pause_for,
     spec_dict,
     spec_from_program,
 )
@@ -56,7 +59,8 @@ from ...core.kinematics import changes_nothing
 from ...core.messages import as_dict
 from ...core.params import Params
 from ...firmware.compensation import FirmwareCompensation
-from ...firmware.motion_limits import LimitsError, circle_feed, describe
+from ...firmware.motion_limits import LimitsError, circle_feed, describe, firmware_kind
+from ...firmware.planner import settings_from_limits
 from ...service.calibration.demo_mode import DemoMode
 from ...service.calibration.findings_view import findings_of, refusal
 from ...service.calibration.known_squareness import known_squareness
@@ -137,6 +141,8 @@ class CalibrationApi:
         # (PrintedPrograms: what each test ran with; None: not recorded)
         self.firmware_state = FirmwareCompensation
         self.printed: Optional[PrintedPrograms] = None
+        # () -> the firmware's name from its M115 answer ("" before it answered)
+        self.firmware_name: Callable[[], str] = lambda: ""
 
     # ~~ the test program ------------------------------------------------------------------------
     @http.route("/program", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
@@ -151,6 +157,8 @@ class CalibrationApi:
         try:
             plane = http.choice(data, "plane", tuple(PLANES), "XY")
             feed = http.number(data, "feed", 1850.0)
+            limits, firmware = self.motion_limits(), self.firmware()
+            planner = settings_from_limits(limits, firmware)
             spec = TestSpec(
                 plane=plane,
                 centre=tuple(http.numbers(data, "centre", 3, (110.0, 110.0, 10.0))),
@@ -158,15 +166,13 @@ class CalibrationApi:
                 feed_mm_min=feed,
                 requested_feed_mm_min=feed,
                 mount_pause=mount_pause,
+                pause_command=pause_for(firmware),
+                motion=planner.metadata() if planner is not None else None,
             )
             volume = self._store.limits()
             check_bounds(spec, volume)
             choice = circle_feed(
-                spec.plane,
-                spec.radius_mm,
-                feed,
-                self.motion_limits(),
-                overshoot_deg=spec.overshoot_deg,
+                spec.plane, spec.radius_mm, feed, limits, overshoot_deg=spec.overshoot_deg
             )
             spec.feed_mm_min = choice.feed_mm_min
             params = self._queue.in_force
@@ -211,6 +217,12 @@ class CalibrationApi:
     def motion_limits(self):
         """The limits a test must respect now (stated limits and the printer profile)."""
         return effective_limits(self._store.current(), self._store.max_feeds())
+
+    def firmware(self) -> Optional[str]:
+        """The printer's firmware (``marlin``, ``klipper``, ``reprapfirmware``; None: not
+        known): what its M115 answer names, else what its stated motion limits show (a
+        pasted printer.cfg is Klipper's)."""
+        return firmware_kind(self.firmware_name()) or self.motion_limits().firmware
 
     def store_program(self, text: str, name: str) -> str:
         """Writes the G-code ``text`` as ``kincomp/<name>`` into OctoPrint's storage (the

@@ -209,6 +209,7 @@ class CampaignApi:
                 limits=self._calibration.motion_limits(),
                 printer=printer,
                 campaign_id=cid,
+                firmware=self._calibration.firmware(),
             )
         except (ProgramError, ValueError) as exc:
             return http.error(http.tr(exc), 400)

@@ -20,10 +20,16 @@
   print's line rate); so are prints from, and transfers to, the printer's SD card (KinComp
   never sees their lines). During a KinComp test program (its ``; ballbar plane:`` header)
   the advice never says to home: the ballbar is mounted.
-* A test program's pauses (M0/M1, to mount and unmount the bar): when OctoPrint would pause
-  at them and not send them anyway (its serial settings ``pausingCommands`` and
-  ``blockedCommands``), KinComp pauses the print itself and drops the line, so that
-  OctoPrint raises no "Suppressed command" warning for each of them.
+* A test program's pauses (to mount and unmount the bar): ``M0``/``M1`` when OctoPrint would
+  pause at them and not send them anyway (its serial settings ``pausingCommands`` and
+  ``blockedCommands``): KinComp pauses the print itself and drops the line, so that
+  OctoPrint raises no "Suppressed command" warning for each of them. The pauses of a program
+  for Klipper (``PAUSE``) and RepRapFirmware (``M291 S2``, ``M226``) are always taken here
+  the same way and never sent: OctoPrint does not know them as pauses, Klipper's ``PAUSE``
+  would pause the print once (``action:paused``) and then answer the unmount pause with
+  "Print already paused" (only its ``RESUME`` clears it, which OctoPrint does not send), and
+  RepRapFirmware's message box does not hold a USB stream (its ``M226`` is refused off its own
+  SD card).
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from typing import Any, Callable, Dict, List, Optional
 from octoprint.events import Events
 from octoprint.filemanager import FileDestinations
 
-from ...calibration.ballbar.program import ProgramError, spec_from_program
+from ...calibration.ballbar.program import ProgramError, is_pause, spec_from_program
 from ...core.marker import file_marker
 from ...service.notify import N_, Notifier
 from ...service.printing.firmware_watch import FirmwareWatcher
@@ -168,15 +174,21 @@ class PrintState:
         except AttributeError:  # not a MachineCom (tests): the event does it
             pass
 
-    def program_pause(self, comm_instance, gcode, tags) -> bool:
-        """A line of the print (``gcode`` as OctoPrint parsed it, ``tags``) is a test
-        program's pause that OctoPrint would pause at and block anyway: the print is paused
-        here (as OctoPrint would) and True says to drop the line, without OctoPrint's
-        "Suppressed command" warning. False: leave the line to OctoPrint."""
+    def program_pause(self, comm_instance, cmd: str, gcode, tags) -> bool:
+        """A line of the print (``cmd``, ``gcode`` as OctoPrint parsed it, ``tags``) is a test
+        program's pause that OctoPrint would pause at and block anyway (M0/M1), or one of
+        another firmware's that OctoPrint does not know (Klipper's PAUSE, RepRapFirmware's
+        M291 S2 or M226; see the module docstring): the print is paused here (as OctoPrint
+        would) and True says to drop the line, without OctoPrint's "Suppressed command"
+        warning. False: leave the line to OctoPrint."""
         if not (self.test_program and tags and "source:file" in tags):
             return False
-        if gcode not in self.pausing_commands or gcode not in self.blocked_commands:
-            return False  # the user lets the firmware pause (or OctoPrint ignores it)
+        if gcode in ("M0", "M1"):
+            if gcode not in self.pausing_commands or gcode not in self.blocked_commands:
+                return False  # the user lets the firmware pause (or OctoPrint ignores it)
+        elif not is_pause(cmd or ""):
+            return False
+        gcode = gcode or (cmd or "").split(None, 1)[0]
         if "trigger:cancel" in tags or "trigger:pause" in tags:
             return False
         try:

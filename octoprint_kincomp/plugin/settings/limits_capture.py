@@ -33,8 +33,9 @@ from ...service.notify import N_
 from ...service.settings.schema import SettingsError
 from .. import http
 
-# the lines of M503's answer kept: the limits (M201, M203-M205) and the steps per mm (M92)
-_LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M92)\s+[A-Za-z]")
+# the lines of M503's answer kept: the limits (M201, M203-M205, RepRapFirmware's M566) and
+# the steps per mm (M92)
+_LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M92|M566)\s+[A-Za-z]")
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
 MAX_LINES = 200  # lines kept of one answer (Marlin's whole M503 is ~60)
 TAGS = {"plugin:kincomp", "kincomp:motion-limits"}
@@ -115,7 +116,7 @@ class LimitsCapture:
 
     # ~~ listening (the serial thread: no I/O here) -------------------------------------------
     def received(self, line: str) -> None:
-        if ("M20" in line or "M92" in line) and _LIMIT_LINE.search(line):
+        if ("M20" in line or "M92" in line or "M566" in line) and _LIMIT_LINE.search(line):
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())

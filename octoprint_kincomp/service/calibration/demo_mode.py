@@ -15,8 +15,9 @@ the program as the printer receives it (compensated with the queue's parameters 
 compensation is on) is played on it from that moment, DEMO_SPEEDUP times faster than the
 simulated printer moves (as OctoPrint's virtual printer runs its moves), so that the capture
 reads it through pyserial exactly as a USB bar. A program with a mount pause (a campaign's
-test: ``M0`` to mount the bar, ``M0`` to unmount it) is played from the moment the printer
-goes on after the mount pause (its first file line after the first ``M0`` is queued:
+test: ``M0``, or the firmware's own pause, to mount the bar and to unmount it) is played from
+the moment the printer goes on after the mount pause (its first file line after the first
+pause is queued:
 OctoPrint queues nothing more of the file while paused), not while the printer waits there
 for the bar. The recorded commands are still simulated after the print, for "Analyse the
 simulated trace" and a campaign's "Use the simulated trace" (the fallbacks), without a
@@ -25,13 +26,12 @@ notice then: the live capture tells (a campaign's test is measured by its captur
 
 from __future__ import annotations
 
-import re
 import threading
 import time
 from typing import Any, Callable, Dict, Iterable, List, Optional, Tuple
 
 from ...calibration.ballbar.formats import NativeTrace
-from ...calibration.ballbar.program import ProgramError, TestSpec, generate
+from ...calibration.ballbar.program import ProgramError, TestSpec, generate, is_pause
 from ...engines.select import make_compensator
 from ...sensor.virtual import VirtualSensor
 from ...simulator.demo import DemoBallbar
@@ -40,7 +40,6 @@ from ..printing.queue import FILE_TAG, command_of
 
 DEMO_SPEEDUP = 10.0  # OctoPrint's virtual printer runs its moves 10 times faster than feed
 DEMO_RANGE_MM = (-1.5, 2.5)  # the virtual bar's measuring range (mm, positive = longer)
-PAUSE = re.compile(r"M0*[01](?!\d)", re.IGNORECASE)  # M0 / M1: the printer waits for the user
 
 
 def lines_as_sent(queue, text: str) -> List[str]:
@@ -175,7 +174,7 @@ class DemoMode:
             if deferred is None:
                 return
             if not self._mount_seen:
-                self._mount_seen = PAUSE.match(cmd) is not None
+                self._mount_seen = is_pause(cmd)
                 return
             self._deferred = None
         self._start_play(*deferred)
