@@ -202,15 +202,15 @@ def _sent_with(args):
     return SentWith.of_options(opts)
 
 
-def _firmware(args):
-    """--firmware: the firmware's compensation state (None: not given)."""
+def _firmware_compensation(args):
+    """--firmware-compensation: the firmware's compensation state (None: not given)."""
     import os
 
     from ..firmware.compensation import FirmwareCompensation
 
-    if args.firmware is None:
+    if args.firmware_compensation is None:
         return None
-    text = args.firmware
+    text = args.firmware_compensation
     if os.path.isfile(text):
         with open(text, encoding="utf-8", errors="replace") as f:
             text = f.read()
@@ -218,13 +218,13 @@ def _firmware(args):
 
 
 def _origin(args, traces):
-    """--firmware (the M503 reply or the commands in force, text or a file) and --program
-    (the program that was printed: a trace with its hash is tied to it)."""
+    """--firmware-compensation (the M503 reply or the commands in force, text or a file)
+    and --program (the program that was printed: a trace with its hash is tied to it)."""
 
     from ..calibration.ballbar.analysis import Provenance
     from ..calibration.ballbar.program import ProgramError, spec_from_program
 
-    fw = _firmware(args)
+    fw = _firmware_compensation(args)
     confirmed = None
     if args.program:
         try:
@@ -288,7 +288,7 @@ def cmd_analyze(args) -> int:
                 cyclic_pitch=args.cyclic_pitch,
                 manifest=manifest,
                 sent=sent,
-                firmware=_firmware(args),
+                firmware=_firmware_compensation(args),
             )
         except TraceError as exc:  # CampaignError names the file itself
             raise CliError(str(exc)) from None
@@ -746,7 +746,7 @@ def _add_analyze(sub) -> None:
         "--decimals", type=int, help="a re-test's program was compensated with these decimals"
     )
     a.add_argument(
-        "--firmware",
+        "--firmware-compensation",
         metavar="TEXT|FILE",
         help="the firmware's compensation during the test: its M503 reply or the commands in "
         "force (M852, M425, M556, M579, SET_SKEW), text or a file; 'none' for none "
