@@ -1,11 +1,11 @@
-"""Statistics of the printed-artifact fit (issue 27; not a speed benchmark): the figures of
-docs/artifact.md. Per error size (the paper's, and small: 100 um/m, 50 ppm), N random
-SIMULATED printers on a 220 mm bed: 10 um noise, 0.01 mm rounding, three repeats, line width
-0.40-0.50 mm, shrinkage 0-0.5 %. Prints how often each value lies within its reported 2 sigma,
-the sigmas, false alarms, and whether a 1 mm typo (one reading; all repeats of one id) is named
-by its id alone.
+"""Statistics of the printed-artifact fit (issues 27 and 35; not a speed benchmark): the figures
+of docs/artifact.md. Per mode (full: 36 measurements read three times; quick: 12 read once)
+and error size (the paper's, and small: 100 um/m, 50 ppm), N random SIMULATED printers on a
+220 mm bed: 10 um noise, 0.01 mm rounding, line width 0.40-0.50 mm, shrinkage 0-0.5 %. Prints
+how often each value lies within its reported 2 sigma, the sigmas, false alarms, and whether a
+1 mm typo (one reading; all repeats of one id) is named by its id alone.
 
-    .venv/bin/python benchmarks/artifact_trials.py [--trials 500]
+    .venv/bin/python benchmarks/artifact_trials.py [--trials 500] [--mode full|quick]
 """
 
 import argparse
@@ -14,20 +14,26 @@ import numpy as np
 
 
 def main() -> int:
-    from octoprint_kincomp.calibration.artifact.fit import analyse_artifact
-    from octoprint_kincomp.calibration.artifact.program import (
-        ArtifactSpec,
-        generate,
-        read_measurements,
-        read_program_info,
-    )
-    from octoprint_kincomp.core.params import Params
-    from octoprint_kincomp.simulator.artifact import simulate_readings
+    from octoprint_kincomp.calibration.artifact.program import ArtifactSpec, generate
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=500)
-    n = ap.parse_args().trials
-    text = generate(ArtifactSpec(volume=(0, 220, 0, 220, 0, 250)))
+    ap.add_argument("--mode", choices=("full", "quick"), action="append")
+    args = ap.parse_args()
+    for mode in args.mode or ("full", "quick"):
+        spec = ArtifactSpec(volume=(0, 220, 0, 220, 0, 250), mode=mode)
+        trials(mode, spec.repeats, generate(spec), args.trials)
+    return 0
+
+
+def trials(mode: str, repeats: int, text: str, n: int) -> None:
+    """Prints the statistics of ``n`` trials per error size of the program ``text`` read
+    ``repeats`` times."""
+    from octoprint_kincomp.calibration.artifact.fit import analyse_artifact
+    from octoprint_kincomp.calibration.artifact.program import read_measurements, read_program_info
+    from octoprint_kincomp.core.params import Params
+    from octoprint_kincomp.simulator.artifact import simulate_readings
+
     meas, info = read_measurements(text), read_program_info(text)
 
     def named_alone(readings, mid):
@@ -63,6 +69,7 @@ def main() -> int:
                 truth,
                 shrinkage=rng.uniform(0, 0.005),
                 line_width_mm=rng.uniform(0.4, 0.5),
+                repeats=repeats,
                 rng=rng,
             )
             res = analyse_artifact(meas, r, info=info)
@@ -79,14 +86,14 @@ def main() -> int:
                 sig.setdefault(sub, []).append(u[key][sub])
             flagged += any(f["severity"] != "info" for f in res["findings"])
             mid = meas[rng.integers(len(meas))].id
-            j = int(rng.integers(3))
+            j = int(rng.integers(repeats))
             one = {a: list(b) for a, b in r.items()}
             one[mid][j] += float(rng.choice([-1, 1]))
             typo_one += named_alone(one, mid)
             every = {a: list(b) for a, b in r.items()}
             every[mid] = [v + 1.0 for v in every[mid]]
             typo_all += named_alone(every, mid)
-        print(f"## {size}: {n} trials")
+        print(f"## {mode}, {size}: {n} trials")
         for sub in hits:
             print(
                 f"{sub}: within 2 sigma {100 * np.mean(hits[sub]):.1f} %, sigma mean "
@@ -96,7 +103,6 @@ def main() -> int:
             f"clean trials with a warning/error: {flagged}; one reading +-1 mm named alone: "
             f"{typo_one}/{n}; all repeats of one id +1 mm named alone: {typo_all}/{n}"
         )
-    return 0
 
 
 if __name__ == "__main__":

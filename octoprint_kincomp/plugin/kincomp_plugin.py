@@ -233,6 +233,7 @@ class KinCompPlugin(
                 "js/kincomp_settings.js",
                 "js/kincomp_limits.js",
                 "js/kincomp_tab.js",
+                "js/kincomp_artifact_logic.js",
                 "js/kincomp_artifact.js",
                 "js/kincomp_navbar.js",
             ],
