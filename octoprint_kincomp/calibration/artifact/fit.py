@@ -163,7 +163,7 @@ class _Fit:
     weights: np.ndarray  # readings per observation
     Js: np.ndarray  # weighted, column-scaled Jacobian at the solution
     scale: np.ndarray  # column scales
-    null: np.ndarray  # null-space basis of Js (columns), scaled coordinates
+    null: np.ndarray  # null-space basis of the design (columns), Js's scaled coordinates
     cov_s: np.ndarray  # pinv(Js'Js) (scaled coordinates, per unit sigma)
     rank: int
     condition: Optional[float]
@@ -177,8 +177,14 @@ def _solve(obs: Sequence[_Obs], w0: float) -> _Fit:
     sq = np.sqrt(wts)
     p = np.zeros(len(NAMES))
     p[6] = p[7] = w0
+    # an unknown the measurements see only through the other errors (at second order: the
+    # XY squareness through the towers when no diagonal was measured) counts as not seen
+    J0 = _predict(meas, p)[1] * sq[:, None]
+    nominal = np.linalg.norm(J0, axis=0)
+    unseen = nominal <= 1e-9 * float(np.max(nominal))
     for _ in range(8):
         pred, J = _predict(meas, p)
+        J[:, unseen] = 0.0
         Jw = J * sq[:, None]
         scale = np.linalg.norm(Jw, axis=0)
         scale[scale == 0] = 1.0
@@ -188,19 +194,39 @@ def _solve(obs: Sequence[_Obs], w0: float) -> _Fit:
         if np.max(np.abs(step * scale)) < 1e-12:
             break
     pred, J = _predict(meas, p)
+    J[:, unseen] = 0.0
     Jw = J * sq[:, None]
     scale = np.linalg.norm(Jw, axis=0)
     scale[scale == 0] = 1.0
     Js = Jw / scale
+    # what the measurements separate is a question of their design: decided on the
+    # Jacobian of the error-free artifact (at the solution, the errors themselves couple the
+    # unknowns at second order, and a combination nothing measures would look measured)
+    rank, null = _design_null(J0, unseen, scale)
     U, s, Vt = np.linalg.svd(Js, full_matrices=True)
-    tol = max(Js.shape) * np.finfo(float).eps * 1e3 * (s[0] if len(s) else 0.0)
-    rank = int(np.sum(s > max(tol, 1e-9 * (s[0] if len(s) else 0.0))))
-    null = Vt[rank:].T
     cov_s = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
     Ur = U[:, :rank]
     lev = np.sum(Ur**2, axis=1)
     cond = float(s[0] / s[rank - 1]) if rank else None
     return _Fit(p, y - pred, wts, Js, scale, null, cov_s, rank, cond, lev)
+
+
+def _design_null(J0: np.ndarray, unseen: np.ndarray, scale: np.ndarray) -> Tuple[int, np.ndarray]:
+    """(rank, null-space basis) of the weighted Jacobian ``J0`` of the error-free artifact,
+    the unknowns ``unseen`` left out; the basis orthonormal in the coordinates scaled by
+    ``scale`` (the solution's column scales)."""
+    J0 = J0.copy()
+    J0[:, unseen] = 0.0
+    s0 = np.linalg.norm(J0, axis=0)
+    s0[s0 == 0] = 1.0
+    _, s, Vt = np.linalg.svd(J0 / s0, full_matrices=True)
+    top = s[0] if len(s) else 0.0
+    tol = max(J0.shape) * np.finfo(float).eps * 1e3 * top
+    rank = int(np.sum(s > max(tol, 1e-9 * top)))
+    null = (Vt[rank:] / s0 * scale).T  # to the solution's scaled coordinates
+    if null.shape[1]:
+        null = np.linalg.qr(null)[0]
+    return rank, null
 
 
 def _estimable(fit: _Fit, g: np.ndarray) -> bool:
@@ -457,6 +483,7 @@ def _robust_fit(
     repeats' pooled standard deviation (mm) and its degrees of freedom; ``floor``: the least
     standard deviation of a reading (mm)."""
     repeat_sd, repeat_dof = repeat
+    spread = max(repeat_sd, floor, OUTLIER_SPREAD_MM)
     dropped: List[_Obs] = []
     while True:
         fit = _solve(obs, w0)
@@ -465,30 +492,22 @@ def _robust_fit(
         s_res = math.sqrt(rss / dof) if dof > 0 else 0.0
         # (each scatter widened for the few degrees of freedom it was estimated from)
         sigma = max(s_res * coverage_factor(dof), repeat_sd * coverage_factor(repeat_dof), floor)
-        worst, worst_t = _worst_measurement(fit, dof, rss, max(repeat_sd, floor, OUTLIER_SPREAD_MM))
+        worst, worst_t = _worst_measurement(fit, dof, rss, spread)
         if worst is None or worst_t <= OUTLIER_T or len(dropped) >= max(1, len(obs) // 5):
             break
+        suspects = _consistent_drops(fit, dof, rss, spread)
+        if len(suspects) > max(2, len(obs) // 3):  # (too many to leave out: an error below)
+            break
+        if len(suspects) > 1:  # leaving out any of them would do: which is wrong is unknown
+            found.append(_ambiguous_finding([obs[i] for i in suspects]))
+            dropped += [obs[i] for i in suspects]
+            obs[:] = [o for i, o in enumerate(obs) if i not in suspects]
+            continue
         o = obs.pop(worst)
         dropped.append(o)
         found.append(_outlier_finding(o, float(fit.resid[worst]), worst_t))
     if worst is not None and worst_t > OUTLIER_T:
-        found.append(
-            fnd.error(
-                "artifact.too_many_outliers",
-                Msg(
-                    "%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
-                    "were left out: the readings do not fit one printed artifact.",
-                    id=obs[worst].meas.id,
-                    t=f"{worst_t:.0f}",
-                    n=len(dropped),
-                ),
-                Msg(
-                    "Check that the readings belong to this program and were typed in the right "
-                    "fields."
-                ),
-                id=obs[worst].meas.id,
-            )
-        )
+        found.append(_too_many_finding(obs[worst], worst_t, len(dropped)))
     unchecked = [o.meas.id for o, h in zip(obs, fit.leverage) if h > MAX_LEVERAGE]
     if unchecked:
         found.append(
@@ -502,6 +521,52 @@ def _robust_fit(
             )
         )
     return _RobustFit(fit, dof, s_res, sigma, dropped, repeat_dof)
+
+
+def _consistent_drops(fit: _Fit, dof: int, rss: float, spread: float) -> List[int]:
+    """The measurements whose leaving out alone would leave the others consistent (their
+    residual scatter within 3 x ``spread``, mm): one when the readings can tell which is
+    wrong; several when they cannot (a quick artifact has no second span of the same
+    direction: a typo in an outside reading is as well explained by its inside reading)."""
+    out = []
+    for i in range(len(fit.resid)):
+        h = fit.leverage[i]
+        if h > MAX_LEVERAGE:
+            continue
+        left = rss - fit.weights[i] * fit.resid[i] ** 2 / (1 - h)
+        if math.sqrt(max(left, 0.0) / max(dof - 1, 1)) <= 3 * spread:
+            out.append(i)
+    return out
+
+
+def _ambiguous_finding(suspects: List[_Obs]) -> fnd.Finding:
+    ids = [o.meas.id for o in suspects]
+    return fnd.warning(
+        "artifact.outlier_ambiguous",
+        Msg(
+            "One of %(ids)s disagrees with the others (a typo?), and the readings cannot tell "
+            "which: all of them were left out, and what only they measure stays as it was.",
+            ids=", ".join(ids),
+        ),
+        Msg("Measure %(ids)s again.", ids=", ".join(ids)),
+        ids=ids,
+        readings_mm={o.meas.id: list(o.values) for o in suspects},
+    )
+
+
+def _too_many_finding(o: _Obs, t: float, n: int) -> fnd.Finding:
+    return fnd.error(
+        "artifact.too_many_outliers",
+        Msg(
+            "%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
+            "were left out: the readings do not fit one printed artifact.",
+            id=o.meas.id,
+            t=f"{t:.0f}",
+            n=n,
+        ),
+        Msg("Check that the readings belong to this program and were typed in the right fields."),
+        id=o.meas.id,
+    )
 
 
 def _outlier_finding(o: _Obs, resid_mm: float, t: float) -> fnd.Finding:
