@@ -71,7 +71,7 @@ test("the values that decide it: squareness and mismatch with their sigma", () =
         "Squareness XY", "Squareness XZ", "Squareness YZ",
         "Scale mismatch X-Y", "Scale mismatch X-Z", "Scale mismatch Y-Z",
     ]);
-    assert.deepEqual([rows[0].value, rows[0].sigma, rows[0].unit], ["-640", "± 81", "µm/m"]);
+    assert.deepEqual([rows[0].value, rows[0].sigma, rows[0].unit], ["-640.2", "± 81.2", "µm/m"]);
     assert.deepEqual([rows[2].value, rows[2].sigma], ["not separated", "–"]);
     assert.equal(rows[3].unit, "ppm");
 });

@@ -87,11 +87,11 @@
         };
         _.each(["xy", "xz", "yz"], function (p) {
             add(_.sprintf(gettext("Squareness %(plane)s"), {plane: p.toUpperCase()}),
-                "squareness_um_per_m", p, "µm/m", 0);
+                "squareness_um_per_m", p, "µm/m", 1);
         });
         _.each(["x-y", "x-z", "y-z"], function (p) {
             add(_.sprintf(gettext("Scale mismatch %(pair)s"), {pair: p.toUpperCase()}),
-                "scale_mismatch_ppm", p, "ppm", 0);
+                "scale_mismatch_ppm", p, "ppm", 1);
         });
         return rows;
     };
