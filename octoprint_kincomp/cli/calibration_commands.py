@@ -490,6 +490,7 @@ def cmd_artifact(args) -> int:
 
 def cmd_artifact_program(args) -> int:
     from ..calibration.artifact.program import ArtifactProgramError, ArtifactSpec, generate
+    from ..calibration.artifact.stl import binary_stl, solids
 
     volume = tuple(floats(args.volume, 6, "--volume"))
     planes = tuple(p.strip().upper() for p in args.planes.split(",") if p.strip())
@@ -506,11 +507,19 @@ def cmd_artifact_program(args) -> int:
             line_width_mm=args.line_width,
             max_span_mm=args.caliper,
             tower_span_mm=args.tower_span,
+            mode="quick" if args.quick else "full",
         )
         text = generate(spec)
+        stl = binary_stl(solids(spec)) if args.stl else None
     except ArtifactProgramError as exc:
         raise CliError(str(exc)) from None
     write_text(args.output, text)
+    if stl is not None:
+        try:
+            with open(args.stl, "wb") as f:
+                f.write(stl)
+        except OSError as exc:
+            raise CliError(f"{args.stl}: {exc.strerror}") from None
     return 0
 
 
@@ -554,6 +563,14 @@ def format_artifact(result) -> str:
     lines = []
     if d.get("simulated"):
         lines.append("SIMULATED data")
+    verdict = result.get("verdict") or {}
+    reason = verdict.get("reason")
+    reason = reason.get("text") if isinstance(reason, dict) else reason
+    lines.append(
+        "verdict: "
+        + str(verdict.get("decision", "")).replace("_", " ")
+        + (f": {reason}" if reason else "")
+    )
     for key, unit, n in (
         ("squareness_um_per_m", "um/m", 1),
         ("scale_mismatch_ppm", "ppm", 1),
@@ -828,6 +845,18 @@ def _add_artifact_program(ts) -> None:
         type=float,
         default=100.0,
         help="longest XZ/YZ tower span, mm (sets their height; default 100)",
+    )
+    tp.add_argument(
+        "--quick",
+        action="store_true",
+        help="the quick artifact: one diagonal each way and the four towers, 12 readings "
+        "(docs/artifact.md states both modes' precision)",
+    )
+    tp.add_argument(
+        "--stl",
+        metavar="ARTIFACT.stl",
+        help="also write the artifact's walls as binary STL, to slice with your own profile "
+        "(measure it with the G-code's sheet: keep the G-code for 'artifact analyze')",
     )
     tp.add_argument("-o", "--output", help="output file (default: standard output)")
     tp.set_defaults(func=cmd_artifact)

@@ -151,7 +151,7 @@ class KinCompPlugin(
             self.store, self.runs, campaigns, self.calibration, self.demo, measurements
         )
         self.campaign.armed_campaign = self.sensor.armed_campaign
-        self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files)
+        self.artifact = ArtifactApi(self.store, queue, self.calibration, self.files, self.demo)
 
     def data_folder(self) -> str:
         """The plugin's data folder (made if missing), absolute: OctoPrint's basedir may be
@@ -243,6 +243,7 @@ class KinCompPlugin(
                 "js/kincomp_settings.js",
                 "js/kincomp_limits.js",
                 "js/kincomp_tab.js",
+                "js/kincomp_artifact_logic.js",
                 "js/kincomp_artifact.js",
                 "js/kincomp_navbar.js",
             ],

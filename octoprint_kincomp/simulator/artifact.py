@@ -63,3 +63,38 @@ def simulate_readings(
         vals = spans[m.id] + rng.normal(0.0, noise_um * 1e-3, repeats)
         out[m.id] = [round(round(v / resolution_mm) * resolution_mm, 6) for v in vals]
     return out
+
+
+DEMO_SHRINKAGE = 0.003  # the demo's plastic shrinks 0.3 %
+DEMO_NOISE_UM = 10.0
+
+
+def demo_readings(
+    text: str,
+    errors: Params,
+    compensated_with: Optional[Params] = None,
+    rng: Optional[np.random.Generator] = None,
+) -> Dict[str, List[float]]:
+    """SIMULATED readings of the artifact program ``text`` as demo mode's printer (true
+    errors ``errors``, KinComp compensating it with ``compensated_with``, None when off)
+    would have printed it and a user read it: 0.3 % shrinkage, the program's line width, 10
+    um caliper noise, 0.01 mm rounding, as many readings per measurement as the program asks
+    for (``; kincomp artifact repeats:``, 3 without)."""
+    from ..calibration.artifact.program import read_measurements, read_program_info
+
+    info = read_program_info(text)
+    try:
+        width = float(info.get("line_width_mm", "0.45"))
+        repeats = max(1, min(3, int(info.get("repeats", "3"))))
+    except ValueError:
+        width, repeats = 0.45, 3
+    return simulate_readings(
+        read_measurements(text),
+        errors,
+        shrinkage=DEMO_SHRINKAGE,
+        line_width_mm=width,
+        noise_um=DEMO_NOISE_UM,
+        repeats=repeats,
+        rng=rng if rng is not None else np.random.default_rng(),
+        compensated_with=compensated_with,
+    )

@@ -1,8 +1,12 @@
 """The printed artifact of the Calibration tab in a real headless Chromium against the real
-server (issue 27): write the artifact, see its numbered drawing, type SIMULATED caliper
-readings (with a 1 mm typo) into the measuring form, analyse, see the values with their
-uncertainties and the typo named by its id, apply; the form in German. Screenshots go to
-test-artifacts/screenshots/ (artifact-measure.png, artifact-result.png)."""
+server (issues 27, 35): write the full artifact, see its numbered drawing, type SIMULATED
+caliper readings (with a 1 mm typo) into the measuring form, analyse, see the values with
+their uncertainties and the typo named by its id, apply; the quick artifact in demo mode, in
+English at 1400x900 and in German at 1920x1080 (each also at the other size): its STL, its
+simulated readings, the result's verdict and Apply with the parameters it sets in view from
+the top of the result, no ballbar plot for it in the tab. Screenshots go to
+test-artifacts/screenshots/ (artifact-measure.png, artifact-result.png,
+artifact-quick-result.png, artifact-quick-result-de.png)."""
 
 import os
 
@@ -34,6 +38,7 @@ def _open_artifact(page):
 def test_measuring_form_result_and_apply(page, server):
     settings(server, enabled=False, params=ZERO)
     _open_artifact(page)
+    page.check("#kincomp_artifact_mode_full")
     page.fill("#kincomp_artifact_nozzle", "0.4")
     page.click("#kincomp_artifact_write")
     page.wait_for_selector("#kincomp_artifact_table tbody tr")
@@ -69,7 +74,10 @@ def test_measuring_form_result_and_apply(page, server):
     assert abs(value - 900.0) < 100.0, table
     findings = page.inner_text("#kincomp_artifact_findings")
     assert "B3-in" in findings and "left out" in findings
-    assert page.is_visible("#kincomp_artifact_trusted")
+    # the verdict says why (the typo left out), and no "Checked" label beside it
+    verdict = page.inner_text("#kincomp_artifact_verdict")
+    assert verdict.startswith("Apply with care") and "B3-in" in verdict, verdict
+    assert "Checked" not in page.inner_text("#kincomp_artifact_result")
     no_popups(page)
     page.screenshot(path=os.path.join(SHOTS, "artifact-result.png"), full_page=True)
     # the row of the typo is marked in the form
@@ -111,17 +119,106 @@ def test_measuring_form_result_and_apply(page, server):
     assert "35/36" in page.locator("#kincomp_artifact_drawing svg text").all_text_contents()
 
 
-def test_measuring_form_in_german(page, server):
-    page.goto(server.url + "/?l10n=de")
-    page.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
-    _open_artifact(page)
-    assert "Gedrucktes Prüfteil" in page.inner_text("#kincomp_artifact_toggle")
-    assert "Prüfteil drucken" in page.inner_text("#kincomp_artifact_print")
+def _in_view_from_the_result(page, size):
+    """At the window ``size`` (width, height), with the top of the artifact's result at the
+    top of the window: the verdict, the values, the parameters Apply sets and the Apply button
+    are all inside the window."""
+    page.set_viewport_size({"width": size[0], "height": size[1]})
+    page.evaluate("document.querySelector('#kincomp_artifact_result').scrollIntoView()")
+    shown = page.evaluate("""() => ['#kincomp_artifact_verdict', '#kincomp_artifact_values',
+        '#kincomp_artifact_sets', '#kincomp_artifact_apply'].map(s => {
+            const r = document.querySelector(s).getBoundingClientRect();
+            return [s, r.height > 0 && r.top >= 0 && r.bottom <= window.innerHeight];
+        })""")
+    assert all(ok for _, ok in shown), (size, shown)
+
+
+def _quick_simulated_result(page):
+    """The quick artifact written, its STL downloaded, demo mode's readings filled in and
+    analysed: the result step shown."""
+    assert page.is_checked("#kincomp_artifact_mode_quick")  # the default
     page.click("#kincomp_artifact_write")
     page.wait_for_selector("#kincomp_artifact_table tbody tr")
-    head = page.inner_text("#kincomp_artifact_table thead")
-    assert "Nennmaß" in head and "Messwerte (mm)" in head
-    first = page.locator("#kincomp_artifact_table tbody tr").first.inner_text()
-    assert "außen" in first
+    assert page.locator("#kincomp_artifact_table tbody tr").count() == 12
+    assert page.locator("#kincomp_artifact_table tbody tr").first.locator("input").count() == 1
+    stl = page.request.get(page.eval_on_selector("#kincomp_artifact_stl", "a => a.href"))
+    assert stl.status == 200 and len(stl.body()) > 84
+    page.click("#kincomp_artifact_simulate")
+    page.wait_for_function("document.querySelector('#kincomp_artifact_r_A1-out_1').value !== ''")
+    assert page.is_visible("#kincomp_artifact_simulated_label")
     page.click("#kincomp_artifact_analyse")
-    page.wait_for_selector("#kincomp_artifact_error >> text=Tragen Sie zuerst die Messwerte ein")
+    page.wait_for_selector("#kincomp_artifact_verdict", state="visible")
+
+
+def test_quick_artifact_in_demo_mode(page, server):
+    """Issue 35's done-when, English at 1400x900 (and 1920x1080): a newcomer's quick artifact
+    in demo mode, the whole loop without a printer."""
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
+    try:
+        page.set_viewport_size({"width": 1400, "height": 900})
+        _open_artifact(page)
+        _quick_simulated_result(page)
+        verdict = page.inner_text("#kincomp_artifact_verdict")
+        assert verdict.startswith("SIMULATED") and "Apply:" in verdict, verdict
+        sets = page.inner_text("#kincomp_artifact_sets")
+        assert "Squareness XY" in sets and "Scale Z" in sets
+        # what Apply sets: the demo printer's hidden XY squareness, within the quick sigma
+        row = page.locator("#kincomp_artifact_sets tbody tr").first.inner_text().split("\t")
+        assert row[:2] == ["Squareness XY", "0.0"] and abs(float(row[2]) + 3638.6) < 400, row
+        _in_view_from_the_result(page, (1400, 900))
+        no_popups(page)
+        page.screenshot(path=os.path.join(SHOTS, "artifact-quick-result.png"))
+        _in_view_from_the_result(page, (1920, 1080))
+        page.click("#kincomp_artifact_apply")
+        page.wait_for_selector("#kincomp_artifact_result >> text=Applied on")
+        st = status(server)
+        assert st["settings"]["enabled"] is True
+        assert abs(st["settings"]["params"]["squareness_um_per_m"]["xy"] - float(row[2])) < 0.1
+        # opened from the history, the tab draws no ballbar plot for it
+        step(page, "history")
+        page.wait_for_selector("#kincomp_history tbody tr")
+        page.locator("#kincomp_history tbody tr").first.locator("button").click()
+        page.wait_for_selector("#kincomp_artifact_result", state="visible")
+        hidden = page.evaluate(
+            "getComputedStyle(document.querySelector('#kincomp_tab .kincomp-plot-box')).display"
+        )
+        assert hidden == "none"
+    finally:
+        settings(server, enabled=False, params=ZERO, demo={"enabled": False, "live": True})
+
+
+def test_quick_artifact_in_german(page, server):
+    """The same in German at 1920x1080 (and 1400x900): one term per thing (Prüfteil), the
+    verdict and Apply in view."""
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
+    try:
+        page.set_viewport_size({"width": 1920, "height": 1080})
+        page.goto(server.url + "/?l10n=de")
+        page.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
+        _open_artifact(page)
+        assert "Gedrucktes Prüfteil" in page.inner_text("#kincomp_artifact_toggle")
+        assert "Prüfteil drucken" in page.inner_text("#kincomp_artifact_print")
+        assert "Schnell: 12 Messwerte" in page.inner_text("#kincomp_artifact_program")
+        page.click("#kincomp_artifact_write")
+        page.wait_for_selector("#kincomp_artifact_table tbody tr")
+        head = page.inner_text("#kincomp_artifact_table thead")
+        assert "Nennmaß" in head and "Messwerte (mm)" in head
+        assert "außen" in page.locator("#kincomp_artifact_table tbody tr").first.inner_text()
+        page.click("#kincomp_artifact_analyse")
+        page.wait_for_selector(
+            "#kincomp_artifact_error >> text=Tragen Sie zuerst die Messwerte ein"
+        )
+        page.click("#kincomp_artifact_step_program")
+        _quick_simulated_result(page)
+        verdict = page.inner_text("#kincomp_artifact_verdict")
+        assert verdict.startswith("SIMULIERT") and "Übernehmen:" in verdict, verdict
+        assert "Rechtwinkligkeit XY" in page.inner_text("#kincomp_artifact_sets")
+        text = page.inner_text("#kincomp_artifact")
+        for english in ("printed artifact", "Kugelstab", "Prüfkörper", "Checked"):
+            assert english not in text, english
+        _in_view_from_the_result(page, (1920, 1080))
+        no_popups(page)
+        page.screenshot(path=os.path.join(SHOTS, "artifact-quick-result-de.png"))
+        _in_view_from_the_result(page, (1400, 900))
+    finally:
+        settings(server, enabled=False, params=ZERO, demo={"enabled": False, "live": True})

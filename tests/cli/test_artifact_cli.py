@@ -128,3 +128,21 @@ def test_program_errors_and_old_form(tmp_path, capsys):
     assert main(["artifact", "--plane", "XZ", "--diagonals", "141.6,141.2,100"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["parameters"]["squareness_um_per_m"]["xz"] > 0
+
+
+def test_quick_program_with_its_stl(tmp_path, capsys):
+    """Issue 35: ``artifact program --quick --stl``: the quick artifact's G-code (its
+    measuring sheet) and its walls as STL; its 12 readings analysed, the verdict first."""
+    prog, stl = tmp_path / "Q.gcode", tmp_path / "Q.stl"
+    assert main(["artifact", "program", "--quick", "--stl", str(stl), "-o", str(prog)]) == 0
+    meas = read_measurements(prog.read_text())
+    assert len(meas) == 12
+    data = stl.read_bytes()
+    assert len(data) == 84 + 50 * int.from_bytes(data[80:84], "little")
+    readings = simulate_readings(meas, TRUTH, repeats=1, rng=np.random.default_rng(2))
+    m = tmp_path / "M.json"
+    m.write_text(json.dumps(readings))
+    capsys.readouterr()
+    assert main(["artifact", "analyze", str(m), "--program", str(prog)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "verdict: apply"

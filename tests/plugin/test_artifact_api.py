@@ -138,3 +138,49 @@ def test_sheet_of_a_file_that_is_no_artifact(api):
         f.write("G28\n")
     resp = api.client.get(PREFIX + "/artifact/sheet?path=plain.gcode")
     assert resp.status_code == 400 and "not a KinComp artifact" in resp.get_json()["error"]
+
+
+def test_quick_artifact_its_stl_and_demo_readings(api):
+    """Issue 35: the quick artifact (12 readings, one field each), its STL for the user's own
+    slicer (the program's walls, its sheet unchanged), and in demo mode SIMULATED readings of
+    it from the demo printer's hidden errors; analysed, the run says SIMULATED."""
+    code, out = post(api, "/artifact/program", {"mode": "quick"})
+    assert code == 200, out
+    assert len(out["measurements"]) == 12 and out["info"]["repeats"] == "1"
+    text = api.plugin._file_manager.add_file.call_args[0][2].stream().getvalue().decode()
+    path = "kincomp/artifact_quick.gcode"  # (the file manager is a mock: stored here)
+    with open(os.path.join(api.uploads, path), "w") as f:
+        f.write(text)
+    resp = api.client.get(PREFIX + "/artifact/stl?path=" + path)
+    assert resp.status_code == 200 and resp.mimetype == "model/stl"
+    assert resp.headers["Content-Disposition"].endswith('.stl"')
+    assert len(resp.data) == 84 + 50 * int.from_bytes(resp.data[80:84], "little") > 84
+    # (a file that is no artifact has no STL, named)
+    with open(os.path.join(api.uploads, "plain.gcode"), "w") as f:
+        f.write("G28\n")
+    resp = api.client.get(PREFIX + "/artifact/stl?path=plain.gcode")
+    assert resp.status_code == 400 and "plain.gcode" in resp.get_json()["error"]
+    # demo mode off: no simulated readings
+    resp = api.client.get(PREFIX + "/artifact/simulated?path=" + path)
+    assert resp.status_code == 409 and "demo mode" in resp.get_json()["error"]
+    api.plugin.demo.set_enabled(True, False)
+    resp = api.client.get(PREFIX + "/artifact/simulated?path=" + path)
+    assert resp.status_code == 200
+    sim = resp.get_json()
+    assert sim["simulated"] is True
+    assert sorted(sim["readings"]) == sorted(m["id"] for m in out["measurements"])
+    code, run = post(
+        api, "/artifact/analyze", {"path": path, "readings": sim["readings"], "simulated": True}
+    )
+    assert code == 200, run
+    assert run["simulated"] is True and run["diagnostics"]["mode"] == "quick"
+    assert run["verdict"]["decision"] == "apply"
+    truth = api.plugin.demo.ballbar.truth.errors.squareness_um_per_m["xy"]
+    d = run["diagnostics"]
+    assert d["squareness_um_per_m"]["xy"] == pytest.approx(
+        truth, abs=3 * d["uncertainty"]["squareness_um_per_m"]["xy"]
+    )
+    code, out = post(api, "/artifact/program", {"mode": "fast"})
+    assert code == 400 and "mode" in out["error"]
+    code, out = post(api, "/artifact/analyze", {"path": path, "readings": {}, "simulated": 1})
+    assert code == 400 and "simulated" in out["error"]

@@ -19,10 +19,13 @@ The model of one reading (mm) of a measurement from ``P`` to ``Q`` (:mod:`.progr
 The fit is a Gauss-Newton least squares over the mean of each measurement's repeats (weighted
 by their number). The 1-sigma uncertainty of each value is ``sigma * sqrt(g' (J'WJ)^+ g)`` with
 ``sigma`` per reading the largest of the fit's residual scatter, the repeats' own scatter and
-the caliper's resolution / sqrt(12). Readings that disagree with their repeats, and
-measurements that disagree with all the others (externally studentized residual), are named by
-their id and left out. A value the measurements cannot separate (no or dependent readings) is
-``None`` with a finding saying so; the rank is decided on the column-scaled design matrix.
+the caliper's resolution / sqrt(12); a scatter estimated from few degrees of freedom ``nu`` is
+widened by Student's ``t(0.975, nu) / 1.96`` (:func:`coverage_factor`), so that the value
+lies within its 2 sigma about 95 % of the time however few readings there are. Readings that
+disagree with their repeats, and measurements that disagree with all the others (externally
+studentized residual), are named by their id and left out. A value the measurements cannot
+separate (no or dependent readings) is ``None`` with a finding saying so; the rank is decided
+on the column-scaled design matrix.
 """
 
 from __future__ import annotations
@@ -50,9 +53,16 @@ GROSS_FRACTION = 0.03  # (ABS shrinks up to ~1.6 %: that must pass)
 REPEAT_SIGMAS = 8.0  # a repeat further than this many repeat-sigmas from its median is out
 REPEAT_FLOOR_MM = 0.1
 OUTLIER_T = 6.0  # externally studentized residual beyond which a measurement is out
+# a reading's scatter is taken as at least one caliper digit when a measurement is judged
+# against the others (with few readings their own scatter is a poor estimate: a quick
+# artifact's 12 readings leave 3 degrees of freedom to judge one by)
+OUTLIER_SPREAD_MM = 0.01
 MAX_LEVERAGE = 0.95  # above this a measurement has no redundancy: it cannot be checked
-POOR_SQUARENESS_UM_PER_M = 100.0
-POOR_MISMATCH_PPM = 300.0
+# (squareness um/m, mismatch ppm) 1-sigma beyond which a value is poorly determined, per
+# mode of the artifact: the quick one's 12 readings give 2 to 7 times the full one's sigma
+# (docs/artifact.md), so there only a sigma well beyond that is said to be poorly determined
+POOR = {"full": (100.0, 300.0), "quick": (350.0, 500.0)}
+Z_975 = 1.959964  # the standard normal's 97.5 % point
 ILL_CONDITIONED = 100.0  # condition number of the column-scaled design matrix
 
 
@@ -153,7 +163,7 @@ class _Fit:
     weights: np.ndarray  # readings per observation
     Js: np.ndarray  # weighted, column-scaled Jacobian at the solution
     scale: np.ndarray  # column scales
-    null: np.ndarray  # null-space basis of Js (columns), scaled coordinates
+    null: np.ndarray  # null-space basis of the design (columns), Js's scaled coordinates
     cov_s: np.ndarray  # pinv(Js'Js) (scaled coordinates, per unit sigma)
     rank: int
     condition: Optional[float]
@@ -167,8 +177,14 @@ def _solve(obs: Sequence[_Obs], w0: float) -> _Fit:
     sq = np.sqrt(wts)
     p = np.zeros(len(NAMES))
     p[6] = p[7] = w0
+    # an unknown the measurements see only through the other errors (at second order: the
+    # XY squareness through the towers when no diagonal was measured) counts as not seen
+    J0 = _predict(meas, p)[1] * sq[:, None]
+    nominal = np.linalg.norm(J0, axis=0)
+    unseen = nominal <= 1e-9 * float(np.max(nominal))
     for _ in range(8):
         pred, J = _predict(meas, p)
+        J[:, unseen] = 0.0
         Jw = J * sq[:, None]
         scale = np.linalg.norm(Jw, axis=0)
         scale[scale == 0] = 1.0
@@ -178,19 +194,39 @@ def _solve(obs: Sequence[_Obs], w0: float) -> _Fit:
         if np.max(np.abs(step * scale)) < 1e-12:
             break
     pred, J = _predict(meas, p)
+    J[:, unseen] = 0.0
     Jw = J * sq[:, None]
     scale = np.linalg.norm(Jw, axis=0)
     scale[scale == 0] = 1.0
     Js = Jw / scale
+    # what the measurements separate is a question of their design: decided on the
+    # Jacobian of the error-free artifact (at the solution, the errors themselves couple the
+    # unknowns at second order, and a combination nothing measures would look measured)
+    rank, null = _design_null(J0, unseen, scale)
     U, s, Vt = np.linalg.svd(Js, full_matrices=True)
-    tol = max(Js.shape) * np.finfo(float).eps * 1e3 * (s[0] if len(s) else 0.0)
-    rank = int(np.sum(s > max(tol, 1e-9 * (s[0] if len(s) else 0.0))))
-    null = Vt[rank:].T
     cov_s = (Vt[:rank].T / s[:rank] ** 2) @ Vt[:rank]
     Ur = U[:, :rank]
     lev = np.sum(Ur**2, axis=1)
     cond = float(s[0] / s[rank - 1]) if rank else None
     return _Fit(p, y - pred, wts, Js, scale, null, cov_s, rank, cond, lev)
+
+
+def _design_null(J0: np.ndarray, unseen: np.ndarray, scale: np.ndarray) -> Tuple[int, np.ndarray]:
+    """(rank, null-space basis) of the weighted Jacobian ``J0`` of the error-free artifact,
+    the unknowns ``unseen`` left out; the basis orthonormal in the coordinates scaled by
+    ``scale`` (the solution's column scales)."""
+    J0 = J0.copy()
+    J0[:, unseen] = 0.0
+    s0 = np.linalg.norm(J0, axis=0)
+    s0[s0 == 0] = 1.0
+    _, s, Vt = np.linalg.svd(J0 / s0, full_matrices=True)
+    top = s[0] if len(s) else 0.0
+    tol = max(J0.shape) * np.finfo(float).eps * 1e3 * top
+    rank = int(np.sum(s > max(tol, 1e-9 * top)))
+    null = (Vt[rank:] / s0 * scale).T  # to the solution's scaled coordinates
+    if null.shape[1]:
+        null = np.linalg.qr(null)[0]
+    return rank, null
 
 
 def _estimable(fit: _Fit, g: np.ndarray) -> bool:
@@ -206,6 +242,28 @@ def _sigma_of(fit: _Fit, g: np.ndarray, sigma: float) -> float:
     return float(sigma * math.sqrt(max(gs @ fit.cov_s @ gs, 0.0)))
 
 
+def coverage_factor(nu: int) -> float:
+    """Student's ``t(0.975, nu) / 1.96`` (>= 1): how much wider a 1 sigma estimated from a
+    scatter with ``nu`` degrees of freedom is made, so that +-2 sigma keeps about 95 %
+    coverage (1.42 at nu = 4, 1.02 at nu = 72; 1 without an estimate, ``nu <= 0``). Exact
+    for nu = 1, 2; the Cornish-Fisher series beyond (within 0.3 % at nu = 3)."""
+    if nu <= 0:
+        return 1.0
+    if nu == 1:
+        return math.tan(math.pi * 0.475) / Z_975
+    if nu == 2:
+        return 0.95 / math.sqrt(2 * 0.975 * 0.025) / Z_975
+    z = Z_975
+    t = (
+        z
+        + (z**3 + z) / (4 * nu)
+        + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * nu**2)
+        + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * nu**3)
+        + (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / (92160 * nu**4)
+    )
+    return t / z
+
+
 # ---------------------------------------------------------------------------------------
 # screening
 
@@ -219,9 +277,9 @@ def _left_out(o: _Obs, off) -> List[Tuple[int, float]]:
     return out
 
 
-def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
+def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> Tuple[float, int]:
     """Leave out readings far from nominal or from their repeats' median; returns the pooled
-    repeat standard deviation (mm; 0 without repeats)."""
+    repeat standard deviation (mm; 0 without repeats) and its degrees of freedom."""
     for o in obs:
         L = o.meas.length
         limit = max(GROSS_MM, GROSS_FRACTION * L)
@@ -290,7 +348,7 @@ def _screen_repeats(obs: List[_Obs], found: List[fnd.Finding]) -> float:
             )
     resid = [v - o.mean for o in obs if len(o.values) >= 2 for v in o.values]
     dof = sum(len(o.values) - 1 for o in obs if len(o.values) >= 2)
-    return math.sqrt(sum(r * r for r in resid) / dof) if dof else 0.0
+    return (math.sqrt(sum(r * r for r in resid) / dof) if dof else 0.0), dof
 
 
 # ---------------------------------------------------------------------------------------
@@ -313,7 +371,7 @@ def analyse_artifact(
     info = info or {}
     found: List[fnd.Finding] = []
     obs, n_readings = _observations(measurements, readings, found)
-    repeat_sd = _screen_repeats(obs, found)
+    repeat_sd, repeat_dof = _screen_repeats(obs, found)
     obs = [o for o in obs if o.values]
     if len(obs) < 2:
         raise ArtifactFitError(
@@ -324,9 +382,10 @@ def analyse_artifact(
     except ValueError:
         w0 = 0.45
     floor = resolution_mm / math.sqrt(12.0)
-    rf = _robust_fit(obs, w0, repeat_sd, floor, found)
+    rf = _robust_fit(obs, w0, (repeat_sd, repeat_dof), floor, found)
     planes_made = [p for p in info.get("planes", "XY,XZ,YZ").split(",") if p]
-    values, sigmas = _quantities(rf, planes_made, found)
+    mode = info.get("mode") if info.get("mode") in POOR else "full"
+    values, sigmas = _quantities(rf, planes_made, found, mode)
     est_axes = [k for k in range(3) if _estimable(rf.fit, _unit(len(NAMES), k))]
     mean_u = _mean_scale(rf, est_axes)
     _line_width_check(values, info, found)
@@ -335,6 +394,7 @@ def analyse_artifact(
     diag: Dict[str, object] = {
         "source": "printed artifact",
         "simulated": simulated,
+        "mode": mode,
         "planes": planes_made,
         "squareness_um_per_m": values["squareness_um_per_m"],
         "scale_mismatch_ppm": values["scale_mismatch_ppm"],
@@ -382,14 +442,16 @@ def _observations(
 class _RobustFit:
     """The fit left when the measurements that disagree were left out: ``fit`` of the
     measurements kept (``obs``, changed in place), ``dof`` its redundancy, ``s_res`` the
-    residual scatter (mm), ``sigma`` the reading's standard deviation used (mm), ``dropped``
-    the measurements left out."""
+    residual scatter (mm), ``sigma`` the reading's standard deviation used (mm, widened by
+    :func:`coverage_factor`), ``dropped`` the measurements left out, ``repeat_dof`` the
+    repeats' degrees of freedom."""
 
     fit: _Fit
     dof: int
     s_res: float
     sigma: float
     dropped: List[_Obs]
+    repeat_dof: int = 0
 
 
 def _worst_measurement(
@@ -413,40 +475,39 @@ def _worst_measurement(
     return worst, worst_t
 
 
-def _robust_fit(obs: List[_Obs], w0: float, repeat_sd: float, floor: float, found) -> _RobustFit:
+def _robust_fit(
+    obs: List[_Obs], w0: float, repeat: Tuple[float, int], floor: float, found
+) -> _RobustFit:
     """Fit, then leave out the worst measurement while one disagrees with the others (at
-    most a fifth of them; a warning each), an error when one still does."""
+    most a fifth of them; a warning each), an error when one still does. ``repeat``: the
+    repeats' pooled standard deviation (mm) and its degrees of freedom; ``floor``: the least
+    standard deviation of a reading (mm)."""
+    repeat_sd, repeat_dof = repeat
+    spread = max(repeat_sd, floor, OUTLIER_SPREAD_MM)
     dropped: List[_Obs] = []
     while True:
         fit = _solve(obs, w0)
         dof = len(obs) - fit.rank
         rss = float(np.sum(fit.weights * fit.resid**2))
         s_res = math.sqrt(rss / dof) if dof > 0 else 0.0
-        sigma = max(s_res, repeat_sd, floor)
-        worst, worst_t = _worst_measurement(fit, dof, rss, max(repeat_sd, floor))
+        # (each scatter widened for the few degrees of freedom it was estimated from)
+        sigma = max(s_res * coverage_factor(dof), repeat_sd * coverage_factor(repeat_dof), floor)
+        worst, worst_t = _worst_measurement(fit, dof, rss, spread)
         if worst is None or worst_t <= OUTLIER_T or len(dropped) >= max(1, len(obs) // 5):
             break
+        suspects = _consistent_drops(fit, dof, rss, spread)
+        if len(suspects) > max(2, len(obs) // 3):  # (too many to leave out: an error below)
+            break
+        if len(suspects) > 1:  # leaving out any of them would do: which is wrong is unknown
+            found.append(_ambiguous_finding([obs[i] for i in suspects]))
+            dropped += [obs[i] for i in suspects]
+            obs[:] = [o for i, o in enumerate(obs) if i not in suspects]
+            continue
         o = obs.pop(worst)
         dropped.append(o)
         found.append(_outlier_finding(o, float(fit.resid[worst]), worst_t))
     if worst is not None and worst_t > OUTLIER_T:
-        found.append(
-            fnd.error(
-                "artifact.too_many_outliers",
-                Msg(
-                    "%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
-                    "were left out: the readings do not fit one printed artifact.",
-                    id=obs[worst].meas.id,
-                    t=f"{worst_t:.0f}",
-                    n=len(dropped),
-                ),
-                Msg(
-                    "Check that the readings belong to this program and were typed in the right "
-                    "fields."
-                ),
-                id=obs[worst].meas.id,
-            )
-        )
+        found.append(_too_many_finding(obs[worst], worst_t, len(dropped)))
     unchecked = [o.meas.id for o, h in zip(obs, fit.leverage) if h > MAX_LEVERAGE]
     if unchecked:
         found.append(
@@ -459,7 +520,53 @@ def _robust_fit(obs: List[_Obs], w0: float, repeat_sd: float, floor: float, foun
                 ids=unchecked,
             )
         )
-    return _RobustFit(fit, dof, s_res, sigma, dropped)
+    return _RobustFit(fit, dof, s_res, sigma, dropped, repeat_dof)
+
+
+def _consistent_drops(fit: _Fit, dof: int, rss: float, spread: float) -> List[int]:
+    """The measurements whose leaving out alone would leave the others consistent (their
+    residual scatter within 3 x ``spread``, mm): one when the readings can tell which is
+    wrong; several when they cannot (a quick artifact has no second span of the same
+    direction: a typo in an outside reading is as well explained by its inside reading)."""
+    out = []
+    for i in range(len(fit.resid)):
+        h = fit.leverage[i]
+        if h > MAX_LEVERAGE:
+            continue
+        left = rss - fit.weights[i] * fit.resid[i] ** 2 / (1 - h)
+        if math.sqrt(max(left, 0.0) / max(dof - 1, 1)) <= 3 * spread:
+            out.append(i)
+    return out
+
+
+def _ambiguous_finding(suspects: List[_Obs]) -> fnd.Finding:
+    ids = [o.meas.id for o in suspects]
+    return fnd.warning(
+        "artifact.outlier_ambiguous",
+        Msg(
+            "One of %(ids)s disagrees with the others (a typo?), and the readings cannot tell "
+            "which: all of them were left out, and what only they measure stays as it was.",
+            ids=", ".join(ids),
+        ),
+        Msg("Measure %(ids)s again.", ids=", ".join(ids)),
+        ids=ids,
+        readings_mm={o.meas.id: list(o.values) for o in suspects},
+    )
+
+
+def _too_many_finding(o: _Obs, t: float, n: int) -> fnd.Finding:
+    return fnd.error(
+        "artifact.too_many_outliers",
+        Msg(
+            "%(id)s still disagrees with the others (%(t)s sigma) after %(n)s measurements "
+            "were left out: the readings do not fit one printed artifact.",
+            id=o.meas.id,
+            t=f"{t:.0f}",
+            n=n,
+        ),
+        Msg("Check that the readings belong to this program and were typed in the right fields."),
+        id=o.meas.id,
+    )
 
 
 def _outlier_finding(o: _Obs, resid_mm: float, t: float) -> fnd.Finding:
@@ -481,10 +588,11 @@ def _outlier_finding(o: _Obs, resid_mm: float, t: float) -> fnd.Finding:
     )
 
 
-def _quantities(rf: _RobustFit, planes_made: List[str], found):
+def _quantities(rf: _RobustFit, planes_made: List[str], found, mode: str = "full"):
     """(values, 1-sigma uncertainties) of the reported quantities: squareness um/m per
     plane, scale mismatch ppm per pair of axes, line width mm per wall family (None where
-    the measurements do not determine one)."""
+    the measurements do not determine one); ``mode``: the artifact's (full, quick), whose
+    precision the poorly-determined findings go by."""
     n = len(NAMES)
     quantities = {
         ("squareness_um_per_m", "xy"): (_unit(n, 3), 1e6),
@@ -506,7 +614,7 @@ def _quantities(rf: _RobustFit, planes_made: List[str], found):
             sigmas[key][sub] = _sigma_of(rf.fit, g, rf.sigma) * unit
         else:
             values[key][sub] = sigmas[key][sub] = None
-    _separability(values, sigmas, planes_made, found)
+    _separability(values, sigmas, planes_made, found, POOR[mode])
     return values, sigmas
 
 
@@ -606,6 +714,12 @@ def _model_findings(current: Params, found) -> None:
 def _fit_summary(rf: _RobustFit, obs: List[_Obs], n_readings: int, repeat_sd: float) -> dict:
     """The fit's figures for the result (um where named so)."""
     fit, sigma, s_res = rf.fit, rf.sigma, rf.s_res
+    if sigma == s_res * coverage_factor(rf.dof) and s_res > 0:
+        sigma_from, nu = "residual", rf.dof
+    elif sigma == repeat_sd * coverage_factor(rf.repeat_dof) and repeat_sd > 0:
+        sigma_from, nu = "repeats", rf.repeat_dof
+    else:
+        sigma_from, nu = "resolution", 0
     return {
         "readings": n_readings,
         "readings_used": int(sum(len(o.values) for o in obs)),
@@ -616,14 +730,15 @@ def _fit_summary(rf: _RobustFit, obs: List[_Obs], n_readings: int, repeat_sd: fl
         "rms_um": s_res * 1e3,
         "repeat_sd_um": repeat_sd * 1e3,
         "sigma_reading_um": sigma * 1e3,
-        "sigma_from": (
-            "residual" if sigma == s_res else "repeats" if sigma == repeat_sd else "resolution"
-        ),
+        "sigma_from": sigma_from,
+        "coverage_factor": coverage_factor(nu),
         "model": "affine errors (squareness, scale) + isotropic shrinkage + line width",
     }
 
 
-def _separability(values, sigmas, planes_made, found) -> None:
+def _separability(values, sigmas, planes_made, found, poor=POOR["full"]) -> None:
+    """Findings for the values the readings do not separate, and for those whose 1 sigma is
+    beyond ``poor`` (squareness um/m, mismatch ppm)."""
     for plane in ("xy", "xz", "yz"):
         made = plane.upper() in planes_made
         v, s = values["squareness_um_per_m"][plane], sigmas["squareness_um_per_m"][plane]
@@ -656,7 +771,7 @@ def _separability(values, sigmas, planes_made, found) -> None:
                         plane=plane.upper(),
                     )
                 )
-        elif s > POOR_SQUARENESS_UM_PER_M:
+        elif s > poor[0]:
             found.append(
                 fnd.warning(
                     "artifact.poorly_determined",
@@ -666,7 +781,14 @@ def _separability(values, sigmas, planes_made, found) -> None:
                         plane=plane.upper(),
                         sigma=f"{s:.0f}",
                     ),
-                    Msg("Measure more repeats, or print the artifact larger (a longer caliper)."),
+                    Msg(
+                        "Print the full artifact: its 36 spans read three times each give "
+                        "several times the precision."
+                    )
+                    if poor == POOR["quick"]
+                    else Msg(
+                        "Measure more repeats, or print the artifact larger (a longer caliper)."
+                    ),
                     quantity="squareness." + plane,
                     sigma_um_per_m=round(s, 1),
                 )
@@ -687,7 +809,7 @@ def _separability(values, sigmas, planes_made, found) -> None:
                         quantity="scale_mismatch." + pair,
                     )
                 )
-        elif s > POOR_MISMATCH_PPM:
+        elif s > poor[1]:
             found.append(
                 fnd.warning(
                     "artifact.poorly_determined",

@@ -40,6 +40,7 @@ from ...core.messages import Msg
 Vec = Tuple[float, float, float]
 PLANES = ("XY", "XZ", "YZ")
 KINDS = ("outside", "inside")
+MODES = ("full", "quick")  # the whole artifact, or its few measurements (12 readings)
 HEADER = "; kincomp artifact program"
 MEASURE_PREFIX = "; kincomp measure:"
 FILAMENT_MM = 1.75
@@ -76,6 +77,15 @@ class ArtifactSpec:
     first_layer_feed: float = 1200.0
     travel_feed: float = 6000.0
     z_feed: float = 600.0
+    # "full": 2 spans along X and Y, 5 diagonals each way, two towers per vertical plane,
+    # measured three times each; "quick": one diagonal each way and the four towers,
+    # measured once each (12 readings in all)
+    mode: str = "full"
+
+    @property
+    def repeats(self) -> int:
+        """How often the program asks for each measurement to be read."""
+        return 1 if self.mode == "quick" else 3
 
     @property
     def layer(self) -> float:
@@ -197,6 +207,10 @@ def _check_spec(spec: ArtifactSpec) -> None:
                     hi=f"{hi:g}",
                 )
             )
+    if spec.mode not in MODES:
+        raise ArtifactProgramError(
+            Msg("mode must be full or quick (got %(mode)s)", mode=str(spec.mode))
+        )
     bad = [p for p in spec.planes if p not in PLANES]
     if bad or not spec.planes:
         raise ArtifactProgramError(
@@ -245,7 +259,8 @@ def layout(spec: ArtifactSpec) -> List[Feature]:
             _check_clearance(feats, spec)
             return feats
         except ArtifactProgramError:
-            if "XY" not in spec.planes or feats[4].length - 2.0 < 60.0:
+            diagonal = next((f for f in feats if f.name[0] in "AB"), None)
+            if diagonal is None or diagonal.length - 2.0 < 60.0:
                 raise
             cut += 2.0
 
@@ -293,7 +308,8 @@ def _check_clearance(feats: Sequence[Feature], spec: ArtifactSpec, need: float =
 
 def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0) -> List[Feature]:
     """Spans along X and Y and 45 deg diagonals (``cut`` mm shorter than they could be),
-    symmetric about the region's centre."""
+    symmetric about the region's centre; the quick artifact has one diagonal each way (the
+    centre ones) and no axis spans."""
     w = spec.width
     reach = spec.fin_length_mm / 2 + 2 * w  # a wall's half length plus its foot
     side = min(ax1 - ax0, ay1 - ay0) - 2 * reach
@@ -311,14 +327,15 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0) -
     half = span / 2
     off = min(12.0, span / 10)  # the two X (Y) spans lie this far either side of the centre
     pitch = spec.fin_length_mm + 3.5 + 3 * w  # walls side by side keep the clearance
-    shifts = tuple(k * pitch for k in (-2, -1, 0, 1, 2))  # five diagonals each way
+    # five diagonals each way (quick: the centre one)
+    shifts = tuple(k * pitch for k in ((0,) if spec.mode == "quick" else (-2, -1, 0, 1, 2)))
     r = 1 / math.sqrt(2)
     # diagonal: as long as the caliper takes and the shifted ends stay within the spans
     diag = min(spec.max_span_mm - 3.0, 2 * math.sqrt(2) * (half - max(shifts) * r)) - cut
     h = diag / (2 * math.sqrt(2))
-    feats = []
+    feats: List[Feature] = []
     top = (z0 + spec.xy_height_mm,) * 2
-    for i, s in enumerate((-off, off), 1):
+    for i, s in enumerate(() if spec.mode == "quick" else (-off, off), 1):
         feats.append(
             Feature(
                 f"X{i}",
@@ -330,7 +347,7 @@ def _xy_features(spec: ArtifactSpec, ax0, ax1, ay0, ay1, z0, cut: float = 0.0) -
                 top,
             )
         )
-    for i, s in enumerate((-off, off), 1):
+    for i, s in enumerate(() if spec.mode == "quick" else (-off, off), 1):
         feats.append(
             Feature(
                 f"Y{i}",
@@ -555,9 +572,14 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         f"; kincomp artifact first_layer_mm: {_f(h1)}",
         f"; kincomp artifact temperatures_c: {_f(spec.hotend_c)},{_f(spec.bed_c)}",
         f"; kincomp artifact max_span_mm: {_f(spec.max_span_mm)}",
+        f"; kincomp artifact tower_span_mm: {_f(spec.tower_span_mm)}",
+        f"; kincomp artifact mode: {spec.mode}",
+        f"; kincomp artifact repeats: {spec.repeats}",
         "; Print with compensation as it will be used (or off); tell the analysis which "
         "parameters were active.",
-        "; Measure every span below with calipers (repeat each 3 times), mm, 0.01 mm resolution.",
+        "; Measure every span below with calipers ("
+        + ("once each" if spec.repeats == 1 else f"repeat each {spec.repeats} times")
+        + "), mm, 0.01 mm resolution.",
     ]
     out += [measure_line(m) for m in meas]
     park_z = min(z1, top + 10.0)
@@ -655,3 +677,59 @@ def _check_inside(lines: Sequence[str], spec: ArtifactSpec) -> None:
                         value=_f(v),
                     )
                 )
+
+
+# ---------------------------------------------------------------------------------------
+# a program's own spec (its header)
+
+
+def spec_of(text: str) -> ArtifactSpec:
+    """The :class:`ArtifactSpec` a program was written for, read back from its header
+    (``; kincomp artifact <key>: <value>``; a program written before a key existed has its
+    default), checked against the program's measurement contract: the layout of that spec
+    must give exactly the program's measurements (ids, from/to within 0.1 um), else
+    :class:`ArtifactProgramError` (the walls could not be told from the header)."""
+    info = read_program_info(text)
+    contract = read_measurements(text)
+
+    def num(key: str, default: float) -> float:
+        try:
+            return float(info[key])
+        except (KeyError, ValueError):
+            return default
+
+    try:
+        volume = tuple(float(v) for v in info["volume"].split(","))
+        hotend, bed = (float(v) for v in info.get("temperatures_c", "210,60").split(","))
+    except (KeyError, ValueError):
+        volume, hotend, bed = (), 0.0, 0.0
+    if len(volume) != 6:
+        raise ArtifactProgramError(
+            Msg("the program's header has no volume: it cannot be told where its walls are")
+        )
+    spec = ArtifactSpec(
+        volume=volume,
+        planes=tuple(p for p in info.get("planes", ",".join(PLANES)).split(",") if p),
+        nozzle_mm=num("nozzle_mm", 0.4),
+        hotend_c=hotend,
+        bed_c=bed,
+        first_layer_mm=num("first_layer_mm", 0.2),
+        layer_mm=num("layer_mm", 0.0) or None,
+        line_width_mm=num("line_width_mm", 0.0) or None,
+        max_span_mm=num("max_span_mm", 150.0),
+        tower_span_mm=num("tower_span_mm", 100.0),
+        mode=info.get("mode", "full"),
+    )
+    made = measurements(layout(spec))
+    same = [m.id for m in made] == [m.id for m in contract] and all(
+        math.dist(a.start, b.start) < 1e-4 and math.dist(a.end, b.end) < 1e-4
+        for a, b in zip(made, contract)
+    )
+    if not same:
+        raise ArtifactProgramError(
+            Msg(
+                "the program's walls cannot be rebuilt from its header (written by another "
+                "version of KinComp?): write the artifact again"
+            )
+        )
+    return spec

@@ -1,11 +1,15 @@
 """The printed-artifact endpoints (issue 27): calibrate with calipers.
 
-* ``POST /artifact/program``  {planes, nozzle, temps: [nozzle, bed], first_layer, caliper,
-  print}: writes KinComp's artifact for the printer profile's volume into OctoPrint's storage
-  (``kincomp/artifact_<date>.gcode``), optionally prints it; answers with its path and
-  :func:`sheet` (the numbered measurements and the drawing).
+* ``POST /artifact/program``  {mode: full|quick, planes, nozzle, temps: [nozzle, bed],
+  first_layer, caliper, print}: writes KinComp's artifact for the printer profile's volume
+  into OctoPrint's storage (``kincomp/artifact_<date>.gcode``), optionally prints it; answers
+  with its path and :func:`sheet` (the numbered measurements and the drawing).
 * ``GET /artifact/sheet?path=``  the same sheet for a stored artifact program.
-* ``POST /artifact/analyze``  {path, readings: {"<id>": [mm, ...]}}: fits the readings
+* ``GET /artifact/stl?path=``  the stored artifact program's walls as a binary STL, to slice
+  with the user's own profile (measured and analysed with that program's sheet).
+* ``GET /artifact/simulated?path=``  demo mode only: SIMULATED readings of the stored program,
+  as demo mode's printer (its hidden errors, the compensation in force) would have printed it.
+* ``POST /artifact/analyze``  {path, readings: {"<id>": [mm, ...]}, simulated}: fits the readings
   (``calibration/artifact/fit.py``) with the parameters in force as those of the print, and
   stores the result as a calibration run (source ``artifact``; the readings are kept as its
   measurement file). Applying it and the history are those of every run (``/apply``,
@@ -27,6 +31,7 @@ from octoprint.access.permissions import Permissions
 from ...calibration.artifact.diagonals import ArtifactError, analyse_diagonals
 from ...calibration.artifact.drawing import legend, svg
 from ...calibration.artifact.program import (
+    MODES,
     PLANES,
     ArtifactProgramError,
     ArtifactSpec,
@@ -34,7 +39,9 @@ from ...calibration.artifact.program import (
     read_measurements,
     read_program_info,
 )
+from ...calibration.artifact.stl import program_stl
 from ...core.params import ParamsError
+from ...simulator.artifact import demo_readings
 from .. import http
 from .calibration_api import CalibrationApi
 
@@ -57,12 +64,22 @@ def sheet(text: str, volume=None) -> Dict[str, Any]:
     return {"measurements": legend(meas), "svg": svg(meas, volume), "info": info}
 
 
+def _mode(data: Dict[str, Any]) -> str:
+    mode = data.get("mode", "full")
+    if mode not in MODES:
+        raise http.BadRequest(
+            gettext("'%(key)s' must be one of %(choices)s", key="mode", choices=", ".join(MODES))
+        )
+    return mode
+
+
 class ArtifactApi:
-    def __init__(self, store, queue, calibration: CalibrationApi, files_api):
+    def __init__(self, store, queue, calibration: CalibrationApi, files_api, demo=None):
         self._store = store
         self._queue = queue
         self._calibration = calibration
         self._files = files_api
+        self._demo = demo  # demo mode (service/calibration/demo_mode.py): simulated readings
 
     @http.route("/artifact/program", "POST", needs=(http.PLUGIN_KINCOMP_ADMIN,))
     def program(self):
@@ -89,6 +106,7 @@ class ArtifactApi:
                 bed_c=temps[1],
                 first_layer_mm=http.number(data, "first_layer", 0.2),
                 max_span_mm=http.number(data, "caliper", 150.0),
+                mode=_mode(data),
             )
             text = generate(spec, date=_dt.datetime.now().strftime("%Y-%m-%d %H:%M"))
         except http.BadRequest as exc:
@@ -129,16 +147,55 @@ class ArtifactApi:
         try:
             out = sheet(text)
         except ArtifactProgramError as exc:
-            return http.error(
-                gettext(
-                    "%(path)s: %(reason)s",
-                    path=path,
-                    reason=http.tr(exc.args[0] if exc.args else exc),
-                ),
-                400,
-            )
+            return self._program_error(path, exc)
         out["path"] = path
         return flask.jsonify(out)
+
+    def _program_error(self, path: str, exc: ArtifactProgramError):
+        return http.error(
+            gettext(
+                "%(path)s: %(reason)s",
+                path=path,
+                reason=http.tr(exc.args[0] if exc.args else exc),
+            ),
+            400,
+        )
+
+    # (it reads a stored file's content: as OctoPrint's download does)
+    @http.route("/artifact/stl", "GET", needs=(http.STATUS, http.FILES_DOWNLOAD))
+    def stl(self):
+        """The stored artifact program's walls as a binary STL (a download)."""
+        path = flask.request.args.get("path", "")
+        text = self._read(path)
+        try:
+            data = program_stl(text)
+        except ArtifactProgramError as exc:
+            return self._program_error(path, exc)
+        name = str(path).rsplit("/", 1)[-1].rsplit(".", 1)[0] + ".stl"
+        resp = flask.make_response(data)
+        resp.headers["Content-Type"] = "model/stl"
+        resp.headers["Content-Disposition"] = f'attachment; filename="{name}"'
+        return resp
+
+    # (demo mode's printer is no secret, but the readings are of a stored file)
+    @http.route("/artifact/simulated", "GET", needs=(http.STATUS, http.FILES_DOWNLOAD))
+    def simulated(self):
+        """Demo mode: SIMULATED readings {"<id>": [mm, ...]} of the stored artifact program,
+        printed by demo mode's printer with its hidden errors and the compensation in force;
+        409 when demo mode is off."""
+        ballbar = getattr(self._demo, "ballbar", None)
+        if ballbar is None:
+            return http.error(
+                gettext("Simulated readings are there in demo mode only (KinComp's settings)"),
+                409,
+            )
+        path = flask.request.args.get("path", "")
+        text = self._read(path)
+        try:
+            readings = demo_readings(text, ballbar.truth.errors, self._queue.in_force)
+        except ArtifactProgramError as exc:
+            return self._program_error(path, exc)
+        return flask.jsonify(readings=readings, simulated=True, path=path)
 
     def _analyze_square(self, square: Any):
         """A printed square (Marlin's and Klipper's calibration object, measured with
@@ -195,6 +252,10 @@ class ArtifactApi:
             return self._analyze_square(data["square"])
         path = data.get("path")
         text = self._read(path)
+        try:
+            simulated = http.flag(data, "simulated")
+        except http.BadRequest as exc:
+            return http.error(str(exc), 400)
         raw = data.get("readings")
         if not isinstance(raw, dict) or any(
             isinstance(v, list) and len(v) > MAX_READINGS for v in raw.values()
@@ -213,7 +274,7 @@ class ArtifactApi:
             for k, vals in raw.items()
         }
         known = self._calibration.known_now()
-        args = {"text": text, "readings": raw, "current": known["current"]}
+        args = {"text": text, "readings": raw, "current": known["current"], "simulated": simulated}
         name = str(path).rsplit("/", 1)[-1]
 
         def store(result: Dict[str, Any]) -> str:

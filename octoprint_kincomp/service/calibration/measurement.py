@@ -91,11 +91,11 @@ def analyse_joint(
 
 
 def analyse_artifact_readings(
-    text: str, readings: Dict[str, Any], current: Dict[str, Any]
+    text: str, readings: Dict[str, Any], current: Dict[str, Any], simulated: bool = False
 ) -> Dict[str, Any]:
     """A printed artifact's caliper ``readings`` (as ``parse_readings`` takes them) against
     its program ``text`` and the parameters ``current``; the readings parsed are returned
-    too (``readings``)."""
+    too (``readings``). ``simulated``: demo mode's readings (the result says SIMULATED)."""
     from ...calibration.artifact.fit import analyse_artifact, parse_readings
     from ...calibration.artifact.program import read_measurements, read_program_info
 
@@ -106,6 +106,7 @@ def analyse_artifact_readings(
         parsed,
         current=Params.from_dict(current),
         info=read_program_info(text),
+        simulated=simulated,
     )
     result["readings"] = parsed
     return result

@@ -101,13 +101,18 @@ def task_analyse_campaign(
 
 
 def task_analyse_artifact(
-    text: str, readings: Dict[str, Any], current: Dict[str, Any], progress: Callable[[float], None]
+    text: str,
+    readings: Dict[str, Any],
+    current: Dict[str, Any],
+    progress: Callable[[float], None],
+    simulated: bool = False,
 ) -> Dict[str, Any]:
-    """A printed artifact's caliper readings against its program ``text``."""
+    """A printed artifact's caliper readings against its program ``text`` (``simulated``:
+    the readings are demo mode's, and the result says SIMULATED)."""
     from ..calibration.measurement import analyse_artifact_readings
 
     progress(0.1)
-    return analyse_artifact_readings(text, readings, current)
+    return analyse_artifact_readings(text, readings, current, simulated)
 
 
 TASKS = {

@@ -1,10 +1,13 @@
 /*
  * KinComp web UI: the printed artifact of the calibration tab (calibrate with calipers,
- * issue 27). Print KinComp's artifact (or only add it to the files), measure it in a form
- * beside its drawing (the server's SVG top view, every measurement numbered; up to three
- * readings each, mm), then the result: squareness um/m and scale mismatch ppm with their
- * 1-sigma uncertainties, the findings (what was checked, readings left out by id), apply.
- * The run is stored in the history like a ballbar run. Every string goes through gettext.
+ * issues 27 and 35). Print KinComp's artifact (quick: 12 readings, or full), only add it to
+ * the files, or slice it yourself (its STL); measure it in a form beside its drawing (the
+ * server's SVG top view, every measurement numbered; as many fields per measurement as the
+ * program asks readings for, mm; in demo mode SIMULATED readings can be filled in), then the
+ * result: its verdict first, the squareness (um/m) and scale mismatch (ppm) with their 1-sigma
+ * uncertainties, the parameters Apply sets, then the findings. The run is stored in the
+ * history like a ballbar run. The logic without layout is kincomp_artifact_logic.js. Every
+ * string goes through gettext.
  */
 $(function () {
     "use strict";
@@ -12,13 +15,7 @@ $(function () {
     var API = K.API;
     var num = K.num;
     var fmt = K.fmt;
-    var trMsg = K.trMsg;
-
-    // (gettext is defined once the view models are made, not when this file runs)
-    var severityText = function (severity) {
-        return {error: gettext("error"), warning: gettext("warning"),
-                info: gettext("info")}[severity] || severity;
-    };
+    var A = K.Artifact;
 
     function KinCompArtifactViewModel(parameters) {
         var self = this;
@@ -28,6 +25,7 @@ $(function () {
         self.tab = parameters[3];
 
         self.fmt = fmt;
+        self.trMsg = K.trMsg;
         self.open = ko.observable(false);
         self.view = ko.observable("program");
         self.error = ko.observable("");
@@ -41,6 +39,7 @@ $(function () {
         self.bedTemp = ko.observable("60");
         self.firstLayer = ko.observable("0.2");
         self.caliper = ko.observable("150");
+        self.mode = ko.observable("quick");
         self.bedClear = ko.observable(false);
         self.loadPath = ko.observable("");
 
@@ -49,6 +48,17 @@ $(function () {
         self.rows = ko.observableArray([]);
         self.analysedRows = ko.observable(false);
         self.run = ko.observable(null);
+        // the readings in the form were filled in by demo mode's simulation (until edited)
+        self.simulatedReadings = ko.observable(false);
+        self.filling = false;
+
+        // demo mode is on (the tab knows: its status)
+        self.demo = ko.pureComputed(function () {
+            return !!(self.tab && self.tab.demo && self.tab.demo());
+        });
+        self.stlUrl = ko.pureComputed(function () {
+            return self.path() ? API("artifact/stl?path=" + encodeURIComponent(self.path())) : "#";
+        });
 
         self.canWrite = ko.pureComputed(function () {
             return K.canAdmin(self);
@@ -66,22 +76,58 @@ $(function () {
             return kind === "outside" ? gettext("outside") : gettext("inside");
         };
 
+        var edited = function () {
+            if (!self.filling) self.simulatedReadings(false);
+        };
+
         // the numbered measurements and the drawing of a program (POST /artifact/program or
-        // GET /artifact/sheet)
+        // GET /artifact/sheet); as many reading fields as the program asks readings for
         self.showSheet = function (sheet) {
+            var count = A.fieldsFor(sheet.info);
             self.path(sheet.path);
             self.loadPath(sheet.path);
             self.drawing(sheet.svg);
             self.analysedRows(false);
+            self.simulatedReadings(false);
             self.rows(_.map(sheet.measurements, function (m) {
+                var fields = _.map(_.range(count), function (k) {
+                    var text = ko.observable("");
+                    text.subscribe(edited);
+                    return {k: k + 1, text: text};
+                });
                 return {
                     n: m.n, id: m.id, kind: m.kind, kindText: kindText(m.kind),
-                    nominal: m.nominal_mm, hint: m.hint,
-                    r1: ko.observable(""), r2: ko.observable(""), r3: ko.observable(""),
+                    nominal: m.nominal_mm, hint: m.hint, fields: fields,
                     residual: ko.observable(""), leftOut: ko.observable(false)
                 };
             }));
             self.view("measure");
+        };
+
+        // the form's fields filled with readings {"<id>": [mm, ...]} (missing ids: empty)
+        self.fillReadings = function (readings) {
+            self.filling = true;
+            try {
+                _.each(self.rows(), function (row) {
+                    var texts = A.fieldTexts(readings[row.id] || [], row.fields.length);
+                    _.each(row.fields, function (f, k) { f.text(texts[k]); });
+                });
+            } finally {
+                self.filling = false;
+            }
+        };
+
+        // demo mode: SIMULATED readings of this program (GET /artifact/simulated)
+        self.fillSimulated = function () {
+            self.error("");
+            self.busy(true);
+            OctoPrint.get(API("artifact/simulated?path=" + encodeURIComponent(self.path())))
+                .done(function (resp) {
+                    self.fillReadings(resp.readings || {});
+                    self.simulatedReadings(true);
+                })
+                .fail(self.fail)
+                .always(function () { self.busy(false); });
         };
 
         var programBody = function (print) {
@@ -93,7 +139,7 @@ $(function () {
                 planes: planes, nozzle: num(self.nozzle()),
                 temps: [num(self.hotend()), num(self.bedTemp())],
                 first_layer: num(self.firstLayer()), caliper: num(self.caliper()),
-                print: print
+                mode: self.mode(), print: print
             };
             var bad = _.find([["nozzle", body.nozzle], ["temps", body.temps[0]],
                               ["temps", body.temps[1]], ["first_layer", body.first_layer],
@@ -109,7 +155,8 @@ $(function () {
             return body;
         };
 
-        var makeProgram = function (print) {
+        // writes the artifact (and prints it); ``stl``: then downloads its STL to slice
+        var makeProgram = function (print, stl) {
             self.error("");
             var body = programBody(print);
             if (!body) return;
@@ -117,19 +164,23 @@ $(function () {
             OctoPrint.postJson(API("artifact/program"), body)
                 .done(function (resp) {
                     self.showSheet(resp);
+                    if (stl) window.location.href = self.stlUrl();
                     K.notify({
                         title: gettext("KinComp"),
                         text: resp.printing
                             ? _.sprintf(gettext("Printing the artifact %(path)s. Let it cool down before you measure it."), {path: resp.path})
-                            : _.sprintf(gettext("The artifact was added to the files as %(path)s."), {path: resp.path}),
+                            : stl
+                                ? _.sprintf(gettext("The artifact's measuring sheet was added to the files as %(path)s; its STL is downloading. Measure the part you print from it with this sheet."), {path: resp.path})
+                                : _.sprintf(gettext("The artifact was added to the files as %(path)s."), {path: resp.path}),
                         type: "success"
                     });
                 })
                 .fail(self.fail)
                 .always(function () { self.busy(false); });
         };
-        self.printArtifact = function () { makeProgram(true); };
-        self.writeArtifact = function () { makeProgram(false); };
+        self.printArtifact = function () { makeProgram(true, false); };
+        self.writeArtifact = function () { makeProgram(false, false); };
+        self.sliceArtifact = function () { makeProgram(false, true); };
 
         self.loadSheet = function () {
             self.error("");
@@ -142,26 +193,14 @@ $(function () {
 
         // readings -> {"<id>": [mm, ...]}; a field that is no number stops with its name
         self.readings = function () {
-            var out = {};
-            var bad = null;
-            _.each(self.rows(), function (row) {
-                var vals = [];
-                _.each([row.r1(), row.r2(), row.r3()], function (text, k) {
-                    if (String(text).trim() === "") return;
-                    var v = num(text);
-                    if (isNaN(v) || v <= 0) {
-                        bad = bad || _.sprintf(gettext("Reading %(k)s of %(id)s is not a length in mm"), {k: k + 1, id: row.id});
-                    } else {
-                        vals.push(v);
-                    }
-                });
-                if (vals.length) out[row.id] = vals;
-            });
-            if (bad) {
-                self.error(bad);
+            var got = A.readingsOf(_.map(self.rows(), function (row) {
+                return {id: row.id, fields: _.map(row.fields, function (f) { return f.text(); })};
+            }));
+            if (got.error) {
+                self.error(got.error);
                 return null;
             }
-            return out;
+            return got.readings;
         };
 
         self.analyse = function () {
@@ -173,7 +212,8 @@ $(function () {
                 return;
             }
             self.busy(true);
-            K.afterJob(OctoPrint.postJson(API("artifact/analyze"), {path: self.path(), readings: readings}),
+            K.afterJob(OctoPrint.postJson(API("artifact/analyze"), {path: self.path(), readings: readings,
+                                                                    simulated: self.simulatedReadings()}),
                        K.loadRun)
                 .done(self.showRun)
                 .fail(self.fail)
@@ -193,47 +233,21 @@ $(function () {
             self.view("result");
         };
 
-        self.trusted = ko.pureComputed(function () {
-            var run = self.run();
-            return !!(run && run.trusted);
-        });
         self.applied = ko.pureComputed(function () {
             var run = self.run();
             return run ? run.applied : null;
         });
-
-        self.valueRows = ko.pureComputed(function () {
+        self.simulatedRun = ko.pureComputed(function () {
             var run = self.run();
-            if (!run) return [];
-            var d = run.diagnostics, u = d.uncertainty || {};
-            var rows = [];
-            var add = function (label, key, sub, unit, digits) {
-                var v = (d[key] || {})[sub], s = (u[key] || {})[sub];
-                rows.push({
-                    label: label, unit: unit,
-                    value: v === null || v === undefined ? gettext("not separated") : fmt(v, digits),
-                    sigma: s === null || s === undefined ? "–" : "± " + fmt(s, digits)
-                });
-            };
-            _.each(["xy", "xz", "yz"], function (p) {
-                add(_.sprintf(gettext("Squareness %(plane)s"), {plane: p.toUpperCase()}),
-                    "squareness_um_per_m", p, "µm/m", 1);
-            });
-            _.each(["x-y", "x-z", "y-z"], function (p) {
-                add(_.sprintf(gettext("Scale mismatch %(pair)s"), {pair: p.toUpperCase()}),
-                    "scale_mismatch_ppm", p, "ppm", 1);
-            });
-            add(gettext("Line width (walls of the flat part)"), "line_width_mm", "vertical_walls", "mm", 3);
-            add(gettext("Line width (45° walls)"), "line_width_mm", "slanted_walls", "mm", 3);
-            return rows;
+            return !!(run && run.simulated);
         });
-
-        self.findings = ko.pureComputed(function () {
-            var run = self.run();
-            return _.map((run && run.findings) || [], function (f) {
-                return {severity: f.severity, severityText: severityText(f.severity),
-                        message: trMsg(f.message), advice: trMsg(f.advice)};
-            });
+        self.verdict = ko.pureComputed(function () { return A.verdictView(self.run()); });
+        self.valueRows = ko.pureComputed(function () { return A.valueRows(self.run()); });
+        self.widthRows = ko.pureComputed(function () { return A.widthRows(self.run()); });
+        self.applyRows = ko.pureComputed(function () { return A.applyRows(self.run()); });
+        // the findings, worst first, and the "apply anyway" step of an untrusted result
+        self.findingsBox = new K.FindingsBox(self.run, function (force) {
+            self.applyConfirmed(force);
         });
 
         // a printed-artifact run opened in the tab's history: shown here with its program's
@@ -246,12 +260,8 @@ $(function () {
                 OctoPrint.get(API("runs/" + encodeURIComponent(run.id) + "/trace"))
                     .done(function (readings) {
                         if (typeof readings === "string") readings = JSON.parse(readings);
-                        _.each(self.rows(), function (row) {
-                            var vals = readings[row.id] || [];
-                            row.r1(vals.length > 0 ? String(vals[0]) : "");
-                            row.r2(vals.length > 1 ? String(vals[1]) : "");
-                            row.r3(vals.length > 2 ? String(vals[2]) : "");
-                        });
+                        self.fillReadings(readings);
+                        self.simulatedReadings(!!run.simulated);
                     })
                     .always(function () { self.showRun(run); });
             };
@@ -265,12 +275,15 @@ $(function () {
         };
         if (self.tab && self.tab.run) self.tab.run.subscribe(self.openFromHistory);
 
+        // an untrusted run is applied only after the "apply anyway" step (kincomp_findings.js)
         self.apply = function () {
+            if (self.run()) self.findingsBox.apply();
+        };
+        self.applyConfirmed = function (force) {
             var run = self.run();
             if (!run) return;
-            if (!run.trusted && !window.confirm(gettext("This result is not trusted (see its errors). Apply it anyway?"))) return;
             self.busy(true);
-            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true})
+            OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
                 .done(function () {
                     OctoPrint.get(API("runs/" + run.id)).done(self.run);
                     K.notify({title: gettext("KinComp"),

@@ -47,6 +47,7 @@
         var m = /^live capture \((.*)\)$/.exec(name || "");
         if (m) return _.sprintf(gettext("live capture (%(plane)s)"), {plane: m[1]});
         if (name === "typed summary") return gettext("typed summary");
+        if (name === "printed artifact") return gettext("printed artifact");
         return name || "";
     };
 

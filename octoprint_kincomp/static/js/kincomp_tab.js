@@ -469,10 +469,22 @@ $(function () {
             window.setTimeout(self.plot, 50);
         };
 
+        // a result without a circle (a printed artifact, typed numbers) has no plot: none is
+        // shown, not the one drawn for the run before
+        self.hasPlot = ko.pureComputed(function () {
+            var run = self.run();
+            return !!(run && run.plot);
+        });
+
         self.plot = function () {
             var run = self.run();
             var target = $("#kincomp_plot");
-            if (!run || !run.plot || !target.is(":visible")) return;
+            if (!run || !run.plot) {
+                target.empty();
+                self.plotCaption("");
+                return;
+            }
+            if (!target.is(":visible")) return;
             target.height(target.width()); // equal scales: a circle stays a circle
             var runs = [run.plot];
             var before = self.beforeRun();
