@@ -539,126 +539,137 @@ def test_zero_parameters_give_the_input_back(lines, zero, opts, ending, final_ne
 # -- 3. the compensated program lands where the program asks ---------------------------------
 
 
+class _Program:
+    """A program being drawn: its lines, and what the firmware model and the E mode know
+    after them (where the head is, whether the E position is defined)."""
+
+    def __init__(self, draw):
+        self.draw = draw
+        self.oracle = FirmwareInterpreter()
+        self.mode = EMode()
+        self.e_known = False
+        self.lines = []
+
+    def add(self, line):
+        self.oracle.execute(line)
+        self.mode.feed(line)
+        code = line.split(";", 1)[0].upper()
+        if re.match(r"\s*(N\d+\s*)?G92(?![\d.])", code):
+            self.e_known = self.e_known or "E" in code or not re.search("[XYZ]", code[4:])
+        elif "E" in code and _MOTION.match(code):
+            self.e_known = not self.mode.e_relative
+        self.lines.append(line)
+
+    def value(self, lo, hi, rel=False):
+        """A coordinate's text in the program's units (relative: a step of up to 40 mm)."""
+        draw, inches = self.draw, self.oracle.inches
+        v = draw(st.floats(-40, 40) if rel else st.floats(lo, hi))
+        dec = draw(st.integers(0, 4))
+        return _num_text(
+            v / 25.4 if inches else v,
+            dec + (2 if inches else 0),
+            draw(st.sampled_from(["", "", "plus", "bare"])),
+        )
+
+    def arc_words(self):
+        """The centre offsets (in the plane's letters) or the radius of an arc."""
+        draw, inches = self.draw, self.oracle.inches
+        inch = 25.4 if inches else 1.0
+        letters = {17: "IJ", 18: "KI", 19: "JK"}[self.oracle.plane]
+        if draw(st.integers(0, 2)):
+            offs = [
+                (a, _num_text(draw(st.floats(-60, 60)) / inch, 3 + (2 if inches else 0), ""))
+                for a in letters
+                if draw(st.integers(0, 3))
+            ]
+            words = offs or [(letters[0], "10")]
+        else:
+            r = draw(st.floats(5, 160)) * draw(st.sampled_from([1, -1]))
+            words = [("R", _num_text(r / inch, 4, ""))]
+        if draw(st.integers(0, 5)) == 0:
+            words.append(("P", str(draw(st.integers(1, 2)))))
+        return words
+
+    def motion(self, op):
+        """A move or (``op`` "arc") an arc, kept only if the firmware model takes it."""
+        draw = self.draw
+        rel = not self.oracle.absolute
+        words = [
+            (a, self.value(lo, hi, rel))
+            for a, (lo, hi) in zip("XYZ", ((-20, 220), (-20, 220), (0, 60)))
+            if draw(st.booleans())
+        ]
+        code = draw(st.sampled_from(["G1", "G0", "G01"]))
+        if op == "arc":
+            code = draw(st.sampled_from(["G2", "G3"]))
+            words += self.arc_words()
+        if draw(st.booleans()) and (op == "move" or self.mode.e_relative or self.e_known):
+            words.append(("E", _num_text(draw(st.floats(-2, 30)), 5, "")))
+        if draw(st.integers(0, 3)) == 0:
+            words.append(("F", str(draw(st.integers(300, 9000)))))
+        line, _ = draw(decorate(code, words))
+        if op == "arc":
+            probe = copy.deepcopy(self.oracle)
+            probe.execute(line)
+            if probe.malformed > self.oracle.malformed:
+                return  # not an arc (radius too small, centre on the start ...)
+        self.add(line)
+
+    def g92(self):
+        draw = self.draw
+        if draw(st.booleans()):
+            self.add(draw(st.sampled_from(["G92 E0", "G92", "G92.1"])))
+            return
+        axes = draw(st.sampled_from(["X", "Y", "Z", "XY", "XYZ", "E"]))
+        self.add("G92 " + " ".join(f"{a}{self.value(-50, 150)}" for a in axes))
+
+    def home(self, partial_home):
+        choices = (
+            [
+                ("G28",),
+                ("G28 X",),
+                ("G28 Y Z",),
+                ("G28 X Y Z",),
+                ("G28 X", "G28 Y"),
+                ("G28 Y", "G28 X", "G28 Z"),
+                ("G28 Z", "G28 X"),
+            ]
+            if partial_home
+            else [("G28",), ("G28 X Y Z",)]
+        )
+        for h in self.draw(st.sampled_from(choices)):  # (axes homed one G28 at a time, too)
+            self.add(h)
+
+
+_MODES = ["G90", "G91", "G20", "G21", "M82", "M83", "G17", "G18", "G19"]
+_OTHER = ["M104 S200", "G4 P10", "; layer", "", "M106 S128", "M117 hi"]
+
+
 @st.composite
 def program(draw, max_ops=30, partial_home=True):
     """A program that always knows where the head is: homed first, no probing or tool
     changes, every arc a valid arc (the firmware model is asked before an arc is kept) and
     absolute-E arcs only when the E position is defined (the compensator cannot split an
     absolute E from an unknown one and passes such arcs untouched, as documented)."""
-    oracle = FirmwareInterpreter()
-    mode = EMode()
-    e_known = False
-    lines = []
-
-    def add(line):
-        nonlocal e_known
-        oracle.execute(line)
-        mode.feed(line)
-        code = line.split(";", 1)[0].upper()
-        if re.match(r"\s*(N\d+\s*)?G92(?![\d.])", code):
-            e_known = e_known or "E" in code or not re.search("[XYZ]", code[4:])
-        elif "E" in code and _MOTION.match(code):
-            e_known = not mode.e_relative
-        lines.append(line)
-
-    add("G28")
+    prog = _Program(draw)
+    prog.add("G28")
     for m in draw(st.sampled_from([(), ("G92 E0",), ("M83",), ("G92 E0", "M83")])):
-        add(m)
+        prog.add(m)
     x, y, z = draw(st.floats(0, 200)), draw(st.floats(0, 200)), draw(st.floats(0.2, 40))
-    add(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F3000")
-
-    def val(lo, hi, rel=False):
-        v = draw(st.floats(-40, 40) if rel else st.floats(lo, hi))
-        dec = draw(st.integers(0, 4))
-        return _num_text(
-            v / 25.4 if oracle.inches else v,
-            dec + (2 if oracle.inches else 0),
-            draw(st.sampled_from(["", "", "plus", "bare"])),
-        )
-
+    prog.add(f"G1 X{x:.3f} Y{y:.3f} Z{z:.3f} F3000")
     for _ in range(draw(st.integers(1, max_ops))):
         op = draw(st.sampled_from(["move"] * 6 + ["arc"] * 3 + ["mode", "g92", "home", "other"]))
         if op in ("move", "arc"):
-            rel = not oracle.absolute
-            words = [
-                (a, val(lo, hi, rel))
-                for a, (lo, hi) in zip("XYZ", ((-20, 220), (-20, 220), (0, 60)))
-                if draw(st.booleans())
-            ]
-            code = draw(st.sampled_from(["G1", "G0", "G01"]))
-            inch = 25.4 if oracle.inches else 1.0
-            if op == "arc":
-                code = draw(st.sampled_from(["G2", "G3"]))
-                letters = {17: "IJ", 18: "KI", 19: "JK"}[oracle.plane]
-                if draw(st.integers(0, 2)):
-                    offs = [
-                        (
-                            a,
-                            _num_text(
-                                draw(st.floats(-60, 60)) / inch, 3 + (2 if oracle.inches else 0), ""
-                            ),
-                        )
-                        for a in letters
-                        if draw(st.integers(0, 3))
-                    ]
-                    words += offs or [(letters[0], "10")]
-                else:
-                    r = draw(st.floats(5, 160)) * draw(st.sampled_from([1, -1]))
-                    words.append(("R", _num_text(r / inch, 4, "")))
-                if draw(st.integers(0, 5)) == 0:
-                    words.append(("P", str(draw(st.integers(1, 2)))))
-            if draw(st.booleans()) and (op == "move" or mode.e_relative or e_known):
-                words.append(("E", _num_text(draw(st.floats(-2, 30)), 5, "")))
-            if draw(st.integers(0, 3)) == 0:
-                words.append(("F", str(draw(st.integers(300, 9000)))))
-            line, _ = draw(decorate(code, words))
-            if op == "arc":
-                probe = copy.deepcopy(oracle)
-                probe.execute(line)
-                if probe.malformed > oracle.malformed:
-                    continue  # not an arc (radius too small, centre on the start ...)
-            add(line)
+            prog.motion(op)
         elif op == "mode":
-            add(
-                draw(
-                    st.sampled_from(["G90", "G91", "G20", "G21", "M82", "M83", "G17", "G18", "G19"])
-                )
-            )
+            prog.add(draw(st.sampled_from(_MODES)))
         elif op == "g92":
-            add(
-                draw(st.sampled_from(["G92 E0", "G92", "G92.1"]))
-                if draw(st.booleans())
-                else "G92 "
-                + " ".join(
-                    f"{a}{val(-50, 150)}"
-                    for a in draw(st.sampled_from(["X", "Y", "Z", "XY", "XYZ", "E"]))
-                )
-            )
+            prog.g92()
         elif op == "home":
-            homes = draw(
-                st.sampled_from(
-                    [
-                        ("G28",),
-                        ("G28 X",),
-                        ("G28 Y Z",),
-                        ("G28 X Y Z",),
-                        ("G28 X", "G28 Y"),
-                        ("G28 Y", "G28 X", "G28 Z"),
-                        ("G28 Z", "G28 X"),
-                    ]
-                    if partial_home
-                    else [("G28",), ("G28 X Y Z",)]
-                )
-            )
-            for h in homes:  # (axes homed one G28 at a time, too)
-                add(h)
+            prog.home(partial_home)
         else:
-            add(
-                draw(
-                    st.sampled_from(["M104 S200", "G4 P10", "; layer", "", "M106 S128", "M117 hi"])
-                )
-            )
-    return lines
+            prog.add(draw(st.sampled_from(_OTHER)))
+    return prog.lines
 
 
 def motion_info(line: str) -> dict:

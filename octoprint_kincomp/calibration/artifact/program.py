@@ -44,6 +44,7 @@ MODES = ("full", "quick")  # the whole artifact, or its few measurements (12 rea
 HEADER = "; kincomp artifact program"
 MEASURE_PREFIX = "; kincomp measure:"
 FILAMENT_MM = 1.75
+_FILAMENT_AREA = math.pi * (FILAMENT_MM / 2) ** 2  # mm^2
 
 _MEASURE_RE = re.compile(
     r"^;\s*kincomp measure:\s*id=(?P<id>[A-Za-z0-9_.-]+)\s+kind=(?P<kind>\S+)\s+"
@@ -557,19 +558,27 @@ def _f(v: float) -> str:
 def generate(spec: ArtifactSpec, date: str = "") -> str:
     """The artifact's G-code: header (contract), start, layers, end."""
     feats = layout(spec)
-    meas = measurements(feats)
-    x0, x1, y0, y1, z0, z1 = spec.volume
-    w, h1, h = spec.width, spec.first_layer_mm, spec.layer
-    area = math.pi * (FILAMENT_MM / 2) ** 2
-    top = max(f.top for ft in feats for f in ft.fins)
-    out = [
+    fins = [f for ft in feats for f in ft.fins]
+    top = max(f.top for f in fins)
+    out = _header(spec, date) + [measure_line(m) for m in measurements(feats)]
+    out += _start(spec)
+    pos = _prime_line(spec, out)
+    _layers(spec, fins, top, pos, out)
+    out += _end(spec, park_z=min(spec.volume[5], top + 10.0))
+    _check_inside(out, spec)
+    return "\n".join(out) + "\n"
+
+
+def _header(spec: ArtifactSpec, date: str) -> List[str]:
+    """The program's header: the measuring contract the analysis reads back."""
+    return [
         f"{HEADER} (KinComp printed calibration artifact{', ' + date if date else ''})",
         f"; kincomp artifact planes: {','.join(p for p in PLANES if p in spec.planes)}",
         f"; kincomp artifact volume: {','.join(_f(v) for v in spec.volume)}",
         f"; kincomp artifact nozzle_mm: {_f(spec.nozzle_mm)}",
-        f"; kincomp artifact line_width_mm: {_f(w)}",
-        f"; kincomp artifact layer_mm: {_f(h)}",
-        f"; kincomp artifact first_layer_mm: {_f(h1)}",
+        f"; kincomp artifact line_width_mm: {_f(spec.width)}",
+        f"; kincomp artifact layer_mm: {_f(spec.layer)}",
+        f"; kincomp artifact first_layer_mm: {_f(spec.first_layer_mm)}",
         f"; kincomp artifact temperatures_c: {_f(spec.hotend_c)},{_f(spec.bed_c)}",
         f"; kincomp artifact max_span_mm: {_f(spec.max_span_mm)}",
         f"; kincomp artifact tower_span_mm: {_f(spec.tower_span_mm)}",
@@ -581,9 +590,12 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         + ("once each" if spec.repeats == 1 else f"repeat each {spec.repeats} times")
         + "), mm, 0.01 mm resolution.",
     ]
-    out += [measure_line(m) for m in meas]
-    park_z = min(z1, top + 10.0)
-    out += [
+
+
+def _start(spec: ArtifactSpec) -> List[str]:
+    """Heat, home, absolute positions and relative E, the nozzle 2 mm over the bed."""
+    z0 = spec.volume[4]
+    return [
         "M140 S" + _f(spec.bed_c),
         "M104 S" + _f(spec.hotend_c * 0.75),
         "M190 S" + _f(spec.bed_c),
@@ -596,55 +608,73 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         "M107",
         f"G1 Z{_f(z0 + 2)} F{_f(spec.z_feed)}",
     ]
-    # prime line along the front edge
-    px0, px1, py = (
-        x0 + spec.margin_mm / 2,
-        min(x1 - spec.margin_mm / 2, x0 + spec.margin_mm / 2 + 60),
-        y0 + 3,
-    )
+
+
+def _prime_line(spec: ArtifactSpec, out: List[str]) -> Tuple[float, float]:
+    """A prime line along the front edge appended to ``out``; returns where it ends (mm)."""
+    x0, x1, y0, _, z0, _ = spec.volume
+    h1 = spec.first_layer_mm
+    px0 = x0 + spec.margin_mm / 2
+    px1 = min(x1 - spec.margin_mm / 2, x0 + spec.margin_mm / 2 + 60)
+    py = y0 + 3
     out.append(f"G1 X{_f(px0)} Y{_f(py)} F{_f(spec.travel_feed)}")
     out.append(f"G1 Z{_f(z0 + h1)} F{_f(spec.z_feed)}")
-    e = (px1 - px0) * 1.5 * w * h1 / area
+    e = (px1 - px0) * 1.5 * spec.width * h1 / _FILAMENT_AREA
     out.append(f"G1 X{_f(px1)} E{e:.5f} F{_f(spec.first_layer_feed)}")
-    pos = (px1, py)
-    fins = [f for ft in feats for f in ft.fins]
+    return (px1, py)
+
+
+def _layers(spec: ArtifactSpec, fins, top: float, pos, out: List[str]) -> None:
+    """Every layer of the walls up to ``top`` (mm) appended to ``out``, the head starting
+    at ``pos``: the first two layers with a foot three lines wide."""
+    z0, w, h1, h = spec.volume[4], spec.width, spec.first_layer_mm, spec.layer
     z = z0 + h1
     layer = 1
     while z <= top + 1e-9:
         lh = h1 if layer == 1 else h
-        feed = spec.first_layer_feed if layer <= 1 else spec.print_feed
         out.append(f";LAYER:{layer - 1}")
         if layer == 2:
             out.append("M106 S255")
         zmid = z - lh / 2
-        live = [f for f in fins if f.top >= z - 1e-9]
-        lines = []
-        for f in live:
-            offsets = (0.0, -w, w) if layer <= 2 else (0.0,)  # a foot, three lines wide
-            for o in offsets:
-                lines.append(f.segment(zmid, o))
-        while lines:  # nearest line next, printed from its nearer end
-            best = min(
-                range(len(lines)),
-                key=lambda i: min(math.dist(pos, lines[i][0]), math.dist(pos, lines[i][1])),
-            )
-            a, b = lines.pop(best)
-            if math.dist(pos, b) < math.dist(pos, a):
-                a, b = b, a
-            if math.dist(pos, a) > 2.0:
-                out.append("G1 E-0.8 F2400")
-                out.append(f"G1 Z{_f(min(z1, z + 0.4))} F{_f(spec.z_feed)}")
-                out.append(f"G0 X{_f(a[0])} Y{_f(a[1])} F{_f(spec.travel_feed)}")
-                out.append(f"G1 Z{_f(z)} F{_f(spec.z_feed)}")
-                out.append("G1 E0.8 F2400")
-            else:
-                out.append(f"G1 X{_f(a[0])} Y{_f(a[1])} Z{_f(z)} F{_f(spec.travel_feed)}")
-            e = math.dist(a, b) * w * lh / area
-            out.append(f"G1 X{_f(b[0])} Y{_f(b[1])} E{e:.5f} F{_f(feed)}")
-            pos = b
+        offsets = (0.0, -w, w) if layer <= 2 else (0.0,)  # a foot, three lines wide
+        lines = [f.segment(zmid, o) for f in fins if f.top >= z - 1e-9 for o in offsets]
+        feed = spec.first_layer_feed if layer <= 1 else spec.print_feed
+        pos = _print_lines(spec, lines, pos, z, lh, feed, out)
         layer += 1
         z = z0 + h1 + (layer - 1) * h
-    out += [
+
+
+def _print_lines(spec: ArtifactSpec, lines, pos, z: float, lh: float, feed: float, out):
+    """The wall ``lines`` [(a, b)] of one layer at height ``z`` (mm; layer height ``lh``)
+    appended to ``out``: the nearest line next, printed from its nearer end, with a retract
+    and a hop for a travel over 2 mm. Returns where the head ends."""
+    z1 = spec.volume[5]
+    while lines:
+        best = min(
+            range(len(lines)),
+            key=lambda i: min(math.dist(pos, lines[i][0]), math.dist(pos, lines[i][1])),
+        )
+        a, b = lines.pop(best)
+        if math.dist(pos, b) < math.dist(pos, a):
+            a, b = b, a
+        if math.dist(pos, a) > 2.0:
+            out.append("G1 E-0.8 F2400")
+            out.append(f"G1 Z{_f(min(z1, z + 0.4))} F{_f(spec.z_feed)}")
+            out.append(f"G0 X{_f(a[0])} Y{_f(a[1])} F{_f(spec.travel_feed)}")
+            out.append(f"G1 Z{_f(z)} F{_f(spec.z_feed)}")
+            out.append("G1 E0.8 F2400")
+        else:
+            out.append(f"G1 X{_f(a[0])} Y{_f(a[1])} Z{_f(z)} F{_f(spec.travel_feed)}")
+        e = math.dist(a, b) * spec.width * lh / _FILAMENT_AREA
+        out.append(f"G1 X{_f(b[0])} Y{_f(b[1])} E{e:.5f} F{_f(feed)}")
+        pos = b
+    return pos
+
+
+def _end(spec: ArtifactSpec, park_z: float) -> List[str]:
+    """Retract, lift to ``park_z`` (mm), heaters and fan off, park at the back left."""
+    x0, _, _, y1, _, _ = spec.volume
+    return [
         "G1 E-1 F2400",
         f"G1 Z{_f(park_z)} F{_f(spec.z_feed)}",
         "M104 S0",
@@ -654,8 +684,6 @@ def generate(spec: ArtifactSpec, date: str = "") -> str:
         "M84",
         "; kincomp artifact end",
     ]
-    _check_inside(out, spec)
-    return "\n".join(out) + "\n"
 
 
 def _check_inside(lines: Sequence[str], spec: ArtifactSpec) -> None:
