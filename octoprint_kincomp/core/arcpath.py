@@ -331,17 +331,13 @@ class _Job:
     def target(self, p) -> Tuple[float, float, float]:
         """Firmware coordinates (mm) of the compensated point for desired ``p``: the
         carriage command, its take-up offset and the firmware's G92 offset."""
-        w = self.aw.w
-        q = w.carriage(p)
+        q = self.aw.w.carriage(p)
         bl = self.aw.backlash
         g = self.aw.state.g
-        out = [0.0, 0.0, 0.0]
-        for k in range(3):
-            c = q[k]
-            if bl.any_active:
-                c += bl.offset(k, q[k], 0.0)
-            out[k] = c + g[k]
-        return out[0], out[1], out[2]
+        if bl.any_active:
+            o = bl.offsets(q)
+            return q[0] + o[0] + g[0], q[1] + o[1] + g[1], q[2] + o[2] + g[2]
+        return q[0] + g[0], q[1] + g[1], q[2] + g[2]
 
     def overshoots(self, S, E, ka: float, kb: float, radius: float, sa: float, sb: float) -> bool:
         """Whether the written circle (centre ka, kb; start S, end E, firmware mm; sa, sb:
@@ -381,11 +377,10 @@ class _Job:
         u = MM_PER_INCH if st.inches else 1.0
         dec = aw.options.decimals + (2 if st.inches else 0)
         S = st.fw
+        o = bl.offsets(qb) if bl.any_active else None
         E = [0.0, 0.0, 0.0]
         for k in range(3):
-            c = qb[k]
-            if bl.any_active:
-                c += bl.offset(k, qb[k], 0.0)
+            c = qb[k] if o is None else qb[k] + o[k]
             E[k] = w.fw_after(k, c, u, dec)[2]
         if E[ia] == S[ia] and E[ib] == S[ib]:
             return False
