@@ -184,8 +184,8 @@ class BacklashTracker:
             a, b = p0[k], p1[k]
             if a is None or b is None:
                 continue
-            new, s.anchor[k] = reversal(s.dir[k], s.anchor[k], b, a, self.deadband)
-            if new:  # (as turn: the anchor is then b)
+            new = self.turn(k, a, b)
+            if new:
                 start_offset = self.offset(k, q0[k])
                 s.dir[k] = new
                 s.anchor[k] = b

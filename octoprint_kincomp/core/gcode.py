@@ -79,13 +79,13 @@ def parse_command(line: str) -> Optional[Command]:
     kind, number, sub = m.groups()
     end = m.end()
     return Command(
-        kind.upper(),
-        int(number),
-        int(sub) if sub is not None else None,
-        code[:end].strip(),  # code_text
-        code[end:],  # body
-        comment,
-        numbered,
+        kind=kind.upper(),
+        number=int(number),
+        sub=int(sub) if sub is not None else None,
+        code_text=code[:end].strip(),
+        body=code[end:],
+        comment=comment,
+        numbered=numbered,
     )
 
 
@@ -97,6 +97,11 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
     """
     if _PLAIN_BODY.fullmatch(body):
         return _plain_words(body)
+    return _scan_words(body, allow_bare)
+
+
+def _scan_words(body: str, allow_bare: bool) -> Optional[List[Word]]:
+    """:func:`parse_words` word by word (any body)."""
     words: List[Word] = []
     seen = set()
     pos = 0
@@ -144,15 +149,10 @@ def _plain_words(body: str) -> Optional[List[Word]]:
     return words
 
 
-# the format spec of a fixed number of decimals (".3f"), made once for the usual counts
-_FIXED = {d: f".{d}f" for d in range(32)}
-
-
 def fmt(value: float, decimals: int) -> str:
     """Shortest text of ``value`` rounded to ``decimals`` places, as slicers write numbers:
     no trailing zeros, no bare dot (``10.5``, ``10``), never ``-0`` and never exponents."""
-    spec = _FIXED.get(decimals)
-    text = format(value, spec if spec is not None else f".{decimals}f")  # f"{value:.3f}"
+    text = f"{value:.{decimals}f}"
     if decimals > 0:
         text = text.rstrip("0").rstrip(".")
     if text == "-0":

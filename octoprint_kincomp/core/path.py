@@ -212,13 +212,29 @@ class PathWriter:
         splits), servo lead, limits and output formatting.
         """
         bl = self.backlash
+        ramps = bl.any_active and bl.smoothing > 0  # (smoothed take-ups: see polyline)
+        if len(points) == 1 and not ramps and self.servo_s is None:
+            return self.straight(code_text, start, points[0], given, tail, comment)
+        return self.polyline(code_text, start, points, given, e_word, tail, comment, e_relative)
+
+    def polyline(
+        self,
+        code_text: str,
+        start: List[Optional[float]],
+        points,
+        given,
+        e_word,
+        tail: List[Word],
+        comment: str,
+        e_relative: bool,
+    ) -> List[str]:
+        """:meth:`path` in general: any number of points, smoothed take-ups, servo lead."""
+        bl = self.backlash
         st = self.state
         # Smoothed take-ups ramp over the following path: each segment is cut where one
         # finishes. (An absolute E from an unknown E position cannot be split: the ramp then
         # just completes over the whole move, which still ends on the right point.)
         ramps = bl.any_active and bl.smoothing > 0
-        if len(points) == 1 and not ramps and self.servo_s is None:
-            return self.straight(code_text, start, points[0], given, tail, comment)
         lengths = segment_lengths(start, points)
         total_len = sum(lengths) if None not in lengths else 0.0
         edist = EDistribution(e_word, e_relative, st.e_pos, total_len)
@@ -306,7 +322,9 @@ class PathWriter:
             self.reversals(start, q0, q1, seg_len, out)
         words = [w.text for w in tail]
         travel = seg_len if seg_len is not None else 0.0
-        out.append(self.emit(code_text, end, q1, given, words, comment, travel, None, True))
+        out.append(
+            self.emit(code_text, end, q1, given, words, comment, travel, None, keep_empty=True)
+        )
         return out
 
     def reversals(self, p0, q0, q1, seg_len: Optional[float], out: List[str]) -> None:
