@@ -114,6 +114,7 @@ class ArcWriter:
         self.budget = (tol - ROUNDING_ALLOWANCE * res[0], tol - ROUNDING_ALLOWANCE * res[1])
         self.sliver = (SLIVER * res[0], SLIVER * res[1])
         self.overshoot = res  # mm: how far a written circle may carry a backlash axis back
+        self._eighths_of, self._eighths = None, {}  # (see eighths)
 
     def usable(self) -> bool:
         """Whether arcs can be written as arcs here (see the module docstring)."""
@@ -159,6 +160,19 @@ class ArcWriter:
         r = min(arc.r0, arc.r1)
         return arc.dr * arc.dr > arc.sweep * arc.sweep * r * 0.5 * self.backlash.deadband
 
+    def eighths(self, arc: arcs.Arc, fa: float, fb: float):
+        """The points at the eighths of the piece ``fa``..``fb`` of ``arc`` (desired, mm,
+        :meth:`Arc.points`) and their carriage commands (mm): worked out once per piece of
+        the arc being written (:meth:`monotone` checks the commands, the fit samples
+        them)."""
+        if self._eighths_of is not arc:
+            self._eighths_of, self._eighths = arc, {}
+        got = self._eighths.get((fa, fb))
+        if got is None:
+            points = arc.points(fa, fb, 8)
+            got = self._eighths[fa, fb] = (points, [self.w.carriage(p) for p in points])
+        return got
+
     def monotone(self, arc: arcs.Arc, cuts: Sequence[float]) -> bool:
         """Whether the command of every backlash axis moves one way along each piece (it
         does not rise and fall by more than the deadband, checked at eighths of the piece,
@@ -176,7 +190,7 @@ class ArcWriter:
             if dense:
                 qs = [carriage(arc.point(fa + (fb - fa) * f)) for f in DENSE]
             else:
-                qs = [carriage(p) for p in arc.points(fa, fb, 8)]
+                qs = self.eighths(arc, fa, fb)[1]
             for k in range(3):
                 if not bl.active[k]:
                     continue
@@ -328,20 +342,15 @@ class _Job:
             p = arc.point(f) if i < n else pb
             self.line("G1", p, w.carriage(p) if i < n else qb, f, [])
 
-    def target(self, p) -> Tuple[float, float, float]:
-        """Firmware coordinates (mm) of the compensated point for desired ``p``: the
-        carriage command, its take-up offset and the firmware's G92 offset."""
-        w = self.aw.w
-        q = w.carriage(p)
+    def target(self, q) -> Tuple[float, float, float]:
+        """Firmware coordinates (mm) of the compensated point whose carriage command is
+        ``q`` (mm): the command, its take-up offset and the firmware's G92 offset."""
         bl = self.aw.backlash
         g = self.aw.state.g
-        out = [0.0, 0.0, 0.0]
-        for k in range(3):
-            c = q[k]
-            if bl.any_active:
-                c += bl.offset(k, q[k], 0.0)
-            out[k] = c + g[k]
-        return out[0], out[1], out[2]
+        if bl.any_active:
+            o = bl.offsets(q)
+            return q[0] + o[0] + g[0], q[1] + o[1] + g[1], q[2] + o[2] + g[2]
+        return q[0] + g[0], q[1] + g[1], q[2] + g[2]
 
     def overshoots(self, S, E, ka: float, kb: float, radius: float, sa: float, sb: float) -> bool:
         """Whether the written circle (centre ka, kb; start S, end E, firmware mm; sa, sb:
@@ -381,19 +390,18 @@ class _Job:
         u = MM_PER_INCH if st.inches else 1.0
         dec = aw.options.decimals + (2 if st.inches else 0)
         S = st.fw
+        o = bl.offsets(qb) if bl.any_active else None
         E = [0.0, 0.0, 0.0]
         for k in range(3):
-            c = qb[k]
-            if bl.any_active:
-                c += bl.offset(k, qb[k], 0.0)
+            c = qb[k] if o is None else qb[k] + o[k]
             E[k] = w.fw_after(k, c, u, dec)[2]
         if E[ia] == S[ia] and E[ib] == S[ib]:
             return False
         budget = aw.budget[st.inches]
         if budget <= 0.0:
             return None
-        eighths = arc.points(fa, fb, 8)
-        M = self.target(eighths[4])
+        commands = aw.eighths(arc, fa, fb)[1]
+        M = self.target(commands[4])
         bx = M[ia] - S[ia]
         by = M[ib] - S[ib]
         cx = E[ia] - S[ia]
@@ -423,7 +431,7 @@ class _Job:
                 sweep += 2.0 * math.pi
         dev = 0.0
         for j in SAMPLES:
-            T = self.target(eighths[j])
+            T = self.target(commands[j])
             va = T[ia] - ka
             vb = T[ib] - kb
             dr = arcs.norm2(va, vb) - radius

@@ -101,6 +101,7 @@ class BacklashTracker:
             params.backlash_fraction > 0 and not params.backlash[a].is_zero for a in AXES
         ]
         self.any_active = any(self.active)
+        self.active_axes = tuple(k for k in range(3) if self.active[k])
         self.smoothing = params.backlash_smoothing_mm
         self.deadband = deadband_mm
         self.s = state if state is not None else BacklashState()
@@ -138,6 +139,17 @@ class BacklashTracker:
         if f >= 1.0:
             return tgt
         return s.ramp_from[k] + (tgt - s.ramp_from[k]) * f
+
+    def offsets(self, q: Sequence[Optional[float]], extra_travel: float = 0.0) -> List[float]:
+        """:meth:`offset` of each axis (mm) at carriage positions ``q`` (mm), 0.0 for an
+        axis without backlash or whose position is unknown (None)."""
+        out = [0.0, 0.0, 0.0]
+        ramping = self.s.ramping
+        for k in self.active_axes:
+            qk = q[k]
+            if qk is not None:
+                out[k] = self.offset(k, qk, extra_travel) if ramping[k] else self.target(k, qk)
+        return out
 
     def ramp_remaining(self, k: int) -> Optional[float]:
         """Path length (mm) left until axis k's smoothed take-up is complete, or None."""

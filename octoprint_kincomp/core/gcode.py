@@ -17,6 +17,8 @@ from typing import List, NamedTuple, Optional, Tuple
 _LINENO = re.compile(r"\s*[Nn]\s*\d+\s*", re.ASCII)
 _CODE = re.compile(r"\s*([GgMmTt])\s*(\d+)(?:\.(\d+))?", re.ASCII)
 _WORD = re.compile(r"\s*([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))", re.ASCII)
+# a body as slicers write it: words of a letter and a number (_WORD's), each after one space
+_PLAIN_BODY = re.compile(r"(?: [A-Za-z][-+]?(?:\d+\.?\d*|\.\d+))*", re.ASCII)
 _BARE_LETTER = re.compile(r"\s*([A-Za-z])(?=\s|$)", re.ASCII)
 _CHECKSUM = re.compile(r"\*\s*\d*\s*$", re.ASCII)
 # Larger numbers are no coordinate: a 309-digit one is inf, and from ~1e154 on the squares of
@@ -62,10 +64,11 @@ def parse_command(line: str) -> Optional[Command]:
     """Split a line into code, words text and comment; None for comments/blank/unknown."""
     code, comment = split_comment(line)
     numbered = False
-    m = _LINENO.match(code)
-    if m:
-        code = code[m.end() :]
-        numbered = True
+    if code.lstrip()[:1] in ("N", "n"):  # (most lines carry no line number)
+        m = _LINENO.match(code)
+        if m:
+            code = code[m.end() :]
+            numbered = True
     star = code.rfind("*")
     if star >= 0 and _CHECKSUM.match(code, star):
         code = code[:star]
@@ -73,13 +76,14 @@ def parse_command(line: str) -> Optional[Command]:
     m = _CODE.match(code)
     if not m:
         return None
-    kind = m.group(1).upper()
+    kind, number, sub = m.groups()
+    end = m.end()
     return Command(
-        kind=kind,
-        number=int(m.group(2)),
-        sub=int(m.group(3)) if m.group(3) is not None else None,
-        code_text=code[: m.end()].strip(),
-        body=code[m.end() :],
+        kind=kind.upper(),
+        number=int(number),
+        sub=int(sub) if sub is not None else None,
+        code_text=code[:end].strip(),
+        body=code[end:],
         comment=comment,
         numbered=numbered,
     )
@@ -91,6 +95,13 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
     A repeated letter, stray characters, a number beyond +-``MAX_WORD_VALUE`` or (unless
     ``allow_bare``) a letter without a number make the body malformed.
     """
+    if _PLAIN_BODY.fullmatch(body):
+        return _plain_words(body)
+    return _scan_words(body, allow_bare)
+
+
+def _scan_words(body: str, allow_bare: bool) -> Optional[List[Word]]:
+    """:func:`parse_words` word by word (any body)."""
     words: List[Word] = []
     seen = set()
     pos = 0
@@ -117,6 +128,24 @@ def parse_words(body: str, allow_bare: bool = False) -> Optional[List[Word]]:
         seen.add(letter)
         words.append(Word(letter, value, text))
         pos = m.end()
+    return words
+
+
+def _plain_words(body: str) -> Optional[List[Word]]:
+    """:func:`parse_words` of a body as slicers write it (``_PLAIN_BODY``: each word one
+    space, a letter and a number): its words are the body split on spaces, as the word by
+    word scan finds them (the number is the whole rest of the word: nothing can follow it)."""
+    words: List[Word] = []
+    letters = ""  # the letters so far
+    for text in body.split():
+        value = float(text[1:])
+        if not -MAX_WORD_VALUE < value < MAX_WORD_VALUE:
+            return None
+        letter = text[0].upper()
+        if letter in letters:
+            return None
+        letters += letter
+        words.append(Word(letter, value, text))
     return words
 
 

@@ -18,6 +18,7 @@ from .gcode import Word
 from .gcode_table import classify
 
 MM_PER_INCH = 25.4
+AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 
 
 class MoveHandler:
@@ -30,53 +31,66 @@ class MoveHandler:
         self.backlash = comp.backlash
         self.writer = comp.writer
         self.options = comp.options
+        self._needed = {}  # (see needed)
 
     # -- shared --------------------------------------------------------------------------
     def targets(self, words: Sequence[Word]):
         """(given axes, desired machine target with None for unknown) of a move's words."""
         st = self.state
         u = MM_PER_INCH if st.inches else 1.0
-        target = list(st.m)
+        m, offset, lost, absolute = st.m, st.w, st.frame_lost, st.absolute
+        target = list(m)
         given = []
         for w in words:
-            k = "XYZ".find(w.letter)
-            if k < 0:
+            k = AXIS_INDEX.get(w.letter)
+            if k is None:
                 continue
             given.append(k)
-            if st.frame_lost[k]:
+            if lost[k]:
                 continue  # target stays unknown (None) until G28
-            if st.absolute:
-                target[k] = w.value * u - st.w[k]
-            elif st.m[k] is not None:
-                target[k] = st.m[k] + w.value * u
+            if absolute:
+                target[k] = w.value * u - offset[k]
+            elif m[k] is not None:
+                target[k] = m[k] + w.value * u
         return given, target
 
-    def needed(self, given: Sequence[int]) -> set:
-        comp = self.comp
-        need = set(given)
-        for j in given:
-            for k in comp.moved_by[j]:
-                need |= comp.needs[k]
+    def needed(self, given: Sequence[int]) -> frozenset:
+        """The axes whose position a move naming ``given`` needs: those it names and every
+        axis the commands it changes depend on (under XY skew a Y move changes X's command,
+        which depends on X). Depends on the model only: worked out once per set of axes."""
+        key = tuple(given)
+        need = self._needed.get(key)
+        if need is None:
+            comp = self.comp
+            need = set(given)
+            for j in given:
+                for k in comp.moved_by[j]:
+                    need |= comp.needs[k]
+            need = self._needed[key] = frozenset(need)
         return need
 
-    def track_e(self, e_word: Optional[Word]) -> None:
+    def track_e(self, e_word: Optional[Word], e_relative: Optional[bool] = None) -> None:
         """Absolute E position (the program's E units) for splitting absolute-E moves, kept
         as Marlin keeps it: an absolute E word sets it, a relative one (M83, or G91 while
         G90/G91 govern E) adds to it, so after M83, G91 moves and G90 (E absolute again) the
         next absolute E is split from the summed position (issue 28). Unknown (None) until
         ``G92 E`` or an absolute E word defines it; a relative E from an unknown position
-        leaves it unknown."""
+        leaves it unknown. ``e_relative``: whether E is relative now (None: ask the
+        compensator)."""
         if e_word is None:
             return
         st = self.state
-        if not self.comp.e_relative:
+        if e_relative is None:
+            e_relative = self.comp.e_relative
+        if not e_relative:
             st.e_pos = e_word.value
         elif st.e_pos is not None:
             st.e_pos = st.e_pos + e_word.value
 
-    def untouched(self, given, words, known_before, line: str):
+    def untouched(self, given, words, line: str):
         """Pass a move through as written and keep tracking where the head went."""
         st = self.state
+        known_before = [v is not None for v in st.m]
         rep = st.report
         rep.untouched_unknown += 0 if self.comp.passthrough else 1
         passthrough = self.comp.passthrough
@@ -140,35 +154,40 @@ class MoveHandler:
     # -- G0/G1 ---------------------------------------------------------------------------
     def linear(self, cmd, words: List[Word], line: str):
         st = self.state
+        comp = self.comp
         given, target = self.targets(words)
-        e_word = next((w for w in words if w.letter == "E"), None)
-        f_word = next((w for w in words if w.letter == "F"), None)
+        e_word = f_word = None
+        tail = []  # the words other than X/Y/Z, in their order
+        for w in words:
+            if w.letter == "E":
+                e_word = w
+            elif w.letter == "F":
+                f_word = w
+            if w.letter not in "XYZ":
+                tail.append(w)
         if f_word is not None:
             st.feed = f_word.value * (MM_PER_INCH if st.inches else 1.0)
+        e_relative = comp.e_relative
         if not given:
-            self.track_e(e_word)
+            self.track_e(e_word, e_relative)
             return line
-        need = self.needed(given)
-        known_before = self.comp.known
         if (
-            self.comp.passthrough
-            or any(target[k] is None for k in need)
+            comp.passthrough
+            or (None in target and any(target[k] is None for k in self.needed(given)))
             or (not st.absolute and any(st.m[k] is None for k in given))
         ):
-            return self.untouched(given, words, known_before, line)
-        start = list(st.m)
-        tail = [w for w in words if w.letter not in "XYZ"]
+            return self.untouched(given, words, line)
         out = self.writer.path(
             cmd.code_text,
-            start,
+            list(st.m),
             [tuple(target)],
             given,
             e_word,
             tail,
             cmd.comment,
-            self.comp.e_relative,
+            e_relative,
         )
-        self.track_e(e_word)
+        self.track_e(e_word, e_relative)
         st.report.moves_compensated += 1
         return out
 
@@ -190,11 +209,10 @@ class MoveHandler:
         turns = int(turns_w.value) if turns_w is not None else 0
         plane_axes = {ia, ib} | set(given)
         need = self.needed(sorted(plane_axes))
-        known_before = comp.known
         # The linear axis is interpolated along the chords (helix), so it must be known too:
         # an XY arc from an unknown Z crashed in linearise (None - None).
         if comp.passthrough or any(st.m[k] is None for k in need | plane_axes | {il}):
-            return self.untouched(given, words, known_before, line)
+            return self.untouched(given, words, line)
         offs = (
             wd[la].value * u if la in wd else None,
             wd[lb].value * u if lb in wd else None,
@@ -223,7 +241,7 @@ class MoveHandler:
                 )
         except arcs.ArcError:
             comp.malformed(line)
-            return self.untouched(given, words, known_before, line)
+            return self.untouched(given, words, line)
         if comp.pure_translation and not st.ij_absolute and turns == 0:
             out = self.writer.path(
                 cmd.code_text,
@@ -241,7 +259,7 @@ class MoveHandler:
             return out
         if e_word is not None and not comp.e_relative and st.e_pos is None:
             # Absolute extrusion from an unknown E: the split cannot be computed.
-            return self.untouched(given, words, known_before, line)
+            return self.untouched(given, words, line)
         tail = [w for w in words if w.letter not in "XYZIJKRP"]
         rep = st.report
         if keep:

@@ -35,6 +35,7 @@ test_params_ranges.py checks the ends of every range).
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import json
 from dataclasses import dataclass, field
@@ -88,6 +89,15 @@ class BacklashAxis:
     def is_constant(self) -> bool:
         return len({um for _, um in self.points}) == 1
 
+    @functools.cached_property
+    def _segments(self) -> Tuple[Tuple[float, float, float, float, float], ...]:
+        """Per pair of neighbouring points: (positions p0, p1 mm; backlash v0, v1 um; the
+        slope (v1 - v0) / (p1 - p0) um/mm, computed once: the same double every time)."""
+        return tuple(
+            (p0, p1, v0, v1, (v1 - v0) / (p1 - p0))
+            for (p0, v0), (p1, v1) in zip(self.points, self.points[1:])
+        )
+
     def um_at(self, pos_mm: float) -> float:
         """Backlash (um) at axis position ``pos_mm``: linear between points, constant outside."""
         pts = self.points
@@ -95,11 +105,11 @@ class BacklashAxis:
             return pts[0][1]
         if pos_mm >= pts[-1][0]:
             return pts[-1][1]
-        for (p0, v0), (p1, v1) in zip(pts, pts[1:]):
+        for p0, p1, v0, v1, slope in self._segments:
             if pos_mm < p1:
                 # the compiled kernel computes the same (csrc/transform.c kk_um_at: the
                 # quotient kept per segment, the same double)
-                return (v1 - v0) / (p1 - p0) * (pos_mm - p0) + v0
+                return slope * (pos_mm - p0) + v0
             if pos_mm == p1:
                 return v1
         return pts[-1][1]  # pragma: no cover - loop always returns

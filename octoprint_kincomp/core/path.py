@@ -27,7 +27,11 @@ MM_PER_INCH = 25.4
 class EDistribution:
     """Splits one E word over sub-segments by path length, keeping the total exact: the
     last piece of an absolute E is the word as written; relative E is split in whole units
-    of its own resolution (at least 5 decimals) so the pieces add up exactly."""
+    of its own resolution (at least 5 decimals) so the pieces add up exactly.
+
+    A move written in one piece takes the E word as written: its resolution (``decimals``,
+    ``scale``, and for relative E the word in whole ``units``) is worked out only when a
+    piece of it is taken (:meth:`_split`)."""
 
     __slots__ = (
         "word",
@@ -46,22 +50,28 @@ class EDistribution:
         self.relative = relative
         self.e0 = e0
         self.total_len = total_len
-        if word is not None:
-            self.decimals = max(decimals_of(word.text), 5)
+        self.decimals = None  # (not worked out yet)
+        self.units_done = 0  # relative E: units of the pieces taken so far
+        self.part = 0  # units of the last piece taken
+
+    def _split(self) -> None:
+        """Work out the word's resolution (its decimals, at least 5) and, for relative E,
+        the word in whole units of it."""
+        if self.decimals is None:
+            self.decimals = max(decimals_of(self.word.text), 5)
             self.scale = 10**self.decimals
-            if relative:
-                self.units = round(word.value * self.scale)
-                self.units_done = 0
-                self.part = 0  # units of the last piece taken
+            if self.relative:
+                self.units = round(self.word.value * self.scale)
 
     def take(self, s_end: float, last: bool) -> Optional[str]:
         """The E word of the piece that ends ``s_end`` mm along the path."""
         w = self.word
         if w is None:
             return None
+        if last and (not self.relative or self.units_done == 0):
+            return w.text  # the whole E word in one piece: exactly as written
+        self._split()
         if last:
-            if not self.relative or self.units_done == 0:
-                return w.text  # the whole E word in one piece: exactly as written
             self.part = self.units - self.units_done
             return "E" + fmt(self.part / self.scale, self.decimals)
         f = s_end / self.total_len if self.total_len > 0 else 1.0
@@ -86,6 +96,7 @@ class EDistribution:
         relative) written as one: the last piece had no length (see :class:`Pieces`)."""
         if not self.relative:
             return self.word.text
+        self._split()
         return "E" + fmt((prev_part + self.part) / self.scale, self.decimals)
 
 
@@ -144,6 +155,29 @@ def lerp(a, b, f):
     )
 
 
+def segment_lengths(start, points) -> List[Optional[float]]:
+    """The length (mm) of each segment of the polyline ``start -> points`` (desired
+    positions, None: unknown): over the axes its end knows, None where it comes from an
+    unknown position on an axis it moves."""
+    lengths: List[Optional[float]] = []
+    prev = start
+    for p in points:
+        if None not in prev and None not in p:
+            dx, dy, dz = p[0] - prev[0], p[1] - prev[1], p[2] - prev[2]
+            lengths.append(math.sqrt(dx * dx + dy * dy + dz * dz))
+        elif any(prev[k] is None and p[k] is not None for k in range(3)):
+            lengths.append(None)  # coming from an unknown position: length unknown
+        else:
+            acc = 0.0
+            for k in range(3):
+                if p[k] is not None:
+                    d = p[k] - prev[k]
+                    acc += d * d
+            lengths.append(math.sqrt(acc))
+        prev = p
+    return lengths
+
+
 class PathWriter:
     """Emits polylines for one compensator: its model, backlash tracker, options, stream
     state and servo lead (seconds per axis, or None)."""
@@ -156,6 +190,7 @@ class PathWriter:
         self.needs = needs
         self.servo_s = servo_s
         self.moved = False  # whether the line :meth:`emit` wrote last moves an axis
+        self._rounded = [(None, None, None, None)] * 3  # (see fw_after)
 
     def path(
         self,
@@ -172,24 +207,35 @@ class PathWriter:
 
         ``tail`` are the line's words other than X/Y/Z in their original order; the first
         piece carries them all, later pieces only their share of ``e_word`` (which is split
-        along the path). Handles backlash reversals (take-up moves or ramp splits), servo
-        lead, limits and output formatting.
+        along the path); the last piece writes the ``given`` axes (those the line names)
+        even where they do not change. Handles backlash reversals (take-up moves or ramp
+        splits), servo lead, limits and output formatting.
         """
         bl = self.backlash
+        ramps = bl.any_active and bl.smoothing > 0  # (smoothed take-ups: see polyline)
+        if len(points) == 1 and not ramps and self.servo_s is None:
+            return self.straight(code_text, start, points[0], given, tail, comment)
+        return self.polyline(code_text, start, points, given, e_word, tail, comment, e_relative)
+
+    def polyline(
+        self,
+        code_text: str,
+        start: List[Optional[float]],
+        points,
+        given,
+        e_word,
+        tail: List[Word],
+        comment: str,
+        e_relative: bool,
+    ) -> List[str]:
+        """:meth:`path` in general: any number of points, smoothed take-ups, servo lead."""
+        bl = self.backlash
         st = self.state
-        prev = start
-        lengths: List[Optional[float]] = []
-        for p in points:
-            if any(prev[k] is None and p[k] is not None for k in range(3)):
-                lengths.append(None)  # coming from an unknown position: length unknown
-            else:
-                acc = 0.0
-                for k in range(3):
-                    if p[k] is not None:
-                        d = p[k] - prev[k]
-                        acc += d * d
-                lengths.append(math.sqrt(acc))
-            prev = p
+        # Smoothed take-ups ramp over the following path: each segment is cut where one
+        # finishes. (An absolute E from an unknown E position cannot be split: the ramp then
+        # just completes over the whole move, which still ends on the right point.)
+        ramps = bl.any_active and bl.smoothing > 0
+        lengths = segment_lengths(start, points)
         total_len = sum(lengths) if None not in lengths else 0.0
         edist = EDistribution(e_word, e_relative, st.e_pos, total_len)
         e_unsplittable = e_word is not None and not e_relative and st.e_pos is None
@@ -202,37 +248,22 @@ class PathWriter:
         if st.q_drive is not None:  # drives that are not at the command of p0 (state.py)
             q0 = tuple(q if d is None else d for q, d in zip(q0, st.q_drive))
             st.q_drive = None
-        n_points = len(points)
+        last_idx = len(points) - 1
         for idx, p1 in enumerate(points):
             seg_len = lengths[idx]
             q1 = self.carriage(p1)
-            write_axes = set(given) if idx == n_points - 1 else set()
             if bl.any_active:
-                if seg_len is None:
-                    bl.reset([k for k in range(3) if q0[k] is None])
-                rev = bl.detect_reversals(q0, q1, q0)
-                if rev and bl.smoothing == 0:
-                    takeup = self.emit("G1", p0, q0, set(), [], "", 0.0, None)
-                    if takeup is not None:
-                        out.append(takeup)
-                        st.report.takeup_moves += 1
-            # Sub-segment split points where smoothed take-ups finish. (An absolute E from
-            # an unknown E position cannot be split: the ramp then just completes over the
-            # whole move, which still ends on the right point.)
-            cuts = [1.0]
-            if bl.any_active and seg_len and not e_unsplittable:
-                for k in range(3):
-                    rem = bl.ramp_remaining(k)
-                    if rem is not None and 1e-9 < rem < seg_len - 1e-9:
-                        cuts.append(rem / seg_len)
-                cuts = sorted(set(cuts))
-            f_prev = 0.0
+                self.reversals(p0, q0, q1, seg_len, out)
+            cuts = (1.0,)
+            if ramps and seg_len and not e_unsplittable:
+                cuts = self.ramp_cuts(seg_len)
             velocity = None
             if self.servo_s is not None and seg_len and st.feed:
                 velocity = tuple(
                     0.0 if p1[k] is None else (p1[k] - p0[k]) / seg_len * st.feed / 60.0
                     for k in range(3)
                 )
+            f_prev = 0.0
             for f in cuts:
                 if f < 1.0:
                     p = lerp(p0, p1, f)
@@ -240,7 +271,7 @@ class PathWriter:
                 else:
                     p, q = p1, q1
                 sub_len = (f - f_prev) * seg_len if seg_len is not None else 0.0
-                last = idx == n_points - 1 and f == 1.0
+                last = idx == last_idx and f == 1.0
                 mark = edist.mark()
                 e_text = None
                 if e_word is not None:
@@ -253,7 +284,7 @@ class PathWriter:
                     code_text,
                     p,
                     q,
-                    write_axes if f == 1.0 else (),
+                    given if last else (),
                     words,
                     comment,
                     sub_len,
@@ -263,12 +294,64 @@ class PathWriter:
                 if pieces.add(line, self.moved, words, e_text, last, mark):
                     first = False
                     comment = ""
-                if bl.any_active:
+                if ramps:
                     bl.advance(sub_len)
                 s_done += sub_len
                 f_prev = f
             p0, q0 = p1, q1
         return out
+
+    def straight(
+        self, code_text: str, start, end, given, tail: List[Word], comment: str
+    ) -> List[str]:
+        """:meth:`path` for a polyline of one segment, ``start -> end`` (desired machine
+        positions, mm), where no take-up ramps and no servo lead applies (every G0/G1 of
+        such a model): the same lines. Nothing cuts the segment, so it is written in one
+        piece, which takes the words of ``tail`` as written (the E word whole, as the
+        last piece of a split E takes it), preceded by a take-up move where an axis
+        reverses."""
+        st = self.state
+        seg_len = segment_lengths(start, (end,))[0]
+        q0 = self.carriage(start)
+        if st.q_drive is not None:  # drives that are not at the command of start (state.py)
+            q0 = tuple(q if d is None else d for q, d in zip(q0, st.q_drive))
+            st.q_drive = None
+        q1 = self.carriage(end)
+        out: List[str] = []
+        if self.backlash.any_active:
+            self.reversals(start, q0, q1, seg_len, out)
+        words = [w.text for w in tail]
+        travel = seg_len if seg_len is not None else 0.0
+        out.append(
+            self.emit(code_text, end, q1, given, words, comment, travel, None, keep_empty=True)
+        )
+        return out
+
+    def reversals(self, p0, q0, q1, seg_len: Optional[float], out: List[str]) -> None:
+        """The backlash reversals of the segment from ``p0`` (desired, mm) whose carriage
+        commands go from ``q0`` to ``q1`` (mm; ``seg_len`` None: it comes from an unknown
+        position, whose axes start with no direction): without smoothing, a take-up move to
+        the segment's start with the new offsets is appended to ``out`` (unless it changes
+        nothing at the output resolution)."""
+        bl = self.backlash
+        if seg_len is None:
+            bl.reset([k for k in range(3) if q0[k] is None])
+        if bl.detect_reversals(q0, q1, q0) and bl.smoothing == 0:
+            takeup = self.emit("G1", p0, q0, (), [], "", 0.0, None)
+            if takeup is not None:
+                out.append(takeup)
+                self.state.report.takeup_moves += 1
+
+    def ramp_cuts(self, seg_len: float) -> List[float]:
+        """Fractions (0..1, the last 1.0) where a segment of ``seg_len`` mm is cut: where a
+        smoothed take-up ramping on it finishes."""
+        bl = self.backlash
+        cuts = [1.0]
+        for k in range(3):
+            rem = bl.ramp_remaining(k)
+            if rem is not None and 1e-9 < rem < seg_len - 1e-9:
+                cuts.append(rem / seg_len)
+        return sorted(set(cuts))
 
     def carriage(self, p) -> Tuple[Optional[float], Optional[float], Optional[float]]:
         """Geometric command q (mm) for desired p; None where q needs an unknown axis."""
@@ -305,18 +388,29 @@ class PathWriter:
         (its word on the line, whether it changed, the firmware coordinate (mm) and its text
         after the move). Absolute output writes the rounded coordinate; relative output the
         difference of the rounded coordinates, so rounding never accumulates. ``u``: mm per
-        output unit, ``dec``: output decimals."""
+        output unit, ``dec``: output decimals.
+
+        An axis often stays where it was (Z through a layer, the other axes around a
+        take-up): the last coordinate rounded is kept per axis, with its text and the number
+        that text reads back as."""
         st = self.state
-        text = fmt((c + st.g[k]) / u, dec)
+        value = (c + st.g[k]) / u
+        last = self._rounded[k]
+        if last[0] == value and last[1] == dec:
+            text, rounded = last[2], last[3]
+        else:
+            text = fmt(value, dec)
+            rounded = float(text)
+            self._rounded[k] = (value, dec, text, rounded)
         if st.absolute:
             old_text = st.fw_text[k]
             if old_text is None and st.fw[k] is not None:
                 old_text = fmt(st.fw[k] / u, dec)
-            return text, text != old_text, float(text) * u, text
+            return text, text != old_text, rounded * u, text
         old = st.fw[k]
         if old is None:  # cannot happen: relative moves need known axes
             raise CompensationError("relative move from an unknown position", st.lineno)
-        delta = fmt(float(text) - old / u, dec)
+        delta = fmt(rounded - old / u, dec)
         return delta, delta.strip("0.") != "", old + float(delta) * u, None
 
     def emit(
@@ -331,42 +425,53 @@ class PathWriter:
         velocity,
         keep_empty: bool = False,
     ) -> Optional[str]:
-        """Format one output move to desired position ``p`` and update the stream state.
+        """Format one output move to desired position ``p`` (mm; carriage commands ``q``, mm)
+        and update the stream state: per axis the command gets its take-up offset (at
+        ``travel`` mm into the move while a take-up ramps) and servo lead (``velocity``,
+        mm/s per axis, or None), the limits policy, and is written where its text changes
+        or the axis is in ``write_axes``. :attr:`moved` says whether it moves an axis.
 
         Returns None when nothing would be written and ``keep_empty`` is false (a take-up
         too small to show at the output resolution).
         """
-        bl = self.backlash
         st = self.state
+        opts = self.options
         u = MM_PER_INCH if st.inches else 1.0
-        dec = self.options.decimals + (2 if st.inches else 0)
-        lim = self.options.limits
-        fw_before = list(st.fw)
-        axes_text = []
-        rep = st.report
+        dec = opts.decimals + (2 if st.inches else 0)
+        bl = self.backlash
+        offsets = bl.offsets(q, travel) if bl.any_active else None
+        lim = opts.limits
+        max_corr = st.report.max_correction_um
+        fw = st.fw
+        moved = False
+        parts = [code_text]
         for k in range(3):
-            if q[k] is None:
-                continue
             c = q[k]
-            if bl.any_active:
-                c += bl.offset(k, q[k], travel)
+            if c is None:
+                continue
+            if offsets is not None:
+                c += offsets[k]
             if velocity is not None:
                 c += self.servo_s[k] * velocity[k]
             if lim is not None:
                 c = self.limit(k, p[k], c)
             corr = abs(c - p[k]) * 1000.0
-            if corr > rep.max_correction_um[k]:
-                rep.max_correction_um[k] = corr
-            word, changed, st.fw[k], st.fw_text[k] = self.fw_after(k, c, u, dec)
+            if corr > max_corr[k]:
+                max_corr[k] = corr
+            before = fw[k]
+            word, changed, fw[k], st.fw_text[k] = self.fw_after(k, c, u, dec)
+            if fw[k] != before:
+                moved = True
             if k in write_axes or changed:
-                axes_text.append(AXIS_LETTERS[k] + word)
+                parts.append(AXIS_LETTERS[k] + word)
+        m = st.m
         for k in range(3):
             if p[k] is not None:
-                st.m[k] = p[k]
-        self.moved = st.fw != fw_before
-        if not axes_text and not words and not keep_empty:
+                m[k] = p[k]
+        self.moved = moved
+        if len(parts) == 1 and not words and not keep_empty:
             return None
-        parts = [code_text] + axes_text + words
+        parts += words
         out = " ".join(parts)
         if comment:
             out += " " + comment
