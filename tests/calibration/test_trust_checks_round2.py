@@ -336,3 +336,31 @@ def test_an_angle_trace_without_a_planner_uses_the_capture_arc():
     assert out["diagnostics"]["fit"]["capture_only"] is True
     within(out["diagnostics"], -800.0, 200.0)
     assert abs(out["diagnostics"]["scale_mismatch_ppm"] - planned) < 5.0
+
+
+@pytest.fixture(scope="module")
+def servo_retest():
+    """An XY re-test with servo pre-compensation in force (the printer's own lags): the
+    compensator leads each move's end by T v, so the head stands 31-32 um beyond the point
+    meant in the dwells after the feed-outs; the dwell after a run's first line (a move of
+    no length, which takes the lead back into the play) depends on the play."""
+    first = analyse(trace(XY, lab_printer()))
+    d = dict(first["parameters"], servo_precomp=True, servo_lag_ms={"x": 1.0, "y": 1.3, "z": 0.8})
+    params = Params.from_dict(d)
+    sent = _compensated(XY, params, Options())
+    return params, {
+        gain: trace(XY, lab_printer(seed=4, sensor_gain=gain), program=sent) for gain in (1.0, 1.03)
+    }
+
+
+def test_a_re_test_with_servo_precompensation_reads_its_sensor_right(servo_retest):
+    """The still levels taken back by the lead: 0.9992 (1.031 and a sensor.gain warning, the
+    readings scaled by 3 %, when the lead was read as sensor gain)."""
+    params, traces = servo_retest
+    out = analyse(traces[1.0], current=params)
+    assert loud(out) == []
+    gain = out["diagnostics"]["checks"]["sensor_gain"]
+    assert abs(gain["value"] - 1.0) < 0.002 and gain["dwells"] == 2
+    off = analyse(traces[1.03], current=params)
+    assert "sensor.gain" in loud(off)
+    assert off["diagnostics"]["checks"]["sensor_gain"]["value"] == pytest.approx(1.03, abs=0.003)
