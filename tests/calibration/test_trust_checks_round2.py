@@ -104,11 +104,17 @@ def test_the_clean_twin_is_quiet(xy, angle):
     within(out["diagnostics"], 1200.0, 400.0)
     if angle:
         assert "sensor.not_checked" in codes(out)
-        assert out["needs_confirmation"]["confirm"] == ["plane", "radius_mm", "feed_mm_min"]
+        assert out["needs_confirmation"]["confirm"] == [
+            "plane",
+            "radius_mm",
+            "feed_mm_min",
+            "sensor",
+            "firmware_compensation",
+        ]
     else:
         gain = out["diagnostics"]["checks"]["sensor_gain"]
         assert abs(gain["value"] - 1.0) < 0.002
-        assert out["needs_confirmation"]["confirm"] == ["plane"]
+        assert out["needs_confirmation"]["confirm"] == ["plane", "firmware_compensation"]
     assert "firmware.unknown" in codes(out)
 
 
@@ -208,11 +214,21 @@ def test_a_trace_of_half_the_feed_shows_in_its_ramps(r50_as_r100):
     assert f["severity"] == "error"
     assert f["evidence"]["ramp_time_ratio"] == pytest.approx(1.95, abs=0.1)
     assert f["evidence"]["implied_radius_mm"] == pytest.approx(50.0, abs=5.0)
-    # not timed: nothing in the data; the user confirms radius, feed and plane
-    out = analyse(r50_as_r100[True])
+    # not timed: nothing in the data; the user confirms radius, feed and plane (and the
+    # sensor, which an angle trace cannot check either; the firmware's state is recorded)
+    recorded = r50_as_r100[True]
+    recorded = type(recorded)(
+        meta=dict(recorded.meta, firmware_compensation="none"), rows=recorded.rows
+    )
+    out = analyse(recorded)
     need = out["needs_confirmation"]
-    assert need["confirm"] == ["plane", "radius_mm", "feed_mm_min"]
-    assert need["stated"] == {"plane": "XY", "radius_mm": 100.0, "feed_mm_min": 1850.0}
+    assert need["confirm"] == ["plane", "radius_mm", "feed_mm_min", "sensor"]
+    assert need["stated"] == {
+        "plane": "XY",
+        "radius_mm": 100.0,
+        "feed_mm_min": 1850.0,
+        "sensor": "checked",
+    }
     # a trace tied to its print needs nothing confirmed
     tied = analyse(r50_as_r100[True], origin=Provenance(confirmed="printed"))
     assert tied["needs_confirmation"] is None and "program.unconfirmed" not in codes(tied)
@@ -227,6 +243,25 @@ def test_firmware_compensation_not_recorded_shows_in_negative_backlash(xy):
     f = finding(out, "backlash.negative")
     assert f["severity"] == "warning" and "M425" in f["message"]
     assert out["diagnostics"]["squareness_um_per_m"] == pytest.approx(50.0, abs=3.0)
+
+
+def test_firmware_compensation_that_matches_the_play_is_asked_for():
+    """A YZ test with M425 Y0.020 Z0.010 on a printer whose play is just that leaves no
+    negative side (the XY and XZ tests show one only because X's play grows along X): the
+    data cannot see it, so an unrecorded firmware state is confirmed before Apply."""
+    spec = TestSpec(plane="YZ", centre=(110.0, 110.0, 38.0), radius_mm=50.0)
+    tr = trace(spec, lab_printer(firmware_compensation=FW))
+    out = analyse(tr)
+    assert loud(out) == []  # nothing in the data
+    assert out["diagnostics"]["squareness_um_per_m"] == pytest.approx(20.0, abs=5.0)
+    need = out["needs_confirmation"]
+    assert need["confirm"] == ["plane", "firmware_compensation"]
+    assert need["stated"]["firmware_compensation"] == "none"
+    assert "firmware" in finding(out, "program.unconfirmed")["advice"]
+    # recorded (the plugin's M503, or --firmware): nothing to confirm about it
+    fw = analyse(tr, origin=Provenance(firmware=FirmwareCompensation.from_text(FW)))
+    assert fw["needs_confirmation"]["confirm"] == ["plane"]
+    assert "firmware.in_force" in codes(fw)
 
 
 def test_firmware_compensation_recorded_gives_the_residual_and_says_keep_it(xy):
@@ -336,3 +371,31 @@ def test_an_angle_trace_without_a_planner_uses_the_capture_arc():
     assert out["diagnostics"]["fit"]["capture_only"] is True
     within(out["diagnostics"], -800.0, 200.0)
     assert abs(out["diagnostics"]["scale_mismatch_ppm"] - planned) < 5.0
+
+
+@pytest.fixture(scope="module")
+def servo_retest():
+    """An XY re-test with servo pre-compensation in force (the printer's own lags): the
+    compensator leads each move's end by T v, so the head stands 31-32 um beyond the point
+    meant in the dwells after the feed-outs; the dwell after a run's first line (a move of
+    no length, which takes the lead back into the play) depends on the play."""
+    first = analyse(trace(XY, lab_printer()))
+    d = dict(first["parameters"], servo_precomp=True, servo_lag_ms={"x": 1.0, "y": 1.3, "z": 0.8})
+    params = Params.from_dict(d)
+    sent = _compensated(XY, params, Options())
+    return params, {
+        gain: trace(XY, lab_printer(seed=4, sensor_gain=gain), program=sent) for gain in (1.0, 1.03)
+    }
+
+
+def test_a_re_test_with_servo_precompensation_reads_its_sensor_right(servo_retest):
+    """The still levels taken back by the lead: 0.9992 (1.031 and a sensor.gain warning, the
+    readings scaled by 3 %, when the lead was read as sensor gain)."""
+    params, traces = servo_retest
+    out = analyse(traces[1.0], current=params)
+    assert loud(out) == []
+    gain = out["diagnostics"]["checks"]["sensor_gain"]
+    assert abs(gain["value"] - 1.0) < 0.002 and gain["dwells"] == 2
+    off = analyse(traces[1.03], current=params)
+    assert "sensor.gain" in loud(off)
+    assert off["diagnostics"]["checks"]["sensor_gain"]["value"] == pytest.approx(1.03, abs=0.003)

@@ -420,7 +420,9 @@ def analyse(
             found.append(info("motion.estimated", n))
         found += _params_findings(trace.meta, current, calibrated, notes)
         timing_ok = not any(x.code in ("motion.timing", "motion.ramp") for x in found)
-        need = provenance.needs_confirmation(trace.meta, mapping.timed, timing_ok, origin.confirmed)
+        need = provenance.needs_confirmation(
+            trace.meta, mapping.timed, timing_ok, origin.confirmed, fw.known or fw.active
+        )
         if need is not None:
             found.append(provenance.confirmation_finding(need))
     if current is not None and not changes_nothing(current):

@@ -32,7 +32,10 @@ from .formats import TraceError
 from .program import ProgramError, body_hash
 
 META_KEY = "firmware_compensation"  # the trace's record of the firmware's compensation
-CONFIRMABLE = ("plane", "radius_mm", "feed_mm_min")
+CONFIRMABLE = ("plane", "radius_mm", "feed_mm_min", "sensor", "firmware_compensation")
+# what the user confirms for the two keys that are no metadata: the analysis took the sensor
+# as checked (its sign and gain) and the firmware as compensating nothing itself
+ASSUMED = {"sensor": "checked", "firmware_compensation": "none"}
 
 
 def program_mismatch(meta: Dict[str, str]) -> Optional[Dict[str, str]]:
@@ -78,25 +81,49 @@ def program_findings(meta: Dict[str, str]) -> List[Finding]:
 
 
 def needs_confirmation(
-    meta: Dict[str, str], timed: bool, timing_ok: bool, confirmed: Optional[str]
+    meta: Dict[str, str],
+    timed: bool,
+    timing_ok: bool,
+    confirmed: Optional[str],
+    firmware_known: bool = True,
 ) -> Optional[Dict[str, object]]:
     """What the user must confirm before the result of a trace with ``meta`` is applied:
     ``{"confirm": [keys], "stated": {key: value}}`` (keys of :data:`CONFIRMABLE`); None
     when ``confirmed`` (how the trace is tied to its program) is given. ``timed``: a time
-    series, whose timing (``timing_ok``: no timing or ramp error) confirms radius and feed."""
+    series, whose timing (``timing_ok``: no timing or ramp error) confirms radius and feed
+    and whose radial steps check the sensor; an angle trace also asks for the sensor
+    (``"checked"``: its sign and gain were checked). ``firmware_known`` false (the trace
+    records no firmware state and the caller gave none) asks for the firmware's
+    compensation (``"none"``: it compensated nothing itself): an M425/M852 that matches the
+    printer leaves no trace in the data."""
     if confirmed:
         return None
-    keys = ["plane"] if timed and timing_ok else list(CONFIRMABLE)
+    keys = ["plane"] if timed and timing_ok else ["plane", "radius_mm", "feed_mm_min"]
+    if not timed:
+        keys.append("sensor")
+    if not firmware_known:
+        keys.append("firmware_compensation")
     stated: Dict[str, object] = {"plane": str(meta.get("plane", "")).strip().upper()}
     for key in ("radius_mm", "feed_mm_min"):
         try:
             stated[key] = float(meta.get(key, "nan"))
         except ValueError:
             stated[key] = None
+    for key in ("sensor", "firmware_compensation"):
+        if key in keys:
+            stated[key] = ASSUMED[key]
     return {"confirm": keys, "stated": stated}
 
 
-NAMES = {"plane": Msg("the plane"), "radius_mm": Msg("the radius"), "feed_mm_min": Msg("the feed")}
+NAMES = {
+    "plane": Msg("the plane"),
+    "radius_mm": Msg("the radius"),
+    "feed_mm_min": Msg("the feed"),
+    "sensor": Msg("the sensor's sign and gain (taken as right)"),
+    "firmware_compensation": Msg(
+        "whether the firmware compensated skew, backlash or scale itself (taken as not)"
+    ),
+}
 
 
 def confirmation_finding(need: Dict[str, object]) -> Finding:
@@ -115,12 +142,39 @@ def confirmation_finding(need: Dict[str, object]) -> Finding:
             feed=f"{st['feed_mm_min']:g}" if st.get("feed_mm_min") is not None else "?",
             what=what,
         ),
-        Msg(
-            "Check that the test was printed in that plane with that radius and feed (a trace "
-            "of R50 at F925 labelled R100 F1850 halves every value)."
-        ),
+        _confirmation_advice(need["confirm"]),
         confirm=list(need["confirm"]),
         stated=dict(st),
+    )
+
+
+def _confirmation_advice(keys) -> Msg:
+    """What to check for the keys to confirm."""
+    if "firmware_compensation" in keys and "sensor" in keys:
+        return Msg(
+            "Check that the test was printed in that plane with that radius and feed (a trace "
+            "of R50 at F925 labelled R100 F1850 halves every value), that the sensor reads a "
+            "known step right (one that reads a 1 mm step as 1.03 mm reads every error that "
+            "much too high), and that the firmware's own compensation was off (M503: M425, "
+            "M852, M556, M579, SET_SKEW; one that was on makes every value here only what it "
+            "left over)."
+        )
+    if "firmware_compensation" in keys:
+        return Msg(
+            "Check that the test was printed in that plane with that radius and feed, and that "
+            "the firmware's own compensation was off (M503: M425, M852, M556, M579, SET_SKEW; "
+            "one that was on makes every value here only what it left over)."
+        )
+    if "sensor" in keys:
+        return Msg(
+            "Check that the test was printed in that plane with that radius and feed (a trace "
+            "of R50 at F925 labelled R100 F1850 halves every value), and that the sensor reads "
+            "a known step right (one that reads a 1 mm step as 1.03 mm reads every error that "
+            "much too high)."
+        )
+    return Msg(
+        "Check that the test was printed in that plane with that radius and feed (a trace "
+        "of R50 at F925 labelled R100 F1850 halves every value)."
     )
 
 

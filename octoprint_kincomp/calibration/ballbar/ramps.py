@@ -135,13 +135,18 @@ def still_levels(test, direction: str, t: np.ndarray, r: np.ndarray, sync) -> Li
     """The still readings ``feed_in_mm`` outside the circle of one run: the dwell before its
     feed-in (when an earlier run set the play) and the dwell after its feed-out: per dwell
     ``{"level_mm", "t_s", "theta_rad", "state"}`` (the median reading and time of its
-    middle, the nominal angle of the ramp, the play side of axes A and B)."""
+    middle, the nominal angle of the ramp, the play side of axes A and B). With servo
+    pre-compensation in force each level is taken back by the lead it left the head standing
+    at (:func:`_leads_at_rest`), and a dwell where that lead depends on the play is left
+    out."""
     from .program import run_angles
 
     spec = test.spec
     rp = test.runs[direction]
     a0, sweep = run_angles(spec, direction)
     waits = np.nonzero(test.blocks.feed == 0.0)[0]
+    leads = _leads_at_rest(test)
+    a_ax, b_ax = spec.axes
     out = []
     before = waits[waits < rp.feed_in[0]]
     after = waits[waits > rp.feed_out[1]]
@@ -156,12 +161,49 @@ def still_levels(test, direction: str, t: np.ndarray, r: np.ndarray, sync) -> Li
         sel = (t >= w0 + tau + 0.2 * (w1 - w0)) & (t <= w1 + tau - 0.1 * (w1 - w0))
         if state is None or sel.sum() < 10:
             continue
+        lead = 0.0
+        nth = int(np.searchsorted(waits, dwell))  # the program's dwells, in order
+        if nth < len(leads):
+            if leads[nth] is None:
+                continue
+            th = math.radians(angle)
+            lead = float(leads[nth][a_ax] * math.cos(th) + leads[nth][b_ax] * math.sin(th))
         out.append(
             {
-                "level_mm": float(np.median(r[sel])),
+                "level_mm": float(np.median(r[sel])) - lead,
                 "t_s": float(np.median(t[sel])),
                 "theta_rad": math.radians(angle),
                 "state": state,
             }
         )
     return out
+
+
+def _leads_at_rest(test) -> List[Optional[np.ndarray]]:
+    """Per dwell of the program (in order), mm along each axis: how far servo
+    pre-compensation left the head standing beyond the point the program means. The
+    compensator leads each move's end by ``T v`` of the move's programmed feed and direction,
+    which a still drive does not lag. None for a dwell after a move of no length (a run's
+    first line, which only sets the feed): that line takes the lead back, the drives reverse
+    by it into their play and the carriage follows only by what exceeds the play, so where
+    it stands depends on the play (the lab's clean re-tests read 0.988-0.999 there, by
+    plane). Taken from the nominal program's last move before each dwell; empty without
+    servo pre-compensation."""
+    params = test.current
+    if params is None or not params.has_servo_precomp:
+        return []
+    from ...firmware.interpreter import Dwell, Move
+    from ...firmware.planner import program_events
+    from .program import generate
+
+    lag = np.array([params.servo_lag_ms[a] * 1e-3 for a in "xyz"])
+    leads: List[Optional[np.ndarray]] = []
+    last: Optional[np.ndarray] = np.zeros(3)
+    for ev in program_events(generate(test.spec, date="-").splitlines(), test.spec.centre):
+        if isinstance(ev, Move):
+            d = np.subtract(ev.end, ev.start, dtype=float)
+            n = float(np.linalg.norm(d))
+            last = lag * d / n * ev.feed / 60.0 if n > 0.0 and ev.feed > 0.0 else None
+        elif isinstance(ev, Dwell) and ev.seconds > 0.0:
+            leads.append(last)
+    return leads

@@ -18,7 +18,9 @@ proposal, the run history, comparing two runs, and demo mode's simulated trace.
   without it; with it the run and the answer carry the warning ``applied.other_profile``);
   a run whose trace is not tied to a program KinComp printed
   (``needs_confirmation``) only with ``"confirm"`` stating its plane, radius and feed
-  (409 naming them without it; ``force`` does not replace it).
+  (and for an angle trace the sensor, for an unrecorded firmware state the firmware's
+  compensation: the keys it lists; 409 naming them without it; ``force`` does not replace
+  it).
 * ``GET /runs``, ``/runs/<id>``, ``/runs/<id>/trace``, ``/compare?before=&after=``,
   ``/demo/trace``.
 
