@@ -40,7 +40,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -53,6 +52,7 @@ import load_probe as lp
 
 from octoprint_kincomp.tools.devserver import USER_FLAGS, DevServer
 from tests.support import line_rate as lr
+from tests.support.serverutil import half_upload
 
 BASE = "/plugin/kincomp"
 SKEW = {  # XZ too: every X move needs Z, which the print names once
@@ -418,28 +418,6 @@ def _fill(folder, leave):
     return path
 
 
-def _slow_upload(srv, path, size):
-    """Starts a multipart upload of ``size`` bytes to ``path`` and sends only half of it (a
-    socket left open: the server is writing the file when it is killed)."""
-    boundary = "probeslow"
-    head = (
-        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="slow.csv"\r\n'
-        "Content-Type: text/csv\r\n\r\n"
-    ).encode()
-    total = len(head) + size + len(f"\r\n--{boundary}--\r\n")
-    sock = socket.create_connection(("127.0.0.1", srv.port))
-    sock.sendall(
-        (
-            f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Api-Key: {srv.admin_key}\r\n"
-            f"Content-Type: multipart/form-data; boundary={boundary}\r\n"
-            f"Content-Length: {total}\r\n\r\n"
-        ).encode()
-        + head
-        + b"t,x\n" * (size // 8)
-    )
-    return sock
-
-
 def row_small(srv, tmp):
     row = Row(srv, 10, "uploads on a full disk, a kill during an upload, the small items")
     # a full disk (the temporary folder a small tmpfs: as root only)
@@ -484,7 +462,7 @@ def row_small(srv, tmp):
     code, _ = row.request("POST", f"{BASE}/campaigns/{doc['id']}/steps/\u0661/program", {})
     row.check(code == 404, f"steps/<Arabic-Indic one>: {code}")
     # a server killed during an upload: its temporary file is gone after the restart
-    sock = _slow_upload(srv, f"{BASE}/trace", 4_000_000)
+    sock = half_upload(srv, f"{BASE}/trace", 4_000_000)
     try:
         _wait(
             lambda: any(n.startswith("kincomp-upload-") for n in os.listdir(tmp)),

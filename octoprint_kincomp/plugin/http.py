@@ -144,7 +144,11 @@ def rationed(gate):
     """None when ``gate`` (a :class:`..service.request_gate.RequestGate`) admits the
     requesting user's request now (it may have waited for its turn), else 429 with
     ``Retry-After``."""
-    wait = gate.admit(current_user()[0])
+    # each user's scripts (an API key) and pages (a login session) have rations of their own:
+    # a script asking in a loop must not leave the user's page waiting
+    req = flask.request
+    how = "key" if req.headers.get("X-Api-Key") or req.args.get("apikey") else "page"
+    wait = gate.admit(f"{current_user()[0] or ''} ({how})")
     if wait is None:
         return None
     resp = error(

@@ -11,9 +11,11 @@ clients reading KinComp's status in a tight loop left the print 17 % of its quie
 (OctoPrint's own ``/api/version`` read so: 38 %; docs/reliability.md), and a request
 refused at once (a 409 asked again and again) costs as much. So while a print runs:
 
-* each user gets ``per_user_rate`` requests a second after a burst of ``per_user_burst``,
-  and all users together ``rate`` after ``burst`` (token buckets; a page loading asks for a
-  handful at once, which passes at once; KinComp's page reads on events, it never polls);
+* each client (the caller names it: the plugin takes a user's scripts, by API key, and its
+  pages, by login, apart) gets ``per_user_rate`` requests a second after a burst of
+  ``per_user_burst``, and all together ``rate`` after ``burst`` (token buckets; a page
+  loading asks for a handful at once, which passes at once; KinComp's page reads on
+  events, it never polls);
 * a request beyond its ration waits for its turn, sleeping (the print's threads have the
   interpreter meanwhile), when its turn comes within ``max_wait_s`` and fewer than
   ``max_waiting`` requests wait already (each holds one of OctoPrint's few request threads);

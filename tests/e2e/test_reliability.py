@@ -8,12 +8,12 @@
 * ``squareness_um_per_m.xy: "garbage"`` in config.yaml survives restarts untouched (with the
   rest of the calibration), compensation stays off and the problem is reported until the
   user fixes it; a server killed during /compensate leaves no temporary file after the
-  restart and lists the job as failed;
+  restart and lists the job as failed, and one killed during an upload to KinComp leaves
+  none of the upload's (OctoPrint's own routes' files are not KinComp's to remove);
 * a printer that homes X at its maximum (the virtual printer patched by a test plugin, see
   HOME_AT_X_MAX): the first Z move after G28 never drives the head to X0.
 """
 
-import datetime
 import os
 import re
 import signal
@@ -25,91 +25,21 @@ import pytest
 import yaml
 
 from octoprint_kincomp.tools.devserver import DevServer
-from tests.support.serverutil import sent, settings, status
+from tests.support import line_rate as lr
+from tests.support.serverutil import half_upload, sent, settings, status
 
 pytestmark = pytest.mark.slow
 
 SKEW = {"squareness_um_per_m": {"xy": 1500.0, "xz": 1200.0, "yz": -900.0}}
-_SEND_TS = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) - Send: N\d+ ")
-
-
-def _write_gcode(path, lines, move, first="G1 Z0.3 F3000"):
-    """A G-code file: homing, modes, ``first``, then ``move(i)`` for i < ``lines``."""
-    with open(path, "w") as f:
-        f.write(f"G28\nG90\nM83\n{first}\n")
-        f.writelines(move(i) for i in range(lines))
-
-
-def _big_gcode(path, lines):
-    """Slicer-like moves all over the bed (what a dry run chews on)."""
-    _write_gcode(
-        path,
-        lines,
-        lambda i: (
-            f"G1 X{20 + (i * 37) % 180}.{i % 10} Y{20 + (i * 53) % 180}.{i % 7} "
-            f"E0.0{i % 9 + 1} F{1800 + i % 5 * 600} ; extrude {i}\n"
-        ),
-    )
-
-
-def _send_times(srv):
-    """Times (s since the epoch) of the numbered Send: lines in serial.log (a print's)."""
-    out = []
-    for line in srv.serial_log().splitlines():
-        m = _SEND_TS.match(line)
-        if m:
-            out.append(datetime.datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp())
-    return out
-
-
-def _rate(times, t0, t1):
-    return sum(1 for t in times if t0 <= t < t1) / (t1 - t0)
-
-
-def _wait(predicate, timeout, what):
-    deadline = time.time() + timeout
-    while not predicate():
-        assert time.time() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.2)
+PHASE_S = 4.0
+ROUNDS = 6
+_big_gcode = lr.big_gcode
+_wait = lr.wait
+_cancel_print = lr.cancel_print
 
 
 def _active_jobs(srv):
     return [j for j in status(srv)["jobs"] if j["state"] in ("queued", "running")]
-
-
-PHASE_S = 4.0
-ROUNDS = 6
-
-
-def _worker(srv, sig):
-    """Send ``sig`` to KinComp's worker process, if it runs. The quiet phases stop it
-    (SIGSTOP): on this shared 2-core machine a nice-19 process gets next to no CPU while the
-    print streams, so queued dry runs would otherwise still be running in them."""
-    import psutil
-
-    for child in psutil.Process(srv.proc.pid).children(recursive=True):
-        if "octoprint_kincomp.service.files.worker" in " ".join(child.cmdline()):
-            child.send_signal(sig)
-
-
-def _cancel_print(srv):
-    if srv.request("GET", "/api/job")[1]["state"] != "Operational":
-        srv.request("POST", "/api/job", {"command": "cancel"})
-        _wait(
-            lambda: srv.request("GET", "/api/job")[1]["state"] == "Operational", 120, "the cancel"
-        )
-
-
-def _fast_print(path, lines):
-    """A print the virtual printer streams as fast as the CPU lets it: 0.05 mm moves at
-    200 mm/s take it 25 us each (it simulates moves at ten times their speed), so the
-    Send: rate measures the serial stream, not simulated motion."""
-    _write_gcode(
-        path,
-        lines,
-        lambda i: f"G1 X{100 + (i % 2) * 0.05:.2f} Y{20 + (i // 2) % 8000 * 0.01:.2f} E0.001\n",
-        first="G1 X100 Y20 Z0.3 F12000",
-    )
 
 
 @pytest.mark.alone  # (compares the print's line rates: nothing else may run meanwhile)
@@ -118,7 +48,7 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
     big = [f"kc-big-{i}.gcode" for i in range(3)]
     for name in big:  # ~15 MB each, straight into the storage (no upload analysis)
         _big_gcode(os.path.join(uploads, name), 300_000)
-    _fast_print(os.path.join(uploads, "kc-long-print.gcode"), 1_500_000)
+    lr.fast_print(os.path.join(uploads, "kc-long-print.gcode"), 1_500_000)
     settings(server, enabled=True, params=SKEW)
     results, stop = [], threading.Event()
 
@@ -135,24 +65,23 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             stop.wait({200: 0.05, 202: 1.0, 429: 2.0}.get(code, 1.0))
 
     try:
-        sent_before = len(_send_times(server))  # (serial.log has the session's earlier prints)
+        log = lr.SendLog(server)
+        sent_before = len(log.read())  # (serial.log has the session's earlier prints)
         code, body = server.request(
             "POST", "/api/files/local/kc-long-print.gcode", {"command": "select", "print": True}
         )
         assert code == 204, body
         _wait(lambda: server.request("GET", "/api/job")[1]["state"] == "Printing", 60, "the print")
         # past the start: the print's moves stream (its homing and first lines are sent)
-        _wait(
-            lambda: len(_send_times(server)) > sent_before + 2000, 60, "the print's moves to stream"
-        )
+        _wait(lambda: len(log.read()) > sent_before + 2000, 60, "the print's moves to stream")
         phases = []
 
         def quiet_phase():
-            _worker(server, signal.SIGSTOP)  # quiet: nothing of the dry runs runs at all
+            lr.worker(server, signal.SIGSTOP)  # quiet: nothing of the dry runs runs at all
             t0 = time.time()
             time.sleep(PHASE_S)
             phases.append(("quiet", t0, time.time()))
-            _worker(server, signal.SIGCONT)
+            lr.worker(server, signal.SIGCONT)
 
         for _ in range(ROUNDS):
             quiet_phase()
@@ -172,8 +101,9 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
         assert server.request("GET", "/api/job")[1]["state"] == "Printing", (
             "the print ended before the measurement did"
         )
-        times = _send_times(server)
-        rates = [_rate(times, a, b) for _, a, b in phases]
+        time.sleep(1.5)  # (serial.log is written a little behind)
+        times = log.read()
+        rates = [lr.rate(times, a, b) for _, a, b in phases]
         # each load phase against the quiet phases either side of it: the machine's speed
         # drifts by the minute, seconds apart it is the same
         ratios = [rates[i] / ((rates[i - 1] + rates[i + 1]) / 2) for i in range(1, len(rates), 2)]
@@ -184,7 +114,7 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
             f"{[round(r, 2) for r in ratios]}, median {ratio:.0%}"
         )
         assert ratio >= 0.8, (rates, ratios)
-        _worker(server, signal.SIGCONT)
+        lr.worker(server, signal.SIGCONT)
         _cancel_print(server)  # the dry runs at nice 19 get the CPU the print leaves
         _wait(lambda: not _active_jobs(server), 600, "the dry runs to finish")
         codes = {c for c, _ in results}
@@ -195,7 +125,7 @@ def test_read_only_dry_runs_do_not_starve_a_print(server):
         assert all(j["report"]["report"]["moves"] > 300_000 for j in jobs)
     finally:
         stop.set()
-        _worker(server, signal.SIGCONT)
+        lr.worker(server, signal.SIGCONT)
         _cancel_print(server)
         settings(server, enabled=False)
         for name in big + ["kc-long-print.gcode"]:
@@ -217,6 +147,11 @@ def _stored(srv):
         kc = dict((yaml.safe_load(f).get("plugins") or {}).get("kincomp") or {})
     kc.pop("_config_version", None)
     return kc
+
+
+def _uploads_of(folder, pid):
+    """The temporary files of uploads to KinComp's routes by the server ``pid``."""
+    return [n for n in os.listdir(folder) if n.startswith(f"kincomp-upload-{pid}-")]
 
 
 def _kill(srv):
@@ -273,8 +208,22 @@ def test_invalid_stored_settings_survive_restarts_and_a_killed_job_is_reported(t
         )
         data = os.path.join(srv.basedir, "data", "kincomp")
         assert any(n.startswith(".kincomp-") for n in os.listdir(os.path.join(data, "jobs")))
-        _kill(srv)
+        # ... and during an upload to KinComp (issue 37 row 10): its temporary file is
+        # KinComp's (kincomp-upload-<pid>-*.tmp in the server's temporary folder)
+        tmp = os.path.join(srv.basedir, "tmp")
+        sock = half_upload(srv, "/plugin/kincomp/trace", 4_000_000)
+        try:
+            _wait(lambda: _uploads_of(tmp, srv.proc.pid), 60, "the upload's temporary file")
+            uploading = _uploads_of(tmp, srv.proc.pid)
+            theirs = os.path.join(tmp, "octoprint-file-upload-x1y2z3.tmp")
+            open(theirs, "wb").close()  # OctoPrint's own routes': not KinComp's to remove
+            _kill(srv)
+        finally:
+            sock.close()
+        assert all(os.path.exists(os.path.join(tmp, n)) for n in uploading)
         srv.start()
+        assert not any(os.path.exists(os.path.join(tmp, n)) for n in uploading)
+        assert os.path.exists(theirs)
         code, body = srv.request("GET", f"/plugin/kincomp/jobs/{job_id}")
         assert code == 200 and body["job"]["state"] == "failed"
         assert "interrupted" in body["job"]["error"]

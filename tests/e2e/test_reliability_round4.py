@@ -4,14 +4,19 @@
   30 s later with one last line through the received hook, which was taken for a new
   connection and cost the print its position (``[true, true, false]``, every move then sent
   uncompensated with a log line each); now the print keeps its position throughout;
-* the print's line rate under each kind of load KinComp adds (the starvation row):
-  ``test_print_keeps_its_rate_under_kincomp_load``.
+* the print's line rate under KinComp's load (the starvation row, its fast and steady part:
+  four clients reading /status in a tight loop, each loaded phase against its quiet
+  neighbours; every kind of load, with OctoPrint's own for comparison, is
+  ``scripts/load_probe.py``, its figures in docs/reliability.md):
+  ``test_tight_loop_reads_do_not_starve_a_print``.
 """
 
+import os
 import time
 
 import pytest
 
+from tests.support import line_rate as lr
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -86,3 +91,39 @@ def test_a_reconnect_never_turns_compensation_off(server):
         _cancel(server)
         settings(server, enabled=False)
         server.request("DELETE", "/api/files/local/reconnect.gcode")
+
+
+def test_tight_loop_reads_do_not_starve_a_print(server):
+    """Row 6: four clients reading KinComp's status as fast as they get answers (17 % of the
+    print's quiet line rate before; OctoPrint's own /api/version read so: 38 %) are rationed
+    while the print runs (service/request_gate.py): the print keeps 80 % of its rate; every
+    answer is a 200 or a 429 with Retry-After, which the clients wait for."""
+    name = "kc-rationed-print.gcode"
+    path = os.path.join(server.basedir, "uploads", name)
+    lr.fast_print(path, 1_500_000)
+    settings(server, enabled=True, params=SKEW)
+
+    def step(load, client, k):
+        code, _, headers = client.request("GET", "/plugin/kincomp/status")
+        load.count(code)
+        return lr.retry_after(code, headers)
+
+    load = lr.Load("read /status", step, clients=4)
+    try:
+        log = lr.SendLog(server)
+        lr.start_print(server, name)
+        time.sleep(3.0)  # past the start
+        rates, ratios, median = lr.alternate(server, load, log, rounds=4, phase_s=3.0)
+        print(
+            f"\nSend: rate with 4 clients reading /status in a tight loop, quiet and loaded "
+            f"alternating: {[round(r) for r in rates]}; ratios {[round(r, 2) for r in ratios]}, "
+            f"median {median:.0%}; answers {load.codes}"
+        )
+        assert _job_state(server) == "Printing", "the print ended before the measurement"
+        assert set(load.codes) <= {200, 429}, load.codes
+        assert load.codes.get(429), "the ration did not act"
+        assert median >= 0.8, (rates, ratios)
+    finally:
+        lr.cancel_print(server)
+        settings(server, enabled=False)
+        os.unlink(path)

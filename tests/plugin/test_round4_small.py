@@ -82,3 +82,29 @@ def test_kincomps_requests_are_rationed_while_a_print_runs(api):
         assert asked("/api/version") is None  # OctoPrint's own: not KinComp's to ration
     finally:
         plugin.queue.printing = False
+
+
+def test_a_users_scripts_and_pages_have_rations_of_their_own(api):
+    """Row 6: a script asking in a loop with the user's API key must not leave the user's
+    page (a login session, no key) waiting: each has a ration of its own."""
+    from octoprint_kincomp.service.request_gate import RequestGate
+
+    plugin = api.plugin
+    plugin.requests = RequestGate(
+        lambda: plugin.queue.printing, per_user_burst=1, burst=10, max_wait_s=0.0
+    )
+
+    def asked(headers=None, query=""):
+        with api.app.test_request_context(PREFIX + "/status" + query, headers=headers or {}):
+            resp = plugin.ration_request()
+            return None if resp is None else resp.status_code
+
+    plugin.queue.printing = True
+    try:
+        key = {"X-Api-Key": "ABC"}
+        assert asked(key) is None and asked(key) == 429  # the script's ration spent
+        assert asked(query="?apikey=ABC") == 429  # a key in the query is the script too
+        assert asked() is None  # the page's own
+        assert asked() == 429
+    finally:
+        plugin.queue.printing = False

@@ -17,15 +17,26 @@ _SEND = re.compile(r" - Send: (?:N\d+ )?(.*?)(?:\*\d+)?$")
 _SEND_N = re.compile(r" - Send: N(\d+) ")
 
 
+def rationed(srv, method, path, body=None, key="admin", timeout=60.0):
+    """``srv.request``, asked again as a 429's ``Retry-After`` says (KinComp rations its
+    requests while a print runs: service/request_gate.py)."""
+    deadline = time.time() + timeout
+    while True:
+        code, resp = srv.request(method, path, body, key=key)
+        if code != 429 or time.time() > deadline:
+            return code, resp
+        time.sleep(1.0)
+
+
 def settings(srv, **values):
     """POST /plugin/kincomp/settings (admin), applied at once; returns the new settings."""
-    status, body = srv.request("POST", "/plugin/kincomp/settings", dict(values, apply_now=True))
+    status, body = rationed(srv, "POST", "/plugin/kincomp/settings", dict(values, apply_now=True))
     assert status == 200, body
     return body["settings"]
 
 
 def status(srv):
-    code, body = srv.request("GET", "/plugin/kincomp/status")
+    code, body = rationed(srv, "GET", "/plugin/kincomp/status")
     assert code == 200, body
     return body
 
@@ -164,3 +175,29 @@ class BrowserSession:
         )
         assert code == 200, text
         return self
+
+
+def half_upload(srv, path, size, key="admin"):
+    """Starts a multipart upload of ``size`` bytes to ``path`` and sends half of it; returns
+    the open socket (the server is writing the upload's temporary file meanwhile: a test
+    kills it then)."""
+    import socket
+
+    boundary = "kincomphalf"
+    head = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="half.csv"\r\n'
+        "Content-Type: text/csv\r\n\r\n"
+    ).encode()
+    total = len(head) + size + len(f"\r\n--{boundary}--\r\n")
+    sock = socket.create_connection(("127.0.0.1", srv.port))
+    sock.sendall(
+        (
+            f"POST {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+            f"X-Api-Key: {srv.logins[key]['apikey']}\r\n"
+            f"Content-Type: multipart/form-data; boundary={boundary}\r\n"
+            f"Content-Length: {total}\r\n\r\n"
+        ).encode()
+        + head
+        + b"t,x\n" * (size // 8)
+    )
+    return sock
