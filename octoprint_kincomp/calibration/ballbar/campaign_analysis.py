@@ -65,27 +65,11 @@ def analyse_campaign(
     check_traces(items, current.hash(), manifest)
     notes: List[str] = []
     found: List[Finding] = []
-    fits: List[TraceFit] = []
-    maps = []
-    pitches = []
-    per_trace: List[Dict[str, object]] = []
-    plots = []
-    for name, trace in items:
-        try:
-            geom, runs, mapping = load_runs_mapped(trace, current, sent)
-            check_coverage(name, geom, runs)
-            cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, name)
-        except CampaignError:
-            raise
-        except TraceError as exc:
-            raise CampaignError(Msg("%(file)s: %(error)s", file=name, error=str(exc))) from None
+    fits, maps, pitches = _fit_each(items, current, sent, mask_deg, calibrated, cyclic_pitch)
+    for t, (_, mapping, cf, _) in zip(fits, maps):
         found += cf.findings
-        if cf.cyclic_pitch and cyclic_pitch is None:
-            pitches.append(cf.cyclic_pitch)
-        fits.append(TraceFit(name, geom, cf.runs, cf.fit))
-        maps.append((trace.meta, mapping, cf, runs))
         for n in mapping_notes(mapping):
-            n = Msg("%(file)s: %(note)s", file=name, note=n)
+            n = Msg("%(file)s: %(note)s", file=t.name, note=n)
             notes.append(n)
             found.append(info("motion.estimated", n))
     _check_outliers(fits)
@@ -104,34 +88,99 @@ def analyse_campaign(
         sum(len(t.model.names) for t in fits) - len(res.names),
     )
     found += joint_found
-    for i, (t, (meta, mapping, cf, raw)) in enumerate(zip(fits, maps)):
-        # each test on its own, with the out-of-plane motion the other planes' squareness
-        # causes (from the joint fit) taken into account
-        fixed = res.layout.out_of_plane(t.geom.plane, res.values)
-        f = (
-            fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
-            if any(fixed.values())
-            else t.fit
-        )
-        # the ISO metrics and the plot of all samples, outliers included (as for one trace)
-        raw = cf.all_runs  # every sample, the sensor's gain taken off
-        diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
-        found += outlier_findings(cf, diag, t.name, t.geom.radius)
-        found += checks.backlash_findings(
-            diag, checks.reached_sides(t.runs), current.has_backlash, fw_known, t.name
-        )
-        drift = checks.drift_finding(diag, raw, t.name)
-        if drift is not None:
-            found.append(drift)
-        if f is not t.fit:
-            diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
-        diag["joint"] = joint_values(res, i)
-        diag["checks"] = cf.checks
+    fitting = (mask_deg, calibrated, cyclic_pitch)
+    per_trace, plots = [], []
+    for i, (t, (meta, mapping, cf, _)) in enumerate(zip(fits, maps)):
+        diag, plot, said = _one_test(t, meta, mapping, cf, res, i, fitting, current, fw_known)
+        found += said
         per_trace.append(dict({"file": t.name}, **diag))
-        plots.append(plot_data(t.geom, raw, f, diag))
+        plots.append(plot)
+    camp = _campaign_summary(res, len(fits), per_trace, current, calibrated, notes)
+    camp["checks"] = {"joint": joint_ev}
+    camp["fit"] = {
+        "rms_um": res.rms_um,
+        "samples": res.samples,
+        "condition": res.condition,
+        "iterations": res.iterations,
+        "model": "joint exact geometry over all traces, one parameter set",
+    }
+    simulated = any(t.get("simulated") for t in per_trace)
+    params = propose_campaign(
+        res, len(fits), current, notes, bool(camp["servo_precomp"]["proposed"]), simulated, fw_known
+    )
+    found += provenance.firmware_findings(fw, "")
+    camp["firmware_compensation"] = fw.to_dict()
+    if camp["residual"]:
+        notes.append(
+            Msg(
+                "The campaign ran with compensation active: the fitted errors are "
+                "residuals and the proposed parameters are current + residual."
+            )
+        )
+    shown = {str(x.message) for x in found}
+    found += [info("campaign.note", n) for n in notes if str(n) not in shown]
+    diag = {"traces": per_trace, "campaign": camp, "simulated": simulated}
+    return result_document(diag, params, found, notes, None, plots)
+
+
+def _fit_each(items, current: Params, sent, mask_deg, calibrated, cyclic_pitch):
+    """Each trace loaded, mapped to angles and fitted on its own: ([TraceFit], [(meta,
+    mapping, checked fit, runs)], [the cyclic pitches the traces showed, mm]); a trace that
+    cannot be used raises CampaignError naming its file."""
+    fits: List[TraceFit] = []
+    maps = []
+    pitches = []
+    for name, trace in items:
+        try:
+            geom, runs, mapping = load_runs_mapped(trace, current, sent)
+            check_coverage(name, geom, runs)
+            cf = checked_fit(geom, runs, mapping, mask_deg, calibrated, cyclic_pitch, name)
+        except CampaignError:
+            raise
+        except TraceError as exc:
+            raise CampaignError(Msg("%(file)s: %(error)s", file=name, error=str(exc))) from None
+        if cf.cyclic_pitch and cyclic_pitch is None:
+            pitches.append(cf.cyclic_pitch)
+        fits.append(TraceFit(name, geom, cf.runs, cf.fit))
+        maps.append((trace.meta, mapping, cf, runs))
+    return fits, maps, pitches
+
+
+def _one_test(t: TraceFit, meta, mapping, cf, res, i: int, fitting, current: Params, fw_known):
+    """Test ``i`` of the joint fit ``res`` on its own, with the out-of-plane motion the
+    other planes' squareness causes taken into account: (its diagnostics, its plot, its
+    findings). ``fitting``: (mask_deg, calibrated, cyclic_pitch)."""
+    mask_deg, calibrated, cyclic_pitch = fitting
+    fixed = res.layout.out_of_plane(t.geom.plane, res.values)
+    f = (
+        fit(t.geom, t.runs, mask_deg, calibrated, cyclic_pitch, fixed=fixed)
+        if any(fixed.values())
+        else t.fit
+    )
+    # the ISO metrics and the plot of all samples, outliers included (as for one trace)
+    raw = cf.all_runs  # every sample, the sensor's gain taken off
+    diag = analyse_runs(t.geom, raw, meta, mask_deg, calibrated, cyclic_pitch, f, mapping)
+    found = outlier_findings(cf, diag, t.name, t.geom.radius)
+    found += checks.backlash_findings(
+        diag, checks.reached_sides(t.runs), current.has_backlash, fw_known, t.name
+    )
+    drift = checks.drift_finding(diag, raw, t.name)
+    if drift is not None:
+        found.append(drift)
+    if f is not t.fit:
+        diag["fit"]["out_of_plane_um_per_m"] = {k: v * 1e6 for k, v in fixed.items()}
+    diag["joint"] = joint_values(res, i)
+    diag["checks"] = cf.checks
+    return diag, plot_data(t.geom, raw, f, diag), found
+
+
+def _campaign_summary(res, traces: int, per_trace, current: Params, calibrated: bool, notes):
+    """The campaign's own diagnostics (a dict): the joint values, the rules behind them,
+    the closure of the scale mismatches, the servo decision, XY squareness by height (their
+    notes appended to ``notes``)."""
     camp = summary(res)
     camp["planes"] = list(res.layout.planes)
-    camp["traces"] = len(fits)
+    camp["traces"] = traces
     camp["fitted"] = _fitted(res)
     camp["scale_rule"] = (
         Msg("absolute: the calibrated bar's length gives the mean scale")
@@ -162,31 +211,7 @@ def analyse_campaign(
     heights = _xy_heights(per_trace, notes)
     if heights:
         camp["squareness_xy_by_height"] = heights
-    camp["checks"] = {"joint": joint_ev}
-    camp["fit"] = {
-        "rms_um": res.rms_um,
-        "samples": res.samples,
-        "condition": res.condition,
-        "iterations": res.iterations,
-        "model": "joint exact geometry over all traces, one parameter set",
-    }
-    simulated = any(t.get("simulated") for t in per_trace)
-    params = propose_campaign(
-        res, len(fits), current, notes, bool(camp["servo_precomp"]["proposed"]), simulated, fw_known
-    )
-    found += provenance.firmware_findings(fw, "")
-    camp["firmware_compensation"] = fw.to_dict()
-    if camp["residual"]:
-        notes.append(
-            Msg(
-                "The campaign ran with compensation active: the fitted errors are "
-                "residuals and the proposed parameters are current + residual."
-            )
-        )
-    shown = {str(x.message) for x in found}
-    found += [info("campaign.note", n) for n in notes if str(n) not in shown]
-    diag = {"traces": per_trace, "campaign": camp, "simulated": simulated}
-    return result_document(diag, params, found, notes, None, plots)
+    return camp
 
 
 def _joint_row(t: TraceFit, res, cf) -> Dict[str, float]:
