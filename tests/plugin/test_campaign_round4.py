@@ -161,3 +161,22 @@ def test_the_same_test_twice_at_once_is_refused_without_an_orphan(app, plugin, t
     runs = [r for r in plugin.runs.documents() if r.get("campaign") == cid]
     assert len(runs) == 1  # no orphaned run
     assert plugin.campaign._campaigns.get(cid)["steps"][0]["run"] == runs[0]["id"]
+
+
+def test_an_analysed_campaign_can_be_analysed_again(app, plugin, tmp_path):
+    """The lock's check of an analysis stored meanwhile compares with the result the
+    analysis started from: analysing an analysed campaign again (after a test was measured
+    again, say) stores the new result; it was a 409 "analysed meanwhile" after the whole
+    joint fit had run (issue 37's load probe: every re-analysis refused)."""
+    doc = plan(app, plugin)
+    cid = doc["id"]
+    for n in (1, 2, 3):
+        code, _ = upload(app, plugin, tmp_path, cid, n, offline_trace(doc, n), f"t{n}.csv")
+        assert code == 200
+    code, first = call(app, plugin.campaign.analyze, cid)
+    assert code == 200, first
+    before = plugin.campaign._campaigns.get(cid)["result"]
+    code, again = call(app, plugin.campaign.analyze, cid)
+    assert code == 200, again
+    after = plugin.campaign._campaigns.get(cid)["result"]
+    assert after and after != before and plugin.runs.get(after)["source"] == "campaign"

@@ -440,8 +440,10 @@ class CampaignApi:
             profile=doc.get("profile") or self._store.current().get("legacy_profile"),
         )
 
+        started = doc.get("result")  # the result this analysis began from (None: the first)
+
         def link(fresh: Dict[str, Any]) -> str:
-            if fresh.get("result"):
+            if fresh.get("result") != started:  # another analysis stored meanwhile
                 raise Refused(Msg("Campaign %(id)s was analysed meanwhile", id=cid), 409)
             name = f"campaign {cid}"
             run = self._calibration.record_run(result, name, "campaign", None, None, extra)
