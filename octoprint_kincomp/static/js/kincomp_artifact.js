@@ -25,6 +25,7 @@ $(function () {
         self.tab = parameters[3];
 
         self.fmt = fmt;
+        self.K = K;  // (the template: K.Result.when)
         self.trMsg = K.trMsg;
         // shown as the tab's "Printed artifact" step
         self.open = ko.pureComputed(function () {
