@@ -236,6 +236,7 @@ class KinCompPlugin(
                 "js/kincomp_jobs.js",
                 "js/kincomp_settings_form.js",
                 "js/kincomp_findings.js",
+                "js/kincomp_result_logic.js",
                 "js/kincomp_plot.js",
                 "js/kincomp_sensor.js",
                 "js/kincomp_campaign_draw.js",

@@ -31,7 +31,9 @@ TRUTH = Params.from_dict(
 
 def _open_artifact(page):
     open_tab(page)
-    page.click("#kincomp_artifact_toggle")
+    step(page, "artifact")
+    # (the last result is shown when there is one: to the program)
+    page.click("#kincomp_artifact_step_program")
     page.wait_for_selector("#kincomp_artifact_program", state="visible")
 
 
@@ -196,7 +198,7 @@ def test_quick_artifact_in_german(page, server):
         page.goto(server.url + "/?l10n=de")
         page.wait_for_selector("#tab_plugin_kincomp_link", state="attached")
         _open_artifact(page)
-        assert "Gedrucktes Prüfteil" in page.inner_text("#kincomp_artifact_toggle")
+        assert "Gedrucktes Prüfteil" in page.inner_text("#kincomp_step_artifact")
         assert "Prüfteil drucken" in page.inner_text("#kincomp_artifact_print")
         assert "Schnell: 12 Messwerte" in page.inner_text("#kincomp_artifact_program")
         page.click("#kincomp_artifact_write")

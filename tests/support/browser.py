@@ -161,11 +161,12 @@ def failure_picture(pg, name: str) -> None:
 
 
 def open_tab(page) -> None:
-    """The Calibration tab; on a narrow layout OctoPrint moves tabs into an overflow menu."""
+    """The Calibration tab; on a narrow layout OctoPrint moves tabs into an overflow menu. It
+    opens on the step the page was last on (a new browser context: step 1)."""
     if not page.is_visible("#tab_plugin_kincomp_link a"):
         page.click("#tabs .tabdrop .dropdown-toggle")
     page.locator('a[href="#tab_plugin_kincomp"]:visible').first.click()
-    page.wait_for_selector("#kincomp_plane", state="visible")
+    page.wait_for_selector("#kincomp_steps", state="visible")
 
 
 def step(page, name: str) -> None:

@@ -307,6 +307,7 @@ def _stability(geom, runs, f, out: CheckedFit, mask_deg, calibrated, fixed, labe
         wider,
         label,
         checks.reached_sides(runs),
+        plane=geom.plane,
     )
 
 

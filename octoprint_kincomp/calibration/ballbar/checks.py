@@ -122,8 +122,8 @@ def motion_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
                 Msg(
                     "%(pre)sThe trace does not record how its compensated program was written; "
                     "its timing fits a reversal dead band of %(band)s mm (a stepless printer's, "
-                    "or compensate --steps-per-mm 50000), not the compensator's default, so "
-                    "the program was regenerated with that.",
+                    "or a program compensated for 50000 steps per mm), not the compensator's "
+                    "default, so the program was regenerated with that.",
                     pre=pre,
                     band=f"{mapping.sent.deadband_mm:g}",
                 ),
@@ -813,6 +813,27 @@ HALF_TOLERANCE = {
 }
 
 
+UNITS = {
+    "squareness_um_per_m": "um/m",
+    "scale_mismatch_ppm": "ppm",
+    "servo_mismatch_ms": "ms",
+    "backlash_um": "um",
+}
+
+
+def _moved_word(key: str, axes: Dict[str, str]) -> Msg:
+    """A diagnostics key (``backlash_um.a_plus``) in words: what the user reads."""
+    base, _, side = key.partition(".")
+    if base == "backlash_um":
+        sign = "+" if side.endswith("plus") else "-"
+        return Msg("backlash %(side)s", side=sign + str(axes.get(side[:1], side[:1].upper())))
+    return {
+        "squareness_um_per_m": Msg("squareness"),
+        "scale_mismatch_ppm": Msg("scale mismatch"),
+        "servo_mismatch_ms": Msg("servo mismatch"),
+    }[base]
+
+
 def _flat(d: Dict[str, object]) -> Dict[str, float]:
     out = {}
     for k in HALF_TOLERANCE:
@@ -849,10 +870,11 @@ def stability_findings(
     mask_b: float,
     label: str = "",
     sides: Optional[Sequence[str]] = None,
+    plane: str = "",
 ) -> List[Finding]:
     """Compare the diagnostics of two fits (reversal masks ``mask_a`` < ``mask_b`` deg, with
     their 1-sigma ``sig_a``, ``sig_b``); ``sides``: the backlash sides measured (the others
-    are not compared)."""
+    are not compared); ``plane`` ("XY"): names the backlash sides by axis."""
     fa, fb, sa, sb = _flat(a), _flat(b), _flat(sig_a), _flat(sig_b)
     fs = {k: math.sqrt(max(sb.get(k, 0.0) ** 2 - sa.get(k, 0.0) ** 2, 0.0)) for k in fa}
     moved = {}
@@ -871,9 +893,16 @@ def stability_findings(
     if not moved:
         return []
     pre = (label + ": ") if label else ""
+    axes = {"a": plane[0], "b": plane[1]} if len(plane) == 2 else {"a": "A", "b": "B"}
     what = joined(
         [
-            Msg("%(key)s %(a)s -> %(b)s", key=k, a=f"{va:.3g}", b=f"{vb:.3g}")
+            Msg(
+                "%(what)s %(a)s -> %(b)s %(unit)s",
+                what=_moved_word(k, axes),
+                a=f"{va:.3g}",
+                b=f"{vb:.3g}",
+                unit=UNITS[k.split(".")[0]],
+            )
             for k, (va, vb, _) in moved.items()
         ]
     )
@@ -890,8 +919,8 @@ def stability_findings(
                 what=what,
             ),
             Msg(
-                "Repeat the test; if the shift stays, analyse with a wider mask (--mask-deg) and "
-                "compare."
+                "Repeat the test; if the shift stays, look for what disturbs the motion at the "
+                "reversals (a belt that slips, a loose bar cup) before you apply the result."
             ),
             shifts={k: round(s, 4) for k, (_, _, s) in moved.items()},
             mask_deg=[mask_a, mask_b],
@@ -1350,7 +1379,7 @@ def backlash_findings(
             ),
             Msg(
                 "Check the firmware's settings (M503: M425, M852). KinComp records them with a "
-                "test printed from the plugin; give them to the command line with --firmware."
+                "test printed from the plugin."
             ),
             **ev,
         )

@@ -225,10 +225,7 @@ def firmware_findings(fw: FirmwareCompensation, plane: str) -> List[Finding]:
                     "during this test is not recorded: if it did (M852, M425, M556, M579, "
                     "SET_SKEW), the values here are only what it left over."
                 ),
-                Msg(
-                    "Print the test from the plugin (it records the firmware's M503 settings), "
-                    "or give them to the command line with --firmware."
-                ),
+                Msg("Print the test from the plugin: it records the firmware's M503 settings."),
             )
         ]
     return []

@@ -336,8 +336,10 @@ class PrintState:
                 cmd=cmd,
             )
         elif self.test_program:  # the ballbar is mounted: homing now would break it
+            # a line in the tab, no pop-up: nothing for the user to do (each test's first
+            # move does this while the position is not known yet)
             self._notifier.notify(
-                "warning",
+                "status",
                 N_(
                     "KinComp sent the test program's '%(cmd)s' as written because the printer's "
                     "position was not known yet; the program's moves to absolute positions that "

@@ -25,8 +25,12 @@ $(function () {
         self.tab = parameters[3];
 
         self.fmt = fmt;
+        self.K = K;  // (the template: K.Result.when)
         self.trMsg = K.trMsg;
-        self.open = ko.observable(false);
+        // shown as the tab's "Printed artifact" step
+        self.open = ko.pureComputed(function () {
+            return !!(self.tab && self.tab.step() === "artifact");
+        });
         self.view = ko.observable("program");
         self.error = ko.observable("");
         self.busy = ko.observable(false);
@@ -63,10 +67,6 @@ $(function () {
         self.canWrite = ko.pureComputed(function () {
             return K.canAdmin(self);
         });
-
-        self.toggle = function () {
-            self.open(!self.open());
-        };
 
         self.fail = function (jqXHR) {
             self.error(K.errorText(jqXHR));
@@ -254,7 +254,6 @@ $(function () {
         // drawing and its readings in the form (the tab's own result table is the ballbar's)
         self.openFromHistory = function (run) {
             if (!run || run.source !== "artifact" || (self.run() && self.run().id === run.id)) return;
-            self.open(true);
             var path = (run.diagnostics || {}).program;
             var fill = function () {
                 OctoPrint.get(API("runs/" + encodeURIComponent(run.id) + "/trace"))

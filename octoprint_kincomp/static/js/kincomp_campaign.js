@@ -30,6 +30,7 @@ $(function () {
 
         self.fmt = fmt;
         self.trMsg = trMsg;
+        self.K = K;  // (the templates: K.Result.when)
         self.error = ko.observable("");
         self.busy = ko.observable(false);
         self.busyText = ko.observable("");
@@ -78,10 +79,9 @@ $(function () {
         };
 
         /* ------------------------------------------------------------ failures and busy */
+        // shown in the campaign's view (no pop-up), gone once the user moves to another step
         self.fail = function (jqXHR) {
-            var msg = K.errorText(jqXHR);
-            self.error(msg);
-            K.notify({title: gettext("KinComp campaign"), text: msg, type: "error"});
+            self.error(K.errorText(jqXHR));
         };
 
         self.working = function (text, request) {
@@ -268,8 +268,18 @@ $(function () {
         self.printText = ko.pureComputed(function () {
             return _.sprintf(gettext("Printing the test: %(pct)s %%"), {pct: self.printPct()});
         });
+        // how often the test's print went on since it started (null: not known, e.g. after
+        // a reload of the page): tells the mount pause from the unmount pause, also after
+        // OctoPrint's Restart of the test (it starts from the top again)
+        self.resumes = ko.observable(null);
+        self.onEventPrintStarted = function () {
+            self.resumes(0);
+        };
+        self.onEventPrintResumed = function () {
+            if (self.resumes() !== null) self.resumes(self.resumes() + 1);
+        };
         self.pauseText = function (step) {
-            return !step.run && self.printPct() < 50
+            return K.campaign.pauseKind(self.resumes(), self.printPct()) === "mount"
                 ? _.sprintf(gettext("Paused: mount the bar for %(plane)s now (pivot at %(c)s mm), then continue."), {plane: step.plane, c: self.centreText(step)})
                 : gettext("Paused: the test is done; unmount the bar, then continue.");
         };
@@ -507,6 +517,39 @@ $(function () {
             self.applyConfirmed(force);
         }, true);
 
+        // the result opens with the decision (kincomp_result_logic.js); the details below
+        var R = K.Result;
+        self.campaignTitle = ko.pureComputed(function () {
+            var c = self.campaign();
+            return c ? _.sprintf(gettext("Campaign of %(date)s"), {date: R.when(c.created)}) : "";
+        });
+        self.verdict = ko.pureComputed(function () {
+            return R.verdictView(self.analysis());
+        });
+        self.decisionRows = ko.pureComputed(function () {
+            return R.decisionRows(R.campaignTests(self.analysis()));
+        });
+        self.applyRows = ko.pureComputed(function () {
+            var a = self.analysis();
+            return a && a.proposed ? R.applyRows(a.params_before, a.proposed) : [];
+        });
+        // the servo decision in words; a servo mismatch left uncompensated says so
+        self.servoText = ko.pureComputed(function () {
+            var a = self.analysis();
+            if (!a) return "";
+            var sp = a.diagnostics.campaign.servo_precomp || {};
+            var why = trMsg(sp.reason_i18n || sp.reason) || "";
+            var ms = _.find(_.values(a.diagnostics.campaign.servo_mismatch_ms || {}), function (v) {
+                return v !== null && v !== undefined;
+            });
+            return R.servoNote(a.proposed, ms, why) || why;
+        });
+        self.detailsOpen = ko.observable(false);
+        self.toggleDetails = function () {
+            self.detailsOpen(!self.detailsOpen());
+            if (self.detailsOpen()) self.plotLater();
+        };
+
         self.planes = ko.pureComputed(function () {
             return self.analysis() ? K.campaign.planes(self.analysis()) : [];
         });
@@ -620,12 +663,17 @@ $(function () {
             req.done(function () {
                 var latest = self.campaigns()[0];
                 if (!latest || self.campaign()) return;
-                OctoPrint.get(API("campaigns/" + latest.id)).done(self.show);
+                OctoPrint.get(API("campaigns/" + latest.id)).done(function (c) {
+                    self.show(c);
+                    // a test of it printing or paused now: the page opens on the campaign
+                    if (self.jobStep()) self.tab.step("campaign");
+                });
             });
         };
 
         /* ------------------------------------------------------------- OctoPrint's calls */
         self.tab.step.subscribe(function (step) {
+            self.error("");
             if (step === "campaign") {
                 if (!self.touched && self.tab.limits()) self.defaultsFromProfile(self.tab.limits());
                 if (self.view() === "plan") self.refreshPreview();
@@ -653,6 +701,7 @@ $(function () {
             self.reload();
         };
         self.onEventPrintFailed = function () {
+            self.resumes(null);
             self.jobEnded(false);
         };
         self.onEventPrintCancelled = self.onEventPrintFailed;

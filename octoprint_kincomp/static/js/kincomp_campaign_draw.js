@@ -87,9 +87,9 @@
     // plot of the campaign it re-tests) and the Table-2 rows
     var planes = function (a) {
         var traces = a.diagnostics.traces || [];
-        var labels = K.rows();
         return _.map(a.comparison || [], function (cmp, i) {
             var t = traces[i] || {};
+            var labels = K.rows(K.Result.axesOf(t));
             var sig = (t.joint || {}).uncertainty || {};
             var compared = _.some(cmp.rows, function (r) {
                 return r.before !== null && r.before !== undefined;
@@ -147,5 +147,15 @@
         return out;
     };
 
-    K.campaign = {views: views, planes: planes, jointRows: jointRows};
+    // which pause a campaign test's program waits at: "mount" (before its runs) or
+    // "unmount" (after them). ``resumes``: how often the print went on since it (re)started
+    // (OctoPrint's Restart starts it again from the top: 0), null when not known (the page
+    // was loaded during the print): then by how far the file is printed (the mount pause is
+    // near its start, the unmount pause near its end)
+    var pauseKind = function (resumes, pct) {
+        if (resumes !== null && resumes !== undefined) return resumes > 0 ? "unmount" : "mount";
+        return (pct || 0) < 50 ? "mount" : "unmount";
+    };
+
+    K.campaign = {views: views, planes: planes, jointRows: jointRows, pauseKind: pauseKind};
 })();

@@ -201,18 +201,25 @@
 
     /* ---------------------------------------------------------------- settings pane */
 
-    var rows = function () {
+    // the rows of a test's table; ``axes``: the plane's axes {a, b} ("X", "Y"), so that the
+    // backlash sides are named as the proposal names them (+X, not +A)
+    var rows = function (axes) {
+        axes = axes || {a: "A", b: "B"};
+        var side = function (sign, axis) {
+            return _.sprintf(gettext("Backlash %(side)s"), {side: sign + axis});
+        };
         return [
         ["squareness_um_per_m", gettext("Squareness"), "µm/m"],
         ["scale_mismatch_ppm", gettext("Scale mismatch"), "ppm"],
         ["servo_mismatch_ms", gettext("Servo mismatch"), "ms"],
-        ["backlash_um.a_plus", gettext("Backlash +A"), "µm"],
-        ["backlash_um.a_minus", gettext("Backlash −A"), "µm"],
-        ["backlash_um.b_plus", gettext("Backlash +B"), "µm"],
-        ["backlash_um.b_minus", gettext("Backlash −B"), "µm"],
+        ["backlash_um.a_plus", side("+", axes.a), "µm"],
+        ["backlash_um.a_minus", side("−", axes.a), "µm"],
+        ["backlash_um.b_plus", side("+", axes.b), "µm"],
+        ["backlash_um.b_minus", side("−", axes.b), "µm"],
         ["circularity_um.ccw", gettext("Circularity CCW"), "µm"],
         ["circularity_um.cw", gettext("Circularity CW"), "µm"],
         ["circularity_um.bidirectional", gettext("Circularity bidirectional G(b)"), "µm"],
+        ["circularity_filtered_um.bidirectional", gettext("G(b) filtered (1°)"), "µm"],
         ["hysteresis_um", gettext("Hysteresis H"), "µm"]
         ];
     };
@@ -294,7 +301,8 @@
                 var field = fieldOf(path);
                 if (field) errs[field] = msg.slice(path.length + 1).trim();
                 vm.errors(errs);
-                vm.formError(msg);
+                // the field's own message stands next to it; here no internal key
+                vm.formError(field ? gettext("a value is not accepted; see the marked field.") : msg);
             })
             .always(function () {
                 vm.saving(false);

@@ -244,6 +244,11 @@ $(function () {
 
         self.update = function (status, chart) {
             self.status(status || {state: "idle", check: {}});
+            // a new capture under way: the last one's "captured and analysed" is gone
+            if (self.status().armed) {
+                self.runMessage("");
+                self.runFailed(false);
+            }
             if (chart) self.chart = chart;
             self.draw();
         };

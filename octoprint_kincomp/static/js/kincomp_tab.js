@@ -38,6 +38,7 @@ $(function () {
         self.homepage = ko.observable("");
         self.limits = ko.observable([0, 200, 0, 200, 0, 200]);
         self.outdatedFiles = ko.observableArray([]);
+        self.statusLine = ko.observable("");  // the server's latest notice that needs no action
 
         self.canWrite = ko.pureComputed(function () {
             return K.canAdmin(self);
@@ -68,6 +69,10 @@ $(function () {
             var r = num(self.radius());
             var ca = c[ia], cb = c[ib];
             var ok = !isNaN(ca) && !isNaN(cb) && r > 0;
+            // one message for a radius that is no length (not "does not fit" as well)
+            var problem = isNaN(ca) || isNaN(cb)
+                ? gettext("Enter the centre and the radius.")
+                : !(r > 0) ? gettext("The radius must be a length above 0 mm.") : "";
             var fits = ok && ca - r >= a0 && ca + r <= a1 && cb - r >= b0 && cb + r <= b1;
             var pad = Math.max(a1 - a0, b1 - b0) * 0.05;
             return {
@@ -76,7 +81,8 @@ $(function () {
                 cx: ok ? ca : 0, cy: ok ? -cb : 0, r: ok ? r : 0,
                 dot: Math.max(a1 - a0, b1 - b0) / 100,
                 fits: fits,
-                caption: ok
+                problem: problem,
+                caption: problem ? problem : ok
                     ? _.sprintf(
                           fits
                               ? gettext("%(plane)s plane: the circle fits the bed (%(a0)s…%(a1)s × %(b0)s…%(b1)s mm).")
@@ -106,6 +112,7 @@ $(function () {
             if (!self.canWrite()) return gettext("Printing tests needs KinComp's admin permission.");
             if (!ps.isOperational()) return gettext("Connect the printer first.");
             if (ps.isPrinting() || ps.isPaused()) return gettext("A print is running: wait until it has finished.");
+            if (self.bed().problem) return self.bed().problem;
             if (!self.bed().fits) return gettext("The circle does not fit the bed: move the centre or use a smaller radius.");
             if (!(self.checkMounted() && self.checkHeight() && self.checkClear()))
                 return gettext("Tick the checklist to print.");
@@ -155,11 +162,46 @@ $(function () {
         });
         self.K = K;  // (dateText, sourceText for the templates)
 
+        // the result opens with the decision (kincomp_result_logic.js): the verdict, the
+        // numbers that decide it, what Apply sets; the details below, collapsed
+        var R = K.Result;
+        self.verdict = ko.pureComputed(function () {
+            return R.verdictView(self.run());
+        });
+        self.decisionRows = ko.pureComputed(function () {
+            var run = self.run();
+            if (!run || !run.diagnostics || run.source === "artifact") return [];
+            var d = run.diagnostics;
+            if (d.squareness_um_per_m === undefined || typeof d.squareness_um_per_m === "object") return [];
+            return R.decisionRows([{diag: d}]);
+        });
+        self.servoNote = ko.pureComputed(function () {
+            var run = self.run();
+            if (!run || !run.diagnostics) return null;
+            return R.servoNote(run.proposed, run.diagnostics.servo_mismatch_ms);
+        });
+        self.applyRows = ko.pureComputed(function () {
+            var run = self.run();
+            return run && run.proposed ? R.applyRows(run.params_before, run.proposed) : [];
+        });
+        self.detailsOpen = ko.observable(false);
+        self.toggleDetails = function () {
+            self.detailsOpen(!self.detailsOpen());
+            if (self.detailsOpen()) self.plotLater();
+        };
+        // step 3 before anything is shown: the runs are still loading, or there are none
+        self.runsLoaded = ko.observable(false);
+        self.noResultText = ko.pureComputed(function () {
+            if (!self.runsLoaded()) return gettext("Loading the last result…");
+            return gettext("No analysis yet: upload a measurement first.");
+        });
+
         self.tableRows = ko.pureComputed(function () {
             var run = self.run();
             if (!run) return [];
             var cmp = self.compareRows();
-            return _.map(rows(), function (row) {
+            var axes = R.axesOf(run.diagnostics);
+            return _.map(rows(axes), function (row) {
                 var c = _.findWhere(cmp, {key: row[0]});
                 return {
                     label: row[1],
@@ -176,11 +218,19 @@ $(function () {
             return run && run.proposed ? K.proposedRows(run.proposed) : [];
         });
 
+        // an error is shown next to what caused it (the step it happened in), not as a
+        // pop-up, and is gone on the other steps
+        self.errorStep = ko.observable("");
         self.fail = function (jqXHR) {
-            var msg = errorText(jqXHR);
-            self.error(msg);
-            notify({title: gettext("KinComp"), text: msg, type: "error"});
+            self.errorStep(self.step());
+            self.error(errorText(jqXHR));
         };
+        self.errorIn = function (step) {
+            return !!self.error() && self.errorStep() === step;
+        };
+        self.step.subscribe(function (step) {
+            if (step !== self.errorStep()) self.error("");
+        });
 
         self.refresh = function () {
             var perm = self.access.permissions.STATUS;
@@ -289,10 +339,11 @@ $(function () {
             self.sendProgram(false);
         };
 
+        // a printed artifact's run is shown in its own step (kincomp_artifact.js)
         self.showRun = function (run) {
             self.run(run);
             self.error("");
-            self.step("result");
+            self.step(run && run.source === "artifact" && (run.diagnostics || {}).program ? "artifact" : "result");
             self.plotLater();
         };
 
@@ -410,7 +461,11 @@ $(function () {
             self.step("program");
         };
 
-        self.loadRuns = function () {
+        // ``restore``: after a reload of the page the newest single run is the result shown
+        // (not "No analysis yet" while runs exist); the step stays where it was
+        self.loadRuns = function (restore) {
+            var perm = self.access.permissions.STATUS;
+            if (!perm || !self.loginState.hasPermission(perm)) return;
             OctoPrint.get(API("runs")).done(function (resp) {
                 // a campaign's runs are grouped with their campaign (kincomp_campaign.js)
                 var single = _.filter(resp.runs, function (r) {
@@ -421,6 +476,16 @@ $(function () {
                         return _.extend({}, r, {figures: K.historyFigures(r)});
                     })
                 );
+                if (restore && !self.run() && single.length) {
+                    OctoPrint.get(API("runs/" + encodeURIComponent(single[0].id))).done(function (run) {
+                        if (!self.run()) self.run(run);
+                        self.plotLater();
+                    }).always(function () {
+                        self.runsLoaded(true);
+                    });
+                } else {
+                    self.runsLoaded(true);
+                }
             });
         };
 
@@ -510,12 +575,44 @@ $(function () {
             }
         };
 
+        // the step the user was on survives a reload of the page (this browser's storage);
+        // a test printing now is where the page opens (kincomp_campaign.js: a campaign's)
+        var STEPS = ["program", "measure", "result", "campaign", "artifact", "history"];
+        var stored = function () {
+            try {
+                return window.localStorage.getItem("kincomp.step");
+            } catch (e) {
+                return null;
+            }
+        };
+        self.step.subscribe(function (step) {
+            try {
+                window.localStorage.setItem("kincomp.step", step);
+            } catch (e) {
+                // (storage refused: the step is not kept)
+            }
+        });
+        self.restoreStep = function () {
+            var saved = stored();
+            if (_.contains(STEPS, saved)) self.step(saved);
+            var ps = self.printerState;
+            var path = ps.filepath ? ps.filepath() : "";
+            if ((ps.isPrinting() || ps.isPaused()) && /(^|\/)ballbar_[^/]*\.gcode$/.test(path || "")) self.step("program");
+        };
+
         self.onUserLoggedIn = function () {
             self.refresh();
+            self.loadRuns(true);
         };
         self.onStartupComplete = function () {
+            self.restoreStep();
             self.refresh();
+            self.loadRuns(true);
         };
+        self.compareRows.subscribe(function (table) {
+            // a comparison (re-test, or two runs of the history) is read in the details
+            if (table && table.length) self.detailsOpen(true);
+        });
         self.onEventPrintDone = function () {
             self.printing(false);
         };
@@ -538,6 +635,9 @@ $(function () {
                 // another printer profile in force: its calibration, its history
                 self.refresh();
                 self.loadRuns();
+            } else if (data.type === "notify" && data.severity === "status") {
+                // for the record, nothing to act on: a line in the tab, not a pop-up
+                self.statusLine(translateNotice(data));
             } else if (data.type === "notify") {
                 notify({
                     title: gettext("KinComp"),
