@@ -5,8 +5,12 @@ moves the way its planner makes it move (``firmware/planner.py``: trapezoidal ve
 acceleration, junction speeds, full stops at ``M400``/``G4``, per-axis feed caps; the former
 constant-speed motion only when the truth asks for ``"motion": "constant_speed"``). Its trace
 records the planner settings the program's header states (what a capture for that program
-carries: the firmware and limits it was planned for), else the truth's ``motion``; the printer
-itself always moves with the truth's. Then, per
+carries: the firmware and limits it was planned for), else the truth's ``motion``. The printer
+moves with the truth's ``motion`` when the truth states one (a printer that may differ from
+what the program was planned for: a fault the motion checks must see); a truth without one is
+the printer whose firmware and limits the program's header records (a clean printer runs its
+programs as planned: the plugin plans them from that printer's own M115/M503 answer), else
+:class:`MotionSettings`' defaults. Then, per
 axis and in this order: optional stepper quantisation (the commanded position rounded to whole
 steps), a first-order servo lag ``T`` acting on the planned motion (the drive is ``v*T``
 behind at steady speed), the play of the drive (backlash, possibly different along the axis),
@@ -86,7 +90,9 @@ class Truth:
     bar_length_error_um: float = 0.0
     sample_rate_hz: float = 500.0
     seed: int = 1
-    motion: MotionSettings = field(default_factory=MotionSettings)
+    # None: the firmware and limits the program was planned for (its header), else the
+    # defaults (see the module docstring)
+    motion: Optional[MotionSettings] = None
     steps_per_mm: Dict[str, float] = field(default_factory=dict)  # empty: no quantisation
     bar_drift_um_per_min: float = 0.0
     speed_factor_pct: float = 100.0
@@ -105,9 +111,17 @@ class Truth:
     firmware_compensation: str = ""
     record_firmware: bool = False
 
-    def printer_motion(self) -> MotionSettings:
-        """The motion the printer really has: the recorded settings with the hidden caps."""
-        m = self.motion
+    def motion_for(self, spec=None) -> MotionSettings:
+        """The planner settings the printer runs ``spec``'s program with (hidden caps aside):
+        the truth's ``motion``, else those the program was planned for, else the defaults."""
+        if self.motion is not None:
+            return self.motion
+        stated = getattr(spec, "motion", None)
+        return (MotionSettings.from_metadata(stated) if stated else None) or MotionSettings()
+
+    def printer_motion(self, spec=None) -> MotionSettings:
+        """The motion the printer really has: :meth:`motion_for` with the hidden caps."""
+        m = self.motion_for(spec)
         if not (self.hidden_max_feed_mm_min or self.hidden_max_accel_mm_s2):
             return m
         feed = dict(m.max_feed_mm_min)
@@ -171,7 +185,8 @@ class Truth:
         t.seed = int(d.get("seed", 1))
         if not (10 <= t.sample_rate_hz <= 20000):
             raise ParamsError("sample_rate_hz", Msg("must be within 10..20000"))
-        t.motion = MotionSettings.from_dict({k: d[k] for k in MOTION_KEYS if k in d})
+        stated = {k: d[k] for k in MOTION_KEYS if k in d}
+        t.motion = MotionSettings.from_dict(stated) if stated else None
         for a, v in (d.get("steps_per_mm") or {}).items():
             if a not in AXES:
                 raise ParamsError(f"steps_per_mm.{a}", Msg("unknown axis (allowed: x, y, z)"))
@@ -453,7 +468,7 @@ class Simulator:
         factor = _speed_factors(lines, blocks, tr.speed_factor_pct)
         if np.any(factor != 1.0):
             blocks.feed = np.where(blocks.feed > 0, blocks.feed * factor, blocks.feed)
-        plan = blocks.plan(tr.printer_motion())
+        plan = blocks.plan(tr.printer_motion(spec))
         fs = tr.sample_rate_hz
         ts = np.arange(0.0, plan.duration + 1e-9, 1.0 / fs)
         u, vel = plan.sample(ts)
@@ -491,7 +506,7 @@ class Simulator:
         if getattr(spec, "params_hash", None):
             meta["params_hash"] = spec.params_hash
         if not getattr(spec, "motion", None):  # else the program's, as a capture carries it
-            meta.update(tr.motion.metadata())
+            meta.update(tr.motion_for(spec).metadata())
         meta["source"] = SIMULATED_LABEL
         meta["simulated"] = "true"
         return spec, meta, plan, ts, u, vel, reading, runs
@@ -573,7 +588,7 @@ def planned(text: str, truth: Truth, spec=None) -> Plan:
     """The planned motion of a program on the truth's printer (for tests and tools)."""
     if spec is None:
         spec, _ = spec_from_program(text)
-    return plan_program(text, spec.centre, truth.motion)
+    return plan_program(text, spec.centre, truth.motion_for(spec))
 
 
 def _skew_matrix(skew: Optional[Dict[str, float]]) -> Optional[np.ndarray]:

@@ -470,7 +470,7 @@ def test_truth_file_keys_for_the_faults():
     )
     assert t.speed_factor_pct == 80.0 and t.hidden_max_feed_mm_min == {"z": 600.0}
     assert t.printer_motion().max_feed_mm_min["z"] == 600.0
-    assert t.motion.max_feed_mm_min["z"] != 600.0  # what the trace records
+    assert t.motion_for().max_feed_mm_min["z"] != 600.0  # what the trace records
     assert t.glitches == (3, 100.0)
     for bad in (
         {"speed_factor_pct": 0},
