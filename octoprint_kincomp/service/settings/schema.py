@@ -223,9 +223,14 @@ SETTINGS: Tuple[Setting, ...] = (
                 N_("Bed limits"),
                 "moves",
                 "kincomp_limits",
+                help=N_(
+                    "The bed volume is the printer profile's, narrowed by the travel the "
+                    "firmware states. A point the file itself puts on or past its edge marks "
+                    "where the travel ends there."
+                ),
                 choices=(
+                    ("clamp", N_("Keep compensated moves inside the bed volume and report it")),
                     ("warn", N_("Warn when a compensated move leaves the bed volume")),
-                    ("clamp", N_("Clamp compensated moves to the bed volume")),
                     ("error", N_("Stop (pause the print) instead")),
                 ),
             ),
