@@ -44,7 +44,6 @@ SLOW = {
     "mk_orca230b2_arcs.gcode": "printer-creality-ender3-s1plus-2022.cfg",
     "mk_crealityprint514.gcode": "printer-creality-ender3-s1plus-2022.cfg",
     "mk_bambu11002_k1max_arcs.gcode": "printer-creality-ender3-s1plus-2022.cfg",
-    "am_dice_ps271_toolchange.gcode": "printer-creality-ender3-s1plus-2022.cfg",
 }
 
 

@@ -58,7 +58,8 @@ def extent(lines: Sequence[str], home: Sequence[float]) -> List[Tuple[float, flo
 
 def tight_config(name: str, lines: Sequence[str], **kw) -> Tuple[str, Tuple[float, ...]]:
     """The stock config ``name`` with its travel set to the program's extent (the endstops
-    kept inside it): (config text, limits x0, x1, y0, y1, z0, z1 mm)."""
+    kept inside it, and Z at least 10 mm above its switch for the homing retract): (config
+    text, limits x0, x1, y0, y1, z0, z1 mm)."""
     sections = dict(kw.pop("sections", None) or {})
     base = klipper.stock_config(name, sections=sections, **kw)
     v = klipper.config_values(base)
@@ -68,6 +69,8 @@ def tight_config(name: str, lines: Sequence[str], **kw) -> Tuple[str, Tuple[floa
         stop = float(v["stepper_" + axis]["position_endstop"])
         lo = math.floor(min(box[k][0], stop) * 1000) / 1000
         hi = math.ceil(max(box[k][1], stop) * 1000) / 1000
+        if axis == "z":  # room for G28's retract off the Z switch (5 mm by default)
+            hi = max(hi, stop + 10.0)
         sec = dict(sections.get("stepper_" + axis, {}))
         sec.update(position_min=lo, position_max=hi)
         sections["stepper_" + axis] = sec
