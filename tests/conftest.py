@@ -48,6 +48,7 @@ SLOWEST_FIRST = [
     "tests/core/test_arc_fit.py",
     "tests/core/test_properties.py",
     "tests/corpus/test_corpus.py",
+    "tests/firmware/test_klipper_travel.py",
     "tests/engines/test_fastpaths.py",
 ]
 # modules whose tests share module-scoped fixtures: one worker runs all of them (the

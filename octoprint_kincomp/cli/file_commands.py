@@ -87,7 +87,7 @@ def cmd_compensate(args) -> int:
         rep["params_hash"] = params.hash()
         print(json.dumps(rep, indent=2))
     else:
-        print(summary(args.output or args.input, report, params.hash()))
+        print(summary(args.output or args.input, report, params.hash(), args.policy))
     return EXIT_OK
 
 
@@ -102,8 +102,9 @@ def _same_mode(source: str, target: str) -> None:
         ) from None
 
 
-def summary(path: str, report, params_hash: str) -> str:
-    """One line on what ``compensate`` wrote (``report``: its Report)."""
+def summary(path: str, report, params_hash: str, policy: str = "clamp") -> str:
+    """One line on what ``compensate`` wrote (``report``: its Report; ``policy``: the limits
+    policy it ran under)."""
     line = (
         f"kincomp: wrote {path}: {report.moves_compensated} of {report.moves} moves "
         f"compensated (params {params_hash}), {report.lines_out} lines"
@@ -114,7 +115,11 @@ def summary(path: str, report, params_hash: str) -> str:
     if report.malformed:
         notes.append(f"{report.malformed} malformed kept as written")
     if report.limit_hits:
-        notes.append(f"{report.limit_hits} outside the limits")
+        verb = "sent past" if policy == "warn" else "kept inside"
+        notes.append(
+            f"{report.limit_hits} coordinates {verb} the travel (worst "
+            f"{report.limit_worst_um:.1f} um, {report.limit_worst_axis})"
+        )
     return line + ("; " + ", ".join(notes) if notes else "")
 
 
@@ -182,8 +187,9 @@ def add_file_commands(sub) -> None:
     c.add_argument(
         "--policy",
         choices=("warn", "clamp", "error"),
-        default="warn",
-        help="what to do when compensation pushes a point outside --limits",
+        default="clamp",
+        help="what to do when compensation pushes a point outside --limits (default "
+        "clamp: keep it inside and report the shortfall)",
     )
     c.add_argument(
         "--chord-tol",

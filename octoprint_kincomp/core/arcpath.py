@@ -249,7 +249,9 @@ class ArcWriter:
             pb = arc.point(fb)
             qb = w.carriage(pb)
             if bl.any_active and bl.detect_reversals(qa, qb, qa):
-                takeup = w.emit("G1", pa, qa, (), [], "", 0.0, None)
+                takeup = w.emit(
+                    "G1", pa, qa, (), [], "", 0.0, None, slack=self.options.chord_tol_mm * (fa > 0)
+                )
                 if takeup is not None:
                     job.out.append(takeup)
                     st.report.takeup_moves += 1
@@ -300,8 +302,18 @@ class _Job:
         write_axes = self.given if last else ()
         mark = self.edist.mark()
         words, e_text = self.words(f, last)
+        slack = 0.0 if last else self.aw.options.chord_tol_mm  # (a point on the way)
         line = w.emit(
-            code, p, q, write_axes, extra + words, self.comment, 0.0, None, keep_empty=True
+            code,
+            p,
+            q,
+            write_axes,
+            extra + words,
+            self.comment,
+            0.0,
+            None,
+            keep_empty=True,
+            slack=slack,
         )
         if self.pieces.add(line, w.moved, words, e_text, last, mark):
             self.first = False

@@ -72,9 +72,12 @@ class Options:
     """Engine options that are not part of the machine model.
 
     ``limits``: (x0, x1, y0, y1, z0, z1) mm in the homed machine frame, or None;
-    ``policy``: what happens when compensation pushes a point outside the limits: ``warn``
-    (count it, send it), ``clamp`` (clamp the commanded point onto the limit) or ``error``
-    (raise :class:`LimitError`). Points the program itself places outside are never altered.
+    ``policy``: what happens when compensation pushes a point outside the limits (the
+    printer's travel): ``clamp`` (the default: keep the commanded point on the limit, its
+    text rounded toward the inside, and count the shortfall), ``warn`` (count it, send it)
+    or ``error`` (raise :class:`LimitError`). A point the program itself places on or past
+    a limit marks where the travel really ends there: compensation does not push it
+    further out, nor pull it in (``core/path.py`` ``PathWriter.limit``).
     ``chord_tol_mm``: how far a written arc or chord may deviate from the desired arc;
     ``linearise_arcs``: write every G2/G3 as G1 chords (firmware without arc support).
     ``home_mm``: per axis where G28 leaves it (mm, machine frame), None: not known (see the
@@ -87,7 +90,7 @@ class Options:
 
     chord_tol_mm: float = 0.01
     limits: Optional[Tuple[float, float, float, float, float, float]] = None
-    policy: str = "warn"
+    policy: str = "clamp"
     decimals: int = 3
     home_mm: Tuple[Optional[float], Optional[float], Optional[float]] = (0.0, 0.0, 0.0)
     deadband_mm: Optional[float] = None
@@ -322,11 +325,38 @@ class Compensator:
             return
         q_after = self.writer.carriage(st.m)
         drive = [at[k] if k in axes else q_before[k] for k in range(3)]
+        for k in self._approached(axes, at):
+            drive[k] = st.backlash.anchor[k]
         stays = [
             None if drive[k] is None or q_after[k] == drive[k] else float(drive[k])
             for k in range(3)
         ]
         st.q_drive = None if stays == [None, None, None] else tuple(stays)
+
+    def _approached(self, axes: Sequence[int], at: Sequence[Optional[float]]) -> List[int]:
+        """The homed axes whose play is known after homing: a home on a limit (mm, the
+        travel's edge) is an endstop there, which the firmware's last homing move approached
+        (Marlin, RepRapFirmware and Klipper all finish homing toward the switch), so the play
+        is taken up toward it. Their backlash direction is set to that approach (-1 at the
+        lower limit, +1 at the upper) and the anchor to the drive's geometric command (the
+        home minus the offset of that direction, mm): the first move away takes up the whole
+        play, a move toward the switch none (no take-up past the edge). Elsewhere (no
+        limits, a home inside the travel such as Klipper's safe_z_home) the direction stays
+        unknown."""
+        lim = self.options.limits
+        bl = self.backlash
+        if lim is None or not bl.any_active:
+            return []
+        out = []
+        for k in axes:
+            if at[k] is None or not bl.active[k]:
+                continue
+            d = -1 if at[k] <= lim[2 * k] else 1 if at[k] >= lim[2 * k + 1] else 0
+            if d:
+                bl.dir[k] = d
+                bl.anchor[k] = float(at[k]) - bl.target(k, float(at[k]))
+                out.append(k)
+        return out
 
     def malformed(self, line: str) -> str:
         rep = self.state.report

@@ -189,6 +189,8 @@ class MoveHandler:
         )
         self.track_e(e_word, e_relative)
         st.report.moves_compensated += 1
+        if 0 not in given and 1 not in given:
+            out = xy_apart(out, cmd.code_text)
         return out
 
     # -- G2/G3 ---------------------------------------------------------------------------
@@ -299,3 +301,28 @@ class MoveHandler:
     def extreme_angles(self, plane: int) -> Tuple[float, ...]:
         """The angles of :meth:`extreme_axes` (chord ends are placed there)."""
         return tuple(phi for _, phi in self.extreme_axes(plane))
+
+
+def xy_apart(lines: List[str], code_text: str) -> List[str]:
+    """The lines of a move whose source names neither X nor Y (``G1 Z5 E15 F200``, a Z hop),
+    with the X/Y correction carried by a move of its own before each line that also carries
+    Z or other words: the source line keeps its class in every firmware (Klipper checks a
+    move with X/Y and E against ``max_extrude_cross_section``, one without as extrude-only;
+    Marlin and RepRapFirmware apply F to the Z length). The path is the same polyline, its
+    X/Y part first; the end point is the same."""
+    out = []
+    head = code_text + " "
+    for line in lines:
+        if not line.startswith(head):
+            out.append(line)
+            continue
+        body, sep, comment = line[len(head) :].partition(";")
+        toks = body.split()
+        xy = [t for t in toks if t[0] in "XY"]
+        rest = [t for t in toks if t[0] not in "XY"]
+        if not xy or not rest:
+            out.append(line)
+            continue
+        out.append(head + " ".join(xy))
+        out.append(head + " ".join(rest) + (" " + sep + comment if sep else ""))
+    return out

@@ -245,15 +245,17 @@ class PathWriter:
         s_done = 0.0
         p0 = start
         q0 = self.carriage(p0)
-        if st.q_drive is not None:  # drives that are not at the command of p0 (state.py)
-            q0 = tuple(q if d is None else d for q, d in zip(q0, st.q_drive))
+        drives = st.q_drive
+        if drives is not None:  # drives that are not at the command of p0 (state.py)
+            q0 = tuple(q if d is None else d for q, d in zip(q0, drives))
             st.q_drive = None
         last_idx = len(points) - 1
+        tol = self.options.chord_tol_mm
         for idx, p1 in enumerate(points):
             seg_len = lengths[idx]
             q1 = self.carriage(p1)
             if bl.any_active:
-                self.reversals(p0, q0, q1, seg_len, out)
+                self.reversals(p0, q0, q1, seg_len, out, slack=tol if idx else 0.0)
             cuts = (1.0,)
             if ramps and seg_len and not e_unsplittable:
                 cuts = self.ramp_cuts(seg_len)
@@ -290,6 +292,7 @@ class PathWriter:
                     sub_len,
                     velocity,
                     keep_empty=True,
+                    slack=0.0 if last else tol,
                 )
                 if pieces.add(line, self.moved, words, e_text, last, mark):
                     first = False
@@ -299,6 +302,9 @@ class PathWriter:
                 s_done += sub_len
                 f_prev = f
             p0, q0 = p1, q1
+        if drives is not None:  # a drive this move does not command stays where it was
+            kept = tuple(d if q is None else None for q, d in zip(q0, drives))
+            st.q_drive = None if kept == (None, None, None) else kept
         return out
 
     def straight(
@@ -313,8 +319,9 @@ class PathWriter:
         st = self.state
         seg_len = segment_lengths(start, (end,))[0]
         q0 = self.carriage(start)
-        if st.q_drive is not None:  # drives that are not at the command of start (state.py)
-            q0 = tuple(q if d is None else d for q, d in zip(q0, st.q_drive))
+        drives = st.q_drive
+        if drives is not None:  # drives that are not at the command of start (state.py)
+            q0 = tuple(q if d is None else d for q, d in zip(q0, drives))
             st.q_drive = None
         q1 = self.carriage(end)
         out: List[str] = []
@@ -325,19 +332,25 @@ class PathWriter:
         out.append(
             self.emit(code_text, end, q1, given, words, comment, travel, None, keep_empty=True)
         )
+        if drives is not None:  # a drive this move does not command stays where it was
+            kept = tuple(d if q is None else None for q, d in zip(q1, drives))
+            st.q_drive = None if kept == (None, None, None) else kept
         return out
 
-    def reversals(self, p0, q0, q1, seg_len: Optional[float], out: List[str]) -> None:
+    def reversals(
+        self, p0, q0, q1, seg_len: Optional[float], out: List[str], slack: float = 0.0
+    ) -> None:
         """The backlash reversals of the segment from ``p0`` (desired, mm) whose carriage
         commands go from ``q0`` to ``q1`` (mm; ``seg_len`` None: it comes from an unknown
         position, whose axes start with no direction): without smoothing, a take-up move to
         the segment's start with the new offsets is appended to ``out`` (unless it changes
-        nothing at the output resolution)."""
+        nothing at the output resolution). ``slack`` (mm): see :meth:`limit` (the start of
+        a segment inside a polyline is a chord end, not a point the source writes)."""
         bl = self.backlash
         if seg_len is None:
             bl.reset([k for k in range(3) if q0[k] is None])
         if bl.detect_reversals(q0, q1, q0) and bl.smoothing == 0:
-            takeup = self.emit("G1", p0, q0, (), [], "", 0.0, None)
+            takeup = self.emit("G1", p0, q0, (), [], "", 0.0, None, slack=slack)
             if takeup is not None:
                 out.append(takeup)
                 self.state.report.takeup_moves += 1
@@ -360,27 +373,68 @@ class PathWriter:
         q = self.model.inverse([v if v is not None else 0.0 for v in p])
         return tuple(None if any(p[j] is None for j in self.needs[k]) else q[k] for k in range(3))
 
-    def limit(self, k: int, p: float, c: float) -> float:
-        """Apply the limits policy to axis k's command ``c`` (mm) for desired ``p`` (mm)."""
+    def limit(self, k: int, p: float, c: float, slack: float = 0.0) -> float:
+        """Apply the limits policy to axis k's command ``c`` (mm) for desired ``p`` (mm).
+
+        The travel is the limits, widened to a point the source itself puts past them (the
+        printer's travel really ends there: compensation neither pushes past it nor pulls it
+        in); ``slack`` (mm, >= 0) is how far such a point may be pulled in all the same: 0
+        for a point the source writes, the chord tolerance for one on the way between two
+        (an arc's chord end near its apex: the firmware never goes there). ``clamp`` and
+        ``error`` keep the command inside, rounded toward the inside at the output
+        resolution; ``warn`` counts and sends it. Each hit is counted with its shortfall
+        (um: how much of the correction is lost, or how far past the travel under ``warn``).
+        """
         opts = self.options
         lo, hi = opts.limits[2 * k], opts.limits[2 * k + 1]
         st = self.state
         rep = st.report
-        if lo <= p <= hi:
-            if c < lo or c > hi:
-                rep.limit_hits += 1
-                if len(rep.limit_examples) < 20:
-                    rep.limit_examples.append((st.lineno, AXIS_LETTERS[k], round(c, 6)))
-                if opts.policy == "error":
-                    raise LimitError(
-                        f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
-                        f"limits {lo:g}..{hi:g} mm",
-                        st.lineno,
-                    )
-                if opts.policy == "clamp":
-                    c = min(max(c, lo), hi)
-        elif p != st.m[k]:
-            rep.source_outside += 1
+        inside = lo <= p <= hi
+        if not inside:
+            if p != st.m[k]:
+                rep.source_outside += 1
+            if p < lo:
+                lo = min(lo, p + slack)
+            else:
+                hi = max(hi, p - slack)
+        if c < lo or c > hi:
+            rep.limit_hits += 1
+            short = (lo - c if c < lo else c - hi) * 1000.0
+            if short > rep.limit_worst_um:
+                rep.limit_worst_um = short
+                rep.limit_worst_axis = AXIS_LETTERS[k]
+            if len(rep.limit_examples) < 20:
+                rep.limit_examples.append((st.lineno, AXIS_LETTERS[k], round(c, 6)))
+            if opts.policy == "error" and inside:
+                raise LimitError(
+                    f"compensated {AXIS_LETTERS[k]}={c:.4f} mm is outside the "
+                    f"limits {lo:g}..{hi:g} mm",
+                    st.lineno,
+                )
+            if opts.policy != "warn":
+                c = min(max(c, lo), hi)
+        if opts.policy != "warn":
+            c = self.inward(k, c, lo, hi)
+        return c
+
+    def inward(self, k: int, c: float, lo: float, hi: float) -> float:
+        """Axis ``k``'s command ``c`` (mm) moved by whole output steps until its written text
+        lies within ``lo..hi`` (mm): rounding toward the inside (a limit of 90.4598 is
+        written 90.459, not 90.46). The firmware compares the number on the line."""
+        st = self.state
+        u = MM_PER_INCH if st.inches else 1.0
+        dec = self.options.decimals + (2 if st.inches else 0)
+        g = st.g[k]
+        step = 10.0**-dec
+        for _ in range(3):
+            x = float(fmt((c + g) / u, dec))
+            v = x * u - g
+            if v > hi:
+                c = (x - step) * u - g
+            elif v < lo:
+                c = (x + step) * u - g
+            else:
+                break
         return c
 
     def fw_after(self, k: int, c: float, u: float, dec: int):
@@ -424,6 +478,7 @@ class PathWriter:
         travel: float,
         velocity,
         keep_empty: bool = False,
+        slack: float = 0.0,
     ) -> Optional[str]:
         """Format one output move to desired position ``p`` (mm; carriage commands ``q``, mm)
         and update the stream state: per axis the command gets its take-up offset (at
@@ -432,7 +487,7 @@ class PathWriter:
         or the axis is in ``write_axes``. :attr:`moved` says whether it moves an axis.
 
         Returns None when nothing would be written and ``keep_empty`` is false (a take-up
-        too small to show at the output resolution).
+        too small to show at the output resolution). ``slack``: see :meth:`limit`.
         """
         st = self.state
         opts = self.options
@@ -454,7 +509,7 @@ class PathWriter:
             if velocity is not None:
                 c += self.servo_s[k] * velocity[k]
             if lim is not None:
-                c = self.limit(k, p[k], c)
+                c = self.limit(k, p[k], c, slack)
             corr = abs(c - p[k]) * 1000.0
             if corr > max_corr[k]:
                 max_corr[k] = corr

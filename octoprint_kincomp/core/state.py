@@ -32,7 +32,14 @@ class Report:
     chords only; ``arc_segments``: the lines written for arcs (take-ups not counted);
     ``arc_max_deviation_um``: the largest estimated deviation of a written arc from the
     compensated path (core/arcpath.py). ``max_correction_um``: the largest correction per
-    axis, [X, Y, Z] in um (a dict by axis name in :meth:`to_dict`)."""
+    axis, [X, Y, Z] in um (a dict by axis name in :meth:`to_dict`).
+
+    The travel's edge (``core/path.py`` ``PathWriter.limit``): ``limit_hits`` compensated
+    coordinates that would leave it (kept on the edge unless the policy is ``warn``),
+    ``limit_worst_um`` the largest shortfall (um, >= 0: the correction lost there, or how
+    far past under ``warn``) and ``limit_worst_axis`` its axis (None: no hit),
+    ``limit_examples`` the first 20 (line, axis, wanted command mm), ``source_outside``
+    points the program itself puts outside the limits."""
 
     __slots__ = (
         "lines",
@@ -51,6 +58,8 @@ class Report:
         "max_correction_um",
         "limit_hits",
         "limit_examples",
+        "limit_worst_um",
+        "limit_worst_axis",
         "source_outside",
     )
 
@@ -71,6 +80,8 @@ class Report:
         self.max_correction_um: List[float] = [0.0, 0.0, 0.0]  # um, per axis (0 X, 1 Y, 2 Z)
         self.limit_hits = 0
         self.limit_examples: List[Tuple[int, str, float]] = []
+        self.limit_worst_um = 0.0  # um: the largest shortfall at the travel's edge
+        self.limit_worst_axis: Optional[str] = None  # its axis, "X"/"Y"/"Z"
         self.source_outside = 0
 
     def __repr__(self) -> str:
@@ -94,6 +105,8 @@ class Report:
             "max_correction_um": {a: round(v, 3) for a, v in zip(AXES, self.max_correction_um)},
             "limit_hits": self.limit_hits,
             "limit_examples": [list(x) for x in self.limit_examples],
+            "limit_worst_um": round(self.limit_worst_um, 3),
+            "limit_worst_axis": self.limit_worst_axis,
             "source_outside_limits": self.source_outside,
         }
 

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from ..core.messages import Msg, joined
 from ..core.numbers import finite_text
@@ -457,6 +457,94 @@ def steps_per_mm(text: str) -> Dict[str, float]:
             full = cfg.get("full_steps_per_rotation", 200.0)
             out.setdefault(axis, full * cfg["microsteps"] / cfg["rotation_distance"])
     return out
+
+
+_POSITION = re.compile(r"^\s*(position_min|position_max)\s*[:=]\s*(\S+)")
+_M208 = re.compile(r"(?:^|[\s:])M208\b([^;]*)")
+_M208_AXIS = re.compile(r"([XYZxyz])\s*(-?\d*\.?\d+)(?:\s*:\s*(-?\d*\.?\d+))?")
+_M211_BOX = re.compile(r"Min:\s*(.*?)\s*Max:\s*(.*)$", re.IGNORECASE)
+_RRF_REPORT = re.compile(r"Axis limits[^X]*(.*)$", re.IGNORECASE)
+
+
+def travel_limits(text: str) -> Dict[str, Tuple[Optional[float], Optional[float]]]:
+    """The printer's travel as the firmware states it (mm, per axis ``x``/``y``/``z``: (min,
+    max), None where that end is not stated; axes not stated are left out): Klipper's
+    ``position_min``/``position_max`` of ``[stepper_x]``.. (position_min defaults to 0 when
+    position_max is stated), Marlin's answer to ``M211`` (``Min: X.. Y.. Z..  Max: X..``),
+    RepRapFirmware's ``M208`` in ``config.g`` (``M208 X-5:230``, ``M208 S1 X-5`` the minima,
+    ``M208 X230`` the maxima) or its reply ``Axis limits (mm) X-5.0:230.0, ...``. The last
+    statement of each counts. Never raises."""
+    out: Dict[str, List[Optional[float]]] = {}
+    if not isinstance(text, str):
+        return {}
+    section: Optional[str] = None
+    for raw in text.splitlines():
+        m = _SECTION.match(raw)
+        if m:
+            section = m.group(1).strip().lower()
+            continue
+        if section in ("stepper_x", "stepper_y", "stepper_z"):
+            m = _POSITION.match(raw.split("#")[0])
+            if m:
+                v = _number(m.group(2))
+                if v is not None:
+                    end = out.setdefault(section[-1], [None, None])
+                    end[0 if m.group(1) == "position_min" else 1] = v
+            continue
+        line = raw.split(";")[0]
+        m = _M211_BOX.search(line)
+        if m:
+            for i, part in enumerate(m.groups()):
+                for k, v in _WORD.findall(part):
+                    value = _number(v)
+                    if k.lower() in AXES and value is not None:
+                        out.setdefault(k.lower(), [None, None])[i] = value
+            continue
+        m = _M208.search(line) or _RRF_REPORT.search(line)
+        if m:
+            body = m.group(1)
+            lower = re.search(r"\bS1\b", body) is not None
+            for k, a, b in _M208_AXIS.findall(re.sub(r"\bS[01]\b", "", body)):
+                first, second = _number(a), _number(b) if b else None
+                end = out.setdefault(k.lower(), [None, None])
+                if b:
+                    end[0], end[1] = first, second
+                else:
+                    end[0 if lower else 1] = first
+    result = {}
+    for axis, (lo, hi) in out.items():
+        if lo is None and hi is not None and _is_klipper(text):
+            lo = 0.0  # (Klipper's default position_min)
+        if lo is not None and hi is not None and lo >= hi:
+            continue
+        result[axis] = (lo, hi)
+    return result
+
+
+def _is_klipper(text: str) -> bool:
+    return re.search(r"^\s*\[stepper_[xyz]\]", text, re.MULTILINE) is not None
+
+
+def narrowed_travel(limits: Optional[Tuple[float, ...]], text: str) -> Optional[Tuple[float, ...]]:
+    """The printer profile's ``limits`` (x0, x1, y0, y1, z0, z1 mm, or None) narrowed by the
+    travel the firmware states in ``text`` (:func:`travel_limits`): each end the nearer of
+    the two. An end the firmware states is used alone where the profile has none; None when
+    neither gives a complete box."""
+    stated = travel_limits(text)
+    if limits is None:
+        if not all(a in stated and None not in stated[a] for a in AXES):
+            return None
+        return tuple(v for a in AXES for v in stated[a])
+    out = list(limits)
+    for k, axis in enumerate(AXES):
+        lo, hi = stated.get(axis, (None, None))
+        if lo is not None:
+            out[2 * k] = max(out[2 * k], lo)
+        if hi is not None:
+            out[2 * k + 1] = min(out[2 * k + 1], hi)
+        if out[2 * k] >= out[2 * k + 1]:  # (the two disagree: the profile's holds)
+            out[2 * k], out[2 * k + 1] = limits[2 * k], limits[2 * k + 1]
+    return tuple(out)
 
 
 def _apply_klipper(out: MotionLimits, cfg: Dict[str, float]) -> None:

@@ -234,6 +234,7 @@ class KinCompPlugin(
             "js": [
                 "js/kincomp_common.js",
                 "js/kincomp_jobs.js",
+                "js/kincomp_confirm_logic.js",
                 "js/kincomp_settings_form.js",
                 "js/kincomp_findings.js",
                 "js/kincomp_result_logic.js",

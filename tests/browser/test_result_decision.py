@@ -148,6 +148,28 @@ def test_a_single_tests_result_opens_with_its_decision(page, server, case):
     page.reload()
     page.wait_for_selector("#kincomp_verdict", state="visible")
     assert not page.is_visible("#kincomp_no_result")
+    # written by KinComp but not printed by it: what the data cannot check is confirmed first
+    # (issue 34), each statement in words, Apply held until every one is ticked
+    page.wait_for_selector("#kincomp_confirm_box", state="visible")
+    boxes = page.locator("#kincomp_confirm_box input[type=checkbox]")
+    assert boxes.count() >= 1 and page.is_disabled("#kincomp_apply")
+    assert "XY" in page.inner_text("#kincomp_confirm_box")
+    _no_raw_words(page, "#kincomp_confirm_box")
+    for k in range(boxes.count()):
+        boxes.nth(k).check()
+    assert page.is_enabled("#kincomp_apply")
+    page.click("#kincomp_apply")
+    anyway = "#kincomp_apply_confirm .kincomp-apply-anyway"
+    shown = """(sels) => sels.some(s => {
+        const e = document.querySelector(s); return e && e.offsetParent !== null; })"""
+    either = [anyway, "#kincomp_applied", "#kincomp_result_error"]
+    page.wait_for_function(shown, arg=either)
+    if page.is_visible(anyway):  # (an untrusted result: the "apply anyway" step too)
+        page.click(anyway)
+    page.wait_for_function(shown, arg=either[1:])
+    assert not page.is_visible("#kincomp_result_error"), page.inner_text("#kincomp_result_error")
+    assert not page.is_visible("#kincomp_confirm_box")
+    settings(server, enabled=False, params=ZERO)
 
 
 def test_labelled_steps_at_every_width_and_the_step_survives_a_reload(page, server, case):

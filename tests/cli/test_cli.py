@@ -21,7 +21,10 @@ def test_cli_compensate_report_and_in_place(tmp_path, capsys):
     rc = main(["compensate", p, "--params", params, "--limits", "0,200,0,200,0,180", "--report"])
     assert rc == 0
     rep = json.loads(capsys.readouterr().out)
-    assert rep["limit_hits"] == 1 and rep["params_hash"] == Params.from_dict(SKEW).hash()
+    # (X0 and the program's own X-5, both kept where the travel ends; see test_limits)
+    assert rep["limit_hits"] == 2 and rep["params_hash"] == Params.from_dict(SKEW).hash()
+    assert rep["limit_worst_axis"] == "X" and rep["limit_worst_um"] == pytest.approx(199.94)
+    assert "X-5 Y100" in open(p).read()
     assert open(p).read().startswith(marker_line(Params.from_dict(SKEW)))
     # second run: refused with a clear message and exit status 1
     rc = main(["compensate", p, "--params", params])

@@ -258,7 +258,10 @@ def test_partial_homing_under_skew_starts_the_next_move_where_the_drives_are():
         if line.startswith("G1"):
             assert dist(printer.actual(), want) < 2e-6, (line, outs)
     after_home = dict(groups)["G1 Z30"]
-    assert all("X" not in xs(o) for o in after_home[:-1])  # no take-up drags X
+    # no take-up drags X: X moves only in the X/Y move of its own before the Z move (the Z
+    # move keeps its class, issue 36), to the command of the new point
+    assert after_home[-1].startswith("G1 Z") and after_home[-2].startswith("G1 X")
+    assert all("X" not in xs(o) for o in after_home[:-2])
 
 
 @pytest.mark.parametrize(

@@ -22,16 +22,56 @@ def edge_program():
 def test_limit_policies_warn_and_clamp(policy):
     comp = make_compensator(Params.from_dict(SKEW), Options(limits=LIMITS, policy=policy))
     outs = [comp.process(l) for l in edge_program()]
-    assert comp.report.limit_hits == 1
-    assert comp.report.limit_examples[0][:2] == (3, "X")
+    # line 3 pushed past X0; line 4 (the program's own X-5) pushed past X-5
+    assert comp.report.limit_hits == 2
+    assert [e[:2] for e in comp.report.limit_examples] == [(3, "X"), (4, "X")]
+    assert comp.report.limit_worst_axis == "X"
+    assert comp.report.limit_worst_um == pytest.approx(199.94, abs=0.01)  # line 3
     x = float(outs[2][0].split()[1][1:])
+    x_own = float(outs[3][0].split()[1][1:])
+    assert comp.report.source_outside == 1
     if policy == "clamp":
         assert x == 0.0
+        # a point the program itself puts past the limit marks where the travel ends:
+        # compensation does not push it further out (nor pull it in to X0)
+        assert x_own == -5.0
     else:
         assert x == pytest.approx(-0.2, abs=0.001)
-    # a point the program itself puts outside is never altered by the policy
-    assert comp.report.source_outside == 1
-    assert float(outs[3][0].split()[1][1:]) == pytest.approx((-5 - 0.2) / 1.0003, abs=0.001)
+        assert x_own == pytest.approx((-5 - 0.2) / 1.0003, abs=0.001)
+
+
+def test_clamp_is_the_default_policy():
+    assert Options().policy == "clamp"
+
+
+def test_a_point_past_the_edge_that_compensation_pulls_inward_is_kept():
+    # the program's X-5 at Y100 under xy -2000: compensation moves X inward (+0.2): kept
+    comp = make_compensator(
+        Params.from_dict({"squareness_um_per_m": {"xy": -2000.0}}), Options(limits=LIMITS)
+    )
+    outs = [comp.process(l) for l in ["G28", "G1 X10 Y100 Z1", "G1 X-5 Y100"]]
+    assert outs[2] == ["G1 X-4.8 Y100"]
+    assert comp.report.limit_hits == 0 and comp.report.source_outside == 1
+
+
+def test_the_clamp_rounds_toward_the_inside():
+    """Review of issue 36: a limit with more decimals than the output (a box from a file's
+    own 4-decimal extent) was clamped to 90.4598 and written 90.46, past it."""
+    limits = (0, 200, 0, 90.4598, 0, 180)
+    comp = make_compensator(Params.from_dict(SKEW), Options(limits=limits))
+    lines = ["G28", "G1 X10 Y10 Z1", "G1 X150 Y90.4", "G1 X150 Y90.45979", "G1 X100 Y90.4598"]
+    outs = [comp.process(l) for l in lines]
+    ys = [float(w[1:]) for o in outs[2:] for w in o[0].split() if w[0] == "Y"]
+    assert ys[1:] == [90.459, 90.459]  # (90.45979 and the limit itself: not 90.46)
+    assert max(ys) <= 90.4598
+
+
+def test_the_clamp_rounds_toward_the_inside_below_the_limit_too():
+    limits = (0.0004, 200, 0, 200, 0, 180)
+    comp = make_compensator(Params.from_dict(SKEW), Options(limits=limits))
+    outs = [comp.process(l) for l in ["G28", "G1 X10 Y10 Z1", "G1 X0.0004 Y50"]]
+    assert outs[2][0].split()[1] == "X0.001"  # (X0 would be past 0.0004)
+    assert comp.report.limit_hits == 1
 
 
 def test_limit_policy_error_names_the_line():

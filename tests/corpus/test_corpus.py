@@ -157,7 +157,8 @@ def test_a_nudge_below_the_deadband_is_no_reversal_and_the_load_line_lands():
     params = Params.from_dict(ALL)
     f, groups = check(params, LOAD_LINE, Options(home_mm=(0.0, 0.0, 0.0)), with_groups=True)
     assert f.worst is None, f.worst
-    assert len(groups[4][1]) == 1, groups[4]  # 'G1 Z0.2': one line, no take-up
+    # 'G1 Z0.2': its X/Y nudge in a move of its own (the Z move stays one), no take-up
+    assert len(groups[4][1]) == 2 and groups[4][1][-1] == "G1 Z0.2", groups[4]
 
 
 def test_a_direction_judged_from_an_unknown_play_is_allowed_its_lag_until_the_axis_travels():
@@ -169,7 +170,7 @@ def test_a_direction_judged_from_an_unknown_play_is_allowed_its_lag_until_the_ax
     params = Params.from_dict(ALL)
     options = Options(home_mm=(0.0, 0.0, 0.0), deadband_mm=1e-6)
     f, groups = check(params, LOAD_LINE, options, with_groups=True)
-    assert len(groups[4][1]) == 2, groups[4]  # the nudge taken up
+    assert len(groups[4][1]) == 3, groups[4]  # the nudge taken up (then X/Y, then Z)
     assert f.worst is None, f.worst
     # without the allowance the X move after the nudge is 14.4 um off (Y's carriage)
     with mock.patch("tests.corpus.check.unsettled_lag", lambda lag, travelled: 0.0):

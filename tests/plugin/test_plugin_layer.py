@@ -330,7 +330,7 @@ def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
 
 def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
     plugin._settings.set(["limits_policy"], "explode")  # e.g. edited by hand in config.yaml
-    assert plugin.store.current()["limits_policy"] == "warn"  # the defaults apply
+    assert plugin.store.current()["limits_policy"] == "clamp"  # the defaults apply
     app = api_app()
     with mock.patch("octoprint_kincomp.plugin.http.require"):
         with app.test_request_context("/status"):

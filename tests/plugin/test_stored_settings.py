@@ -63,21 +63,21 @@ def test_an_invalid_value_is_reported_and_compensation_is_off(api):
 
 def test_a_partial_save_is_refused_until_the_value_is_fixed_and_keeps_everything(api):
     before = stored(api)
-    code, resp = post(api, "/settings", {"limits_policy": "clamp"})
+    code, resp = post(api, "/settings", {"limits_policy": "warn"})
     assert code == 400 and "params.squareness_um_per_m.xy" in resp["error"]
     assert stored(api) == before  # nothing lost, nothing written
-    api.plugin.on_settings_save({"limits_policy": "clamp"})  # OctoPrint's dialog: the same
+    api.plugin.on_settings_save({"limits_policy": "warn"})  # OctoPrint's dialog: the same
     assert stored(api) == before
     code, resp = post(
         api,
         "/settings",
-        {"params": {"squareness_um_per_m": {"xy": 250.0}}, "limits_policy": "clamp"},
+        {"params": {"squareness_um_per_m": {"xy": 250.0}}, "limits_policy": "warn"},
     )
     assert code == 200, resp
     p = stored(api)["params"]
     assert p["squareness_um_per_m"] == {"xy": 250.0, "xz": 120.0, "yz": -80.0}
     assert p["scale_ppm"]["x"] == 350.0 and p["backlash"]["y"] == 30.0
-    assert stored(api)["demo"] == {"enabled": True} and stored(api)["limits_policy"] == "clamp"
+    assert stored(api)["demo"] == {"enabled": True} and stored(api)["limits_policy"] == "warn"
     st = api.client.get(PREFIX + "/status").get_json()
     assert st["settings_problem"] is None and st["compensation"]["enabled"] is True
 

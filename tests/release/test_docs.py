@@ -29,6 +29,7 @@ PAGES = [
     "reliability",
     "compensation-details",
     "printer-profiles",
+    "travel-edges",
 ]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 

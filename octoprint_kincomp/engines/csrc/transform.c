@@ -74,6 +74,7 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
     int dec = K->dec + (s->inches ? 2 : 0);
     int k, written = 0;
     char text[MAX_TEXT + 1], oldfmt[MAX_TEXT + 1];
+    (void)m_old;  /* (a source point outside the limits always goes to Python now) */
     for (k = 0; k < 3; k++) {
         double c = q[k], corr, parsed;
         int len, append;
@@ -81,22 +82,23 @@ int kk_point(Kernel *K, State *s, const double *p, const double *q, const int *g
             continue;
         if (s->dir[k] && K->active[k])
             c += (double)s->dir[k] * K->half * kk_um_at(&K->tab[k], c);
-        if (K->has_limits) {
-            double lo = K->lim[2 * k], hi = K->lim[2 * k + 1];
-            if (lo <= p[k] && p[k] <= hi) {
-                if (c < lo || c > hi)
-                    return -1;  /* a limit hit: counted and reported by the Python path */
-            } else if (p[k] != m_old[k]) {
-                return -1;      /* a source point outside the limits: likewise */
-            }
-        }
-        s->recheck[k] = 0;
+        /* a limit hit, a source point outside the limits (the travel ends there) or a
+         * text outside them: counted, kept inside and reported by the Python path */
+        if (K->has_limits && !(K->lim[2 * k] <= p[k] && p[k] <= K->lim[2 * k + 1] &&
+                               K->lim[2 * k] <= c && c <= K->lim[2 * k + 1]))
+            return -1;
         corr = fabs(c - p[k]) * 1000.0;
-        if (corr > s->maxc[k])
-            s->maxc[k] = corr;
         len = format_fw(K, k, (c + s->g[k]) / u, dec, text, &parsed);
         if (len < 0)
             return -1;
+        if (K->has_limits) {  /* (core/path.py PathWriter.inward: the number written) */
+            double v = parsed * u - s->g[k];
+            if (v < K->lim[2 * k] || v > K->lim[2 * k + 1])
+                return -1;
+        }
+        s->recheck[k] = 0;
+        if (corr > s->maxc[k])
+            s->maxc[k] = corr;
         if (s->fwt_len[k] == len && memcmp(text, s->fwt[k], len) == 0) {
             append = given[k];
         } else {
@@ -255,6 +257,10 @@ int kk_do_line(Kernel *K, State *s, const char *ln, Py_ssize_t n, Lines *out)
         main_out[1] = ln[1];
         main_len = 2;
         if (kk_point(K, s, p1, q1, given, q0, redo, saved.m, main_out, &main_len) < 0)
+            goto python;
+        /* a source move without X/Y that gets X/Y: the move is split (core/moves.py
+         * xy_apart) */
+        if (!given[0] && !given[1] && main_len > 3 && (main_out[3] == 'X' || main_out[3] == 'Y'))
             goto python;
         /* the E/F words after X/Y/Z as written; a leading F word goes after them */
         if (present[4])

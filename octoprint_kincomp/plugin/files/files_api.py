@@ -39,7 +39,7 @@ from ...engines.file_loop import AlreadyCompensated
 from ...service.files.jobs import Job, JobQueue, QueueFull
 from ...service.files.worker import WorkerProcess
 from ...service.notify import N_, Notifier
-from ...service.printing.queue import QueueCompensator
+from ...service.printing.queue import QueueCompensator, edge_of, notify_edge
 from ...service.settings.schema import SettingsInvalid
 from .. import http
 from ..settings.settings_store import SettingsStore
@@ -229,6 +229,7 @@ class FilesApi:
                 )
                 job.result = dest
                 job.report = result["report"]
+                notify_edge(self._notifier, edge_of(job.report, options.policy), path)
             finally:
                 if os.path.exists(out):
                     os.unlink(out)

@@ -46,7 +46,7 @@ from ...calibration.ballbar.program import ProgramError, is_pause, spec_from_pro
 from ...core.marker import file_marker
 from ...service.notify import N_, Notifier
 from ...service.printing.firmware_watch import FirmwareWatcher
-from ...service.printing.queue import QueueCompensator
+from ...service.printing.queue import QueueCompensator, notify_edge
 
 # handled under the print lock, against the queuing hook's view of the print
 PRINT_EVENTS = frozenset(
@@ -229,7 +229,10 @@ class PrintState:
                 # (if the counts ever drifted apart, an end with nothing printing resyncs them)
                 self.start_events = self.begun
                 self.file_lines_seen = False  # (first: the hook reads it without the lock)
-                self._queue.print_ended()
+                edge = self._queue.print_ended()
+                if edge:
+                    self._logger.warning("KinComp: at the travel's edge in this print: %s", edge)
+                notify_edge(self._notifier, edge, None)
                 self._on_end(event == Events.PRINT_DONE)
 
     def transfer_started(self) -> None:

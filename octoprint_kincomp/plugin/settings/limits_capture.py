@@ -33,9 +33,10 @@ from ...service.notify import N_
 from ...service.settings.schema import SettingsError
 from .. import http
 
-# the lines of M503's answer kept: the limits (M201, M203-M205, RepRapFirmware's M566) and
-# the steps per mm (M92)
-_LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M92|M566)\s+[A-Za-z]")
+# the lines of M503's answer kept: the limits (M201, M203-M205, RepRapFirmware's M566), the
+# travel (RepRapFirmware's M208, Marlin's M211 answer "Min: X.. Max: ..") and the steps per
+# mm (M92)
+_LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M208|M92|M566)\s+[A-Za-z]|Min:\s+X")
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
 MAX_LINES = 200  # lines kept of one answer (Marlin's whole M503 is ~60)
 TAGS = {"plugin:kincomp", "kincomp:motion-limits"}

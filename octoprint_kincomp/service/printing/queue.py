@@ -62,6 +62,7 @@ from ...core.modal import g92_axes, homed_axes, named_axes
 from ...core.params import Params
 from ...engines.contract import line_route
 from ...engines.select import make_compensator
+from ..notify import N_
 
 FILE_TAG = "source:file"
 JOB_TAG = "source:job"
@@ -371,15 +372,24 @@ class QueueCompensator:
             self.comp.reset()
             self.awaiting_home, self.home_query_out = (), False
             self.skip_file = precompensated
+            rep = self.comp.report
+            self._edge_hits = rep.limit_hits
+            rep.limit_worst_um, rep.limit_worst_axis = 0.0, None
 
-    def print_ended(self) -> None:
+    def print_ended(self) -> Optional[Dict[str, object]]:
+        """The print is over. Returns what it lost at the travel's edge since it started
+        (``edge_summary``), None when nothing."""
         with self._lock:
+            rep = self.comp.report
+            hits = rep.limit_hits - getattr(self, "_edge_hits", 0)
+            edge = edge_summary(hits, rep, self.comp.options.policy)
             self.printing = False
             self.halted = False
             self.skip_file = False
             self._apply_pending()
             self.comp.reset()
             self.awaiting_home, self.home_query_out = (), False
+            return edge
 
     # -- reporting -----------------------------------------------------------------------
     def status(self) -> Dict[str, object]:
@@ -400,3 +410,55 @@ class QueueCompensator:
                 "held_moves": self.held_moves,
                 "report": rep,
             }
+
+
+# what the user is told about the travel's edge (``what``: a file's name, or EDGE_PRINT)
+EDGE_KEPT = N_(
+    "KinComp kept %(count)d compensated coordinates of %(what)s inside the printer's travel: "
+    "there up to %(worst_um)s µm of correction could not be applied (axis %(axis)s)."
+)
+EDGE_SENT = N_(
+    "KinComp sent %(count)d compensated coordinates of %(what)s past the printer's travel (up "
+    "to %(worst_um)s µm, axis %(axis)s) because the limits policy is 'warn': the firmware may "
+    "refuse or clamp these moves."
+)
+EDGE_PRINT = N_("this print")
+
+
+def edge_summary(hits: int, rep, policy: str) -> Optional[Dict[str, object]]:
+    """``hits`` compensated coordinates at the travel's edge under the limits ``policy``,
+    with the report ``rep``'s worst shortfall: {"count", "worst_um" (um, 1 decimal),
+    "axis" ("X"/"Y"/"Z"), "sent" (True: sent past it, policy ``warn``)}; None for none."""
+    if hits <= 0:
+        return None
+    return {
+        "count": hits,
+        "worst_um": round(rep.limit_worst_um, 1),
+        "axis": rep.limit_worst_axis,
+        "sent": policy == "warn",
+    }
+
+
+def edge_of(report: Optional[Dict[str, object]], policy: str) -> Optional[Dict[str, object]]:
+    """:func:`edge_summary` of a file's report (``Report.to_dict``), None for none."""
+    if not report or not report.get("limit_hits"):
+        return None
+    return {
+        "count": report["limit_hits"],
+        "worst_um": round(float(report.get("limit_worst_um") or 0.0), 1),
+        "axis": report.get("limit_worst_axis"),
+        "sent": policy == "warn",
+    }
+
+
+def notify_edge(notifier, edge: Optional[Dict[str, object]], what: Optional[str]) -> None:
+    """Tell the user what ``edge`` (:func:`edge_summary`) says, for the file ``what`` (its
+    name; None: the print that just ended). Nothing for None."""
+    if not edge:
+        return
+    msgid = EDGE_SENT if edge["sent"] else EDGE_KEPT
+    params = {k: edge[k] for k in ("count", "worst_um", "axis")}
+    if what is None:
+        notifier.notify("warning", msgid, tr_params=("what",), what=EDGE_PRINT, **params)
+    else:
+        notifier.notify("warning", msgid, what=what, **params)

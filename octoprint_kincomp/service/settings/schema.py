@@ -27,7 +27,7 @@ from ...core.backlash import deadband_steps
 from ...core.compensator import POLICIES, Options
 from ...core.messages import Msg
 from ...core.params import Params
-from ...firmware.motion_limits import steps_per_mm
+from ...firmware.motion_limits import narrowed_travel, steps_per_mm
 from ..notify import N_
 from . import software_update
 from .checks import (
@@ -214,7 +214,7 @@ SETTINGS: Tuple[Setting, ...] = (
     ),
     Setting(
         "limits_policy",
-        "warn",
+        "clamp",
         _choice_check(POLICIES),
         fields=(
             Field(
@@ -223,9 +223,14 @@ SETTINGS: Tuple[Setting, ...] = (
                 N_("Bed limits"),
                 "moves",
                 "kincomp_limits",
+                help=N_(
+                    "The bed volume is the printer profile's, narrowed by the travel the "
+                    "firmware states. A point the file itself puts on or past its edge marks "
+                    "where the travel ends there."
+                ),
                 choices=(
+                    ("clamp", N_("Keep compensated moves inside the bed volume and report it")),
                     ("warn", N_("Warn when a compensated move leaves the bed volume")),
-                    ("clamp", N_("Clamp compensated moves to the bed volume")),
                     ("error", N_("Stop (pause the print) instead")),
                 ),
             ),
@@ -481,12 +486,16 @@ def _profiles(value: Any, field: str) -> Dict[str, Dict[str, Any]]:
 def engine_config(
     settings: Dict[str, Any], limits: Optional[Tuple[float, ...]]
 ) -> Tuple[Params, Options]:
-    """The Params and compensator Options the settings describe."""
+    """The Params and compensator Options the settings describe; ``limits``: the printer
+    profile's volume (x0, x1, y0, y1, z0, z1 mm, or None), narrowed by the travel the
+    firmware states in the stored ``motion_limits`` text (Klipper's position_min/max, RRF's
+    M208, Marlin's M211 answer: ``firmware.motion_limits.narrowed_travel``)."""
     params = Params.from_dict(settings["params"])
+    text = (settings.get("motion_limits") or {}).get("text") or ""
     options = Options(
         chord_tol_mm=float(settings["chord_tol_mm"]),
         linearise_arcs=bool(settings.get("linearise_arcs", False)),
-        limits=limits,
+        limits=narrowed_travel(limits, text) if text else limits,
         policy=settings["limits_policy"],
         decimals=int(settings["decimals"]),
         home_mm=home_position(settings),

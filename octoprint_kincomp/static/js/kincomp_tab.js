@@ -419,8 +419,25 @@ $(function () {
             if (!self.canWrite()) return gettext("Applying needs KinComp's admin permission.");
             if (ps.isPrinting() || ps.isPaused() || (ps.isPausing && ps.isPausing()))
                 return gettext("A print is running: apply once it has finished.");
+            var rows = self.confirmRows();
+            if (rows.length && !_.every(rows, function (row) { return row.ticked(); }))
+                return gettext("Confirm how the test ran first (below).");
             return "";
         });
+        // what the user confirms first when the run is not tied to a program KinComp printed
+        // (its needs_confirmation: kincomp_confirm_logic.js), one ticked box per statement
+        self.confirmRows = ko.pureComputed(function () {
+            var run = self.run();
+            var need = run && !run.applied ? run.needs_confirmation : null;
+            return _.map(K.Confirmation.rows(need), function (row) {
+                return {key: row.key, text: row.text, ticked: ko.observable(false)};
+            });
+        });
+        self.confirmBody = function () {
+            var run = self.run(), ticked = {};
+            _.each(self.confirmRows(), function (row) { ticked[row.key] = row.ticked(); });
+            return K.Confirmation.body(run && run.needs_confirmation, ticked);
+        };
         self.canApply = ko.pureComputed(function () {
             var run = self.run();
             return !!(run && run.proposed && !run.applied && !self.applyWhy());
@@ -435,6 +452,8 @@ $(function () {
             if (!run || !self.canApply()) return;
             var body = {run: run.id, enabled: true, force: !!force};
             if (self.profileId()) body.expected_profile = self.profileId();
+            var confirm = self.confirmBody();
+            if (confirm) body.confirm = confirm;
             OctoPrint.postJson(API("apply"), body)
                 .done(function (resp) {
                     self.paramsHash(resp.params_hash);
