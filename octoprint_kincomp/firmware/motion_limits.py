@@ -174,11 +174,12 @@ def _lower(a: Optional[float], b: Optional[float]) -> Optional[float]:
 
 
 # ~~ reading ----------------------------------------------------------------------------------
+_NUM = r"-?\d*\.?\d+(?:[eE][-+]?\d+)?"  # (an exponent too: 1e307 is read whole, then refused)
 _GCODE = re.compile(
-    r"(?:^|[\s:])(M20[1345]|M566)((?:\s+[A-Za-z]-?\d*\.?\d+(?::-?\d*\.?\d+)*)+)"
+    r"(?:^|[\s:])(M20[1345]|M566)((?:\s+[A-Za-z]" + _NUM + r"(?::" + _NUM + r")*)+)"
     r"[^;]*(?:;(.*))?$"
 )
-_WORD = re.compile(r"([A-Za-z])(-?\d*\.?\d+)")
+_WORD = re.compile(r"([A-Za-z])(" + _NUM + r")")
 _KLIPPER_KEYS = (
     "max_velocity",
     "max_accel",

@@ -112,6 +112,16 @@ def test_nothing_usable_is_refused(text):
         parse_limits(text)
 
 
+def test_a_number_with_an_exponent_is_read_whole():
+    """``M203 X1e307`` was read as X 1 mm/s with Y and Z dropped (issue 37, row 3's probe):
+    the number is read whole and refused as out of range; a plain exponent is a number."""
+    with pytest.raises(LimitsError, match=r"max_feed_mm_min\.x .* out of range"):
+        parse_limits("M203 X1e307 Y500 Z12 ; mm/s")
+    lim = parse_limits("M201 X1.5e3 Y1500 Z100\nM203 X3e2 Y300 Z12 ; mm/s")
+    assert lim.max_accel_mm_s2 == {"x": 1500.0, "y": 1500.0, "z": 100.0}
+    assert lim.max_feed_mm_min == {"x": 18000.0, "y": 18000.0, "z": 720.0}
+
+
 def test_later_lines_win_and_sources_combine_to_the_lower():
     lim = parse_limits("M203 X200 Y200 Z10 ; mm/s\nM203 Z8 ; mm/s")
     assert lim.max_feed_mm_min["z"] == 480.0
