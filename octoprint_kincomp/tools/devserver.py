@@ -93,7 +93,16 @@ def prepare(
             "firstRun": False,
             "onlineCheck": {"enabled": False},
             "pluginBlacklist": {"enabled": False},
-            "seenWizards": {"kincomp": 1, "corewizard": 4, "backup": None, "tracking": None},
+            # file_check (OctoPrint's bundled File Check, wizard version 1): its "A full File
+            # Check is suggested" dialog comes up over every page of a server that had a file
+            # before its first page or wizard query (a session server a test uploaded to)
+            "seenWizards": {
+                "kincomp": 1,
+                "corewizard": 4,
+                "backup": None,
+                "tracking": None,
+                "file_check": 1,
+            },
         }
     )
     plugins = config.setdefault("plugins", {})

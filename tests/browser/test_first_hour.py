@@ -135,7 +135,7 @@ def test_the_history_is_readable_and_never_run_campaigns_say_so(page, server, si
 
 def test_a_reduction_within_the_noise_floor_says_at_noise_level(page, server, size):
     # squareness from 0.3 to -2.5 um/m (within the 1 um/m floor: once "-733.3 %"), backlash
-    # from 20 to 0.2 um (a real error, reduced)
+    # from 20 to 0.2 um (a real error, reduced; its side named by the plane's axis, +X)
     before = _summary_run(server, squareness_um_per_m=0.3, backlash_a_plus=20.0)
     after = _summary_run(server, squareness_um_per_m=-2.5, backlash_a_plus=0.2)
     page.click("#kincomp_navbar_link")
@@ -146,7 +146,7 @@ def test_a_reduction_within_the_noise_floor_says_at_noise_level(page, server, si
     page.wait_for_selector("#kincomp_result_table >> text=Reduction", state="visible")
     square = page.locator("#kincomp_result_table tr", has_text="Squareness").inner_text()
     assert "at noise level" in square and "%" not in square, square
-    row = page.locator("#kincomp_result_table tr", has_text="Backlash +A").inner_text()
+    row = page.locator("#kincomp_result_table tr", has_text="Backlash +X").inner_text()
     assert "99.0 %" in row, row  # a real error is still reduced in per cent
 
 
