@@ -214,7 +214,10 @@ def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
 
 
 @pytest.mark.parametrize(
-    "live", [pytest.param(True, marks=pytest.mark.slow), False], ids=["live", "recorded"]
+    "live",
+    # (live: the virtual bar streams in real time; alone: another test's load makes it miss)
+    [pytest.param(True, marks=[pytest.mark.slow, pytest.mark.alone]), False],
+    ids=["live", "recorded"],
 )
 @QUICKER
 def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, live):
@@ -286,6 +289,7 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
         assert abs(rows["squareness_um_per_m"]["after"]) < (15 if live else 5), cmp["step"]
 
 
+@pytest.mark.alone  # (the virtual bar streams in real time: another test's load makes it miss)
 @QUICKER
 def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open(app, plugin):
     plugin.on_settings_save({"demo": {"enabled": True}})
