@@ -24,6 +24,7 @@ import secrets
 import threading
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from ...calibration.findings import worst_first
 from ...core.atomic import write_atomic
 from .findings_view import verdict_of
 
@@ -156,6 +157,8 @@ class RunStore:
             raise self.NotFound(run_id) from None
         if isinstance(run, dict) and "verdict" not in run:  # stored before verdicts
             run["verdict"] = verdict_of(run)
+        if isinstance(run, dict) and isinstance(run.get("findings"), list):
+            run["findings"] = worst_first(run["findings"])  # (a file edited or stored before)
         return run
 
     def ids(self) -> List[str]:
