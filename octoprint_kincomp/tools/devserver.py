@@ -274,6 +274,24 @@ def request_body(
     return raw
 
 
+def multipart_body(filename: str, data: bytes, fields: Optional[Dict[str, str]] = None):
+    """(body, content type) of a multipart/form-data upload of ``data`` as the form field
+    ``file`` named ``filename``, after the plain ``fields``: as a browser sends it."""
+    boundary = "kincomp" + secrets.token_hex(8)
+    parts = [
+        f'--{boundary}\r\nContent-Disposition: form-data; name="{k}"\r\n\r\n{v}\r\n'.encode()
+        for k, v in (fields or {}).items()
+    ]
+    parts.append(
+        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; '
+        f'filename="{filename}"\r\nContent-Type: application/octet-stream\r\n\r\n'.encode()
+        + data
+        + b"\r\n"
+    )
+    parts.append(f"--{boundary}--\r\n".encode())
+    return b"".join(parts), f"multipart/form-data; boundary={boundary}"
+
+
 class DevServer:
     """``octoprint serve`` on a prepared basedir (127.0.0.1), stopped by ``stop()``."""
 
@@ -397,27 +415,13 @@ class DevServer:
         fields: Dict[str, str] = None,
         key: Optional[str] = "admin",
     ):
-        boundary = "kincomp" + secrets.token_hex(8)
-        parts = []
-        for name, value in (fields or {}).items():
-            parts.append(
-                f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"\r\n'
-                f"\r\n{value}\r\n".encode()
-            )
-        parts.append(
-            f'--{boundary}\r\nContent-Disposition: form-data; name="file"; '
-            f'filename="{filename}"\r\nContent-Type: application/octet-stream\r\n'
-            f"\r\n".encode()
-            + data
-            + b"\r\n"
-        )
-        parts.append(f"--{boundary}--\r\n".encode())
+        body, content_type = multipart_body(filename, data, fields)
         return self.request(
             "POST",
             path,
-            raw=b"".join(parts),
+            raw=body,
             key=key,
-            content_type=f"multipart/form-data; boundary={boundary}",
+            content_type=content_type,
         )
 
     def connect(self, timeout: float = 60.0) -> None:

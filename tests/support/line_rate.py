@@ -29,6 +29,8 @@ import threading
 import time
 from typing import Callable, Dict, List, Optional, Tuple
 
+from octoprint_kincomp.tools.devserver import multipart_body
+
 SEND_TS = re.compile(rb"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) - Send: N\d+ ")
 WORKER_MODULE = "octoprint_kincomp.service.files.worker"
 
@@ -182,24 +184,8 @@ class Client:
         return resp.status, parsed, dict(resp.getheaders())
 
     def upload(self, path: str, filename: str, data: bytes, fields=None):
-        boundary = "kincompprobe" + os.urandom(6).hex()
-        parts = [
-            f'--{boundary}\r\nContent-Disposition: form-data; name="{k}"\r\n\r\n{v}\r\n'.encode()
-            for k, v in (fields or {}).items()
-        ]
-        parts.append(
-            f'--{boundary}\r\nContent-Disposition: form-data; name="file"; '
-            f'filename="{filename}"\r\nContent-Type: application/octet-stream\r\n\r\n'.encode()
-            + data
-            + b"\r\n"
-        )
-        parts.append(f"--{boundary}--\r\n".encode())
-        return self.request(
-            "POST",
-            path,
-            raw=b"".join(parts),
-            content_type=f"multipart/form-data; boundary={boundary}",
-        )
+        body, content_type = multipart_body(filename, data, fields)
+        return self.request("POST", path, raw=body, content_type=content_type)
 
     def close(self) -> None:
         if self._conn is not None:
