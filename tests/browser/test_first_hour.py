@@ -82,7 +82,8 @@ def test_kincomp_is_one_click_away_from_a_fresh_login(page, server, size):
     page.click("#navbar_show_settings")
     page.click("#settings_plugin_kincomp_link a")
     page.wait_for_selector("#kincomp_settings_open_tab", state="visible")
-    assert page.locator("#kincomp_docs_links a").count() >= 7  # the manual's pages
+    # the manual's pages, listed once the plugin's status (its homepage) has come in
+    page.wait_for_function("document.querySelectorAll('#kincomp_docs_links a').length >= 7")
     page.click("#kincomp_settings_open_tab")
     page.wait_for_selector("#settings_dialog", state="hidden")
     _tab_shown(page)

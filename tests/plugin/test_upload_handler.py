@@ -6,6 +6,7 @@ blueprint part below), never a dropped connection, and no temporary file is left
 temporary files are named ``kincomp-upload-<pid>-*.tmp``, and those of a server that no
 longer runs are removed at start-up, nobody else's."""
 
+import asyncio
 import errno
 import json
 import os
@@ -78,6 +79,22 @@ class _Full:
 
 
 class UploadHandlerTest(tornado.testing.AsyncHTTPTestCase):
+    """Tornado runs its own event loop on this thread. Playwright's synchronous API (the
+    session's browser, when a browser test ran before in this process) leaves its loop set
+    as the thread's running one between calls, and asyncio refuses to start a second: the
+    test steps that loop aside while it runs and puts it back after."""
+
+    def setUp(self):
+        self._outer_loop = asyncio._get_running_loop()
+        asyncio._set_running_loop(None)
+        super().setUp()
+
+    def tearDown(self):
+        try:
+            super().tearDown()
+        finally:
+            asyncio._set_running_loop(self._outer_loop)
+
     def get_app(self):
         self.tmp = tempfile.mkdtemp()
         kwargs = {
