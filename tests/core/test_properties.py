@@ -73,6 +73,7 @@ def cfg(n: int) -> settings:
 # -- an independent reading of the text (not the project's parser) ---------------------------
 
 _MOTION = re.compile(r"\s*(?:[Nn]\s*\d+\s*)?[Gg]\s*0*[0-3](?![\d.])")
+_FIRMWARE_MOTION = re.compile(_MOTION.pattern, re.ASCII)
 _MODAL = re.compile(r"\s*(?:[Nn]\s*\d+\s*)?([GgMm])\s*(\d+)(?![\d.])")
 _OUT_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _CLEAN = re.compile(r"[Gg]\s*\d+(?:\s*[A-Za-z]\s*[-+]?(?:\d+\.?\d*|\.\d+))*\s*")
@@ -142,7 +143,8 @@ def number(lo, hi, max_dec=4):
     )
 
 
-# Unicode whitespace as indentation: the per-line engine strips it like spaces.
+# Indentation: ASCII blanks (a command), and other Unicode whitespace: the firmware reads
+# such a line as no command (core/gcode.py, firmware/interpreter.py), so it passes as written.
 INDENTS = ["", "", "", "", " ", "  ", "\t", "\x0b", "\xa0", "\u2003", "\x1c", "\x85"]
 COMMENT_TEXT = st.text(
     st.characters(
@@ -554,9 +556,10 @@ class _Program:
         self.oracle.execute(line)
         self.mode.feed(line)
         code = line.split(";", 1)[0].upper()
-        if re.match(r"\s*(N\d+\s*)?G92(?![\d.])", code):
+        # (what the firmware takes as a command: ASCII blanks before it, no other whitespace)
+        if re.match(r"\s*(N\d+\s*)?G92(?![\d.])", code, re.ASCII):
             self.e_known = self.e_known or "E" in code or not re.search("[XYZ]", code[4:])
-        elif "E" in code and _MOTION.match(code):
+        elif "E" in code and _FIRMWARE_MOTION.match(code):
             self.e_known = not self.mode.e_relative
         self.lines.append(line)
 
