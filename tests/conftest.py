@@ -29,6 +29,13 @@ import tempfile
 import pytest
 
 from octoprint_kincomp.engines.select import ENGINES, use
+from tests.support.serverutil import (
+    printer_eeprom_path,
+    printer_limits,
+    put_back_printer_settings,
+    serial_log_size,
+    settings_sent_since,
+)
 
 # the modules that take longest, slowest first (measured with --durations=0): handed out
 # first under -n, so that the end of the run is many short tests spread over both workers
@@ -162,12 +169,30 @@ def server(tmp_path_factory):
     srv.start()
     try:
         srv.connect()
+        srv.printer_limits_at_start = printer_limits(srv)
+        with open(printer_eeprom_path(srv), "rb") as f:
+            srv.printer_eeprom_at_start = f.read()
         yield srv
     finally:
         srv.stop()
         keep = os.environ.get("KINCOMP_E2E_KEEP")
         if keep:
             shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
+
+
+@pytest.fixture(autouse=True)
+def _shared_printer_settings_put_back(request):
+    """A test on the session's server that sent settings to its printer (a printed slicer
+    file's M201/M203/M204/M205, which a real Marlin keeps after the print too) leaves them
+    put back for the next test: the printer's motion limits are part of every analysis."""
+    if "server" not in request.fixturenames:
+        yield
+        return
+    srv = request.getfixturevalue("server")
+    start = serial_log_size(srv)
+    yield
+    if settings_sent_since(srv, start):
+        put_back_printer_settings(srv, srv.printer_eeprom_at_start, srv.printer_limits_at_start)
 
 
 @pytest.fixture

@@ -6,6 +6,7 @@ as-built one (squareness 1200/-800/500 um/m, X play 25/30 um along X, belt teeth
 offset). Every trace here is SIMULATED; the traces are made once per module."""
 
 import io
+import json
 
 import pytest
 
@@ -232,6 +233,13 @@ def test_a_trace_of_half_the_feed_shows_in_its_ramps(r50_as_r100):
     # a trace tied to its print needs nothing confirmed
     tied = analyse(r50_as_r100[True], origin=Provenance(confirmed="printed"))
     assert tied["needs_confirmation"] is None and "program.unconfirmed" not in codes(tied)
+    # a trace that states no feed: stated as none (the result document is strict JSON)
+    bare = dict(recorded.meta)
+    bare.pop("feed_mm_min")
+    out = analyse(type(recorded)(meta=bare, rows=recorded.rows))
+    assert out["needs_confirmation"]["stated"]["feed_mm_min"] is None
+    assert "F?" in finding(out, "program.unconfirmed")["message"]
+    json.dumps(out, allow_nan=False)
 
 
 # ---------------------------------------------------------------------------------------

@@ -7,14 +7,16 @@ whole calibrate -> apply -> re-test loop runs on the live path. Everything strea
 SIMULATED."""
 
 import json
+import os
 import time
 
 import pytest
 
-from octoprint_kincomp.calibration.ballbar.analysis import analyse
+from octoprint_kincomp.calibration.ballbar.analysis import Provenance, analyse
 from octoprint_kincomp.calibration.ballbar.formats import load_any
-from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate
+from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, spec_from_program
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.firmware.compensation import FirmwareCompensation
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
 from octoprint_kincomp.sensor.virtual import VirtualSensor
 from tests.support.serverutil import settings
@@ -70,14 +72,25 @@ def _live_run(server, previous, timeout=120.0):
         time.sleep(0.3)
 
 
-def _offline(server, run, spec, program_hash):
-    """An offline analysis of the run's stored raw stream, as an upload of its trace."""
+def _offline(server, run, program_hash):
+    """An offline analysis of the run's stored raw stream, as an upload of its trace, with
+    the test the printed program states (its header: the printer's planner settings from
+    its M503 answer too, which the server planned it with) and the firmware's compensation
+    the server recorded with the run (the live path knows it; a bare trace does not)."""
     code, raw = server.request("GET", f"/plugin/kincomp/runs/{run['id']}/raw")
     assert code == 200
+    printed = os.path.join(server.basedir, "uploads", run["capture"]["program"])
+    with open(printed, encoding="utf-8") as f:
+        spec, _ = spec_from_program(f.read())
+    assert spec.motion, "the program states the planner it was planned with"
     trace, _ = trace_from_stream(parse_raw_stream(raw), spec, program_hash)
+    firmware = FirmwareCompensation.from_dict(run["diagnostics"]["firmware_compensation"])
+    assert firmware.known
+    trace.meta.setdefault("firmware_compensation", firmware.text())  # (as the server records)
     result = analyse(
         load_any(trace.to_text().encode(), "offline.csv"),
         current=Params.from_dict(run["params_before"]),
+        origin=Provenance(confirmed="capture"),
     )
     return trace, json.loads(json.dumps(result["diagnostics"], default=float))
 
@@ -99,10 +112,13 @@ def test_the_printed_test_is_captured_analysed_and_stored(server, bar, clean):
     assert run["status"] == "ok" and run["source"] == "live" and run["simulated"]
     assert run["capture"]["sensor"]["timing"] == "device clock"
     assert run["capture"]["program"] == prog["path"]
-    trace, diagnostics = _offline(server, run, SPEC, prog["program_hash"])
+    trace, diagnostics = _offline(server, run, prog["program_hash"])
     assert diagnostics == run["diagnostics"]  # the same stream gives the same result
     code, stored = server.request("GET", f"/plugin/kincomp/runs/{run['id']}/trace")
-    assert stored == trace.to_text()
+    ours = trace.to_text().splitlines()
+    theirs = stored.splitlines()
+    diff = [(a, b) for a, b in zip(theirs, ours) if a != b]
+    assert not diff and len(theirs) == len(ours), (diff[:5], len(theirs), len(ours))
     assert run["diagnostics"]["squareness_um_per_m"] == pytest.approx(-3638, abs=60)
     code, runs = server.request("GET", "/plugin/kincomp/runs")
     assert runs["runs"][0]["id"] == run["id"] and runs["runs"][0]["has_raw"]
@@ -159,7 +175,7 @@ def test_demo_loop_on_the_live_path(server, clean):
     before = _live_run(server, clean)
     assert before["status"] == "ok" and before["simulated"], before.get("message")
     assert before["capture"]["port"].startswith("/dev/")  # the virtual bar's pty
-    _, diagnostics = _offline(server, before, SPEC, prog["program_hash"])
+    _, diagnostics = _offline(server, before, prog["program_hash"])
     assert diagnostics == before["diagnostics"]
     assert before["diagnostics"]["squareness_um_per_m"] == pytest.approx(-3638, abs=60)
     server.wait_print_done(timeout=300)

@@ -2,7 +2,6 @@
 
 import json
 import os
-import re
 import time
 
 import pytest
@@ -11,7 +10,6 @@ from octoprint.util.comm import strip_comment
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
-    home_reports,
     marker,
     offline,
     sent,
@@ -113,33 +111,6 @@ def test_api_commands_and_jog_go_out_compensated_once(server):
     rep = status(server)["compensation"]["report"]
     assert rep["moves_compensated"] >= len(moves) - 1 and rep["malformed"] == 0
     settings(server, home_mm=None)
-
-
-def test_printed_slicer_file_is_compensated_once_and_nothing_is_lost(server):
-    settings(server, enabled=True, mode="on_the_fly", params=PARAMS)
-    src = os.path.join(DATA, "bambustudio-a1-hook.gcode")
-    with open(src, "rb") as f:
-        data = f.read()
-    start = _print_file(server, "hook.gcode", data)
-    got = sent(server, after=start)
-    cmds = _file_commands(src)
-    want = _visible(offline(server, cmds, home_reports(server, start)))
-    assert len(want) > 20000
-    # OctoPrint itself refuses tools the printer profile does not have (the slicer's
-    # T1000), with a warning in serial.log: not KinComp's doing, accounted for here
-    log = server.serial_log()
-    refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start) :])
-    missing_tools = [c for c in want if re.fullmatch(r"T\d+", c) and int(c[1:]) > 0]
-    assert refused == missing_tools and refused
-    want = [c for c in want if c not in refused]
-    if got != want:  # a readable failure: the first difference
-        i = next(i for i, (a, b) in enumerate(zip(got, want)) if a != b)
-        pytest.fail(
-            f"line {i}: sent {got[i]!r}, expected {want[i]!r} "
-            f"(sent {len(got)}, expected {len(want)})"
-        )
-    non_motion = [c for c in _visible(cmds) if not _is_move(c) and c not in refused]
-    assert all(c in set(got) for c in non_motion)
 
 
 def test_upload_compensated_file_is_not_compensated_again_when_printed(server):

@@ -1,10 +1,12 @@
-"""Soak: a real slicer file with its layers repeated (58,821 lines) printed through a real
-OctoPrint (virtual printer, throttle off) with compensation on. What it proves, on a print
-three times as long as test_server.py's: every ``Send:`` line equals the offline
-compensation of the file (nothing lost, reordered or compensated twice over a long
-stream), no error in octoprint.log, and the server's memory flat: RSS from 10 % of the
-print to its end grows by less than LEAK_BYTES_PER_LINE a line of the file (200 bytes a
-line: 11.8 MB here; the 210,941-line soak this replaced allowed 40 MB, about the same per
+"""Soak: a real slicer file (BambuStudio's A1 print: arcs, G91, ``G28 X``, tool codes) with
+its layers repeated (39,806 lines) printed through a real OctoPrint (virtual printer,
+throttle off) with compensation on. What it proves: every ``Send:`` line equals the offline
+compensation of the file (each move compensated exactly once, nothing lost, reordered or
+compensated twice over a long stream; the only lines missing are the tools OctoPrint itself
+refuses for a one-extruder profile, each matched to its warning), every non-motion line
+sent as written, no error in octoprint.log, and the server's memory flat: RSS from 10 % of
+the print to its end grows by less than LEAK_BYTES_PER_LINE a line of the file (200 bytes a
+line: 8 MB here; the 210,941-line soak this replaced allowed 40 MB, about the same per
 line; measured growth 0.0-0.5 MB on both). It runs beside the quick tests under -n (the
 first test handed out). Prints its figures (pytest -s) and writes them to
 test-artifacts/soak.json."""
@@ -36,8 +38,9 @@ PARAMS = {
     "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
     "backlash": {"x": 30.0, "y": 25.0, "z": 0.0},
 }
-REPEATS = 3  # the layers above the first one, printed this many times
-MIN_LINES = 58_000
+MOTION = ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03")
+REPEATS = 2  # the layers above the first one, printed this many times
+MIN_LINES = 39_000
 LEAK_BYTES_PER_LINE = 200  # more RSS growth than this a line of the file fails the soak
 
 
@@ -103,13 +106,21 @@ def test_soak_a_long_print(server):
         for c in offline(server, cmds, home_reports(server, start))
         if c.split(" ", 1)[0] not in AUTOMATIC
     ]
+    # OctoPrint itself refuses tools the printer profile does not have (the slicer's
+    # T1000), with a warning in serial.log: not KinComp's doing, accounted for here
     log = server.serial_log()
     refused = re.findall(r"Warn: Not queuing (T\d+),", log[log.rindex("Send: " + start) :])
+    missing_tools = [c for c in want if re.fullmatch(r"T\d+", c) and int(c[1:]) > 0]
+    assert refused == missing_tools and refused
     want = [c for c in want if c not in refused]
     got = sent(server, after=start)
-    assert len(got) == len(want)
+    assert len(got) == len(want), (len(got), len(want))
     mismatch = next((i for i, (a, b) in enumerate(zip(got, want)) if a != b), None)
     assert mismatch is None, (mismatch, got[mismatch], want[mismatch])
+    sent_set = set(got)
+    codes = [(c, c.split(" ", 1)[0].upper()) for c in cmds if c not in refused]
+    non_motion = [c for c, code in codes if code not in MOTION and code not in AUTOMATIC]
+    assert all(c in sent_set for c in non_motion)
 
     new_log = server.octoprint_log()[log_before:]
     errors = [l for l in new_log.splitlines() if " - ERROR - " in l or "Traceback" in l]

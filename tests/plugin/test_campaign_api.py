@@ -100,50 +100,32 @@ def messages(plugin, kind):
     ]
 
 
-def print_in_demo_mode(plugin, path, live=True):
+def print_in_demo_mode(plugin, path):
     """The program at ``path`` printed on the demo's virtual printer: its commands go out
     through KinComp's queuing hook (comments stripped as OctoPrint does; nothing pauses at
-    its M0), then the print is done and the SIMULATED trace is made. ``live``: waits for
-    the live capture of the virtual bar to be recorded too, returns its UI message's run."""
+    its M0), then the print is done and the SIMULATED trace is made."""
     text = plugin._file_manager.add_file.call_args[0][2].stream().read().decode()
-    captured = len(messages(plugin, "sensor_run"))
     plugin._printer.get_current_job.return_value = {"file": {"origin": "local", "path": path}}
     plugin.on_event("PrintStarted", {"origin": "local", "path": path})
     queue_lines(plugin, text.splitlines())
     plugin.on_event("PrintDone", {"origin": "local", "path": path})
     wait_for(lambda: plugin.demo.last_trace() is not None, 60)
-    if not live:
-        return None
-    wait_for(lambda: len(messages(plugin, "sensor_run")) > captured, 60)
-    return messages(plugin, "sensor_run")[-1]["run"]
 
 
-def run_campaign(app, plugin, doc, live=True):
-    """Every test printed and measured: by the live capture of the demo's virtual bar
-    (``live``) or by collecting the demo's simulated trace; returns the campaign analysed."""
+def run_campaign(app, plugin, doc):
+    """Every test printed and measured by collecting the demo's simulated trace (its live
+    path off); returns the campaign analysed."""
     for step in doc["steps"]:
         code, resp = call(app, plugin.campaign.program, doc["id"], step["n"], json={"print": True})
         assert code == 200 and resp["printing"], resp
         assert resp["path"] == f"kincomp/{doc['id']}_{step['n']}_{step['name']}.gcode"
-        assert bool(resp["capture"]) == live and (not live or resp["capture"]["armed"])
-        told = print_in_demo_mode(plugin, resp["path"], live)
-        if live:  # the capture is the test's measurement by itself: no request
-            assert told["campaign"] == doc["id"], told
-            assert told["test_of"] == {"campaign": doc["id"], "campaign_step": step["name"]}
-            run = plugin.runs.get(told["id"])
-            assert run["source"] == "live" and run["capture"]["source"] == "demo"
-            assert (
-                plugin.campaign._campaigns.get(doc["id"])["steps"][step["n"] - 1]["run"]
-                == run["id"]
-            )
-        else:
-            code, resp = call(app, plugin.campaign.trace, doc["id"], step["n"], json={"demo": True})
-            assert code == 200, resp
-            run = resp["run"]
+        assert not resp["capture"]
+        print_in_demo_mode(plugin, resp["path"])
+        code, resp = call(app, plugin.campaign.trace, doc["id"], step["n"], json={"demo": True})
+        assert code == 200, resp
+        run = resp["run"]
         assert run["campaign"] == doc["id"] and run["campaign_step"] == step["name"]
         assert run["simulated"] and run["diagnostics"]["plane"] == step["plane"]
-    if live:  # measured once: the UI is not told to collect the recorded trace too
-        assert not [m for m in messages(plugin, "demo_trace") if m.get("campaign") == doc["id"]]
     code, done = call(app, plugin.campaign.analyze, doc["id"])
     assert code == 200, done
     return done
@@ -213,23 +195,16 @@ def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
     assert os.listdir(plugin.campaign._campaigns.folder) == []
 
 
-@pytest.mark.parametrize(
-    "live",
-    # (live: the virtual bar streams in real time; alone: another test's load makes it miss)
-    [pytest.param(True, marks=[pytest.mark.slow, pytest.mark.alone]), False],
-    ids=["live", "recorded"],
-)
 @QUICKER
-def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, live):
-    # demo mode measures each test by the live capture of its virtual bar, exactly as a real
-    # sensor's (the live path: on by default); with it off, by collecting the simulated
-    # trace of the printed commands
-    plugin.on_settings_save(
-        {"demo": {"enabled": True} if live else {"enabled": True, "live": False}}
-    )
-    assert plugin.demo.live == live
+def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
+    # demo mode with its live path off: each test is measured by collecting the simulated
+    # trace of the printed commands. (The live path, each test measured by the capture of
+    # the virtual bar in real time, is walked whole on the real server in the browser:
+    # tests/browser/test_campaign_ui.py; in-process: the live test below.)
+    plugin.on_settings_save({"demo": {"enabled": True, "live": False}})
+    assert plugin.demo.live is False
     doc = plan(app, plugin)
-    done = run_campaign(app, plugin, doc, live)
+    done = run_campaign(app, plugin, doc)
     assert done["state"] == "analysed" and done["next_step"] is None
     a = done["analysis"]
     assert a["source"] == "campaign" and a["simulated"] and a["campaign"] == doc["id"]
@@ -279,14 +254,13 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin, l
     assert code == 200 and again["retest_of"] == doc["id"]
     assert again["options"] == doc["options"]
     assert again["params_hash"] == applied["params_hash"]
-    after = run_campaign(app, plugin, again, live)["analysis"]
+    after = run_campaign(app, plugin, again)["analysis"]
     for cmp in after["comparison"]:
         rows = {r["key"]: r for r in cmp["rows"]}
         assert cmp["before_plot"] is not None and cmp["before_run"] == a["id"]
         assert rows["squareness_um_per_m"]["reduction_pct"] > 95, cmp["step"]
         assert rows["scale_mismatch_ppm"]["reduction_pct"] > 95, cmp["step"]
-        # (a live capture times the bar's angle from its own data: a few um/m more)
-        assert abs(rows["squareness_um_per_m"]["after"]) < (15 if live else 5), cmp["step"]
+        assert abs(rows["squareness_um_per_m"]["after"]) < 5, cmp["step"]
 
 
 @pytest.mark.alone  # (the virtual bar streams in real time: another test's load makes it miss)

@@ -3,6 +3,7 @@ tests/conftest.py): settings and status through KinComp's API, serial.log ``Send
 the offline reference compensation, and a cookie/CSRF browser-like session."""
 
 import dataclasses
+import os
 import re
 import time
 import uuid
@@ -201,3 +202,69 @@ def half_upload(srv, path, size, key="admin"):
         + b"t,x\n" * (size // 8)
     )
     return sock
+
+
+# -- the shared server's printer settings ------------------------------------------------------
+
+# the commands that change the virtual printer's settings (its EEPROM in memory): steps,
+# feed and acceleration limits, jerk, home offset, probe offset, and storing them
+_SETTINGS_SENT = re.compile(r" - Send: (?:N\d+ )?M(?:92|20[1-6]|500|502|566|851)(?![\d.])")
+
+
+def serial_log_size(srv) -> int:
+    path = os.path.join(srv.basedir, "logs", "serial.log")
+    try:
+        with open(path, "rb") as f:
+            return f.seek(0, 2)
+    except FileNotFoundError:
+        return 0
+
+
+def settings_sent_since(srv, offset: int) -> bool:
+    """Whether a command that changes the printer's settings went out after ``offset`` (bytes
+    of serial.log): a printed slicer file's M201/M203/M204/M205 stay in the virtual printer
+    after the print, as on a real Marlin, for every later test on the same server."""
+    try:
+        with open(os.path.join(srv.basedir, "logs", "serial.log"), "rb") as f:
+            f.seek(offset)
+            tail = f.read().decode("utf-8", "replace")
+    except FileNotFoundError:
+        return False
+    return _SETTINGS_SENT.search(tail) is not None
+
+
+def printer_limits(srv, timeout=60.0):
+    """KinComp's reading of the printer's M503 answer (``status.motion_limits.read``), once
+    there is one."""
+    deadline = time.monotonic() + timeout
+    while True:
+        ml = status(srv)["motion_limits"]
+        if ml["stated"]["source"] == "m503":
+            return ml["read"]
+        assert time.monotonic() < deadline, f"no M503 answer stored: {ml}"
+        time.sleep(0.2)
+
+
+def printer_eeprom_path(srv) -> str:
+    """The virtual printer's EEPROM file (made with its defaults when it first starts)."""
+    return os.path.join(srv.basedir, "data", "virtual_printer", "eeprom.json")
+
+
+def put_back_printer_settings(srv, eeprom: bytes, wanted, timeout=120.0):
+    """The virtual printer's settings back as they were (``eeprom``: its EEPROM file then;
+    a printed file may have stored its own with M500, as the A1 start code does), read
+    again with M501, and KinComp's reading of them with it (``POST /limits/read``; ``wanted``:
+    that reading then), once the printer is idle."""
+    srv.wait_state("Operational", timeout)
+    with open(printer_eeprom_path(srv), "wb") as f:
+        f.write(eeprom)
+    code, body = srv.request("POST", "/api/printer/command", {"commands": ["M501"]})
+    assert code == 204, body
+    code, body = rationed(srv, "POST", "/plugin/kincomp/limits/read", {})
+    assert code == 202, body
+    deadline = time.monotonic() + timeout
+    while printer_limits(srv) != wanted:
+        assert time.monotonic() < deadline, (
+            f"the printer's settings did not come back: {printer_limits(srv)} != {wanted}"
+        )
+        time.sleep(0.3)

@@ -23,6 +23,7 @@ Units: um/m, um, ppm as in the diagnostics.
 
 from __future__ import annotations
 
+import math
 from typing import Dict, List, Optional
 
 from ...core.messages import Msg, joined
@@ -105,14 +106,20 @@ def needs_confirmation(
         keys.append("firmware_compensation")
     stated: Dict[str, object] = {"plane": str(meta.get("plane", "")).strip().upper()}
     for key in ("radius_mm", "feed_mm_min"):
-        try:
-            stated[key] = float(meta.get(key, "nan"))
-        except ValueError:
-            stated[key] = None
+        stated[key] = _stated_number(meta.get(key))
     for key in ("sensor", "firmware_compensation"):
         if key in keys:
             stated[key] = ASSUMED[key]
     return {"confirm": keys, "stated": stated}
+
+
+def _stated_number(text) -> Optional[float]:
+    """A metadata number as the trace states it; None when it states none (or no number)."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
 
 
 NAMES = {
