@@ -24,6 +24,7 @@ import contextlib
 import fcntl
 import os
 import shutil
+import sys
 import tempfile
 
 import pytest
@@ -178,6 +179,18 @@ def server(tmp_path_factory):
         keep = os.environ.get("KINCOMP_E2E_KEEP")
         if keep:
             shutil.copytree(os.path.join(base, "logs"), keep, dirs_exist_ok=True)
+
+
+@pytest.fixture(autouse=True)
+def _no_blueprint_client_left_on():
+    """A test that made a blueprint client (tests/support/blueprint.py) stopped it: its
+    patches (permission checks that pass) must not outlive the test."""
+    yield
+    blueprint = sys.modules.get("tests.support.blueprint")
+    left = list(blueprint.OPEN) if blueprint else []
+    for ns in left:
+        ns.stop()
+    assert not left, "the test left a blueprint client's patches on (call its stop())"
 
 
 @pytest.fixture(autouse=True)

@@ -51,6 +51,17 @@ def predicted(spec, known):
     return out_of_plane_bias(terms["oA"], terms["oB"])
 
 
+def same_numbers(a, b, rel=1e-9) -> bool:
+    """``a`` equals ``b`` (nested dicts and lists), numbers within ``rel`` of each other."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_numbers(a[k], b[k], rel) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same_numbers(x, y, rel) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return a == pytest.approx(b, rel=rel, abs=1e-12)
+    return a == b
+
+
 def finding(result, code):
     hits = [f for f in result["findings"] if f["code"] == code]
     return hits[0] if hits else None
@@ -130,8 +141,9 @@ def test_a_clean_printer_gives_the_same_result_with_the_option():
     trace = trace_of(YZ, t)
     plain = analyse(trace)
     known = analyse(trace, known_squareness_um_per_m={"xy": 0.0, "xz": 0.0})
-    assert known["diagnostics"] == plain["diagnostics"]
-    assert known["parameters"] == plain["parameters"]
+    # (the same fit; to the last digits only as far as the linear algebra repeats itself)
+    assert same_numbers(known["diagnostics"], plain["diagnostics"])
+    assert same_numbers(known["parameters"], plain["parameters"])
     no_warning(known)
     used = finding(known, "model.out_of_plane_used")["evidence"]
     assert used["bias_removed_scale_mismatch_ppm"] == 0.0

@@ -32,7 +32,7 @@ pytestmark = pytest.mark.slow
 
 SKEW = {"squareness_um_per_m": {"xy": 1500.0, "xz": 1200.0, "yz": -900.0}}
 PHASE_S = 4.0
-ROUNDS = 6
+ROUNDS = 4
 _big_gcode = lr.big_gcode
 _wait = lr.wait
 _cancel_print = lr.cancel_print

@@ -10,6 +10,34 @@ from unittest import mock
 from tests.support.mocked_plugin import api_app, mocked_plugin
 
 PREFIX = "/plugin/kincomp"
+# the clients not stopped yet (``stop`` takes a client off): a test that leaves one on
+# would let every later test in the process pass its permission checks
+OPEN = []
+# the patches, on while any client is open: started by the first, stopped after the last
+# (patches of each client stopped out of order would leave a mock in place for good)
+_PATCHES = []
+
+
+def _patches_on():
+    if not _PATCHES:
+        _PATCHES.extend(
+            [
+                mock.patch("octoprint_kincomp.plugin.http.require"),
+                mock.patch(
+                    "octoprint_kincomp.plugin.files.files_api.valid_file_type",
+                    side_effect=lambda p, type=None: str(p).endswith(".gcode"),
+                ),
+            ]
+        )
+        for p in _PATCHES:
+            p.start()
+
+
+def _patches_off():
+    while _PATCHES:
+        _PATCHES.pop().stop()
+
+
 PROFILE = {
     "volume": {"width": 220, "depth": 220, "height": 200, "origin": "lowerleft"},
     "axes": {"x": {"speed": 6000}, "y": {"speed": 6000}, "z": {"speed": 200}},
@@ -21,17 +49,29 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     ``ns.stop()``. ``stored``: KinComp's settings as written in config.yaml before start;
     ``profile``: OctoPrint's current printer profile (default: PROFILE, without an id);
     ``connected`` False: no printer connected at the start."""
+    ns = SimpleNamespace()
+
+    def stop():
+        mine = [i for i, o in enumerate(OPEN) if o is ns]  # (by identity)
+        if mine:
+            del OPEN[mine[0]]
+            if not OPEN:
+                _patches_off()
+
+    _patches_on()
+    OPEN.append(ns)
+    try:
+        _build(ns, basedir, stored, profile, connected)
+    except BaseException:
+        stop()
+        raise
+    ns.stop = stop
+    return ns
+
+
+def _build(ns, basedir, stored, profile, connected):
     from octoprint.filemanager.storage import LocalFileStorage
 
-    patches = [
-        mock.patch("octoprint_kincomp.plugin.http.require"),
-        mock.patch(
-            "octoprint_kincomp.plugin.files.files_api.valid_file_type",
-            side_effect=lambda p, type=None: str(p).endswith(".gcode"),
-        ),
-    ]
-    for p in patches:
-        p.start()
     plugin = mocked_plugin(basedir, stored=stored, profile=profile, connected=connected)
     if profile is None:
         plugin._printer_profile_manager.get_current_or_default.return_value = PROFILE
@@ -49,16 +89,5 @@ def blueprint_client(basedir: str, stored=None, profile=None, connected=True):
     fm.path_on_disk.side_effect = lambda dest, p: storage.path_on_disk(p)
     app = api_app()
     app.register_blueprint(plugin.get_blueprint(), url_prefix=PREFIX)
-
-    def stop():
-        for p in patches:
-            p.stop()
-
-    return SimpleNamespace(
-        plugin=plugin,
-        client=app.test_client(),
-        app=app,
-        uploads=uploads,
-        storage=storage,
-        stop=stop,
-    )
+    ns.plugin, ns.client, ns.app = plugin, app.test_client(), app
+    ns.uploads, ns.storage = uploads, storage
