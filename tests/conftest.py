@@ -183,14 +183,17 @@ def server(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def _no_blueprint_client_left_on():
-    """A test that made a blueprint client (tests/support/blueprint.py) stopped it: its
-    patches (permission checks that pass) must not outlive the test."""
+    """A test that made a blueprint client (tests/support/blueprint.py) stopped it, and
+    granted permissions (tests/support/permissions.py) gave them back: permission checks
+    that pass must not outlive the test."""
     yield
     blueprint = sys.modules.get("tests.support.blueprint")
     left = list(blueprint.OPEN) if blueprint else []
     for ns in left:
         ns.stop()
     assert not left, "the test left a blueprint client's patches on (call its stop())"
+    permissions = sys.modules.get("tests.support.permissions")
+    assert not (permissions and permissions._HELD), "the test left the permissions granted"
 
 
 @pytest.fixture(autouse=True)

@@ -16,6 +16,7 @@ from octoprint_kincomp.calibration.ballbar.program import TestSpec, generate, sp
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.simulator.demo import demo_truth
 from octoprint_kincomp.simulator.printer import simulate_program
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 PROFILE = {
@@ -50,7 +51,7 @@ def app():
 def call(app, view, *args, json=None, data=None, path="/"):
     """(status, JSON body) of a view, every permission granted."""
     with app.test_request_context(path, method="POST", json=json, data=data):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             resp = view(*args)
     return resp.status_code, resp.get_json()
 
@@ -151,12 +152,12 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     assert dry["params_hash"] == Params().hash() and dry["state"] == "measuring"
     assert dry["next_step"] == 1 and dry["measured"] == 0
     with app.test_request_context("/campaigns"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             assert plugin.campaign.list().get_json()["campaigns"] == []  # a dry run
     doc = plan(app, plugin)
     assert doc["stored"] and [s["name"] for s in doc["steps"]] == ["xy", "xz", "yz"]
     with app.test_request_context("/campaigns"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             listed = plugin.campaign.list().get_json()["campaigns"]
             assert [c["id"] for c in listed] == [doc["id"]]
             assert (
@@ -245,7 +246,7 @@ def test_a_whole_campaign_in_demo_mode_applied_once_and_re_tested(app, plugin):
     )
     assert plugin.runs.get(a["id"])["applied"]
     with app.test_request_context("/"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             assert plugin.campaign.get(doc["id"]).get_json()["state"] == "applied"
 
     # the re-test: the same plan, measured with the new parameters in force (the demo
@@ -321,7 +322,7 @@ def test_demo_live_a_test_is_measured_by_its_capture_once_a_failed_one_left_open
     time.sleep(0.2)
     assert not messages(plugin, "demo_trace")  # nor collected by itself: the user chooses
     with app.test_request_context("/"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             view = plugin.campaign.get(cid).get_json()
     assert view["measured"] == 1 and view["next_step"] == 2
 
@@ -342,7 +343,7 @@ def test_a_campaign_refuses_to_go_on_when_the_parameters_changed(app, plugin, tm
         assert doc["params_hash"] in resp["error"]
     assert not plugin._printer.select_file.called
     with app.test_request_context("/"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             view = plugin.campaign.get(doc["id"]).get_json()
     assert view["params_changed"] and view["in_force_hash"] == Params.from_dict(SKEW).hash()
     # back to the campaign's parameters (compensation off: none in force): it goes on
@@ -667,7 +668,7 @@ def plugin_dir():
 
 def delete(app, plugin, cid):
     with app.test_request_context("/", method="DELETE"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             resp = plugin.campaign.delete(cid)
     return resp.status_code, resp.get_json()
 
@@ -684,7 +685,7 @@ def test_a_campaign_is_deleted_its_runs_stay_in_the_history(app, plugin, tmp_pat
     code, resp = delete(app, plugin, cid)
     assert code == 200 and resp == {"deleted": cid}
     with app.test_request_context("/campaigns"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             assert [c["id"] for c in plugin.campaign.list().get_json()["campaigns"]] == [kept]
             assert plugin.campaign.get(cid).status_code == 404
     assert plugin.runs.get(measured)["campaign"] == cid  # the measurement is kept

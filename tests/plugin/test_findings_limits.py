@@ -10,6 +10,7 @@ import pytest
 from octoprint_kincomp.calibration import findings as F
 from octoprint_kincomp.calibration.ballbar.analysis import analyse
 from octoprint_kincomp.core.messages import Msg
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
 
 PROFILE = {
@@ -49,7 +50,7 @@ def app():
 
 def call(app, view, *args, json=None, method="POST"):
     with app.test_request_context("/", method=method, json=json):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             resp = view(*args)
     return resp.status_code, resp.get_json()
 
@@ -150,7 +151,7 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
         and stated["captured"]
     )
     with app.test_request_context("/"):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             status = plugin.settings_api.status().get_json()["motion_limits"]
     assert status["read"]["max_feed_mm_min"]["z"] == 600.0  # 10 mm/s
     assert status["effective"]["max_feed_mm_min"] == {"x": 6000.0, "y": 6000.0, "z": 600.0}

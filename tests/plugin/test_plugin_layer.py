@@ -8,6 +8,7 @@ import pytest
 
 from octoprint_kincomp.core.compensator import LimitError
 from octoprint_kincomp.core.params import Params
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin
 
 SKEW = Params.from_dict({"squareness_um_per_m": {"xy": 1000.0}, "backlash": {"x": 20.0}})
@@ -271,7 +272,7 @@ def test_limits_follow_the_printer_profile(plugin):
 
 def test_request_flags_must_be_booleans(plugin):
     app = api_app()
-    with mock.patch("octoprint_kincomp.plugin.http.require"):
+    with permissions.granted():
         for path, view, body in (
             ("/settings", plugin.settings_api.save, {"apply_now": "false"}),
             ("/program", plugin.calibration.program, {"print": "no"}),
@@ -316,7 +317,7 @@ def test_a_runs_measurement_file_can_be_downloaded(plugin, tmp_path):
     plugin.runs.save({"id": run_id, "filename": "../../etc/passwd trace.csv", "diagnostics": {}})
     plugin.runs.save_trace(run_id, b"direction,angle_deg,deviation_um\nccw,0,1.5\n")
     app = api_app()
-    with mock.patch("octoprint_kincomp.plugin.http.require"):
+    with permissions.granted():
         with app.test_request_context(f"/runs/{run_id}/trace"):
             resp = plugin.calibration.run_trace(run_id)
             resp.direct_passthrough = False
@@ -332,7 +333,7 @@ def test_unusable_stored_settings_are_reported_not_just_logged(plugin):
     plugin._settings.set(["limits_policy"], "explode")  # e.g. edited by hand in config.yaml
     assert plugin.store.current()["limits_policy"] == "clamp"  # the defaults apply
     app = api_app()
-    with mock.patch("octoprint_kincomp.plugin.http.require"):
+    with permissions.granted():
         with app.test_request_context("/status"):
             body = plugin.settings_api.status().get_json()
     assert body["settings_problem"].startswith("limits_policy: must be one of")

@@ -17,6 +17,7 @@ from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.sensor import parse_raw_stream, trace_from_stream
 from octoprint_kincomp.sensor.virtual import VirtualSensor
 from octoprint_kincomp.service.calibration.printed_programs import origin_kwargs
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin, queue_lines, wait_for
 
 SPEEDUP = 20.0
@@ -54,7 +55,7 @@ def call(plugin):
     app = api_app()
 
     def do(view, path, method="GET", json=None, *args):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             with app.test_request_context(path, method=method, json=json):
                 resp = view(*args)
                 status = getattr(resp, "status_code", 200)

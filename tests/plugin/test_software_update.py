@@ -12,6 +12,7 @@ from octoprint.plugins.softwareupdate.version_checks import github_release, json
 from octoprint_kincomp import __plugin_url__, __version__
 from octoprint_kincomp.service.settings.schema import SettingsError, defaults, validate_settings
 from octoprint_kincomp.service.settings.software_update import check_config
+from tests.support import permissions
 from tests.support.mocked_plugin import mocked_plugin
 
 
@@ -144,9 +145,7 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
     }
     app = api_app()
     for allowed, status in ((False, 403), (True, 200)):
-        with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
-            "octoprint.access.permissions.Permissions"
-        ) as perms:
+        with permissions.granted(), mock.patch("octoprint.access.permissions.Permissions") as perms:
             perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = allowed
             with app.test_request_context("/settings", method="POST", json=body):
                 resp = plugin.settings_api.save()
@@ -154,9 +153,7 @@ def test_changing_the_update_source_needs_octoprints_update_permission(tmp_path)
         stored = plugin.store.current()["software_update"]["type"]
         assert stored == ("jsondata" if allowed else "github_release")
     # the rest of the settings needs no more than before
-    with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
-        "octoprint.access.permissions.Permissions"
-    ) as perms:
+    with permissions.granted(), mock.patch("octoprint.access.permissions.Permissions") as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE.can.return_value = False
         with app.test_request_context("/settings", method="POST", json={"enabled": True}):
             assert getattr(plugin.settings_api.save(), "status_code", 200) == 200
@@ -190,9 +187,7 @@ def test_changing_the_update_source_with_the_update_plugin_disabled_is_a_409(tmp
         }
     }
     app = api_app()
-    with mock.patch("octoprint_kincomp.plugin.http.require"), mock.patch(
-        "octoprint.access.permissions.Permissions"
-    ) as perms:
+    with permissions.granted(), mock.patch("octoprint.access.permissions.Permissions") as perms:
         perms.PLUGIN_SOFTWAREUPDATE_CONFIGURE = _UnknownPermission()
         with app.test_request_context("/settings", method="POST", json=body):
             resp = plugin.settings_api.save()

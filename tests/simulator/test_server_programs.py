@@ -8,8 +8,6 @@ deviation) whatever the header said: the analysis, planning with the header, fou
 0.54 times as long as planned (motion.ramp) and the XY runs 66 ms short (motion.timing on a
 campaign's R50 circle): "Do not apply" on the demo's own printer."""
 
-from unittest import mock
-
 import pytest
 
 from octoprint_kincomp.calibration.ballbar.program import spec_from_program
@@ -18,6 +16,7 @@ from octoprint_kincomp.service.calibration.demo_mode import lines_as_sent
 from octoprint_kincomp.service.calibration.measurement import analyse_measurement
 from octoprint_kincomp.simulator.demo import DemoBallbar, demo_truth
 from octoprint_kincomp.simulator.printer import simulate_program, volume_truth
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin, wait_for
 
 PROFILE = {
@@ -61,7 +60,7 @@ def plugin(tmp_path_factory):
 
 def _call(plugin, view, *args, json=None):
     with api_app().test_request_context("/", method="POST", json=json):
-        with mock.patch("octoprint_kincomp.plugin.http.require"):
+        with permissions.granted():
             resp = view(*args)
     assert resp.status_code == 200, resp.get_json()
     return resp.get_json()

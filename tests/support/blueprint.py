@@ -7,6 +7,7 @@ import os
 from types import SimpleNamespace
 from unittest import mock
 
+from tests.support import permissions
 from tests.support.mocked_plugin import api_app, mocked_plugin
 
 PREFIX = "/plugin/kincomp"
@@ -20,22 +21,19 @@ _PATCHES = []
 
 def _patches_on():
     if not _PATCHES:
-        _PATCHES.extend(
-            [
-                mock.patch("octoprint_kincomp.plugin.http.require"),
-                mock.patch(
-                    "octoprint_kincomp.plugin.files.files_api.valid_file_type",
-                    side_effect=lambda p, type=None: str(p).endswith(".gcode"),
-                ),
-            ]
+        permissions.grant()
+        _PATCHES.append(
+            mock.patch(
+                "octoprint_kincomp.plugin.files.files_api.valid_file_type",
+                side_effect=lambda p, type=None: str(p).endswith(".gcode"),
+            )
         )
-        for p in _PATCHES:
-            p.start()
+        _PATCHES[0].start()
 
 
 def _patches_off():
-    while _PATCHES:
-        _PATCHES.pop().stop()
+    _PATCHES.pop().stop()
+    permissions.release()
 
 
 PROFILE = {
