@@ -200,13 +200,20 @@ def _no_blueprint_client_left_on():
 def _shared_printer_settings_put_back(request):
     """A test on the session's server that sent settings to its printer (a printed slicer
     file's M201/M203/M204/M205, which a real Marlin keeps after the print too) leaves them
-    put back for the next test: the printer's motion limits are part of every analysis."""
+    put back for the next test: the printer's motion limits are part of every analysis. A
+    print a test left running or paused (it failed mid-print) is cancelled."""
     if "server" not in request.fixturenames:
         yield
         return
     srv = request.getfixturevalue("server")
     start = serial_log_size(srv)
     yield
+    left = srv.state()
+    if left in ("Printing", "Paused", "Pausing", "Resuming"):
+        # (a test that failed mid-print: the next test would wait for a printer that waits)
+        print(f"the test left the shared printer {left!r}: cancelled for the next test")
+        srv.request("POST", "/api/job", {"command": "cancel"})
+        srv.wait_state("Operational", 120)
     if settings_sent_since(srv, start):
         put_back_printer_settings(srv, srv.printer_eeprom_at_start, srv.printer_limits_at_start)
 

@@ -133,9 +133,13 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
             assert code == 200 and resp["capture"]["armed"], resp
             assert resp["capture"]["source"] == "demo"
             server.wait_state("Paused", timeout=120)  # the M0 to mount the bar
-            time.sleep(1.0)
-            st = server.request("GET", f"{BASE}/sensor/status")[1]
-            assert st["state"] == "armed" and st["armed"]["plane"] == step["plane"], st
+
+            def armed():
+                st = server.request("GET", f"{BASE}/sensor/status")[1]
+                return st if st["state"] == "armed" and st.get("armed") else None
+
+            st = _wait(f"test {n} armed", armed)
+            assert st["armed"]["plane"] == step["plane"], st
             server.request("POST", "/api/job", {"command": "pause", "action": "resume"})
 
             def measured():
