@@ -118,7 +118,7 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
     print arms the capture of the virtual bar (a pseudo-terminal read through pyserial); the
     bar plays nothing while the printer waits at the mount pause, the test once it goes on,
     and the capture becomes the test's measurement by itself, once (SIMULATED)."""
-    settings(server, enabled=False, params=ZERO, demo={"enabled": True})
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": True})
     try:
         code, doc = server.request(
             "POST", f"{BASE}/campaign/plan", {"radius_xy": 50, "radius_vertical": 20}

@@ -169,7 +169,7 @@ def test_the_printers_own_port_is_refused(server, clean):
 
 def test_demo_loop_on_the_live_path(server, clean):
     """Demo mode (live by default): print -> captured -> apply -> re-test, no file."""
-    settings(server, demo={"enabled": True})
+    settings(server, demo={"enabled": True, "live": True})
     code, prog = server.request("POST", "/plugin/kincomp/program", PROGRAM)
     assert prog["capture"]["armed"] and prog["capture"]["source"] == "demo", prog
     before = _live_run(server, clean)
