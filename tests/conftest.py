@@ -30,13 +30,6 @@ import tempfile
 import pytest
 
 from octoprint_kincomp.engines.select import ENGINES, use
-from tests.support.serverutil import (
-    printer_eeprom_path,
-    printer_limits,
-    put_back_printer_settings,
-    serial_log_size,
-    settings_sent_since,
-)
 
 # the modules that take longest, slowest first (measured with --durations=0): handed out
 # first under -n, so that the end of the run is many short tests spread over both workers
@@ -164,6 +157,7 @@ def engine(request):
 @pytest.fixture(scope="session")
 def server(tmp_path_factory):
     from octoprint_kincomp.tools.devserver import USER_FLAGS, DevServer
+    from tests.support.serverutil import printer_eeprom_path, printer_limits
 
     base = str(tmp_path_factory.mktemp("octoprint"))
     srv = DevServer(base, kincomp={"enabled": False}, throttle=0.0, users=tuple(USER_FLAGS))
@@ -205,6 +199,12 @@ def _shared_printer_settings_put_back(request):
     if "server" not in request.fixturenames:
         yield
         return
+    from tests.support.serverutil import (
+        put_back_printer_settings,
+        serial_log_size,
+        settings_sent_since,
+    )
+
     srv = request.getfixturevalue("server")
     start = serial_log_size(srv)
     yield

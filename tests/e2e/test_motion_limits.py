@@ -3,28 +3,16 @@ limits from its answer to M503 (the virtual printer's EEPROM: Marlin units) when
 connects, shows them in /status combined with the profile's axis speeds, and asks again on
 request."""
 
-import time
-
 import pytest
 
-from tests.support.serverutil import status
+from tests.support.serverutil import motion_limits, status
 
 pytestmark = pytest.mark.slow
 BASE = "/plugin/kincomp"
 
 
-def _limits(server, timeout=30.0):
-    deadline = time.monotonic() + timeout
-    while True:
-        ml = status(server)["motion_limits"]
-        if ml["stated"]["source"] == "m503":
-            return ml
-        assert time.monotonic() < deadline, f"no M503 answer stored: {ml}"
-        time.sleep(0.2)
-
-
 def test_the_virtual_printers_limits_are_read_on_connecting(server):
-    ml = _limits(server)
+    ml = motion_limits(server, timeout=30.0)
     assert ml["stated"]["firmware"].startswith("Virtual Marlin")
     read = ml["read"]
     # the virtual EEPROM: M203 X500 Y500 Z5 (units/s), M201 X2000 Y2000 Z10, M204 P750 T300
@@ -39,7 +27,7 @@ def test_the_virtual_printers_limits_are_read_on_connecting(server):
     # asked again on request (202), the same answer
     code, body = server.request("POST", f"{BASE}/limits/read", {})
     assert code == 202, body
-    again = _limits(server)
+    again = motion_limits(server, timeout=30.0)
     assert again["read"] == read
     for user in ("viewer", "settingsonly"):  # no KinComp admin permission
         code, _ = server.request("POST", f"{BASE}/limits/read", {}, key=user)

@@ -10,6 +10,7 @@ from octoprint.util.comm import strip_comment
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
+    MOTION,
     marker,
     offline,
     sent,
@@ -24,7 +25,6 @@ PARAMS = {
     "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
     "backlash": {"x": 30.0, "y": 25.0},
 }
-MOTION = ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03")
 
 
 def _visible(cmds):

@@ -23,6 +23,7 @@ from octoprint.util.comm import strip_comment
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
+    MOTION,
     home_reports,
     marker,
     offline,
@@ -38,7 +39,6 @@ PARAMS = {
     "scale_ppm": {"x": 500.0, "y": -400.0, "z": 0.0},
     "backlash": {"x": 30.0, "y": 25.0, "z": 0.0},
 }
-MOTION = ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03")
 REPEATS = 2  # the layers above the first one, printed this many times
 MIN_LINES = 39_000
 LEAK_BYTES_PER_LINE = 200  # more RSS growth than this a line of the file fails the soak

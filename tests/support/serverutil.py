@@ -13,6 +13,8 @@ from octoprint_kincomp.service.settings.schema import engine_config
 from tests.support import DATA as DATA
 
 # commands OctoPrint sends by itself (polls, handshake): not part of what a test sent
+# the motion codes as a stream spells them (what KinComp rewrites)
+MOTION = ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03")
 AUTOMATIC = {"M105", "M27", "M155", "M110", "M115", "M20", "M21", "M400", "M114", "M503"}
 _SEND = re.compile(r" - Send: (?:N\d+ )?(.*?)(?:\*\d+)?$")
 _SEND_N = re.compile(r" - Send: N(\d+) ")
@@ -211,10 +213,13 @@ def half_upload(srv, path, size, key="admin"):
 _SETTINGS_SENT = re.compile(r" - Send: (?:N\d+ )?M(?:92|20[1-6]|500|502|566|851)(?![\d.])")
 
 
+def _serial_log_path(srv) -> str:
+    return os.path.join(srv.basedir, "logs", "serial.log")
+
+
 def serial_log_size(srv) -> int:
-    path = os.path.join(srv.basedir, "logs", "serial.log")
     try:
-        with open(path, "rb") as f:
+        with open(_serial_log_path(srv), "rb") as f:
             return f.seek(0, 2)
     except FileNotFoundError:
         return 0
@@ -225,7 +230,7 @@ def settings_sent_since(srv, offset: int) -> bool:
     of serial.log): a printed slicer file's M201/M203/M204/M205 stay in the virtual printer
     after the print, as on a real Marlin, for every later test on the same server."""
     try:
-        with open(os.path.join(srv.basedir, "logs", "serial.log"), "rb") as f:
+        with open(_serial_log_path(srv), "rb") as f:
             f.seek(offset)
             tail = f.read().decode("utf-8", "replace")
     except FileNotFoundError:
@@ -233,16 +238,20 @@ def settings_sent_since(srv, offset: int) -> bool:
     return _SETTINGS_SENT.search(tail) is not None
 
 
-def printer_limits(srv, timeout=60.0):
-    """KinComp's reading of the printer's M503 answer (``status.motion_limits.read``), once
-    there is one."""
+def motion_limits(srv, timeout=60.0):
+    """``status.motion_limits`` once KinComp has read the printer's M503 answer."""
     deadline = time.monotonic() + timeout
     while True:
         ml = status(srv)["motion_limits"]
         if ml["stated"]["source"] == "m503":
-            return ml["read"]
+            return ml
         assert time.monotonic() < deadline, f"no M503 answer stored: {ml}"
         time.sleep(0.2)
+
+
+def printer_limits(srv, timeout=60.0):
+    """KinComp's reading of the printer's M503 answer (``status.motion_limits.read``)."""
+    return motion_limits(srv, timeout)["read"]
 
 
 def printer_eeprom_path(srv) -> str:
