@@ -18,9 +18,11 @@ States (``Capture.state``)::
   ``result.stream``. Port-level faults (cannot open, unplugged, read error, a stream of
   mostly bad lines) close the port; capture-level ones (no data for ``no_data_timeout_s``,
   more than ``max_samples``, longer than ``max_duration_s``, ``stop()`` before the end)
-  keep it open. More than 20,000 lines/s is a flood: it closes the port in any state, so a
-  runaway sensor cannot hog the host's CPU. A port-level fault while nothing is armed gives
-  ``failed`` with ``status()["message"]`` and no new result.
+  keep it open. More than 20,000 lines/s, sustained beyond a second's backlog, is a flood
+  (``FloodWatch``): it closes the port in any state, so a runaway sensor cannot hog the
+  host's CPU, while lines held up by a busy host and then read at once are no flood. A
+  port-level fault while nothing is armed gives ``failed`` with ``status()["message"]`` and
+  no new result.
 
 Readings are mm, positive = bar longer; times s. Thread safety: every public method only
 takes a short lock and returns at once (no I/O; only ``close(wait_s>0)`` and ``wait()`` wait,
@@ -63,6 +65,36 @@ STATES = (IDLE, PREVIEW, ARMED, CAPTURING, DONE, FAILED)
 DEFAULT_MAX_SAMPLES = 1_000_000
 PRE_KEEP_S = 30.0
 MAX_LINE_RATE = 20_000  # lines/s: more is a flood (a 10 kHz sensor stays well below)
+BACKLOG_S = 1.0  # s of lines at MAX_LINE_RATE that a burst may bring before it is a flood
+
+
+class FloodWatch:
+    """Tells a flood (a sensor sending more than ``MAX_LINE_RATE`` lines/s, sustained) from a
+    backlog (lines held up by a busy host or a stalled sender, then delivered at once).
+
+    A leaky bucket: every line arriving fills it by one, it drains at ``MAX_LINE_RATE``
+    lines/s, and it holds ``MAX_LINE_RATE * BACKLOG_S`` lines. A flood overfills it (50,000
+    lines/s in 0.67 s, 25,000 lines/s in 4 s); a sensor at its normal rate that catches up
+    on a second it could not send does not. ``update(now_s, lines)`` takes the host time
+    (monotonic s) and the count of lines received so far; it returns the flood's rate (lines/s
+    since the bucket was last empty) once it overflows, else None."""
+
+    def __init__(self, now_s: float, lines: int) -> None:
+        self._t, self._lines = now_s, lines
+        self._level = 0.0
+        self._filling_since, self._lines_then = now_s, lines
+
+    def update(self, now_s: float, lines: int) -> Optional[float]:
+        drained = MAX_LINE_RATE * max(0.0, now_s - self._t)
+        self._level += (lines - self._lines) - drained
+        self._t, self._lines = now_s, lines
+        if self._level <= 0.0:
+            self._level = 0.0
+            self._filling_since, self._lines_then = now_s, lines
+            return None
+        if self._level <= MAX_LINE_RATE * BACKLOG_S:
+            return None
+        return (lines - self._lines_then) / max(now_s - self._filling_since, 1e-3)
 
 
 @dataclass
@@ -301,8 +333,8 @@ class Capture:
             return
         parser = self.config.make_parser()
         self._set(PREVIEW, None, _port_open=True)
-        next_tick = time.monotonic()
-        rate_from, rate_lines = next_tick, None  # the first second may hold a backlog
+        next_tick = opened = time.monotonic()
+        flood = None  # watched from the end of the first second (it may hold a backlog)
         try:
             while not self._closing:
                 try:
@@ -319,10 +351,12 @@ class Capture:
                 now = time.monotonic()
                 if not self._step(parser, data, now):
                     return
-                if now - rate_from >= 1.0:
-                    base = parser.seq if rate_lines is None else rate_lines
-                    rate = (parser.seq - base) / (now - rate_from)
-                    if rate > MAX_LINE_RATE:  # would hog the host's CPU
+                if flood is None:
+                    if now - opened >= 1.0:
+                        flood = FloodWatch(now, parser.seq)
+                else:
+                    rate = flood.update(now, parser.seq)
+                    if rate is not None:  # would hog the host's CPU
                         self._port_failed(
                             Msg(
                                 "the sensor floods the port: %(rate)s lines/s (at most %(max)s)",
@@ -332,7 +366,6 @@ class Capture:
                             parser,
                         )
                         return
-                    rate_from, rate_lines = now, parser.seq
                 if now >= next_tick:
                     next_tick = now + self.tick_s
                     self._publish(parser)
