@@ -173,28 +173,14 @@ class StreamState:
     ``backlash``: :class:`BacklashState`; ``report``: :class:`Report`.
     """
 
-    __slots__ = (
-        "report",
-        "lineno",
-        "backlash",
-        "m",
-        "fw",
-        "fw_text",
-        "w",
-        "g",
-        "frame_lost",
-        "absolute",
-        "e_absolute_mode",
-        "inches",
-        "plane",
-        "ij_absolute",
-        "e_pos",
-        "feed",
-        "tool",
-        "q_last",
-        "limit_recheck",
-        "q_drive",
-    )
+    # The fields, declared once (``__slots__``, ``take_over`` and the compiled kernel's record,
+    # engines/kernel.py RECORD, are made from or checked against these):
+    POSITIONS = ("m", "fw", "fw_text", "w", "g", "frame_lost")  # per axis x, y, z: lists
+    MODES = ("absolute", "e_absolute_mode", "inches", "plane", "ij_absolute")
+    PROGRAM = ("e_pos", "feed", "tool", "lineno")
+    KERNEL_ONLY = ("q_last", "limit_recheck")
+    FIELDS = ("report", "backlash") + POSITIONS + MODES + PROGRAM + KERNEL_ONLY + ("q_drive",)
+    __slots__ = FIELDS
 
     def __init__(self) -> None:
         self.report = Report()
@@ -239,19 +225,9 @@ class StreamState:
         positions do not depend on the model and the firmware coordinates are what the
         firmware holds). Backlash directions carry over for ``backlash_axes`` (the anchor is
         a geometric command, the same frame under either model)."""
-        for name in ("m", "fw", "fw_text", "w", "g", "frame_lost"):
+        for name in self.POSITIONS:
             setattr(self, name, list(getattr(other, name)))
-        for name in (
-            "absolute",
-            "e_absolute_mode",
-            "inches",
-            "plane",
-            "ij_absolute",
-            "e_pos",
-            "feed",
-            "tool",
-            "lineno",
-        ):
+        for name in self.MODES + self.PROGRAM:
             setattr(self, name, getattr(other, name))
         for k in backlash_axes:
             self.backlash.dir[k] = other.backlash.dir[k]

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import random
+from operator import attrgetter
 from typing import Callable, List, Optional
 
 from ..core import gcode_table as gt
@@ -45,14 +46,24 @@ except ImportError:  # pragma: no cover - depends on the installation
 
 MAX_POINTS = _ext.MAX_POINTS if _ext is not None else 64  # backlash table points it takes
 
-# The record's fields, in the order of its tuple (csrc/state.c): StreamState's, its backlash
-# state's, and the report's counters that the kernel keeps.
+# The record's fields, in the order of its tuple: StreamState's own (core/state.py
+# StreamState.FIELDS), its backlash state's, and the report's counters that the kernel keeps
+# (a nested tuple). The extension declares the same names (``_ext.RECORD``): a kernel built
+# with another record is not used (:func:`self_check`).
 MODES = ("absolute", "inches", "e_absolute_mode", "plane", "ij_absolute")
 COUNTS = ("lines", "moves", "moves_compensated", "lines_out", "takeup_moves", "arcs_kept")
 COUNTS += ("arcs_split", "arcs_linearised", "arc_segments")
-RECORD = MODES + ("m", "fw", "fw_text", "w", "g", "q_last", "limit_recheck", "backlash.dir")
-RECORD += ("backlash.anchor", "lineno", "e_pos", "feed", "report.COUNTS")
-RECORD += ("report.arc_max_deviation_um", "report.max_correction_um")
+HEAD = MODES + ("m", "fw", "fw_text", "w", "g", "q_last", "limit_recheck", "backlash.dir")
+HEAD += ("backlash.anchor", "lineno", "e_pos", "feed")
+TAIL = ("report.arc_max_deviation_um", "report.max_correction_um")
+RECORD = HEAD + (tuple("report." + a for a in COUNTS),) + TAIL
+_head, _counts, _tail = attrgetter(*HEAD), attrgetter(*COUNTS), attrgetter(*TAIL)
+
+
+def record_names(fields=RECORD) -> str:
+    """``fields`` as the extension writes its RECORD: names by blanks, a group in
+    parentheses."""
+    return " ".join(f if isinstance(f, str) else "(" + record_names(f) + ")" for f in fields)
 
 
 def record(st: StreamState) -> Optional[tuple]:
@@ -60,11 +71,7 @@ def record(st: StreamState) -> Optional[tuple]:
     hold such a state (drives away from the desired position's command: ``q_drive``)."""
     if st.q_drive is not None:
         return None
-    bl, rep = st.backlash, st.report
-    head = tuple(getattr(st, a) for a in MODES) + (st.m, st.fw, st.fw_text, st.w, st.g)
-    tail = (st.q_last, st.limit_recheck, bl.dir, bl.anchor, st.lineno, st.e_pos, st.feed)
-    report = (rep.arc_max_deviation_um, rep.max_correction_um)
-    return head + tail + (tuple(getattr(rep, a) for a in COUNTS),) + report
+    return _head(st) + (_counts(st.report),) + _tail(st)
 
 
 def adopt(st: StreamState, rec: tuple) -> None:
@@ -223,6 +230,14 @@ def self_check(make: Optional[Callable] = None) -> bool:
             },
         }
     )
+    if getattr(_ext, "RECORD", None) != record_names():
+        _log.warning(
+            "KinComp: the compiled kernel keeps another stream state (%s) than this "
+            "package (%s): rebuild it",
+            getattr(_ext, "RECORD", None),
+            record_names(),
+        )
+        return False
     options = Options(limits=(-1.0, 201.0, -1.0, 201.0, 0.0, 200.0), policy="clamp")
     program = _check_program()
     taken = 0

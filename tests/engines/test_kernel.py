@@ -245,6 +245,27 @@ def test_the_kernel_reads_g_code_as_the_table_does_and_the_self_check_holds_it_t
     assert not kernel_mod.self_check(make=M83AsInert)
 
 
+def test_the_kernels_record_is_the_stream_states_fields_and_another_one_is_refused():
+    from operator import attrgetter
+
+    from octoprint_kincomp.core.state import BacklashState, Report, StreamState
+
+    st = StreamState()
+    flat = [f for f in kernel_mod.RECORD for f in ((f,) if isinstance(f, str) else f)]
+    owners = {"": StreamState.FIELDS, "backlash": BacklashState.FIELDS, "report": Report.__slots__}
+    for name in flat:  # every field names a declared field of the state
+        owner, _, field = name.rpartition(".")
+        assert field in owners[owner], name
+        attrgetter(name)(st)
+    got = kernel_mod.record(st)
+    assert len(got) == len(kernel_mod.RECORD) and len(got[17]) == len(kernel_mod.COUNTS)
+    assert kernel_mod._ext.RECORD == kernel_mod.record_names()  # the extension's own list
+    swapped = kernel_mod.RECORD[1::-1] + kernel_mod.RECORD[2:]  # "inches absolute ..."
+    with mock.patch.object(kernel_mod._ext, "RECORD", kernel_mod.record_names(swapped)):
+        assert not kernel_mod.self_check()
+    assert kernel_mod.self_check()
+
+
 def test_a_state_the_kernel_cannot_hold_is_left_to_python():
     # drives away from the desired position's command (q_drive), or a number text longer
     # than the record holds: the reference path takes the line, and the state stays Python's

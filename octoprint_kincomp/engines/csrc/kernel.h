@@ -138,6 +138,7 @@ enum { LINE_OUT, LINE_SAME, LINE_PYTHON };
 /* state.c */
 int kk_take(Kernel *K);
 int kk_give(Kernel *K);
+extern const char kk_record_fields[]; /* the record's field names (state.c) */
 int kk_state_set(State *s, PyObject *t);
 PyObject *kk_state_get(const State *s);
 /* numbers.c */

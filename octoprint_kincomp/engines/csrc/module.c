@@ -368,6 +368,7 @@ PyMODINIT_FUNC PyInit__kernel(void)
         return NULL;
     Py_INCREF(&KernelType);
     if (PyModule_AddIntConstant(mod, "MAX_POINTS", MAX_PTS) < 0 ||
+        PyModule_AddStringConstant(mod, "RECORD", kk_record_fields) < 0 ||
         PyModule_AddObject(mod, "Kernel", (PyObject *)&KernelType) < 0) {
         Py_DECREF(&KernelType);
         Py_DECREF(mod);

@@ -13,6 +13,16 @@
 
 #define RECORD_FORMAT "ppOip(OOO)(OOO)(OOO)(ddd)(ddd)O(ppp)(lll)(OOO)LOO(LLLLLLLLL)d(ddd)"
 
+/* The names of the record's fields, in its order (module constant RECORD: engines/kernel.py
+ * uses the kernel only where its own RECORD says the same; a group in parentheses is a
+ * nested tuple, the [3]s are one name each). */
+const char kk_record_fields[] =
+    "absolute inches e_absolute_mode plane ij_absolute m fw fw_text w g q_last limit_recheck "
+    "backlash.dir backlash.anchor lineno e_pos feed (report.lines report.moves "
+    "report.moves_compensated report.lines_out report.takeup_moves report.arcs_kept "
+    "report.arcs_split report.arcs_linearised report.arc_segments) report.arc_max_deviation_um "
+    "report.max_correction_um";
+
 static PyObject *none_ref(void)
 {
     Py_INCREF(Py_None);
