@@ -75,27 +75,50 @@ def _octoprint_version(python: str) -> str:
     ).stdout.strip()
 
 
-@pytest.fixture(scope="module", params=["oldest", "newest"])
-def compat_server(request, tmp_path_factory):
-    python = _oldest_python() if request.param == "oldest" else sys.executable
+@pytest.fixture(scope="module")
+def started(tmp_path_factory):
+    """The module's servers, one per release line, each started on its first use and
+    stopped at the module's end (however the tests of the two lines are ordered)."""
+    servers = {}
+
+    def get(line):
+        if line not in servers:
+            servers[line] = _start(line, tmp_path_factory)
+        return servers[line]
+
+    try:
+        yield get
+    finally:
+        for srv, version in servers.values():
+            srv.stop()
+            keep = os.environ.get("KINCOMP_E2E_KEEP")
+            if keep:
+                shutil.copytree(
+                    os.path.join(srv.basedir, "logs"),
+                    os.path.join(keep, f"compat-{version}"),
+                    dirs_exist_ok=True,
+                )
+
+
+def _start(line, tmp_path_factory):
+    python = _oldest_python() if line == "oldest" else sys.executable
     version = _octoprint_version(python)
-    if request.param == "oldest":
+    if line == "oldest":
         assert version.startswith(OLDEST + "."), version
-    base = str(tmp_path_factory.mktemp(f"octoprint-{request.param}"))
+    base = str(tmp_path_factory.mktemp(f"octoprint-{line}"))
     srv = DevServer(base, kincomp={"enabled": False}, python=python)
     srv.start()
     try:
         srv.connect()
-        yield srv, version
-    finally:
+    except BaseException:
         srv.stop()
-        keep = os.environ.get("KINCOMP_E2E_KEEP")
-        if keep:
-            shutil.copytree(
-                os.path.join(base, "logs"),
-                os.path.join(keep, f"compat-{version}"),
-                dirs_exist_ok=True,
-            )
+        raise
+    return srv, version
+
+
+@pytest.fixture(params=["oldest", "newest"])
+def compat_server(request, started):
+    return started(request.param)
 
 
 def test_plugin_loads_and_renders(compat_server):
