@@ -15,6 +15,10 @@ PY=${PYTHON:-python3}
 # cap (installs made before limits 5 have it; OctoPrint 1.11 caps it itself)
 CONSTRAINTS="limits<5"
 stamp="$VENV/.kincomp-installed"
+# one at a time: ./test.sh makes it in the background while the tests start, and the
+# compatibility test's own call waits here for that one
+exec 9>"$VENV.lock"
+flock 9
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$SPEC $CONSTRAINTS compat" ] &&
         [ ! pyproject.toml -nt "$stamp" ] && [ ! setup.py -nt "$stamp" ] && [ -z "$(find octoprint_kincomp/engines/csrc -newer "$stamp" 2>/dev/null)" ]; then
     exit 0
