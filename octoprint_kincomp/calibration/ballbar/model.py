@@ -201,25 +201,32 @@ class Model:
         if cyclic_pitch and all(r.qA is not None for r in runs):
             self.qA = np.concatenate([r.qA for r in runs])
             self.qB = np.concatenate([r.qB for r in runs])
+        # what does not depend on the parameters, computed once (the same expressions as
+        # predict had: the same numbers): the nominal positions, the cyclic phase terms
+        self._A, self._B = self.R * self._c, self.R * self._s
+        self._1c, self._1s = 1 + self._c, 1 + self._s
+        self._cyclic = None
+        if cyclic_pitch:
+            ca, cb = geom.centre[geom.axes[0]], geom.centre[geom.axes[1]]
+            k = 2 * math.pi / cyclic_pitch
+            qa = ca + self._A if self.qA is None else self.qA
+            qb = cb + self._B if self.qB is None else self.qB
+            self._cyclic = (np.sin(k * qa), np.cos(k * qa), np.sin(k * qb), np.cos(k * qb))
 
     def predict(self, p: np.ndarray) -> np.ndarray:
         P = dict(self.fixed)
         P.update(zip(self.names, p))
         R = self.R
-        c, s = self._c, self._s
-        A, B = R * c, R * s
+        A, B = self._A, self._B
         vA = self.vA
-        bA = P["bAm"] + (P["bAp"] - P["bAm"]) * (1 + c) / 2
-        bB = P["bBm"] + (P["bBp"] - P["bBm"]) * (1 + s) / 2
+        bA = P["bAm"] + (P["bAp"] - P["bAm"]) * self._1c / 2
+        bB = P["bBm"] + (P["bBp"] - P["bBm"]) * self._1s / 2
         Ac = A - self.dirA * bA / 2 - P.get("dT", 0.0) * vA + P["kB"] * B * B
         Bc = B - self.dirB * bB / 2 + P["kA"] * A * A
-        if self.cyclic_pitch:
-            ca, cb = self.geom.centre[self.geom.axes[0]], self.geom.centre[self.geom.axes[1]]
-            k = 2 * math.pi / self.cyclic_pitch
-            qa = ca + A if self.qA is None else self.qA
-            qb = cb + B if self.qB is None else self.qB
-            Ac = Ac + P["cAs"] * np.sin(k * qa) + P["cAc"] * np.cos(k * qa)
-            Bc = Bc + P["cBs"] * np.sin(k * qb) + P["cBc"] * np.cos(k * qb)
+        if self._cyclic is not None:
+            sin_a, cos_a, sin_b, cos_b = self._cyclic
+            Ac = Ac + P["cAs"] * sin_a + P["cAc"] * cos_a
+            Bc = Bc + P["cBs"] * sin_b + P["cBc"] * cos_b
         sm = P.get("sm", 0.0)
         sA, sB = sm + P["ds"] / 2, sm - P["ds"] / 2
         X = (1 + sA) * Ac + P["alpha"] * (1 + sB) * Bc - P["dA"]
