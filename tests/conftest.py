@@ -20,8 +20,6 @@ Under pytest-xdist (``./test.sh`` runs ``-n 2 --dist loadgroup``): the slowest m
 handed out first, modules with module-scoped fixtures stay on one worker, and a test marked
 ``alone`` (it measures rates or times) runs while no other test runs."""
 
-import contextlib
-import fcntl
 import os
 import shutil
 import sys
@@ -30,6 +28,7 @@ import tempfile
 import pytest
 
 from octoprint_kincomp.engines.select import ENGINES, use
+from tests.support.machine import SESSION_DIR_ENV
 
 # the modules that take longest, slowest first (measured with --durations=0): handed out
 # first under -n, so that the end of the run is many short tests spread over both workers
@@ -63,7 +62,6 @@ ONE_WORKER = [
     "tests/calibration/test_artifact_fit.py",
     "tests/calibration/test_analysis.py",
 ]
-SESSION_DIR_ENV = "KINCOMP_TEST_SESSION_DIR"
 # the test servers' analyses come in the answer however loaded the machine is (20 s in use:
 # a CI machine running two workers starves the nice-19 analysis worker; the 202 path has its
 # own tests: tests/js/jobs.test.js, the reliability tests' polling)
@@ -111,31 +109,11 @@ def pytest_collection_modifyitems(session, config, items):
             item.add_marker(pytest.mark.xdist_group(module(item)))
 
 
-@contextlib.contextmanager
-def _machine(exclusive: bool):
-    """Under -n: a test holds the run lock shared, an ``alone`` test exclusive (it waits for
-    the other worker's current test; the other's next test waits at the gate meanwhile)."""
-    folder = os.environ.get(SESSION_DIR_ENV)
-    if not os.environ.get("PYTEST_XDIST_WORKER") or not folder:
-        yield
-        return
-    mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
-    with open(os.path.join(folder, "gate.lock"), "a") as gate:
-        with open(os.path.join(folder, "run.lock"), "a") as run:
-            fcntl.flock(gate, mode)
-            fcntl.flock(run, mode)
-            if not exclusive:
-                fcntl.flock(gate, fcntl.LOCK_UN)
-            try:
-                yield
-            finally:
-                fcntl.flock(run, fcntl.LOCK_UN)
-                fcntl.flock(gate, fcntl.LOCK_UN)
-
-
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    with _machine(item.get_closest_marker("alone") is not None):
+    from tests.support.machine import hold
+
+    with hold(item.get_closest_marker("alone") is not None):
         yield
 
 
