@@ -100,7 +100,7 @@ def test_tight_loop_reads_do_not_starve_a_print(server):
     answer is a 200 or a 429 with Retry-After, which the clients wait for."""
     name = "kc-rationed-print.gcode"
     path = os.path.join(server.basedir, "uploads", name)
-    lr.fast_print(path, 1_500_000)
+    lr.fast_print(path, 400_000)  # (minutes of printing: the measurement takes about 30 s)
     settings(server, enabled=True, params=SKEW)
 
     def step(load, client, k):
