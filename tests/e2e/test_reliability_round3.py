@@ -41,11 +41,22 @@ CALIBRATION = {
 WANT = Params.from_dict(CALIBRATION).hash()
 
 
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # (libyaml's: the same documents)
+_read = {}  # config.yaml's path -> (its bytes, KinComp's part of it) as last read
+
+
 def _kincomp_yaml(srv):
-    with open(os.path.join(srv.basedir, "config.yaml")) as f:
-        kc = dict(((yaml.safe_load(f) or {}).get("plugins") or {}).get("kincomp") or {})
-    kc.pop("_config_version", None)
-    return kc
+    """KinComp's part of the server's config.yaml (read again only when the file changed:
+    the bad-value probe asks after each of some 2,000 requests)."""
+    path = os.path.join(srv.basedir, "config.yaml")
+    with open(path, "rb") as f:
+        raw = f.read()
+    if path not in _read or _read[path][0] != raw:
+        doc = yaml.load(raw, Loader=_LOADER) or {}
+        kc = dict((doc.get("plugins") or {}).get("kincomp") or {})
+        kc.pop("_config_version", None)
+        _read[path] = (raw, kc)
+    return dict(_read[path][1])
 
 
 def _apply(srv, params, enabled):
