@@ -196,6 +196,15 @@ _MM_MIN = re.compile(r"mm\s*/\s*min|units\s*/\s*min|mm per min", re.IGNORECASE)
 _MM_S = re.compile(r"(?:mm|units)\s*/\s*(?:s\b|sec)", re.IGNORECASE)
 
 
+def settings_query(firmware: Optional[str]) -> List[str]:
+    """The commands that ask ``firmware`` (its M115 name) for its settings: M503, and for
+    Marlin M211 before it (Marlin's M503 leaves out the soft endstops, which keep every move
+    inside the travel: :func:`narrowed_travel`)."""
+    name = (firmware or "").lower()
+    marlin = any(k in name for k in ("marlin", "prusa", "buddy"))
+    return ["M211", "M503"] if marlin else ["M503"]
+
+
 def firmware_feed_unit(firmware: Optional[str]) -> Optional[str]:
     """ "mm/min" for RepRapFirmware (its M203 takes mm/min), "mm/s" for Marlin, Prusa,
     Klipper and Smoothieware; None when the name says nothing."""

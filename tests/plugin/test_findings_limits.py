@@ -173,6 +173,24 @@ def test_m503_answer_is_stored_and_caps_the_vertical_feed(app, plugin):
     assert feeds == {"xy": 1850.0, "xz": 600.0, "yz": 600.0}
 
 
+def test_marlins_soft_endstops_are_asked_and_kept_with_its_m503_answer(app, plugin):
+    """Marlin's M503 leaves out its soft endstops: KinComp asks M211 first and keeps its
+    answer (an ok of its own in between, and a temperature poll's) for the M503 answer's,
+    so the travel the compensation keeps inside is the firmware's."""
+    from octoprint_kincomp.firmware.motion_limits import travel_limits
+
+    plugin.on_event("FirmwareData", {"name": "Marlin 2.1.2", "data": {}})
+    assert call(app, plugin.limits.read_request)[0] == 202
+    (args, _) = plugin._printer.commands.call_args
+    assert args[0] == ["M211", "M503"]
+    m211 = "echo:Soft endstops: ON  Min:  X-2.00 Y-3.00 Z0.00   Max:  X218.00 Y215.00 Z250.00"
+    _read_m503(plugin, [m211, "ok", "ok T:20.0 /0.0"] + MARLIN_M503)
+    wait_for(lambda: "Soft endstops" in plugin.store.current()["motion_limits"]["text"])
+    text = plugin.store.current()["motion_limits"]["text"]
+    assert "M203 X500.00" in text
+    assert travel_limits(text) == {"x": (-2.0, 218.0), "y": (-3.0, 215.0), "z": (0.0, 250.0)}
+
+
 def test_pasted_limits_stay_until_the_user_asks_the_printer(app, plugin):
     code, body = call(
         app,

@@ -114,7 +114,8 @@ def test_only_marlin_is_asked_for_its_settings():
     check.query({})
     assert not printer.commands.called
     check.query({"name": "Marlin bugfix-2.1.x"})
-    assert printer.commands.call_args[0][0] == ["M503"]
+    # (its soft endstops first: its M503 leaves them out)
+    assert printer.commands.call_args[0][0] == ["M211", "M503"]
     printer.commands.side_effect = RuntimeError("not connected")
     check.query({"name": "Marlin"})  # logged, not raised
 

@@ -28,7 +28,7 @@ import flask
 from flask_babel import gettext
 
 from ...core.messages import as_dict
-from ...firmware.motion_limits import LimitsError, MotionLimits, parse_limits
+from ...firmware.motion_limits import LimitsError, MotionLimits, parse_limits, settings_query
 from ...service.notify import N_
 from ...service.settings.schema import SettingsError
 from .. import http
@@ -37,6 +37,7 @@ from .. import http
 # travel (RepRapFirmware's M208, Marlin's M211 answer "Min: X.. Max: ..") and the steps per
 # mm (M92)
 _LIMIT_LINE = re.compile(r"(?:^|[\s:])(?:M20[1345]|M208|M92|M566)\s+[A-Za-z]|Min:\s+X")
+_TRAVEL_ONLY = re.compile(r"Min:\s+X")  # Marlin's M211 answer: kept for the next M503 answer
 _HEADER = re.compile(r"feedrate|maximum speed|accelerat|advanced", re.IGNORECASE)
 MAX_LINES = 200  # lines kept of one answer (Marlin's whole M503 is ~60)
 TAGS = {"plugin:kincomp", "kincomp:motion-limits"}
@@ -105,23 +106,27 @@ class LimitsCapture:
             self.ask(replace=False)
 
     def ask(self, replace: bool = True) -> bool:
-        """Sends M503; ``replace``: its answer replaces pasted limits. False when the printer
+        """Sends M503 (a Marlin firmware M211 first: its soft endstops, which its M503 does
+        not state); ``replace``: the answer replaces pasted limits. False when the printer
         is not connected or is printing (nothing sent)."""
         if not self._printer.is_operational() or self._printer.is_printing():
             return False
         with self._lock:
             self._replace = replace
             self._lines = []
-        self._printer.commands(["M503"], tags=set(TAGS))
+        self._printer.commands(settings_query(self.firmware), tags=set(TAGS))
         return True
 
     # ~~ listening (the serial thread: no I/O here) -------------------------------------------
     def received(self, line: str) -> None:
-        if ("M20" in line or "M92" in line or "M566" in line) and _LIMIT_LINE.search(line):
+        if (
+            "M20" in line or "M92" in line or "M566" in line or "Min:" in line
+        ) and _LIMIT_LINE.search(line):
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())
-        elif self._lines and line.startswith("ok"):
+        elif line.startswith("ok") and self._states_limits():
+            # (the ok of an answer stating only the travel, M211's, waits for M503's)
             with self._lock:
                 lines, self._lines = self._lines, []
                 replace, self._replace = self._replace, False
@@ -135,6 +140,10 @@ class LimitsCapture:
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())
+
+    def _states_limits(self) -> bool:
+        """The lines collected state a limit (not only headers or M211's travel)."""
+        return any(_LIMIT_LINE.search(l) and not _TRAVEL_ONLY.search(l) for l in self._lines)
 
     def store(self, text: str, replace: bool) -> bool:
         """Stores the answer ``text`` as the stated limits; False (nothing stored) when it

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any, Dict
 
+from ...firmware.motion_limits import settings_query
 from ..notify import Notifier
 from .firmware_watch import FirmwareWatcher
 from .queue import QueueCompensator
@@ -55,12 +56,16 @@ class FirmwareCheck:
                 self._notifier.notify("warning", msg.template, **msg.params)
 
     def query(self, payload: Dict[str, Any]) -> None:
-        """After the M115 reply (FIRMWARE_DATA): a Marlin firmware is asked for its
-        settings (M503)."""
+        """After the M115 reply (FIRMWARE_DATA): a Marlin firmware is asked for its soft
+        endstops and its settings (M211, M503)."""
         name = str(payload.get("name") or "")
         if "marlin" not in name.lower():
             return
         try:
-            self._printer.commands(["M503"], tags={"plugin:kincomp", "kincomp:firmware-check"})
+            # (M211 first: Marlin's soft endstops, which its M503 leaves out; the limits
+            # capture keeps its answer for the M503 answer's)
+            self._printer.commands(
+                settings_query(name), tags={"plugin:kincomp", "kincomp:firmware-check"}
+            )
         except Exception:
             self._logger.exception("KinComp: could not ask the firmware for its settings")
