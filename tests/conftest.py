@@ -71,12 +71,13 @@ os.environ.setdefault("KINCOMP_ANALYSIS_WAIT_S", "600")
 def pytest_configure(config):
     """The session's folder (shared by the workers under -n: made by the main process):
     the users made once for every test server, the lock of the ``alone`` tests."""
-    from octoprint_kincomp.tools.devserver import USERS_TEMPLATE_ENV
+    from octoprint_kincomp.tools.devserver import GCODE_ANALYSIS_ENV, USERS_TEMPLATE_ENV
 
     if not os.environ.get(SESSION_DIR_ENV):
         os.environ[SESSION_DIR_ENV] = tempfile.mkdtemp(prefix="kincomp-tests-")
         config._kincomp_session_dir = os.environ[SESSION_DIR_ENV]
     os.environ.setdefault(USERS_TEMPLATE_ENV, os.path.join(os.environ[SESSION_DIR_ENV], "users"))
+    os.environ.setdefault(GCODE_ANALYSIS_ENV, "never")  # (no test reads OctoPrint's)
 
 
 def pytest_unconfigure(config):

@@ -44,6 +44,10 @@ SERVER_OUT = "server.out"  # OctoPrint's own output (stdout and stderr), in the 
 LOGINS_FILE = "kincomp-logins.json"  # the logins (password, API key) of a basedir's users
 # a folder for the users made once and copied into every basedir (see users_template)
 USERS_TEMPLATE_ENV = "KINCOMP_USERS_TEMPLATE"
+# OctoPrint's own G-code analysis (gcodeAnalysis.runAt: never, idle or always) of the servers
+# made here, when set; the test session sets "never": nothing of KinComp reads it, and it
+# costs an analysis process for every file a test uploads
+GCODE_ANALYSIS_ENV = "KINCOMP_GCODE_ANALYSIS"
 
 
 def free_port() -> int:
@@ -125,6 +129,8 @@ def prepare(
     if demo is not None:
         plugins.setdefault("kincomp", {})["demo"] = {"enabled": demo}
     config.setdefault("serial", {}).update({"log": True, "autoconnect": False})
+    if os.environ.get(GCODE_ANALYSIS_ENV):
+        config.setdefault("gcodeAnalysis", {})["runAt"] = os.environ[GCODE_ANALYSIS_ENV]
     config.setdefault("temperature", {})["profiles"] = []
     if extra_config:
         for k, v in extra_config.items():
