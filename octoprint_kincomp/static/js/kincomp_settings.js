@@ -24,7 +24,6 @@ $(function () {
         var declared = $("#kincomp_settings_fields").text();
         self.settingsForm = new K.SettingsForm(declared ? JSON.parse(declared) : []);
         self.limits = ko.observable(null);
-        self.paramsHash = ko.observable("");
         self.engine = ko.observable("");  // "compiled" or "python" (kernel.py)
         self.conflicts = ko.observableArray([]);
         self.version = ko.observable("");
@@ -106,7 +105,6 @@ $(function () {
                 }
             });
             self.limits(status.limits);
-            self.paramsHash(status.params_hash);
             self.engine(status.engine || "");
             var a = about(status);
             self.version(a.version);
