@@ -109,8 +109,6 @@ def test_a_whole_campaign_in_demo_mode(page, server):
     try:
         _open_campaign_mode(page)
         page.fill("#kincomp_campaign_rxy", "50")
-        # (vertical tests of 25 mm: half the printing time of the default 50)
-        page.fill("#kincomp_campaign_rv", "25")
         page.check("#kincomp_campaign_use_feed")
         page.fill("#kincomp_campaign_feed2", "3700")
         # planned on the volume: four tests drawn from three sides
