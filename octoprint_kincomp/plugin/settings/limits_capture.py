@@ -94,6 +94,7 @@ class LimitsCapture:
         self._logger = logger
         self._lock = threading.Lock()
         self._lines: List[str] = []
+        self._states_limit = False  # a line collected states a limit (not only the travel)
         self._replace = False  # the next answer replaces pasted limits (asked explicitly)
         self.firmware = ""
 
@@ -114,6 +115,7 @@ class LimitsCapture:
         with self._lock:
             self._replace = replace
             self._lines = []
+            self._states_limit = False
         self._printer.commands(settings_query(self.firmware), tags=set(TAGS))
         return True
 
@@ -125,10 +127,16 @@ class LimitsCapture:
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())
-        elif line.startswith("ok") and self._states_limits():
-            # (the ok of an answer stating only the travel, M211's, waits for M503's)
+                    self._states_limit = self._states_limit or not _TRAVEL_ONLY.search(line)
+        elif self._lines and line.startswith("ok") and not self._states_limit:
+            # an answer without limits (M211's travel): its last travel line waits for the
+            # M503 answer, headers go
+            with self._lock:
+                self._lines = [ln for ln in self._lines if _TRAVEL_ONLY.search(ln)][-1:]
+        elif self._lines and line.startswith("ok"):
             with self._lock:
                 lines, self._lines = self._lines, []
+                self._states_limit = False
                 replace, self._replace = self._replace, False
             threading.Thread(
                 target=self.store,
@@ -140,10 +148,6 @@ class LimitsCapture:
             with self._lock:
                 if len(self._lines) < MAX_LINES:
                     self._lines.append(line.strip())
-
-    def _states_limits(self) -> bool:
-        """The lines collected state a limit (not only headers or M211's travel)."""
-        return any(_LIMIT_LINE.search(l) and not _TRAVEL_ONLY.search(l) for l in self._lines)
 
     def store(self, text: str, replace: bool) -> bool:
         """Stores the answer ``text`` as the stated limits; False (nothing stored) when it
