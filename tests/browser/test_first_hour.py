@@ -41,7 +41,8 @@ def page(page):
 
 def _tab_shown(page):
     page.wait_for_selector("#kincomp_plane", state="visible")
-    assert page.evaluate("location.hash") == "#tab_plugin_kincomp"
+    # (OctoPrint writes the tab into the address once it is shown: awaited, not read at once)
+    page.wait_for_function("location.hash === '#tab_plugin_kincomp'", timeout=30_000)
 
 
 def _summary_run(server, **values):
