@@ -67,7 +67,12 @@ def test_kincomp_is_one_click_away_from_a_fresh_login(page, server, size):
     # OctoPrint folds the tab into its unlabeled overflow menu at these widths
     entry = page.locator("#kincomp_navbar_link")
     assert entry.is_visible()
-    assert "KinComp" in entry.inner_text() and "off" in entry.inner_text()
+    # (the page had loaded before the setting changed: its push brings "off")
+    page.wait_for_function(
+        "(t => t.includes('KinComp') && t.includes('off'))"
+        "(document.querySelector('#kincomp_navbar_link').innerText)",
+        timeout=30_000,
+    )
     box = entry.bounding_box()
     assert box["x"] + box["width"] <= size[0] and box["y"] < 60  # in the top bar, in view
     page.screenshot(path=os.path.join(SHOTS, f"navbar-{size[0]}.png"))
