@@ -407,3 +407,42 @@ def test_a_re_test_with_servo_precompensation_reads_its_sensor_right(servo_retes
     off = analyse(traces[1.03], current=params)
     assert "sensor.gain" in loud(off)
     assert off["diagnostics"]["checks"]["sensor_gain"]["value"] == pytest.approx(1.03, abs=0.003)
+
+
+# the demo campaign's proposal (rounded): the parameters of its re-test, servo pre-compensation on
+DEMO_PROPOSAL = {
+    "squareness_um_per_m": {"xy": -3638.1, "xz": 799.9, "yz": -499.9},
+    "scale_ppm": {"x": -447.0, "y": 291.8, "z": 155.2},
+    "backlash": {
+        "x": [{"at_mm": 50.0, "um": 30.8}, {"at_mm": 150.0, "um": 14.3}],
+        "y": [{"at_mm": 50.0, "um": 6.5}, {"at_mm": 150.0, "um": 9.5}],
+        "z": 8.0,
+    },
+    "servo_lag_ms": {"x": 0.62, "y": 0.0, "z": 0.3},
+    "servo_precomp": True,
+}
+
+
+def test_a_compensated_re_test_without_planner_settings_is_timed_right():
+    """A live capture of a printer whose planner settings KinComp does not know records
+    none: the motion is estimated from the trace. A re-test at F3700 with the demo's
+    proposal in force (take-ups and servo leads bend the ramps) was estimated at 2,624
+    mm/s^2 and 0.06 mm on the demo's 1,500 mm/s^2, 0.013 mm printer: its runs planned 155 ms
+    short, "do not apply" (motion.timing, motion.ramp, a misfit). The estimate now keeps to
+    the timing valley; the clean twin is the same trace with the planner settings it was
+    planned with, and the uncompensated test estimates as before."""
+    from octoprint_kincomp.simulator.demo import demo_truth
+
+    spec = TestSpec(radius_mm=50.0, feed_mm_min=3700.0, centre=(100.0, 100.0, 10.0))
+    params = Params.from_dict(DEMO_PROPOSAL)
+    sent = _compensated(spec, params, Options())
+    known = trace(spec, demo_truth(), program=sent)
+    unknown = parse_csv_trace(known.to_text())
+    for key in MotionSettings.KEYS + ("motion",):
+        unknown.meta.pop(key, None)
+    twin = analyse(known, current=params)
+    out = analyse(unknown, current=params)
+    assert loud(twin) == [] and loud(out) == [], (loud(twin), loud(out))
+    assert out["diagnostics"]["fit"]["motion"]["estimated"] and "motion.estimated" in codes(out)
+    d = twin["diagnostics"]
+    within(out["diagnostics"], d["squareness_um_per_m"], d["scale_mismatch_ppm"])
