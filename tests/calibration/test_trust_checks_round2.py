@@ -430,7 +430,7 @@ def test_a_compensated_re_test_without_planner_settings_is_timed_right():
     mm/s^2 and 0.06 mm on the demo's 1,500 mm/s^2, 0.013 mm printer: its runs planned 155 ms
     short, "do not apply" (motion.timing, motion.ramp, a misfit). The estimate now keeps to
     the timing valley; the clean twin is the same trace with the planner settings it was
-    planned with, and the uncompensated test estimates as before."""
+    planned with."""
     from octoprint_kincomp.simulator.demo import demo_truth
 
     spec = TestSpec(radius_mm=50.0, feed_mm_min=3700.0, centre=(100.0, 100.0, 10.0))

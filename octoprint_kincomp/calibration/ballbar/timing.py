@@ -495,16 +495,24 @@ def sync_run(test: PlannedTest, mr: MeasuredRun, common: bool) -> Sync:
     return Sync(tau_in, tau_out, t_in, t_out, sse)
 
 
+def _syncs(
+    test: PlannedTest, measured: List[MeasuredRun], settings: MotionSettings, common: bool
+) -> List[Sync]:
+    """Each measured run synchronised with the plan of ``settings`` (``common``: one time
+    offset for both ramps of a run, else each ramp its own)."""
+    test.use(settings)
+    return [
+        sync_run(test, _measured_run(test, mr.direction, mr.t, mr.r), common=common)
+        for mr in measured
+    ]
+
+
 def _timing_gap(test: PlannedTest, measured: List[MeasuredRun], settings: MotionSettings) -> float:
     """s, the measured time between each run's ramps minus the planned time with
     ``settings`` (mean over the runs; each ramp synchronised on its own). It grows with the
     acceleration (a quicker plan) and with the junction deviation (quicker corners)."""
-    test.use(settings)
-    gaps = []
-    for mr in measured:
-        sync = sync_run(test, _measured_run(test, mr.direction, mr.t, mr.r), common=False)
-        gaps.append(sync.tau_out - sync.tau_in)
-    return float(np.mean(gaps))
+    syncs = _syncs(test, measured, settings, common=False)
+    return float(np.mean([s.tau_out - s.tau_in for s in syncs]))
 
 
 def _valley_accel(gap, la0: float) -> Optional[float]:
@@ -582,11 +590,9 @@ def estimate_motion(test: PlannedTest, measured: List[MeasuredRun]) -> MotionSet
     n = sum(len(r.t) for mr in measured for r in mr.ramps)
 
     def cost(settings: MotionSettings, common: bool) -> float:
-        test.use(settings)
         total = 0.0
-        for mr in measured:
-            mr2 = _measured_run(test, mr.direction, mr.t, mr.r)
-            total += sync_run(test, mr2, common=common).sse
+        for sync in _syncs(test, measured, settings, common):
+            total += sync.sse
         return total
 
     def planner(la: float, lj: float) -> MotionSettings:
