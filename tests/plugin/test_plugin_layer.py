@@ -404,6 +404,34 @@ def test_a_retired_connections_late_line_changes_nothing(plugin):
     assert plugin.prints.comm is third
 
 
+class _OpenComm(_Comm):
+    """A comm object that says whether it is closed, as OctoPrint's MachineCom."""
+
+    closed = False
+
+    def isClosedOrError(self):
+        return self.closed
+
+
+def test_a_disconnect_event_after_the_next_connection_is_the_old_ones(plugin):
+    """CI failure on a busy machine: the test disconnected and connected; OctoPrint's event
+    thread delivered DISCONNECTED after the new connection's first commands, KinComp
+    retired the new connection and let its every line pass untouched (a test program's
+    M0 reached OctoPrint, which blocked it; no demo trace; no pause after an error)."""
+    plugin.on_settings_save({"enabled": True, "params": SKEW.to_dict(), "home_mm": [0.0, 0.0, 0.0]})
+    old, new = _OpenComm(), _OpenComm()
+    plugin.queuing_hook(old, "queuing", "G28", None, "G28", tags={"source:api"})
+    old.closed = True  # the user disconnects: the old connection closes
+    plugin.queuing_hook(new, "queuing", "G28", None, "G28", tags={"source:api"})
+    plugin.on_event("Disconnected", {})  # the old connection's, delivered late
+    assert plugin.prints.comm is new
+    assert plugin.queuing_hook(new, "queuing", "G1 X20 Y50 Z1", None, "G1") not in (None, [])
+    assert plugin.queue.comp.known == (True, True, True)
+    new.closed = True  # now the new one closes: its event is taken
+    plugin.on_event("Disconnected", {})
+    assert plugin.prints.comm is None and plugin.queue.comp.known == (False, False, False)
+
+
 def test_moves_of_unknown_position_are_logged_once_not_per_line(plugin):
     """A print of unknown position logged a warning per move (709k lines, 103 MB, half the
     line rate): now once a minute with the count, as the notification."""

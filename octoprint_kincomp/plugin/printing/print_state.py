@@ -5,7 +5,12 @@
   the connection it was made for: a connection replaced or closed is retired, and what its
   threads still hand the hooks afterwards (an old monitor thread ends up to 30 s after the
   disconnect, with one last empty line) changes nothing: it is not taken for a new
-  connection, which would forget the new print's position.
+  connection, which would forget the new print's position. The DISCONNECTED event itself
+  reaches KinComp on OctoPrint's event thread, which on a busy machine can be after the
+  next connection's first commands: when the connection in force is open then, the event
+  was the old one's (retired already) and changes nothing. Taken as it came, it retired the
+  new connection, whose every line then passed untouched: no compensation, no test
+  program's pause, no demo trace until the next connect.
 * A print begins when its first file line reaches the queuing hook (file reader thread) or
   when PRINT_STARTED arrives (event thread), whichever comes first; both are counted under
   one lock, so that one print begins once and an end event of the previous print that
@@ -204,6 +209,9 @@ class PrintState:
         """One of PRINT_EVENTS."""
         with self.lock:  # against the queuing hook's view of the print
             if event == Events.DISCONNECTED:
+                if self._comm_open():  # late: a new connection took over (the docstring)
+                    self._logger.info("KinComp: an earlier connection's disconnect, seen late")
+                    return
                 self._retired.add(self.comm)
                 self.comm = None
                 self._queue.reset()
@@ -362,6 +370,13 @@ class PrintState:
             )
 
     # ~~ inside ----------------------------------------------------------------------------------
+    def _comm_open(self) -> bool:
+        """The connection in force is open: a DISCONNECTED now is an earlier connection's."""
+        try:
+            return self.comm is not None and not self.comm.isClosedOrError()
+        except AttributeError:  # not a MachineCom (tests): the event is taken as it comes
+            return False
+
     def _print_begins(self, payload: Dict[str, Any]) -> None:
         """A print starts: fresh state, its marker checked. Counted, so that a PrintDone of
         the previous print that arrives after this print's first line is recognised."""
