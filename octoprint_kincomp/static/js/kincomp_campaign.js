@@ -691,9 +691,10 @@ $(function () {
             if (current === "#tab_plugin_kincomp") self.plotLater();
         };
 
-        self.onStartupComplete = function () {
+        // (both at the start of a page opened logged in: one load)
+        self.onStartupComplete = _.debounce(function () {
             self.resumeLatest();
-        };
+        }, 50);
         self.onUserLoggedIn = self.onStartupComplete;
 
         self.onEventPrintDone = function () {

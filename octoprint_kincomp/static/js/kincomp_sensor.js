@@ -337,8 +337,11 @@ $(function () {
                 window.setTimeout(self.draw, 50);
             }
         };
-        self.onStartupComplete = self.refresh;
-        self.onUserLoggedIn = self.refresh;
+        // (both at the start of a page opened logged in: one load)
+        self.onStartupComplete = _.debounce(function () {
+            self.refresh();
+        }, 50);
+        self.onUserLoggedIn = self.onStartupComplete;
         self.tab.step.subscribe(function () {
             window.setTimeout(self.draw, 50);
         });
