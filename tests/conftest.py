@@ -41,6 +41,7 @@ SLOWEST_FIRST = [
     "tests/e2e/test_campaign.py",
     "tests/plugin/test_campaign_api.py",
     "tests/browser/test_first_hour.py",
+    "tests/browser/test_result_decision.py",
     "tests/sensor/test_capture.py",
     "tests/browser/test_ui.py",
     "tests/browser/test_findings_ui.py",
@@ -56,6 +57,8 @@ SLOWEST_FIRST = [
 ONE_WORKER = [
     "tests/e2e/test_compat.py",
     "tests/sensor/test_capture.py",
+    "tests/browser/test_result_decision.py",  # (its analysed campaign: made once)
+    "tests/engines/test_fastpaths.py",  # (the reference path's output: computed once per case)
     "tests/simulator/test_closed_loop.py",
     "tests/release/test_extras.py",
     "tests/calibration/test_campaign.py",
