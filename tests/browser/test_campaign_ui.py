@@ -222,3 +222,43 @@ def test_a_campaign_is_deleted_from_the_history(page, server):
     group.wait_for(state="detached")
     assert server.request("GET", f"{API}/campaigns/{cid}")[0] == 404
     assert not page.is_visible("#kincomp_campaign_history_error")
+
+
+def test_a_restarted_test_waits_for_the_bar_again(page, server):
+    """Issue 35: OctoPrint's own Restart of a campaign test at its unmount pause (the program
+    starts from the top and pauses to mount the bar again): the page asks to mount the bar,
+    not to unmount it (the pauses are told apart by the resumes since the print started)."""
+    settings(server, enabled=False, params=ZERO, demo={"enabled": True, "live": False})
+    try:
+        _open_campaign_mode(page)
+        page.fill("#kincomp_campaign_rxy", "50")
+        page.click("#kincomp_campaign_start")
+        page.wait_for_selector("#kincomp_campaign_current >> text=Test 1 of", state="visible")
+        page.check("#kincomp_campaign_check")
+        page.click("#kincomp_campaign_print")
+        paused = page.locator("#kincomp_campaign_paused")
+        paused.wait_for(state="visible", timeout=180_000)
+        assert "mount the bar" in paused.inner_text(), paused.inner_text()
+        page.click("#kincomp_campaign_resume")
+        paused.wait_for(state="hidden")
+        paused.wait_for(state="visible", timeout=180_000)  # the end of the test
+        assert "unmount the bar" in paused.inner_text(), paused.inner_text()
+        # OctoPrint's events as the page gets them: the restart's start, then a pause
+        page.evaluate("""() => { window.kcEvents = [];
+            OctoPrint.socket.onMessage("event", m => {
+                window.kcEvents.push((m.data || {}).type); }); }""")
+        # the user presses OctoPrint's Restart (the test again, from its first line)
+        code, body = server.request("POST", "/api/job", {"command": "restart"})
+        assert code == 204, body
+        page.wait_for_function(
+            """() => { const e = window.kcEvents, s = e.indexOf("PrintStarted");
+                       return s >= 0 && e.indexOf("PrintPaused", s) > s; }""",
+            timeout=180_000,
+        )  # the program's mount pause again
+        paused.wait_for(state="visible")
+        text = paused.inner_text()
+        assert "mount the bar" in text and "unmount" not in text, text
+    finally:
+        server.request("POST", "/api/job", {"command": "cancel"})
+        server.wait_state("Operational", timeout=120)
+        settings(server, demo={"enabled": False, "live": True})
