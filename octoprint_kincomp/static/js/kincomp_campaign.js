@@ -691,10 +691,9 @@ $(function () {
             if (current === "#tab_plugin_kincomp") self.plotLater();
         };
 
-        // (both at the start of a page opened logged in: one load)
-        self.onStartupComplete = _.debounce(function () {
+        self.onStartupComplete = function () {
             self.resumeLatest();
-        }, 50);
+        };
         self.onUserLoggedIn = self.onStartupComplete;
 
         self.onEventPrintDone = function () {

@@ -337,11 +337,8 @@ $(function () {
                 window.setTimeout(self.draw, 50);
             }
         };
-        // (both at the start of a page opened logged in: one load)
-        self.onStartupComplete = _.debounce(function () {
-            self.refresh();
-        }, 50);
-        self.onUserLoggedIn = self.onStartupComplete;
+        self.onStartupComplete = self.refresh;
+        self.onUserLoggedIn = self.refresh;
         self.tab.step.subscribe(function () {
             window.setTimeout(self.draw, 50);
         });

@@ -619,15 +619,14 @@ $(function () {
             if ((ps.isPrinting() || ps.isPaused()) && /(^|\/)ballbar_[^/]*\.gcode$/.test(path || "")) self.step("program");
         };
 
-        // a page opened logged in gets both callbacks at its start: one load for the two
-        var loadAll = _.debounce(function () {
+        self.onUserLoggedIn = function () {
             self.refresh();
             self.loadRuns(true);
-        }, 50);
-        self.onUserLoggedIn = loadAll;
+        };
         self.onStartupComplete = function () {
             self.restoreStep();
-            loadAll();
+            self.refresh();
+            self.loadRuns(true);
         };
         self.compareRows.subscribe(function (table) {
             // a comparison (re-test, or two runs of the history) is read in the details
