@@ -178,6 +178,13 @@ def test_a_whole_campaign_in_demo_mode(page, server):
         for cmp in after["comparison"]:
             rows = {r["key"]: r for r in cmp["rows"]}
             assert rows["squareness_um_per_m"]["reduction_pct"] > 95, cmp["step"]
+        # issue 34: the clean re-test of the demo printer (classic jerk at 300 mm/s^2, servo
+        # pre-compensation in force) is quiet; it read "apply with care" (a misfit of the
+        # XY test at F3700) until the ramps were synchronised on where the head is
+        assert after["verdict"]["decision"] == "apply", after["verdict"]
+        warned = [f["code"] for f in after["findings"] if f["severity"] != "info"]
+        assert not warned, warned
+        assert "Apply with care" not in page.inner_text("#kincomp_campaign_verdict")
         xy = page.locator("#kincomp_campaign_plane_xy tr", has_text="Squareness").inner_text()
         assert float(xy.split()[-2]) > 95, xy
         page.wait_for_selector("#kincomp_campaign_plot_0 .legend >> text=CCW (before)")
