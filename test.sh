@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Run KinComp's whole test suite (sets up .venv on first use). Extra arguments go to pytest,
 # e.g. ./test.sh -m "not slow" for the quick suite, ./test.sh --durations=25 for where the
-# time goes. The tests run in two processes (pytest-xdist: -n 2, the slowest handed out
-# first, see tests/conftest.py); KINCOMP_TEST_PROCESSES=1 runs them in one.
+# time goes. The tests run in three processes (pytest-xdist: -n 3 on two cores, since many
+# tests wait on a printer or a real-time stream; the slowest handed out first, see
+# tests/conftest.py); KINCOMP_TEST_PROCESSES=1 runs them in one.
 set -euo pipefail
 cd "$(dirname "$0")"
 # the compatibility test's second environment (OctoPrint 1.10, about a minute on its first
@@ -16,7 +17,7 @@ if [ -z "${KINCOMP_NO_COMPAT:-}" ] && [ -z "${KINCOMP_NO_BROWSER:-}" ]; then
     ./scripts/compat-venv.sh >.venv-op110.log 2>&1 &
     compat=$!
 fi
-n=${KINCOMP_TEST_PROCESSES:-2}
+n=${KINCOMP_TEST_PROCESSES:-3}
 rc=0
 if [ "$n" -gt 1 ]; then
     .venv/bin/python -m pytest -q -n "$n" --dist loadgroup --no-loadscope-reorder "$@" || rc=$?

@@ -16,7 +16,7 @@ once per session and copied into its basedir (``devserver.users_template``).
 on ``server``, logged in as the admin from the state stored after the session's first
 login; ``@pytest.mark.fresh_login``: through the login form instead.
 
-Under pytest-xdist (``./test.sh`` runs ``-n 2 --dist loadgroup``): the slowest modules are
+Under pytest-xdist (``./test.sh`` runs ``-n 3 --dist loadgroup``): the slowest modules are
 handed out first, modules with module-scoped fixtures stay on one worker, and a test marked
 ``alone`` (it measures rates or times) runs while no other test runs."""
 

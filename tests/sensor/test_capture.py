@@ -293,10 +293,22 @@ def test_waiting_while_armed_keeps_only_the_last_seconds(sensors, captures):
     vs = sensors(transport="pty")
     cap = captures(SensorConfig(port=vs.url), pre_keep_s=2.0, tick_s=0.1)
     cap.arm(SPEC)
-    time.sleep(2.0)  # 40 s of device time: 20,000 samples before the program starts
-    st = cap.status()
-    # kept: 2 dwells + 1 s (3 s, trimmed at 4.5 s) plus one read, of 20,000 samples
-    assert st["state"] == "armed" and 500 < st["samples"] <= 4000
+    # 40 s of device time before the program starts: 20,000 samples streamed (awaited: a
+    # loaded machine streams them later)
+    start = vs._k
+    deadline = time.monotonic() + 60.0
+    while vs._k - start < 20_000:
+        assert time.monotonic() < deadline, "the virtual bar did not stream"
+        time.sleep(0.05)
+    # kept: 2 dwells + 1 s (3 s, trimmed at 4.5 s) plus what came since the last trim, of
+    # the 20,000 (checked until a trim: under load a read holds more, never the whole wait)
+    while True:
+        st = cap.status()
+        assert st["state"] == "armed", st
+        if 500 < st["samples"] <= 4000:
+            break
+        assert time.monotonic() < deadline, st
+        time.sleep(0.02)
     vs.play(PROGRAM, time.monotonic(), spec=SPEC)
     assert cap.wait(("done", "failed"), 20) == "done", cap.result.message
 
