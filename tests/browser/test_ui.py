@@ -119,6 +119,9 @@ def test_calibration_wizard_demo_loop(page, server):
         runs = server.request("GET", "/plugin/kincomp/runs")[1]["runs"]
         run = server.request("GET", f"/plugin/kincomp/runs/{runs[0]['id']}")[1]
         assert run["simulated"]
+        # issue 34: the README's five-minute calibration is clean: nothing to warn about
+        assert not [f["code"] for f in run["findings"] if f["severity"] != "info"], run["findings"]
+        assert run["verdict"]["decision"] == "apply", run["verdict"]
         shown = page.inner_text("#kincomp_result_table")
         assert f"{run['diagnostics']['squareness_um_per_m']:.2f}" in shown
         assert page.is_visible("text=SIMULATED data.")
@@ -152,6 +155,11 @@ def test_calibration_wizard_demo_loop(page, server):
         row = page.locator("#kincomp_result_table tr", has_text="Squareness").inner_text()
         reduction = float(row.split()[-2])
         assert reduction > 90, row
+        again = server.request("GET", "/plugin/kincomp/runs")[1]["runs"][0]
+        again = server.request("GET", f"/plugin/kincomp/runs/{again['id']}")[1]
+        assert again["id"] != run["id"]
+        assert again["verdict"]["decision"] == "apply", again["verdict"]
+        assert not [f["code"] for f in again["findings"] if f["severity"] != "info"]
         page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
         _no_popups(page)
         page.locator("#kincomp_result").screenshot(

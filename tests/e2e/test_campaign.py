@@ -160,6 +160,10 @@ def test_a_demo_campaign_measured_by_the_live_virtual_bar(server):
         assert done["analysis"]["proposed"]["squareness_um_per_m"] == pytest.approx(
             {"xy": -3638.6, "xz": 800.0, "yz": -500.0}, abs=20
         )
+        # issue 34: the clean demo printer's campaign raises no warning
+        found = done["analysis"]["findings"]
+        assert not [f["code"] for f in found if f["severity"] != "info"], found
+        assert done["analysis"]["verdict"]["decision"] == "apply", done["analysis"]["verdict"]
     finally:
         settings(server, demo={"enabled": False})
         _reset_params(server)

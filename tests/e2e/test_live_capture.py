@@ -186,6 +186,9 @@ def test_demo_loop_on_the_live_path(server, clean):
     code, prog = server.request("POST", "/plugin/kincomp/program", PROGRAM)
     after = _live_run(server, before["id"])
     assert after["status"] == "ok" and after["params_before_hash"] == applied["params_hash"]
+    for run in (before, after):  # issue 34: a clean demo printer raises no warning
+        assert run["verdict"]["decision"] == "apply", run["verdict"]
+        assert not [f["code"] for f in run["findings"] if f["severity"] != "info"], run["findings"]
     code, cmp = server.request(
         "GET", f"/plugin/kincomp/compare?before={before['id']}&after={after['id']}"
     )
