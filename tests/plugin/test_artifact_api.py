@@ -1,6 +1,7 @@
 """The printed-artifact endpoints (issue 27) through the real blueprint: program, sheet,
 analyze -> a stored run that applies like any run; bad input is 400 naming the field."""
 
+import functools
 import json
 import os
 
@@ -9,6 +10,7 @@ import pytest
 
 from octoprint_kincomp.calibration.artifact.program import ArtifactSpec, generate, read_measurements
 from octoprint_kincomp.core.params import Params
+from octoprint_kincomp.plugin.calibration import artifact_api
 from octoprint_kincomp.simulator.artifact import simulate_readings
 from tests.support.blueprint import PREFIX, blueprint_client
 
@@ -140,7 +142,7 @@ def test_sheet_of_a_file_that_is_no_artifact(api):
     assert resp.status_code == 400 and "not a KinComp artifact" in resp.get_json()["error"]
 
 
-def test_quick_artifact_its_stl_and_demo_readings(api):
+def test_quick_artifact_its_stl_and_demo_readings(api, monkeypatch):
     """Issue 35: the quick artifact (12 readings, one field each), its STL for the user's own
     slicer (the program's walls, its sheet unchanged), and in demo mode SIMULATED readings of
     it from the demo printer's hidden errors; analysed, the run says SIMULATED."""
@@ -164,6 +166,11 @@ def test_quick_artifact_its_stl_and_demo_readings(api):
     resp = api.client.get(PREFIX + "/artifact/simulated?path=" + path)
     assert resp.status_code == 409 and "demo mode" in resp.get_json()["error"]
     api.plugin.demo.set_enabled(True, False)
+    # (demo mode draws fresh caliper noise each time: seeded here, since 3 % of the quick
+    # artifact's results lie beyond 3 sigma, as a t distribution of few degrees of freedom
+    # has it: 300 seeds, 90.7 % within 2 sigma, which tests/calibration checks)
+    seeded = functools.partial(artifact_api.demo_readings, rng=np.random.default_rng(35))
+    monkeypatch.setattr(artifact_api, "demo_readings", seeded)
     resp = api.client.get(PREFIX + "/artifact/simulated?path=" + path)
     assert resp.status_code == 200
     sim = resp.get_json()
