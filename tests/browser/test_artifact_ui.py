@@ -178,8 +178,11 @@ def test_quick_artifact_in_demo_mode(page, server):
         assert abs(st["settings"]["params"]["squareness_um_per_m"]["xy"] - float(row[2])) < 0.1
         # opened from the history, the tab draws no ballbar plot for it
         step(page, "history")
-        page.wait_for_selector("#kincomp_history tbody tr")
-        page.locator("#kincomp_history tbody tr").first.locator("button").click()
+        # (its own row, once the history has it: the first row may still be an older run's)
+        run = server.request("GET", "/plugin/kincomp/runs")[1]["runs"][0]
+        assert run["source"] == "artifact", run
+        mine = page.locator(f"#kincomp_history tbody tr:has(input[value='{run['id']}'])")
+        mine.first.locator("button").click()
         page.wait_for_selector("#kincomp_artifact_result", state="visible")
         hidden = page.evaluate(
             "getComputedStyle(document.querySelector('#kincomp_tab .kincomp-plot-box')).display"
