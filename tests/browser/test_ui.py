@@ -9,6 +9,7 @@ import urllib.parse
 
 import pytest
 
+from tests.support import assert_applies_cleanly
 from tests.support.browser import (
     SHOTS,
     ZERO,
@@ -120,8 +121,7 @@ def test_calibration_wizard_demo_loop(page, server):
         run = server.request("GET", f"/plugin/kincomp/runs/{runs[0]['id']}")[1]
         assert run["simulated"]
         # issue 34: the README's five-minute calibration is clean: nothing to warn about
-        assert not [f["code"] for f in run["findings"] if f["severity"] != "info"], run["findings"]
-        assert run["verdict"]["decision"] == "apply", run["verdict"]
+        assert_applies_cleanly(run)
         shown = page.inner_text("#kincomp_result_table")
         assert f"{run['diagnostics']['squareness_um_per_m']:.2f}" in shown
         assert page.is_visible("text=SIMULATED data.")
@@ -158,8 +158,7 @@ def test_calibration_wizard_demo_loop(page, server):
         again = server.request("GET", "/plugin/kincomp/runs")[1]["runs"][0]
         again = server.request("GET", f"/plugin/kincomp/runs/{again['id']}")[1]
         assert again["id"] != run["id"]
-        assert again["verdict"]["decision"] == "apply", again["verdict"]
-        assert not [f["code"] for f in again["findings"] if f["severity"] != "info"]
+        assert_applies_cleanly(again)
         page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
         _no_popups(page)
         page.locator("#kincomp_result").screenshot(

@@ -20,6 +20,7 @@ import time
 import pytest
 from octoprint.util.comm import strip_comment
 
+from tests.support import ARTIFACTS
 from tests.support.serverutil import (
     AUTOMATIC,
     DATA,
@@ -143,12 +144,8 @@ def test_soak_a_long_print(server):
         "rss_growth_mb": round(growth_mb, 1),
         "moves_compensated": status(server)["compensation"]["report"]["moves_compensated"],
     }
-    os.makedirs(
-        os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts"), exist_ok=True
-    )
-    with open(
-        os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "soak.json"), "w"
-    ) as f:
+    os.makedirs(ARTIFACTS, exist_ok=True)
+    with open(os.path.join(ARTIFACTS, "soak.json"), "w") as f:
         json.dump(figures, f, indent=1)
     figures["rss_growth_allowed_mb"] = round(LEAK_BYTES_PER_LINE * len(lines) / 2**20, 1)
     print("soak:", figures)

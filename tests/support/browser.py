@@ -16,8 +16,10 @@ from typing import Dict, Optional
 
 import pytest
 
+from tests.support import ARTIFACTS
+
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-SHOTS = os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts", "screenshots")
+SHOTS = os.path.join(ARTIFACTS, "screenshots")
 ZERO = {
     "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
     "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},

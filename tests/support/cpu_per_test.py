@@ -19,7 +19,9 @@ import time
 
 import pytest
 
-OUT = os.path.join(os.path.dirname(__file__), "..", "..", "test-artifacts")
+from tests.support import ARTIFACTS
+
+OUT = ARTIFACTS
 TICKS = os.sysconf("SC_CLK_TCK")
 
 
