@@ -21,8 +21,9 @@ came back):
    four clients reading /status in a tight loop, uploading traces, running joint analyses;
    OctoPrint's own /api/version loop beside them): at least 80 % of its quiet rate;
 7. motion limits beyond any printer's are refused naming the field;
-8. (OctoPrint's settings dialog on a full disk: in-process only,
-   ``tests/plugin/test_concurrent_saves.py``; not probed here);
+8. (OctoPrint's settings dialog on a full disk: not probed here, its basedir would have to
+   be the tmpfs; the suite's ``tests/e2e/test_full_disk_settings.py`` runs it on a real
+   server);
 9. ``/sensor/arm`` follows no link out of the uploads (403); a program's plane line alone
    is 400;
 10. an upload on a full disk is 507 (as root: the temporary folder a small tmpfs; OctoPrint's
