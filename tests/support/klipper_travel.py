@@ -12,6 +12,7 @@ the compensated run is KinComp's when the input line it came from has none uncom
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import List, Optional, Sequence, Tuple
 
@@ -29,6 +30,30 @@ REALISTIC = Params.from_dict(
         "backlash": {"x": 60.0, "y": 40.0},
     }
 )
+
+
+# lines of other firmware that mean something else to Klipper, the same in both runs:
+# Prusa's and Bambu's "M84 E" / "M18 E" turn the extruder's motor off; Klipper's M84 and M18
+# take no axis and turn every motor off, forgetting the homing (every later move: "Must
+# home axis first"). Bambu's "G28 X" re-homes X on a printer whose own start code homed Y
+# and Z its own way; on Klipper it is G28 (all axes).
+_E_MOTOR_OFF = re.compile(r"M(?:84|18)\s+E", re.IGNORECASE)
+_HOME_X_ONLY = re.compile(r"G28\s+X", re.IGNORECASE)
+
+
+def for_klipper(lines: Sequence[str]) -> List[str]:
+    """``lines`` as a Klipper user would run them (see the rules above); each changed line
+    keeps its place (so errors still name the file's own line numbers)."""
+    out = []
+    for line in lines:
+        code = line.split(";", 1)[0].strip()
+        if _E_MOTOR_OFF.fullmatch(code):
+            out.append("; (for Klipper) " + line)
+        elif _HOME_X_ONLY.fullmatch(code):
+            out.append("G28 ; (for Klipper) " + line)
+        else:
+            out.append(line)
+    return out
 
 
 def home_after_g28(config: str) -> Tuple[float, float, float]:
