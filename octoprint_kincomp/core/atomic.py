@@ -19,7 +19,7 @@ import re
 import signal
 import tempfile
 import time
-from typing import BinaryIO, Iterator, List
+from typing import BinaryIO, Iterator, List, Optional, Set
 
 TEMP_PREFIX = ".kincomp-"
 # ours: the writer's pid, then mkstemp's random letters (never a '-'), then the suffix
@@ -141,6 +141,76 @@ def clean_stale_uploads(directory: str) -> List[str]:
                 if not os.path.islink(path):
                     os.unlink(path)
                     removed.append(path)
+        except OSError:
+            continue
+    return removed
+
+
+# OctoPrint's own upload routes stream a body into ``octoprint-file-upload-<random>.tmp`` in
+# the temporary folder and move it away when the request ends; a server killed during an
+# upload leaves it, and OctoPrint never removes it. No pid in the name says whose it is, so
+# such a file is only taken as abandoned when nobody can still be using it: last written
+# over an hour ago, and open in no process.
+_OCTOPRINT_UPLOAD = re.compile(r"octoprint-file-upload-[^/]*\.tmp\Z")
+ABANDONED_UPLOAD_S = 3600.0
+
+
+def open_files() -> Optional[Set[str]]:
+    """The real paths of every file a process of this machine has open (Linux ``/proc``);
+    None when that cannot be known (no ``/proc``, or a process whose files are not ours to
+    read)."""
+    try:
+        pids = [p for p in os.listdir("/proc") if p.isdigit()]
+    except OSError:
+        return None
+    found = set()
+    for pid in pids:
+        fds = os.path.join("/proc", pid, "fd")
+        try:
+            names = os.listdir(fds)
+        except FileNotFoundError:
+            continue  # (ended meanwhile)
+        except OSError:
+            return None
+        for fd in names:
+            try:
+                found.add(os.readlink(os.path.join(fds, fd)))
+            except OSError:
+                continue
+    return found
+
+
+def clean_abandoned_octoprint_uploads(directory: str, now: Optional[float] = None) -> List[str]:
+    """Remove OctoPrint's own upload temporary files in ``directory`` (the temporary folder)
+    that were last written more than :data:`ABANDONED_UPLOAD_S` ago and that no process has
+    open; nothing when the open files cannot be known. Returns the removed paths."""
+    removed: List[str] = []
+    try:
+        names = [n for n in os.listdir(directory) if _OCTOPRINT_UPLOAD.match(n)]
+    except OSError:
+        return removed
+    now = time.time() if now is None else now
+    old = []
+    for name in names:
+        path = os.path.join(directory, name)
+        try:
+            st = os.lstat(path)
+        except OSError:
+            continue
+        if os.path.isfile(path) and not os.path.islink(path):
+            if now - st.st_mtime > ABANDONED_UPLOAD_S:
+                old.append(path)
+    if not old:
+        return removed
+    in_use = open_files()
+    if in_use is None:
+        return removed
+    for path in old:
+        if os.path.realpath(path) in in_use:
+            continue
+        try:
+            os.unlink(path)
+            removed.append(path)
         except OSError:
             continue
     return removed

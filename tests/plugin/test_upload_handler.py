@@ -247,3 +247,49 @@ def test_the_plugin_cleans_the_temporary_folder_at_start_up(tmp_path, monkeypatc
         assert not stale.exists()
     finally:
         ns.stop()
+
+
+def test_octoprints_own_abandoned_upload_files_are_removed_and_nothing_in_use(tmp_path):
+    """Issue 37 row 10: OctoPrint's own upload routes leave ``octoprint-file-upload-*.tmp``
+    behind when the server is killed during an upload, and OctoPrint never removes them.
+    Their name says nothing of whose they are: one is removed only when last written over an
+    hour ago and open in no process (a slow upload still being written, or one that another
+    server holds open, stays)."""
+    hour = atomic.ABANDONED_UPLOAD_S
+    now = 1_000_000_000.0
+
+    def make(name, age_s):
+        path = tmp_path / name
+        path.write_bytes(b"x" * 10)
+        os.utime(path, (now - age_s, now - age_s))
+        return path
+
+    abandoned = make("octoprint-file-upload-aaaa1111.tmp", hour + 60)
+    recent = make("octoprint-file-upload-bbbb2222.tmp", hour - 60)  # an upload in flight
+    held = make("octoprint-file-upload-cccc3333.tmp", hour + 60)
+    other = make("octoprint-file-upload-dddd4444.gcode", hour + 60)  # not the pattern
+    (tmp_path / "octoprint-file-upload-eeee5555.tmp").symlink_to(other)
+    os.utime(tmp_path / "octoprint-file-upload-eeee5555.tmp", (0, 0), follow_symlinks=False)
+    with open(held, "rb"):  # some process has it open
+        removed = atomic.clean_abandoned_octoprint_uploads(str(tmp_path), now=now)
+    assert removed == [str(abandoned)]
+    assert recent.exists() and held.exists() and other.exists()
+    assert (tmp_path / "octoprint-file-upload-eeee5555.tmp").is_symlink()
+    # where the open files cannot be known, nothing is removed
+    make("octoprint-file-upload-ffff6666.tmp", hour + 60)
+    with mock.patch.object(atomic, "open_files", return_value=None):
+        assert atomic.clean_abandoned_octoprint_uploads(str(tmp_path), now=now) == []
+
+
+def test_the_plugin_sweeps_octoprints_abandoned_upload_files_at_start_up(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    os.makedirs(tmp_path / "tmp")
+    left = tmp_path / "tmp" / "octoprint-file-upload-abcd1234.tmp"
+    left.write_bytes(b"x")
+    old = os.stat(left).st_mtime - 2 * atomic.ABANDONED_UPLOAD_S
+    os.utime(left, (old, old))
+    ns = blueprint_client(str(tmp_path / "op"))
+    try:
+        assert not left.exists()
+    finally:
+        ns.stop()

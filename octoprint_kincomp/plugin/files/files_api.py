@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import tempfile
 from typing import Any, Callable, Dict
@@ -31,8 +32,9 @@ import flask
 from flask_babel import gettext
 from octoprint.filemanager import FileDestinations, valid_file_type
 from octoprint.filemanager.util import DiskFileWrapper, StreamWrapper
+from octoprint.util import RepeatedTimer
 
-from ...core.atomic import clean_stale, clean_stale_uploads
+from ...core.atomic import clean_abandoned_octoprint_uploads, clean_stale, clean_stale_uploads
 from ...core.kinematics import changes_nothing
 from ...core.marker import file_marker
 from ...engines.file_loop import AlreadyCompensated
@@ -45,6 +47,9 @@ from .. import http
 from ..settings.settings_store import SettingsStore
 from .job_api import JobApi
 from .upload import CompensatingStream
+
+_logger = logging.getLogger("octoprint.plugins.kincomp")
+SWEEP_S = 3600.0  # s between sweeps of OctoPrint's abandoned upload files
 
 
 class LinkOutside(PermissionError):
@@ -60,10 +65,12 @@ def start_up_clean(folder: str) -> None:
     """The plugin's data folder at start-up: temporary files of processes that no longer
     run (``.kincomp-*``), and job outputs that were never moved into the uploads; and in
     the temporary folder the files of uploads to KinComp's routes whose server was killed
-    (``kincomp-upload-<pid>-*.tmp``, ``upload_handler.py``)."""
+    (``kincomp-upload-<pid>-*.tmp``, ``upload_handler.py``) and OctoPrint's own upload files
+    abandoned the same way (:func:`sweep_octoprint_uploads`)."""
     for sub in ("", "runs", "jobs"):
         clean_stale(os.path.join(folder, sub))
     clean_stale_uploads(tempfile.gettempdir())
+    sweep_octoprint_uploads()
     jobs = os.path.join(folder, "jobs")
     if os.path.isdir(jobs):
         for name in os.listdir(jobs):
@@ -73,6 +80,24 @@ def start_up_clean(folder: str) -> None:
                     os.unlink(path)
                 except OSError:
                     pass
+
+
+_SWEEPER = []  # the one timer of this process
+
+
+def _start_sweeping() -> None:
+    if not _SWEEPER:
+        _SWEEPER.append(RepeatedTimer(SWEEP_S, sweep_octoprint_uploads, daemon=True))
+        _SWEEPER[0].start()
+
+
+def sweep_octoprint_uploads() -> None:
+    """OctoPrint's own upload routes leave their temporary file behind when the server is
+    killed during an upload, and nothing removes it: at start-up and every
+    :data:`SWEEP_S` those last written over an hour ago that no process has open are removed
+    (``core.atomic.clean_abandoned_octoprint_uploads``) and logged."""
+    for path in clean_abandoned_octoprint_uploads(tempfile.gettempdir()):
+        _logger.info("removed an abandoned upload file of OctoPrint's: %s", path)
 
 
 class FilesApi:
@@ -96,6 +121,7 @@ class FilesApi:
         self._data_folder = data_folder
         folder = data_folder()
         start_up_clean(folder)
+        _start_sweeping()
         self.jobs = JobQueue(
             self._job_changed,
             history=os.path.join(folder, "jobs.json"),

@@ -16,8 +16,10 @@ differences:
 * **Its temporary files are KinComp's:** ``kincomp-upload-<pid>-<random>.tmp`` in the same
   temporary folder as OctoPrint's (``$TMPDIR``, else the system's), so that a server killed
   during an upload (SIGKILL, power loss: nothing removes them) has its leftovers removed at
-  the next start (``core.atomic.clean_stale_uploads``); OctoPrint's own files of other
-  routes, and those of another server still running, are not touched.
+  the next start (``core.atomic.clean_stale_uploads``); those of another server still
+  running are not touched. OctoPrint's own routes' files (``octoprint-file-upload-*.tmp``,
+  no pid in the name) are removed only once abandoned: over an hour old and open in no
+  process (``files_api.sweep_octoprint_uploads``).
 
 Requests are handed to Flask on a small thread pool of their own (:data:`THREADS`), not on
 OctoPrint's request threads.
