@@ -7,7 +7,7 @@ base acceleration capped so that no axis exceeds its own maximum), ``vn`` the no
 A junction ``i`` joins block ``i`` to block ``i + 1``; the functions return the highest
 squared speed the firmware allows there (before the nominal speeds and stops are applied by
 the caller, :mod:`.planner`). Each is written from the firmware's own source (docs/marlin.md,
-docs/klipper.md, docs/reprapfirmware.md give the lines):
+docs/klipper.md, docs/reprapfirmware.md: the rules and how each was checked):
 
 * **Marlin 2.1.2, junction deviation** (:func:`marlin_jd`): ``v^2 = a_j JD s / (1 - s)`` with
   ``s = sin(t/2)`` of the angle ``t`` between the moves' extensions and ``a_j`` the block's

@@ -179,12 +179,14 @@ def test_rrf_never_joins_an_xy_move_to_a_z_only_move():
 # -- acceleration ---------------------------------------------------------------------------
 
 
-def test_a_move_with_z_accelerates_within_the_z_axis_m201():
+@pytest.mark.parametrize("firmware", ["marlin", "reprapfirmware"])
+def test_a_move_with_z_accelerates_within_the_z_axis_m201(firmware):
     """Each move's own acceleration: the base acceleration lowered so that no axis exceeds
-    its M201 (a 45 degree XZ move with Z at 100 mm/s^2: 100 / sin 45 along the path)."""
+    its M201 (a 45 degree XZ move with Z at 100 mm/s^2: 100 / sin 45 along the path;
+    RepRapFirmware's M201 box gives the same)."""
     p = _plan(
         "G1 X10 Z10 F600",
-        planner="marlin",
+        planner=firmware,
         accel_mm_s2=1500.0,
         max_accel_mm_s2={"x": 3000.0, "y": 3000.0, "z": 100.0},
         max_feed_mm_min={"x": 18000.0, "y": 18000.0, "z": 18000.0},

@@ -30,6 +30,9 @@ PAGES = [
     "compensation-details",
     "printer-profiles",
     "travel-edges",
+    "klipper",
+    "marlin",
+    "reprapfirmware",
 ]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
