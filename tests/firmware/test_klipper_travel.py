@@ -131,11 +131,13 @@ def test_campaign_programs(klippy, tmp_path, name, step):
     assert out.new == [], out.new[:5]
 
 
-def test_the_artifact_program(klippy, tmp_path):
-    """The printed artifact on a CoreXY whose Y homes at its maximum (the Sapphire Plus)."""
+@pytest.mark.parametrize("mode", ["quick", "full"])
+def test_the_artifact_program(klippy, tmp_path, mode):
+    """The printed artifact (both modes) on a CoreXY whose Y homes at its maximum (the
+    Sapphire Plus)."""
     name = "printer-twotrees-sapphire-plus-sp-5-v1.1-2021.cfg"
     config = klipper.stock_config(name)
-    lines = artifact_program(ArtifactSpec(volume=_volume(config), mode="quick"), date="-")
+    lines = artifact_program(ArtifactSpec(volume=_volume(config), mode=mode), date="-")
     out = kt.compare(klippy, tmp_path, config, lines.splitlines())
     assert not out.crashed and out.plain == []
     assert out.new == [], out.new[:5]
