@@ -385,13 +385,13 @@ def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
             1,
             _edited(xy, "program_hash", "0123456789ab"),
             "edited.csv",
-            "the metadata does not match the program",
+            "the metadata was edited or belongs to another test",
         ),
         (
             1,
             _edited(xy, "params_hash", "ffffffffffff"),
             "params.csv",
-            "measured with parameters ffffffffffff",
+            "measured with other parameters than the campaign runs with",
         ),
         (
             1,

@@ -89,6 +89,32 @@ def test_german_catalog_is_complete_and_keeps_placeholders():
     assert ids == _ids(POT)
 
 
+# the informal address: its pronouns, and the du imperatives of the verbs the UI asks with
+# (a sentence that starts with one of them without "Sie" after it)
+_DU_WORDS = re.compile(r"\b(du|dich|dir|dein|deine|deinen|deinem|deiner|euch|euer)\b")
+_DU_IMPERATIVE = re.compile(
+    r"(?:^|[.:;!?]\s+|\(\s*)(Übernimm|Teste|Prüfe|Miss|Drück|Drücke|Wähl|Wähle|Lade|Lies|Gib|"
+    r"Nimm|Schalte|Starte|Stell|Stelle|Setze|Öffne|Klick|Klicke|Speichere|Montiere|Entferne|"
+    r"Warte|Plane|Trage|Halte|Sieh|Lass|Bestätige|Wiederhole|Vergleiche|Kalibriere)\b"
+    r"(?!\s+Sie\b)"
+)
+
+
+def test_german_addresses_the_user_in_one_form():
+    """Issue 35: "du" and "Sie" were mixed ("Übernimm ... teste dann erneut" in the wizard,
+    "Teste erneut" after Apply). The UI says "Sie" throughout."""
+    with open(PO, "rb") as f:
+        catalog = read_po(f, locale="de")
+    informal = [
+        m.string
+        for m in catalog
+        if m.id and (_DU_WORDS.search(m.string) or _DU_IMPERATIVE.search(m.string))
+    ]
+    assert informal == []
+    assert _DU_IMPERATIVE.search("Parameter übernommen. Teste erneut, um ...")  # (the check)
+    assert not _DU_IMPERATIVE.search("Parameter übernommen. Testen Sie erneut.")
+
+
 def test_bundled_catalog_matches_the_sources():
     with open(PO, "rb") as a, open(os.path.join(BUNDLED, "messages.po"), "rb") as b:
         assert a.read() == b.read(), "run scripts/translations.sh compile"

@@ -572,8 +572,8 @@ def outlier_findings(
                     gr=f"{gr:.1f}",
                 ),
                 Msg(
-                    "Compare circularity without the outliers (circularity_robust_um), or repeat "
-                    "the test with the sensor's cable and mount secured."
+                    "Compare the circularity without them (the value above), or repeat the test "
+                    "with the sensor's cable and mount secured."
                 ),
                 **ev,
             )

@@ -1276,7 +1276,7 @@ def arc_findings(mapping, label: str = "") -> List[Finding]:
             ),
             Msg(
                 "Upload the trace with the metadata of the test that was run (its plane, "
-                "capture_deg and start_deg); do not apply this result."
+                "capture arc and start angle); do not apply this result."
             ),
             off_arc_share={k: round(v, 4) for k, v in mapping.off_arc.items()},
             arc_deg=[round(lo, 2), round(hi, 2)],

@@ -65,12 +65,11 @@ def program_findings(meta: Dict[str, str]) -> List[Finding]:
         error(
             "program.mismatch",
             Msg(
-                "The trace's metadata does not describe the program it was recorded with "
-                "(program_hash %(recorded)s; the plane, radius, feed and angles it states make "
-                "program %(described)s): the metadata was edited (a plane key changed, say) or "
-                "belongs to another test. The result is that of the test as labelled, not "
-                "necessarily of the one that ran.",
-                **bad,
+                "The trace's metadata does not describe the program it was recorded with (the "
+                "plane, radius, feed and angles it states are not those of the program it "
+                "names): the metadata was edited (a plane key changed, say) or belongs to "
+                "another test. The result is that of the test as labelled, not necessarily of "
+                "the one that ran."
             ),
             Msg(
                 "Upload the trace with the metadata it was recorded with, or the metadata of "
@@ -141,7 +140,7 @@ def confirmation_finding(need: Dict[str, object]) -> Finding:
         "program.unconfirmed",
         Msg(
             "KinComp cannot tie this trace to a program it printed (it was not captured while "
-            "KinComp printed it, and its program_hash is not one KinComp printed): it is what "
+            "KinComp printed it, and the program it names is not one KinComp printed): it is what "
             "its metadata says, %(plane)s R%(radius)s F%(feed)s, and the data cannot check "
             "%(what)s. Confirm them before the result is applied.",
             plane=st.get("plane") or "?",
@@ -216,8 +215,8 @@ def firmware_findings(fw: FirmwareCompensation, plane: str) -> List[Finding]:
                 ),
                 Msg(
                     "Keep the firmware's compensation as it is: turning it off brings back what "
-                    "it corrected (with_firmware in the diagnostics). To let KinComp do all of "
-                    "it instead, turn the firmware's off (%(off)s) and test again.",
+                    "it corrected. To let KinComp do all of it instead, turn the firmware's off "
+                    "(%(off)s) and test again.",
                     off="; ".join(fw.off_command(k) for k in kinds),
                 ),
                 firmware=fw.to_dict(),

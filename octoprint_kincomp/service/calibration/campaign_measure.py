@@ -383,18 +383,15 @@ def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[
     got = (meta.get("program_hash") or "").strip()
     if got != step["program_hash"]:
         return Msg(
-            "its program (program_hash %(got)s) is not test %(n)s's program "
-            "(%(want)s): the metadata does not match the program",
-            got=got or "-",
+            "its program is not test %(n)s's program: the metadata was edited or belongs to "
+            "another test",
             n=step["n"],
-            want=step["program_hash"],
         )
     got = (meta.get("params_hash") or "").strip()
     if got and got != doc["params_hash"]:
         return Msg(
-            "it was measured with parameters %(got)s, but the campaign runs with %(want)s",
-            got=got,
-            want=doc["params_hash"],
+            "it was measured with other parameters than the campaign runs with (the "
+            "parameters were changed after the campaign was planned: plan it again)",
         )
     got = (meta.get("printer") or "").strip()
     if doc.get("printer") and got != doc["printer"]:
