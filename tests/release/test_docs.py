@@ -92,3 +92,19 @@ def test_the_settings_page_links_the_manual():
     assert listed and all(p in PAGES for p in listed)
     for page in listed:
         assert os.path.exists(os.path.join(DOCS, page + ".md")), page
+
+
+def test_every_picture_in_the_docs_is_a_browser_tests_screenshot():
+    """docs/*.png are copies of screenshots the browser tests take (scripts/docs_screenshots.py
+    refreshes them): each is listed with its screenshot, and that screenshot's name is written
+    by a browser test."""
+    from tests.support.browser import DOCS_SHOTS
+
+    pictures = {n for n in os.listdir(DOCS) if n.endswith(".png")}
+    assert pictures == set(DOCS_SHOTS)
+    browser = os.path.join(ROOT, "tests", "browser")
+    sources = "".join(
+        _read(os.path.join(browser, n)) for n in os.listdir(browser) if n.endswith(".py")
+    )
+    for shot in DOCS_SHOTS.values():
+        assert f'"{shot}"' in sources, shot

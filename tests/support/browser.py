@@ -20,6 +20,19 @@ from tests.support import ARTIFACTS
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SHOTS = os.path.join(ARTIFACTS, "screenshots")
+# the pictures in docs/ and the browser tests' screenshots they are copies of (refreshed by
+# scripts/docs_screenshots.py after a browser run; tests/release/test_docs.py keeps the two
+# lists together)
+DOCS_SHOTS = {
+    "wizard.png": "wizard.png",
+    "result.png": "result.png",
+    "campaign-result.png": "campaign-result.png",
+    "campaign.png": "campaign.png",
+    "live-view.png": "live-view.png",
+    "settings.png": "settings.png",
+    "plot-before-after.png": "plot-before-after.png",
+    "firmware-export.png": "settings-firmware-export.png",
+}
 ZERO = {
     "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},
     "scale_ppm": {"x": 0.0, "y": 0.0, "z": 0.0},
