@@ -67,6 +67,12 @@ def _measure_every_test(page, server, shot=None):
                 if state and str(n) + " of" not in state["progress"]:
                     assert not state["enabled"] and state["why"].strip(), state
             time.sleep(0.1)
+        # what it measured is said in the panel; pop-ups only for what needs the user (each
+        # test raised "measured: squareness ..." and "sent 'G1 Z10 F600' as written")
+        page.wait_for_selector("#kincomp_campaign_measured", state="visible")
+        assert "µm/m" in page.inner_text("#kincomp_campaign_measured")
+        notes = page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+        assert not any("measured" in t or "as written" in t for t in notes), notes
     server.wait_print_done()
 
 

@@ -30,7 +30,12 @@ API = "/plugin/kincomp"
 CASES = [((1400, 900), "en"), ((1920, 1080), "de")]
 OTHER = {(1400, 900): (1920, 1080), (1920, 1080): (1400, 900)}
 # what the web UI must not show: raw keys, hashes, command-line flags
-RAW = re.compile(r"_um_per_m|_ppm\b|_ms\b|_um\b|a_plus|b_minus|--[a-z]|\b[0-9a-f]{12,}\b")
+RAW = re.compile(
+    r"_um_per_m|_ppm\b|_ms\b|_um\b|_deg\b|_hash\b|with_firmware|_robust|a_plus|b_minus|--[a-z]"
+    r"|\b[0-9a-f]{12,}\b"
+)
+# a text file that is no trace: the message says what KinComp reads
+NOT_READABLE = {"en": "KinComp cannot read this file", "de": "KinComp kann diese Datei nicht lesen"}
 WORDS = {
     "en": {"apply": ("Apply", "Apply with care", "Do not apply"), "squareness": "Squareness"},
     "de": {
@@ -105,7 +110,7 @@ def test_a_single_tests_result_opens_with_its_decision(page, server, case):
     )
     page.wait_for_selector("#kincomp_measure_error", state="visible")
     err = page.inner_text("#kincomp_measure_error").strip()
-    assert err
+    assert NOT_READABLE[lang] in err and "key: value" not in err, err
     for other in ("result", "history", "campaign"):
         step(page, other)
         visible = page.evaluate(
@@ -144,6 +149,7 @@ def test_a_single_tests_result_opens_with_its_decision(page, server, case):
     page.wait_for_selector("#kincomp_plot canvas")
     table = page.inner_text("#kincomp_result_table")
     assert "+X" in table and "+A" not in table, table
+    _no_raw_words(page, "#kincomp_result_step")  # (the opened details too)
     # a reload: the result step again, with the last result (not "No analysis yet")
     page.reload()
     page.wait_for_selector("#kincomp_verdict", state="visible")

@@ -463,7 +463,14 @@ def parse_summary(data) -> Summary:
                     continue
                 if ":" not in line and "=" not in line:
                     raise TraceError(
-                        Msg("summary line %(line)s: expected 'key: value'", line=lineno)
+                        Msg(
+                            "KinComp cannot read this file: it is not a ballbar trace (a CSV "
+                            "file whose first line names its columns, direction,time_s,"
+                            "reading_mm or direction,angle_deg,deviation_um), not a Renishaw "
+                            ".b5r file, and not a report summary either (its line %(line)s is "
+                            "not a 'name: value' line).",
+                            line=lineno,
+                        )
                     ) from None
                 k, v = re.split(r"[:=]", line, maxsplit=1)
                 obj[k.strip()] = v.strip()

@@ -151,6 +151,7 @@ $(function () {
 
         self.newCampaign = function () {
             self.planning(true);
+            self.lastMeasured("");
             self.refreshPreview();
         };
 
@@ -295,6 +296,7 @@ $(function () {
          * with nothing awaited now) may print again. */
         self.awaiting = ko.observable(null); // {n, id}: the test whose capture is awaited
         self.missed = ko.observable(null); // {n, id}: its capture failed or was refused
+        self.lastMeasured = ko.observable(""); // what the last test measured, in the panel
         self.requested = ko.observable(null); // {n, id}: "Print" clicked, no answer yet
         var mark = function (step) {
             var c = self.campaign();
@@ -407,17 +409,12 @@ $(function () {
             self.missed(null);
             self.show(resp.campaign);
             var d = resp.run && resp.run.diagnostics;
-            if (d) {
-                K.notify({
-                    title: gettext("KinComp campaign"),
-                    text: _.sprintf(gettext("Test %(name)s measured: squareness %(sq)s µm/m, circularity %(c)s µm."), {
-                        name: resp.run.campaign_step,
-                        sq: fmt(d.squareness_um_per_m, 1),
-                        c: fmt(d.circularity_um && d.circularity_um.bidirectional, 1)
-                    }),
-                    type: "success"
-                });
-            }
+            // said in the panel, under the progress (a pop-up only for what needs the user)
+            self.lastMeasured(d ? _.sprintf(gettext("Test %(name)s measured: squareness %(sq)s µm/m, circularity %(c)s µm."), {
+                name: resp.run.campaign_step,
+                sq: fmt(d.squareness_um_per_m, 1),
+                c: fmt(d.circularity_um && d.circularity_um.bidirectional, 1)
+            }) : "");
             self.loadCampaigns();
         };
 
