@@ -251,6 +251,16 @@ def test_a_restarted_test_waits_for_the_bar_again(page, server):
         paused = page.locator("#kincomp_campaign_paused")
         paused.wait_for(state="visible", timeout=180_000)
         assert "mount the bar" in paused.inner_text(), paused.inner_text()
+        # a reload in the middle of the campaign (issue 35): the campaign's panel again, at
+        # its test, with the printer's real state (waiting for the bar to be mounted)
+        page.reload()
+        page.wait_for_selector("#kincomp_steps", state="attached")
+        if not page.is_visible("#kincomp_steps"):
+            open_tab(page)
+        paused.wait_for(state="visible", timeout=60_000)
+        assert page.is_visible("#kincomp_campaign_job >> text=Test 1")
+        text = paused.inner_text()
+        assert "mount the bar" in text and "unmount" not in text, text
         page.click("#kincomp_campaign_resume")
         paused.wait_for(state="hidden")
         paused.wait_for(state="visible", timeout=180_000)  # the end of the test

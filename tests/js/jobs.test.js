@@ -148,3 +148,31 @@ test("the job's progress is told at each poll", () => {
     k.afterJob(Deferred().resolve(JOB("queued"), "", xhr(202)), k.loadRun, {progress: (j) => seen.push(j.state)}, e);
     assert.deepEqual(seen, ["queued", "running", "done"]);
 });
+
+// issue 35: a reload while a print runs asks for several things at once; the rationed
+// server answers some with 429, which left the campaign panel empty ("Ask again in 2 s")
+test("a rationed read is asked again as its Retry-After says, then answers as the request", () => {
+    const kc = K();
+    const e = env({"campaigns/c1": [
+        [429, {error: "busy"}, {"Retry-After": 2}],
+        [429, {error: "busy"}, {"Retry-After": 1}],
+        [200, {id: "c1"}],
+    ]});
+    let got = null;
+    kc.retrying(() => e.get("campaigns/c1"), e).done((body, status, x) => { got = [body, status, x.status]; });
+    assert.deepEqual(got, [{id: "c1"}, "success", 200]);
+    assert.deepEqual(e.waits, [2000, 1000]);
+});
+
+test("a read that fails otherwise, or stays rationed past its tries, fails as the request", () => {
+    const kc = K();
+    const e = env({"runs/x": [[404, {error: "no such run"}]],
+                   "runs/y": [[429, {}, {"Retry-After": 1}], [429, {}, {"Retry-After": 1}]]});
+    let failed = null;
+    kc.retrying(() => e.get("runs/x"), e).fail((x) => { failed = x.status; });
+    assert.equal(failed, 404);
+    assert.deepEqual(e.waits, []);
+    kc.retrying(() => e.get("runs/y"), e, 1).fail((x) => { failed = x.status; });
+    assert.equal(failed, 429);
+    assert.deepEqual(e.waits, [1000]);
+});

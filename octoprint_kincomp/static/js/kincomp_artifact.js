@@ -121,7 +121,7 @@ $(function () {
         self.fillSimulated = function () {
             self.error("");
             self.busy(true);
-            OctoPrint.get(API("artifact/simulated?path=" + encodeURIComponent(self.path())))
+            K.get(API("artifact/simulated?path=" + encodeURIComponent(self.path())))
                 .done(function (resp) {
                     self.fillReadings(resp.readings || {});
                     self.simulatedReadings(true);
@@ -185,7 +185,7 @@ $(function () {
         self.loadSheet = function () {
             self.error("");
             self.busy(true);
-            OctoPrint.get(API("artifact/sheet?path=" + encodeURIComponent(self.loadPath().trim())))
+            K.get(API("artifact/sheet?path=" + encodeURIComponent(self.loadPath().trim())))
                 .done(self.showSheet)
                 .fail(self.fail)
                 .always(function () { self.busy(false); });
@@ -256,7 +256,7 @@ $(function () {
             if (!run || run.source !== "artifact" || (self.run() && self.run().id === run.id)) return;
             var path = (run.diagnostics || {}).program;
             var fill = function () {
-                OctoPrint.get(API("runs/" + encodeURIComponent(run.id) + "/trace"))
+                K.get(API("runs/" + encodeURIComponent(run.id) + "/trace"))
                     .done(function (readings) {
                         if (typeof readings === "string") readings = JSON.parse(readings);
                         self.fillReadings(readings);
@@ -265,7 +265,7 @@ $(function () {
                     .always(function () { self.showRun(run); });
             };
             if (path && path !== self.path()) {
-                OctoPrint.get(API("artifact/sheet?path=" + encodeURIComponent(path)))
+                K.get(API("artifact/sheet?path=" + encodeURIComponent(path)))
                     .done(function (sheet) { self.showSheet(sheet); fill(); })
                     .fail(function () { self.rows([]); self.showRun(run); });
             } else {
@@ -284,7 +284,7 @@ $(function () {
             self.busy(true);
             OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
                 .done(function () {
-                    OctoPrint.get(API("runs/" + run.id)).done(self.run);
+                    K.get(API("runs/" + run.id)).done(self.run);
                     K.notify({title: gettext("KinComp"),
                               text: gettext("Parameters applied; compensation is on."),
                               type: "success"});

@@ -608,7 +608,7 @@ $(function () {
         self.loadCampaigns = function () {
             var perm = self.access.permissions.STATUS;
             if (!perm || !self.loginState.hasPermission(perm)) return $.Deferred().reject();
-            return OctoPrint.get(API("campaigns")).done(function (resp) {
+            return K.get(API("campaigns")).done(function (resp) {
                 self.campaigns(resp.campaigns);
             });
         };
@@ -642,7 +642,7 @@ $(function () {
         };
 
         self.open = function (summary) {
-            OctoPrint.get(API("campaigns/" + summary.id)).done(function (c) {
+            K.get(API("campaigns/" + summary.id)).done(function (c) {
                 self.show(c);
                 self.tab.step("campaign");
             }).fail(self.fail);
@@ -651,7 +651,7 @@ $(function () {
         self.reload = function () {
             var c = self.campaign();
             if (!c || !c.stored) return;
-            OctoPrint.get(API("campaigns/" + c.id)).done(self.show);
+            K.get(API("campaigns/" + c.id)).done(self.show);
         };
 
         // the newest campaign is where the user left off (after a reload of the page)
@@ -660,7 +660,7 @@ $(function () {
             req.done(function () {
                 var latest = self.campaigns()[0];
                 if (!latest || self.campaign()) return;
-                OctoPrint.get(API("campaigns/" + latest.id)).done(function (c) {
+                K.get(API("campaigns/" + latest.id)).done(function (c) {
                     self.show(c);
                     // a test of it printing or paused now: the page opens on the campaign
                     if (self.jobStep()) self.tab.step("campaign");
@@ -718,7 +718,7 @@ $(function () {
             var step = _.findWhere(c.steps, {name: name});
             self.awaiting(null);
             if (step) self.missed({n: step.n, id: c.id});
-            OctoPrint.get(API("campaigns/" + c.id)).done(function (fresh) {
+            K.get(API("campaigns/" + c.id)).done(function (fresh) {
                 self.show(fresh);
                 self.error(text);
             });
@@ -732,8 +732,8 @@ $(function () {
             var c = self.campaign();
             if (data.type === "sensor_run" && data.run && data.run.campaign) {
                 if (!c || c.id !== data.run.campaign) return;
-                $.when(OctoPrint.get(API("campaigns/" + c.id)),
-                       OctoPrint.get(API("runs/" + encodeURIComponent(data.run.id))))
+                $.when(K.get(API("campaigns/" + c.id)),
+                       K.get(API("runs/" + encodeURIComponent(data.run.id))))
                     .done(function (fresh, run) {
                         self.measured({campaign: fresh[0], run: run[0]});
                     });

@@ -19,7 +19,7 @@
     var pageEnv = function () {
         return {
             get: function (path) {
-                return root.OctoPrint.get(K.API(path));
+                return K.get(K.API(path));
             },
             later: function (fn, ms) {
                 return root.setTimeout(fn, ms);
@@ -55,6 +55,42 @@
         var header = xhr && xhr.getResponseHeader ? xhr.getResponseHeader("Retry-After") : null;
         var s = parseFloat(header);
         return isFinite(s) && s > 0 ? s : fallback;
+    };
+
+    /*
+     * A read that a rationed server answers with 429 (KinComp answers a few requests a
+     * second while a print runs: a page loading after a reload asks for several things at
+     * once) is asked again as its Retry-After says, up to ``tries`` times (default 15, about
+     * half a minute); the deferred resolves or rejects with what the last answer brought,
+     * as the request itself would. request(): a new request's deferred.
+     */
+    K.retrying = function (request, env, tries) {
+        env = env || pageEnv();
+        var out = env.Deferred();
+        var attempt = function (left) {
+            request()
+                .done(function () {
+                    out.resolve.apply(out, arguments);
+                })
+                .fail(function (xhr) {
+                    if (xhr && xhr.status === 429 && left > 0) {
+                        env.later(function () {
+                            attempt(left - 1);
+                        }, K.retryAfter(xhr, 2) * 1000);
+                    } else {
+                        out.reject.apply(out, arguments);
+                    }
+                });
+        };
+        attempt(tries === undefined ? 15 : tries);
+        return out.promise();
+    };
+
+    // GET ``url`` (a KinComp API address), asked again while the server rations it
+    K.get = function (url) {
+        return K.retrying(function () {
+            return root.OctoPrint.get(url);
+        });
     };
 
     /*

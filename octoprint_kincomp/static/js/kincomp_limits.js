@@ -59,7 +59,7 @@ $(function () {
 
         self.storedText = "";
         self.load = function () {
-            return OctoPrint.get(API("status")).done(function (status) {
+            return K.get(API("status")).done(function (status) {
                 // the printer profile these limits are of (a save names it: see settings)
                 self.profileId = status.profile ? status.profile.id : null;
                 self.staleProfile(false);

@@ -80,7 +80,7 @@ $(function () {
         };
 
         self.load = function () {
-            OctoPrint.get(API("status")).done(function (status) {
+            K.get(API("status")).done(function (status) {
                 self.fromSettings(status.settings, status.demo);
                 self.errors({});
                 self.formError("");
@@ -89,7 +89,7 @@ $(function () {
         };
 
         self.loadPorts = function () {
-            OctoPrint.get(API("sensor/ports")).done(function (resp) {
+            K.get(API("sensor/ports")).done(function (resp) {
                 self.ports(_.map(resp.ports, function (p) {
                     return {device: p.device, label: p.description ? p.device + " – " + p.description : p.device};
                 }));
@@ -256,7 +256,7 @@ $(function () {
         self.refresh = function () {
             var perm = self.access.permissions.STATUS;
             if (!perm || !self.loginState.hasPermission(perm)) return;
-            OctoPrint.get(API("sensor/live")).done(function (resp) {
+            K.get(API("sensor/live")).done(function (resp) {
                 self.update(resp, resp.chart);
             });
         };
@@ -316,7 +316,7 @@ $(function () {
             }
             self.runFailed(false);
             self.runMessage(gettext("Test captured and analysed: see 3. Result."));
-            OctoPrint.get(API("runs/" + encodeURIComponent(run.id))).done(function (full) {
+            K.get(API("runs/" + encodeURIComponent(run.id))).done(function (full) {
                 self.tab.printing(false);
                 self.tab.analysed(full);
             });

@@ -148,7 +148,7 @@ $(function () {
         };
 
         self.load = function () {
-            return OctoPrint.get(API("status")).done(function (status) {
+            return K.get(API("status")).done(function (status) {
                 self.fromStatus(status);
                 var errs = {};
                 if (status.settings_problem_field) errs[status.settings_problem_field] = status.settings_problem;

@@ -235,7 +235,7 @@ $(function () {
         self.refresh = function () {
             var perm = self.access.permissions.STATUS;
             if (!perm || !self.loginState.hasPermission(perm)) return;
-            OctoPrint.get(API("status")).done(function (status) {
+            K.get(API("status")).done(function (status) {
                 var profile = status.profile || {calibrated: true, name: ""};
                 self.profileName(profile.name || "");
                 self.profileId(profile.id || null);
@@ -262,7 +262,7 @@ $(function () {
             });
             var files = self.access.permissions.FILES_LIST;
             if (files && self.loginState.hasPermission(files)) {
-                OctoPrint.get(API("files")).done(function (resp) {
+                K.get(API("files")).done(function (resp) {
                     self.outdatedFiles(_.pluck(_.where(resp.files, {outdated: true}), "path"));
                 });
             }
@@ -379,7 +379,7 @@ $(function () {
 
         self.useSimulated = function () {
             self.busy(true);
-            OctoPrint.get(API("demo/trace"), {dataType: "text"})
+            K.get(API("demo/trace"), {dataType: "text"})
                 .done(function (text) {
                     var blob = new Blob([text], {type: "text/csv"});
                     self.uploadBlob(blob, "simulated_trace.csv");
@@ -458,7 +458,7 @@ $(function () {
                 .done(function (resp) {
                     self.paramsHash(resp.params_hash);
                     self.enabled(true);
-                    OctoPrint.get(API("runs/" + run.id)).done(function (fresh) {
+                    K.get(API("runs/" + run.id)).done(function (fresh) {
                         self.run(fresh);
                     });
                     var waiting = resp.compensation && resp.compensation.pending_params_hash;
@@ -485,7 +485,7 @@ $(function () {
         self.loadRuns = function (restore) {
             var perm = self.access.permissions.STATUS;
             if (!perm || !self.loginState.hasPermission(perm)) return;
-            OctoPrint.get(API("runs")).done(function (resp) {
+            K.get(API("runs")).done(function (resp) {
                 // a campaign's runs are grouped with their campaign (kincomp_campaign.js)
                 var single = _.filter(resp.runs, function (r) {
                     return !r.campaign;
@@ -496,7 +496,7 @@ $(function () {
                     })
                 );
                 if (restore && !self.run() && single.length) {
-                    OctoPrint.get(API("runs/" + encodeURIComponent(single[0].id))).done(function (run) {
+                    K.get(API("runs/" + encodeURIComponent(single[0].id))).done(function (run) {
                         if (!self.run()) self.run(run);
                         self.plotLater();
                     }).always(function () {
@@ -518,7 +518,7 @@ $(function () {
         };
 
         self.openRun = function (summary) {
-            OctoPrint.get(API("runs/" + summary.id)).done(function (run) {
+            K.get(API("runs/" + summary.id)).done(function (run) {
                 self.beforeRun(null);
                 self.compareRows([]);
                 self.showRun(run);
@@ -527,8 +527,8 @@ $(function () {
 
         self.compare = function () {
             var a = self.compareBefore(), b = self.compareAfter();
-            $.when(OctoPrint.get(API("runs/" + a)), OctoPrint.get(API("runs/" + b)),
-                   OctoPrint.get(API("compare?before=" + encodeURIComponent(a) + "&after=" + encodeURIComponent(b))))
+            $.when(K.get(API("runs/" + a)), K.get(API("runs/" + b)),
+                   K.get(API("compare?before=" + encodeURIComponent(a) + "&after=" + encodeURIComponent(b))))
                 .done(function (ra, rb, cmp) {
                     self.beforeRun(ra[0]);
                     self.compareRows(cmp[0].table);
@@ -541,7 +541,7 @@ $(function () {
         self.run.subscribe(function (run) {
             var before = self.beforeRun();
             if (!run || !before || before.id === run.id || self.compareRows().length) return;
-            OctoPrint.get(API("compare?before=" + encodeURIComponent(before.id) + "&after=" + encodeURIComponent(run.id)))
+            K.get(API("compare?before=" + encodeURIComponent(before.id) + "&after=" + encodeURIComponent(run.id)))
                 .done(function (cmp) {
                     self.compareRows(cmp.table);
                     self.plotLater();
