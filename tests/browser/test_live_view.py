@@ -44,6 +44,12 @@ def test_live_capture_from_the_calibration_tab(page, server):
         page.wait_for_selector("#kincomp_sensor_state >> text=Capturing", timeout=60_000)
         no_popups(page)
         page.locator("#kincomp_sensor_live").screenshot(path=os.path.join(SHOTS, "live-view.png"))
+        # a reload in the middle of the capture (issue 35): the tab shows the capture going on
+        page.reload()
+        page.wait_for_selector("#kincomp_steps", state="attached")
+        if not page.is_visible("#kincomp_steps"):
+            open_tab(page)
+        page.wait_for_selector("#kincomp_sensor_state >> text=Capturing", timeout=60_000)
         # analysed by itself: the result as for an uploaded trace
         page.wait_for_selector("#kincomp_verdict", state="visible", timeout=120_000)
         page.click("#kincomp_details_toggle")  # (the per-test table is in the details)
