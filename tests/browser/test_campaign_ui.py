@@ -280,6 +280,15 @@ def test_a_restarted_test_waits_for_the_bar_again(page, server):
         paused.wait_for(state="visible")
         text = paused.inner_text()
         assert "mount the bar" in text and "unmount" not in text, text
+        # the user cancels the test instead: the panel offers to print it again (no pause
+        # box, no measurement awaited)
+        code, body = server.request("POST", "/api/job", {"command": "cancel"})
+        assert code == 204, body
+        server.wait_state("Operational", timeout=120)
+        paused.wait_for(state="hidden")
+        page.wait_for_selector("#kincomp_campaign_current >> text=Test 1 of", state="visible")
+        page.check("#kincomp_campaign_check")
+        page.wait_for_selector("#kincomp_campaign_print:enabled")
     finally:
         server.request("POST", "/api/job", {"command": "cancel"})
         server.wait_state("Operational", timeout=120)
