@@ -50,27 +50,22 @@ def test_marlin_jd_corner_uses_the_axes_m201_along_the_change_of_direction():
     Y1000, M204 1500): each block accelerates at 1000 / sin 45 = 1414 mm/s^2 (neither axis
     over 1000), but their change of direction is along X alone, so a_j = 1000."""
     limits = {"x": 1000.0, "y": 1000.0, "z": 100.0}
-    p = _plan(
-        "G1 X20 Y20 F3000\nG1 X0 Y40",
-        planner="marlin",
-        accel_mm_s2=1500.0,
-        junction_deviation_mm=0.013,
-        max_accel_mm_s2=limits,
-    )
-    assert p.v1[0] == pytest.approx(math.sqrt(1000.0 * 0.013 * S45 / (1 - S45)), rel=1e-9)
+
+    def jd_plan(text, **kw):
+        return _plan(text, planner="marlin", accel_mm_s2=1500.0, junction_deviation_mm=0.013, **kw)
+
+    def corner(a_j):
+        return math.sqrt(a_j * 0.013 * S45 / (1 - S45))
+
+    p = jd_plan("G1 X20 Y20 F3000\nG1 X0 Y40", max_accel_mm_s2=limits)
+    assert p.v1[0] == pytest.approx(corner(1000.0), rel=1e-9)
     # the block's own acceleration is the cap along its direction
     assert p.a[0] == pytest.approx(1000.0 / S45, rel=1e-9)
     # axis-aligned moves: the block's acceleration (its axis' M201) is already the lower
-    aligned = _plan(
-        "G1 X20 F3000\nG1 Y20",
-        planner="marlin",
-        accel_mm_s2=1500.0,
-        junction_deviation_mm=0.013,
-        max_accel_mm_s2=limits,
-    )
-    assert aligned.v1[0] == pytest.approx(math.sqrt(1000.0 * 0.013 * S45 / (1 - S45)), rel=1e-9)
-    free = _plan("G1 X20 F3000\nG1 Y20", planner="marlin", accel_mm_s2=1500.0)
-    assert free.v1[0] == pytest.approx(math.sqrt(1500.0 * 0.013 * S45 / (1 - S45)), rel=1e-9)
+    aligned = jd_plan("G1 X20 F3000\nG1 Y20", max_accel_mm_s2=limits)
+    assert aligned.v1[0] == pytest.approx(corner(1000.0), rel=1e-9)
+    free = jd_plan("G1 X20 F3000\nG1 Y20")
+    assert free.v1[0] == pytest.approx(corner(1500.0), rel=1e-9)
 
 
 def test_marlin_small_segments_are_held_to_a_length_over_angle():
