@@ -176,3 +176,14 @@ test("a read that fails otherwise, or stays rationed past its tries, fails as th
     assert.equal(failed, 429);
     assert.deepEqual(e.waits, [1000]);
 });
+
+test("K.get hands OctoPrint.get its options (the demo's trace is read as text)", () => {
+    const win = load("kincomp_common.js", "kincomp_jobs.js");
+    const seen = [];
+    win.OctoPrint = {get: (url, opts) => { seen.push([url, opts]); const d = Deferred(); d.resolve("t,x\n", "success", xhr(200)); return d; }};
+    win.$ = {Deferred};
+    let got = null;
+    win.KinComp.get("/plugin/kincomp/demo/trace", {dataType: "text"}).done((text) => { got = text; });
+    assert.deepEqual(seen, [["/plugin/kincomp/demo/trace", {dataType: "text"}]]);
+    assert.equal(got, "t,x\n");
+});

@@ -86,10 +86,11 @@
         return out.promise();
     };
 
-    // GET ``url`` (a KinComp API address), asked again while the server rations it
-    K.get = function (url) {
+    // GET ``url`` (a KinComp API address; ``opts``: OctoPrint.get's, e.g. {dataType:
+    // "text"}), asked again while the server rations it
+    K.get = function (url, opts) {
         return K.retrying(function () {
-            return root.OctoPrint.get(url);
+            return root.OctoPrint.get(url, opts);
         });
     };
 
