@@ -83,8 +83,11 @@ def test_capture_over_a_pty_equals_the_offline_analysis(sensors, captures, offli
     )
     cap.open()
     assert cap.wait(("preview",), 5) == "preview"
-    time.sleep(0.3)
+    deadline = time.time() + 10  # (awaited: a loaded machine took over 0.3 s to a reading)
     live = cap.live(seconds=5)
+    while (live["reading_mm"] is None or len(live["t"]) <= 10) and time.time() < deadline:
+        time.sleep(0.05)
+        live = cap.live(seconds=5)
     assert live["reading_mm"] == pytest.approx(1.0, abs=0.01) and len(live["t"]) > 10
     assert 0.2 < live["noise_um"] < 1.0  # the virtual bar's 0.5 um
     json.dumps(cap.status())  # JSON-ready for the UI
