@@ -17,6 +17,7 @@ import errno
 import os
 import re
 import signal
+import stat
 import tempfile
 import time
 from typing import BinaryIO, Iterator, List, Optional, Set
@@ -197,9 +198,8 @@ def clean_abandoned_octoprint_uploads(directory: str, now: Optional[float] = Non
             st = os.lstat(path)
         except OSError:
             continue
-        if os.path.isfile(path) and not os.path.islink(path):
-            if now - st.st_mtime > ABANDONED_UPLOAD_S:
-                old.append(path)
+        if stat.S_ISREG(st.st_mode) and now - st.st_mtime > ABANDONED_UPLOAD_S:
+            old.append(path)  # (a regular file: lstat does not follow a link)
     if not old:
         return removed
     in_use = open_files()

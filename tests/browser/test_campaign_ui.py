@@ -12,7 +12,7 @@ import pytest
 
 from octoprint_kincomp.core.params import Params
 from tests.support import assert_applies_cleanly
-from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, step
+from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, reload, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -71,13 +71,18 @@ def _measure_every_test(page, server, shot=None):
         # test raised "measured: squareness ..." and "sent 'G1 Z10 F600' as written")
         page.wait_for_selector("#kincomp_campaign_measured", state="visible")
         assert "µm/m" in page.inner_text("#kincomp_campaign_measured")
-        notes = page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+        notes = _popups(page)
         assert not any("measured" in t or "as written" in t for t in notes), notes
     server.wait_print_done()
 
 
+def _popups(page):
+    """The texts of the pop-ups open on the page."""
+    return page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+
+
 def _no_blocked_command_warnings(page):
-    notes = page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+    notes = _popups(page)
     assert not any("Suppressed command" in t for t in notes), notes
 
 
@@ -253,10 +258,7 @@ def test_a_restarted_test_waits_for_the_bar_again(page, server):
         assert "mount the bar" in paused.inner_text(), paused.inner_text()
         # a reload in the middle of the campaign (issue 35): the campaign's panel again, at
         # its test, with the printer's real state (waiting for the bar to be mounted)
-        page.reload()
-        page.wait_for_selector("#kincomp_steps", state="attached")
-        if not page.is_visible("#kincomp_steps"):
-            open_tab(page)
+        reload(page)
         paused.wait_for(state="visible", timeout=60_000)
         assert page.is_visible("#kincomp_campaign_job >> text=Test 1")
         text = paused.inner_text()

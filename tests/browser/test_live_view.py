@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from tests.support.browser import SHOTS, ZERO, no_popups, open_settings, open_tab, step
+from tests.support.browser import SHOTS, ZERO, no_popups, open_settings, open_tab, reload, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -45,10 +45,7 @@ def test_live_capture_from_the_calibration_tab(page, server):
         no_popups(page)
         page.locator("#kincomp_sensor_live").screenshot(path=os.path.join(SHOTS, "live-view.png"))
         # a reload in the middle of the capture (issue 35): the tab shows the capture going on
-        page.reload()
-        page.wait_for_selector("#kincomp_steps", state="attached")
-        if not page.is_visible("#kincomp_steps"):
-            open_tab(page)
+        reload(page)
         page.wait_for_selector("#kincomp_sensor_state >> text=Capturing", timeout=60_000)
         # analysed by itself: the result as for an uploaded trace
         page.wait_for_selector("#kincomp_verdict", state="visible", timeout=120_000)

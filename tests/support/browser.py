@@ -197,6 +197,16 @@ def open_tab(page) -> None:
     page.wait_for_selector("#kincomp_steps", state="visible")
 
 
+def reload(page) -> None:
+    """Reload the page as a user would (F5) and be back on the Calibration tab: the tab, and
+    its step, as the page left them (OctoPrint opens its first tab when it does not keep
+    the address's tab)."""
+    page.reload()
+    page.wait_for_selector("#kincomp_steps", state="attached")
+    if not page.is_visible("#kincomp_steps"):
+        open_tab(page)
+
+
 def step(page, name: str) -> None:
     """Go to a step of the Calibration tab (``name``: program, measure, result, campaign,
     history). OctoPrint folds pills that no longer fit on one row into a menu (its tabdrop,
