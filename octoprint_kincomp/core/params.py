@@ -259,7 +259,7 @@ def _number(
         raise ParamsError(
             field,
             Msg(
-                "%(value)s is out of range (|value| <= %(limit)s)",
+                "%(value)s is out of range (must be between -%(limit)s and %(limit)s)",
                 value=f"{v:g}",
                 limit=f"{limit:g}",
             ),
@@ -267,12 +267,14 @@ def _number(
     if lo is not None and v < lo:
         raise ParamsError(
             field,
-            Msg("%(value)s is out of range (must be >= %(lo)s)", value=f"{v:g}", lo=f"{lo:g}"),
+            Msg(
+                "%(value)s is out of range (must be at least %(lo)s)", value=f"{v:g}", lo=f"{lo:g}"
+            ),
         )
     if hi is not None and v > hi:
         raise ParamsError(
             field,
-            Msg("%(value)s is out of range (must be <= %(hi)s)", value=f"{v:g}", hi=f"{hi:g}"),
+            Msg("%(value)s is out of range (must be at most %(hi)s)", value=f"{v:g}", hi=f"{hi:g}"),
         )
     return v
 
@@ -299,7 +301,7 @@ def _backlash_axis(value: Any, field: str) -> BacklashAxis:
         return BacklashAxis(((0.0, _number(value, field, lo=0.0, hi=MAX_BACKLASH_UM)),))
     if not isinstance(value, list) or not value:
         raise ParamsError(
-            field, Msg("must be a number (um) or a non-empty list of {at_mm, um} points")
+            field, Msg("must be a number (µm) or a non-empty list of {at_mm, um} points")
         )
     if len(value) > MAX_BACKLASH_POINTS:
         raise ParamsError(

@@ -195,8 +195,10 @@ def _ppm(params: Params, axis: str) -> str:
     return f"{axis.upper()} {params.scale_ppm[axis]:+.1f} ppm"
 
 
-def _header(params: Params, comment: str) -> str:
-    return f"{comment} KinComp {VERSION}, parameters {params.hash()}"
+def _header(comment: str) -> str:
+    """The block's first line: who wrote it (no parameter hash: the values follow, and the
+    web UI shows no hashes, issue 35)."""
+    return f"{comment} KinComp {VERSION} firmware export"
 
 
 def _skew_factors(params: Params) -> Dict[str, float]:
@@ -264,7 +266,7 @@ def _klipper(params: Params, rotation_distance: Optional[Sequence[float]]) -> Ex
             Section(
                 "printer_cfg",
                 Msg("printer.cfg: add this section, then restart Klipper"),
-                _header(params, "#") + "\n[skew_correction]",
+                _header("#") + "\n[skew_correction]",
             ),
             Section(
                 "console",
@@ -333,7 +335,7 @@ def _klipper(params: Params, rotation_distance: Optional[Sequence[float]]) -> Ex
 
 def _marlin(params: Params, steps_per_mm: Optional[Sequence[float]]) -> Export:
     f = _skew_factors(params)
-    lines = [_header(params, ";")]
+    lines = [_header(";")]
     options: List[str] = []
     notes: List[Msg] = []
     if any(f[k] != 0.0 for k in PLANE_PAIRS):
@@ -410,7 +412,7 @@ def _marlin(params: Params, steps_per_mm: Optional[Sequence[float]]) -> Export:
 def _reprapfirmware(params: Params) -> Export:
     f = _skew_factors(params)
     s = M556_LENGTH_MM
-    lines = [_header(params, ";")]
+    lines = [_header(";")]
     notes: List[Msg] = []
     if any(f[k] != 0.0 for k in PLANE_PAIRS):
         lines.append(

@@ -666,8 +666,8 @@ def circle_feed(
             (
                 v,
                 Msg(
-                    "%(what)s of %(acc)s mm/s^2 (%(source)s) allows at most %(cap)s mm/min on a "
-                    "%(radius)s mm circle (reached within the %(overshoot)s deg overshoot)",
+                    "%(what)s of %(acc)s mm/s² (%(source)s) allows at most %(cap)s mm/min on a "
+                    "%(radius)s mm circle (reached within the %(overshoot)s° overshoot)",
                     what=what,
                     acc=f"{acc:g}",
                     source=limits.sources.get(key, "-"),

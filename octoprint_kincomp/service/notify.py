@@ -31,9 +31,12 @@ class Notifier:
         self._identifier = identifier
 
     def notify(self, severity: str, msgid: str, tr_params: Sequence[str] = (), **params) -> None:
-        """Tell the UI. The parameters named in ``tr_params`` (message ids themselves) and
-        the core messages among the parameters (as template + parameters) are translated
-        by the browser too."""
+        """Tell the UI. ``severity`` decides how (the tab's view model, kincomp_tab.js):
+        ``status`` is a line in the Calibration tab (for the record, nothing to act on);
+        ``info``, ``success``, ``warning`` and ``error`` are pop-ups, for what the user
+        should know or do wherever they are (errors stay until closed). The parameters named
+        in ``tr_params`` (message ids themselves) and the core messages among the
+        parameters (as template + parameters) are translated by the browser too."""
         self.message(
             {
                 "type": "notify",

@@ -16,7 +16,7 @@ import pytest
 from octoprint_kincomp.calibration.artifact.program import read_measurements
 from octoprint_kincomp.core.params import Params
 from octoprint_kincomp.simulator.artifact import simulate_readings
-from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, step
+from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, popups, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -42,8 +42,13 @@ def test_measuring_form_result_and_apply(page, server):
     _open_artifact(page)
     page.check("#kincomp_artifact_mode_full")
     page.fill("#kincomp_artifact_nozzle", "0.4")
+    no_popups(page)
     page.click("#kincomp_artifact_write")
     page.wait_for_selector("#kincomp_artifact_table tbody tr")
+    # where it went is said above the sheet, not in a pop-up (issue 35)
+    note = page.inner_text("#kincomp_artifact_sheet_note")
+    assert "added to the files as kincomp/artifact_" in note, note
+    assert not popups(page), popups(page)
     rows = page.locator("#kincomp_artifact_table tbody tr")
     assert rows.count() == 36
     # the drawing numbers every measurement (outside/inside of a pair of walls)
@@ -87,8 +92,12 @@ def test_measuring_form_result_and_apply(page, server):
     marked = page.locator("#kincomp_artifact_table tbody tr.error").all_inner_texts()
     assert len(marked) == 1 and "B3-in" in marked[0]
     page.click("#kincomp_artifact_step_result")
+    no_popups(page)
     page.click("#kincomp_artifact_apply")
     page.wait_for_selector("#kincomp_artifact_result >> text=Applied on")
+    # what Apply did is said beside "Applied on", not in a pop-up (issue 35)
+    page.wait_for_selector("#kincomp_artifact_applied >> text=compensation is on")
+    assert not popups(page), popups(page)
     st = status(server)
     assert st["settings"]["enabled"] is True
     assert abs(st["settings"]["params"]["squareness_um_per_m"]["xy"] - value) < 0.5

@@ -12,7 +12,7 @@ import pytest
 
 from octoprint_kincomp.core.params import Params
 from tests.support import assert_applies_cleanly
-from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, reload, step
+from tests.support.browser import SHOTS, ZERO, no_popups, open_tab, popups, reload, step
 from tests.support.serverutil import settings, status
 
 pytestmark = pytest.mark.slow
@@ -71,18 +71,13 @@ def _measure_every_test(page, server, shot=None):
         # test raised "measured: squareness ..." and "sent 'G1 Z10 F600' as written")
         page.wait_for_selector("#kincomp_campaign_measured", state="visible")
         assert "µm/m" in page.inner_text("#kincomp_campaign_measured")
-        notes = _popups(page)
+        notes = popups(page)
         assert not any("measured" in t or "as written" in t for t in notes), notes
     server.wait_print_done()
 
 
-def _popups(page):
-    """The texts of the pop-ups open on the page."""
-    return page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
-
-
 def _no_blocked_command_warnings(page):
-    notes = _popups(page)
+    notes = popups(page)
     assert not any("Suppressed command" in t for t in notes), notes
 
 
@@ -157,6 +152,9 @@ def test_a_whole_campaign_in_demo_mode(page, server):
         page.click("#kincomp_campaign_apply")
         page.wait_for_selector("#kincomp_state_on", state="visible")
         page.wait_for_selector("#kincomp_campaign_result >> text=Applied on")
+        # what Apply did is said beside "Applied on", not in a pop-up (issue 35)
+        page.wait_for_selector("#kincomp_campaign_applied >> text=compensation is on")
+        assert not any("applied" in t for t in popups(page)), popups(page)
         st = status(server)
         assert st["settings"]["enabled"] is True
         assert st["settings"]["params"]["squareness_um_per_m"] == pytest.approx(

@@ -38,6 +38,8 @@ def test_settings_show_the_export_per_firmware_and_copy_it(page, server):
             sel = f"#kincomp_fw_{fw}_{section.key} pre"
             page.wait_for_selector(sel, state="visible")
             assert page.inner_text(sel) == section.text
+            # no parameter hash in the web UI (issue 35)
+            assert Params.from_dict(stored).hash() not in page.inner_text(sel)
         assert len(want[fw].notes) == page.locator(f"#kincomp_fw_{fw} .kincomp-fw-notes li").count()
     # the copy button puts exactly the block on the clipboard
     page.click("#kincomp_fw_tab_reprapfirmware")

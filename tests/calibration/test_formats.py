@@ -175,7 +175,7 @@ def test_typed_summary_json_and_lines():
         ('{"plane": "XY"}', "no diagnostic"),
         ('{"plane": "XY", "wobble": 1}', "'wobble' is unknown"),
         ('{"plane": "XY", "squareness_um_per_m": "abc"}', "is not a number"),
-        ('{"plane": "XY", "backlash_um": {"a_plus": -2}}', "must be >= 0"),
+        ('{"plane": "XY", "backlash_um": {"a_plus": -2}}', "must be at least 0"),
         ('{"plane": "XY", "backlash_um": {"up": 2}}', "backlash_um.up"),
         ("just some words\n", "its line 1 is not"),
         ("[1, 2]", "object"),

@@ -175,7 +175,7 @@ def test_an_angle_trace_says_what_was_not_checked():
     out = analysed(XY, paper_truth(noise_um=0.5), angle=True)
     f = finding(out, "motion.not_checked")
     assert f["severity"] == "info"
-    assert "acceleration 1500 mm/s^2" in f["message"] and "not checked" in f["message"]
+    assert "acceleration 1500 mm/s²" in f["message"] and "not checked" in f["message"]
     no_warning(out)
 
 

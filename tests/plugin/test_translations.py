@@ -115,6 +115,26 @@ def test_german_addresses_the_user_in_one_form():
     assert not _DU_IMPERATIVE.search("Parameter übernommen. Testen Sie erneut.")
 
 
+# units as text where the page writes symbols (a number or a placeholder before them)
+_UNIT_AS_TEXT = re.compile(
+    r"(?:\d|%\(\w+\)s) ?(?:um|deg)\b|(?<!%)\(um(?:/m)?\)|\+-|\^2|\s->\s|[<>]=|\bin um\b"
+)
+
+
+def test_messages_write_units_as_the_page_does():
+    """Issue 35: analysis notes wrote "12 um", "+- 3", "1500 mm/s^2", "90 deg" and "<= 5"
+    where the page shows µm, ±, mm/s², ° and words: no message of the catalog, English or
+    German, does."""
+    with open(PO, "rb") as f:
+        catalog = read_po(f, locale="de")
+    texts = [t for m in catalog if m.id for t in (m.id, m.string)]
+    assert len(texts) > 1000
+    assert [t for t in texts if _UNIT_AS_TEXT.search(t)] == []
+    for bad in ("12 um rms", "(+- 3 ppm)", "1500 mm/s^2", "%(gap)s deg", "(um/m)", "a -> b"):
+        assert _UNIT_AS_TEXT.search(bad), bad  # (the check)
+    assert not _UNIT_AS_TEXT.search("Testen Sie erneut, um die Verbesserung zu sehen")
+
+
 def test_bundled_catalog_matches_the_sources():
     with open(PO, "rb") as a, open(os.path.join(BUNDLED, "messages.po"), "rb") as b:
         assert a.read() == b.read(), "run scripts/translations.sh compile"
@@ -168,7 +188,7 @@ def test_core_messages_reach_the_user_in_german():
     german = translate(error_message(exc.value), de.gettext)
     assert (
         german == "params.scale_ppm.y: 900000 liegt außerhalb des zulässigen Bereichs "
-        "(|Wert| <= 50000)"
+        "(zwischen -50000 und 50000)"
     )
     with pytest.raises(ProgramError) as exc:
         check_bounds(TestSpec(centre=(20, 100, 10), radius_mm=60), (0, 200, 0, 200, 0, 200))

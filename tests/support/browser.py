@@ -166,6 +166,11 @@ def browser_page(
     assert not kincomp_errors, kincomp_errors
 
 
+def popups(page) -> list:
+    """The texts of OctoPrint's notification pop-ups open on the page."""
+    return page.evaluate("[...document.querySelectorAll('.ui-pnotify')].map(n => n.innerText)")
+
+
 def no_popups(page) -> None:
     """Close OctoPrint's notification pop-ups so that they do not cover a screenshot."""
     page.evaluate("document.querySelectorAll('.ui-pnotify').forEach(e => e.remove())")

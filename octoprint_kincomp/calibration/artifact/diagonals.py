@@ -103,8 +103,8 @@ def artifact_findings(diag: Dict[str, object]) -> list:
             "artifact.hand_measured",
             Msg(
                 "Measured by hand on a printed part: KinComp cannot check the motion or the noise "
-                "behind these lengths; the print's shrinkage and the caliper's error (10-20 um on "
-                "a 100 mm square: 100-200 um/m of squareness) are in the result."
+                "behind these lengths; the print's shrinkage and the caliper's error (10-20 µm on "
+                "a 100 mm square: 100-200 µm/m of squareness) are in the result."
             ),
             Msg(
                 "Measure each length three times and use the mean; print the largest square the "

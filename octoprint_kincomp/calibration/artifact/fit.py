@@ -636,8 +636,8 @@ def _quality_findings(rf: _RobustFit, repeat_sd: float, floor: float, found) -> 
             fnd.warning(
                 "artifact.features_disagree",
                 Msg(
-                    "The measurements scatter about the fit by %(rms)s um, %(ratio)s times more "
-                    "than the repeats of one measurement (%(rep)s um): the part may be warped, or "
+                    "The measurements scatter about the fit by %(rms)s µm, %(ratio)s times more "
+                    "than the repeats of one measurement (%(rep)s µm): the part may be warped, or "
                     "errors other than squareness and scale shaped it. The uncertainties use the "
                     "larger scatter.",
                     rms=f"{s_res * 1e3:.0f}",
@@ -776,7 +776,7 @@ def _separability(values, sigmas, planes_made, found, poor=POOR["full"]) -> None
                 fnd.warning(
                     "artifact.poorly_determined",
                     Msg(
-                        "The %(plane)s squareness is poorly determined (+- %(sigma)s um/m, 1 "
+                        "The %(plane)s squareness is poorly determined (± %(sigma)s µm/m, 1 "
                         "sigma): too few or too short spans.",
                         plane=plane.upper(),
                         sigma=f"{s:.0f}",
@@ -814,7 +814,7 @@ def _separability(values, sigmas, planes_made, found, poor=POOR["full"]) -> None
                 fnd.warning(
                     "artifact.poorly_determined",
                     Msg(
-                        "The scale mismatch %(pair)s is poorly determined (+- %(sigma)s ppm, 1 "
+                        "The scale mismatch %(pair)s is poorly determined (± %(sigma)s ppm, 1 "
                         "sigma).",
                         pair=pair,
                         sigma=f"{s:.0f}",
@@ -827,7 +827,7 @@ def _separability(values, sigmas, planes_made, found, poor=POOR["full"]) -> None
 
 FAMILY_NAMES = {
     "vertical_walls": Msg("walls of the flat part"),
-    "slanted_walls": Msg("45 deg walls"),
+    "slanted_walls": Msg("45° walls"),
 }
 
 

@@ -537,7 +537,7 @@ def checked_known_squareness(values: Optional[Dict[str, float]]) -> Dict[str, fl
         except (TypeError, ValueError):
             f = math.nan
         if not math.isfinite(f) or isinstance(v, bool):
-            raise ValueError(Msg("known squareness: %(key)s must be a finite number (um/m)", key=k))
+            raise ValueError(Msg("known squareness: %(key)s must be a finite number (µm/m)", key=k))
         out[k] = f
     return out
 
@@ -563,7 +563,7 @@ def outlier_findings(
                 "data.outliers",
                 Msg(
                     "%(pre)s%(n)s isolated samples lie far from their neighbours (a sensor "
-                    "glitch, a knock): the circularity G(b) is %(g)s um with them and %(gr)s um "
+                    "glitch, a knock): the circularity G(b) is %(g)s µm with them and %(gr)s µm "
                     "without. They dominate G(b) and any before/after comparison of it; the fit "
                     "left them out.",
                     pre=pre,
@@ -583,7 +583,7 @@ def outlier_findings(
             "data.outliers",
             Msg(
                 "%(pre)s%(n)s isolated samples far from their neighbours were left out of the fit "
-                "(G(b) %(g)s um with them, %(gr)s um without).",
+                "(G(b) %(g)s µm with them, %(gr)s µm without).",
                 pre=pre,
                 n=n,
                 g=f"{g:.1f}",
@@ -608,8 +608,8 @@ def mapping_notes(mapping: Mapping) -> List[str]:
     return [
         Msg(
             "The trace records no planner settings; estimated from its own start-up and "
-            "stop transients: acceleration %(accel)s mm/s^2, junction deviation %(jd)s mm "
-            "(90 deg corner speed %(corner)s mm/s).",
+            "stop transients: acceleration %(accel)s mm/s², junction deviation %(jd)s mm "
+            "(90° corner speed %(corner)s mm/s).",
             accel=f"{s.accel_mm_s2:.0f}",
             jd=f"{s.junction_deviation_mm:.4f}",
             corner=f"{s.corner_speed_90:.1f}",

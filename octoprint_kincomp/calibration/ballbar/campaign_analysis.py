@@ -201,7 +201,7 @@ def _campaign_summary(res, traces: int, per_trace, current: Params, calibrated: 
             notes.append(
                 Msg(
                     "The scale mismatches of XY, XZ and YZ do not add up (x-y + y-z - "
-                    "x-z = %(value)s +- %(sigma)s ppm): an error the model does not "
+                    "x-z = %(value)s ± %(sigma)s ppm): an error the model does not "
                     "describe (non-linear scale, a loose bar); check the set-up.",
                     value=f"{closure['value']:.1f}",
                     sigma=f"{closure['sigma']:.1f}",
@@ -242,7 +242,7 @@ def _check_outliers(fits: Sequence[TraceFit]) -> None:
         if t.fit.rms_um > RMS_OUTLIER * med and t.fit.rms_um > 3.0:
             raise CampaignError(
                 Msg(
-                    "%(file)s: the fit leaves %(rms)s um rms (the other tests %(med)s um): the bar "
+                    "%(file)s: the fit leaves %(rms)s µm rms (the other tests %(med)s µm): the bar "
                     "slipped or the test failed; repeat this test",
                     file=t.name,
                     rms=f"{t.fit.rms_um:.1f}",
@@ -310,8 +310,8 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
         out["proposed"] = False
         totals = dict(fmt, a=f"{a + lead:.3f}", b=f"{b + lead:.3f}")  # the lag itself
         out["reason"] = Msg(
-            "The XY servo mismatch differs between F%(f1)s (%(a)s +- %(sa)s ms) and F%(f2)s "
-            "(%(b)s +- %(sb)s ms): the lag is not proportional to speed, so leading each move "
+            "The XY servo mismatch differs between F%(f1)s (%(a)s ± %(sa)s ms) and F%(f2)s "
+            "(%(b)s ± %(sb)s ms): the lag is not proportional to speed, so leading each move "
             "by v*T would be wrong at other speeds; servo pre-compensation is left off",
             **totals,
         )
@@ -320,7 +320,7 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
         out["proposed"] = True
         out["reason"] = Msg(
             "With servo pre-compensation on (%(lag)s ms), the XY servo mismatch left is "
-            "%(a)s +- %(sa)s ms at F%(f1)s and %(b)s +- %(sb)s ms at F%(f2)s, within "
+            "%(a)s ± %(sa)s ms at F%(f1)s and %(b)s ± %(sb)s ms at F%(f2)s, within "
             "%(share)s %% of the lag at both feeds: the pre-compensation works; it stays on",
             lag=f"{lead:.3f}",
             share=f"{AGREE_FRACTION * 100:g}",
@@ -329,16 +329,16 @@ def _servo_decision(per_trace, current: Params, notes: List[str]) -> Dict[str, o
     elif abs(mean) < max(3 * smean, 0.01):
         out["proposed"] = False
         out["reason"] = Msg(
-            "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s +- %(sa)s and "
-            "%(b)s +- %(sb)s ms) but not measurably different from zero: servo "
+            "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s ± %(sa)s and "
+            "%(b)s ± %(sb)s ms) but not measurably different from zero: servo "
             "pre-compensation would change nothing; left off",
             **fmt,
         )
     else:
         out["proposed"] = True
         out["reason"] = Msg(
-            "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s +- %(sa)s and "
-            "%(b)s +- %(sb)s ms): the lag is proportional to speed, so leading each move by "
+            "The XY servo mismatch is the same at F%(f1)s and F%(f2)s (%(a)s ± %(sa)s and "
+            "%(b)s ± %(sb)s ms): the lag is proportional to speed, so leading each move by "
             "v*T removes it; servo pre-compensation is proposed",
             **fmt,
         )
@@ -370,7 +370,7 @@ def _xy_heights(per_trace, notes: List[str]) -> List[Dict[str, float]]:
     if abs(diff) > 3 * sig + 2.0:
         notes.append(
             Msg(
-                "XY squareness changes with height: %(a)s um/m at Z %(za)s mm, %(b)s um/m at Z "
+                "XY squareness changes with height: %(a)s µm/m at Z %(za)s mm, %(b)s µm/m at Z "
                 "%(zb)s mm (an axis rolls or pitches); the parameters hold one value for the whole "
                 "volume, exact only near the middle.",
                 a=f"{lo['squareness_um_per_m']:.1f}",

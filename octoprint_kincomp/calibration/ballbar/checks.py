@@ -92,7 +92,7 @@ def motion_findings(geom: Geometry, mapping, label: str = "") -> List[Finding]:
                 "the planned motion of the program (%(motion)s)",
                 motion=Msg("constant speed")
                 if s.constant_speed
-                else Msg("acceleration %(a)s mm/s^2", a=f"{s.accel_mm_s2:g}"),
+                else Msg("acceleration %(a)s mm/s²", a=f"{s.accel_mm_s2:g}"),
             )
         else:
             how = Msg("a constant feed along the circle (the metadata describe no program)")
@@ -475,8 +475,8 @@ def residual_looks(
 
 LOOK_MESSAGES = {
     "motor_backlash": Msg(
-        "steps where a motor of a CoreXY/H-bot reverses (45, 135, 225, 315 "
-        "deg), not where an axis does: backlash in the motors or belts, "
+        "steps where a motor of a CoreXY/H-bot reverses (45, 135, 225, 315°), "
+        "not where an axis does: backlash in the motors or belts, "
         "which the per-axis backlash model cannot describe"
     ),
     "reversal_spikes": Msg(
@@ -515,8 +515,8 @@ def misfit_floor(
             info(
                 "data.vibration",
                 Msg(
-                    "%(pre)sThe reading scatters %(moving)s um from sample to sample while the "
-                    "head moves and %(still)s um while it stands still (%(ratio)s times): "
+                    "%(pre)sThe reading scatters %(moving)s µm from sample to sample while the "
+                    "head moves and %(still)s µm while it stands still (%(ratio)s times): "
                     "vibration or a rough guide. Scatter like this does not bias the fitted "
                     "values; their uncertainties include it.",
                     pre=pre,
@@ -572,7 +572,7 @@ def adequacy_findings(
             "nothing the checks recognise (not periodic, not at the reversals, not harmonic)"
         )
     msg = Msg(
-        "%(pre)sThe fit leaves %(rms)s um rms where the sensor's noise is %(floor)s um "
+        "%(pre)sThe fit leaves %(rms)s µm rms where the sensor's noise is %(floor)s µm "
         "(%(ratio)s times; a right model leaves about 1): the model does not describe "
         "everything this printer does. What is left looks like %(what)s. The fitted "
         "values may be biased.",
@@ -681,8 +681,8 @@ def out_of_plane_finding(
         Msg(
             "A single %(plane)s test cannot see the squareness %(keys)s, and the parameters in "
             "force do not correct it: it moves the third axis out of the plane, which the fit "
-            "takes for a scale mismatch of half its square (0.5 ppm at 1000 um/m; the 5 ppm "
-            "tolerance at %(tol)s um/m) and for a squareness of the product of the two.",
+            "takes for a scale mismatch of half its square (0.5 ppm at 1000 µm/m; the 5 ppm "
+            "tolerance at %(tol)s µm/m) and for a squareness of the product of the two.",
             plane=plane,
             keys=", ".join(unknown),
             tol=f"{tol_um_per_m:.0f}",
@@ -722,10 +722,10 @@ def out_of_plane_used(
     found = info(
         "model.out_of_plane_used",
         Msg(
-            "The squareness %(values)s um/m (from %(where)s), less what the parameters in "
+            "The squareness %(values)s µm/m (from %(where)s), less what the parameters in "
             "force correct, moves the third axis out of this %(plane)s test: it was fitted as "
             "a known motion, which removed a predicted bias of %(ppm)s ppm of scale mismatch "
-            "and %(sq)s um/m of squareness.",
+            "and %(sq)s µm/m of squareness.",
             values=values,
             where=where,
             plane=plane,
@@ -749,7 +749,7 @@ def cyclic_finding(scan: Dict[str, float], label: str = "") -> Finding:
         "model.cyclic_fitted",
         Msg(
             "%(pre)sThe residual showed a periodic error along the axes (pitch "
-            "%(pitch)s mm, amplitude A %(a)s um, B %(b)s um: belt teeth, a pulley or a "
+            "%(pitch)s mm, amplitude A %(a)s µm, B %(b)s µm: belt teeth, a pulley or a "
             "leadscrew); it was fitted with the other errors so that it does not bias "
             "them. Firmware cannot compensate it.",
             pre=pre,
@@ -779,7 +779,7 @@ def drift_finding(
     return info(
         "model.drift",
         Msg(
-            "%(pre)sThe bar length drifted %(rate)s um/min (%(total)s um over the "
+            "%(pre)sThe bar length drifted %(rate)s µm/min (%(total)s µm over the "
             "test), fitted as a linear drift: let the printer and the bar warm up "
             "before testing.",
             pre=pre,
@@ -814,10 +814,10 @@ HALF_TOLERANCE = {
 
 
 UNITS = {
-    "squareness_um_per_m": "um/m",
+    "squareness_um_per_m": "µm/m",
     "scale_mismatch_ppm": "ppm",
     "servo_mismatch_ms": "ms",
-    "backlash_um": "um",
+    "backlash_um": "µm",
 }
 
 
@@ -897,7 +897,7 @@ def stability_findings(
     what = joined(
         [
             Msg(
-                "%(what)s %(a)s -> %(b)s %(unit)s",
+                "%(what)s %(a)s → %(b)s %(unit)s",
                 what=_moved_word(k, axes),
                 a=f"{va:.3g}",
                 b=f"{vb:.3g}",
@@ -911,7 +911,7 @@ def stability_findings(
             "model.unstable",
             Msg(
                 "%(pre)sThe result depends on how much is left out around the reversal points "
-                "(%(m1)s deg -> %(m2)s deg): %(what)s. Something near the reversals that the model "
+                "(%(m1)s° → %(m2)s°): %(what)s. Something near the reversals that the model "
                 "does not describe pulls the fit; the values may be off by about these shifts.",
                 pre=pre,
                 m1=f"{mask_a:g}",
@@ -1084,7 +1084,7 @@ def sensor_findings(
                 Msg(
                     "%(pre)sThe commanded %(feed)s mm radial step read %(read)s mm (%(pct)s %%): "
                     "the sensor's gain is off, or something near the reversals (reversal "
-                    "spikes, stick-slip) held the carriage %(um)s um off where the head stood. "
+                    "spikes, stick-slip) held the carriage %(um)s µm off where the head stood. "
                     "Within what such effects do, the readings were left as they are.",
                     pre=pre,
                     feed=f"{feed_in_mm:g}",
@@ -1103,7 +1103,7 @@ def sensor_findings(
                 "sensor.gain",
                 Msg(
                     "%(pre)sThe commanded %(feed)s mm radial step read %(read)s mm: the sensor's "
-                    "gain is %(gain)s (+- %(sigma)s, %(pct)s %% off, more than the noise "
+                    "gain is %(gain)s (± %(sigma)s, %(pct)s %% off, more than the noise "
                     "explains). Every reading was divided by it, so the values here are "
                     "corrected; uncorrected, every error would read %(pct)s %% off.",
                     pre=pre,
@@ -1266,7 +1266,7 @@ def arc_findings(mapping, label: str = "") -> List[Finding]:
             "labels.arc",
             Msg(
                 "%(pre)s%(pct)s %% of the %(direction)s run's samples lie outside the arc its "
-                "metadata describes (%(lo)s to %(hi)s deg): the trace belongs to another test "
+                "metadata describes (%(lo)s to %(hi)s°): the trace belongs to another test "
                 "(another plane, capture arc or start angle) than its metadata says.",
                 pre=pre,
                 pct=f"{share * 100:.0f}",

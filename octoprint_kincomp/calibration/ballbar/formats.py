@@ -386,13 +386,13 @@ def _b5r_mismatch_ppm(name, value, dt, kind, factor, radius_mm, notes) -> float:
         if radius_mm is None or not 0.0 < radius_mm < math.inf:
             raise TraceError(
                 Msg(
-                    ".b5r: scale mismatch given in um but the test radius "
+                    ".b5r: scale mismatch given in µm but the test radius "
                     "is unknown; give the radius"
                 )
             )
         ppm = value * factor / radius_mm * 1000.0
         notes.append(
-            Msg("scale mismatch converted from um to ppm assuming um over the test radius")
+            Msg("scale mismatch converted from µm to ppm assuming µm over the test radius")
         )
     else:
         raise TraceError(
@@ -528,7 +528,7 @@ def parse_summary(data) -> Summary:
         for k, v in diag["backlash_um"].items():
             if v < 0:
                 raise TraceError(
-                    Msg("summary field '%(field)s' must be >= 0", field=f"backlash_um.{k}")
+                    Msg("summary field '%(field)s' must be at least 0", field=f"backlash_um.{k}")
                 )
     return Summary(meta=meta, diagnostics=diag)
 

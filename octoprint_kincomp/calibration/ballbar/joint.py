@@ -385,8 +385,8 @@ def check_coverage(name: str, geom: Geometry, runs: Sequence[Run]) -> None:
         if span < 0.95 * (geom.capture_deg or 360.0) or gap > 5.0:
             raise TraceError(
                 Msg(
-                    "%(file)s: the %(direction)s run covers %(span)s of the %(capture)s deg "
-                    "capture arc (largest gap %(gap)s deg): the test did not complete",
+                    "%(file)s: the %(direction)s run covers %(span)s of the %(capture)s° "
+                    "capture arc (largest gap %(gap)s°): the test did not complete",
                     file=name,
                     direction=r.direction,
                     span=f"{span:.0f}",

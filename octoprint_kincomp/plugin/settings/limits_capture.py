@@ -185,7 +185,7 @@ class LimitsCapture:
         self._logger.info("KinComp: the printer's motion limits read from M503")
         self._notifier.message({"type": "motion_limits"})
         self._notifier.notify(
-            "info",
+            "status",  # for the record: a line in the tab, no pop-up
             N_("KinComp read the printer's motion limits (M503); test programs keep within them."),
         )
         return True

@@ -485,7 +485,7 @@ class SettingsStore:
             self._logger.info("KinComp: the calibration now belongs to printer profile %s", pid)
         elif calibrated(new):
             self._notifier.notify(
-                "info",
+                "status",  # for the record: a line in the tab, no pop-up
                 N_("Printer profile %(profile)s: its KinComp calibration is in force."),
                 profile=profile_name(profile),
             )

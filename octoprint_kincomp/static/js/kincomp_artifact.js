@@ -52,6 +52,13 @@ $(function () {
         self.rows = ko.observableArray([]);
         self.analysedRows = ko.observable(false);
         self.run = ko.observable(null);
+        self.sheetNote = ko.observable("");  // what the last "Print" or "Add" did
+        // what the user's Apply did, said for that run only
+        self.appliedBy = ko.observable({run: null, text: ""});
+        self.appliedNote = ko.pureComputed(function () {
+            var run = self.run(), by = self.appliedBy();
+            return run && run.id === by.run ? by.text : "";
+        });
         // the readings in the form were filled in by demo mode's simulation (until edited)
         self.simulatedReadings = ko.observable(false);
         self.filling = false;
@@ -84,6 +91,7 @@ $(function () {
         // GET /artifact/sheet); as many reading fields as the program asks readings for
         self.showSheet = function (sheet) {
             var count = A.fieldsFor(sheet.info);
+            self.sheetNote("");
             self.path(sheet.path);
             self.loadPath(sheet.path);
             self.drawing(sheet.svg);
@@ -165,15 +173,12 @@ $(function () {
                 .done(function (resp) {
                     self.showSheet(resp);
                     if (stl) window.location.href = self.stlUrl();
-                    K.notify({
-                        title: gettext("KinComp"),
-                        text: resp.printing
-                            ? _.sprintf(gettext("Printing the artifact %(path)s. Let it cool down before you measure it."), {path: resp.path})
-                            : stl
-                                ? _.sprintf(gettext("The artifact's measuring sheet was added to the files as %(path)s; its STL is downloading. Measure the part you print from it with this sheet."), {path: resp.path})
-                                : _.sprintf(gettext("The artifact was added to the files as %(path)s."), {path: resp.path}),
-                        type: "success"
-                    });
+                    // said above the measuring sheet it opens (no pop-up)
+                    self.sheetNote(resp.printing
+                        ? _.sprintf(gettext("Printing the artifact %(path)s. Let it cool down before you measure it."), {path: resp.path})
+                        : stl
+                            ? _.sprintf(gettext("The artifact's measuring sheet was added to the files as %(path)s; its STL is downloading. Measure the part you print from it with this sheet."), {path: resp.path})
+                            : _.sprintf(gettext("The artifact was added to the files as %(path)s."), {path: resp.path}));
                 })
                 .fail(self.fail)
                 .always(function () { self.busy(false); });
@@ -283,11 +288,13 @@ $(function () {
             if (!run) return;
             self.busy(true);
             OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
-                .done(function () {
+                .done(function (resp) {
                     K.get(API("runs/" + run.id)).done(self.run);
-                    K.notify({title: gettext("KinComp"),
-                              text: gettext("Parameters applied; compensation is on."),
-                              type: "success"});
+                    var waiting = resp && resp.compensation && resp.compensation.pending_params_hash;
+                    // said beside "Applied on" (no pop-up)
+                    self.appliedBy({run: run.id, text: waiting
+                        ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                        : gettext("Parameters applied; compensation is on.")});
                 })
                 .fail(self.fail)
                 .always(function () { self.busy(false); });

@@ -148,6 +148,12 @@ $(function () {
 
         // step 3 and history
         self.run = ko.observable(null);
+        // what the user's Apply did, said for that run only
+        self.appliedBy = ko.observable({run: null, text: ""});
+        self.appliedNote = ko.pureComputed(function () {
+            var run = self.run(), by = self.appliedBy();
+            return run && run.id === by.run ? by.text : "";
+        });
         self.trMsg = trMsg;
         self.beforeRun = ko.observable(null);
         self.compareRows = ko.observableArray([]);
@@ -307,24 +313,23 @@ $(function () {
             };
         };
 
+        self.feedNote = ko.observable("");  // the feed the program was written with, and why
         self.sendProgram = function (print) {
             self.error("");
+            self.feedNote("");
             self.busy(true);
             return OctoPrint.postJson(API("program"), self.programRequest(print))
                 .done(function (resp) {
                     self.programPath(resp.path);
                     self.printing(resp.printing);
-                    if (resp.spec && resp.spec.feed_mm_min !== num(self.feed())) {
-                        // why: the printer's motion limits (settings page)
-                        notify({
-                            title: gettext("KinComp"),
-                            text: _.sprintf(gettext("Feed lowered to %(feed)s mm/min: %(why)s."), {
-                                feed: resp.spec.feed_mm_min,
-                                why: _.map(resp.feed_lowered || [], trMsg).join("; ")
-                            }),
-                            type: "info"
-                        });
-                    }
+                    // why a feed was lowered (the printer's motion limits, settings page):
+                    // beside the buttons, not a pop-up (nothing for the user to act on)
+                    self.feedNote(resp.spec && resp.spec.feed_mm_min !== num(self.feed())
+                        ? _.sprintf(gettext("Feed lowered to %(feed)s mm/min: %(why)s."), {
+                            feed: resp.spec.feed_mm_min,
+                            why: _.map(resp.feed_lowered || [], trMsg).join("; ")
+                        })
+                        : "");
                 })
                 .fail(self.fail)
                 .always(function () {
@@ -462,13 +467,10 @@ $(function () {
                         self.run(fresh);
                     });
                     var waiting = resp.compensation && resp.compensation.pending_params_hash;
-                    notify({
-                        title: gettext("KinComp"),
-                        text: waiting
-                            ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
-                            : gettext("Parameters applied; compensation is on. Re-test to see the improvement."),
-                        type: "success"
-                    });
+                    // said beside "Applied on", where the user looks (no pop-up)
+                    self.appliedBy({run: run.id, text: waiting
+                        ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                        : gettext("Parameters applied; compensation is on. Re-test to see the improvement.")});
                     self.loadRuns();
                 })
                 .fail(self.fail);
