@@ -29,9 +29,11 @@ def alignment_matrix(params: Params) -> np.ndarray:
 
 
 def split_alignment(A_true: np.ndarray, d: Dict[str, object]) -> None:
-    """Write ``A_true`` = alignment x scale into params document ``d``."""
+    """Write ``A_true`` = alignment x scale into params document ``d``. (Absurd inputs give
+    non-finite values here, silently: :func:`checked_params` refuses them, naming the field.)"""
     Dn = np.diag(A_true)
-    Sn = A_true / Dn[None, :]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        Sn = A_true / Dn[None, :]
     d["squareness_um_per_m"] = {"xy": Sn[0, 1] * 1e6, "xz": Sn[0, 2] * 1e6, "yz": Sn[1, 2] * 1e6}
     d["scale_ppm"] = {k: (Dn[i] - 1) * 1e6 for i, k in enumerate(AXES)}
 
@@ -92,7 +94,9 @@ def propose_params(
             if absolute.get(letter) is not None:
                 A_res[k, k] = 1 + float(absolute[letter]) * 1e-6
     A_res[a, b] = alpha * A_res[b, b]
-    split_alignment(A_res @ A_cur, d)
+    with np.errstate(invalid="ignore", over="ignore"):  # (refused below when not finite)
+        A_true = A_res @ A_cur
+    split_alignment(A_true, d)
     # Backlash: true = residual step + what was applied, per end of the circle.
     bl = diag.get("backlash_um")
     if isinstance(bl, dict) and bl:

@@ -123,9 +123,9 @@ def test_a_whole_campaign_in_demo_mode(page, server):
             "document.querySelectorAll('#kincomp_campaign_table tbody tr').length == 4"
         )
         assert page.locator("#kincomp_campaign_views polyline").count() == 12
-        assert page.is_visible("#kincomp_campaign_table >> text=xy-f3700")
+        assert page.is_visible("#kincomp_campaign_table >> text=XY at 3700 mm/min")
         page.fill("#kincomp_campaign_rxy", "120")  # does not fit the 200 mm bed
-        page.wait_for_selector("#kincomp_campaign >> text=campaign test xy")
+        page.wait_for_selector("#kincomp_campaign >> text=campaign test XY")
         assert page.is_disabled("#kincomp_campaign_start")
         page.fill("#kincomp_campaign_rxy", "50")
         page.wait_for_selector("#kincomp_campaign_start:enabled")
@@ -195,7 +195,8 @@ def test_a_whole_campaign_in_demo_mode(page, server):
         assert "Apply with care" not in page.inner_text("#kincomp_campaign_verdict")
         xy = page.locator("#kincomp_campaign_plane_xy tr", has_text="Squareness").inner_text()
         assert float(xy.split()[-2]) > 95, xy
-        page.wait_for_selector("#kincomp_campaign_plot_0 .legend >> text=CCW (before)")
+        legend = "#kincomp_campaign_plot_0 + .kincomp-plot-legend"
+        page.wait_for_selector(f"{legend} >> text=CCW (before)")
         time.sleep(0.5)
         no_popups(page)
         page.locator("#kincomp_campaign_result").screenshot(

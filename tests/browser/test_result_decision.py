@@ -155,6 +155,13 @@ def test_a_single_tests_result_opens_with_its_decision(page, server, case):
     # the details open: the table names the backlash sides by axis, as the proposal does
     page.click("#kincomp_details_toggle")
     page.wait_for_selector("#kincomp_plot canvas")
+    # the plot's legend below it, not over the traces
+    below = page.evaluate("""() => {
+        const plot = document.querySelector('#kincomp_plot').getBoundingClientRect();
+        const legend = document.querySelector('#kincomp_plot + .kincomp-plot-legend table');
+        return legend && legend.getBoundingClientRect().top >= plot.bottom - 1
+            && !document.querySelector('#kincomp_plot .legend'); }""")
+    assert below
     table = page.inner_text("#kincomp_result_table")
     assert "+X" in table and "+A" not in table, table
     _no_raw_words(page, "#kincomp_result_step")  # (the opened details too)

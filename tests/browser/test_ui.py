@@ -159,12 +159,12 @@ def test_calibration_wizard_demo_loop(page, server):
         again = server.request("GET", f"/plugin/kincomp/runs/{again['id']}")[1]
         assert again["id"] != run["id"]
         assert_applies_cleanly(again)
-        page.wait_for_selector("#kincomp_plot .legend >> text=CCW (before)")
+        page.wait_for_selector("#kincomp_plot + .kincomp-plot-legend >> text=CCW (before)")
         _no_popups(page)
         page.locator("#kincomp_result").screenshot(
             path=os.path.join(SHOTS, "plot-before-after.png")
         )
-        page.wait_for_selector("#kincomp_plot .legend >> text=fitted centre")
+        page.wait_for_selector("#kincomp_plot + .kincomp-plot-legend >> text=fitted centre")
         # history lists both runs, with the parameters used and the measurement file
         _step(page, "history")
         page.wait_for_selector(f"#kincomp_history >> text={run['filename']}")

@@ -91,7 +91,7 @@ def test_program_campaign_writes_programs_and_manifest(tmp_path, capsys):
         main(["program", "--campaign", "--volume", "0,150,0,150,0,250", "-o", str(tmp_path / "x")])
         == 1
     )
-    assert "campaign test xy" in capsys.readouterr().err
+    assert "campaign test XY" in capsys.readouterr().err
     assert main(["program", "--campaign", "-o", str(tmp_path / "y")]) == 1
     assert "--volume" in capsys.readouterr().err
 
@@ -148,7 +148,7 @@ def copy(trace):
 @pytest.mark.parametrize(
     "case, message",
     [
-        ("missing", r"incomplete: test yz missing"),
+        ("missing", r"incomplete: test YZ missing"),
         ("printer", r"ballbar_3_yz.csv comes from another printer than ballbar_1_xy.csv"),
         ("params", r"ballbar_2_xz.csv comes from another parameter set"),
         ("edited", r"ballbar_2_xz.csv: the metadata does not match its program"),

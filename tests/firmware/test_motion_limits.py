@@ -186,7 +186,7 @@ def test_campaign_feeds_within_the_limits():
     assert feeds == {"xy": 1850.0, "xz": 300.0, "yz": 300.0}
     assert steps[1].spec.requested_feed_mm_min == 1850.0
     assert "Z axis' max feed is 300 mm/min" in steps[1].feed_notes[0]
-    with pytest.raises(ProgramError, match="campaign test xz: the Z axis' max feed is not"):
+    with pytest.raises(ProgramError, match="campaign test XZ: the Z axis' max feed is not"):
         plan_campaign((0, 220, 0, 220, 0, 250), require_limits=True)
 
 

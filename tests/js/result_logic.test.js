@@ -115,3 +115,30 @@ test("a campaign test's pause: mount or unmount, also after OctoPrint's Restart"
     assert.equal(C.pauseKind(null, 2), "mount");
     assert.equal(C.pauseKind(null, 96), "unmount");
 });
+
+test("a campaign's drawing: tests that meet on one spot share one label, not '34'", () => {
+    const C = load("kincomp_common.js", "kincomp_findings.js", "kincomp_result_logic.js", "kincomp_campaign_draw.js").KinComp.campaign;
+    const xy = (n, feed) => ({n: n, plane: "XY", centre: [100, 100, 10], radius_mm: 50, feed_mm_min: feed,
+                              spec: {capture_deg: 360, overshoot_deg: 10}});
+    const xz = {n: 2, plane: "XZ", centre: [100, 100, 38], radius_mm: 50, spec: {capture_deg: 220, start_deg: -20}};
+    const yz = {n: 3, plane: "YZ", centre: [100, 100, 38], radius_mm: 50, spec: {capture_deg: 220, start_deg: -20}};
+    const views = C.views([0, 200, 0, 200, 0, 200], [xy(1, 1850), xz, yz, xy(4, 3700)], null);
+    const labels = (v) => JSON.parse(JSON.stringify(v.paths.map((p) => p.label).filter((l) => l)));
+    // from the top: the XY circles (1 and 4) and the YZ line (3) meet at the top; XZ apart
+    assert.deepEqual(labels(views[0]).sort(), ["1, 3, 4", "2"]);
+    // every label stands alone: no two closer than a label's width
+    for (const v of views) {
+        const shown = v.paths.filter((p) => p.label);
+        for (const a of shown) for (const b of shown) {
+            if (a === b) continue;
+            assert.ok(Math.hypot(a.lx - b.lx, a.ly - b.ly) > 200 * 0.04, JSON.stringify([a.label, b.label]));
+        }
+    }
+});
+
+test("a campaign's test in words, not its plan key ('xy-f3700')", () => {
+    const C = load("kincomp_common.js", "kincomp_findings.js", "kincomp_result_logic.js", "kincomp_campaign_draw.js").KinComp.campaign;
+    assert.equal(C.testName({name: "xy", plane: "XY", feed_mm_min: 1850, centre: [100, 100, 10]}), "XY");
+    assert.equal(C.testName({name: "xy-f3700", plane: "XY", feed_mm_min: 3700, centre: [100, 100, 10]}), "XY at 3700 mm/min");
+    assert.equal(C.testName({name: "xy-z110", plane: "XY", feed_mm_min: 1850, centre: [100, 100, 110]}), "XY at Z 110 mm");
+});

@@ -188,7 +188,7 @@ def test_bad_plan_requests_are_refused_naming_the_field(app, plugin, body, field
 
 def test_a_plan_that_does_not_fit_names_the_test(app, plugin):
     code, resp = call(app, plugin.campaign.plan, json={"radius_xy": 100})
-    assert code == 400 and "campaign test xy" in resp["error"] and "does not fit" in resp["error"]
+    assert code == 400 and "campaign test XY" in resp["error"] and "does not fit" in resp["error"]
     code, resp = call(app, plugin.campaign.plan, json=dict(PLAN, feed=6000, second_feed=9000))
     assert code == 400 and "second XY feed is capped" in resp["error"]
     code, resp = call(app, plugin.campaign.plan, json=["radius_xy"])
@@ -379,7 +379,7 @@ def test_a_test_takes_only_its_own_trace(app, plugin, tmp_path):
     cid = doc["id"]
     xy = offline_trace(doc, 1)
     cases = [
-        (2, xy, "xy.csv", "it is the trace of test xy, not of test 2 (xz)"),
+        (2, xy, "xy.csv", "it is the trace of test XY, not of test 2 (XZ)"),
         (1, offline_trace(other, 1), "other.csv", f"belongs to campaign {other['id']}"),
         (
             1,
@@ -430,7 +430,7 @@ def test_a_missing_or_failed_test_is_named_and_nothing_applied(app, plugin, tmp_
         code, _ = upload(app, plugin, tmp_path, cid, n, offline_trace(doc, n), f"t{n}.csv")
         assert code == 200
     code, resp = call(app, plugin.campaign.analyze, cid)
-    assert code == 400 and "test 3 (yz" in resp["error"] and "incomplete" in resp["error"]
+    assert code == 400 and "test 3 (YZ" in resp["error"] and "incomplete" in resp["error"]
     # the YZ test failed: the bar slipped half-way (a 30 um jump in every reading after it)
     lines = offline_trace(doc, 3).splitlines()
     rows = [i for i, ln in enumerate(lines) if ln.startswith("ccw,")]
@@ -719,7 +719,7 @@ def test_a_campaign_being_measured_is_not_deleted(app, plugin):
         plugin._printer.is_paused.return_value = paused
         code, out = delete(app, plugin, cid)
         assert code == 409, out
-        assert out["error"].startswith(f"Test 2 (xz) of campaign {cid} is being printed")
+        assert out["error"].startswith("Test 2 (XZ) of this campaign is being printed")
     # another file printing: the campaign may go
     other = plan(app, plugin)["id"]
     code, out = delete(app, plugin, other)

@@ -25,7 +25,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from ...core.messages import Msg, joined
 from ...firmware.motion_limits import (
@@ -62,6 +62,17 @@ class Step:
     spec: TestSpec
     file: str
     feed_notes: List[str] = field(default_factory=list)  # how its feed was chosen
+
+
+def test_words(name: str) -> Union[Msg, str]:
+    """A campaign test's plan name (``xy``, ``xy-z110``, ``xy-f3700``: a key in files and
+    metadata) in the user's words: its plane, and what sets an extra XY test apart."""
+    plane, _, variant = name.partition("-")
+    if variant.startswith("f"):
+        return Msg("%(plane)s at %(feed)s mm/min", plane=plane.upper(), feed=variant[1:])
+    if variant.startswith("z"):
+        return Msg("%(plane)s at Z %(z)s mm", plane=plane.upper(), z=variant[1:])
+    return name.upper()  # (a plane's name, the same in every language)
 
 
 def _centre_height(spec: TestSpec, z0: float, margin: float) -> float:
@@ -166,7 +177,7 @@ def plan_campaign(
             raise ProgramError(
                 Msg(
                     "campaign test %(name)s: %(error)s",
-                    name=name,
+                    name=test_words(name),
                     error=exc.args[0] if exc.args else str(exc),
                 )
             ) from None
@@ -393,7 +404,7 @@ def _check_complete(items, manifest: Optional[Dict[str, object]]) -> None:
             Msg(
                 "the campaign is incomplete: %(missing)s missing (planned: %(planned)s); nothing "
                 "is proposed from a partial campaign",
-                missing=joined([Msg("test %(name)s", name=m) for m in missing]),
-                planned=", ".join(planned),
+                missing=joined([Msg("test %(name)s", name=test_words(m)) for m in missing]),
+                planned=joined([test_words(m) for m in planned if m]),
             )
         )

@@ -54,7 +54,7 @@ from flask_babel import gettext
 from octoprint.access.permissions import Permissions
 
 from ...calibration import findings as fnd
-from ...calibration.ballbar.campaign import plan_campaign
+from ...calibration.ballbar.campaign import plan_campaign, test_words
 from ...calibration.ballbar.program import ProgramError, TestSpec, generate
 from ...core.messages import Msg, as_dict, joined
 from ...firmware.motion_limits import LimitsError, circle_feed
@@ -382,7 +382,7 @@ class CampaignApi:
                     "No simulated trace of test %(n)s (%(name)s) yet: print its "
                     "program in demo mode first",
                     n=step["n"],
-                    name=step["name"],
+                    name=test_words(step["name"]),
                 ),
                 404,
             )
@@ -477,7 +477,7 @@ class CampaignApi:
                         "The campaign is incomplete: test %(n)s (%(name)s, %(file)s) has no "
                         "measurement; nothing is analysed from a partial campaign",
                         n=step["n"],
-                        name=step["name"],
+                        name=test_words(step["name"]),
                         file=os.path.basename(step.get("path") or "-"),
                     )
                 )
@@ -518,11 +518,10 @@ class CampaignApi:
         for step in doc["steps"]:
             if step.get("path") and step["path"] == printing:
                 return Msg(
-                    "Test %(n)s (%(name)s) of campaign %(id)s is being printed and measured "
+                    "Test %(n)s (%(name)s) of this campaign is being printed and measured "
                     "now: cancel the print or let it finish before deleting the campaign.",
                     n=step["n"],
-                    name=step["name"],
-                    id=doc["id"],
+                    name=test_words(step["name"]),
                 )
         if self.armed_campaign is not None and self.armed_campaign() == doc["id"]:
             return Msg(

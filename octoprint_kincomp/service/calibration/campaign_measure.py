@@ -30,6 +30,7 @@ import contextlib
 from typing import Any, Callable, Dict, List, Optional
 
 from ...calibration import findings as fnd
+from ...calibration.ballbar.campaign import test_words
 from ...calibration.ballbar.formats import AngleTrace, NativeTrace, TraceError
 from ...calibration.ballbar.program import ProgramError
 from ...core.messages import Msg, error_message
@@ -342,11 +343,10 @@ def busy_test(doc: Dict[str, Any], step: Dict[str, Any]) -> Refused:
     """The refusal of a second measurement of a test while the first is under way."""
     return Refused(
         Msg(
-            "Test %(n)s (%(name)s) of campaign %(id)s is being measured already: wait for "
+            "Test %(n)s (%(name)s) of this campaign is being measured already: wait for "
             "that measurement.",
             n=step["n"],
-            name=step["name"],
-            id=doc["id"],
+            name=test_words(step["name"]),
         ),
         409,
     )
@@ -376,9 +376,9 @@ def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[
     if got != step["name"]:
         return Msg(
             "it is the trace of test %(other)s, not of test %(n)s (%(name)s)",
-            other=got or "-",
+            other=test_words(got) if got else "-",
             n=step["n"],
-            name=step["name"],
+            name=test_words(step["name"]),
         )
     got = (meta.get("program_hash") or "").strip()
     if got != step["program_hash"]:

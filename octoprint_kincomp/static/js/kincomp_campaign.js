@@ -410,6 +410,12 @@ $(function () {
             OctoPrint.job.resume().fail(self.fail);
         };
 
+        // a test of campaign ``c`` by its plan name ("xy-f3700"), in words
+        self.testNameOf = function (c, name) {
+            var step = c && _.findWhere(c.steps || [], {name: name});
+            return step ? K.campaign.testName(step) : name;
+        };
+
         self.measured = function (resp) {
             self.awaiting(null);
             self.missed(null);
@@ -417,7 +423,7 @@ $(function () {
             var d = resp.run && resp.run.diagnostics;
             // said in the panel, under the progress (a pop-up only for what needs the user)
             self.lastMeasured(d ? _.sprintf(gettext("Test %(name)s measured: squareness %(sq)s µm/m, circularity %(c)s µm."), {
-                name: resp.run.campaign_step,
+                name: self.testNameOf(resp.campaign, resp.run.campaign_step),
                 sq: fmt(d.squareness_um_per_m, 1),
                 c: fmt(d.circularity_um && d.circularity_um.bidirectional, 1)
             }) : "");
@@ -716,8 +722,8 @@ $(function () {
             var name = run.test_of.campaign_step;
             var text = run.status !== "ok"
                 ? _.sprintf(gettext("The live capture of test %(name)s failed: %(reason)s. The test stays unmeasured: print it again, or give its trace. The data so far is kept in the History."), {
-                    name: name, reason: trMsg(run.message_i18n || run.message)})
-                : _.sprintf(gettext("The live capture of test %(name)s was not taken as its measurement (the notice says why); it is kept in the History as a single run."), {name: name});
+                    name: self.testNameOf(c, name), reason: trMsg(run.message_i18n || run.message)})
+                : _.sprintf(gettext("The live capture of test %(name)s was not taken as its measurement (the notice says why); it is kept in the History as a single run."), {name: self.testNameOf(c, name)});
             var step = _.findWhere(c.steps, {name: name});
             self.awaiting(null);
             if (step) self.missed({n: step.n, id: c.id});

@@ -40,7 +40,8 @@
         var b0 = volume[2 * ab[1]], b1 = volume[2 * ab[1] + 1];
         var span = Math.max(a1 - a0, b1 - b0);
         var pad = span * 0.06;
-        var labelled = {}; // label positions taken: a test drawn where another is moves aside
+        // tests whose labels fall on one spot share one label ("3, 4", not "34")
+        var labelled = []; // the paths that carry a label
         var paths = _.map(steps, function (step) {
             var xy = _.map(sweep(step), function (p) {
                 return [p[ab[0]], -p[ab[1]]];
@@ -48,19 +49,27 @@
             var top = _.min(xy, function (q) {
                 return q[1];
             });
-            var at = Math.round(top[0]) + "," + Math.round(top[1]);
-            var shift = (labelled[at] = (labelled[at] || 0) + 1) - 1;
-            return {
+            var path = {
                 points: _.map(xy, function (q) {
                     return q[0].toFixed(2) + "," + q[1].toFixed(2);
                 }).join(" "),
                 cls: "kincomp-campaign-path kincomp-campaign-" + step.plane.toLowerCase() +
                     (step.n === currentN ? " kincomp-campaign-current" : "") +
                     (step.run ? " kincomp-campaign-done" : ""),
-                lx: top[0] + shift * span * 0.05,
+                lx: top[0],
                 ly: top[1] - span * 0.015,
                 label: String(step.n)
             };
+            var near = _.find(labelled, function (other) {
+                return Math.abs(other.lx - path.lx) < span * 0.06 && Math.abs(other.ly - path.ly) < span * 0.06;
+            });
+            if (near) {
+                near.label += ", " + step.n;
+                path.label = "";
+            } else {
+                labelled.push(path);
+            }
+            return path;
         });
         return {
             viewBox: [a0 - pad, -(b1 + pad), a1 - a0 + 2 * pad, b1 - b0 + 2 * pad].join(" "),
@@ -157,5 +166,18 @@
         return (pct || 0) < 50 ? "mount" : "unmount";
     };
 
-    K.campaign = {views: views, planes: planes, jointRows: jointRows, pauseKind: pauseKind};
+    // a test of the campaign in words: its plane, and for the extra XY tests what sets them
+    // apart (the plan's names "xy-f3700", "xy-z110" are keys, not shown)
+    var testName = function (step) {
+        var name = String(step.name || "");
+        if (/-f/.test(name)) {
+            return _.sprintf(gettext("%(plane)s at %(feed)s mm/min"), {plane: step.plane, feed: fmt(step.feed_mm_min, 0)});
+        }
+        if (/-z/.test(name)) {
+            return _.sprintf(gettext("%(plane)s at Z %(z)s mm"), {plane: step.plane, z: fmt((step.centre || [])[2], 0)});
+        }
+        return step.plane;
+    };
+
+    K.campaign = {views: views, planes: planes, jointRows: jointRows, pauseKind: pauseKind, testName: testName};
 })();

@@ -10,6 +10,16 @@
     var NICE = K.NICE;
     var drawCross = K.drawCross;
 
+    /* the legend's own box right after the plot ``target`` (made once) */
+    K.legendBox = function (target) {
+        var box = target.next(".kincomp-plot-legend");
+        if (!box.length) {
+            box = $("<div class='kincomp-plot-legend'></div>");
+            target.after(box);
+        }
+        return box;
+    };
+
     /* ``runs``: plot data of the server's analysis (first: the run shown, then one faded
      * run before it); returns the scale, um per division */
     K.drawPolar = function (target, runs) {
@@ -100,7 +110,8 @@
             xaxis: {min: -lim, max: lim, show: false},
             yaxis: {min: -lim, max: lim, show: false},
             grid: {borderWidth: 0, hoverable: false},
-            legend: {position: "nw", backgroundOpacity: 0.6}
+            // below the plot, never over the traces (issue 35)
+            legend: {container: K.legendBox(target), noColumns: 3}
         });
         target.find(".kincomp-scalebar").remove();
         target.append($("<div class='kincomp-scalebar'></div>").text(
