@@ -186,14 +186,29 @@ def noise_floor(before: dict, after: dict, key: str, unit: str) -> float:
     return max(NOISE_SIGMAS * combined, RESOLUTION.get(unit, 0.0))
 
 
-def table(before: dict, after: dict) -> List[Dict[str, object]]:
+def servo_in_force(run: dict) -> Optional[bool]:
+    """Whether servo pre-compensation was on while ``run`` (a stored run document) was
+    measured; None when the run does not record its parameters."""
+    params = run.get("params_before")
+    if not isinstance(params, dict):
+        return None
+    return bool(params.get("servo_precomp"))
+
+
+def table(
+    before: dict, after: dict, servo_compensated: Optional[bool] = None
+) -> List[Dict[str, object]]:
     """Per error of ROWS: before, after and the reduction (%); ``at_noise``: the before value
-    is within the noise floor, where a reduction means nothing (``reduction_pct`` None)."""
+    is within the noise floor, where a reduction means nothing (``reduction_pct`` None).
+    ``servo_compensated`` False (servo pre-compensation was off for the after run): the
+    servo mismatch row says ``compensated: False`` and gives no reduction (what it changed
+    by is not KinComp's doing)."""
     rows = []
     for label, key, unit in ROWS:
         b, a = _get(before, key), _get(after, key)
         floor = noise_floor(before, after, key, unit)
         at_noise = b is not None and a is not None and abs(b) <= floor
+        compensated = not (key == "servo_mismatch_ms" and servo_compensated is False)
         rows.append(
             {
                 "error": label,
@@ -203,7 +218,8 @@ def table(before: dict, after: dict) -> List[Dict[str, object]]:
                 "after": a,
                 "noise_floor": floor,
                 "at_noise": at_noise,
-                "reduction_pct": None if at_noise else reduction(b, a),
+                "compensated": compensated,
+                "reduction_pct": None if at_noise or not compensated else reduction(b, a),
             }
         )
     return rows
@@ -215,6 +231,8 @@ def format_table(rows, title: str) -> str:
         red = (
             "at noise level"
             if r.get("at_noise")
+            else "not compensated"
+            if r.get("compensated") is False
             else ("" if r["reduction_pct"] is None else f"{r['reduction_pct']:.1f} %")
         )
         b = "" if r["before"] is None else f"{r['before']:.2f}"

@@ -218,6 +218,11 @@ def test_quick_artifact_in_german(page, server):
         head = page.inner_text("#kincomp_artifact_table thead")
         assert "Nennmaß" in head and "Messwerte (mm)" in head
         assert "außen" in page.locator("#kincomp_artifact_table tbody tr").first.inner_text()
+        # how to measure each span, in German too (the header's hints were English)
+        form = page.inner_text("#kincomp_artifact_table tbody")
+        assert "backen" in form, form[:300]
+        for english in ("jaws", "walls", "tower", " deg "):
+            assert english not in form, english
         page.click("#kincomp_artifact_analyse")
         page.wait_for_selector(
             "#kincomp_artifact_error >> text=Tragen Sie zuerst die Messwerte ein"

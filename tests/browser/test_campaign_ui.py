@@ -6,6 +6,7 @@ plane; a wrong file is refused naming it; the history groups the campaigns' runs
 Screenshots go to test-artifacts/screenshots/ (campaign.png is the README's)."""
 
 import os
+import re
 import time
 
 import pytest
@@ -228,7 +229,10 @@ def test_a_campaign_is_deleted_from_the_history(page, server):
     group.locator(".kincomp-campaign-delete").click()
     dialog = page.locator(".kincomp-campaign-delete-dialog")
     dialog.wait_for(state="visible")
-    assert cid in dialog.inner_text()
+    # named by its date as the history shows it, not by its id (issue 35)
+    when = group.locator("strong").first.inner_text().strip()
+    assert re.match(r"^\d{4}-\d\d-\d\d \d\d:\d\d$", when), when
+    assert when in dialog.inner_text() and cid not in dialog.inner_text()
     dialog.locator("a.btn", has_text="Cancel").click()
     dialog.wait_for(state="hidden")
     assert _campaign(server, cid)["id"] == cid

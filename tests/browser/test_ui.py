@@ -157,6 +157,13 @@ def test_calibration_wizard_demo_loop(page, server):
         assert reduction > 90, row
         again = server.request("GET", "/plugin/kincomp/runs")[1]["runs"][0]
         again = server.request("GET", f"/plugin/kincomp/runs/{again['id']}")[1]
+        # the servo mismatch, which a single test's Apply leaves alone, is not "reduced"
+        # (unless a campaign on the shared server left servo pre-compensation on)
+        servo = page.locator("#kincomp_result_table tr", has_text="Servo mismatch").inner_text()
+        if not again["params_before"].get("servo_precomp"):
+            assert servo.rstrip().endswith("not compensated") and "%" not in servo, servo
+        else:
+            assert servo.rstrip().endswith("%"), servo
         assert again["id"] != run["id"]
         assert_applies_cleanly(again)
         page.wait_for_selector("#kincomp_plot + .kincomp-plot-legend >> text=CCW (before)")

@@ -166,3 +166,22 @@ def test_drawing_numbers_every_measurement():
     assert rows[0]["id"] == meas[0].id and rows[0]["nominal_mm"] == pytest.approx(
         meas[0].length, abs=1e-3
     )
+
+
+@pytest.mark.parametrize("mode", ["full", "quick"])
+def test_every_hint_reaches_the_web_ui_as_a_message(mode):
+    """Issue 35: the measuring form showed the header's English hints ("45 deg tower in XZ
+    leaning towards -X: caliper along the 45 deg line ...") in the German UI too. Each hint
+    KinComp writes is a message of the catalog; a hand-edited one stays as it is."""
+    from octoprint_kincomp.calibration.artifact.drawing import legend
+    from octoprint_kincomp.calibration.artifact.program import hint_words
+    from octoprint_kincomp.core.messages import Msg
+
+    meas = read_measurements(generate(ArtifactSpec(volume=VOLUME, mode=mode)))
+    for m, row in zip(meas, legend(meas)):
+        words = hint_words(m.hint)
+        assert isinstance(words, Msg), m.hint
+        assert row["hint_i18n"]["template"] == words.template
+        assert " deg " not in str(words) and str(words).count(": ") == 1, str(words)
+    assert any("45°" in str(hint_words(m.hint)) for m in meas)
+    assert hint_words("my own note") == "my own note"

@@ -4,7 +4,7 @@ SIMULATED: program -> simulate -> analyse -> compensate the program -> simulate 
 
 import pytest
 
-from octoprint_kincomp.simulator.closed_loop import format_table, run_round, table
+from octoprint_kincomp.simulator.closed_loop import format_table, run_round, servo_in_force, table
 from octoprint_kincomp.simulator.printer import paper_truth
 
 
@@ -109,6 +109,25 @@ def test_a_reduction_from_a_value_within_the_noise_floor_says_at_noise_level(rou
     first = rows_by_key(rounds[True])
     assert not first["squareness_um_per_m"]["at_noise"]
     assert first["squareness_um_per_m"]["reduction_pct"] >= 99.0
+
+
+def test_a_servo_mismatch_left_uncompensated_says_so_not_a_percentage(rounds):
+    """Issue 35: the servo mismatch 0.62 -> 0.62 showed "0.4 %" beside errors KinComp did
+    compensate; with servo pre-compensation off for the after run it says "not compensated"."""
+    res = rounds[False]
+    b, a = res["before"]["diagnostics"], res["after"]["diagnostics"]
+    off = {r["key"]: r for r in table(b, a, servo_compensated=False)}
+    assert off["servo_mismatch_ms"]["compensated"] is False
+    assert off["servo_mismatch_ms"]["reduction_pct"] is None
+    assert off["squareness_um_per_m"]["compensated"] and off["squareness_um_per_m"]["reduction_pct"]
+    assert "not compensated" in format_table(list(off.values()), "T")
+    on = {r["key"]: r for r in table(b, a, servo_compensated=True)}
+    assert on["servo_mismatch_ms"]["compensated"]
+    assert on["servo_mismatch_ms"]["reduction_pct"] is not None
+    # what a stored run says of itself
+    assert servo_in_force({"params_before": {"servo_precomp": True}}) is True
+    assert servo_in_force({"params_before": {}}) is False
+    assert servo_in_force({}) is None
 
 
 def _perfect_gb(noise_um: float, seed: int) -> float:

@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from .program import Measurement
+from ...core.messages import as_dict
+from .program import Measurement, hint_words
 
 WALL_MM = 10.0  # drawn length of a wall
 
@@ -93,6 +94,7 @@ def legend(measurements: Sequence[Measurement]) -> List[Dict[str, object]]:
             "nominal_mm": round(m.length, 3),
             "plane": m.plane,
             "hint": m.hint,
+            "hint_i18n": as_dict(hint_words(m.hint)),  # (the web UI's, translated there)
         }
         for i, m in enumerate(measurements, 1)
     ]

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 from ...core.messages import Msg
 
@@ -470,6 +470,56 @@ def measurements(features: Sequence[Feature]) -> List[Measurement]:
                 )
             )
     return out
+
+
+# The header's hints (plain ASCII English: the measuring contract in the G-code) in the
+# user's words and language for the web UI: each part KinComp writes, as a message.
+_HINT_PARTS = {
+    "walls across X, front": Msg("walls across X, front"),
+    "walls across X, back": Msg("walls across X, back"),
+    "walls across Y, left": Msg("walls across Y, left"),
+    "walls across Y, right": Msg("walls across Y, right"),
+    "diagonal walls front-left to back-right": Msg("diagonal walls front-left to back-right"),
+    "diagonal walls back-left to front-right": Msg("diagonal walls back-left to front-right"),
+    "outer jaws on the outer faces of both walls": Msg(
+        "outer jaws on the outer faces of both walls"
+    ),
+    "inner jaws on the facing faces of both walls": Msg(
+        "inner jaws on the facing faces of both walls"
+    ),
+    "caliper along the 45 deg line, outer jaws on the low face of the short wall and the top "
+    "face of the tall wall": Msg(
+        "caliper along the 45° line, outer jaws on the low face of the short wall and the top "
+        "face of the tall wall"
+    ),
+    "inner jaws between the two leaning walls, square to them": Msg(
+        "inner jaws between the two leaning walls, square to them"
+    ),
+}
+_TOWER = re.compile(r"^45 deg tower in (XZ|YZ) leaning towards ([+-][XYZ])$")
+
+
+def hint_words(hint: str) -> Union[Msg, str]:
+    """A measurement's header hint as a message for the web UI (``where: how``, each part
+    KinComp writes translated); a hint it does not know (a hand-edited header) as it is."""
+    parts = []
+    for part in hint.split(": ", 1):
+        tower = _TOWER.match(part)
+        if tower:
+            parts.append(
+                Msg(
+                    "45° tower in %(plane)s leaning towards %(lean)s",
+                    plane=tower.group(1),
+                    lean=tower.group(2),
+                )
+            )
+        elif part in _HINT_PARTS:
+            parts.append(_HINT_PARTS[part])
+        else:
+            return hint
+    if len(parts) == 1:
+        return parts[0]
+    return Msg("%(where)s: %(how)s", where=parts[0], how=parts[1])
 
 
 def _pt(p: Sequence[float]) -> str:

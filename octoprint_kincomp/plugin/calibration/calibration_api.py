@@ -73,7 +73,7 @@ from ...service.notify import Notifier
 from ...service.printing.queue import QueueCompensator
 from ...service.settings.printer_profiles import applied_elsewhere, other_profile
 from ...service.settings.schema import SettingsError
-from ...simulator.closed_loop import table
+from ...simulator.closed_loop import servo_in_force, table
 from .. import http
 from ..files.job_api import JobApi
 from ..settings.limits_capture import effective_limits
@@ -706,7 +706,9 @@ class CalibrationApi:
         except RunNotFound:
             return http.error(gettext("No such calibration run"), 404)
         return flask.jsonify(
-            table=table(a["diagnostics"], b["diagnostics"]), before=a["id"], after=b["id"]
+            table=table(a["diagnostics"], b["diagnostics"], servo_in_force(b)),
+            before=a["id"],
+            after=b["id"],
         )
 
     # ~~ demo mode ---------------------------------------------------------------------------

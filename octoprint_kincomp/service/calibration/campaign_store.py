@@ -33,7 +33,7 @@ import threading
 from typing import Any, Callable, Dict, Iterator, Optional, Sequence, Set, Tuple
 
 from ...calibration.ballbar.program import body_hash, spec_dict
-from ...simulator.closed_loop import table
+from ...simulator.closed_loop import servo_in_force, table
 from .run_store import RunNotFound, RunStore
 
 
@@ -212,7 +212,7 @@ def _analysis(
         comparison.append(
             {
                 "step": name,
-                "rows": table(_joint(b["trace"]) if b else {}, _joint(after)),
+                "rows": table(_joint(b["trace"]) if b else {}, _joint(after), servo_in_force(run)),
                 "before_plot": b["plot"] if b else None,
                 "before_run": b["run"] if b else None,
             }

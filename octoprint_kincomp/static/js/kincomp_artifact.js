@@ -105,7 +105,7 @@ $(function () {
                 });
                 return {
                     n: m.n, id: m.id, kind: m.kind, kindText: kindText(m.kind),
-                    nominal: m.nominal_mm, hint: m.hint, fields: fields,
+                    nominal: m.nominal_mm, hint: K.trMsg(m.hint_i18n) || m.hint, fields: fields,
                     residual: ko.observable(""), leftOut: ko.observable(false)
                 };
             }));

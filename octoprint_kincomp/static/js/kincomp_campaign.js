@@ -623,7 +623,7 @@ $(function () {
         };
 
         self.deleteHint = function (c) {
-            return _.sprintf(gettext("Delete campaign %(id)s (the runs of its tests stay in the history)"), {id: c.id});
+            return _.sprintf(gettext("Delete the campaign of %(date)s (the runs of its tests stay in the history)"), {date: K.Result.when(c.created)});
         };
 
         // deleting asks first (OctoPrint's confirmation dialog); the server refuses a
@@ -631,8 +631,8 @@ $(function () {
         self.remove = function (summary) {
             showConfirmationDialog({
                 title: gettext("Delete the campaign?"),
-                message: _.sprintf(gettext("Campaign %(id)s (%(state)s) will be deleted: its plan and progress are gone, a re-test of it has nothing to compare with. The runs of its tests and its joint result stay in the history."),
-                    {id: _.escape(summary.id), state: _.escape(self.stateText(summary))}),
+                message: _.sprintf(gettext("The campaign of %(date)s (%(state)s) will be deleted: its plan and progress are gone, a re-test of it has nothing to compare with. The runs of its tests and its joint result stay in the history."),
+                    {date: _.escape(K.Result.when(summary.created)), state: _.escape(self.stateText(summary))}),
                 question: gettext("Delete this campaign?"),
                 proceed: gettext("Delete"),
                 dialogClass: "kincomp-campaign-delete-dialog",

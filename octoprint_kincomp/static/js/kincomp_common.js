@@ -33,6 +33,7 @@
         // noise floor (the server decides: simulator/closed_loop.py), else the per cent
         if (!row) return "";
         if (row.at_noise) return gettext("at noise level");
+        if (row.compensated === false) return gettext("not compensated");
         return row.reduction_pct !== null && row.reduction_pct !== undefined
             ? fmt(row.reduction_pct, 1) + " %" : "";
     };
