@@ -46,6 +46,7 @@ test("the readings: empty fields are not measured, a comma is a decimal point", 
 test("a field that is no length names its measurement and reading", () => {
     const got = A().readingsOf([{id: "X1-out", fields: ["147.4", "abc"]}, {id: "Y1-in", fields: ["-1"]}]);
     assert.equal(got.error, "Reading 2 of X1-out is not a length in mm");
+    assert.deepEqual(plain(got.field), {id: "X1-out", k: 2});  // (the form marks it)
 });
 
 test("the verdict line: decision and the reason in plain words", () => {

@@ -135,6 +135,21 @@ def test_messages_write_units_as_the_page_does():
     assert not _UNIT_AS_TEXT.search("Testen Sie erneut, um die Verbesserung zu sehen")
 
 
+# one German term per thing: the term the catalog uses, and the variants it once mixed in
+_ONE_TERM = {"Ballbar": ("Kugelstab",), "Prüfteil": ("Prüfkörper", "Pruefteil", "Pruefkoerper")}
+
+
+def test_german_uses_one_term_per_thing():
+    """Issue 35: "Kugelstab" and "Ballbar", "Pruefteil" and "Pruefkoerper" were both used."""
+    with open(PO, "rb") as f:
+        catalog = read_po(f, locale="de")
+    german = "\n".join(m.string for m in catalog if m.id)
+    for term, variants in _ONE_TERM.items():
+        assert term in german, term
+        for variant in variants:
+            assert variant not in german, variant
+
+
 def test_bundled_catalog_matches_the_sources():
     with open(PO, "rb") as a, open(os.path.join(BUNDLED, "messages.po"), "rb") as b:
         assert a.read() == b.read(), "run scripts/translations.sh compile"

@@ -32,6 +32,7 @@ DOCS_SHOTS = {
     "settings.png": "settings.png",
     "plot-before-after.png": "plot-before-after.png",
     "firmware-export.png": "settings-firmware-export.png",
+    "artifact-quick-result.png": "artifact-quick-result.png",
 }
 ZERO = {
     "squareness_um_per_m": {"xy": 0.0, "xz": 0.0, "yz": 0.0},

@@ -92,6 +92,7 @@ $(function () {
         self.showSheet = function (sheet) {
             var count = A.fieldsFor(sheet.info);
             self.sheetNote("");
+            self.formError("");
             self.path(sheet.path);
             self.loadPath(sheet.path);
             self.drawing(sheet.svg);
@@ -106,7 +107,8 @@ $(function () {
                 return {
                     n: m.n, id: m.id, kind: m.kind, kindText: kindText(m.kind),
                     nominal: m.nominal_mm, hint: K.trMsg(m.hint_i18n) || m.hint, fields: fields,
-                    residual: ko.observable(""), leftOut: ko.observable(false)
+                    residual: ko.observable(""), leftOut: ko.observable(false),
+                    bad: ko.observable(false)  // the reading the form's error names
                 };
             }));
             self.view("measure");
@@ -196,13 +198,23 @@ $(function () {
                 .always(function () { self.busy(false); });
         };
 
+        // the measuring form's error: beside its Analyse button, the row it names marked and
+        // its field focused (the form is up to 36 rows long: the top of the page is far)
+        self.formError = ko.observable("");
+
         // readings -> {"<id>": [mm, ...]}; a field that is no number stops with its name
         self.readings = function () {
             var got = A.readingsOf(_.map(self.rows(), function (row) {
                 return {id: row.id, fields: _.map(row.fields, function (f) { return f.text(); })};
             }));
             if (got.error) {
-                self.error(got.error);
+                self.formError(got.error);
+                var row = _.findWhere(self.rows(), {id: got.field.id});
+                if (row) {
+                    row.bad(true);
+                    var input = document.getElementById("kincomp_artifact_r_" + row.id + "_" + got.field.k);
+                    if (input) input.focus();
+                }
                 return null;
             }
             return got.readings;
@@ -210,10 +222,12 @@ $(function () {
 
         self.analyse = function () {
             self.error("");
+            self.formError("");
+            _.each(self.rows(), function (row) { row.bad(false); });
             var readings = self.readings();
             if (!readings) return;
             if (_.isEmpty(readings)) {
-                self.error(gettext("Type the readings first"));
+                self.formError(gettext("Type the readings first"));
                 return;
             }
             self.busy(true);
@@ -221,7 +235,7 @@ $(function () {
                                                                     simulated: self.simulatedReadings()}),
                        K.loadRun)
                 .done(self.showRun)
-                .fail(self.fail)
+                .fail(function (jqXHR) { self.formError(K.errorText(jqXHR)); })
                 .always(function () { self.busy(false); });
         };
 

@@ -22,21 +22,24 @@
     // length; rows: [{id, fields: [text, ...]}], empty fields not measured
     A.readingsOf = function (rows) {
         var out = {};
-        var error = null;
+        var error = null, field = null;
         _.each(rows, function (row) {
             var vals = [];
             _.each(row.fields, function (text, k) {
                 if (String(text === undefined || text === null ? "" : text).trim() === "") return;
                 var v = K.num(text);
                 if (isNaN(v) || v <= 0) {
-                    error = error || _.sprintf(gettext("Reading %(k)s of %(id)s is not a length in mm"), {k: k + 1, id: row.id});
+                    if (!error) {
+                        error = _.sprintf(gettext("Reading %(k)s of %(id)s is not a length in mm"), {k: k + 1, id: row.id});
+                        field = {id: row.id, k: k + 1};
+                    }
                 } else {
                     vals.push(v);
                 }
             });
             if (vals.length) out[row.id] = vals;
         });
-        return error ? {error: error} : {readings: out};
+        return error ? {error: error, field: field} : {readings: out};
     };
 
     // the fields of a row filled with ``values`` (mm; as many as it has fields)
