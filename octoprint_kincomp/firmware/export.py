@@ -216,7 +216,7 @@ def _common_notes(params: Params, firmware: str) -> List[Msg]:
     if extra or any(params.nozzle_offset_mm[a] != 0.0 for a in AXES):
         notes.append(
             Msg(
-                "The full axis error terms (axis_errors) and the nozzle offset have no "
+                "The full axis error terms and the nozzle offset have no "
                 "firmware equivalent: only KinComp applies them."
             )
         )
@@ -314,7 +314,7 @@ def _klipper(params: Params, rotation_distance: Optional[Sequence[float]]) -> Ex
         notes.append(
             Msg(
                 "Klipper has no per-axis scale correction: the scale goes into each "
-                "stepper's rotation_distance, new = current × (1 + scale_ppm × 1e-6)."
+                "stepper's rotation_distance, new = current × (1 + scale in ppm × 1e-6)."
             )
         )
     if params.has_backlash:
@@ -378,7 +378,7 @@ def _marlin(params: Params, steps_per_mm: Optional[Sequence[float]]) -> Export:
         notes.append(
             Msg(
                 "Marlin has no per-axis scale correction: the scale goes into the "
-                "steps/mm (M92), new = current / (1 + scale_ppm × 1e-6)."
+                "steps/mm (M92), new = current / (1 + scale in ppm × 1e-6)."
             )
         )
     sections: List[Section] = []

@@ -151,7 +151,7 @@ def copy(trace):
         ("missing", r"incomplete: test YZ missing"),
         ("printer", r"ballbar_3_yz.csv comes from another printer than ballbar_1_xy.csv"),
         ("params", r"ballbar_2_xz.csv comes from another parameter set"),
-        ("edited", r"ballbar_2_xz.csv: the metadata does not match its program"),
+        ("edited", r"ballbar_2_xz.csv: its metadata does not match the test program it names"),
         ("duplicate", r"ballbar_1_xy.csv and again.csv are the same test \(XY at 10 mm"),
         ("failed", r"ballbar_3_yz.csv: the cw run is missing"),
         ("truncated", r"ballbar_2_xz.csv: the ccw run covers"),
@@ -224,7 +224,9 @@ def test_manifest_names_a_foreign_trace(small, tmp_path):
         "steps": [{"name": s.name, "program_hash": _hash(s.spec)} for s in steps],
     }
     foreign = [("foreign.csv", simulate(other, truth))] + items[1:]
-    with pytest.raises(CampaignError, match="foreign.csv: its program .* is not one of"):
+    with pytest.raises(
+        CampaignError, match="foreign.csv: it was not measured with one of this campaign"
+    ):
         analyse_campaign(foreign, manifest=manifest)
 
 

@@ -225,7 +225,7 @@ def test_terms_only_kincomp_applies_and_corexy_scale_are_noted():
     ex = export(p)
     for fw in ("klipper", "marlin"):
         notes = " ".join(ex[fw].notes)
-        assert "CoreXY" in notes and "axis_errors" in notes
+        assert "CoreXY" in notes and "full axis error terms" in notes
     assert "CoreXY" not in " ".join(ex["reprapfirmware"].notes)  # M579 acts on X and Y
 
 

@@ -95,7 +95,8 @@ _DU_WORDS = re.compile(r"\b(du|dich|dir|dein|deine|deinen|deinem|deiner|euch|eue
 _DU_IMPERATIVE = re.compile(
     r"(?:^|[.:;!?]\s+|\(\s*)(Übernimm|Teste|Prüfe|Miss|Drück|Drücke|Wähl|Wähle|Lade|Lies|Gib|"
     r"Nimm|Schalte|Starte|Stell|Stelle|Setze|Öffne|Klick|Klicke|Speichere|Montiere|Entferne|"
-    r"Warte|Plane|Trage|Halte|Sieh|Lass|Bestätige|Wiederhole|Vergleiche|Kalibriere)\b"
+    r"Warte|Plane|Trage|Halte|Sieh|Lass|Bestätige|Wiederhole|Vergleiche|Kalibriere|Verbinde|"
+    r"Führe|Referenziere|Hake|Beginne|Tippe|Schließe|Ändere|Behalte)\b"
     r"(?!\s+Sie\b)"
 )
 
@@ -112,6 +113,7 @@ def test_german_addresses_the_user_in_one_form():
     ]
     assert informal == []
     assert _DU_IMPERATIVE.search("Parameter übernommen. Teste erneut, um ...")  # (the check)
+    assert _DU_IMPERATIVE.search("nicht zum aktiven: Verbinde diesen Drucker")
     assert not _DU_IMPERATIVE.search("Parameter übernommen. Testen Sie erneut.")
 
 

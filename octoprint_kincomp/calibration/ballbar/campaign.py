@@ -364,11 +364,9 @@ def _check_program(name: str, meta: Dict[str, str]) -> None:
     if bad is not None:
         raise CampaignError(
             Msg(
-                "%(file)s: the metadata does not match its program (program_hash %(want)s, the "
-                "metadata describes %(got)s): the file was edited or belongs to another test",
+                "%(file)s: its metadata does not match the test program it names: the file "
+                "was edited or belongs to another test",
                 file=name,
-                want=bad["recorded"],
-                got=bad["described"],
             )
         )
 
@@ -387,10 +385,9 @@ def _check_complete(items, manifest: Optional[Dict[str, object]]) -> None:
             if h not in by_hash:
                 raise CampaignError(
                     Msg(
-                        "%(file)s: its program (program_hash %(hash)s) is not "
-                        "one of the campaign's programs",
+                        "%(file)s: it was not measured with one of this campaign's test "
+                        "programs (another campaign's, or an earlier plan's)",
                         file=name,
-                        hash=h or "-",
                     )
                 )
             present.add(by_hash[h])

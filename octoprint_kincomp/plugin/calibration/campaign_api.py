@@ -191,7 +191,9 @@ class CampaignApi:
         except http.BadRequest as exc:
             return http.error(str(exc), 400)
         except CampaignNotFound:
-            return http.error(gettext("'retest_of': no such campaign"), 400)
+            return http.error(
+                gettext("The campaign to re-test no longer exists: start a new campaign"), 400
+            )
         volume = self._store.limits()
         if volume is None:
             return http.error(gettext("The printer profile has no build volume"), 409)

@@ -124,21 +124,21 @@ class CampaignMeasurements:
             names = self._store.profile_names() or {}
             if printer and profile_id(self._current_profile()) == s["profile"]:
                 names.setdefault(s["profile"], printer)
+            then = doc.get("printer") or names.get(owner) or owner
+            now = names.get(s["profile"]) or s["profile"]
+            if then == now:  # two profiles of one name: told apart by their ids
+                then, now = f"{then} ({owner})", f"{now} ({s['profile']})"
             return Msg(
-                "Campaign %(id)s was planned for printer profile %(then)s (%(then_id)s), but "
-                "printer profile %(now)s (%(now_id)s) is in force: a campaign is measured on "
-                "the printer it was planned for. Connect that printer, or start a new campaign.",
-                id=doc["id"],
-                then=doc.get("printer") or names.get(owner) or owner,
-                then_id=owner,
-                now=names.get(s["profile"]) or s["profile"],
-                now_id=s["profile"],
+                "This campaign was planned for printer profile %(then)s, but printer profile "
+                "%(now)s is in force: a campaign is measured on the printer it was planned "
+                "for. Connect that printer, or start a new campaign.",
+                then=then,
+                now=now,
             )
         if (not owner or not s.get("profile")) and doc.get("printer") and printer != doc["printer"]:
             return Msg(
-                "The printer profile changed since campaign %(id)s began (%(then)s, now "
+                "The printer profile changed since this campaign began (%(then)s, now "
                 "%(now)s): a campaign is measured on one printer. Start a new campaign.",
-                id=doc["id"],
                 then=doc["printer"],
                 now=printer or "-",
             )
