@@ -407,7 +407,7 @@ class CampaignApi:
             return http.error(http.tr(exc.message), exc.status)
         args = {"traces": traces, "current": current.to_dict(), "origin": origin}
         if not self._campaigns.claim(cid, "joint"):  # the joint analysis twice at once
-            return http.error(gettext("Campaign %(id)s is being analysed already", id=cid), 409)
+            return http.error(gettext("This campaign is being analysed already"), 409)
 
         def run(job, progress) -> None:
             try:
@@ -446,7 +446,7 @@ class CampaignApi:
 
         def link(fresh: Dict[str, Any]) -> str:
             if fresh.get("result") != started:  # another analysis stored meanwhile
-                raise Refused(Msg("Campaign %(id)s was analysed meanwhile", id=cid), 409)
+                raise Refused(Msg("This campaign was analysed meanwhile"), 409)
             name = f"campaign {cid}"
             run = self._calibration.record_run(result, name, "campaign", None, None, extra)
             fresh["result"], fresh["analysed"] = run["id"], now()
@@ -458,7 +458,7 @@ class CampaignApi:
             return self._campaigns.change(cid, link)
         except CampaignNotFound:
             raise Refused(
-                Msg("Campaign %(id)s was deleted during its analysis: nothing was stored.", id=cid),
+                Msg("This campaign was deleted during its analysis: nothing was stored."),
                 404,
             ) from None
 
@@ -500,9 +500,8 @@ class CampaignApi:
         if other_profile(doc.get("profile"), s):
             return http.error(
                 gettext(
-                    "Campaign %(id)s belongs to printer profile %(profile)s, not to the one in "
+                    "This campaign belongs to printer profile %(profile)s, not to the one in "
                     "force: connect that printer to delete it.",
-                    id=cid,
                     profile=doc.get("profile") or s["legacy_profile"],
                 ),
                 409,
@@ -527,9 +526,8 @@ class CampaignApi:
                 )
         if self.armed_campaign is not None and self.armed_campaign() == doc["id"]:
             return Msg(
-                "A live capture is armed for a test of campaign %(id)s: let it finish or stop "
+                "A live capture is armed for a test of this campaign: let it finish or stop "
                 "it before deleting the campaign.",
-                id=doc["id"],
             )
         return None
 
@@ -547,7 +545,7 @@ class CampaignApi:
             return http.error(gettext("No such campaign"), 404)
         except RunNotFound:
             return http.error(
-                gettext("Campaign %(id)s has no joint analysis to apply: analyse it first", id=cid),
+                gettext("This campaign has no joint analysis to apply: analyse it first"),
                 409,
             )
         refused = (

@@ -100,12 +100,8 @@ class CampaignMeasurements:
         if in_force != doc["params_hash"]:
             raise Refused(
                 Msg(
-                    "The parameters in force changed since campaign %(id)s began (%(then)s, now "
-                    "%(now)s): all tests of a campaign must be measured with the same parameters. "
-                    "Start a new campaign.",
-                    id=doc["id"],
-                    then=doc["params_hash"],
-                    now=in_force,
+                    "The parameters in force changed since this campaign began: all tests of a "
+                    "campaign must be measured with the same parameters. Start a new campaign.",
                 ),
                 409,
             )
@@ -171,9 +167,8 @@ class CampaignMeasurements:
                 fnd.info(
                     "campaign.profile_renamed",
                     Msg(
-                        "The printer profile of campaign %(id)s is named %(now)s now "
+                        "The printer profile of this campaign is named %(now)s now "
                         "(%(then)s when the campaign was planned); it is the same profile.",
-                        id=doc["id"],
                         now=printer,
                         then=doc["printer"],
                     ),
@@ -191,13 +186,12 @@ class CampaignMeasurements:
         except CampaignNotFound:
             raise Refused(Msg("No such campaign"), 404) from None
         if not 1 <= n <= len(doc["steps"]):
-            raise Refused(Msg("Campaign %(id)s has no test %(n)s", id=cid, n=n), 404)
+            raise Refused(Msg("This campaign has no test %(n)s", n=n), 404)
         if doc.get("result"):
             raise Refused(
                 Msg(
-                    "Campaign %(id)s is analysed and closed: to measure again, "
+                    "This campaign is analysed and closed: to measure again, "
                     "start a re-test campaign.",
-                    id=cid,
                 ),
                 409,
             )
@@ -258,7 +252,7 @@ class CampaignMeasurements:
 
             def link(fresh: Dict[str, Any]) -> Dict[str, Any]:
                 if fresh.get("result"):
-                    raise Refused(Msg("Campaign %(id)s was analysed meanwhile", id=doc["id"]), 409)
+                    raise Refused(Msg("This campaign was analysed meanwhile"), 409)
                 run = self._calibration.record_run(
                     result, name, kind, data, result.get("plot"), fields
                 )
@@ -276,9 +270,8 @@ class CampaignMeasurements:
             except CampaignNotFound:
                 raise Refused(
                     Msg(
-                        "Campaign %(id)s was deleted while its test was analysed: nothing was "
+                        "This campaign was deleted while its test was analysed: nothing was "
                         "stored.",
-                        id=doc["id"],
                     ),
                     404,
                 ) from None
