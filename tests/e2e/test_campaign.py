@@ -64,7 +64,9 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
         code, resp = server.upload(
             f"{BASE}/campaigns/{cid}/steps/3/trace", "xy.csv", traces[1].encode()
         )
-        assert code == 400 and resp["error"].startswith("xy.csv: it is the trace of test xy")
+        assert code == 400 and resp["error"].startswith(
+            "xy.csv: it is the trace of test XY, not of test 3 (YZ)"
+        )
         for n, name in ((1, "xy.csv"), (2, "xz.csv")):
             code, resp = server.upload(
                 f"{BASE}/campaigns/{cid}/steps/{n}/trace", name, traces[n].encode()

@@ -138,7 +138,11 @@ def test_messages_write_units_as_the_page_does():
 
 
 # one German term per thing: the term the catalog uses, and the variants it once mixed in
-_ONE_TERM = {"Ballbar": ("Kugelstab",), "Prüfteil": ("Prüfkörper", "Pruefteil", "Pruefkoerper")}
+_ONE_TERM = {
+    "Ballbar": ("Kugelstab",),
+    "Prüfteil": ("Prüfkörper", "Pruefteil", "Pruefkoerper"),
+    "erneut": ("Nachtest", "Wiederholungskampagne"),  # a re-test
+}
 
 
 def test_german_uses_one_term_per_thing():

@@ -362,8 +362,11 @@ def not_this_test(trace, doc: Dict[str, Any], step: Dict[str, Any]) -> Optional[
     meta = trace.meta
     got = (meta.get("campaign") or "").strip()
     if got != doc["id"]:
+        if not got:
+            return Msg("it was not measured with a campaign's test program")
         return Msg(
-            "it belongs to campaign %(other)s, not to %(id)s", other=got or "-", id=doc["id"]
+            "it belongs to another campaign, not to this one (each campaign, a re-test too, "
+            "has test programs of its own: measure this campaign's)"
         )
     got = (meta.get("campaign_step") or "").strip()
     if got != step["name"]:
