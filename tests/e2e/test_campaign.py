@@ -74,7 +74,7 @@ def test_a_campaign_of_uploaded_traces_over_the_api(server):
             assert code == 200, resp
         assert resp["campaign"]["measured"] == 2 and resp["run"]["filename"] == "xz.csv"
         code, resp = server.request("POST", f"{BASE}/campaigns/{cid}/analyze", {})
-        assert code == 400 and "test 3 (yz" in resp["error"]
+        assert code == 400 and "test 3 (YZ" in resp["error"]
         # the parameters changed mid-campaign: it cannot go on
         settings(server, enabled=True, params=dict(ZERO, scale_ppm={"x": 100.0}))
         code, resp = server.upload(

@@ -167,15 +167,14 @@
     };
 
     // a test of the campaign in words: its plane, and for the extra XY tests what sets them
-    // apart (the plan's names "xy-f3700", "xy-z110" are keys, not shown)
+    // apart, as the plan asked for it (the plan's names "xy-f3700", "xy-z110" are keys, not
+    // shown; the server words them the same: calibration/ballbar/campaign.test_words)
     var testName = function (step) {
-        var name = String(step.name || "");
-        if (/-f/.test(name)) {
-            return _.sprintf(gettext("%(plane)s at %(feed)s mm/min"), {plane: step.plane, feed: fmt(step.feed_mm_min, 0)});
+        var m = /^[a-z]+-([fz])(.+)$/.exec(String(step.name || ""));
+        if (m && m[1] === "f") {
+            return _.sprintf(gettext("%(plane)s at %(feed)s mm/min"), {plane: step.plane, feed: m[2]});
         }
-        if (/-z/.test(name)) {
-            return _.sprintf(gettext("%(plane)s at Z %(z)s mm"), {plane: step.plane, z: fmt((step.centre || [])[2], 0)});
-        }
+        if (m) return _.sprintf(gettext("%(plane)s at Z %(z)s mm"), {plane: step.plane, z: m[2]});
         return step.plane;
     };
 
