@@ -367,3 +367,15 @@ def test_glitches_and_drift_in_a_campaign_trace_are_reported_like_a_single_trace
     drift = [x for x in out["findings"] if x["code"] == "model.drift"]
     assert [x["message"].split(":")[0] for x in drift] == [xy["file"]], out["findings"]
     assert drift[0]["evidence"]["bar_drift_um_per_min"] == pytest.approx(10.0, abs=0.5)
+
+
+def test_a_campaign_test_is_named_in_words():
+    """Issue 35: the web UI showed the plan's keys ("xy-f3700"); the server words them, the
+    page shows what it sends (campaign_store.view's ``test``)."""
+    from octoprint_kincomp.calibration.ballbar.campaign import test_words
+    from octoprint_kincomp.core.messages import as_dict
+
+    assert test_words("xy") == "XY" and test_words("yz") == "YZ"
+    assert str(test_words("xy-f3700")) == "XY at 3700 mm/min"
+    assert str(test_words("xy-z110")) == "XY at Z 110 mm"
+    assert as_dict(test_words("xy-f3700"))["template"] == "%(plane)s at %(feed)s mm/min"

@@ -136,9 +136,13 @@ test("a campaign's drawing: tests that meet on one spot share one label, not '34
     }
 });
 
-test("a campaign's test in words, not its plan key ('xy-f3700')", () => {
+test("a campaign's test in words, as the server words it, not its plan key ('xy-f3700')", () => {
     const C = load("kincomp_common.js", "kincomp_findings.js", "kincomp_result_logic.js", "kincomp_campaign_draw.js").KinComp.campaign;
-    assert.equal(C.testName({name: "xy", plane: "XY", feed_mm_min: 1850, centre: [100, 100, 10]}), "XY");
-    assert.equal(C.testName({name: "xy-f3700", plane: "XY", feed_mm_min: 3700, centre: [100, 100, 10]}), "XY at 3700 mm/min");
-    assert.equal(C.testName({name: "xy-z110", plane: "XY", feed_mm_min: 1850, centre: [100, 100, 110]}), "XY at Z 110 mm");
+    // (the server's step.test: as_dict(test_words(name)))
+    assert.equal(C.testName({name: "xy", plane: "XY", test: {text: "XY"}}), "XY");
+    const f = {text: "XY at 3700 mm/min", template: "%(plane)s at %(feed)s mm/min", params: {plane: "XY", feed: "3700"}};
+    assert.equal(C.testName({name: "xy-f3700", plane: "XY", test: f}), "XY at 3700 mm/min");
+    const z = {text: "XY at Z 110 mm", template: "%(plane)s at Z %(z)s mm", params: {plane: "XY", z: "110"}};
+    assert.equal(C.testName({name: "xy-z110", plane: "XY", test: z}), "XY at Z 110 mm");
+    assert.equal(C.testName({name: "xy-f3700", plane: "XY"}), "XY");  // (no words: its plane)
 });

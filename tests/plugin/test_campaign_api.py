@@ -143,6 +143,9 @@ def test_a_campaign_is_planned_on_the_profiles_volume_and_feeds(app, plugin):
     assert code == 200 and dry["stored"] is False
     assert [s["name"] for s in dry["steps"]] == ["xy", "xz", "yz", "xy-z100", "xy-f3700"]
     assert [s["plane"] for s in dry["steps"]] == ["XY", "XZ", "YZ", "XY", "XY"]
+    # each test in words for the page (the names above are keys)
+    words = [s["test"]["text"] for s in dry["steps"]]
+    assert words == ["XY", "XZ", "YZ", "XY at Z 100 mm", "XY at 3700 mm/min"]
     xy, xz = dry["steps"][0], dry["steps"][1]
     assert xy["centre"] == [100.0, 100.0, 10.0] and xy["radius_mm"] == 50.0
     # vertical tests: capped to the slowest axis of their plane (Z: 1200 mm/min)

@@ -32,7 +32,9 @@ import re
 import threading
 from typing import Any, Callable, Dict, Iterator, Optional, Sequence, Set, Tuple
 
+from ...calibration.ballbar.campaign import test_words
 from ...calibration.ballbar.program import body_hash, spec_dict
+from ...core.messages import as_dict
 from ...simulator.closed_loop import servo_in_force, table
 from .run_store import RunNotFound, RunStore
 
@@ -168,7 +170,8 @@ def view(
     stored: bool = True,
     analysis: bool = True,
 ) -> Dict[str, Any]:
-    """The campaign document with its progress, each test's measurement summary and, once
+    """The campaign document with its progress, each test's measurement summary and name in
+    words (``test``) and, once
     analysed (and ``analysis``), the joint result with the comparison per test;
     ``in_force_hash``: the parameters in force now (changed: the campaign cannot go on)."""
     out = dict(
@@ -180,7 +183,11 @@ def view(
         in_force_hash=in_force_hash,
         params_changed=in_force_hash != doc["params_hash"],
     )
-    out["steps"] = [dict(s, summary=_summary(runs, s.get("run"))) for s in doc["steps"]]
+    # each test's name in words for the web UI (``test``: translated there)
+    out["steps"] = [
+        dict(s, summary=_summary(runs, s.get("run")), test=as_dict(test_words(s["name"])))
+        for s in doc["steps"]
+    ]
     if analysis and doc.get("result"):
         out["analysis"] = _analysis(doc, runs, campaigns)
     return out

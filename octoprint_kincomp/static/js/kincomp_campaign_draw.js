@@ -166,16 +166,10 @@
         return (pct || 0) < 50 ? "mount" : "unmount";
     };
 
-    // a test of the campaign in words: its plane, and for the extra XY tests what sets them
-    // apart, as the plan asked for it (the plan's names "xy-f3700", "xy-z110" are keys, not
-    // shown; the server words them the same: calibration/ballbar/campaign.test_words)
+    // a test of the campaign in words, as the server words it (``step.test``:
+    // calibration/ballbar/campaign.test_words; the plan's names "xy-f3700" are keys, not shown)
     var testName = function (step) {
-        var m = /^[a-z]+-([fz])(.+)$/.exec(String(step.name || ""));
-        if (m && m[1] === "f") {
-            return _.sprintf(gettext("%(plane)s at %(feed)s mm/min"), {plane: step.plane, feed: m[2]});
-        }
-        if (m) return _.sprintf(gettext("%(plane)s at Z %(z)s mm"), {plane: step.plane, z: m[2]});
-        return step.plane;
+        return K.trMsg(step.test) || step.plane;
     };
 
     K.campaign = {views: views, planes: planes, jointRows: jointRows, pauseKind: pauseKind, testName: testName};
