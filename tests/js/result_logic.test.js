@@ -146,3 +146,16 @@ test("a campaign's test in words, as the server words it, not its plan key ('xy-
     assert.equal(C.testName({name: "xy-z110", plane: "XY", test: z}), "XY at Z 110 mm");
     assert.equal(C.testName({name: "xy-f3700", plane: "XY"}), "XY");  // (no words: its plane)
 });
+
+test("what Apply did is said for the run it applied only, and a running print is named", () => {
+    const w = load("kincomp_common.js");
+    const shown = w.ko.observable({id: "r1"});
+    const note = w.KinComp.appliedNote(shown);
+    assert.equal(note(), "");
+    note.said("r1", {compensation: {}}, "Parameters applied; compensation is on.");
+    assert.equal(note(), "Parameters applied; compensation is on.");
+    shown({id: "r2"});
+    assert.equal(note(), "");  // (another run on the page)
+    note.said("r2", {compensation: {pending_params_hash: "abc"}}, "applied");
+    assert.match(note(), /a print is running/);
+});

@@ -53,12 +53,7 @@ $(function () {
         self.analysedRows = ko.observable(false);
         self.run = ko.observable(null);
         self.sheetNote = ko.observable("");  // what the last "Print" or "Add" did
-        // what the user's Apply did, said for that run only
-        self.appliedBy = ko.observable({run: null, text: ""});
-        self.appliedNote = ko.pureComputed(function () {
-            var run = self.run(), by = self.appliedBy();
-            return run && run.id === by.run ? by.text : "";
-        });
+        self.appliedNote = K.appliedNote(self.run);  // what the user's Apply did
         // the readings in the form were filled in by demo mode's simulation (until edited)
         self.simulatedReadings = ko.observable(false);
         self.filling = false;
@@ -304,11 +299,8 @@ $(function () {
             OctoPrint.postJson(API("apply"), {run: run.id, enabled: true, force: !!force})
                 .done(function (resp) {
                     K.get(API("runs/" + run.id)).done(self.run);
-                    var waiting = resp && resp.compensation && resp.compensation.pending_params_hash;
                     // said beside "Applied on" (no pop-up)
-                    self.appliedBy({run: run.id, text: waiting
-                        ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
-                        : gettext("Parameters applied; compensation is on.")});
+                    self.appliedNote.said(run.id, resp, gettext("Parameters applied; compensation is on."));
                 })
                 .fail(self.fail)
                 .always(function () { self.busy(false); });

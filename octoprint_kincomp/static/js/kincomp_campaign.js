@@ -35,12 +35,7 @@ $(function () {
         self.busy = ko.observable(false);
         self.busyText = ko.observable("");
         self.campaign = ko.observable(null);
-        // what the user's Apply did, said for that campaign only
-        self.appliedBy = ko.observable({campaign: null, text: ""});
-        self.appliedNote = ko.pureComputed(function () {
-            var c = self.campaign(), by = self.appliedBy();
-            return c && c.id === by.campaign ? by.text : "";
-        });
+        self.appliedNote = K.appliedNote(self.campaign);  // what the user's Apply did
         self.planning = ko.observable(true);
         self.preview = ko.observable(null);
         self.campaigns = ko.observableArray([]);
@@ -503,11 +498,8 @@ $(function () {
                     .done(function (resp) {
                         self.tab.paramsHash(resp.params_hash);
                         self.tab.enabled(true);
-                        var waiting = resp.compensation && resp.compensation.pending_params_hash;
                         // said beside "Applied on" (no pop-up)
-                        self.appliedBy({campaign: c.id, text: waiting
-                            ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
-                            : gettext("Parameters applied; compensation is on. Re-test the campaign to see the improvement in every plane.")});
+                        self.appliedNote.said(c.id, resp, gettext("Parameters applied; compensation is on. Re-test the campaign to see the improvement in every plane."));
                         self.reload();
                     })
                     .fail(self.fail));

@@ -318,8 +318,28 @@
         return perm ? vm.loginState.hasPermission(perm) : false;
     };
 
+    // what the user's Apply did, said beside "Applied on" for the run or campaign it applied
+    // only (``shown``: the observable of the one the page shows). note(): its text;
+    // note.said(id, resp, done): the apply answer ``resp`` in words, ``done`` when the
+    // parameters are in force now (a print running: they wait for the next one)
+    var appliedNote = function (shown) {
+        var by = ko.observable({id: null, text: ""});
+        var note = ko.pureComputed(function () {
+            var s = shown();
+            return s && s.id === by().id ? by().text : "";
+        });
+        note.said = function (id, resp, done) {
+            var waiting = resp && resp.compensation && resp.compensation.pending_params_hash;
+            by({id: id, text: waiting
+                ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
+                : done});
+        };
+        return note;
+    };
+
     window.KinComp = {
         API: API,
+        appliedNote: appliedNote,
         canAdmin: canAdmin,
         num: num,
         fmt: fmt,

@@ -148,12 +148,7 @@ $(function () {
 
         // step 3 and history
         self.run = ko.observable(null);
-        // what the user's Apply did, said for that run only
-        self.appliedBy = ko.observable({run: null, text: ""});
-        self.appliedNote = ko.pureComputed(function () {
-            var run = self.run(), by = self.appliedBy();
-            return run && run.id === by.run ? by.text : "";
-        });
+        self.appliedNote = K.appliedNote(self.run);  // what the user's Apply did
         self.trMsg = trMsg;
         self.beforeRun = ko.observable(null);
         self.compareRows = ko.observableArray([]);
@@ -466,11 +461,8 @@ $(function () {
                     K.get(API("runs/" + run.id)).done(function (fresh) {
                         self.run(fresh);
                     });
-                    var waiting = resp.compensation && resp.compensation.pending_params_hash;
                     // said beside "Applied on", where the user looks (no pop-up)
-                    self.appliedBy({run: run.id, text: waiting
-                        ? gettext("Parameters saved; a print is running, so they and compensation take effect from the next print on.")
-                        : gettext("Parameters applied; compensation is on. Re-test to see the improvement.")});
+                    self.appliedNote.said(run.id, resp, gettext("Parameters applied; compensation is on. Re-test to see the improvement."));
                     self.loadRuns();
                 })
                 .fail(self.fail);
