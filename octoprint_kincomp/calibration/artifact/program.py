@@ -475,26 +475,22 @@ def measurements(features: Sequence[Feature]) -> List[Measurement]:
 # The header's hints (plain ASCII English: the measuring contract in the G-code) in the
 # user's words and language for the web UI: each part KinComp writes, as a message.
 _HINT_PARTS = {
-    "walls across X, front": Msg("walls across X, front"),
-    "walls across X, back": Msg("walls across X, back"),
-    "walls across Y, left": Msg("walls across Y, left"),
-    "walls across Y, right": Msg("walls across Y, right"),
-    "diagonal walls front-left to back-right": Msg("diagonal walls front-left to back-right"),
-    "diagonal walls back-left to front-right": Msg("diagonal walls back-left to front-right"),
-    "outer jaws on the outer faces of both walls": Msg(
-        "outer jaws on the outer faces of both walls"
-    ),
-    "inner jaws on the facing faces of both walls": Msg(
-        "inner jaws on the facing faces of both walls"
-    ),
-    "caliper along the 45 deg line, outer jaws on the low face of the short wall and the top "
-    "face of the tall wall": Msg(
-        "caliper along the 45° line, outer jaws on the low face of the short wall and the top "
-        "face of the tall wall"
-    ),
-    "inner jaws between the two leaning walls, square to them": Msg(
-        "inner jaws between the two leaning walls, square to them"
-    ),
+    m.template.replace("°", " deg"): m  # (keyed by the header's ASCII: "45 deg")
+    for m in (
+        Msg("walls across X, front"),
+        Msg("walls across X, back"),
+        Msg("walls across Y, left"),
+        Msg("walls across Y, right"),
+        Msg("diagonal walls front-left to back-right"),
+        Msg("diagonal walls back-left to front-right"),
+        Msg("outer jaws on the outer faces of both walls"),
+        Msg("inner jaws on the facing faces of both walls"),
+        Msg(
+            "caliper along the 45° line, outer jaws on the low face of the short wall and the "
+            "top face of the tall wall"
+        ),
+        Msg("inner jaws between the two leaning walls, square to them"),
+    )
 }
 _TOWER = re.compile(r"^45 deg tower in (XZ|YZ) leaning towards ([+-][XYZ])$")
 
