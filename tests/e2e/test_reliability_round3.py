@@ -337,6 +337,12 @@ def test_the_bad_value_probe_gives_no_5xx_and_stores_nothing_refused(server):
     after = status(server)
     assert after["settings_problem"] is None
     assert set(after["settings"]) == set(before_status)
+    # every setting the probe changed with a valid value back as it was (the shared server's
+    # next tests: its motion limits, stored as a 2,000-letter firmware name and no text, left
+    # a later test program without its planner)
+    code, body = server.request("POST", f"{BASE}/settings", before_status)
+    assert code == 200, body
+    assert status(server)["settings"] == before_status
     _reset(server)
 
 
